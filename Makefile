@@ -1,0 +1,29 @@
+# One command sets up and runs; one command sets up and tests. Both create .venv first.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e ".[service,dev]"
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/contact-skills demo-learn
+
+test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_learning.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache

@@ -1,0 +1,1 @@
+"""The `contact-skills` command line."""

@@ -1,0 +1,27 @@
+"""Array checks shared by the validators of the contract. Each raises ValueError saying where and why."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def finite_rows(array: np.ndarray, what: str) -> None:
+    """Raise ValueError naming the first row of a 2-D ``array`` that holds NaN or inf."""
+    if array.size == 0:
+        raise ValueError("is empty")
+    bad = ~np.isfinite(array)
+    if bad.any():
+        row = int(np.flatnonzero(bad.any(axis=-1))[0]) if array.ndim > 1 else int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{what} {row} is not finite (NaN or inf); {int(bad.sum())} non-finite values in all")
+
+
+def strictly_increasing(t: np.ndarray) -> None:
+    """Raise ValueError naming the first sample where time stamps ``t`` (s) do not increase."""
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise ValueError(
+            f"time stamps must be strictly increasing: sample {k} has t={t[k]:.6g} s after "
+            f"t={t[k - 1]:.6g} s ({bad.size} such steps; the CSV importer resamples irregular data)"
+        )

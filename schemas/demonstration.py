@@ -1,0 +1,220 @@
+"""The demonstration: time-stamped tool poses and the wrench the tool applied.
+
+Conventions (DESIGN.md): SI units; quaternions scalar-last ``[x, y, z, w]``; wrench
+``[fx, fy, fz, mx, my, mz]`` is the wrench the TOOL APPLIES TO THE ENVIRONMENT, at the tool
+point, in the world frame.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from schemas.arrays import finite_rows, strictly_increasing
+
+MIN_DEMONSTRATION_SAMPLES = 50
+"""Fewest samples a demonstration may have: segmentation and 50-basis DMPs need more than a handful."""
+
+QUATERNION_NORM_TOLERANCE = 0.01
+"""Largest accepted deviation of a quaternion's norm from 1; inside it quaternions are renormalized."""
+
+Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[float], Field(min_length=4, max_length=4)]
+Wrench = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+
+class WrenchConvention(StrEnum):
+    """Which wrench a recording holds; the stored demonstration is always ``applied-by-tool``."""
+
+    applied_by_tool = "applied-by-tool"
+    measured_on_tool = "measured-on-tool"
+
+
+class WrenchFrame(StrEnum):
+    """Frame a recorded wrench is expressed in; the stored demonstration is always ``world``."""
+
+    world = "world"
+    tool = "tool"
+
+
+class QuaternionOrder(StrEnum):
+    """Component order of recorded quaternions; the stored demonstration is always ``xyzw``."""
+
+    xyzw = "xyzw"
+    wxyz = "wxyz"
+
+
+class DemonstrationMetadata(BaseModel):
+    """Where a demonstration came from and how it was converted on import."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field("", description="Human-readable name.", examples=["slide_flat_table"])
+    source: str = Field(
+        "json", description="Origin: 'json', 'csv:<file>', 'teacher:<scenario>'.", examples=["teacher:slide_flat"]
+    )
+    wrench_convention_on_import: WrenchConvention = Field(
+        WrenchConvention.applied_by_tool,
+        description="Convention of the wrench in the original recording (negated on import if measured-on-tool).",
+    )
+    wrench_frame_on_import: WrenchFrame = Field(
+        WrenchFrame.world, description="Frame of the wrench in the original recording (rotated to world on import)."
+    )
+    quaternion_order_on_import: QuaternionOrder = Field(
+        QuaternionOrder.xyzw, description="Quaternion order of the original recording."
+    )
+    resampled_rate_hz: float | None = Field(
+        None, description="Uniform rate (Hz) the importer resampled irregular time stamps to, if it did."
+    )
+    force_offset_removed: Wrench | None = Field(
+        None, description="Sensor offset (N, N·m, world) subtracted on import (tare from the free-space part)."
+    )
+    extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
+
+
+class Demonstration(BaseModel):
+    """One demonstration: N samples of time, tool pose and applied wrench.
+
+    Positions are the tool point in the world frame (m); orientations the tool frame in the
+    world (unit quaternion, scalar-last); wrenches are applied by the tool, at the tool point,
+    world frame (N, N·m). Time stamps are seconds, strictly increasing.
+    """
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "t": [0.0, 0.001, 0.002],
+                    "positions": [[0.5, 0.0, 0.3], [0.5, 0.0001, 0.3], [0.5, 0.0002, 0.3]],
+                    "orientations": [[1.0, 0.0, 0.0, 0.0]] * 3,
+                    "wrenches": [[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]] * 3,
+                    "metadata": {"name": "three samples (too few to learn from, shows the shape)"},
+                }
+            ]
+        },
+    )
+
+    t: list[float] = Field(description="Time stamps, s, strictly increasing.")
+    positions: list[Vector3] = Field(description="Tool point positions, m, world frame; one [x, y, z] per sample.")
+    orientations: list[Quaternion] = Field(
+        description="Tool orientations in world, unit quaternions scalar-last [x, y, z, w]; one per sample."
+    )
+    wrenches: list[Wrench] = Field(
+        description="Wrench applied BY the tool TO the environment at the tool point, world frame, "
+        "[fx, fy, fz, mx, my, mz] in N and N·m; one per sample."
+    )
+    metadata: DemonstrationMetadata = Field(default_factory=DemonstrationMetadata)
+
+    @field_validator("t")
+    @classmethod
+    def _time_is_valid(cls, value: list[float]) -> list[float]:
+        array = np.asarray(value, dtype=float)
+        if array.size < MIN_DEMONSTRATION_SAMPLES:
+            raise ValueError(
+                f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}"
+            )
+        finite_rows(array[:, None], "time stamp")
+        strictly_increasing(array)
+        return value
+
+    @field_validator("positions", "wrenches")
+    @classmethod
+    def _rows_are_finite(cls, value: list[list[float]]) -> list[list[float]]:
+        finite_rows(np.asarray(value, dtype=float), "row")
+        return value
+
+    @field_validator("orientations")
+    @classmethod
+    def _quaternions_are_unit(cls, value: list[list[float]]) -> list[list[float]]:
+        q = np.asarray(value, dtype=float)
+        finite_rows(q, "quaternion")
+        if q.size == 0:
+            return value
+        deviation = np.abs(np.linalg.norm(q, axis=1) - 1.0)
+        bad = np.flatnonzero(deviation > QUATERNION_NORM_TOLERANCE)
+        if bad.size:
+            raise ValueError(
+                f"quaternion at sample {bad[0]} has norm {np.linalg.norm(q[bad[0]]):.4g}, not unit "
+                f"(tolerance {QUATERNION_NORM_TOLERANCE}); {bad.size} such samples; order must be [x, y, z, w]"
+            )
+        return (q / np.linalg.norm(q, axis=1, keepdims=True)).tolist()
+
+    @model_validator(mode="after")
+    def _lengths_match(self) -> Demonstration:
+        n = len(self.t)
+        for name in ("positions", "orientations", "wrenches"):
+            length = len(getattr(self, name))
+            if length != n:
+                raise ValueError(f"{name} has {length} samples but t has {n}: every array needs one row per time stamp")
+        return self
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples N."""
+        return len(self.t)
+
+    def arrays(self) -> DemonstrationArrays:
+        """Return the samples as numpy arrays (the form `skills/` works on)."""
+        return DemonstrationArrays(
+            t=np.asarray(self.t, dtype=float),
+            positions=np.asarray(self.positions, dtype=float),
+            orientations=np.asarray(self.orientations, dtype=float),
+            wrenches=np.asarray(self.wrenches, dtype=float),
+        )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: np.ndarray,
+        positions: np.ndarray,
+        orientations: np.ndarray,
+        wrenches: np.ndarray,
+        metadata: DemonstrationMetadata | None = None,
+    ) -> Demonstration:
+        """Build (and validate) a demonstration from numpy arrays of shapes (N,), (N,3), (N,4), (N,6)."""
+        return cls(
+            t=np.asarray(t, dtype=float).tolist(),
+            positions=np.asarray(positions, dtype=float).tolist(),
+            orientations=np.asarray(orientations, dtype=float).tolist(),
+            wrenches=np.asarray(wrenches, dtype=float).tolist(),
+            metadata=metadata or DemonstrationMetadata(),
+        )
+
+
+class DemonstrationArrays(BaseModel):
+    """Numpy view of a validated `Demonstration` (no validation of its own: build it via `arrays()`)."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True, frozen=True)
+
+    t: np.ndarray
+    positions: np.ndarray
+    orientations: np.ndarray
+    wrenches: np.ndarray
+
+
+class DemonstrationSummary(BaseModel):
+    """Short description of a stored demonstration."""
+
+    n_samples: int = Field(description="Number of samples.")
+    duration_s: float = Field(description="Last minus first time stamp, s.")
+    mean_rate_hz: float = Field(description="Mean sampling rate, Hz.")
+    max_force_n: float = Field(description="Largest applied force magnitude, N.")
+    name: str = Field("", description="Name from the metadata.")
+
+    @classmethod
+    def of(cls, demonstration: Demonstration) -> DemonstrationSummary:
+        """Summarize ``demonstration``."""
+        t = np.asarray(demonstration.t)
+        forces = np.asarray(demonstration.wrenches)[:, :3]
+        duration = float(t[-1] - t[0])
+        return cls(
+            n_samples=t.size,
+            duration_s=duration,
+            mean_rate_hz=(t.size - 1) / duration,
+            max_force_n=float(np.linalg.norm(forces, axis=1).max()),
+            name=demonstration.metadata.name,
+        )

@@ -1,0 +1,191 @@
+"""The learned skill: static attributes plus the parameters extracted from one demonstration.
+
+Frames: every pose is in the world frame unless a field says CF. A compliant frame (CF) is
+stored as its pose in the world (origin, scalar-last quaternion world-from-CF); its z axis
+points along the force the tool applies (into the surface). Selection diagonals are in CF,
+1 = motion-controlled axis, 0 = force-controlled axis, axes ``[x, y, z, rx, ry, rz]``.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.demonstration import DemonstrationSummary, Quaternion, Vector3
+
+SELECTION_CONTACT: list[float] = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
+"""Selection diagonal in CF for slide and contour contact segments: force control along CF z."""
+SELECTION_FREE: list[float] = [1.0] * 6
+"""Selection diagonal for free (no contact) segments: motion control on every axis."""
+
+
+class SkillType(StrEnum):
+    """A learned skill's type."""
+
+    slide = "slide"
+    contour = "contour"
+
+
+class SkillTypeRequest(StrEnum):
+    """The type asked for when learning; ``auto`` classifies it from the demonstration."""
+
+    slide = "slide"
+    contour = "contour"
+    auto = "auto"
+
+
+class SegmentKind(StrEnum):
+    """Whether the tool was in contact during a segment."""
+
+    contact = "contact"
+    free = "free"
+
+
+class DMPParameters(BaseModel):
+    """Everything needed to roll a discrete DMP out again (Ijspeert/Nakanishi/Schaal; Ude 2014 for quaternions).
+
+    Transformation system, per dimension (``kind`` position or force)::
+
+        tau dz = alpha_z (beta_z (g - y) - z) + s f(x),   tau dy = z,   tau dx = -alpha_x x
+        f(x) = x sum_i psi_i(x) w_i / sum_i psi_i(x),    psi_i = exp(-h_i (x - c_i)^2)
+
+    with ``s = (g' - y0') / (g - y0)`` for a new start y0' and goal g' when the demonstration's
+    ``|g - y0|`` was large enough (``amplitude_scaling`` true), else ``s = 1``: the guard for
+    start == goal, where the classic scaling would blow up or vanish.
+    For ``kind = quaternion`` (Ude et al. 2014) ``y`` is a unit quaternion, ``z`` the scaled
+    angular velocity ``eta`` (3-vector) and ``g - y`` becomes ``2 log(g * conj(q))``; no scaling.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["position", "force", "quaternion"] = Field(description="What the DMP encodes.")
+    frame: Literal["world", "cf"] = Field(
+        "world", description="Coordinates of y: world frame, or the segment's compliant frame (slide positions)."
+    )
+    duration_s: float = Field(gt=0, description="Time constant tau: the demonstrated duration, s.")
+    alpha_z: float = Field(gt=0, description="Spring-damper gain alpha_z, 1/s scaled by tau.")
+    beta_z: float = Field(gt=0, description="Spring gain beta_z (alpha_z/4 is critically damped).")
+    alpha_x: float = Field(gt=0, description="Canonical system decay alpha_x.")
+    centers: list[float] = Field(description="Basis centres c_i in phase x (dimensionless, in (0, 1]).")
+    widths: list[float] = Field(description="Basis widths h_i (1/phase^2).")
+    weights: list[list[float]] = Field(description="Weights w, one row per basis, one column per dimension.")
+    start: list[float] = Field(description="Demonstrated start y0 (m, N or quaternion [x, y, z, w]).")
+    goal: list[float] = Field(description="Demonstrated goal g (same units as start).")
+    amplitude_scaling: list[bool] = Field(
+        description="Per dimension: whether the forcing term scales with (g - y0) on rollout."
+    )
+
+
+class CompliantFrames(BaseModel):
+    """The compliant frame(s) of a contact segment in the world: one for slide, a series for contour.
+
+    ``t`` is time since the segment start (s); between samples interpolate origins linearly and
+    orientations by slerp (the contour series is smooth by construction).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    t: list[float] = Field(description="Time since segment start, s; one per frame.")
+    origins: list[Vector3] = Field(description="CF origins in world, m.")
+    orientations: list[Quaternion] = Field(description="World-from-CF rotations, unit quaternions [x, y, z, w].")
+
+
+class SegmentQuality(BaseModel):
+    """How well the parameters reproduce the demonstration segment."""
+
+    position_rms_m: float = Field(description="RMS distance of the position DMP rollout to the demonstrated positions, m.")
+    orientation_rms_rad: float = Field(description="RMS angle of the orientation DMP rollout to the demonstration, rad.")
+    force_rms_n: float | None = Field(
+        None, description="RMS of the learned force profile against the demonstrated CF-z force, N (contact only)."
+    )
+    plane_residual_rms_m: float | None = Field(
+        None, description="RMS distance of the positions to the fitted plane, m (slide contact only)."
+    )
+    force_std_low_variance_n: float | None = Field(
+        None, description="Standard deviation of the CF-z force in the low-variance region, N (slide contact only)."
+    )
+
+
+class Segment(BaseModel):
+    """One segment of the skill: a movement primitive with its frames and force profile."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    index: int = Field(ge=0, description="Position in the sequence, from 0.")
+    kind: SegmentKind = Field(description="Contact or free (from the applied force).")
+    start_index: int = Field(ge=0, description="First sample of the (resampled) demonstration in this segment.")
+    end_index: int = Field(ge=0, description="One past the last sample in this segment.")
+    t_start: float = Field(description="Demonstration time of the first sample, s.")
+    t_end: float = Field(description="Demonstration time of the last sample, s.")
+    selection: list[float] = Field(
+        min_length=6, max_length=6, description="Diagonal of S in CF, [x, y, z, rx, ry, rz]; 1 = motion, 0 = force."
+    )
+    compliant_frames: CompliantFrames | None = Field(None, description="Compliant frame(s); None for free segments.")
+    position_dmp: DMPParameters = Field(
+        description="Positions: CF x-y of the tool point for slide contact segments, world x-y-z otherwise."
+    )
+    orientation_dmp: DMPParameters = Field(description="Tool orientation in world (quaternion DMP).")
+    force_dmp: DMPParameters | None = Field(
+        None, description="Contour contact segments: the CF-z force magnitude profile, N."
+    )
+    force_constant_n: float | None = Field(
+        None, description="Slide contact segments: the constant CF-z force to apply, N."
+    )
+    quality: SegmentQuality
+
+
+class SkillAttributes(BaseModel):
+    """Static attributes of the skill implementation (paper Tables 1-2)."""
+
+    segmentation_method: str = Field(
+        "agglomerative-ward-time-knn", description="How the demonstration was segmented."
+    )
+    selection_matrix_cf: list[float] = Field(
+        default_factory=lambda: list(SELECTION_CONTACT),
+        description="Diagonal of S in CF for contact segments; 1 = motion, 0 = force.",
+    )
+    cf_constraint: Literal["plane", "force-direction"] = Field(
+        description="slide: plane fitted to the motion; contour: z along the applied force per sample."
+    )
+
+
+class AutoSelection(BaseModel):
+    """The result of ``skill_type = auto``."""
+
+    chosen: SkillType
+    confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
+    direction_spread_deg: float = Field(
+        description="RMS angle of the contact force direction about its piecewise-constant fit, deg."
+    )
+    reason: str = Field(description="One sentence: why this type.")
+
+
+class Skill(BaseModel):
+    """A parameterized contact skill, ready to execute."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    skill_type: SkillType
+    attributes: SkillAttributes
+    segments: list[Segment] = Field(min_length=1)
+    auto_selection: AutoSelection | None = Field(None, description="Present when skill_type 'auto' was asked for.")
+    demonstration: DemonstrationSummary
+    sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
+
+
+class LearnOptions(BaseModel):
+    """Options of the learning pipeline (all have defaults that work for 100 Hz - 1 kHz demonstrations)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
+    n_basis: int = Field(50, ge=2, le=1000, description="DMP basis functions per dimension.")
+    contact_force_threshold_n: float | None = Field(
+        None, gt=0, description="Force magnitude (N) above which the tool is in contact; default: adaptive."
+    )
+    min_segment_duration_s: float = Field(0.25, gt=0, description="Segments shorter than this are merged, s.")
+    contour_frames_max: int = Field(
+        500, ge=2, description="Most compliant frames stored per contour segment (decimated evenly)."
+    )
