@@ -114,9 +114,7 @@ class Demonstration(BaseModel):
     def _time_is_valid(cls, value: list[float]) -> list[float]:
         array = np.asarray(value, dtype=float)
         if array.size < MIN_DEMONSTRATION_SAMPLES:
-            raise ValueError(
-                f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}"
-            )
+            raise ValueError(f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}")
         finite_rows(array[:, None], "time stamp")
         strictly_increasing(array)
         return value

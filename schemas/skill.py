@@ -95,8 +95,12 @@ class CompliantFrames(BaseModel):
 class SegmentQuality(BaseModel):
     """How well the parameters reproduce the demonstration segment."""
 
-    position_rms_m: float = Field(description="RMS distance of the position DMP rollout to the demonstrated positions, m.")
-    orientation_rms_rad: float = Field(description="RMS angle of the orientation DMP rollout to the demonstration, rad.")
+    position_rms_m: float = Field(
+        description="RMS distance of the position DMP rollout to the demonstrated positions, m."
+    )
+    orientation_rms_rad: float = Field(
+        description="RMS angle of the orientation DMP rollout to the demonstration, rad."
+    )
     force_rms_n: float | None = Field(
         None, description="RMS of the learned force profile against the demonstrated CF-z force, N (contact only)."
     )
@@ -139,9 +143,7 @@ class Segment(BaseModel):
 class SkillAttributes(BaseModel):
     """Static attributes of the skill implementation (paper Tables 1-2)."""
 
-    segmentation_method: str = Field(
-        "agglomerative-ward-time-knn", description="How the demonstration was segmented."
-    )
+    segmentation_method: str = Field("agglomerative-ward-time-knn", description="How the demonstration was segmented.")
     selection_matrix_cf: list[float] = Field(
         default_factory=lambda: list(SELECTION_CONTACT),
         description="Diagonal of S in CF for contact segments; 1 = motion, 0 = force.",
@@ -156,8 +158,8 @@ class AutoSelection(BaseModel):
 
     chosen: SkillType
     confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
-    direction_spread_deg: float = Field(
-        description="RMS angle of the contact force direction about its piecewise-constant fit, deg."
+    turning_within_planes_deg: float = Field(
+        description="How far the normal force direction turns inside the slide segments, deg (planes: ~0)."
     )
     reason: str = Field(description="One sentence: why this type.")
 
@@ -181,7 +183,11 @@ class LearnOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
-    n_basis: int = Field(50, ge=2, le=1000, description="DMP basis functions per dimension.")
+    n_basis: int = Field(50, ge=2, le=1000, description="Fewest DMP basis functions per dimension and segment.")
+    basis_per_second: float = Field(
+        25.0, ge=0, description="More basis functions for long segments: at least this many per second of segment."
+    )
+    max_basis: int = Field(300, ge=2, le=2000, description="Most basis functions per dimension and segment.")
     contact_force_threshold_n: float | None = Field(
         None, gt=0, description="Force magnitude (N) above which the tool is in contact; default: adaptive."
     )

@@ -1,0 +1,47 @@
+"""Force profiles (paper Tables 1-2): the constant slide force and the contour force magnitude.
+
+Forces are in N; the CF-z force of a sample is the applied force projected on its CF z axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from skills.segmentation import moving_std
+
+LOW_VARIANCE_WINDOW_S = 0.2
+"""Window of the moving standard deviation that finds the low-variance region, s."""
+
+LOW_VARIANCE_FACTOR = 1.5
+"""A sample is in the low-variance region when its moving std is below this times the median moving std."""
+
+
+@dataclass(frozen=True)
+class ConstantForce:
+    """The slide force: mean CF-z force (N) over the low-variance region, its std (N), and the region mask."""
+
+    value_n: float
+    std_n: float
+    region: NDArray[np.bool_]
+
+
+def cf_z_forces(forces: NDArray[np.float64], cf_z_axes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return the CF-z force per sample (N): applied forces (N, 3) projected on the CF z axes ((3,) or (N, 3))."""
+    return np.sum(forces * cf_z_axes, axis=-1)
+
+
+def constant_force(cf_z_force: NDArray[np.float64], rate_hz: float) -> ConstantForce:
+    """Return the mean CF-z force over the low-variance region of a slide contact segment.
+
+    The region is where the moving standard deviation (``LOW_VARIANCE_WINDOW_S``) is below
+    ``LOW_VARIANCE_FACTOR`` times its median: it leaves out the force ramps at contact on/off
+    and bursts, and keeps the steady pressing the skill should reproduce.
+    """
+    window = max(3, round(LOW_VARIANCE_WINDOW_S * rate_hz))
+    spread = moving_std(cf_z_force, window)
+    region = spread <= LOW_VARIANCE_FACTOR * np.median(spread)
+    values = cf_z_force[region]
+    return ConstantForce(float(values.mean()), float(values.std()), region)

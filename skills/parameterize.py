@@ -1,0 +1,233 @@
+"""Skill parameterization (paper sections 3-4): one demonstration in, one executable `Skill` out.
+
+Pipeline: uniform time grid -> contact analysis -> slide segmentation -> (auto: classify) ->
+segmentation of the chosen skill -> per segment: compliant frame(s), force profile, DMPs for
+position, orientation and force -> quality figures from rolling the DMPs out again.
+All in the world frame unless stated; slide positions are learned in their CF x-y plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas.demonstration import Demonstration, DemonstrationSummary
+from schemas.skill import (
+    SELECTION_CONTACT,
+    SELECTION_FREE,
+    AutoSelection,
+    CompliantFrames,
+    LearnOptions,
+    Segment,
+    SegmentKind,
+    SegmentQuality,
+    Skill,
+    SkillAttributes,
+    SkillType,
+    SkillTypeRequest,
+)
+from skills.compliant_frames import contour_frames, slide_frame
+from skills.dmp import DMP, QuaternionDMP
+from skills.force_profile import cf_z_forces, constant_force
+from skills.preprocess import resampled_recording
+from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
+from skills.segmentation import SegmentBounds, analyse_contact, segment_demonstration
+from skills.selection import classify_skill
+
+UNIFORM_TOLERANCE = 0.01
+"""Largest relative deviation of a time step from the median step for a grid to count as uniform."""
+
+
+class LearningError(ValueError):
+    """The demonstration cannot give the asked-for skill; ``field`` names the input at fault."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        super().__init__(f"{field}: {reason}")
+        self.field = field
+        self.reason = reason
+
+
+def _uniform_arrays(demonstration: Demonstration) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Return (t, positions, quaternions, wrenches) on a uniform grid, quaternions sign-continuous."""
+    a = demonstration.arrays()
+    steps = np.diff(a.t)
+    median_step = float(np.median(steps))
+    if np.max(np.abs(steps - median_step)) <= UNIFORM_TOLERANCE * median_step:
+        return a.t, a.positions, quaternions_sign_continuous(a.orientations), a.wrenches
+    r = resampled_recording(a.t, a.positions, a.orientations, a.wrenches, rate_hz=1.0 / median_step)
+    return r.t, r.positions, r.orientations, r.wrenches
+
+
+def _rms(values: NDArray[np.float64]) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def _basis_count(duration_s: float, options: LearnOptions) -> int:
+    """Return the DMP basis count for a segment: ``n_basis``, more for long segments, at most ``max_basis``."""
+    wanted = max(options.n_basis, int(np.ceil(options.basis_per_second * duration_s)))
+    return max(2, min(wanted, options.max_basis))
+
+
+def _motion_dmps(
+    t: NDArray, positions: NDArray, quaternions: NDArray, n_basis: int, frame: str
+) -> tuple[DMP, QuaternionDMP, float, float]:
+    """Fit position and orientation DMPs; return them with their reproduction RMS (m, rad)."""
+    position_dmp = DMP.fit(t, positions, n_basis=n_basis, kind="position", frame=frame)
+    orientation_dmp = QuaternionDMP.fit(t, quaternions, n_basis=n_basis)
+    dt = float(t[1] - t[0])
+    y = position_dmp.rollout(dt).y
+    q = orientation_dmp.rollout(dt).q
+    n = min(len(y), len(q), len(t))
+    position_rms = _rms(np.linalg.norm(y[:n] - positions[:n], axis=1))
+    orientation_rms = _rms(quaternion_angle_between(q[:n], quaternions[:n]))
+    return position_dmp, orientation_dmp, position_rms, orientation_rms
+
+
+def _decimated_indices(n: int, most: int) -> NDArray[np.int_]:
+    """Return at most ``most`` evenly spread indices of ``range(n)``, first and last included."""
+    return np.unique(np.linspace(0, n - 1, min(n, most)).round().astype(int))
+
+
+def _segment(
+    index: int,
+    bounds: SegmentBounds,
+    skill_type: SkillType,
+    t: NDArray,
+    positions: NDArray,
+    quaternions: NDArray,
+    forces: NDArray,
+    rate_hz: float,
+    options: LearnOptions,
+) -> Segment:
+    """Parameterize one segment: frames, force profile, DMPs and their quality."""
+    rows = slice(bounds.start, bounds.end)
+    t_seg = t[rows] - t[bounds.start]
+    p_seg, q_seg, f_seg = positions[rows], quaternions[rows], forces[rows]
+    n_basis = _basis_count(float(t_seg[-1]), options)
+    common = {
+        "index": index,
+        "start_index": bounds.start,
+        "end_index": bounds.end,
+        "t_start": float(t[bounds.start]),
+        "t_end": float(t[bounds.end - 1]),
+    }
+    if not bounds.contact:
+        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, p_seg, q_seg, n_basis, "world")
+        return Segment(
+            kind=SegmentKind.free,
+            selection=list(SELECTION_FREE),
+            position_dmp=position_dmp.to_parameters(),
+            orientation_dmp=orientation_dmp.to_parameters(),
+            quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms),
+            **common,
+        )
+
+    if skill_type is SkillType.slide:
+        plane = slide_frame(p_seg, f_seg)
+        in_plane = ((p_seg - plane.origin) @ plane.rotation)[:, :2]
+        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, in_plane, q_seg, n_basis, "cf")
+        f_z = cf_z_forces(f_seg, plane.rotation[:, 2])
+        force = constant_force(f_z, rate_hz)
+        return Segment(
+            kind=SegmentKind.contact,
+            selection=list(SELECTION_CONTACT),
+            compliant_frames=CompliantFrames(
+                t=[0.0],
+                origins=[plane.origin.tolist()],
+                orientations=[quaternion_from_matrix(plane.rotation).tolist()],
+            ),
+            position_dmp=position_dmp.to_parameters(),
+            orientation_dmp=orientation_dmp.to_parameters(),
+            force_constant_n=force.value_n,
+            quality=SegmentQuality(
+                position_rms_m=p_rms,
+                orientation_rms_rad=q_rms,
+                force_rms_n=_rms(f_z[force.region] - force.value_n),
+                plane_residual_rms_m=plane.residual_rms_m,
+                force_std_low_variance_n=force.std_n,
+            ),
+            **common,
+        )
+
+    rotations = contour_frames(positions, forces, rate_hz, rows)
+    f_z = cf_z_forces(f_seg, rotations[:, :, 2])
+    position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, p_seg, q_seg, n_basis, "world")
+    force_dmp = DMP.fit(t_seg, f_z, n_basis=n_basis, kind="force")
+    f_rollout = force_dmp.rollout(1.0 / rate_hz).y[:, 0]
+    n = min(len(f_rollout), len(f_z))
+    keep = _decimated_indices(len(t_seg), options.contour_frames_max)
+    return Segment(
+        kind=SegmentKind.contact,
+        selection=list(SELECTION_CONTACT),
+        compliant_frames=CompliantFrames(
+            t=t_seg[keep].tolist(),
+            origins=p_seg[keep].tolist(),
+            orientations=quaternions_sign_continuous(quaternion_from_matrix(rotations[keep])).tolist(),
+        ),
+        position_dmp=position_dmp.to_parameters(),
+        orientation_dmp=orientation_dmp.to_parameters(),
+        force_dmp=force_dmp.to_parameters(),
+        quality=SegmentQuality(
+            position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=_rms(f_rollout[:n] - f_z[:n])
+        ),
+        **common,
+    )
+
+
+def learn_skill(demonstration: Demonstration, options: LearnOptions | None = None) -> Skill:
+    """Return the skill parameterized from one validated ``demonstration``.
+
+    Raises `LearningError` (a ValueError naming the field) when the demonstration cannot give
+    a contact skill, e.g. it has no contact or no moving contact to classify.
+    """
+    options = options or LearnOptions()
+    t, positions, quaternions, wrenches = _uniform_arrays(demonstration)
+    forces = wrenches[:, :3]
+    contact = analyse_contact(t, positions, forces, options.contact_force_threshold_n)
+    if not contact.in_contact.any():
+        raise LearningError(
+            "wrenches",
+            "the tool never touches anything (no force above the contact threshold), so there is no contact skill",
+        )
+    slide_segments = segment_demonstration(positions, forces, contact, True, options.min_segment_duration_s)
+    if not any(s.contact for s in slide_segments):
+        raise LearningError(
+            "wrenches",
+            f"contact lasts less than the shortest segment ({options.min_segment_duration_s} s)",
+        )
+
+    auto_selection = None
+    if options.skill_type is SkillTypeRequest.auto:
+        if np.count_nonzero(np.linalg.norm(contact.directions, axis=1)) < 10:
+            raise LearningError("wrenches", "the tool never moves while in contact: slide or contour cannot be told")
+        verdict = classify_skill(contact.directions, slide_segments, contact.rate_hz)
+        skill_type = SkillType.slide if verdict.is_slide else SkillType.contour
+        auto_selection = AutoSelection(
+            chosen=skill_type,
+            confidence=verdict.confidence,
+            turning_within_planes_deg=verdict.turning_within_planes_deg,
+            reason=verdict.reason,
+        )
+    else:
+        skill_type = SkillType(options.skill_type.value)
+
+    if skill_type is SkillType.slide:
+        bounds = slide_segments
+    else:
+        bounds = segment_demonstration(positions, forces, contact, False, options.min_segment_duration_s)
+
+    segments = [
+        _segment(k, b, skill_type, t, positions, quaternions, forces, contact.rate_hz, options)
+        for k, b in enumerate(bounds)
+    ]
+    return Skill(
+        skill_type=skill_type,
+        attributes=SkillAttributes(
+            selection_matrix_cf=list(SELECTION_CONTACT),
+            cf_constraint="plane" if skill_type is SkillType.slide else "force-direction",
+        ),
+        segments=segments,
+        auto_selection=auto_selection,
+        demonstration=DemonstrationSummary.of(demonstration),
+        sample_rate_hz=contact.rate_hz,
+    )
