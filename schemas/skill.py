@@ -188,6 +188,12 @@ class LearnOptions(BaseModel):
         25.0, ge=0, description="More basis functions for long segments: at least this many per second of segment."
     )
     max_basis: int = Field(300, ge=2, le=2000, description="Most basis functions per dimension and segment.")
+    max_fit_samples: int = Field(
+        10_000,
+        ge=100,
+        description="DMPs of longer segments are fitted on this many evenly strided samples "
+        "(bases are >= 40 ms apart, so a finer grid adds cost, not information).",
+    )
     contact_force_threshold_n: float | None = Field(
         None, gt=0, description="Force magnitude (N) above which the tool is in contact; default: adaptive."
     )

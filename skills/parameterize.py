@@ -71,7 +71,7 @@ def _basis_count(duration_s: float, options: LearnOptions) -> int:
 def _motion_dmps(
     t: NDArray, positions: NDArray, quaternions: NDArray, n_basis: int, frame: str
 ) -> tuple[DMP, QuaternionDMP, float, float]:
-    """Fit position and orientation DMPs; return them with their reproduction RMS (m, rad)."""
+    """Fit position and orientation DMPs; return them with their reproduction RMS (m, rad) on the fit grid."""
     position_dmp = DMP.fit(t, positions, n_basis=n_basis, kind="position", frame=frame)
     orientation_dmp = QuaternionDMP.fit(t, quaternions, n_basis=n_basis)
     dt = float(t[1] - t[0])
@@ -104,6 +104,9 @@ def _segment(
     t_seg = t[rows] - t[bounds.start]
     p_seg, q_seg, f_seg = positions[rows], quaternions[rows], forces[rows]
     n_basis = _basis_count(float(t_seg[-1]), options)
+    # DMPs are fitted on an evenly strided grid that ends on the last sample (the goal).
+    stride = -(-len(t_seg) // options.max_fit_samples)
+    fit = slice((len(t_seg) - 1) % stride, None, stride)
     common = {
         "index": index,
         "start_index": bounds.start,
@@ -112,7 +115,7 @@ def _segment(
         "t_end": float(t[bounds.end - 1]),
     }
     if not bounds.contact:
-        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, p_seg, q_seg, n_basis, "world")
+        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
         return Segment(
             kind=SegmentKind.free,
             selection=list(SELECTION_FREE),
@@ -125,7 +128,7 @@ def _segment(
     if skill_type is SkillType.slide:
         plane = slide_frame(p_seg, f_seg)
         in_plane = ((p_seg - plane.origin) @ plane.rotation)[:, :2]
-        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, in_plane, q_seg, n_basis, "cf")
+        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], in_plane[fit], q_seg[fit], n_basis, "cf")
         f_z = cf_z_forces(f_seg, plane.rotation[:, 2])
         force = constant_force(f_z, rate_hz)
         return Segment(
@@ -151,10 +154,10 @@ def _segment(
 
     rotations = contour_frames(positions, forces, rate_hz, rows)
     f_z = cf_z_forces(f_seg, rotations[:, :, 2])
-    position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg, p_seg, q_seg, n_basis, "world")
-    force_dmp = DMP.fit(t_seg, f_z, n_basis=n_basis, kind="force")
-    f_rollout = force_dmp.rollout(1.0 / rate_hz).y[:, 0]
-    n = min(len(f_rollout), len(f_z))
+    position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
+    force_dmp = DMP.fit(t_seg[fit], f_z[fit], n_basis=n_basis, kind="force")
+    f_rollout = force_dmp.rollout(stride / rate_hz).y[:, 0]
+    n = min(len(f_rollout), len(f_z[fit]))
     keep = _decimated_indices(len(t_seg), options.contour_frames_max)
     return Segment(
         kind=SegmentKind.contact,
@@ -168,7 +171,7 @@ def _segment(
         orientation_dmp=orientation_dmp.to_parameters(),
         force_dmp=force_dmp.to_parameters(),
         quality=SegmentQuality(
-            position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=_rms(f_rollout[:n] - f_z[:n])
+            position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=_rms(f_rollout[:n] - f_z[fit][:n])
         ),
         **common,
     )

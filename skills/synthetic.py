@@ -53,6 +53,12 @@ def _smooth_step(u: NDArray[np.float64]) -> NDArray[np.float64]:
     return u**3 * (10.0 - 15.0 * u + 6.0 * u**2)
 
 
+def _contact_interval(duration_s: float) -> tuple[float, float]:
+    """Return true contact on/off times (s): free approach and retreat of 1.5 s, or 20 % each of a short demo."""
+    free_s = min(1.5, 0.2 * duration_s)
+    return free_s, duration_s - free_s
+
+
 def _zero_mean_wander(t: NDArray[np.float64], t0: float, t1: float, rng: np.random.Generator) -> NDArray[np.float64]:
     """Return a slow relative wander in [-0.2, 0.2] over ``[t0, t1]`` with zero mean there (whole periods)."""
     span = t1 - t0
@@ -143,8 +149,9 @@ def plane_slide(
 ) -> SyntheticDemo:
     """Slide on a plane through (0.5, 0, 0.2) m with unit ``normal`` into the surface (world).
 
-    Phases: free approach along the normal (1.5 s), contact with an S-shaped 2-D path of
-    about 0.25 m at varying speed, free retreat (1.5 s). Contact on/off are the true times
+    Phases: free approach along the normal (1.5 s, or 20 % of a short demonstration), contact
+    with an S-shaped 2-D path of about 0.25 m at varying speed, free retreat (as long as the
+    approach). Contact on/off are the true times
     at which the normal force starts rising / has fallen to zero.
     """
     rng = np.random.default_rng(seed)
@@ -153,7 +160,7 @@ def plane_slide(
     R_plane = rotation_from_vectors(np.array([0.0, 0.0, 1.0]), n)
     u_axis, v_axis = R_plane[:, 0], R_plane[:, 1]
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    t_on, t_off = 1.5, duration_s - 1.5
+    t_on, t_off = _contact_interval(duration_s)
     origin = np.array([0.5, 0.0, 0.2])
 
     # In-plane S-curve with varying speed: s(t) runs 0..1 over the contact, faster in the middle.
@@ -161,7 +168,7 @@ def plane_slide(
     s = s + 0.03 * np.sin(2 * np.pi * np.clip((t - t_on) / (t_off - t_on), 0, 1))
     u = 0.25 * (s - 0.5)
     v = 0.05 * np.sin(2 * np.pi * s)
-    lift = 0.06 * (_smooth_step((t_on - t) / 1.2) + _smooth_step((t - t_off) / 1.2))
+    lift = 0.06 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
     path = origin + u[:, None] * u_axis + v[:, None] * v_axis - lift[:, None] * n
     magnitude = _contact_magnitude(t, t_on, t_off, target_force_n, 0.15, rng)
     normals = np.broadcast_to(n, path.shape)
@@ -183,7 +190,7 @@ def two_plane_slide(
     """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    t_on, t_off = 1.5, duration_s - 1.5
+    t_on, t_off = _contact_interval(duration_s)
     n1 = np.array([0.0, 0.0, -1.0])
     tilt = np.deg2rad(tilt_deg)
     n2 = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
@@ -201,7 +208,7 @@ def two_plane_slide(
     )
     path[:, 1] += lateral
     normals = np.where(on_first[:, None], n1, n2)
-    lift = 0.06 * (_smooth_step((t_on - t) / 1.2) + _smooth_step((t - t_off) / 1.2))
+    lift = 0.06 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
     path -= lift[:, None] * normals
     magnitude = _contact_magnitude(t, t_on, t_off, target_force_n, 0.15, rng)
     positions, orientations, wrenches, force_dirs = _finish(t, path, normals, magnitude, rng, 3e-4, 0.3)
@@ -228,7 +235,7 @@ def cylinder_contour(
     """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    t_on, t_off = 1.5, duration_s - 1.5
+    t_on, t_off = _contact_interval(duration_s)
     centre = np.array([0.5, 0.0, 0.1])
     # The hand is already moving along the shape when it touches and when it lifts off, at a
     # speed that varies by ±10 %: contouring, unlike pressing, has no rest in contact.
@@ -236,7 +243,7 @@ def cylinder_contour(
     s = u_lin + 0.1 / (2 * np.pi) * np.sin(2 * np.pi * u_lin)
     angle = np.deg2rad(arc_deg) * (s - 0.5)  # from the top, positive towards +x
     outward = np.stack([np.sin(angle), np.zeros_like(angle), np.cos(angle)], axis=1)
-    lift = 0.04 * (_smooth_step((t_on - t) / 1.2) + _smooth_step((t - t_off) / 1.2))
+    lift = 0.04 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
     path = centre + (radius_m + lift)[:, None] * outward
     path[:, 1] += 0.01 * np.sin(np.pi * np.clip(s, 0, 1))
     u = np.clip((t - t_on) / (t_off - t_on), 0, 1)

@@ -1,0 +1,106 @@
+"""Benchmark: learning time and peak memory per demonstration size (1 kHz slide and contour demos).
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_learning.py
+
+For 2 k, 10 k and 60 k samples (2 s, 10 s, 60 s at 1 kHz) of the analytic slide and contour
+demonstrations (`skills.synthetic`): median wall time of validating the `Demonstration` (the
+REST body) and of `learn_skill` (auto selection, so classification included), and the peak
+memory traced by tracemalloc during learning. Targets: 10 s parameterized in under 1 s, 60 s in
+under 5 s, memory under 1 GiB. Writes its section of docs/BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section  # noqa: E402
+
+pin_blas_threads()
+
+import argparse  # noqa: E402
+import tracemalloc  # noqa: E402
+
+from schemas import Demonstration  # noqa: E402
+from skills import synthetic  # noqa: E402
+from skills.parameterize import learn_skill  # noqa: E402
+
+SECTION = "bench_learning"
+COMMAND = ".venv/bin/python benchmarks/bench_learning.py"
+SIZES_S = (2.0, 10.0, 60.0)
+TARGETS_S = {10.0: 1.0, 60.0: 5.0}
+
+
+def _body(kind: str, duration_s: float) -> dict:
+    demo = (
+        synthetic.plane_slide(duration_s=duration_s)
+        if kind == "slide"
+        else synthetic.cylinder_contour(duration_s=duration_s)
+    )
+    return {
+        "t": demo.t.tolist(),
+        "positions": demo.positions.tolist(),
+        "orientations": demo.orientations.tolist(),
+        "wrenches": demo.wrenches.tolist(),
+    }
+
+
+def _peak_memory_mib(demonstration: Demonstration) -> float:
+    tracemalloc.start()
+    learn_skill(demonstration)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2**20
+
+
+def build_report(repeats: int) -> str:
+    rows = [
+        "| demo | samples | validate ms | learn ms (median) | target | peak MiB | segments | chosen (confidence) |",
+        "|---|--:|--:|--:|---|--:|--:|---|",
+    ]
+    for kind in ("slide", "contour"):
+        for duration in SIZES_S:
+            body = _body(kind, duration)
+            validate_s, demonstration = median_time(lambda body=body: Demonstration.model_validate(body), repeats)
+            learn_s, skill = median_time(lambda d=demonstration: learn_skill(d), repeats)
+            target = TARGETS_S.get(duration)
+            verdict = "–" if target is None else f"< {target:.0f} s {'MET' if learn_s < target else 'MISSED'}"
+            rows.append(
+                f"| {kind} {duration:.0f} s | {len(body['t'])} | {validate_s * 1e3:.0f} | {learn_s * 1e3:.0f} | "
+                f"{verdict} | {_peak_memory_mib(demonstration):.0f} | {len(skill.segments)} | "
+                f"{skill.skill_type.value} ({skill.auto_selection.confidence:.3f}) |"
+            )
+            print(rows[-1], flush=True)
+    return "\n".join(
+        [
+            "## Learning time and memory per demonstration size",
+            "",
+            f"Command: `{COMMAND}` (median of {repeats} runs; peak memory by tracemalloc during `learn_skill`).",
+            "`validate` is building the pydantic `Demonstration` from a JSON-like body (what the REST API does);",
+            "`learn` is `learn_skill` with `skill_type=auto`. Target: 10 s in < 1 s, 60 s in < 5 s, < 1 GiB.",
+            "",
+            *rows,
+            "",
+            machine_line(),
+        ]
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5, help="timing repeats (median reported)")
+    parser.add_argument("--no-write", action="store_true", help="only print the table")
+    args = parser.parse_args(argv)
+    report = build_report(args.repeats)
+    print(report)
+    if not args.no_write:
+        write_section(SECTION, report)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

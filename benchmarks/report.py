@@ -1,0 +1,69 @@
+"""Shared by the benchmark scripts: timing, the machine line, and writing one section of docs/BENCHMARKS.md.
+
+Each script owns the section between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` and
+replaces only that, so scripts can be re-run independently.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS_MD = ROOT / "docs" / "BENCHMARKS.md"
+
+
+def pin_blas_threads() -> None:
+    """Use one BLAS thread: on a small shared machine a multi-threaded BLAS is 10-20x slower under contention.
+
+    Call before numpy is imported.
+    """
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
+    """Return the median wall time (s) of ``repeats`` calls of ``fn`` and the last result."""
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
+
+
+def machine_line(extra: str = "") -> str:
+    """Return one line describing this machine (cores, CPU model, Python and numpy versions)."""
+    import numpy as np
+
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    threads = os.environ.get("OPENBLAS_NUM_THREADS", "default")
+    return (
+        f"Machine: nproc={os.cpu_count()}, {cpu}; Python {platform.python_version()}, numpy {np.__version__}; "
+        f"BLAS threads {threads}{'; ' + extra if extra else ''}. Shared machine: timings are medians and indicative."
+    )
+
+
+def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:
+    """Replace (or append) the section between the ``name`` markers in ``path``; keep everything else."""
+    start_mark, end_mark = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    section = f"{start_mark}\n{body.rstrip()}\n{end_mark}"
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    start, end = text.find(start_mark), text.find(end_mark)
+    if start != -1 and end > start:
+        text = text[:start] + section + text[end + len(end_mark) :]
+    else:
+        text = text.rstrip("\n") + "\n\n" + section + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)

@@ -1,0 +1,663 @@
+"""Discrete Dynamic Movement Primitives: positions, forces (Ijspeert, Nakanishi, Schaal 2003), orientation (Ude 2014).
+
+One primitive per class:
+
+- :class:`DMP` encodes a ``D``-dimensional trajectory of positions (m) or forces (N) with the
+  transformation system of ``schemas.skill.DMPParameters``::
+
+      tau dz = alpha_z (beta_z (g - y) - z) + s f(x),   tau dy = z,   tau dx = -alpha_x x
+      f(x) = x sum_i psi_i(x) w_i / sum_i psi_i(x),    psi_i(x) = exp(-h_i (x - c_i)^2)
+
+- :class:`QuaternionDMP` encodes an orientation trajectory (unit quaternions, scalar-last
+  ``[x, y, z, w]``, world frame) with Ude, Nemec, Petric, Morimoto 2014::
+
+      tau d eta = alpha_z (beta_z 2 log(g * conj(q)) - eta) + f(x),   tau dq = 1/2 eta * q
+
+  ``eta / tau`` is the angular velocity in the world frame (rad/s).
+
+Time discretization (the same in learning and in rollout, so that rolling out at the
+demonstration's step reproduces it to float precision up to the basis-function fit):
+semi-implicit Euler, ``z_{k+1} = z_k + dt/tau (...)(y_k, z_k, x_k)``, ``y_{k+1} = y_k + dt/tau z_{k+1}``
+(quaternions: ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k``), with the phase evaluated exactly,
+``x_k = exp(-alpha_x k dt / tau)``. The start velocity is zero (``z_0 = 0``). Rolling out at
+another ``dt`` agrees with the demonstration to O(dt).
+
+Canonical system and basis (documented defaults):
+
+- ``alpha_x = ln(100)``: the phase decays to ``x(tau) = 0.01`` at the end of the movement.
+- ``n`` Gaussian bases with centres evenly spread in TIME, ``c_i = exp(-alpha_x i / (n - 1))``,
+  ``i = 0 .. n-1`` (``c_0 = 1`` at the start, ``c_{n-1} = 0.01`` at the end), and widths from
+  neighbouring centres, ``h_i = ln(1/overlap) / (c_{i+1} - c_i)^2`` (the last copies its
+  neighbour), so a basis has the value ``overlap`` (:data:`BASIS_OVERLAP`) at the next centre.
+- ``alpha_z = 25``, ``beta_z = alpha_z / 4`` (critically damped).
+
+Amplitude scaling and its guard (position and force DMPs): ``f`` is learned unscaled. On a
+rollout with a new start ``y0'`` and goal ``g'`` a dimension's forcing term is multiplied by
+``s = (g' - y0') / (g - y0)`` only when the demonstrated ``|g - y0|`` of that dimension exceeds
+:data:`AMPLITUDE_SCALING_MIN_FRACTION` times the range of motion (max - min over the
+demonstration) of the DMP's most moving dimension (for ``D = 1``: its own range); else
+``s = 1``. This is stricter than comparing with the dimension's own range: a dimension that
+only jitters (e.g. 1 mm of noise next to a 10 cm stroke) is not scaled by a huge ratio when its
+goal moves. With ``s = 1`` the demonstrated shape is kept and the spring still pulls to ``g'``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import lfilter
+
+from schemas.skill import DMPParameters
+from skills.quaternions import (
+    quaternion_conjugate,
+    quaternion_log,
+    quaternion_product,
+    quaternions_sign_continuous,
+)
+
+DEFAULT_ALPHA_Z = 25.0
+"""Spring-damper gain alpha_z (beta_z = alpha_z / 4, critically damped)."""
+FINAL_PHASE = 0.01
+"""Phase value x(tau) at the end of the demonstrated duration; alpha_x = -ln(FINAL_PHASE)."""
+BASIS_OVERLAP = 0.5
+"""Value of a basis function at its neighbour's centre (sets the widths h_i)."""
+AMPLITUDE_SCALING_MIN_FRACTION = 0.1
+"""A dimension's forcing term scales with (g - y0) only if |g - y0| > this x the DMP's largest range of motion."""
+RIDGE = 1e-10
+"""Tikhonov term of the weight least squares, relative to the largest squared column norm of the design matrix."""
+MIN_SAMPLES = 3
+"""Fewest samples a DMP can be learned from."""
+UNIFORM_GRID_RTOL = 1e-3
+"""Largest relative deviation of a time step from the mean step accepted as a uniform grid."""
+UNIT_NORM_TOL = 1e-3
+"""Largest deviation of an input quaternion's norm from 1 accepted (then renormalized)."""
+
+
+@dataclass(frozen=True)
+class DMPRollout:
+    """A rolled-out position or force DMP.
+
+    ``t`` (M,) time since the start, s; ``y`` (M, D) positions (m) or forces (N) in the DMP's
+    frame; ``yd`` (M, D) their rates (m/s or N/s), ``z / tau`` (the backward difference of ``y``).
+    """
+
+    t: NDArray[np.float64]
+    y: NDArray[np.float64]
+    yd: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class QuaternionDMPRollout:
+    """A rolled-out orientation DMP.
+
+    ``t`` (M,) time since the start, s; ``q`` (M, 4) unit quaternions ``[x, y, z, w]`` (world
+    from tool), sign-continuous; ``omega`` (M, 3) angular velocity in the world frame, rad/s.
+    """
+
+    t: NDArray[np.float64]
+    q: NDArray[np.float64]
+    omega: NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- shared pieces
+
+
+def canonical_alpha_x(final_phase: float = FINAL_PHASE) -> float:
+    """Return the canonical decay ``alpha_x`` for which ``x(tau) = final_phase`` (dimensionless)."""
+    return -math.log(final_phase)
+
+
+def basis_centers(n_basis: int, alpha_x: float) -> NDArray[np.float64]:
+    """Return ``n_basis`` centres in phase, evenly spread in time: ``c_i = exp(-alpha_x i / (n - 1))``."""
+    return np.exp(-alpha_x * np.arange(n_basis) / (n_basis - 1))
+
+
+def basis_widths(centers: NDArray[np.float64], overlap: float = BASIS_OVERLAP) -> NDArray[np.float64]:
+    """Return widths ``h_i = ln(1/overlap) / (c_{i+1} - c_i)^2`` (1/phase^2); the last copies its neighbour."""
+    h = -math.log(overlap) / np.diff(centers) ** 2
+    return np.append(h, h[-1])
+
+
+def forcing_features(
+    x: NDArray[np.float64], centers: NDArray[np.float64], widths: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Return the ``(N, n_basis)`` design matrix ``x psi_i(x) / sum_j psi_j(x)`` for phases ``x`` (N,).
+
+    ``f(x) = forcing_features(x) @ w``. The Gaussians are shifted by their per-row maximum
+    exponent before normalizing, so no row underflows to 0/0.
+    """
+    exponent = -widths[None, :] * (x[:, None] - centers[None, :]) ** 2
+    psi = np.exp(exponent - exponent.max(axis=1, keepdims=True))
+    return x[:, None] * psi / psi.sum(axis=1, keepdims=True)
+
+
+def _check_time(t: ArrayLike, n_samples: int) -> tuple[NDArray[np.float64], float]:
+    """Validate a uniform time grid of ``n_samples`` stamps (s); return it and its step dt (s)."""
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1:
+        raise ValueError(f"t must be 1-D (N,), got shape {t.shape}")
+    if t.shape[0] != n_samples:
+        raise ValueError(f"t has {t.shape[0]} samples but the trajectory has {n_samples}: mismatched lengths")
+    if n_samples < MIN_SAMPLES:
+        raise ValueError(f"too few samples: {n_samples} (a DMP needs at least {MIN_SAMPLES})")
+    if not np.all(np.isfinite(t)):
+        raise ValueError("t contains NaN or inf")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        raise ValueError("t must be strictly increasing")
+    dt = (t[-1] - t[0]) / (n_samples - 1)
+    if np.max(np.abs(steps - dt)) > UNIFORM_GRID_RTOL * dt:
+        raise ValueError("t must be sampled uniformly (resample the demonstration first)")
+    return t, float(dt)
+
+
+def _fit_weights(features: NDArray[np.float64], targets: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Solve ``features @ W = targets`` for ``W`` (n_basis, D) in one ridge-regularized least squares."""
+    n_basis = features.shape[1]
+    lam = RIDGE * float(np.max(np.einsum("ij,ij->j", features, features)))
+    A = np.vstack([features, math.sqrt(lam) * np.eye(n_basis)])
+    b = np.vstack([targets, np.zeros((n_basis, targets.shape[1]))])
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _rollout_times(dt: float, duration_s: float) -> NDArray[np.float64]:
+    """Return the rollout time stamps ``k dt``, ``k = 0 .. round(duration_s / dt)`` (s)."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive finite number of seconds, got {dt}")
+    if not (np.isfinite(duration_s) and duration_s > 0):
+        raise ValueError(f"duration_s must be a positive finite number of seconds, got {duration_s}")
+    n_steps = round(duration_s / dt)
+    if n_steps < 1:
+        raise ValueError(f"dt={dt} s is longer than the duration {duration_s} s")
+    return np.arange(n_steps + 1) * dt
+
+
+class _DMPBase:
+    """Shared state of a discrete DMP: time constant, gains, basis and weights (n_basis, n_forcing)."""
+
+    kind: str
+
+    def __init__(
+        self,
+        *,
+        duration_s: float,
+        alpha_z: float,
+        beta_z: float,
+        alpha_x: float,
+        centers: ArrayLike,
+        widths: ArrayLike,
+        weights: ArrayLike,
+        frame: Literal["world", "cf"] = "world",
+    ) -> None:
+        self.duration_s = float(duration_s)
+        self.alpha_z = float(alpha_z)
+        self.beta_z = float(beta_z)
+        self.alpha_x = float(alpha_x)
+        self.centers = np.array(centers, dtype=float)
+        self.widths = np.array(widths, dtype=float)
+        self.weights = np.array(weights, dtype=float)
+        self.frame = frame
+        for name in ("duration_s", "alpha_z", "beta_z", "alpha_x"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+        if self.centers.ndim != 1 or self.centers.shape != self.widths.shape or self.centers.shape[0] < 2:
+            raise ValueError("centers and widths must be 1-D of the same length n_basis >= 2")
+        if self.weights.ndim != 2 or self.weights.shape[0] != self.centers.shape[0]:
+            raise ValueError(f"weights must have shape (n_basis={self.centers.shape[0]}, D), got {self.weights.shape}")
+        if not (np.all(np.isfinite(self.centers)) and np.all(np.isfinite(self.widths))):
+            raise ValueError("centers and widths must be finite")
+        if not np.all(np.isfinite(self.weights)):
+            raise ValueError("weights contain NaN or inf")
+        if frame not in ("world", "cf"):
+            raise ValueError(f"frame must be 'world' or 'cf', got {frame!r}")
+
+    @property
+    def n_basis(self) -> int:
+        """Number of basis functions per dimension."""
+        return int(self.centers.shape[0])
+
+    def phase(self, t: ArrayLike, duration_s: float | None = None) -> NDArray[np.float64]:
+        """Return the canonical phase ``x(t) = exp(-alpha_x t / tau)`` (dimensionless) at times ``t`` (s)."""
+        tau = self.duration_s if duration_s is None else float(duration_s)
+        return np.exp(-self.alpha_x * np.asarray(t, dtype=float) / tau)
+
+    def forcing(self, x: ArrayLike) -> NDArray[np.float64]:
+        """Return the unscaled forcing term ``f(x)`` (N, D) at phases ``x`` (N,)."""
+        return forcing_features(np.asarray(x, dtype=float), self.centers, self.widths) @ self.weights
+
+    def _parameters(self, start: NDArray, goal: NDArray, scaling: list[bool]) -> DMPParameters:
+        return DMPParameters(
+            kind=self.kind,
+            frame=self.frame,
+            duration_s=self.duration_s,
+            alpha_z=self.alpha_z,
+            beta_z=self.beta_z,
+            alpha_x=self.alpha_x,
+            centers=self.centers.tolist(),
+            widths=self.widths.tolist(),
+            weights=self.weights.tolist(),
+            start=np.asarray(start, dtype=float).tolist(),
+            goal=np.asarray(goal, dtype=float).tolist(),
+            amplitude_scaling=[bool(v) for v in scaling],
+        )
+
+    @staticmethod
+    def _basis(n_basis: int) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+        if int(n_basis) != n_basis or n_basis < 2:
+            raise ValueError(f"n_basis must be an integer >= 2, got {n_basis}")
+        alpha_x = canonical_alpha_x()
+        centers = basis_centers(int(n_basis), alpha_x)
+        return alpha_x, centers, basis_widths(centers)
+
+
+# --------------------------------------------------------------------------- positions and forces
+
+
+class DMP(_DMPBase):
+    """A discrete DMP over ``D`` dimensions of positions (m) or forces (N), one shared phase.
+
+    Build it with :meth:`fit` (from one demonstration) or :meth:`from_parameters`. ``start`` and
+    ``goal`` are the demonstrated ``y0`` and ``g`` (D,), in the DMP's ``frame`` (world or CF);
+    ``amplitude_scaling`` (D,) says per dimension whether the forcing term scales with
+    ``(g - y0)`` on rollout (see the module docstring for the guard).
+    """
+
+    def __init__(
+        self,
+        *,
+        kind: Literal["position", "force"],
+        start: ArrayLike,
+        goal: ArrayLike,
+        amplitude_scaling: ArrayLike,
+        duration_s: float,
+        alpha_z: float,
+        beta_z: float,
+        alpha_x: float,
+        centers: ArrayLike,
+        widths: ArrayLike,
+        weights: ArrayLike,
+        frame: Literal["world", "cf"] = "world",
+    ) -> None:
+        super().__init__(
+            duration_s=duration_s,
+            alpha_z=alpha_z,
+            beta_z=beta_z,
+            alpha_x=alpha_x,
+            centers=centers,
+            widths=widths,
+            weights=weights,
+            frame=frame,
+        )
+        if kind not in ("position", "force"):
+            raise ValueError(f"kind must be 'position' or 'force' for a DMP, got {kind!r}")
+        self.kind = kind
+        self.start = np.array(start, dtype=float)
+        self.goal = np.array(goal, dtype=float)
+        self.amplitude_scaling = np.array(amplitude_scaling, dtype=bool)
+        n_dims = self.weights.shape[1]
+        for name in ("start", "goal", "amplitude_scaling"):
+            if getattr(self, name).shape != (n_dims,):
+                raise ValueError(f"{name} must have shape ({n_dims},), got {getattr(self, name).shape}")
+
+    @property
+    def n_dims(self) -> int:
+        """Number of dimensions D."""
+        return int(self.weights.shape[1])
+
+    @classmethod
+    def fit(
+        cls,
+        t: ArrayLike,
+        y: ArrayLike,
+        n_basis: int = 50,
+        kind: Literal["position", "force"] = "position",
+        frame: Literal["world", "cf"] = "world",
+        alpha_z: float = DEFAULT_ALPHA_Z,
+    ) -> DMP:
+        """Learn a DMP from one demonstration in one linear least-squares solve.
+
+        ``t`` (N,) uniformly sampled time stamps, s; ``y`` (N, D) (or (N,)) positions in m or
+        forces in N, in ``frame``. ``tau`` is the demonstrated duration ``t[-1] - t[0]``, ``y0 =
+        y[0]``, ``g = y[-1]``. The forcing targets are those of the semi-implicit Euler integrator
+        at the demonstration's step ``dt`` with ``z_0 = 0``::
+
+            z_{k+1} = tau (y_{k+1} - y_k) / dt
+            f_k = tau (z_{k+1} - z_k) / dt - alpha_z (beta_z (g - y_k) - z_k),   k = 0 .. N-2
+
+        Raises ValueError for fewer than 3 samples, mismatched shapes, NaN/inf, or a
+        non-uniform or non-increasing time grid.
+        """
+        y = np.asarray(y, dtype=float)
+        if y.ndim == 1:
+            y = y[:, None]
+        if y.ndim != 2 or y.shape[1] < 1:
+            raise ValueError(f"y must have shape (N, D), got {y.shape}")
+        t, dt = _check_time(t, y.shape[0])
+        if not np.all(np.isfinite(y)):
+            raise ValueError("y contains NaN or inf")
+        alpha_x, centers, widths = cls._basis(n_basis)
+        beta_z = alpha_z / 4.0
+        tau = float(t[-1] - t[0])
+        y0, g = y[0], y[-1]
+
+        z = np.zeros_like(y)
+        z[1:] = tau * np.diff(y, axis=0) / dt
+        targets = tau * (z[1:] - z[:-1]) / dt - alpha_z * (beta_z * (g - y[:-1]) - z[:-1])
+        x = np.exp(-alpha_x * np.arange(y.shape[0] - 1) * dt / tau)
+        weights = _fit_weights(forcing_features(x, centers, widths), targets)
+
+        motion_range = np.ptp(y, axis=0)
+        threshold = AMPLITUDE_SCALING_MIN_FRACTION * float(motion_range.max())
+        scaling = (np.abs(g - y0) > threshold) & (motion_range > 0)
+        return cls(
+            kind=kind,
+            start=y0,
+            goal=g,
+            amplitude_scaling=scaling,
+            duration_s=tau,
+            alpha_z=alpha_z,
+            beta_z=beta_z,
+            alpha_x=alpha_x,
+            centers=centers,
+            widths=widths,
+            weights=weights,
+            frame=frame,
+        )
+
+    def amplitude_factors(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:
+        """Return the per-dimension forcing scale ``s`` (D,) for a new start and goal (1 where unscaled)."""
+        demo = self.goal - self.start
+        new = np.asarray(goal, dtype=float) - np.asarray(start, dtype=float)
+        safe = np.where(self.amplitude_scaling, demo, 1.0)
+        return np.where(self.amplitude_scaling, new / safe, 1.0)
+
+    def _prepare(
+        self, dt: float, start: ArrayLike | None, goal: ArrayLike | None, duration_s: float | None
+    ) -> tuple[NDArray, NDArray, NDArray, NDArray, float]:
+        tau = self.duration_s if duration_s is None else float(duration_s)
+        t = _rollout_times(dt, tau)
+        y0 = self.start if start is None else np.asarray(start, dtype=float).reshape(-1)
+        g = self.goal if goal is None else np.asarray(goal, dtype=float).reshape(-1)
+        for name, value in (("start", y0), ("goal", g)):
+            if value.shape != (self.n_dims,):
+                raise ValueError(f"{name} must have shape ({self.n_dims},), got {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{name} contains NaN or inf")
+        # Input u_k = alpha_z beta_z g + s f(x_k) of the steps k = 0 .. M-2.
+        u = self.alpha_z * self.beta_z * g + self.amplitude_factors(y0, g) * self.forcing(self.phase(t[:-1], tau))
+        return t, y0, g, u, tau
+
+    def rollout(
+        self,
+        dt: float,
+        start: ArrayLike | None = None,
+        goal: ArrayLike | None = None,
+        duration_s: float | None = None,
+    ) -> DMPRollout:
+        """Integrate the DMP from rest at ``start`` towards ``goal`` with step ``dt`` (s) over ``duration_s``.
+
+        ``start``, ``goal`` (D,) default to the demonstrated ones, ``duration_s`` (the new ``tau``)
+        to the demonstrated duration. Semi-implicit Euler, evaluated without a loop over samples:
+        eliminating ``z`` gives the LTI recursion, with ``a = dt / tau``::
+
+            y_{k+1} = (2 - a alpha_z - a^2 alpha_z beta_z) y_k - (1 - a alpha_z) y_{k-1} + a^2 u_k
+
+        with ``u_k = alpha_z beta_z g + s f(x_k)``, ``y_{-1} = y_0`` (zero start velocity). In the
+        deviation ``e = y - y_0`` (input ``u - alpha_z beta_z y_0``) the initial state is zero, so
+        one ``scipy.signal.lfilter`` call per rollout evaluates it exactly. Verified against
+        :meth:`rollout_loop`; at 60 000 steps they agree to ~1e-9 m on a 0.4 m motion.
+        """
+        t, y0, _, u, tau = self._prepare(dt, start, goal, duration_s)
+        a = dt / tau
+        az, bz = self.alpha_z, self.beta_z
+        den = [1.0, -(2.0 - a * az - a * a * az * bz), 1.0 - a * az]
+        v = np.vstack([u - az * bz * y0, np.zeros((1, self.n_dims))])  # last input never reaches y
+        e = lfilter([0.0, a * a], den, v, axis=0)
+        y = y0 + e
+        yd = np.zeros_like(y)
+        yd[1:] = np.diff(y, axis=0) / dt
+        return DMPRollout(t=t, y=y, yd=yd)
+
+    def rollout_loop(
+        self,
+        dt: float,
+        start: ArrayLike | None = None,
+        goal: ArrayLike | None = None,
+        duration_s: float | None = None,
+    ) -> DMPRollout:
+        """The same integration as :meth:`rollout` as a plain loop over steps (reference, slower)."""
+        t, y0, _, u, tau = self._prepare(dt, start, goal, duration_s)
+        a = dt / tau
+        y = np.empty((t.shape[0], self.n_dims))
+        yd = np.zeros_like(y)
+        y[0] = y0
+        z = np.zeros(self.n_dims)
+        for k in range(t.shape[0] - 1):
+            z = z + a * (u[k] - self.alpha_z * (self.beta_z * y[k] + z))
+            y[k + 1] = y[k] + a * z
+            yd[k + 1] = z / tau
+        return DMPRollout(t=t, y=y, yd=yd)
+
+    def to_parameters(self) -> DMPParameters:
+        """Return the wire form (``schemas.skill.DMPParameters``); :meth:`from_parameters` inverts it losslessly."""
+        return self._parameters(self.start, self.goal, self.amplitude_scaling.tolist())
+
+    @classmethod
+    def from_parameters(cls, p: DMPParameters) -> DMP:
+        """Rebuild a DMP from its parameters (kind position or force). Raises ValueError on inconsistent shapes."""
+        if p.kind == "quaternion":
+            raise ValueError("kind 'quaternion' parameters belong to QuaternionDMP.from_parameters")
+        return cls(
+            kind=p.kind,
+            start=p.start,
+            goal=p.goal,
+            amplitude_scaling=p.amplitude_scaling,
+            duration_s=p.duration_s,
+            alpha_z=p.alpha_z,
+            beta_z=p.beta_z,
+            alpha_x=p.alpha_x,
+            centers=p.centers,
+            widths=p.widths,
+            weights=p.weights,
+            frame=p.frame,
+        )
+
+
+# --------------------------------------------------------------------------- orientation
+
+
+def _unit_quaternions(q: ArrayLike, name: str) -> NDArray[np.float64]:
+    """Validate (N, 4) or (4,) quaternions of unit norm (within UNIT_NORM_TOL) and renormalize them."""
+    q = np.asarray(q, dtype=float)
+    if q.shape[-1:] != (4,):
+        raise ValueError(f"{name} must be quaternions [x, y, z, w] with a last axis of 4, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise ValueError(f"{name} contains NaN or inf")
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(np.abs(norm - 1.0) > UNIT_NORM_TOL):
+        raise ValueError(f"{name} must be unit quaternions (norm off by up to {np.max(np.abs(norm - 1.0)):.3g})")
+    return q / norm
+
+
+class QuaternionDMP(_DMPBase):
+    """An orientation DMP (Ude et al. 2014) over unit quaternions ``[x, y, z, w]`` in the world frame.
+
+    ``start`` and ``goal`` are the demonstrated unit quaternions (4,); the forcing term ``f`` is a
+    3-vector (weights (n_basis, 3)) with the unit of ``tau^2`` times an angular acceleration
+    (rad). No amplitude scaling.
+    """
+
+    kind = "quaternion"
+
+    def __init__(
+        self,
+        *,
+        start: ArrayLike,
+        goal: ArrayLike,
+        duration_s: float,
+        alpha_z: float,
+        beta_z: float,
+        alpha_x: float,
+        centers: ArrayLike,
+        widths: ArrayLike,
+        weights: ArrayLike,
+        frame: Literal["world", "cf"] = "world",
+    ) -> None:
+        super().__init__(
+            duration_s=duration_s,
+            alpha_z=alpha_z,
+            beta_z=beta_z,
+            alpha_x=alpha_x,
+            centers=centers,
+            widths=widths,
+            weights=weights,
+            frame=frame,
+        )
+        if self.weights.shape[1] != 3:
+            raise ValueError(f"a quaternion DMP has weights (n_basis, 3), got {self.weights.shape}")
+        self.start = _unit_quaternions(start, "start").reshape(4)
+        self.goal = _unit_quaternions(goal, "goal").reshape(4)
+
+    @classmethod
+    def fit(
+        cls,
+        t: ArrayLike,
+        q: ArrayLike,
+        n_basis: int = 50,
+        alpha_z: float = DEFAULT_ALPHA_Z,
+        frame: Literal["world", "cf"] = "world",
+    ) -> QuaternionDMP:
+        """Learn an orientation DMP from one demonstration in one linear least-squares solve.
+
+        ``t`` (N,) uniformly sampled time stamps, s; ``q`` (N, 4) unit quaternions ``[x, y, z, w]``.
+        The input is first made sign-continuous, so the result does not depend on the signs of
+        the input quaternions. Targets consistent with the integrator ``q_{k+1} = exp(dt/(2 tau)
+        eta_{k+1}) * q_k`` and ``eta_0 = 0``::
+
+            eta_{k+1} = 2 tau log(q_{k+1} * conj(q_k)) / dt
+            f_k = tau (eta_{k+1} - eta_k) / dt - alpha_z (beta_z 2 log(g * conj(q_k)) - eta_k)
+
+        Raises ValueError for fewer than 3 samples, mismatched shapes, NaN/inf, non-unit
+        quaternions, or a non-uniform or non-increasing time grid.
+        """
+        q = np.asarray(q, dtype=float)
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise ValueError(f"q must have shape (N, 4), got {q.shape}")
+        t, dt = _check_time(t, q.shape[0])
+        q = quaternions_sign_continuous(_unit_quaternions(q, "q"))
+        alpha_x, centers, widths = cls._basis(n_basis)
+        beta_z = alpha_z / 4.0
+        tau = float(t[-1] - t[0])
+        g = q[-1]
+
+        eta = np.zeros((q.shape[0], 3))
+        eta[1:] = 2.0 * tau * quaternion_log(quaternion_product(q[1:], quaternion_conjugate(q[:-1]))) / dt
+        goal_error = 2.0 * quaternion_log(quaternion_product(g, quaternion_conjugate(q[:-1])))
+        targets = tau * (eta[1:] - eta[:-1]) / dt - alpha_z * (beta_z * goal_error - eta[:-1])
+        x = np.exp(-alpha_x * np.arange(q.shape[0] - 1) * dt / tau)
+        weights = _fit_weights(forcing_features(x, centers, widths), targets)
+        return cls(
+            start=q[0],
+            goal=g,
+            duration_s=tau,
+            alpha_z=alpha_z,
+            beta_z=beta_z,
+            alpha_x=alpha_x,
+            centers=centers,
+            widths=widths,
+            weights=weights,
+            frame=frame,
+        )
+
+    def rollout(
+        self,
+        dt: float,
+        start: ArrayLike | None = None,
+        goal: ArrayLike | None = None,
+        duration_s: float | None = None,
+    ) -> QuaternionDMPRollout:
+        """Integrate from rest at ``start`` towards ``goal`` (unit quaternions), step ``dt`` over ``duration_s`` (s).
+
+        Semi-implicit: ``eta_{k+1} = eta_k + dt/tau (alpha_z (beta_z 2 log(g * conj(q_k)) - eta_k) + f(x_k))``,
+        ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k`` (renormalized). The forcing term is evaluated
+        for all steps at once; the nonlinear recursion is a loop over steps in plain floats.
+        """
+        tau = self.duration_s if duration_s is None else float(duration_s)
+        t = _rollout_times(dt, tau)
+        q0 = self.start if start is None else _unit_quaternions(start, "start").reshape(4)
+        g = self.goal if goal is None else _unit_quaternions(goal, "goal").reshape(4)
+        a = dt / tau
+        # a * (f_k) per step, and the constant gains, as plain Python floats.
+        drive = (a * self.forcing(self.phase(t[:-1], tau))).tolist()
+        k_goal = a * self.alpha_z * self.beta_z * 2.0
+        damp = 1.0 - a * self.alpha_z
+        half_a = 0.5 * a
+        gx, gy, gz, gw = (float(v) for v in g)
+        qx, qy, qz, qw = (float(v) for v in q0)
+        ex = ey = ez = 0.0
+        out_q = [(qx, qy, qz, qw)]
+        out_eta = [(0.0, 0.0, 0.0)]
+        append_q, append_eta = out_q.append, out_eta.append
+        atan2, sqrt, sin, cos = math.atan2, math.sqrt, math.sin, math.cos
+        for fx, fy, fz in drive:
+            # Goal error r = g * conj(q) on the short branch; log(r) = scale * r_vec = u theta/2.
+            rw = gw * qw + gx * qx + gy * qy + gz * qz
+            rx = qw * gx - gw * qx + gz * qy - gy * qz
+            ry = qw * gy - gw * qy + gx * qz - gz * qx
+            rz = qw * gz - gw * qz + gy * qx - gx * qy
+            vn = sqrt(rx * rx + ry * ry + rz * rz)
+            if vn > 1e-12:
+                scale = k_goal * atan2(vn, rw) / vn if rw >= 0.0 else -k_goal * atan2(vn, -rw) / vn
+            else:
+                scale = k_goal
+            ex = damp * ex + scale * rx + fx
+            ey = damp * ey + scale * ry + fy
+            ez = damp * ez + scale * rz + fz
+            # Step rotation d = exp(a/2 eta), applied on the left (world frame): q <- d * q.
+            hx, hy, hz = half_a * ex, half_a * ey, half_a * ez
+            hn = sqrt(hx * hx + hy * hy + hz * hz)
+            if hn > 1e-12:
+                sinc = sin(hn) / hn
+                dx, dy, dz, dw = hx * sinc, hy * sinc, hz * sinc, cos(hn)
+            else:
+                dx, dy, dz, dw = hx, hy, hz, 1.0
+            qx, qy, qz, qw = (
+                dw * qx + qw * dx + dy * qz - dz * qy,
+                dw * qy + qw * dy + dz * qx - dx * qz,
+                dw * qz + qw * dz + dx * qy - dy * qx,
+                dw * qw - dx * qx - dy * qy - dz * qz,
+            )
+            inv = 1.0 / sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+            qx, qy, qz, qw = qx * inv, qy * inv, qz * inv, qw * inv
+            append_q((qx, qy, qz, qw))
+            append_eta((ex, ey, ez))
+        return QuaternionDMPRollout(t=t, q=np.array(out_q), omega=np.array(out_eta) / tau)
+
+    def to_parameters(self) -> DMPParameters:
+        """Return the wire form (kind quaternion, no amplitude scaling); :meth:`from_parameters` inverts it."""
+        return self._parameters(self.start, self.goal, [False, False, False])
+
+    @classmethod
+    def from_parameters(cls, p: DMPParameters) -> QuaternionDMP:
+        """Rebuild an orientation DMP from kind-quaternion parameters. Raises ValueError otherwise."""
+        if p.kind != "quaternion":
+            raise ValueError(f"QuaternionDMP.from_parameters needs kind 'quaternion', got {p.kind!r}")
+        if any(p.amplitude_scaling):
+            raise ValueError("a quaternion DMP has no amplitude scaling (amplitude_scaling must be all false)")
+        return cls(
+            start=p.start,
+            goal=p.goal,
+            duration_s=p.duration_s,
+            alpha_z=p.alpha_z,
+            beta_z=p.beta_z,
+            alpha_x=p.alpha_x,
+            centers=p.centers,
+            widths=p.widths,
+            weights=p.weights,
+            frame=p.frame,
+        )
