@@ -1,17 +1,261 @@
-"""Entry point of the `contact-skills` console script; subcommands are added by later issues."""
+"""Entry point of the `contact-skills` console script.
+
+Subcommands import their dependencies lazily, so ``contact-skills --help`` stays fast.
+Errors a user can fix (bad file, bad column, invalid field, a demonstration that cannot give
+the skill) print one line per problem to stderr and exit with code 2, never a traceback.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
+
+EXIT_USAGE = 2
+"""Exit code for bad input (as argparse uses for bad arguments)."""
+
+DATA_ENV = "CONTACT_SKILLS_DATA"
+"""Environment variable: the shared data directory (holding ``kuleuven_contour/``) to use instead of the default."""
+
+
+def repository_root() -> Path:
+    """The repository holding this package (``cli/`` is at its top level)."""
+    return Path(__file__).resolve().parents[1]
+
+
+def data_directory() -> Path:
+    """The shared data directory: ``$CONTACT_SKILLS_DATA`` or ``<repo>/../shared/data``."""
+    override = os.environ.get(DATA_ENV)
+    return Path(override) if override else repository_root().parent / "shared" / "data"
+
+
+def kuleuven_recordings() -> list[Path]:
+    """The KU Leuven contour recordings (``contour_*.csv``), sorted; empty if none are found."""
+    root = data_directory()
+    for folder in (root / "kuleuven_contour", root):
+        found = sorted(folder.glob("contour_*.csv"))
+        if found:
+            return found
+    return []
+
+
+KULEUVEN_IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
+"""Import options of the KU Leuven recordings (scalar-first quaternions, sensor reaction in the TCP frame)."""
+
+
+# --------------------------------------------------------------------------- errors
+
+
+class UserError(Exception):
+    """An error the user can fix: ``problems`` are printed one per line, exit code 2."""
+
+    def __init__(self, problems: list[str]) -> None:
+        super().__init__("\n".join(problems))
+        self.problems = problems
+
+
+def _user_problems(exc: BaseException) -> list[str] | None:
+    """The printable problems of a user-fixable error, or None for a bug (which keeps its traceback)."""
+    from pydantic import ValidationError
+
+    from services.csv_import import DemonstrationImportError, validation_problems
+
+    if isinstance(exc, UserError | DemonstrationImportError):
+        return exc.problems
+    if isinstance(exc, ValidationError):
+        return validation_problems(exc)
+    if isinstance(exc, OSError):
+        return [f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")]
+    if type(exc).__name__ == "LearningError":  # skills.parameterize: "field: reason" (not imported unless needed)
+        return str(exc).splitlines()
+    return None
+
+
+def _report_user_error(command: str, exc: BaseException) -> int:
+    problems = _user_problems(exc)
+    if problems is None:
+        raise exc
+    for problem in problems:
+        print(f"contact-skills {command}: error: {problem}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+# --------------------------------------------------------------------------- learn
+
+
+def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", type=Path, help="demonstration: a CSV recording or a JSON Demonstration")
+    parser.add_argument("--type", dest="skill_type", choices=["slide", "contour", "auto"], default="auto")
+    parser.add_argument(
+        "--columns",
+        metavar="SPEC",
+        help="column names, e.g. t=time,px=tcp_x,qw=tcp_qw,fz=Fz; keys: t px py pz qx qy qz qw fx fy fz mx my mz "
+        "(unnamed keys are recognized from common header names)",
+    )
+    parser.add_argument(
+        "--quaternion-order",
+        choices=["xyzw", "wxyz"],
+        help="order of the quaternion columns in the file (default: from their names, e.g. qw or tcp_qw)",
+    )
+    parser.add_argument(
+        "--wrench",
+        dest="wrench_convention",
+        choices=["applied-by-tool", "measured-on-tool"],
+        default="applied-by-tool",
+        help="what the recorded wrench is: measured-on-tool (a sensor's reaction) is negated",
+    )
+    parser.add_argument(
+        "--wrench-frame", choices=["world", "tool"], default="world", help="frame of the recorded wrench"
+    )
+    parser.add_argument("--rate", type=float, metavar="HZ", help="resampling rate (default: the data's own)")
+    parser.add_argument("--no-tare", action="store_true", help="do not remove a sensor offset seen in free space")
+    parser.add_argument(
+        "--basis", type=int, default=50, metavar="N", help="fewest DMP basis functions per segment (long ones get more)"
+    )
+    parser.add_argument("-o", "--output", type=Path, required=True, help="skill JSON to write")
+    parser.add_argument("--figure", type=Path, help="learning figure to write (PNG)")
+
+
+def _import_demonstration(args: argparse.Namespace):  # -> schemas.Demonstration
+    from services.csv_import import ColumnMap, demonstration_from_csv, demonstration_from_json
+
+    if args.file.suffix.lower() == ".json":
+        return demonstration_from_json(args.file)
+    return demonstration_from_csv(
+        args.file,
+        columns=ColumnMap.parse(args.columns) if args.columns else None,
+        quaternion_order=args.quaternion_order,
+        wrench_convention=args.wrench_convention,
+        wrench_frame=args.wrench_frame,
+        rate_hz=args.rate,
+        tare=not args.no_tare,
+    )
+
+
+def learn_and_report(demonstration, skill_type: str, n_basis: int, output: Path, figure: Path | None) -> None:
+    """Learn the skill from ``demonstration``, write it (and the figure), print the summary."""
+    import time
+
+    from schemas import LearnOptions
+    from skills.parameterize import learn_skill
+
+    options = LearnOptions(skill_type=skill_type, n_basis=n_basis)
+    started = time.perf_counter()
+    skill = learn_skill(demonstration, options)
+    elapsed = time.perf_counter() - started
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(skill.model_dump_json(indent=1))
+    for line in summary_lines(demonstration, skill):
+        print(line)
+    print(f"learned in {elapsed:.2f} s; skill written to {output}")
+    if figure is not None:
+        from services.figures import write_learning_figure
+
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        write_learning_figure(demonstration, skill, figure)
+        print(f"figure written to {figure}")
+
+
+def _vector(v) -> str:
+    return "[" + ", ".join(f"{x:+.3f}" for x in v) + "]"
+
+
+def summary_lines(demonstration, skill) -> list[str]:
+    """The learn summary: import notes, type, segments, CF axes, learned force, DMP reproduction errors."""
+    import numpy as np
+
+    from schemas import DemonstrationSummary, SegmentKind
+    from services.figures import compliant_frame_axes
+
+    d = DemonstrationSummary.of(demonstration)
+    meta = demonstration.metadata
+    lines = [f"demonstration {d.name or '(unnamed)'}: {d.n_samples} samples, {d.duration_s:.2f} s, "
+             f"{d.mean_rate_hz:.0f} Hz, max |f| {d.max_force_n:.1f} N (source {meta.source})"]  # fmt: skip
+    lines += [f"  import: {note}" for note in meta.extra.get("import_notes", [])]
+    if skill.auto_selection is not None:
+        auto = skill.auto_selection
+        lines.append(f"skill type: {skill.skill_type.value} (auto, confidence {auto.confidence:.2f}: {auto.reason})")
+    else:
+        lines.append(f"skill type: {skill.skill_type.value} (as asked)")
+    lines.append(f"segments: {len(skill.segments)}")
+    for s in skill.segments:
+        q = s.quality
+        lines.append(f"  {s.index} {s.kind.value:7s} {s.t_start:7.3f} - {s.t_end:7.3f} s")
+        if s.kind == SegmentKind.contact and s.compliant_frames is not None:
+            axes = compliant_frame_axes(demonstration, s)
+            if len(s.compliant_frames.t) == 1:
+                lines.append(f"    CF normal (z) in world {_vector(axes.mean_world)}")
+            else:
+                lines.append(
+                    f"    CF z mean in world {_vector(axes.mean_world)}, in tool {_vector(axes.mean_tool)} "
+                    f"(RMS {axes.tool_spread_deg:.1f} deg about it in the tool frame)"
+                )
+        if s.force_constant_n is not None:
+            lines.append(f"    force: constant {s.force_constant_n:.2f} N along CF z")
+        elif s.force_dmp is not None:
+            from services.figures import learned_force_curve
+
+            _, f = learned_force_curve(s, 1.0 / skill.sample_rate_hz)
+            lines.append(f"    force profile (DMP): min {f.min():.1f} / mean {f.mean():.1f} / max {f.max():.1f} N")
+        errors = f"position {q.position_rms_m * 1e3:.2f} mm, orientation {np.degrees(q.orientation_rms_rad):.2f} deg"
+        if q.force_rms_n is not None:
+            errors += f", force {q.force_rms_n:.2f} N"
+        lines.append(f"    DMP reproduction RMS: {errors}")
+    return lines
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    """``contact-skills learn``: import a recording, learn the skill, write it, print the summary."""
+    try:
+        demonstration = _import_demonstration(args)
+        learn_and_report(demonstration, args.skill_type, args.basis, args.output, args.figure)
+    except Exception as exc:
+        return _report_user_error("learn", exc)
+    return 0
+
+
+def cmd_demo_learn(args: argparse.Namespace) -> int:
+    """``contact-skills demo-learn``: learn a contour skill from the first KU Leuven recording."""
+    try:
+        recordings = kuleuven_recordings()
+        if not recordings:
+            raise UserError([f"no KU Leuven recordings (contour_*.csv) under {data_directory()}; set {DATA_ENV}"])
+        from services.csv_import import demonstration_from_csv
+
+        print(f"importing {recordings[0]}")
+        demonstration = demonstration_from_csv(recordings[0], **KULEUVEN_IMPORT)
+        out = args.out_dir
+        learn_and_report(demonstration, "contour", 50, out / "skill.json", out / "learn.png")
+    except Exception as exc:
+        return _report_user_error("demo-learn", exc)
+    return 0
+
+
+# --------------------------------------------------------------------------- main
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of all subcommands."""
+    parser = argparse.ArgumentParser(prog="contact-skills", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    learn = commands.add_parser(
+        "learn", help="learn a skill from a recorded demonstration (CSV or JSON)", description=cmd_learn.__doc__
+    )
+    _add_learn_arguments(learn)
+    learn.set_defaults(run=cmd_learn)
+    demo = commands.add_parser(
+        "demo-learn", help="learn a contour skill from a real KU Leuven recording", description=cmd_demo_learn.__doc__
+    )
+    demo.add_argument("--out-dir", type=Path, default=Path("out"), help="where to write skill.json and learn.png")
+    demo.set_defaults(run=cmd_demo_learn)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen subcommand; returns the process exit code."""
-    parser = argparse.ArgumentParser(prog="contact-skills", description=__doc__)
-    parser.add_subparsers(dest="command", required=True)
-    parser.parse_args(argv)
-    return 0
+    args = build_parser().parse_args(argv)
+    return args.run(args)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,550 @@
+"""Importing recorded demonstrations: CSV (any column names, conventions, event-driven logs) and JSON.
+
+The result is always a validated `schemas.Demonstration` in the project's conventions
+(DESIGN.md): SI units, uniform strictly increasing time, scalar-last unit sign-continuous
+quaternions, and the wrench the tool APPLIES to the environment at the tool point in the WORLD
+frame. Steps of :func:`demonstration_from_csv`, in order:
+
+1. read the table (standard ``csv`` module; ``,`` ``;`` tab or whitespace separated, one header
+   row, ``#`` comment lines and blank lines skipped) and map its columns (:class:`ColumnMap`);
+2. quaternions to scalar-last (``quaternion_order``), norms checked, renormalized;
+3. per channel group (pose, wrench) keep the real measurements of an event-driven log and
+   resample onto one uniform grid (`skills.preprocess.resampled_recording`);
+4. a TOOL-frame wrench is rotated into the world with the (interpolated) tool orientation;
+5. a ``measured-on-tool`` wrench is negated (``applied-by-tool``);
+6. ``tare``: the sensor offset is estimated over a free-space part and subtracted, if there is one.
+
+Units are assumed SI already (s, m, N, N·m): nothing is rescaled.
+Every problem raises :class:`CsvImportError` (a ``ValueError``) whose message names the column,
+the line and the reason, one problem per line in ``problems``.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+from pydantic import ValidationError
+
+from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
+from skills import preprocess
+
+MAX_PROBLEMS_LISTED = 10
+"""At most this many problems are listed in one error (the count of the rest is given)."""
+
+
+class DemonstrationImportError(ValueError):
+    """A demonstration file could not be imported; ``problems`` holds one human-readable line per problem."""
+
+    def __init__(self, problems: str | Iterable[str]) -> None:
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        if len(self.problems) > MAX_PROBLEMS_LISTED:
+            more = len(self.problems) - MAX_PROBLEMS_LISTED
+            self.problems = [*self.problems[:MAX_PROBLEMS_LISTED], f"... and {more} more problems"]
+        super().__init__("\n".join(self.problems))
+
+
+class CsvImportError(DemonstrationImportError):
+    """A CSV recording could not be imported (missing column, non-numeric value, NaN, too few rows, ...)."""
+
+
+# --------------------------------------------------------------------------- column mapping
+
+COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
+"""Keys of a column spec: time (s); position (m); quaternion components; force (N); moment (N·m)."""
+
+_AXES = ("x", "y", "z")
+_WORLD_SUFFIXES = ("w", "world", "base")
+_TOOL_SUFFIXES = ("tcp", "tool", "ee", "sensor")
+
+
+def _wrench_candidates(key: str, wrench_frame: WrenchFrame | None) -> list[str]:
+    """Wrench header names for ``key`` with a frame suffix/prefix of ``wrench_frame`` (None: without one)."""
+    axis = key[1]
+    prefixes = ["f", "force_", "f_", "wrench_f"] if key[0] == "f" else ["m", "t", "torque_", "moment_", "tau_", "m_"]
+    generic = [f"{p}{axis}" for p in prefixes]
+    if wrench_frame is None:
+        return generic
+    suffixes = _WORLD_SUFFIXES if wrench_frame == WrenchFrame.world else _TOOL_SUFFIXES
+    return [f"{name}_{suffix}" for suffix in suffixes for name in generic] + [
+        f"{suffix}_{name}" for suffix in suffixes for name in generic
+    ]
+
+
+def _candidates(key: str, wrench_frame: WrenchFrame) -> list[str]:
+    """Header names (normalized, see :func:`_normalized`) recognized for ``key``, best first."""
+    if key == "t":
+        return ["t", "time", "timestamp", "time_s", "t_s", "stamp", "seconds", "sec", "time_sec"]
+    axis = key[1]
+    if key[0] == "p":
+        return [f"p{axis}", axis, f"pos_{axis}", f"position_{axis}", f"p_{axis}", f"tcp_{axis}", f"ee_{axis}",
+                f"tool_{axis}", f"{axis}_m"]  # fmt: skip
+    if key[0] == "q":
+        return [f"q{axis}", f"q_{axis}", f"quat_{axis}", f"quaternion_{axis}", f"orientation_{axis}",
+                f"tcp_q{axis}", f"ee_q{axis}", f"tool_q{axis}"]  # fmt: skip
+    return _wrench_candidates(key, wrench_frame) + _wrench_candidates(key, None)
+
+
+def _normalized(header_name: str) -> str:
+    """Lower case, units in brackets removed, separators made ``_``: ``'Fx [N]'`` -> ``'fx'``."""
+    name = re.sub(r"[\[(].*?[\])]", "", header_name.strip().lower())
+    return re.sub(r"[^0-9a-z]+", "_", name).strip("_")
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """Which header column holds which quantity; a None field is recognized from common names.
+
+    Keys (:data:`COLUMN_KEYS`): ``t`` time (s); ``px, py, pz`` tool point position (m);
+    ``qx, qy, qz, qw`` orientation quaternion components (whatever their order in the file);
+    ``fx, fy, fz`` force (N); ``mx, my, mz`` moment (N·m). The moment columns may be absent
+    altogether (zero moments are used and a note says so).
+    """
+
+    t: str | None = None
+    px: str | None = None
+    py: str | None = None
+    pz: str | None = None
+    qx: str | None = None
+    qy: str | None = None
+    qz: str | None = None
+    qw: str | None = None
+    fx: str | None = None
+    fy: str | None = None
+    fz: str | None = None
+    mx: str | None = None
+    my: str | None = None
+    mz: str | None = None
+
+    @classmethod
+    def parse(cls, spec: str) -> ColumnMap:
+        """Parse ``"t=time,px=tcp_x,..."`` (``key=column`` pairs, comma separated; unnamed keys auto-detected)."""
+        values: dict[str, str] = {}
+        problems = []
+        for item in filter(None, (part.strip() for part in spec.split(","))):
+            key, sep, column = (part.strip() for part in item.partition("="))
+            if not sep or not column:
+                problems.append(f"--columns: {item!r} is not key=column (e.g. t=time,px=tcp_x)")
+            elif key not in COLUMN_KEYS:
+                problems.append(f"--columns: unknown key {key!r}; keys are {', '.join(COLUMN_KEYS)}")
+            elif key in values:
+                problems.append(f"--columns: key {key!r} given twice")
+            else:
+                values[key] = column
+        if problems:
+            raise CsvImportError(problems)
+        return cls(**values)
+
+    def given(self) -> dict[str, str]:
+        """The keys that name a column explicitly."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+
+_NUMBERED_QUATERNION = re.compile(r"^(q|quat|quaternion|orientation|rot|tcp_q|ee_q|tool_q)_?([0-4])$")
+_QUATERNION_KEYS = ("qx", "qy", "qz", "qw")
+
+
+@dataclass(frozen=True)
+class ResolvedColumns:
+    """Where each quantity is in the header and how the quaternion columns are ordered."""
+
+    indices: dict[str, int | None]
+    """Header index of every key of :data:`COLUMN_KEYS`; None only for absent moment columns."""
+    quaternion_order: QuaternionOrder
+    """Order of the four quaternion columns as they appear in the file, left to right."""
+
+
+def _numbered_quaternion_columns(header: list[str]) -> list[int] | None:
+    """Four columns named like q0..q3 / q1..q4 / quat_0.. (same prefix, consecutive numbers), in number order."""
+    sets: dict[str, dict[int, int]] = {}
+    for j, name in enumerate(header):
+        match = _NUMBERED_QUATERNION.match(_normalized(name))
+        if match:
+            sets.setdefault(match[1], {})[int(match[2])] = j
+    for numbered in sets.values():
+        for first in (0, 1):
+            if all(first + i in numbered for i in range(4)):
+                return [numbered[first + i] for i in range(4)]
+    return None
+
+
+def _quaternion_columns(
+    found: dict[str, int | None], given: dict[str, str], header: list[str], order: QuaternionOrder | None
+) -> QuaternionOrder:
+    """Complete the quaternion keys of ``found`` in place; return the order of the columns in the file.
+
+    Named columns (qx.., tcp_qw.., or --columns) decide which column is which component, and
+    their left-to-right order in the file is the recorded order; an explicit ``order`` that
+    contradicts them is an error (mislabelled file? name the columns with --columns). Numbered
+    columns (q0..q3) carry no component names: ``order`` must be given.
+    """
+    named = {key: found[key] for key in _QUATERNION_KEYS if found[key] is not None}
+    if len(named) == 4:
+        by_position = "".join(key[1] for key in sorted(named, key=lambda k: named[k]))
+        in_file = QuaternionOrder(by_position) if by_position in ("xyzw", "wxyz") else None
+        if order is not None and in_file is not None and order != in_file:
+            names = ", ".join(header[named[k]] for k in sorted(named, key=lambda k: named[k]))
+            raise CsvImportError(
+                f"quaternion order: the columns {names} are named in {in_file.value} order, but "
+                f"quaternion_order={order.value!r} was given; drop the option, or map the columns with --columns"
+            )
+        return in_file or order or QuaternionOrder.xyzw
+    if named or any(key in given for key in _QUATERNION_KEYS):
+        return order or QuaternionOrder.xyzw  # the missing ones are reported as missing columns
+    numbered = _numbered_quaternion_columns(header)
+    if numbered is None:
+        return order or QuaternionOrder.xyzw
+    if order is None:
+        names = ", ".join(header[j] for j in numbered)
+        raise CsvImportError(
+            f"quaternion columns {names} are numbered, not named: give their order with "
+            "quaternion_order='wxyz' (scalar first) or 'xyzw' (scalar last), --quaternion-order on the command line"
+        )
+    for key, j in zip(("q" + c for c in order.value), numbered, strict=True):
+        found[key] = j
+    return order
+
+
+def resolved_columns(
+    header: list[str],
+    columns: ColumnMap | None = None,
+    wrench_frame: WrenchFrame = WrenchFrame.world,
+    quaternion_order: QuaternionOrder | None = None,
+) -> ResolvedColumns:
+    """Find every key of :data:`COLUMN_KEYS` in ``header`` (``columns`` first, then common names).
+
+    ``quaternion_order`` None: taken from the quaternion column names. Raises
+    :class:`CsvImportError` listing every missing column with the names looked for.
+    """
+    given = (columns or ColumnMap()).given()
+    exact = {name.strip(): j for j, name in enumerate(header)}
+    by_normal: dict[str, int] = {}
+    for j, name in enumerate(header):
+        by_normal.setdefault(_normalized(name), j)
+    found: dict[str, int | None] = {}
+    problems = []
+    for key in COLUMN_KEYS:
+        if key in given:
+            name = given[key]
+            j = exact.get(name, by_normal.get(_normalized(name)))
+            if j is None:
+                problems.append(f"column {name!r} given for {key} is not in the header ({', '.join(header)})")
+            found[key] = j
+            continue
+        candidates = _candidates(key, wrench_frame)
+        found[key] = next((by_normal[c] for c in candidates if c in by_normal), None)
+    if problems:
+        raise CsvImportError(problems)
+    order = _quaternion_columns(found, given, header, quaternion_order)
+    moments = [found[k] for k in ("mx", "my", "mz")]
+    for key in COLUMN_KEYS:
+        if found[key] is not None or (key[0] == "m" and all(m is None for m in moments)):
+            continue
+        if key[0] in "fm":
+            shown = _wrench_candidates(key, None)[:3] + _wrench_candidates(key, wrench_frame)[:2]
+        else:
+            shown = _candidates(key, wrench_frame)[:6]
+        problem = f"missing column for {key}: none of {', '.join(shown)}, ... in the header"
+        other = WrenchFrame.tool if wrench_frame == WrenchFrame.world else WrenchFrame.world
+        if key[0] in "fm" and any(c in by_normal for c in _wrench_candidates(key, other)):
+            problem += f" (the file has a {other.value}-frame wrench: pass wrench_frame={other.value!r})"
+        problems.append(problem + f"; name it with --columns {key}=<column>")
+    if problems:
+        raise CsvImportError(problems)
+    return ResolvedColumns(indices=found, quaternion_order=order)
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass(frozen=True)
+class _Table:
+    header: list[str]
+    rows: list[list[str]]
+    lines: list[int]
+    """1-based line number in the file of each data row."""
+
+
+def _read_table(text: str) -> _Table:
+    """Split CSV ``text`` into header and data rows (strings), keeping each row's line number."""
+    numbered = [
+        (k + 1, line) for k, line in enumerate(text.splitlines()) if line.strip() and not line.lstrip().startswith("#")
+    ]
+    if not numbered:
+        raise CsvImportError("the file is empty: expected a header row and data rows")
+    header_line = numbered[0][1]
+    delimiter = next((d for d in (",", ";", "\t") if d in header_line), None)
+    if delimiter is None:
+        split = [line.split() for _, line in numbered]
+    else:
+        split = list(csv.reader((line for _, line in numbered), delimiter=delimiter, skipinitialspace=True))
+    header = [name.strip() for name in split[0]]
+    if all(_is_number(name) for name in header):
+        raise CsvImportError("the first row holds numbers, not column names: a header row is required")
+    rows, lines, problems = [], [], []
+    for (line_number, _), row in zip(numbered[1:], split[1:], strict=True):
+        if len(row) != len(header):
+            problems.append(f"line {line_number}: {len(row)} fields, the header has {len(header)}")
+        rows.append(row)
+        lines.append(line_number)
+    if problems:
+        raise CsvImportError(problems)
+    return _Table(header=header, rows=rows, lines=lines)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _numeric_columns(table: _Table, indices: dict[str, int | None]) -> dict[str, np.ndarray]:
+    """Return each mapped column as floats; problems name the column, the line and the value."""
+    values: dict[str, np.ndarray] = {}
+    problems = []
+    for key, j in indices.items():
+        if j is None:
+            continue
+        name = table.header[j]
+        cells = [row[j].strip() for row in table.rows]
+        try:
+            column = np.array(cells, dtype=float)
+        except ValueError:
+            k = next(k for k, cell in enumerate(cells) if not _is_number(cell))
+            shown = repr(cells[k]) if cells[k] else "an empty value"
+            problems.append(f"column {name!r} ({key}), line {table.lines[k]}: {shown} is not a number")
+            continue
+        bad = np.flatnonzero(~np.isfinite(column))
+        if bad.size:
+            k = int(bad[0])
+            problems.append(
+                f"column {name!r} ({key}), line {table.lines[k]}: {cells[k]!r} is not finite (NaN or inf)"
+                + (f"; {bad.size} such values" if bad.size > 1 else "")
+            )
+        values[key] = column
+    if problems:
+        raise CsvImportError(problems)
+    return values
+
+
+def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, str | None]:
+    """Return the CSV text and the file name (None for text given inline)."""
+    if isinstance(path_or_text, bytes):
+        try:
+            return path_or_text.decode("utf-8-sig"), None
+        except UnicodeDecodeError:
+            raise CsvImportError("the upload is not UTF-8 text") from None
+    if isinstance(path_or_text, str) and ("\n" in path_or_text or not path_or_text.strip()):
+        return path_or_text, None
+    path = Path(path_or_text)
+    try:
+        return path.read_text(encoding="utf-8-sig"), path.name
+    except OSError as exc:
+        raise CsvImportError(f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise CsvImportError(f"{str(path)!r} is not a UTF-8 text file") from None
+
+
+# --------------------------------------------------------------------------- import
+
+
+def demonstration_from_csv(
+    path_or_text: str | os.PathLike[str] | bytes,
+    columns: ColumnMap | None = None,
+    quaternion_order: QuaternionOrder | str | None = None,
+    wrench_convention: WrenchConvention | str = WrenchConvention.applied_by_tool,
+    wrench_frame: WrenchFrame | str = WrenchFrame.world,
+    rate_hz: float | None = None,
+    tare: bool = True,
+    name: str | None = None,
+) -> Demonstration:
+    """Import a CSV recording (a path, or the CSV text itself) as a `schemas.Demonstration`.
+
+    ``quaternion_order``: order of the quaternion columns in the file, 'xyzw' (scalar last) or
+    'wxyz' (scalar first). Default None: named columns (qx.., tcp_qw.., or ``columns``) say
+    which component each is, and an explicit order that contradicts them is an error; numbered
+    columns (q0..q3) need the order given.
+    ``wrench_convention``: 'applied-by-tool' (kept) or 'measured-on-tool' (negated).
+    ``wrench_frame``: 'world' (kept) or 'tool' (rotated into the world with the tool
+    orientation; the point stays the tool point). ``rate_hz``: uniform rate to resample to
+    (default: the fastest channel group's median update rate, 200 Hz for the KU Leuven logs).
+    ``tare``: subtract the sensor offset measured over a free-space part, if there is one.
+    ``name``: metadata name (default: the file stem; 'inline' for CSV text).
+
+    Metadata records the conventions on import, the resampled rate, the removed offset
+    (world, applied-by-tool, or None), and in ``extra``: ``import_notes`` (one line per thing
+    done), ``columns`` (key -> header name used) and ``rows``.
+    Raises :class:`CsvImportError` naming the column/line/field and the reason.
+    """
+    try:
+        requested_order = None if quaternion_order is None else QuaternionOrder(quaternion_order)
+        convention = WrenchConvention(wrench_convention)
+        frame = WrenchFrame(wrench_frame)
+    except ValueError as exc:
+        raise CsvImportError(str(exc)) from None
+    if rate_hz is not None and not (np.isfinite(rate_hz) and 0 < rate_hz <= 100_000):
+        raise CsvImportError(f"rate: {rate_hz} Hz is not a resampling rate in (0, 100000] Hz")
+    text, file_name = _text_and_name(path_or_text)
+    file_name = file_name or (f"{name}.csv" if name else "inline.csv")
+    table = _read_table(text)
+    resolved = resolved_columns(table.header, columns, frame, requested_order)
+    indices, order = resolved.indices, resolved.quaternion_order
+    values = _numeric_columns(table, indices)
+    if len(table.rows) < 2:
+        raise CsvImportError(f"too few rows: {len(table.rows)} data row(s); a recording needs many samples over time")
+
+    t = values["t"]
+    positions = np.column_stack([values[k] for k in ("px", "py", "pz")])
+    q_file = np.column_stack([values["q" + component] for component in order.value])  # in the file's order
+    orientations = preprocess.quaternions_scalar_last(q_file, order.value)
+    _check_quaternions(orientations, table, indices)
+    notes = []
+    if indices["mx"] is None:
+        wrench = np.column_stack([values[k] for k in ("fx", "fy", "fz")] + [np.zeros_like(t)] * 3)
+        notes.append("no moment columns: moments set to zero")
+    else:
+        wrench = np.column_stack([values[k] for k in ("fx", "fy", "fz", "mx", "my", "mz")])
+
+    if np.ptp(t) <= 0:
+        raise CsvImportError(f"column {table.header[indices['t']]!r} (t): all time stamps are equal ({t[0]:g} s)")
+    try:
+        recording = preprocess.resampled_recording(t, positions, orientations, wrench, rate_hz)
+    except ValueError as exc:
+        raise CsvImportError(f"resampling: {exc}") from None
+    notes = recording.notes + notes
+    wrenches = recording.wrenches
+    if frame == WrenchFrame.tool:
+        wrenches = preprocess.wrenches_tool_to_world(wrenches, recording.orientations)
+        notes.append("wrench given in the tool frame: rotated into the world with the interpolated tool orientation")
+    if convention == WrenchConvention.measured_on_tool:
+        wrenches = preprocess.wrenches_applied_by_tool(wrenches)
+        notes.append("wrench measured on the tool: negated to the wrench the tool applies")
+    notes.extend(_direction_hint(wrenches, convention))
+    offset = None
+    if tare:
+        tared = preprocess.wrenches_tared(recording.t, wrenches)
+        wrenches, offset = tared.wrenches, tared.offset
+        notes.append(tared.note)
+    else:
+        notes.append("tare off: no sensor offset removed")
+    if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
+        raise CsvImportError(
+            f"too few samples: {recording.t.size} at {recording.rate_hz:g} Hz over {np.ptp(recording.t):.3g} s, "
+            f"at least {MIN_DEMONSTRATION_SAMPLES} are needed (record longer, or pass a higher rate)"
+        )
+    metadata = DemonstrationMetadata(
+        name=name or Path(file_name).stem,
+        source=f"csv:{file_name}",
+        wrench_convention_on_import=convention,
+        wrench_frame_on_import=frame,
+        quaternion_order_on_import=order,
+        resampled_rate_hz=recording.rate_hz,
+        force_offset_removed=None if offset is None else offset.tolist(),
+        extra={
+            "import_notes": notes,
+            "columns": {k: table.header[j] for k, j in indices.items() if j is not None},
+            "rows": len(table.rows),
+        },
+    )
+    try:
+        return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
+    except ValidationError as exc:
+        raise CsvImportError(validation_problems(exc)) from None
+
+
+UPWARD_FORCE_HINT = 0.5
+"""World z of the stronger half of the forces' mean direction above which the import notes ask to check the sign."""
+
+
+def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention) -> list[str]:
+    """A note when the applied force points mostly UP in the world: pressing on a table or a part points down.
+
+    Not an error (a wall or a ceiling is possible), but a reaction imported as applied-by-tool
+    looks exactly like this.
+    """
+    forces = wrenches[:, :3]
+    magnitude = np.linalg.norm(forces, axis=1)
+    strong = forces[magnitude >= np.median(magnitude)].mean(axis=0)
+    if np.linalg.norm(strong) == 0 or strong[2] / np.linalg.norm(strong) <= UPWARD_FORCE_HINT:
+        return []
+    flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
+    return [
+        f"check the wrench sign: the applied force points mostly UP in the world (mean direction z = "
+        f"{strong[2] / np.linalg.norm(strong):+.2f}); if the file holds the other convention pass --wrench {flip}"
+    ]
+
+
+def _check_quaternions(q: np.ndarray, table: _Table, indices: dict[str, int | None]) -> None:
+    """Reject quaternions whose norm is far from 1 (wrong columns), naming the columns and the first line."""
+    deviation = preprocess.quaternion_norm_deviations(q)
+    bad = np.flatnonzero(deviation > preprocess.MAX_QUATERNION_NORM_DEVIATION)
+    if bad.size:
+        k = int(bad[0])
+        names = ", ".join(table.header[indices[key]] for key in ("qx", "qy", "qz", "qw"))  # type: ignore[index]
+        raise CsvImportError(
+            f"quaternion ({names}), line {table.lines[k]}: norm {np.linalg.norm(q[k]):.4g} is not 1 "
+            f"(tolerance {preprocess.MAX_QUATERNION_NORM_DEVIATION}); {bad.size} such rows: check the columns"
+        )
+
+
+def validation_problems(exc: ValidationError) -> list[str]:
+    """One line per pydantic validation error: ``field.path: message``."""
+    problems = []
+    for error in exc.errors():
+        location = ".".join(str(part) for part in error["loc"]) or "demonstration"
+        message = error["msg"].removeprefix("Value error, ")
+        problems.append(f"{location}: {message}")
+    return problems
+
+
+def demonstration_from_json(path_or_text: str | os.PathLike[str] | bytes) -> Demonstration:
+    """Load a `schemas.Demonstration` from a JSON file (or JSON text); the data must already follow the conventions.
+
+    Raises :class:`DemonstrationImportError` with one line per problem (unreadable file,
+    invalid JSON, or each failing field with its path, e.g. ``orientations: quaternion at sample 3 ...``).
+    """
+    if isinstance(path_or_text, bytes):
+        text = path_or_text.decode("utf-8-sig")
+    elif isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
+        text = path_or_text
+    else:
+        path = Path(path_or_text)
+        try:
+            text = path.read_text(encoding="utf-8-sig")
+        except OSError as exc:
+            raise DemonstrationImportError(f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
+        except UnicodeDecodeError:
+            raise DemonstrationImportError(f"{str(path)!r} is not a UTF-8 text file") from None
+    try:
+        return Demonstration.model_validate_json(text)
+    except ValidationError as exc:
+        raise DemonstrationImportError(validation_problems(exc)) from None
+
+
+def demonstration_from_file(path: str | os.PathLike[str], **csv_options: object) -> Demonstration:
+    """Import ``path`` by its suffix: ``.json`` via :func:`demonstration_from_json`, anything else as CSV."""
+    if Path(path).suffix.lower() == ".json":
+        return demonstration_from_json(path)
+    return demonstration_from_csv(path, **csv_options)  # type: ignore[arg-type]
+
+
+__all__ = [
+    "COLUMN_KEYS",
+    "ColumnMap",
+    "CsvImportError",
+    "DemonstrationImportError",
+    "ResolvedColumns",
+    "demonstration_from_csv",
+    "demonstration_from_file",
+    "demonstration_from_json",
+    "resolved_columns",
+    "validation_problems",
+]

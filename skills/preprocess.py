@@ -1,0 +1,498 @@
+"""Turning a raw recording into a demonstration in the project's conventions: pure numpy/scipy, no I/O.
+
+Every function is vectorized over samples. Units are SI (s, m, N, N·m); quaternions are
+scalar-LAST ``[x, y, z, w]`` once converted; wrenches are ``[fx, fy, fz, mx, my, mz]``.
+
+Event-driven logs (e.g. the KU Leuven contour recordings) write a row whenever ANY channel
+produces a value and repeat the last value of every other channel. A repeated value is not a
+new measurement: resampling it as one would turn a 30 Hz pose stream into a staircase. So per
+channel group (pose: position + orientation; wrench) :func:`channel_group_samples` keeps the
+rows where the group changed (plus the first, plus the rows of a real hold, see
+:data:`HOLD_FACTOR`), and :func:`resampled_recording` interpolates each group onto one
+uniform time grid (default rate: the fastest group's median update rate):
+
+- positions: modified Akima cubic (C1, no overshoot next to a hold), or linear;
+- orientations: slerp (:func:`skills.quaternions.quaternions_slerp`) after sign continuity;
+- wrenches: linear.
+
+Time stamps: a row whose time stamp is BELOW an earlier row's is dropped (out of order, its
+place in time is unknown); samples of one group that share a time stamp are AVERAGED
+(quaternions after sign alignment, then renormalized). Both are counted in the result's notes.
+
+Wrench conventions (:func:`wrenches_applied_by_tool`, :func:`wrenches_tool_to_world`) and the
+sensor offset (:func:`wrenches_tared`, estimated over a free-space part when there is one)
+complete what an importer needs; `services.csv_import` applies them in that order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import Akima1DInterpolator
+from scipy.ndimage import median_filter
+
+from skills.quaternions import (
+    matrix_from_quaternion,
+    quaternions_from_wxyz,
+    quaternions_sign_continuous,
+    quaternions_slerp,
+)
+
+HOLD_FACTOR = 4.0
+"""A group unchanged for longer than this times its median update interval really was constant
+(a robot standing still, a sensor reading exactly 0): the rows of such a hold are kept as samples,
+so interpolation does not ramp across it. Shorter repeats are event-log repeats and are dropped."""
+MAX_QUATERNION_NORM_DEVIATION = 0.1
+"""Quaternions whose norm is further than this from 1 are rejected (wrong columns?), closer ones renormalized."""
+DEFAULT_RATE_SIGNIFICANT_DIGITS = 3
+"""The default resampling rate (the fastest group's median update rate) is rounded to this many digits."""
+
+PositionMethod = Literal["cubic", "linear"]
+
+
+# --------------------------------------------------------------------------- quaternions
+
+
+def quaternions_scalar_last(q: ArrayLike, order: Literal["xyzw", "wxyz"] = "xyzw") -> NDArray[np.float64]:
+    """Return ``(N, 4)`` quaternions as scalar-last ``[x, y, z, w]`` from the given component ``order``."""
+    q = np.asarray(q, dtype=float)
+    if order == "wxyz":
+        return quaternions_from_wxyz(q)
+    if order == "xyzw":
+        return q.copy()
+    raise ValueError(f"quaternion order must be 'xyzw' or 'wxyz', got {order!r}")
+
+
+def quaternion_norm_deviations(q: ArrayLike) -> NDArray[np.float64]:
+    """Return ``|‖q‖ - 1|`` per row of ``(N, 4)`` quaternions (dimensionless)."""
+    return np.abs(np.linalg.norm(np.asarray(q, dtype=float), axis=-1) - 1.0)
+
+
+def quaternions_unit_continuous(q: ArrayLike) -> NDArray[np.float64]:
+    """Return ``(N, 4)`` scalar-last quaternions renormalized to unit norm and made sign-continuous.
+
+    Sign continuity: ``q_k`` is flipped when ``dot(q_k, q_{k-1}) < 0`` (same rotation, one
+    branch), see :func:`skills.quaternions.quaternions_sign_continuous`. Zero rows are not
+    allowed (the caller checks :func:`quaternion_norm_deviations` first).
+    """
+    q = np.asarray(q, dtype=float)
+    return quaternions_sign_continuous(q / np.linalg.norm(q, axis=-1, keepdims=True))
+
+
+# --------------------------------------------------------------------------- wrench conventions
+
+
+def wrenches_applied_by_tool(measured_on_tool: ArrayLike) -> NDArray[np.float64]:
+    """Return the wrench the tool APPLIES to the environment from the one a sensor MEASURES on the tool.
+
+    Newton's third law at the same point in the same frame: a plain negation of the ``(N, 6)``
+    ``[f, m]`` rows (N, N·m).
+    """
+    return -np.asarray(measured_on_tool, dtype=float)
+
+
+def wrenches_tool_to_world(wrenches_tool: ArrayLike, orientations: ArrayLike) -> NDArray[np.float64]:
+    """Return ``(N, 6)`` wrenches expressed in the world from ones expressed in the TOOL frame.
+
+    ``orientations`` are ``(N, 4)`` scalar-last world-from-tool quaternions. The wrench stays at
+    the tool point (no change of reference point, so no ``p × f`` term): force and moment just
+    rotate, ``f_w = R f_tool``, ``m_w = R m_tool``.
+    """
+    w = np.asarray(wrenches_tool, dtype=float)
+    R = matrix_from_quaternion(orientations)
+    return np.concatenate([np.einsum("nij,nj->ni", R, w[:, :3]), np.einsum("nij,nj->ni", R, w[:, 3:])], axis=1)
+
+
+def vectors_world_to_tool(vectors_world: ArrayLike, orientations: ArrayLike) -> NDArray[np.float64]:
+    """Return ``(N, 3)`` vectors in the TOOL frame from world ones: ``v_tool = R^T v_world``.
+
+    ``orientations`` are ``(N, 4)`` (or one ``(4,)``) scalar-last world-from-tool quaternions.
+    """
+    R = np.broadcast_to(matrix_from_quaternion(orientations), (*np.shape(vectors_world)[:-1], 3, 3))
+    return np.einsum("nji,nj->ni", R, np.asarray(vectors_world, dtype=float))
+
+
+# --------------------------------------------------------------------------- event-driven logs
+
+
+def rows_in_time_order(t: ArrayLike) -> NDArray[np.bool_]:
+    """Return the mask of rows to keep: those whose time stamp (s) is not below an earlier one.
+
+    A row stamped earlier than a previous row is out of order and dropped. Equal stamps are kept
+    (their samples are averaged per group later, see :func:`channel_group_samples`).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size == 0:
+        return np.zeros(0, dtype=bool)
+    previous_max = np.maximum.accumulate(np.concatenate(([-np.inf], t[:-1])))
+    return t >= previous_max
+
+
+def rows_where_changed(values: ArrayLike) -> NDArray[np.bool_]:
+    """Return the mask of rows of ``(N, D)`` ``values`` differing from the previous row in any column; row 0 is True."""
+    values = np.asarray(values, dtype=float)
+    if values.ndim == 1:
+        values = values[:, None]
+    changed = np.ones(values.shape[0], dtype=bool)
+    changed[1:] = np.any(values[1:] != values[:-1], axis=1)
+    return changed
+
+
+@dataclass(frozen=True)
+class GroupSamples:
+    """The measurements of one channel group: time stamps (s, strictly increasing) and values (M, D)."""
+
+    t: NDArray[np.float64]
+    values: NDArray[np.float64]
+    n_rows: int
+    """Rows of the log the group was taken from."""
+    n_repeats_dropped: int
+    """Rows that only repeated the previous value."""
+    n_holds: int
+    """Stretches where the value really stayed constant (their rows were kept as samples)."""
+    n_same_time_merged: int
+    """Samples that shared a time stamp with the previous one and were averaged into it."""
+
+    @property
+    def median_rate_hz(self) -> float:
+        """Median update rate of the group, Hz (inf for a single sample)."""
+        return 1.0 / float(np.median(np.diff(self.t))) if self.t.size > 1 else float("inf")
+
+
+def _same_time_averaged(
+    t: NDArray[np.float64], values: NDArray[np.float64], quaternion_columns: slice | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Average the rows of ``values`` that share a time stamp (``t`` non-decreasing).
+
+    Quaternion columns are sign-aligned with the first row of their time stamp before the
+    average and renormalized after it.
+    """
+    unique_t, first, counts = np.unique(t, return_index=True, return_counts=True)
+    if unique_t.size == t.size:
+        return t, values
+    values = values.copy()
+    if quaternion_columns is not None:
+        q = values[:, quaternion_columns]
+        reference = np.repeat(q[first], counts, axis=0)
+        values[:, quaternion_columns] = q * np.where(np.sum(q * reference, axis=1) < 0, -1.0, 1.0)[:, None]
+    averaged = np.add.reduceat(values, first, axis=0) / counts[:, None]
+    if quaternion_columns is not None:
+        q = averaged[:, quaternion_columns]
+        averaged[:, quaternion_columns] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return unique_t, averaged
+
+
+def channel_group_samples(
+    t: ArrayLike, values: ArrayLike, quaternion_columns: slice | None = None, hold_factor: float = HOLD_FACTOR
+) -> GroupSamples:
+    """Return the real measurements of one channel group of an event-driven log.
+
+    ``t`` (N,) time stamps in s, non-decreasing (drop out-of-order rows first with
+    :func:`rows_in_time_order`); ``values`` (N, D) the group's columns. Kept: the first row and
+    every row that differs from the previous one. A value unchanged for longer than
+    ``hold_factor`` times the group's median update interval was really constant (a robot
+    standing still): every row of that hold is kept, so the interpolation stays flat there.
+    Samples with equal time stamps are averaged (the columns in ``quaternion_columns`` as
+    quaternions: sign-aligned, averaged, renormalized).
+    """
+    t = np.asarray(t, dtype=float)
+    values = np.asarray(values, dtype=float)
+    changed = rows_where_changed(values)
+    starts = np.flatnonzero(changed)  # first row of each run of equal values
+    run_ends_t = np.append(t[starts[1:]], t[-1])  # a run lasts until the next change (or the log's end)
+    durations = run_ends_t - t[starts]
+    run_rows = np.diff(np.append(starts, t.size))
+    between = durations[:-1][durations[:-1] > 0]
+    typical = float(np.median(between)) if between.size else 0.0
+    hold = (durations > hold_factor * typical) & (run_rows > 1) & (typical > 0)
+    if starts.size == 1:  # never changes: constant over the whole log
+        hold[:] = True
+    kept_mask = changed | hold[np.cumsum(changed) - 1]
+    kept = np.flatnonzero(kept_mask)
+    n_holds = int(np.count_nonzero(hold))
+    t_unique, merged = _same_time_averaged(t[kept], values[kept], quaternion_columns)
+    return GroupSamples(
+        t=t_unique,
+        values=merged,
+        n_rows=int(t.size),
+        n_repeats_dropped=int(t.size - kept.size),
+        n_holds=n_holds,
+        n_same_time_merged=int(kept.size - t_unique.size),
+    )
+
+
+def default_rate_hz(*groups: GroupSamples) -> float:
+    """Return the default resampling rate, Hz: the fastest group's median update rate, rounded to 3 digits.
+
+    For a regularly sampled file this is its sampling rate; for the KU Leuven logs (pose ~30 Hz,
+    wrench every 5 ms) it is 200 Hz: no measurement is thrown away and none is invented.
+    """
+    rate = max(group.median_rate_hz for group in groups if group.t.size > 1)
+    return float(f"{rate:.{DEFAULT_RATE_SIGNIFICANT_DIGITS}g}")
+
+
+def uniform_time_grid(t_start: float, t_end: float, rate_hz: float) -> NDArray[np.float64]:
+    """Return time stamps (s) ``t_start + k / rate_hz``, ``k = 0, 1, ...``, up to ``t_end`` (inclusive, 1e-9 s)."""
+    n = int(np.floor((t_end - t_start) * rate_hz + 1e-9)) + 1
+    return t_start + np.arange(n) / rate_hz
+
+
+def positions_resampled(
+    t_query: ArrayLike, t: ArrayLike, positions: ArrayLike, method: PositionMethod = "cubic"
+) -> NDArray[np.float64]:
+    """Interpolate ``(N, 3)`` positions (m) sampled at ``t`` (s, strictly increasing) at ``t_query`` (within range).
+
+    ``cubic``: modified Akima spline (C1; unlike a natural cubic spline it does not overshoot
+    next to a hold or a kink); falls back to linear with fewer than 3 samples. ``linear``: piecewise linear.
+    """
+    t = np.asarray(t, dtype=float)
+    positions = np.asarray(positions, dtype=float)
+    t_query = np.asarray(t_query, dtype=float)
+    if method == "cubic" and t.size >= 3:
+        return Akima1DInterpolator(t, positions, axis=0, method="makima")(t_query)
+    if method not in ("cubic", "linear"):
+        raise ValueError(f"position interpolation must be 'cubic' or 'linear', got {method!r}")
+    return values_linearly_resampled(t_query, t, positions)
+
+
+def values_linearly_resampled(t_query: ArrayLike, t: ArrayLike, values: ArrayLike) -> NDArray[np.float64]:
+    """Linearly interpolate ``(N, D)`` values (any unit, e.g. a wrench in N, N·m) at ``t_query`` (s)."""
+    t = np.asarray(t, dtype=float)
+    values = np.asarray(values, dtype=float)
+    t_query = np.asarray(t_query, dtype=float)
+    return np.stack([np.interp(t_query, t, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
+@dataclass(frozen=True)
+class ResampledRecording:
+    """A recording on one uniform time grid.
+
+    ``t`` (M,) s, uniform at ``rate_hz``; ``positions`` (M, 3) m; ``orientations`` (M, 4)
+    unit, scalar-last, sign-continuous; ``wrenches`` (M, 6) N and N·m, in whatever convention
+    and frame the input had (this step does not convert them).
+    """
+
+    t: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    orientations: NDArray[np.float64]
+    wrenches: NDArray[np.float64]
+    rate_hz: float
+    pose: GroupSamples
+    wrench: GroupSamples
+    n_rows_out_of_order: int
+    n_duplicate_stamps: int = 0
+    """Rows (in order) whose time stamp equals the previous row's."""
+    notes: list[str] = field(default_factory=list)
+
+
+def resampled_recording(
+    t: ArrayLike,
+    positions: ArrayLike,
+    orientations: ArrayLike,
+    wrenches: ArrayLike,
+    rate_hz: float | None = None,
+    position_method: PositionMethod = "cubic",
+) -> ResampledRecording:
+    """Resample an (event-driven or irregular) recording onto one uniform time grid.
+
+    ``t`` (N,) s; ``positions`` (N, 3) m; ``orientations`` (N, 4) scalar-last (any sign, unit
+    within :data:`MAX_QUATERNION_NORM_DEVIATION`); ``wrenches`` (N, 6). Out-of-order rows are
+    dropped, each group (pose, wrench) reduced to its real measurements by
+    :func:`channel_group_samples`, and interpolated at ``rate_hz`` (default
+    :func:`default_rate_hz`) over the time span where every group has measurements
+    (no extrapolation: the grid starts at the later first sample and ends at or before the
+    earlier last sample).
+    """
+    t = np.asarray(t, dtype=float)
+    in_order = rows_in_time_order(t)
+    t = t[in_order]
+    positions = np.asarray(positions, dtype=float)[in_order]
+    orientations = quaternions_unit_continuous(np.asarray(orientations, dtype=float)[in_order])
+    wrenches = np.asarray(wrenches, dtype=float)[in_order]
+
+    pose = channel_group_samples(t, np.hstack([positions, orientations]), quaternion_columns=slice(3, 7))
+    wrench = channel_group_samples(t, wrenches)
+    if rate_hz is None:
+        if pose.t.size < 2 and wrench.t.size < 2:
+            raise ValueError("cannot choose a resampling rate: no channel changes over time")
+        rate_hz = default_rate_hz(pose, wrench)
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"resampling rate must be a positive number of Hz, got {rate_hz}")
+    for group, name in ((pose, "pose"), (wrench, "wrench")):
+        if group.t.size < 2:
+            raise ValueError(f"the {name} has a single sample: nothing to interpolate over time")
+    t_start = max(pose.t[0], wrench.t[0])
+    t_end = min(pose.t[-1], wrench.t[-1])
+    grid = uniform_time_grid(t_start, t_end, rate_hz)
+
+    q_measured = quaternions_sign_continuous(pose.values[:, 3:7])
+    result = ResampledRecording(
+        t=grid,
+        positions=positions_resampled(grid, pose.t, pose.values[:, :3], position_method),
+        orientations=quaternions_slerp(grid, pose.t, q_measured),
+        wrenches=values_linearly_resampled(grid, wrench.t, wrench.values),
+        rate_hz=float(rate_hz),
+        pose=pose,
+        wrench=wrench,
+        n_rows_out_of_order=int(np.count_nonzero(~in_order)),
+        n_duplicate_stamps=int(np.count_nonzero(np.diff(t) == 0)),
+    )
+    result.notes.extend(_resampling_notes(result))
+    return result
+
+
+def _resampling_notes(r: ResampledRecording) -> list[str]:
+    """One line per thing the resampling did, for the import report."""
+    notes = [
+        f"resampled to {r.rate_hz:g} Hz ({r.t.size} samples, {r.t[-1] - r.t[0]:.3f} s) from "
+        f"{r.pose.n_rows} rows: pose {r.pose.t.size} measurements (median {r.pose.median_rate_hz:.3g} Hz), "
+        f"wrench {r.wrench.t.size} (median {r.wrench.median_rate_hz:.3g} Hz)"
+    ]
+    repeats = r.pose.n_repeats_dropped + r.wrench.n_repeats_dropped
+    if repeats:
+        notes.append(
+            f"event-driven log: {r.pose.n_repeats_dropped} pose and {r.wrench.n_repeats_dropped} wrench rows "
+            "only repeated the last value and were not used as measurements"
+        )
+    if r.pose.n_holds or r.wrench.n_holds:
+        notes.append(f"constant stretches kept as holds: pose {r.pose.n_holds}, wrench {r.wrench.n_holds}")
+    if r.n_duplicate_stamps:
+        notes.append(f"{r.n_duplicate_stamps} rows repeat the previous row's time stamp")
+    merged = r.pose.n_same_time_merged + r.wrench.n_same_time_merged
+    if merged:
+        notes.append(f"{merged} samples sharing a time stamp with the previous one were averaged into it")
+    if r.n_rows_out_of_order:
+        notes.append(f"{r.n_rows_out_of_order} rows stamped earlier than a previous row were dropped")
+    return notes
+
+
+# --------------------------------------------------------------------------- sensor offset (tare)
+
+FREE_REFERENCE_S = 0.1
+"""Length (s) of the window at each end of the recording whose median is the candidate free-space level."""
+FREE_MIN_DURATION_S = 0.2
+"""Shortest quiet stretch (s) accepted as free space."""
+FREE_BAND_NOISE_FACTOR = 6.0
+"""The free-space band is this many noise standard deviations (estimated from sample-to-sample differences)..."""
+FREE_BAND_MIN_N = 0.5
+"""...but at least this wide, N."""
+FREE_MAX_DRIFT_BANDS = 0.5
+"""A free stretch's first and last thirds differ by at most this many bands (no drift)."""
+CONTACT_MIN_CONTRAST_N = 2.0
+"""The rest of the recording must depart from the free level by at least this (95th percentile), N..."""
+CONTACT_MIN_CONTRAST_BANDS = 4.0
+"""...and by at least this many free-space bands: otherwise there is no contact to tell free space from."""
+
+
+@dataclass(frozen=True)
+class FreeStretch:
+    """A free-space (no contact) stretch at one end of a recording: samples ``[start, stop)``."""
+
+    end: Literal["start", "end"]
+    start: int
+    stop: int
+    level: NDArray[np.float64]
+    """Median wrench over the stretch, (6,), N and N·m."""
+    band_n: float
+    """Half-width of the force band the stretch stays in, N."""
+
+
+def _free_length(forces: NDArray[np.float64], dt: float) -> tuple[int, float]:
+    """Samples from the start of ``forces`` (N, 3, N) quiet in a band about the first window; and the band, N."""
+    n_ref = max(5, round(FREE_REFERENCE_S / dt))
+    reference = forces[:n_ref]
+    steps = np.diff(reference, axis=0)
+    sigma = 1.4826 * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0) / np.sqrt(2.0)
+    band = max(FREE_BAND_NOISE_FACTOR * float(np.linalg.norm(sigma)), FREE_BAND_MIN_N)
+    deviation = median_filter(np.linalg.norm(forces - np.median(reference, axis=0), axis=1), size=5, mode="nearest")
+    outside = np.flatnonzero(deviation > band)
+    return (int(outside[0]) if outside.size else forces.shape[0]), band
+
+
+def free_space_stretches(t: ArrayLike, wrenches: ArrayLike) -> list[FreeStretch]:
+    """Return the free-space (no contact) stretches at the start and/or end of a recording.
+
+    ``t`` (N,) s, uniform; ``wrenches`` (N, 6), N and N·m (any constant offset included).
+    From each end: the band is ``max(FREE_BAND_NOISE_FACTOR σ, FREE_BAND_MIN_N)`` with σ the
+    robust (MAD) noise of the sample-to-sample force differences in the first
+    :data:`FREE_REFERENCE_S`; the stretch runs until the (5-sample median filtered) force
+    leaves the band about that window's median. It is free space when it
+
+    - lasts at least :data:`FREE_MIN_DURATION_S` (and is not the whole recording),
+    - is flat: its first and last thirds differ by at most :data:`FREE_MAX_DRIFT_BANDS` bands
+      (a slowly drifting contact force is not a sensor offset),
+    - is the lowest force: ``|level| <=`` the 5th percentile of ``|f|`` plus a band
+      (a steady contact at the end of a recording is not free space), and
+    - the rest clearly departs from it (95th percentile of the deviation at least
+      :data:`CONTACT_MIN_CONTRAST_N` and :data:`CONTACT_MIN_CONTRAST_BANDS` bands).
+
+    A recording cut to its contact part (force ramping from the first sample) has none.
+    """
+    t = np.asarray(t, dtype=float)
+    wrenches = np.asarray(wrenches, dtype=float)
+    n = t.size
+    if n < 10:
+        return []
+    dt = float(np.median(np.diff(t)))
+    magnitude_floor = float(np.percentile(np.linalg.norm(wrenches[:, :3], axis=1), 5))
+    stretches = []
+    for end in ("start", "end"):
+        w = wrenches if end == "start" else wrenches[::-1]
+        length, band = _free_length(w[:, :3], dt)
+        if length * dt < FREE_MIN_DURATION_S or length >= n:
+            continue
+        level = np.median(w[:length], axis=0)
+        third = max(1, length // 3)
+        drift = np.linalg.norm(np.median(w[:third, :3], axis=0) - np.median(w[length - third : length, :3], axis=0))
+        if drift > FREE_MAX_DRIFT_BANDS * band or np.linalg.norm(level[:3]) > magnitude_floor + band:
+            continue
+        contrast = float(np.percentile(np.linalg.norm(w[length:, :3] - level[:3], axis=1), 95))
+        if contrast < max(CONTACT_MIN_CONTRAST_N, CONTACT_MIN_CONTRAST_BANDS * band):
+            continue
+        start, stop = (0, length) if end == "start" else (n - length, n)
+        stretches.append(FreeStretch(end=end, start=start, stop=stop, level=level, band_n=band))
+    return stretches
+
+
+@dataclass(frozen=True)
+class Tare:
+    """The result of :func:`wrenches_tared`."""
+
+    wrenches: NDArray[np.float64]
+    """(N, 6) wrenches with the offset subtracted (unchanged when no free part was found), N and N·m."""
+    offset: NDArray[np.float64] | None
+    """(6,) offset subtracted, same frame as the input, or None."""
+    note: str
+
+
+def wrenches_tared(t: ArrayLike, wrenches: ArrayLike) -> Tare:
+    """Subtract the sensor offset estimated over the free-space part of a recording, if it has one.
+
+    ``t`` (N,) s uniform; ``wrenches`` (N, 6) N and N·m in one fixed frame (the importer passes
+    world-frame, applied-by-tool wrenches, so the offset is assumed constant in the world: valid
+    when the tool orientation changes little or the offset is a weight). The offset is the
+    median wrench over the free stretch (:func:`free_space_stretches`); when both ends are free
+    and agree (levels within a band), both are pooled, otherwise the one with the lower force
+    is used. No free part: nothing is subtracted and the note says so.
+    """
+    wrenches = np.asarray(wrenches, dtype=float)
+    stretches = free_space_stretches(t, wrenches)
+    if not stretches:
+        return Tare(wrenches=wrenches, offset=None, note="no free-space part found: no sensor offset removed")
+    if len(stretches) == 2 and np.linalg.norm(stretches[0].level[:3] - stretches[1].level[:3]) <= max(
+        s.band_n for s in stretches
+    ):
+        used = stretches
+    else:
+        used = [min(stretches, key=lambda s: float(np.linalg.norm(s.level[:3])))]
+    samples = np.concatenate([wrenches[s.start : s.stop] for s in used])
+    offset = np.median(samples, axis=0)
+    t = np.asarray(t, dtype=float)
+    where = " and ".join(f"{s.end} ({t[s.stop - 1] - t[s.start]:.2f} s)" for s in used)
+    force = ", ".join(f"{v:.3g}" for v in offset[:3])
+    moment = ", ".join(f"{v:.3g}" for v in offset[3:])
+    note = f"sensor offset removed: median over the free-space {where}: force [{force}] N, moment [{moment}] N·m"
+    return Tare(wrenches=wrenches - offset, offset=offset, note=note)

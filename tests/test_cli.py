@@ -1,0 +1,208 @@
+"""The `contact-skills` command line: `learn` on the real KU Leuven recordings, `demo-learn`, and its errors."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli.main import DATA_ENV, kuleuven_recordings, main
+from schemas import Demonstration, Skill
+from services.csv_import import demonstration_from_csv
+from services.figures import compliant_frame_axes, forces_in_compliant_frames
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data" / "kuleuven_contour"
+TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
+KULEUVEN_ARGS = ["--quaternion-order", "wxyz", "--wrench", "measured-on-tool", "--wrench-frame", "tool"]
+README_CF_Z_TOOL = -np.array([-0.03, -0.65, -0.77])  # the README's measured-on-tool direction, negated
+"""Applied-by-tool contact force direction in the TCP frame, middle of the README's ranges."""
+
+
+def _run(argv: list[str]) -> tuple[int, str, str]:
+    """Run the CLI in-process; return (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def _subprocess(args: list[str], cwd: Path, **env: str) -> subprocess.CompletedProcess[str]:
+    environment = {**os.environ, "PYTHONPATH": str(REPO), **env}
+    return subprocess.run(
+        [sys.executable, "-m", "cli.main", *args], cwd=cwd, env=environment, capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.fixture(scope="module")
+def learned(tmp_path_factory) -> dict[str, tuple[Demonstration, Skill, str]]:
+    """Each real trial learned with `contact-skills learn --type contour` (in-process)."""
+    out = tmp_path_factory.mktemp("skills")
+    results = {}
+    for name in TRIALS:
+        path = DATA / f"{name}.csv"
+        code, stdout, stderr = _run(["learn", str(path), "--type", "contour", *KULEUVEN_ARGS, "-o", str(out / name)])
+        assert code == 0, stderr
+        skill = Skill.model_validate_json((out / name).read_text())
+        demo = demonstration_from_csv(path, wrench_convention="measured-on-tool", wrench_frame="tool")
+        results[name] = (demo, skill, stdout)
+    return results
+
+
+def _mean_cf_z_in_tool(demo: Demonstration, skill: Skill) -> np.ndarray:
+    axes = [compliant_frame_axes(demo, s) for s in skill.segments if s.compliant_frames is not None]
+    z = np.concatenate([a.z_tool for a in axes])
+    return z.mean(axis=0) / np.linalg.norm(z.mean(axis=0))
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_trials_learn_as_contour_skills(learned, name):
+    _, skill, stdout = learned[name]
+    assert skill.skill_type == "contour" and skill.auto_selection is None
+    contact = [s for s in skill.segments if s.kind == "contact"]
+    assert contact and all(s.force_dmp is not None and s.compliant_frames is not None for s in contact)
+    for text in ("skill type: contour (as asked)", "CF z mean in world", "in tool", "force profile (DMP): min",
+                 "DMP reproduction RMS", "import: resampled to 200 Hz", "no sensor offset removed"):  # fmt: skip
+        assert text in stdout, (text, stdout)
+
+
+def test_cf_z_in_the_tool_frame_is_nearly_constant_across_trials(learned):
+    """The README's known fact: the contact force direction is fixed in the tool, across trials and mountings."""
+    means = {name: _mean_cf_z_in_tool(demo, skill) for name, (demo, skill, _) in learned.items()}
+    for name, z in means.items():
+        assert abs(z[0]) < 0.1 and 0.55 < z[1] < 0.76 and 0.66 < z[2] < 0.86, (name, z)
+        assert _angle_deg(z, README_CF_Z_TOOL) < 6.0, (name, z)
+    spread = max(_angle_deg(a, b) for a in means.values() for b in means.values())
+    assert spread < 6.0, means
+    for demo, skill, _ in learned.values():  # within a trial the CF z wanders only a little in the tool frame
+        for segment in skill.segments:
+            if segment.compliant_frames is not None:
+                assert compliant_frame_axes(demo, segment).tool_spread_deg < 12.0
+
+
+def test_contour_frames_put_the_force_on_cf_z(learned):
+    for demo, skill, _ in learned.values():
+        f_cf = forces_in_compliant_frames(demo, skill)
+        inside = ~np.isnan(f_cf[:, 0])
+        assert inside.mean() > 0.9
+        assert np.all(f_cf[inside, 2] > 0)  # CF z points along the applied force
+        assert np.sqrt(np.mean(f_cf[inside, :2] ** 2)) < 0.1 * np.mean(f_cf[inside, 2])
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_auto_picks_contour_on_real_trials(tmp_path, name):
+    code, stdout, stderr = _run(["learn", str(DATA / f"{name}.csv"), *KULEUVEN_ARGS, "-o", str(tmp_path / "s.json")])
+    assert code == 0, stderr
+    skill = Skill.model_validate_json((tmp_path / "s.json").read_text())
+    assert skill.skill_type == "contour" and skill.auto_selection.chosen == "contour"
+    assert "skill type: contour (auto, confidence" in stdout
+
+
+def test_learn_as_a_real_subprocess_writes_skill_and_figure(tmp_path):
+    result = _subprocess(
+        ["learn", str(DATA / "contour_b_2.csv"), "--type", "contour", *KULEUVEN_ARGS, "--basis", "150",
+         "-o", "skill.json", "--figure", "fig/learn.png"],
+        cwd=tmp_path,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    skill = Skill.model_validate_json((tmp_path / "skill.json").read_text())
+    assert len(skill.segments[0].position_dmp.centers) == 150  # more than the 25/s default gives for 4.5 s
+    assert (tmp_path / "fig" / "learn.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "figure written to fig/learn.png" in result.stdout and "Traceback" not in result.stderr
+
+
+def test_demo_learn_writes_out_skill_and_figure(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, stdout, stderr = _run(["demo-learn"])
+    assert code == 0, stderr
+    assert "contour_a_1.csv" in stdout and "skill type: contour" in stdout
+    assert Skill.model_validate_json((tmp_path / "out" / "skill.json").read_text()).skill_type == "contour"
+    assert (tmp_path / "out" / "learn.png").stat().st_size > 10_000
+
+
+def test_data_directory_override(tmp_path, monkeypatch):
+    monkeypatch.setenv(DATA_ENV, str(tmp_path))
+    assert kuleuven_recordings() == []
+    code, _, stderr = _run(["demo-learn", "--out-dir", str(tmp_path / "out")])
+    assert code == 2 and DATA_ENV in stderr and "Traceback" not in stderr
+    (tmp_path / "kuleuven_contour").mkdir()
+    (tmp_path / "kuleuven_contour" / "contour_x_1.csv").write_text("t\n")
+    assert [p.name for p in kuleuven_recordings()] == ["contour_x_1.csv"]
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def _csv_with_nan(path: Path) -> Path:
+    t = np.arange(100) * 0.01
+    rows = np.column_stack([t, np.zeros((100, 3)), np.tile([0, 0, 0, 1.0], (100, 1)), np.zeros((100, 6))])
+    rows[:, 10] = 5.0
+    rows[41, 10] = np.nan
+    header = "t,px,py,pz,qx,qy,qz,qw,fx,fy,force_z,mx,my,mz"
+    np.savetxt(path, rows, delimiter=",", header=header, comments="", fmt="%.6g")
+    return path
+
+
+def test_nan_in_a_column_exits_2_naming_it(tmp_path):
+    path = _csv_with_nan(tmp_path / "nan.csv")
+    code, stdout, stderr = _run(["learn", str(path), "-o", str(tmp_path / "s.json")])
+    assert code == 2 and stdout == ""
+    assert "column 'force_z' (fz), line 43: 'nan' is not finite" in stderr
+    assert not (tmp_path / "s.json").exists()
+    result = _subprocess(["learn", str(path), "-o", "s.json"], cwd=tmp_path)
+    assert result.returncode == 2
+    assert "contact-skills learn: error: column 'force_z'" in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--columns", "t=time,force=F"], "--columns: unknown key 'force'"),
+        (["--columns", "fz=Fz_missing"], "column 'Fz_missing' given for fz is not in the header"),
+        (["--rate", "-5"], "rate: -5.0 Hz"),
+    ],
+)
+def test_bad_options_exit_2(tmp_path, args, expected):
+    path = _csv_with_nan(tmp_path / "d.csv")
+    code, _, stderr = _run(["learn", str(path), *args, "-o", str(tmp_path / "s.json")])
+    assert code == 2 and expected in stderr, stderr
+
+
+def test_missing_file_and_invalid_json_exit_2(tmp_path):
+    code, _, stderr = _run(["learn", str(tmp_path / "nope.csv"), "-o", str(tmp_path / "s.json")])
+    assert code == 2 and "cannot read" in stderr
+    bad = {"t": [0.0, 1.0], "positions": [[0, 0, 0]], "orientations": [[0, 0, 0, 1]] * 2, "wrenches": [[0] * 6] * 2}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    code, _, stderr = _run(["learn", str(tmp_path / "bad.json"), "-o", str(tmp_path / "s.json")])
+    assert code == 2 and "error: t: needs at least 50 samples" in stderr
+    assert all(line.startswith("contact-skills learn: error: ") for line in stderr.splitlines())
+
+
+def test_a_demonstration_without_contact_exits_2(tmp_path):
+    t = np.arange(200) * 0.01
+    positions = np.column_stack([0.4 + 0.1 * t, np.zeros(200), np.full(200, 0.3)])
+    demo = Demonstration.from_arrays(t, positions, np.tile([0, 0, 0, 1.0], (200, 1)), np.zeros((200, 6)))
+    (tmp_path / "free.json").write_text(demo.model_dump_json())
+    code, _, stderr = _run(["learn", str(tmp_path / "free.json"), "--type", "contour", "-o", str(tmp_path / "s.json")])
+    assert code == 2 and "error: wrenches:" in stderr, stderr
+
+
+def test_help_is_light():
+    """`contact-skills --help` imports no numeric or plotting library."""
+    code = (
+        "import sys, cli.main; cli.main.build_parser().format_help(); "
+        "print(sorted(m for m in ('numpy', 'scipy', 'pydantic', 'matplotlib', 'sklearn') if m in sys.modules))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.stdout.strip() == "[]", result.stdout + result.stderr

@@ -1,0 +1,410 @@
+"""Importing recordings: the real KU Leuven contour logs, and synthetic CSVs with a known ground truth."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from schemas import Demonstration
+from services.csv_import import (
+    ColumnMap,
+    CsvImportError,
+    DemonstrationImportError,
+    demonstration_from_csv,
+    demonstration_from_json,
+)
+from skills import preprocess
+from skills.quaternions import quaternion_angle_between
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kuleuven_contour"
+TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
+KULEUVEN = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool"}
+
+
+# --------------------------------------------------------------------------- the real recordings
+
+
+@pytest.fixture(scope="module")
+def real() -> dict[str, dict[str, Demonstration]]:
+    """Each trial imported from the TCP-frame wrench columns and from the world-frame ones."""
+    assert DATA.is_dir(), f"the KU Leuven recordings must be beside the repository: {DATA}"
+    return {
+        name: {
+            frame: demonstration_from_csv(DATA / f"{name}.csv", wrench_frame=frame, **KULEUVEN)
+            for frame in ("tool", "world")
+        }
+        for name in TRIALS
+    }
+
+
+def _raw(name: str) -> dict[str, np.ndarray]:
+    table = np.loadtxt(DATA / f"{name}.csv", delimiter=",", skiprows=1)
+    return {
+        "t": table[:, 0],
+        "q": preprocess.quaternions_scalar_last(table[:, 4:8], "wxyz"),
+        "wrench_tcp": table[:, 8:14],
+        "wrench_world": table[:, 14:20],
+    }
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_time_is_uniform_and_strictly_increasing(real, name):
+    demo = real[name]["tool"]
+    t = np.asarray(demo.t)
+    assert np.all(np.diff(t) > 0)
+    assert demo.metadata.resampled_rate_hz == pytest.approx(200.0)  # the wrench's 5 ms period
+    np.testing.assert_allclose(np.diff(t), 1 / 200, rtol=1e-6)
+    raw_t = _raw(name)["t"]
+    assert t[0] >= raw_t[0] and t[-1] <= raw_t[-1] and t[-1] - t[0] > raw_t[-1] - raw_t[0] - 0.05
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_quaternions_are_unit_and_sign_continuous(real, name):
+    q = np.asarray(real[name]["tool"].orientations)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    assert np.all(np.sum(q[1:] * q[:-1], axis=1) > 0.99)  # no flips, and 200 Hz steps are small
+    raw_q = _raw(name)["q"]
+    assert np.any(np.sum(raw_q[1:] * raw_q[:-1], axis=1) < 0), "the raw files DO flip sign (README)"
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_wrench_is_applied_by_tool_pushing_down_into_the_contour(real, name):
+    forces = np.asarray(real[name]["tool"].wrenches)[:, :3]
+    assert np.mean(forces[:, 2] < 0) > 0.99
+    mean_direction = forces.mean(axis=0) / np.linalg.norm(forces.mean(axis=0))
+    assert mean_direction[2] < -0.9
+    raw_mean = _raw(name)["wrench_world"][:, :3].mean(axis=0)
+    assert raw_mean[2] > 0, "the recording holds the reaction (points up): the importer negates it"
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_tool_frame_columns_rotate_onto_the_world_columns(name):
+    """The frame conversion itself, row by row: R(q) * wrench_tcp equals the file's world columns to its rounding."""
+    raw = _raw(name)
+    world = preprocess.wrenches_tool_to_world(raw["wrench_tcp"], raw["q"])
+    difference = np.abs(world - raw["wrench_world"])
+    # 6 significant digits in the file (wrench and quaternion): about 1e-4 N at 20-30 N
+    assert difference[:, :3].max() < 2e-4 and difference[:, 3:].max() < 1e-5
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_import_from_tool_columns_matches_import_from_world_columns(real, name):
+    """Through the whole importer, tool-frame vs world-frame columns.
+
+    Not equal to rounding: the file's world columns were rotated with the pose HELD since its
+    last 30 Hz update, while the importer rotates on the grid with the slerped pose (the held
+    value is not a measurement). The difference is |f| times the pose staleness (< 35 ms of
+    turning): RMS about 0.1 N of a 17 N mean force.
+    """
+    tool = np.asarray(real[name]["tool"].wrenches)
+    world = np.asarray(real[name]["world"].wrenches)
+    assert real[name]["tool"].t == real[name]["world"].t
+    difference = np.linalg.norm(tool[:, :3] - world[:, :3], axis=1)
+    assert np.sqrt(np.mean(difference**2)) < 0.25
+    assert np.max(difference) < 0.6
+    assert np.max(np.abs(tool[:, 3:] - world[:, 3:])) < 0.01  # N·m; moments are small here
+    cos = np.sum(tool[:, :3] * world[:, :3], axis=1) / np.linalg.norm(tool[:, :3], axis=1)
+    assert np.degrees(np.arccos(np.clip(cos / np.linalg.norm(world[:, :3], axis=1), -1, 1))).max() < 3.0
+
+
+@pytest.mark.parametrize("name", TRIALS)
+def test_real_metadata_records_the_conversions(real, name):
+    meta = real[name]["tool"].metadata
+    assert meta.name == name and meta.source == f"csv:{name}.csv"
+    assert meta.quaternion_order_on_import == "wxyz"
+    assert meta.wrench_convention_on_import == "measured-on-tool"
+    assert meta.wrench_frame_on_import == "tool"
+    assert meta.force_offset_removed is None  # the files are cut to the contact part
+    assert meta.extra["columns"]["fx"] == "fx_tcp" and real[name]["world"].metadata.extra["columns"]["fx"] == "fx_w"
+    notes = " | ".join(meta.extra["import_notes"])
+    assert "no free-space part" in notes and "event-driven log" in notes and "resampled to 200 Hz" in notes
+
+
+def test_real_reaction_imported_as_applied_gets_a_sign_hint(real):
+    wrong = demonstration_from_csv(DATA / "contour_a_1.csv", wrench_frame="tool")
+    assert any("check the wrench sign" in note for note in wrong.metadata.extra["import_notes"])
+    right = real["contour_a_1"]["tool"].metadata.extra["import_notes"]
+    assert not any("check the wrench sign" in note for note in right)
+
+
+def test_real_position_path_matches_the_readme(real):
+    for name in TRIALS:
+        p = np.asarray(real[name]["tool"].positions)
+        path_length = np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1))
+        assert 0.45 < path_length < 0.65, (name, path_length)
+
+
+# --------------------------------------------------------------------------- synthetic ground truth
+
+
+def _truth(t: np.ndarray):
+    """Smooth pose (m, scalar-last) and applied world wrench (N, N·m) at times ``t`` (s)."""
+    positions = np.stack([0.4 + 0.1 * t, 0.05 * np.sin(2 * t), 0.3 + 0.01 * np.cos(3 * t)], axis=1)
+    axis = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    turn = Rotation.from_rotvec(np.outer(0.6 * np.sin(t), axis))
+    q = (turn * Rotation.from_euler("x", np.pi)).as_quat()
+    forces = np.stack([2 * np.sin(t), np.cos(2 * t), 10 + 3 * np.sin(1.5 * t)], axis=1)
+    wrenches = np.hstack([forces, 0.1 * forces[:, ::-1]])
+    return positions, preprocess.quaternions_unit_continuous(q), wrenches
+
+
+HEADER = ["t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz"]
+
+
+def _csv(header: list[str], rows: np.ndarray) -> str:
+    out = io.StringIO()
+    out.write(",".join(header) + "\n")
+    np.savetxt(out, rows, delimiter=",", fmt="%.10g")
+    return out.getvalue()
+
+
+def _angle(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    return quaternion_angle_between(p, q)
+
+
+def test_irregular_duplicated_and_out_of_order_time_stamps_resample_to_the_truth():
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.uniform(0.0, 2.0, 1500))
+    t[0], t[-1] = 0.0, 2.0
+    rows = np.column_stack([t, *_truth(t)])
+    exact_copies = rows[rng.choice(1500, 20, replace=False)]  # whole row logged twice
+    noisy = rows[rng.choice(np.arange(1, 1499), 10, replace=False)].copy()  # same stamp, another reading
+    noisy[:, 8:11] += rng.normal(0, 0.05, (10, 3))
+    table = np.vstack([rows, exact_copies, noisy])
+    table = table[np.argsort(table[:, 0], kind="stable")]
+    late = table[[400, 800, 1200]].copy()
+    late[:, 0] -= 0.02  # three rows stamped 20 ms too early: out of order where they sit
+    table = np.insert(table, [401, 801, 1201], late, axis=0)
+
+    demo = demonstration_from_csv(_csv(HEADER, table), rate_hz=100.0)
+    a = demo.arrays()
+    np.testing.assert_allclose(np.diff(a.t), 0.01, rtol=1e-9)
+    positions, q, wrenches = _truth(a.t)
+    assert np.abs(a.positions - positions).max() < 1e-5
+    assert _angle(a.orientations, q).max() < 1e-4
+    assert np.abs(a.wrenches - wrenches).max() < 0.05
+    notes = " | ".join(demo.metadata.extra["import_notes"])
+    assert "3 rows stamped earlier than a previous row were dropped" in notes
+    assert "averaged" in notes and "repeat the previous row's time stamp" in notes
+
+
+def test_event_driven_log_uses_only_real_measurements():
+    """Pose at 30 Hz, wrench at 200 Hz, one row per event repeating the other group: the truth is recovered."""
+    pose_t = np.arange(0.0, 3.0, 1 / 30)
+    wrench_t = np.arange(0.0013, 3.0, 1 / 200)
+    t = np.union1d(pose_t, wrench_t)
+    last_pose = pose_t[np.searchsorted(pose_t, t, side="right") - 1]
+    last_wrench = wrench_t[np.clip(np.searchsorted(wrench_t, t, side="right") - 1, 0, None)]
+    p, q, _ = _truth(last_pose)
+    _, _, w = _truth(last_wrench)
+    demo = demonstration_from_csv(_csv(HEADER, np.column_stack([t, p, q, w])))
+    a = demo.arrays()
+    assert demo.metadata.resampled_rate_hz == pytest.approx(200.0)
+    p_true, q_true, w_true = _truth(a.t)
+    error = np.linalg.norm(a.positions - p_true, axis=1).max()
+    held_error = np.linalg.norm(_truth(pose_t[np.searchsorted(pose_t, a.t, side="right") - 1])[0] - p_true, axis=1)
+    assert error < 2e-4 and held_error.max() > 3e-3  # cubic over the real samples vs a 30 Hz staircase
+    assert _angle(a.orientations, q_true).max() < 2e-3
+    assert np.abs(a.wrenches - w_true).max() < 0.01
+
+
+def test_a_real_hold_stays_constant():
+    """A regularly sampled log where the robot stands still for 0.5 s: the hold is not a ramp."""
+    t = np.arange(0.0, 2.0, 0.002)
+    moving = np.clip(t - 0.5, 0.0, None)
+    p, q, w = _truth(moving)
+    demo = demonstration_from_csv(_csv(HEADER, np.column_stack([t, p, q, w])), tare=False)
+    a = demo.arrays()
+    still = a.t <= 0.5
+    assert np.abs(a.positions[still] - p[0]).max() < 1e-9
+    assert demo.metadata.resampled_rate_hz == pytest.approx(500.0)
+
+
+def test_scalar_first_and_sign_flips():
+    t = np.arange(0.0, 2.0, 0.005)
+    p, q, w = _truth(t)
+    flipped = q * np.where(np.random.default_rng(2).random(t.size) < 0.3, -1.0, 1.0)[:, None]
+    wxyz = np.column_stack([flipped[:, 3], flipped[:, :3]])
+    numbered = ["t", "px", "py", "pz", "q0", "q1", "q2", "q3", "fx", "fy", "fz", "mx", "my", "mz"]
+    text = _csv(numbered, np.column_stack([t, p, wxyz, w]))
+    demo = demonstration_from_csv(text, quaternion_order="wxyz")
+    a = demo.arrays()
+    assert demo.metadata.quaternion_order_on_import == "wxyz"
+    assert np.all(np.sum(a.orientations[1:] * a.orientations[:-1], axis=1) > 0)
+    assert _angle(a.orientations, _truth(a.t)[1]).max() < 1e-6  # the grid is the file's: only CSV rounding
+    # named scalar-first columns need no option; an option contradicting the names is refused
+    named = ["t", "px", "py", "pz", "qw", "qx", "qy", "qz", "fx", "fy", "fz", "mx", "my", "mz"]
+    named_text = _csv(named, np.column_stack([t, p, wxyz, w]))
+    assert demonstration_from_csv(named_text).orientations == demo.orientations
+    with pytest.raises(CsvImportError, match="named in wxyz order"):
+        demonstration_from_csv(named_text, quaternion_order="xyzw")
+    with pytest.raises(CsvImportError, match="q0, q1, q2, q3 are numbered"):
+        demonstration_from_csv(text)
+
+
+def test_measured_on_tool_in_the_tool_frame_is_converted_to_applied_in_world():
+    t = np.arange(0.0, 2.0, 0.005)
+    p, q, w_world = _truth(t)
+    R = Rotation.from_quat(q)
+    w_tool_measured = -np.hstack([R.inv().apply(w_world[:, :3]), R.inv().apply(w_world[:, 3:])])
+    text = _csv(HEADER, np.column_stack([t, p, q, w_tool_measured]))
+    demo = demonstration_from_csv(text, wrench_convention="measured-on-tool", wrench_frame="tool")
+    np.testing.assert_allclose(demo.arrays().wrenches, _truth(demo.arrays().t)[2], atol=1e-6)
+
+
+def _free_then_contact(offset: np.ndarray, free_at: str, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """1 s in free space, then 3 s pressing ~15 N (applied, world), sensor noise 0.1 N; 500 Hz."""
+    t = np.arange(0.0, 4.0, 0.002)
+    contact_time = t - 1.0 if free_at == "start" else 3.0 - t
+    ramp = np.clip(contact_time / 0.2, 0.0, 1.0)
+    fz = ramp * (15 + 2 * np.sin(3 * t))
+    wrench = np.zeros((t.size, 6))
+    wrench[:, 2] = fz
+    wrench[:, 0] = ramp * 2 * np.sin(2 * t)
+    wrench += rng.normal(0, 0.1, wrench.shape) * [1, 1, 1, 0.01, 0.01, 0.01]
+    p, q, _ = _truth(t)
+    return t, np.column_stack([t, p, q, wrench + offset])
+
+
+@pytest.mark.parametrize("free_at", ["start", "end"])
+def test_sensor_offset_is_estimated_from_free_space_and_removed(free_at):
+    rng = np.random.default_rng(3)
+    offset = np.array([1.5, -2.0, 3.0, 0.05, -0.02, 0.01])
+    t, rows = _free_then_contact(offset, free_at, rng)
+    demo = demonstration_from_csv(_csv(HEADER, rows))
+    estimated = np.asarray(demo.metadata.force_offset_removed)
+    assert np.abs(estimated[:3] - offset[:3]).max() < 0.2
+    assert np.abs(estimated[3:] - offset[3:]).max() < 0.01
+    free = (t < 0.9) if free_at == "start" else (t > 3.1)
+    assert np.abs(np.median(np.asarray(demo.wrenches)[free], axis=0)).max() < 0.05
+    assert "sensor offset removed" in " ".join(demo.metadata.extra["import_notes"])
+    untared = demonstration_from_csv(_csv(HEADER, rows), tare=False)
+    assert untared.metadata.force_offset_removed is None
+
+
+def test_sensor_offset_of_a_measured_wrench_is_reported_applied_by_tool():
+    rng = np.random.default_rng(4)
+    offset = np.array([1.5, -2.0, 3.0, 0.0, 0.0, 0.0])
+    _, rows = _free_then_contact(offset, "start", rng)
+    rows[:, 8:] *= -1  # the sensor reports the reaction
+    demo = demonstration_from_csv(_csv(HEADER, rows), wrench_convention="measured-on-tool")
+    np.testing.assert_allclose(demo.metadata.force_offset_removed[:3], offset[:3], atol=0.2)
+
+
+def test_no_free_space_no_offset():
+    """Contact from the first sample (like the KU Leuven files), and a recording without contact at all."""
+    rng = np.random.default_rng(5)
+    t, rows = _free_then_contact(np.zeros(6), "start", rng)
+    contact_only = rows[t > 1.05]
+    assert demonstration_from_csv(_csv(HEADER, contact_only)).metadata.force_offset_removed is None
+    no_contact = rows[t < 0.95]
+    assert demonstration_from_csv(_csv(HEADER, no_contact)).metadata.force_offset_removed is None
+
+
+def test_free_space_detection_finds_the_stretch():
+    rng = np.random.default_rng(6)
+    t, rows = _free_then_contact(np.zeros(6), "start", rng)
+    stretches = preprocess.free_space_stretches(t, rows[:, 8:])
+    assert [s.end for s in stretches] == ["start"]
+    assert 0.9 < t[stretches[0].stop - 1] <= 1.05
+
+
+def test_column_spec_and_common_names():
+    t = np.arange(0.0, 1.0, 0.005)
+    p, q, w = _truth(t)
+    header = ["Time [s]", "X (m)", "Y (m)", "Z (m)", "quat_x", "quat_y", "quat_z", "quat_w", "Force_X", "Force_Y",
+              "Force_Z", "my_torque_a", "my_torque_b", "my_torque_c"]  # fmt: skip
+    text = _csv(header, np.column_stack([t, p, q, w]))
+    spec = ColumnMap.parse("mx=my_torque_a, my=my_torque_b, mz=my_torque_c")
+    demo = demonstration_from_csv(text, columns=spec)
+    assert demo.metadata.extra["columns"]["t"] == "Time [s]" and demo.metadata.extra["columns"]["mz"] == "my_torque_c"
+    np.testing.assert_allclose(demo.arrays().wrenches[:, 3:], _truth(demo.arrays().t)[2][:, 3:], atol=1e-6)
+    without_moments = demonstration_from_csv(_csv(header[:11], np.column_stack([t, p, q, w[:, :3]])))
+    assert np.all(without_moments.arrays().wrenches[:, 3:] == 0)
+    assert "moments set to zero" in " ".join(without_moments.metadata.extra["import_notes"])
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def _good_rows(n: int = 200) -> np.ndarray:
+    t = np.arange(n) * 0.005
+    return np.column_stack([t, *_truth(t)])
+
+
+def _with_cell(line: int, column: int, value: str) -> str:
+    """The good CSV with the cell of 1-based file ``line`` (the header is line 1) in ``column`` replaced."""
+    lines = _csv(HEADER, _good_rows()).splitlines()
+    cells = lines[line - 1].split(",")
+    cells[column] = value
+    lines[line - 1] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (_csv([h for h in HEADER if h != "fz"], np.delete(_good_rows(), 10, axis=1)), "missing column for fz"),
+        (_with_cell(17, 3, "abc"), "column 'pz' (pz), line 17: 'abc' is not a number"),
+        (_with_cell(23, 9, ""), "column 'fy' (fy), line 23: an empty value is not a number"),
+        (_with_cell(30, 10, "nan"), "column 'fz' (fz), line 30: 'nan' is not finite"),
+        (_with_cell(31, 0, "inf"), "column 't' (t), line 31: 'inf' is not finite"),
+        (_csv(HEADER, _good_rows()[:1]), "too few rows: 1 data row"),
+        (_csv(HEADER, _good_rows(30)), "too few samples: 30 at"),
+        ("", "the file is empty"),
+        (_csv(HEADER, _good_rows()).split("\n", 1)[1], "a header row is required"),
+        (_csv(HEADER, _good_rows()) + "1,2,3\n", "line 202: 3 fields, the header has 14"),
+        (_with_cell(5, 7, "3.0"), "quaternion (qx, qy, qz, qw), line 5: norm"),
+    ],
+    ids=[
+        "missing", "non-numeric", "empty", "nan", "inf", "one-row", "short", "empty-file", "no-header", "ragged",
+        "quaternion-norm",
+    ],
+)
+def test_bad_input_names_column_and_line(text, expected):
+    with pytest.raises(CsvImportError) as raised:
+        demonstration_from_csv(text)
+    assert expected in str(raised.value), str(raised.value)
+    assert isinstance(raised.value, ValueError)
+
+
+def test_bad_options_and_specs():
+    with pytest.raises(CsvImportError, match="unknown key 'force'"):
+        ColumnMap.parse("t=time,force=F")
+    with pytest.raises(CsvImportError, match="is not key=column"):
+        ColumnMap.parse("t")
+    text = _csv(HEADER, _good_rows())
+    with pytest.raises(CsvImportError, match="column 'Force_Z' given for fz is not in the header"):
+        demonstration_from_csv(text, columns=ColumnMap(fz="Force_Z"))
+    with pytest.raises(CsvImportError, match="rate"):
+        demonstration_from_csv(text, rate_hz=0.0)
+    with pytest.raises(CsvImportError, match=r"reaction"):
+        demonstration_from_csv(text, wrench_convention="reaction")
+    with pytest.raises(CsvImportError, match=r"cannot read"):
+        demonstration_from_csv(Path("/nonexistent/demo.csv"))
+
+
+def test_tool_frame_columns_hint_the_option():
+    header = [h if h[0] not in "fm" else f"{h}_tcp" for h in HEADER]
+    with pytest.raises(CsvImportError, match="the file has a tool-frame wrench: pass wrench_frame='tool'"):
+        demonstration_from_csv(_csv(header, _good_rows()))
+    assert demonstration_from_csv(_csv(header, _good_rows()), wrench_frame="tool").n_samples > 50
+
+
+def test_json_round_trip_and_field_errors(tmp_path):
+    demo = demonstration_from_csv(_csv(HEADER, _good_rows()))
+    path = tmp_path / "demo.json"
+    path.write_text(demo.model_dump_json())
+    assert demonstration_from_json(path) == demo
+    broken = demo.model_dump()
+    broken["orientations"][3] = [0.0, 0.0, 0.0, 2.0]
+    path.write_text(json.dumps(broken))
+    with pytest.raises(DemonstrationImportError, match="orientations: quaternion at sample 3"):
+        demonstration_from_json(path)
+    with pytest.raises(DemonstrationImportError, match="cannot read"):
+        demonstration_from_json(tmp_path / "missing.json")
