@@ -12,6 +12,8 @@ import os
 import sys
 from pathlib import Path
 
+from cli import bus_commands, service_commands
+
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
 
@@ -249,6 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out-dir", type=Path, default=Path("out"), help="where to write skill.json and learn.png")
     demo.set_defaults(run=cmd_demo_learn)
+    bus_commands.register(commands)
+    service_commands.register(commands)
     return parser
 
 
