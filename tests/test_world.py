@@ -1,0 +1,271 @@
+"""The PyBullet world (real PyBullet DIRECT): torque control, contact wrench sign and size, kinematics, geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pybullet
+import pytest
+
+from sim_worker.world import (
+    Q_HOME,
+    TOOL_LINK,
+    TORQUE_LIMITS_NM,
+    SimWorld,
+    WorldConfig,
+    WorldGeometry,
+    _rotation_about,
+    _rotation_vector,
+)
+from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
+
+R_DOWN = np.diag([-1.0, 1.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def world():
+    w = SimWorld()
+    yield w
+    w.close()
+
+
+def _press(world: SimWorld, force_n: float, steps: int, slide_velocity=None):
+    """Hold the tool on the table pushing ``force_n`` down with tau = g + J^T F (+ damping, lateral motion).
+
+    Returns the recorded contact wrenches (steps, 6) and tool twists (steps, 6).
+    """
+    start = np.array([0.6, 0.0, world.config.table_height_m + 0.003])
+    world.reset(world.inverse_kinematics(start, quaternion_from_matrix(R_DOWN), Q_HOME))
+    p_d = start.copy()
+    wrenches, twists = [], []
+    for k in range(steps):
+        state = world.read_state()
+        v = state.twist
+        F = np.zeros(6)
+        v_d = np.zeros(3)
+        if slide_velocity is not None and k > steps // 3:
+            v_d = np.asarray(slide_velocity, dtype=float)
+            p_d = p_d + v_d * world.config.time_step_s
+            F[:2] = 2000.0 * (p_d[:2] - state.position[:2]) + 100.0 * (v_d[:2] - v[:2])
+        else:
+            F[:2] = -100.0 * v[:2]
+            p_d = state.position.copy()
+        F[2] = -force_n - 50.0 * v[2]
+        F[3:] = 30.0 * _rotation_vector(R_DOWN @ state.rotation.T) - 0.3 * v[3:]
+        world.step(state.gravity_coriolis + state.jacobian.T @ F - 0.5 * state.qd)
+        wrenches.append(world.contact_wrench())
+        twists.append(world.tool_twist())
+    return np.asarray(wrenches), np.asarray(twists)
+
+
+def test_gravity_compensation_alone_holds_the_arm_still(world):
+    q0 = np.array(Q_HOME) + np.array([0.3, -0.2, 0.4, 0.3, -0.5, 0.2, 0.7])
+    world.reset(q0)
+    p0, _ = world.tool_pose()
+    for _ in range(1000):
+        world.step(world.gravity_coriolis_torques())
+    p1, _ = world.tool_pose()
+    q1, qd1 = world.joint_state()
+    assert np.linalg.norm(p1 - p0) < 1e-3
+    assert np.abs(q1 - q0).max() < 1e-4
+    assert np.abs(qd1).max() < 1e-3
+    assert not world.in_contact()
+
+
+def test_without_compensation_the_arm_falls(world):
+    world.reset()
+    p0, _ = world.tool_pose()
+    for _ in range(200):
+        world.step(np.zeros(7))
+    assert world.tool_pose()[0][2] < p0[2] - 0.01  # torque mode really is on: velocity motors are off
+
+
+def test_pressing_the_table_gives_the_applied_wrench_with_correct_sign_and_magnitude(world):
+    wrenches, _ = _press(world, 15.0, 1500)
+    steady = wrenches[700:]
+    assert world.in_contact()
+    # The tool pushes DOWN on a horizontal table: fz < 0 in world.
+    assert steady[:, 2].mean() == pytest.approx(-15.0, rel=0.02)
+    assert steady[:, 2].std() < 0.7  # documented band (compliant contact, 1 kHz)
+    assert np.abs(steady[:, :2]).max() < 0.3
+    assert np.abs(steady[:, 3:]).max() < 0.01  # contact at the tool point: no moment
+    normal, friction = world.contact_forces()
+    assert normal[2] == pytest.approx(world.true_contact_wrench()[2] - friction[2])
+    assert normal / np.linalg.norm(normal) == pytest.approx([0.0, 0.0, -1.0], abs=1e-6)
+    # The pad compresses by about F / k = 0.5 mm.
+    assert world.tool_pose()[0][2] == pytest.approx(world.config.table_height_m - 15.0 / 3e4, abs=2e-4)
+
+
+def test_sliding_drags_the_table_along_the_tool_velocity_with_coulomb_friction(world):
+    wrenches, twists = _press(world, 15.0, 2400, slide_velocity=(0.05, 0.0, 0.0))
+    steady, v = wrenches[1800:], twists[1800:]
+    assert v[:, 0].mean() == pytest.approx(0.05, rel=0.05)
+    fx, fz = steady[:, 0].mean(), steady[:, 2].mean()
+    assert fx > 0  # the force the TOOL applies to the table points along the tool's motion
+    assert fx / -fz == pytest.approx(world.config.lateral_friction, rel=0.03)
+    assert fz == pytest.approx(-15.0, rel=0.03)
+
+
+def test_torques_are_clipped_to_the_iiwa_limits(world):
+    world.reset()
+    assert np.allclose(world.torque_limits, TORQUE_LIMITS_NM)
+    q0, _ = world.joint_state()
+    g = world.gravity_coriolis_torques()
+    world.step(g)
+    assert not world.last_step_clipped
+    huge = g + np.array([1000.0, -1000.0, 500.0, -500.0, 300.0, -100.0, 100.0])
+    world.reset(q0)
+    world.step(huge)
+    assert world.last_step_clipped and world.clip_count == 1
+    q_huge, qd_huge = world.joint_state()
+    world.reset(q0)
+    world.step(np.clip(huge, -world.torque_limits, world.torque_limits))
+    q_clip, qd_clip = world.joint_state()
+    assert np.allclose(qd_huge, qd_clip) and np.allclose(q_huge, q_clip)
+
+
+def test_jacobian_matches_finite_differences_of_the_tool_pose(world):
+    q0 = np.array(Q_HOME) + np.array([0.2, 0.1, -0.3, 0.2, 0.4, -0.2, 0.5])
+    world.reset(q0)
+    J = world.jacobian()
+    p0, _ = world.tool_pose()
+    R0 = world.tool_rotation()
+    h = 1e-6
+    J_fd = np.zeros((6, 7))
+    for j in range(7):
+        dq = np.zeros(7)
+        dq[j] = h
+        world.set_joint_positions(q0 + dq)
+        J_fd[:3, j] = (world.tool_pose()[0] - p0) / h
+        J_fd[3:, j] = _rotation_vector(world.tool_rotation() @ R0.T) / h
+    assert np.abs(J - J_fd).max() < 1e-5
+    # The twist is J qd at the tool point: compare with the pose change over one small step.
+    world.set_joint_positions(q0, qd=np.full(7, 0.1))
+    twist = world.tool_twist()
+    world.set_joint_positions(q0 + 1e-5 * np.full(7, 1.0))
+    assert (world.tool_pose()[0] - p0) / 1e-4 == pytest.approx(twist[:3], abs=1e-4)
+
+
+def test_mass_matrix_and_inverse_dynamics_agree(world):
+    world.reset(np.array(Q_HOME) + 0.1)
+    q, _ = world.joint_state()
+    M = world.mass_matrix()
+    assert np.allclose(M, M.T) and np.all(np.linalg.eigvalsh(M) > 0)
+    qdd = np.linspace(-1.0, 1.0, 7)
+    tau = np.asarray(
+        pybullet.calculateInverseDynamics(
+            world.robot, q.tolist(), [0.0] * 7, qdd.tolist(), physicsClientId=world.client_id
+        )
+    )
+    assert tau - world.gravity_coriolis_torques() == pytest.approx(M @ qdd, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("position", "tilt_deg"),
+    [((0.6, 0.0, 0.12), 0.0), ((0.5, 0.2, 0.25), 20.0), ((0.7, -0.15, 0.18), -35.0), ((0.45, 0.0, 0.4), 50.0)],
+)
+def test_inverse_kinematics_reaches_targets(world, position, tilt_deg):
+    world.reset()
+    q_before, _ = world.joint_state()
+    R = _rotation_about((1.0, 0.0, 0.0), math.radians(tilt_deg)) @ R_DOWN
+    q = world.inverse_kinematics(position, quaternion_from_matrix(R), Q_HOME)
+    assert np.allclose(world.joint_state()[0], q_before)  # the simulated state is restored
+    p, quat = world.forward_kinematics(q)
+    assert np.linalg.norm(p - np.asarray(position)) < 1e-4
+    assert np.linalg.norm(_rotation_vector(matrix_from_quaternion(quat) @ R.T)) < 1e-3
+    assert np.all(q >= world.joint_lower) and np.all(q <= world.joint_upper)
+
+
+def test_inverse_kinematics_refuses_unreachable_targets(world):
+    with pytest.raises(ValueError, match="did not converge"):
+        world.inverse_kinematics([2.0, 0.0, 0.5], quaternion_from_matrix(R_DOWN), Q_HOME, max_iterations=50)
+
+
+def test_tool_point_is_the_lowest_point_of_the_ball(world):
+    world.reset()
+    p, _ = world.tool_pose()
+    aabb_min, _ = pybullet.getAABB(world.robot, TOOL_LINK, physicsClientId=world.client_id)
+    assert p[2] == pytest.approx(aabb_min[2], abs=2e-3)  # tool pointing down: the ball bottom is the lowest point
+    assert world.tool_rotation()[:, 2] == pytest.approx([0.0, 0.0, -1.0], abs=2e-3)
+
+
+def test_geometry_normals_of_every_surface():
+    config = WorldConfig(
+        ramp_enabled=True,
+        ramp_crease_x_m=0.15,
+        ramp_tilt_deg=20.0,
+        cylinder_enabled=True,
+        cylinder_xy_m=(-0.1, 0.25),
+        block_enabled=True,
+        block_xy_m=(-0.1, -0.2),
+        block_yaw_deg=90.0,
+    )
+    g = WorldGeometry(config)
+    # Table: straight up, 5 cm above reads 0.05.
+    assert g.surface_normal_at([0.55, 0.0, 0.15]) == pytest.approx([0.0, 0.0, 1.0])
+    assert g.signed_distance([0.55, 0.0, 0.15]) == pytest.approx(0.05)
+    # Ramp: rises towards +x by 20 degrees.
+    a = math.radians(20.0)
+    assert g.surface_normal_at(g.ramp_point(0.1, 0.0) + 0.01 * g.ramp_normal) == pytest.approx(
+        [-math.sin(a), 0.0, math.cos(a)]
+    )
+    # Cylinder: radial.
+    cyl = g.solids["cylinder"]
+    point = cyl.p + (cyl.radius + 0.01) * np.array([math.sin(0.6), 0.0, math.cos(0.6)])
+    assert g.surface_normal_at(point) == pytest.approx([math.sin(0.6), 0.0, math.cos(0.6)], abs=1e-9)
+    assert g.signed_distance(point) == pytest.approx(0.01)
+    # Block (yawed 90 degrees: the profile runs along world y): the ellipse normal.
+    block = g.solids["block"]
+    phi = 1.0
+    x, z = block.profile_point(phi)
+    nx, nz = block.profile_normal(phi)
+    surface = block.p + block.R @ np.array([x, 0.0, z])
+    normal = block.R @ np.array([nx, 0.0, nz])
+    assert abs(normal[0]) < 1e-12
+    assert g.surface_normal_at(surface + 0.005 * normal) == pytest.approx(normal, abs=1e-9)
+    assert g.signed_distance(surface + 0.005 * normal) == pytest.approx(0.005, abs=1e-9)
+    assert g.signed_distance(surface - 0.002 * normal) == pytest.approx(-0.002, abs=1e-9)
+
+
+def test_tilted_table_and_shifted_objects_follow_the_config():
+    g = WorldGeometry(WorldConfig(table_tilt_deg=15.0, table_height_m=0.2))
+    assert g.table_normal == pytest.approx([0.0, -math.sin(math.radians(15.0)), math.cos(math.radians(15.0))])
+    assert g.table_point(0.0, 0.0)[2] == pytest.approx(0.2)
+    base = WorldGeometry(WorldConfig(cylinder_enabled=True)).solids["cylinder"].p
+    moved = WorldGeometry(WorldConfig(cylinder_enabled=True, cylinder_offset_m=(0.02, -0.01, 0.03))).solids["cylinder"]
+    assert moved.p - base == pytest.approx([0.02, -0.01, 0.03])
+
+
+def test_worlds_are_independent_and_the_config_round_trips():
+    config = WorldConfig(table_height_m=0.15, cylinder_enabled=True, cylinder_yaw_deg=90.0)
+    assert WorldConfig.from_dict(config.to_dict()) == config
+    with SimWorld(config) as a, SimWorld(WorldConfig(table_height_m=0.05)) as b:
+        assert a.client_id != b.client_id
+        assert set(a.bodies) == {"table", "cylinder"} and set(b.bodies) == {"table"}
+        aabb_a = pybullet.getAABB(a.bodies["table"], physicsClientId=a.client_id)
+        aabb_b = pybullet.getAABB(b.bodies["table"], physicsClientId=b.client_id)
+        assert aabb_a[1][2] == pytest.approx(0.15, abs=2e-3) and aabb_b[1][2] == pytest.approx(0.05, abs=2e-3)
+        a.step(a.gravity_coriolis_torques())
+        assert a.step_count == 1 and b.step_count == 0
+
+
+def test_sensor_noise_and_filter_are_off_by_default_and_seeded_when_on():
+    with SimWorld(WorldConfig(wrench_noise_force_std_n=0.5, seed=3)) as noisy:
+        noisy.step(noisy.gravity_coriolis_torques())
+        first = noisy.contact_wrench()
+        assert first is not None and np.all(noisy.true_contact_wrench() == 0.0)
+        assert np.abs(first[:3]).max() > 0 and first == pytest.approx(noisy.contact_wrench())  # once per step
+    with SimWorld(WorldConfig(wrench_noise_force_std_n=0.5, wrench_filter_cutoff_hz=5.0, seed=3)) as filtered:
+        values = []
+        for _ in range(200):
+            filtered.step(filtered.gravity_coriolis_torques())
+            values.append(filtered.contact_wrench()[2])
+        assert np.std(values[50:]) < 0.2  # 5 Hz first-order low-pass of 0.5 N white noise
+
+
+def test_per_step_costs_are_small(world):
+    world.reset()
+    costs = world.measure_costs(300)
+    print("per-call cost (µs):", {k: round(v, 1) for k, v in costs.items()})
+    assert costs["step"] < 500 and costs["jacobian"] < 200 and costs["contact_wrench"] < 200
