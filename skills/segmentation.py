@@ -84,11 +84,15 @@ def normal_directions(
 
     Friction acts along the motion, so the component of the force along the velocity is
     removed; what is left is the surface normal direction into the surface. Where the tool
-    rests (speed < 5 mm/s) static friction can point anywhere in the friction cone, so the
-    direction says nothing about the normal there: it is zero, as where not in contact.
+    rests (speed < 5 mm/s) static friction can point anywhere in the friction cone, and where
+    the force is below a third of the median contact force (touching down, lifting off) noise
+    and transients dominate: there the direction says nothing about the normal and is zero,
+    as where not in contact.
     """
     speed = np.linalg.norm(velocities, axis=1, keepdims=True)
-    moving = speed > 5e-3
+    magnitude = np.linalg.norm(forces, axis=1, keepdims=True)
+    typical = float(np.median(magnitude[in_contact])) if in_contact.any() else 0.0
+    moving = (speed > 5e-3) & (magnitude > typical / 3.0)
     v_hat = np.where(moving, velocities / np.maximum(speed, 1e-12), 0.0)
     normal_part = forces - np.sum(forces * v_hat, axis=1, keepdims=True) * v_hat
     norm = np.linalg.norm(normal_part, axis=1, keepdims=True)
@@ -196,9 +200,17 @@ def segment_demonstration(
     return _merge_pieces(pieces, in_contact, directions, split_on_normal, min_samples)
 
 
-def _mean_direction(directions: NDArray[np.float64], start: int, end: int) -> NDArray[np.float64]:
-    """Return the mean normal direction over ``[start, end)`` (not normalized)."""
-    return directions[start:end].mean(axis=0)
+def _mean_direction(directions: NDArray[np.float64], start: int, end: int) -> NDArray[np.float64] | None:
+    """Return the mean normal direction over ``[start, end)``, or None where it is undetermined.
+
+    Undetermined: fewer than 20 % of the samples (or 10) carry a direction, i.e. the tool
+    mostly rested (pressing before it moves, releasing after it stopped).
+    """
+    rows = directions[start:end]
+    valid = np.linalg.norm(rows, axis=1) > 0.5
+    if valid.sum() < max(10, 0.2 * valid.size):
+        return None
+    return rows[valid].mean(axis=0)
 
 
 def _merge_pieces(
@@ -216,8 +228,10 @@ def _merge_pieces(
             return False
         if not (a.contact and split_on_normal):
             return True
-        angle = _angle_deg(_mean_direction(directions, a.start, a.end), _mean_direction(directions, b.start, b.end))
-        return angle < NORMAL_SPLIT_DEG
+        normal_a = _mean_direction(directions, a.start, a.end)
+        normal_b = _mean_direction(directions, b.start, b.end)
+        # A stretch at rest has no normal of its own: it belongs to the plane it rests on.
+        return normal_a is None or normal_b is None or _angle_deg(normal_a, normal_b) < NORMAL_SPLIT_DEG
 
     def merged(a: SegmentBounds, b: SegmentBounds, contact: bool) -> SegmentBounds:
         return SegmentBounds(a.start, b.end, contact)
