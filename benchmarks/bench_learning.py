@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section  # noqa: E402
+from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section
 
 pin_blas_threads()
 

@@ -185,7 +185,10 @@ class LearnOptions(BaseModel):
     skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
     n_basis: int = Field(50, ge=2, le=1000, description="Fewest DMP basis functions per dimension and segment.")
     basis_per_second: float = Field(
-        25.0, ge=0, description="More basis functions for long segments: at least this many per second of segment."
+        15.0,
+        ge=0,
+        description="More basis functions for long segments: at least this many per second of segment "
+        "(denser bases fit faster detail but make the rollout depend on its time step).",
     )
     max_basis: int = Field(300, ge=2, le=2000, description="Most basis functions per dimension and segment.")
     max_fit_samples: int = Field(

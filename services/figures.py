@@ -163,3 +163,62 @@ def write_learning_figure(demonstration: Demonstration, skill: Skill, path: str 
         ax.legend(loc="upper right", fontsize=8, ncols=2)
         ax.axhline(0.0, color="black", lw=0.5)
     figure.savefig(os.fspath(path), dpi=120)
+
+
+def write_execution_figure(result, path: str | os.PathLike[str]) -> None:
+    """Write the force-tracking figure of an execution (like the paper's Fig. 3d / 4d) as PNG (or by suffix).
+
+    ``result`` is a ``sim_worker.executor.ExecutionResult`` (only its ``telemetry`` arrays and
+    ``metrics`` are read, so this module does not import the simulator). Top: the measured force
+    in the compliant frame, x/y/z (N), and the desired CF-z force dashed black; phases are
+    background spans (approach/contact orange, free/settle/retreat grey). Bottom: the CF-z force
+    error (measured - desired, N) over the contact phase, with the metrics in the title.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    tel = result.telemetry
+    metrics = result.metrics
+    t = tel.t
+    phases = [p.value for p in tel.phases]
+    figure = Figure(figsize=(9, 6), layout="constrained")
+    FigureCanvasAgg(figure)
+    ax_force, ax_error = figure.subplots(2, 1, sharex=True)
+    for j, axis in enumerate("xyz"):
+        ax_force.plot(t, tel.wrench_cf[:, j], color=_AXIS_COLORS[j], lw=1.0, label=f"$f_{axis}$ CF measured")
+    ax_force.plot(t, tel.desired_force, color="black", ls="--", lw=1.4, label="desired $f_z$")
+    contact = np.array([p == "contact" for p in phases])
+    error = np.where(contact, tel.wrench_cf[:, 2] - tel.desired_force, np.nan)
+    ax_error.plot(t, error, color="tab:blue", lw=1.0, label="$f_z$ measured - desired (contact)")
+    # phase spans
+    start = 0
+    for k in range(1, len(phases) + 1):
+        if k == len(phases) or phases[k] != phases[start]:
+            kind = phases[start]
+            color = "tab:orange" if kind in ("approach", "contact") else "tab:gray"
+            for ax in (ax_force, ax_error):
+                ax.axvspan(t[start], t[k - 1], color=color, alpha=0.12 if kind == "contact" else 0.06, lw=0)
+            if t[k - 1] - t[start] > 0.05 * max(t[-1] - t[0], 1e-9):
+                ax_force.text(
+                    (t[start] + t[k - 1]) / 2, 1.0, kind, transform=ax_force.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=8,
+                )  # fmt: skip
+            start = k
+    parts = [f"{metrics.controller.value}: {metrics.phase.value}"]
+    if metrics.force_rms_error_n is not None:
+        parts.append(f"f_z RMS error {metrics.force_rms_error_n:.2f} N ({metrics.force_rms_error_pct:.1f} %)")
+    if metrics.contact_ratio is not None:
+        parts.append(f"contact {100 * metrics.contact_ratio:.1f} %")
+    if metrics.path_rms_m is not None:
+        parts.append(f"path RMS {1e3 * metrics.path_rms_m:.2f} mm")
+    if metrics.abort_reason:
+        parts.append(metrics.abort_reason)
+    ax_force.set_title("; ".join(parts), pad=14, fontsize=10)
+    ax_force.set_ylabel("applied force, compliant frame (N)")
+    ax_error.set_ylabel("CF-z force error (N)")
+    ax_error.set_xlabel("time (s)")
+    for ax in (ax_force, ax_error):
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncols=2)
+        ax.axhline(0.0, color="black", lw=0.5)
+    figure.savefig(os.fspath(path), dpi=120)

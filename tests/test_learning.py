@@ -8,6 +8,7 @@ import pytest
 from schemas import Demonstration, LearnOptions, Skill, SkillType, SkillTypeRequest
 from schemas.skill import SELECTION_CONTACT, SELECTION_FREE, SegmentKind
 from skills import synthetic
+from skills.dmp import DMP
 from skills.parameterize import LearningError, learn_skill
 from skills.quaternions import matrix_from_quaternion
 
@@ -149,3 +150,13 @@ def test_a_demonstration_without_contact_is_refused_naming_the_wrenches() -> Non
         learn_skill(free)
     assert raised.value.field == "wrenches"
     assert "contact" in raised.value.reason
+
+
+def test_learned_profiles_do_not_depend_on_the_rollout_step() -> None:
+    """The executor rolls out at its control step, not the demonstration's: the profile must not care."""
+    _, skill = learned("cylinder", 0, SkillTypeRequest.contour)
+    [contact] = contact_segments(skill)
+    force = DMP.from_parameters(contact.force_dmp)
+    fine, coarse = force.rollout(0.001).y[:, 0], force.rollout(0.005).y[:, 0]
+    assert abs(coarse.max() - fine.max()) < 0.03 * fine.max()
+    assert abs(coarse.mean() - fine.mean()) < 0.03 * fine.mean()

@@ -1,0 +1,233 @@
+"""Benchmark: real-time factor and per-step cost of the full 1 kHz execution loop, on one core.
+
+Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_control_loop.py
+
+Learns the skills from the scripted teacher (slide on the flat and the 15° table, contour over the
+cylinder; seed 0), pins the process to one CPU, and executes each skill with ``pace=fast`` through
+``sim_worker.executor.execute_skill``: PyBullet physics, sensing (joint state, tool pose, contact
+wrench), dynamics queries (Jacobian, gravity/Coriolis every step, mass matrix every
+``NULL_SPACE_UPDATE_STEPS``), the control law (``skills.control``) and the telemetry record. Reported:
+the real-time factor (simulated / wall time of the loop, median of the repeats), the loop's own
+per-step timers (µs) and, for reference, the per-call cost of the world's queries
+(``SimWorld.measure_costs``) and of the control law alone. The force / path measures of the same
+runs are reported too (ours and the two baselines in the same run). Writes its section of
+docs/BENCHMARKS.md between ``<!-- bench_control_loop:start -->`` and ``<!-- bench_control_loop:end -->``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.report import machine_line, pin_blas_threads, write_section
+
+pin_blas_threads()
+
+import argparse  # noqa: E402
+import os  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from schemas import ControllerKind, ExecutionSettings, LearnOptions  # noqa: E402
+from schemas.skill import SELECTION_CONTACT  # noqa: E402
+from sim_worker.executor import NULL_SPACE_UPDATE_STEPS, execute_skill  # noqa: E402
+from sim_worker.teacher import record_demonstration  # noqa: E402
+from sim_worker.world import SimWorld, WorldConfig  # noqa: E402
+from skills.control import HybridController  # noqa: E402
+from skills.parameterize import learn_skill  # noqa: E402
+
+SECTION = "bench_control_loop"
+COMMAND = ".venv/bin/python benchmarks/bench_control_loop.py"
+TARGET_RTF = 20.0
+RUNS = (
+    ("slide_flat", "slide", ControllerKind.hybrid_cf),
+    ("slide_tilted", "slide", ControllerKind.hybrid_cf),
+    ("slide_tilted", "slide", ControllerKind.impedance),
+    ("slide_tilted", "slide", ControllerKind.hybrid_world_z),
+    ("contour_cylinder", "contour", ControllerKind.hybrid_cf),
+    ("contour_cylinder", "contour", ControllerKind.impedance),
+    ("contour_cylinder", "contour", ControllerKind.hybrid_world_z),
+)
+PARTS = ("physics_step", "sensing", "dynamics", "control_law", "telemetry", "other", "total")
+
+
+def pin_one_core() -> str:
+    """Pin this process to one CPU (the last one); return a description."""
+    try:
+        cpus = sorted(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpus[-1]})
+        return f"pinned to CPU {cpus[-1]}"
+    except (AttributeError, OSError):
+        return "not pinned (no sched_setaffinity)"
+
+
+def control_law_cost(repeats: int = 20000) -> dict[str, float]:
+    """µs per call of the control law alone on a recorded-like state: cached model, and a model update."""
+    world = SimWorld(WorldConfig())
+    q, qd = world.joint_state()
+    p, quat = world.tool_pose()
+    state = {
+        "jacobian": world.jacobian(),
+        "q": q,
+        "qd": qd,
+        "bias_torques": world.gravity_coriolis_torques(),
+        "tool_position": p,
+        "tool_quaternion": quat,
+        "reference_position": p + 0.001,
+        "reference_quaternion": quat,
+        "reference_twist": np.zeros(6),
+        "wrench": np.array([0.5, 0.2, -14.0, 0.0, 0.0, 0.0]),
+        "desired_force": 15.0,
+    }
+    mass = world.mass_matrix()
+    world.close()
+    ctrl = HybridController(posture=q)
+    frame = ctrl.frame(np.diag([1.0, -1.0, -1.0]), SELECTION_CONTACT)
+    ctrl.compute(frame=frame, mass_matrix=mass, **state)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        ctrl.compute(frame=frame, update_null_space=False, **state)
+    cached = (time.perf_counter() - start) / repeats * 1e6
+    n_update = max(1, repeats // 10)
+    start = time.perf_counter()
+    for _ in range(n_update):
+        ctrl.compute(frame=frame, mass_matrix=mass, update_null_space=True, **state)
+    update = (time.perf_counter() - start) / n_update * 1e6
+    return {"compute (model cached)": cached, "compute + model update (projector, Λ, damping)": update}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3, help="executions per run (median RTF)")
+    parser.add_argument("--no-write", action="store_true", help="print only, do not touch docs/BENCHMARKS.md")
+    args = parser.parse_args()
+    pinned = pin_one_core()
+
+    learned = {}
+    for scenario, skill_type, _ in RUNS:
+        if scenario not in learned:
+            recording = record_demonstration(scenario, seed=0)
+            options = LearnOptions(skill_type=skill_type)
+            learned[scenario] = (recording, learn_skill(recording.demonstration, options))
+
+    rows = []
+    breakdown = None
+    for scenario, _, controller in RUNS:
+        recording, skill = learned[scenario]
+        settings = ExecutionSettings(controller=controller, pace="fast")
+        results = [
+            execute_skill(skill, recording.world_config, settings, demonstration=recording.demonstration)
+            for _ in range(args.repeats)
+        ]
+        rtfs = [r.metrics.real_time_factor for r in results]
+        best = results[int(np.argsort(rtfs)[len(rtfs) // 2])]
+        rows.append((scenario, controller, statistics.median(rtfs), min(rtfs), max(rtfs), best))
+        if breakdown is None:
+            breakdown = (scenario, controller, best.timings_us)
+        m = best.metrics
+        print(f"{scenario:17s} {controller.value:15s} RTF {statistics.median(rtfs):5.1f} "
+              f"({min(rtfs):.1f}-{max(rtfs):.1f}), {best.timings_us['total']:.0f} µs/step, {m.phase.value}, "
+              f"f_z RMS {m.force_rms_error_pct or float('nan'):.2f} %", flush=True)  # fmt: skip
+
+    with SimWorld(WorldConfig()) as world:
+        world_costs = world.measure_costs(2000)
+    law = control_law_cost()
+
+    lines = [
+        "## Control loop: real-time factor of the 1 kHz execution loop (one core)",
+        "",
+        f"Reproduce: `{COMMAND}` ({args.repeats} executions per row, median real-time factor; {pinned}).",
+        "",
+        "Each row executes a skill learned from the scripted teacher (seed 0) in PyBullet at 1 kHz with "
+        "`execute_skill(..., pace=fast)`: settle, free motion, guarded approach, contact, retreat. The "
+        "loop time covers physics, sensing, dynamics queries, the control law, the telemetry record and "
+        "the guarded-approach / abort checks; not the world construction, IK and DMP rollouts before it.",
+        "",
+        "| scenario | controller | real-time factor (median, min-max) | µs / step | f_z RMS error | "
+        "f_z max error | contact ratio | path RMS (CF x-y) | peak force |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for scenario, controller, rtf, lo, hi, result in rows:
+        m = result.metrics
+        rms = f"{m.force_rms_error_n:.3f} N ({m.force_rms_error_pct:.2f} %)" if m.force_rms_error_n else "–"
+        worst = f"{m.force_max_error_n:.2f} N ({m.force_max_error_pct:.1f} %)" if m.force_max_error_n else "–"
+        ratio = f"{100 * m.contact_ratio:.2f} %" if m.contact_ratio is not None else "–"
+        path = f"{1e3 * m.path_rms_m:.2f} mm" if m.path_rms_m is not None else "–"
+        lines.append(
+            f"| {scenario} | {controller.value} | {rtf:.1f} ({lo:.1f}-{hi:.1f}) | {result.timings_us['total']:.0f} | "
+            f"{rms} | {worst} | {ratio} | {path} | {m.peak_force_n:.1f} N |"
+        )
+    scenario, controller, timings = breakdown
+    total = timings["total"]
+    lines += [
+        "",
+        f"Per-step cost breakdown of the loop ({scenario}, {controller.value}; the loop's own timers, µs):",
+        "",
+        "| part | µs / step | share |",
+        "| --- | ---: | ---: |",
+    ]
+    labels = {
+        "physics_step": "physics step (`SimWorld.step`: torque command + `stepSimulation`)",
+        "sensing": "sensing (joint state, tool pose, contact wrench, contact flag)",
+        "dynamics": f"dynamics queries (Jacobian, gravity/Coriolis; mass matrix every {NULL_SPACE_UPDATE_STEPS} steps)",
+        "control_law": "control law (`HybridController.compute`, incl. projector/damping updates)",
+        "telemetry": "telemetry record (row into the preallocated array, batch hand-off)",
+        "other": "loop overhead (timers, guarded-approach and abort checks)",
+        "total": "**total**",
+    }
+    for part in PARTS:
+        lines.append(f"| {labels[part]} | {timings[part]:.1f} | {100 * timings[part] / total:.0f} % |")
+    lines += [
+        "",
+        "Per-call costs for reference (µs, mean; `SimWorld.measure_costs` and the control law alone):",
+        "",
+        "| call | µs |",
+        "| --- | ---: |",
+    ]
+    for name, value in world_costs.items():
+        lines.append(f"| world.{name} | {value:.1f} |")
+    for name, value in law.items():
+        lines.append(f"| control law: {name} | {value:.1f} |")
+    median_rtf = statistics.median(r[2] for r in rows)
+    floor = world_costs["step"] + world_costs["joint_state"] + world_costs["tool_pose"]
+    floor += world_costs["jacobian"] + world_costs["gravity_coriolis_torques"] + world_costs["contact_wrench"]
+    in_loop = timings["physics_step"] + timings["sensing"] + timings["dynamics"]
+    verdict = "MET" if median_rtf >= TARGET_RTF else "NOT MET"
+    lines += [
+        "",
+        f"- Target: real-time factor >= {TARGET_RTF:.0f} on one core. Median over the rows {median_rtf:.1f}: "
+        f"{verdict}. 20x needs <= 50 µs per step in all. The simulator's part alone (physics, sensing, "
+        f"dynamics) takes {in_loop:.0f} µs per step inside the loop ({1e6 / in_loop / 1e3:.0f}x at best with a "
+        f"free control law); the same calls measured one by one on a free arm (per-call table) sum to "
+        f"{floor:.0f} µs: in contact `stepSimulation` does more and the interleaved calls run colder.",
+        "- The control law is plain numpy on 6x6/7x7 matrices, where each operation costs ~0.5-1 µs of call "
+        "overhead: the per-frame matrices (Ω, damping in A, feed-forward direction) are cached per control "
+        "frame, the null-space projector and the apparent inertia are refreshed every "
+        f"{NULL_SPACE_UPDATE_STEPS} steps and the double-diagonalization damping every 5th refresh.",
+        "",
+        machine_line(f"pybullet {_pybullet_version()}"),
+    ]
+    body = "\n".join(lines)
+    print()
+    print(body)
+    if not args.no_write:
+        write_section(SECTION, body)
+
+
+def _pybullet_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("pybullet")
+    except Exception:
+        return "unknown"
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,371 @@
+"""Executing a learned skill: the request, the controller settings, telemetry and the measured result.
+
+Conventions (DESIGN.md): SI units; quaternions scalar-last ``[x, y, z, w]``; 6-vectors
+``[x, y, z, rx, ry, rz]``; wrenches are the wrench the TOOL APPLIES TO THE ENVIRONMENT at the
+tool point, in the world frame unless a field says CF. The compliant frame (CF) z axis points
+into the surface, so the desired normal force is a positive CF ``f_z``.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from schemas.demonstration import Quaternion, Vector3, Wrench
+from schemas.skill import Skill
+
+
+class ControllerKind(StrEnum):
+    """Which control law runs the skill (``skills.control``).
+
+    - ``hybrid_cf`` (ours, paper eq. 1-4): impedance on the CF motion axes, PI force control
+      with feed-forward on the CF force axis (CF z), frames from the skill.
+    - ``impedance``: pure Cartesian impedance, ``S = I`` everywhere, no force loop; the force
+      only as the pose reference implies it (the reference is pushed ``f_desired / k_z``
+      into the taught surface along CF z).
+    - ``hybrid_world_z``: the classical hybrid controller of earlier work, force control fixed
+      to the world z axis (pressing down, -z_world) whatever the skill's CF says.
+    """
+
+    hybrid_cf = "hybrid_cf"
+    impedance = "impedance"
+    hybrid_world_z = "hybrid_world_z"
+
+
+class NullSpaceProjection(StrEnum):
+    """How the posture torque is kept out of the task space (7-DoF arm, 6-D task)."""
+
+    dynamic = "dynamic"
+    """Dynamically consistent, ``I - J^T (J M^-1 J^T)^-1 J M^-1`` (needs the mass matrix)."""
+    static = "static"
+    """``I - J^T J^{+T}`` with the (damped) Moore-Penrose pseudo-inverse; no mass matrix."""
+
+
+class Pace(StrEnum):
+    """How fast simulated time runs relative to the wall clock."""
+
+    realtime = "realtime"
+    fast = "fast"
+
+
+class ExecutionPhase(StrEnum):
+    """Phase of an execution (reported in telemetry and status)."""
+
+    pending = "pending"
+    """Accepted, not started."""
+    settle = "settle"
+    """Moving to the skill's start pose and settling there (free space, impedance)."""
+    free = "free"
+    """A free segment: motion control on all axes (S = I)."""
+    approach = "approach"
+    """Guarded approach along +CF z until contact, then the force ramps to the desired value."""
+    contact = "contact"
+    """A contact segment: hybrid motion/force control in the CF."""
+    retreat = "retreat"
+    """Ramping the force down after a contact segment, before the next free segment lifts off."""
+    done = "done"
+    """Finished every segment."""
+    aborted = "aborted"
+    """Stopped by a safety limit (force, torque, contact not found, non-finite state) or on request."""
+    failed = "failed"
+    """Stopped by an internal error (see the abort reason)."""
+
+
+PHASE_CODES: dict[ExecutionPhase, int] = {phase: code for code, phase in enumerate(ExecutionPhase)}
+"""Small-integer code of each phase, used in the columnar telemetry arrays."""
+
+
+class ControllerGains(BaseModel):
+    """Gains and limits of the hybrid impedance/force controller (defaults work for the simulated iiwa).
+
+    Stiffness and damping are diagonals in the compliant frame (CF) with its origin at the tool
+    point; the force gains act on the CF force axes (CF z for slide and contour).
+    """
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "translational_stiffness_n_per_m": [3000.0, 3000.0, 3000.0],
+                    "rotational_stiffness_nm_per_rad": [40.0, 40.0, 40.0],
+                    "damping_ratio": 0.8,
+                    "force_kp": 0.3,
+                    "force_ki": 10.0,
+                    "max_force_n": 80.0,
+                }
+            ]
+        },
+    )
+
+    translational_stiffness_n_per_m: Vector3 = Field(
+        default_factory=lambda: [3000.0, 3000.0, 3000.0],
+        description="CF translational stiffness K_c (x, y, z), N/m; only the motion axes use it.",
+    )
+    rotational_stiffness_nm_per_rad: Vector3 = Field(
+        default_factory=lambda: [40.0, 40.0, 40.0],
+        description="CF rotational stiffness K_c (rx, ry, rz), N·m/rad.",
+    )
+    damping_ratio: float = Field(
+        0.8,
+        gt=0,
+        le=2.0,
+        description="Damping ratio zeta of the Cartesian damping d_i = 2 zeta sqrt(K_i m_i), m_i the apparent "
+        "inertia of CF axis i from the mass matrix (1).",
+    )
+    apparent_mass_kg: float = Field(
+        3.0,
+        gt=0,
+        description="Nominal translational apparent mass for the damping ratio before/without a mass matrix, kg.",
+    )
+    apparent_inertia_kgm2: float = Field(
+        0.002,
+        gt=0,
+        description="Nominal rotational apparent inertia for the damping ratio before/without a mass matrix, kg·m² "
+        "(small: the iiwa's inertia about the tool axis is ~0.001 kg·m²).",
+    )
+    translational_damping_ns_per_m: Vector3 | None = Field(
+        None, description="Explicit CF translational damping (x, y, z), N·s/m; overrides the damping ratio."
+    )
+    rotational_damping_nms_per_rad: Vector3 | None = Field(
+        None, description="Explicit CF rotational damping (rx, ry, rz), N·m·s/rad; overrides the damping ratio."
+    )
+    force_axis_damping_ns_per_m: float = Field(
+        150.0,
+        ge=0,
+        description="Damping of the tool velocity along the CF force axes, N·s/m (keeps the force loop "
+        "stable on a stiff surface; the motion axes use the translational damping).",
+    )
+    force_kp: float = Field(0.3, ge=0, description="Proportional force gain K_p, N per N of force error (1).")
+    force_ki: float = Field(10.0, ge=0, description="Integral force gain K_i, N per N·s of force error (1/s).")
+    force_integral_limit_n: float = Field(
+        20.0, ge=0, description="Anti-windup: bound on |K_i ∫e_f dt| per CF force axis, N."
+    )
+    nullspace_stiffness_nm_per_rad: float = Field(
+        10.0, ge=0, description="Joint stiffness of the null-space posture task (to the start posture), N·m/rad."
+    )
+    nullspace_damping_nms_per_rad: float = Field(
+        1.0, ge=0, description="Joint damping of the null-space posture task, N·m·s/rad."
+    )
+    null_space: NullSpaceProjection = Field(
+        NullSpaceProjection.dynamic, description="Null-space projector: dynamically consistent or static."
+    )
+    max_force_n: float = Field(80.0, gt=0, description="Abort threshold on the measured contact force magnitude, N.")
+    torque_saturation_abort_s: float = Field(
+        0.2,
+        gt=0,
+        description="Abort when the torque command stays at a joint's limit (from the robot) this long, s.",
+    )
+    force_ramp_s: float = Field(
+        0.25, ge=0, description="Time to ramp the desired force from the contact force to its target after contact, s."
+    )
+    force_release_s: float = Field(
+        0.1, ge=0, description="Time to ramp the desired force down to zero after a contact segment, s."
+    )
+    contact_force_threshold_n: float | None = Field(
+        None,
+        gt=0,
+        description="CF-z force that counts as contact for the guarded approach (and ends a guarded free "
+        "segment early), N; default: 10 % of the skill's reference force, within [1, 3] N.",
+    )
+
+
+class EnvironmentChange(BaseModel):
+    """How the world differs from the one the skill was taught in."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"offset": [0.02, 0.0, 0.0], "unknown_offset": [0.0, 0.0, 0.03]}]},
+    )
+
+    offset: Vector3 = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="KNOWN translation of the work piece [dx, dy, dz], m: applied to the simulated work piece "
+        "and to the skill (DMP starts and goals, compliant frames).",
+    )
+    unknown_offset: Vector3 = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="UNKNOWN translation [dx, dy, dz], m: applied to the simulated work piece only; "
+        "the controller has to cope (e.g. a table height found by the guarded approach).",
+    )
+
+
+class ExecutionSettings(BaseModel):
+    """How to execute a skill: world change, controller, gains, guarded approach, pace (no skill reference)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "environment": {"offset": [0.0, 0.0, 0.0], "unknown_offset": [0.0, 0.0, 0.03]},
+                    "controller": "hybrid_cf",
+                    "pace": "fast",
+                }
+            ]
+        },
+    )
+
+    environment: EnvironmentChange = Field(default_factory=EnvironmentChange)
+    controller: ControllerKind = Field(ControllerKind.hybrid_cf, description="The control law.")
+    gains: ControllerGains = Field(default_factory=ControllerGains)
+    approach_speed_m_s: float = Field(0.03, gt=0, le=0.2, description="Speed of the guarded approach along +CF z, m/s.")
+    approach_max_distance_m: float = Field(
+        0.15, gt=0, description="Longest guarded approach before aborting with 'contact not found', m."
+    )
+    approach_clearance_m: float = Field(
+        0.06,
+        ge=0,
+        description="The free segment before a contact segment ends this far before the taught contact point "
+        "(back along CF z); the guarded approach covers the rest, m.",
+    )
+    pace: Pace = Field(
+        Pace.fast, description="realtime: simulated time follows the wall clock; fast: as fast as possible."
+    )
+    settle_s: float = Field(0.5, ge=0, description="Time to settle at the start pose before the first segment, s.")
+    telemetry_batch: int = Field(
+        50, ge=1, le=10000, description="Control steps per telemetry batch handed to subscribers (1 kHz / 50 = 20 Hz)."
+    )
+
+
+class ExecutionRequest(ExecutionSettings):
+    """Run a skill in simulation (``POST /executions``): which skill and world, plus the execution settings."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "skill_id": "sk_3f2a",
+                    "scenario": "slide_flat",
+                    "environment": {"offset": [0.0, 0.0, 0.0], "unknown_offset": [0.0, 0.0, 0.03]},
+                    "controller": "hybrid_cf",
+                    "pace": "fast",
+                }
+            ]
+        },
+    )
+
+    skill_id: str | None = Field(None, description="Id of a stored skill (or give `skill` inline).")
+    skill: Skill | None = Field(None, description="An inline skill (or give `skill_id`).")
+    scenario: str | None = Field(
+        None,
+        description="Teacher scenario whose world to build (the world the skill was taught in); "
+        "default: the one named by the skill's demonstration.",
+        examples=["slide_flat"],
+    )
+
+    @model_validator(mode="after")
+    def _one_skill(self) -> ExecutionRequest:
+        if (self.skill_id is None) == (self.skill is None):
+            raise ValueError("give exactly one of skill_id (a stored skill) or skill (inline)")
+        return self
+
+
+class TelemetrySample(BaseModel):
+    """One control step of an execution (the row form; telemetry travels as `TelemetryBatch`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    t: float = Field(description="Time since the execution started, s (simulated).")
+    phase: ExecutionPhase = Field(description="Execution phase at this step.")
+    segment_index: int = Field(description="Index of the skill segment being executed; -1 while settling.")
+    tool_position: Vector3 = Field(description="Measured tool point position, world, m.")
+    tool_orientation: Quaternion = Field(description="Measured tool orientation, world, [x, y, z, w].")
+    reference_position: Vector3 = Field(description="Reference tool point position, world, m.")
+    reference_orientation: Quaternion = Field(description="Reference tool orientation, world, [x, y, z, w].")
+    wrench_world: Wrench = Field(description="Measured wrench applied by the tool, world, at the tool point, N, N·m.")
+    wrench_cf: Wrench = Field(description="The same wrench in the current compliant frame (CF axes), N, N·m.")
+    desired_force_cf_z_n: float = Field(description="Desired CF-z force, N (0 in free motion).")
+
+
+class TelemetryBatch(BaseModel):
+    """Consecutive telemetry samples in columns (the Zenoh telemetry payload); row k of each list is one step."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    execution_id: str = Field("", description="The execution these samples belong to.")
+    t: list[float] = Field(description="Times since the execution started, s.")
+    phase: list[ExecutionPhase] = Field(description="Phase per step.")
+    segment_index: list[int] = Field(description="Segment index per step (-1 while settling).")
+    tool_position: list[Vector3] = Field(description="Tool point positions, world, m.")
+    tool_orientation: list[Quaternion] = Field(description="Tool orientations, world, [x, y, z, w].")
+    reference_position: list[Vector3] = Field(description="Reference positions, world, m.")
+    reference_orientation: list[Quaternion] = Field(description="Reference orientations, world, [x, y, z, w].")
+    wrench_world: list[Wrench] = Field(description="Measured wrenches applied by the tool, world, N, N·m.")
+    wrench_cf: list[Wrench] = Field(description="The same wrenches in the CF, N, N·m.")
+    desired_force_cf_z_n: list[float] = Field(description="Desired CF-z forces, N.")
+    sent_unix_s: float | None = Field(
+        None,
+        description="Worker's wall clock when the control loop handed the batch to the bus, just after recording "
+        "its last row, Unix time, s (set on the Zenoh bus, None elsewhere). With pace realtime row k was recorded "
+        "about (t[-1] - t[k]) s before it: receive time - (sent_unix_s - (t[-1] - t[k])) is row k's latency.",
+    )
+
+
+class ExecutionMetrics(BaseModel):
+    """What an execution achieved (DESIGN.md "Measures"); None where a measure does not apply."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "controller": "hybrid_cf",
+                    "phase": "done",
+                    "force_rms_error_n": 0.21,
+                    "force_rms_error_pct": 1.4,
+                    "force_max_error_n": 0.9,
+                    "force_max_error_pct": 6.0,
+                    "force_reference_n": 15.0,
+                    "path_rms_m": 0.0012,
+                    "contact_ratio": 1.0,
+                    "real_time_factor": 9.5,
+                    "duration_s": 6.2,
+                    "peak_force_n": 17.3,
+                    "abort_reason": None,
+                }
+            ]
+        },
+    )
+
+    controller: ControllerKind = Field(description="The control law that ran.")
+    phase: ExecutionPhase = Field(description="Final phase: done, aborted or failed.")
+    force_rms_error_n: float | None = Field(
+        None,
+        description="RMS of (measured - desired) CF-z force over the steady contact phase (each contact segment "
+        "from max(0.2 s, force_ramp_s) after its start), N.",
+    )
+    force_rms_error_pct: float | None = Field(
+        None, description="The same in % of the reference force (learned constant; contour: profile peak)."
+    )
+    force_max_error_n: float | None = Field(
+        None, description="Largest |measured - desired| CF-z force over the steady contact phase, N."
+    )
+    force_max_error_pct: float | None = Field(None, description="The same in % of the reference force.")
+    force_reference_n: float | None = Field(
+        None, description="The force the % refer to: the learned constant (slide) or the profile peak (contour), N."
+    )
+    path_rms_m: float | None = Field(
+        None,
+        description="RMS distance of the executed tool path to the (shifted) demonstrated path in the motion "
+        "subspace (CF x-y), over the contact phase, m.",
+    )
+    contact_ratio: float | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="Share of contact-phase time in contact (the simulator reports a tool contact point).",
+    )
+    real_time_factor: float = Field(description="Simulated time / wall-clock time of the control loop (1).")
+    duration_s: float = Field(description="Simulated duration of the execution, s.")
+    steps: int = Field(description="Control steps run.")
+    peak_force_n: float = Field(description="Largest measured contact force magnitude, N.")
+    contact_found_offsets_m: list[float] = Field(
+        default_factory=list,
+        description="Per guarded approach: where contact was found along +CF z relative to the expected "
+        "(known-offset-shifted) surface, m (positive = deeper than taught).",
+    )
+    steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
+    abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")

@@ -1,0 +1,640 @@
+"""The hybrid impedance/force control law of paper eq. (1)-(4) for a torque-controlled 7-DoF arm.
+
+Pure numpy: no simulator, no I/O. :class:`HybridController` turns the robot state, the
+reference and the compliant frame (CF) into 7 joint torques, once per control step.
+
+Frames
+------
+The paper writes eq. (4) in the end-effector frame EF. This module computes in frame **A**:
+origin at the tool point, axes of the world frame, i.e. the frame in which the simulator gives
+the Jacobian ``J`` (``ξ_A = J q̇``, twist ``(v, ω)`` of the tool point, world axes) and the
+measured wrench. A and EF share the origin and differ by the rotation ``R_w_ef``, so
+``Ad(A <- EF) = blockdiag(R_w_ef, R_w_ef) = Adg(A <- EF)``, ``J_A = Ad J_EF``,
+``F_A = Adg F_EF`` and ``J_A^T F_A = J_EF^T F_EF``: the torques are identical, and with
+``T(A <- CF) = T(A <- EF) T(EF <- CF)`` eq. (3) evaluated with ``T(A <- CF)`` is eq. (3) of the
+paper mapped into A. ``(R, p)`` of ``T(A <- CF)``: ``R`` = the CF orientation in the world
+(world from CF), ``p`` = the CF origin minus the tool point (world axes).
+
+Compliance centre. By default (``compliance_center="tool"``) the CF is used with its origin at
+the tool point (``p = 0``): the stored CF origin (a point of the fitted plane, possibly far from
+the tool) only locates the surface and the CF x-y coordinates of the path. With the literal
+offset, a CF moment about the distant origin would become a lateral force at the tool, and the
+contact force, whose line of action passes through the tool point, would not survive ``Ω~``
+unchanged (``Ω~`` would add the moment ``p × f``). ``compliance_center="cf_origin"`` keeps the
+literal form for completeness (then ``p`` changes with the tool position and the frame has to
+be rebuilt every step).
+
+The law (all 6-vectors in A; wrenches are applied BY the tool TO the environment)::
+
+    e_p   = [p_r - p,  2 log(q_r ⊗ q*)]                      pose error (position, rotation vector)
+    F_m   = Ω e_p + F_damp                                   impedance on the motion axes (eq. 3, 4)
+    e_f   = F_d - F                                          force error, F_d = Adg (0, 0, f_d, 0, 0, 0)
+    F_f   = Ω~ F_d + K_p Ω~ e_f + K_i Adg S~ ∫ S~ Adg^-1 e_f dt  PI force control with feed-forward
+    τ     = J^T (F_m + F_f) + g(q) + c(q, q̇) + N^T τ_0        N^T τ_0: null-space posture torque
+
+with ``Ω = Adg K_c S Ad^-1`` and ``Ω~ = Adg S~ Adg^-1`` from :mod:`skills.frames`.
+
+Damping (Cartesian, in the CF). In CF coordinates ``ξ_cf = Ad^-1 ξ``::
+
+    F_damp = Adg (S D_cf S (ξ_r,cf - ξ_cf) - d_f ⊙ S~ ⊙ ξ_cf)
+
+the motion axes damp the velocity error, the force axes the absolute tool velocity (the
+surface does not move): "active damping" that keeps the PI force loop stable on a stiff
+surface (``force_axis_damping_ns_per_m``). With a damping RATIO the motion-axes damping is the
+full matrix of the "double diagonalization" (Albu-Schäffer et al. 2003),
+``D = 2 ζ L (L^-1 K L^-T)^{1/2} L^T`` with ``Λ = L L^T`` the apparent inertia at the tool
+point, ``Λ = (J M^-1 J^T)^-1``, and ``K`` the CF stiffness mapped into A: every decoupled mode
+gets damping ratio ζ. It is rebuilt with the null-space projector whenever a mass matrix is
+given (until then, or without one, the diagonal ``2 ζ sqrt(K_i m_i)`` with the nominal
+``apparent_mass_kg`` / ``apparent_inertia_kgm2``) and mapped into the current CF every step
+(``D_cf = Ad^T D Ad``; restricted to the motion axes, ``S D_cf S``). This matters on the iiwa:
+the apparent inertia about the tool axis is ~1e-3 kg·m² but ~0.2 kg·m² about the other two, so
+one fixed (or per-axis diagonal) rotational damping is either unstable at 1 kHz about the tool
+axis or far too weak about the others, as soon as the tool is tilted. Explicit damping values
+override the ratio (a constant diagonal in the CF). The null-space task has its own joint
+damping. The paper's ``D_x J q̇`` term is this Cartesian damping with the sign that dissipates
+energy.
+
+Force loop. The desired wrench is fed forward (``Ω~ F_d``), so the PI part only corrects the
+residual; the integral is kept in CF coordinates (it travels with a contour's moving CF) and
+integrated only on the force axes. Anti-windup: ``|K_i ∫e|`` is clamped to
+``force_integral_limit_n`` per axis, and integration is frozen while the previous torque command
+saturated or the caller reports no contact.
+
+Null space. ``τ_0 = K_n (q_0 - q) - D_n q̇`` pulls the redundant elbow towards the posture
+``q_0``. Projector (``null_space``): ``dynamic`` (default) ``N^T = I - J^T Λ J M^-1`` with
+``Λ = (J M^-1 J^T)^-1`` (dynamically consistent: the posture torque produces no task-space
+acceleration), or ``static`` ``N^T = I - J^T (J J^T)^-1 J`` (``I - J^T J^{+T}``; no mass matrix
+needed, but not free of task-space acceleration). Both are regularized near singularities.
+
+Limits. Torques are clipped to the robot's limits; a clip lasting ``torque_saturation_abort_s``
+aborts. A measured force above ``max_force_n`` aborts at once. Non-finite inputs never give a
+non-finite torque: the output is zero torques with an abort reason.
+
+Cost. Per step the law is ~15 numpy operations on 6- and 7-vectors: ``[Ω, D_m, -(D_m + D_f)]``,
+``K_p Ω~`` and the feed-forward direction are cached per control frame (and model refresh), the
+null-space torque is ``N^T K_n q_0 + [-K_n N^T, -D_n N^T] [q; q̇]``, and the caller decides how
+often the model (projector, apparent inertia; damping every :data:`DAMPING_UPDATE_EVERY`-th time)
+is refreshed (``update_null_space``).
+
+Baselines (``ControllerKind``), the same class with other settings:
+
+- ``impedance``: ``S = I`` on every axis (no force loop, no feed-forward), stiffness and damping
+  in the CF; the force is only what the reference implies: during contact the reference is
+  moved ``f_d / k_z`` along +CF z (``k_z`` the CF-z translational stiffness), so the spring
+  presses with ``f_d`` if the surface is exactly where it was taught.
+- ``hybrid_world_z``: the CF orientation is replaced by the "world z down" frame: z = -z_world,
+  x = the CF x axis projected onto the horizontal plane (world x if the CF x is vertical),
+  y = z × x. The selection and force loop are as in ``hybrid_cf``, so the desired force pushes
+  straight down whatever the surface normal is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from schemas.execution import ControllerGains, ControllerKind, NullSpaceProjection
+from skills.frames import (
+    adjoint_from_transform,
+    force_projector_in_frame,
+    stiffness_in_frame,
+    transform_inverse,
+    wrench_adjoint_from_transform,
+)
+
+IIWA_TORQUE_LIMITS_NM: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+"""Joint torque limits of the KUKA LBR iiwa 14 R820 (N·m), the default when the robot gives none."""
+DAMPING_UPDATE_EVERY = 5
+"""The adaptive damping matrix is rebuilt on every this-many-th model update (it costs ~2x the projector)."""
+_SINGULAR_DAMPING = 1e-6
+"""Relative Tikhonov term of the task-space inverses in the null-space projector."""
+_ZERO6 = np.zeros(6)
+_DIAG6 = np.diag_indices(6)
+_EYE7 = np.eye(7)
+_ZERO7 = np.zeros(7)
+
+
+def pose_error(
+    position: ArrayLike, quaternion: ArrayLike, reference_position: ArrayLike, reference_quaternion: ArrayLike
+) -> NDArray[np.float64]:
+    """Return the pose error ``[p_r - p, 2 log(q_r ⊗ q*)]`` (6,) in world axes (m, rad).
+
+    The rotational part is the rotation vector (world axes) that turns the current orientation
+    into the reference one, on the short branch. Quaternions scalar-last.
+    """
+    qx, qy, qz, qw = np.asarray(quaternion, dtype=float).tolist()
+    rx, ry, rz, rw = np.asarray(reference_quaternion, dtype=float).tolist()
+    # e = q_r ⊗ conj(q)
+    ew = rw * qw + rx * qx + ry * qy + rz * qz
+    ex = -rw * qx + qw * rx - (ry * qz - rz * qy)
+    ey = -rw * qy + qw * ry - (rz * qx - rx * qz)
+    ez = -rw * qz + qw * rz - (rx * qy - ry * qx)
+    if ew < 0.0:
+        ex, ey, ez, ew = -ex, -ey, -ez, -ew
+    vn = math.sqrt(ex * ex + ey * ey + ez * ez)
+    scale = 2.0 * math.atan2(vn, ew) / vn if vn > 1e-12 else 2.0
+    p = np.asarray(position, dtype=float)
+    pr = np.asarray(reference_position, dtype=float)
+    return np.array(
+        [pr[0] - p[0], pr[1] - p[1], pr[2] - p[2], scale * ex, scale * ey, scale * ez],
+        dtype=float,
+    )
+
+
+def world_z_down_rotation(cf_rotation: ArrayLike) -> NDArray[np.float64]:
+    """Return the ``hybrid_world_z`` frame for a CF: z = -z_world, x = CF x made horizontal, y = z × x.
+
+    ``cf_rotation`` (3, 3) or (N, 3, 3), world from CF; falls back to the CF y axis, then world x,
+    when the CF x axis is (nearly) vertical.
+    """
+    R = np.asarray(cf_rotation, dtype=float)
+    z = np.broadcast_to(np.array([0.0, 0.0, -1.0]), R.shape[:-1])
+    candidates = [R[..., :, 0], R[..., :, 1], np.broadcast_to(np.array([1.0, 0.0, 0.0]), R.shape[:-1])]
+    x = np.zeros(R.shape[:-1])
+    chosen = np.zeros(R.shape[:-2], dtype=bool)
+    for c in candidates:
+        h = c - np.sum(c * z, axis=-1, keepdims=True) * z
+        n = np.linalg.norm(h, axis=-1)
+        use = (~chosen) & (n > 1e-3)
+        x = np.where(use[..., None], h / np.maximum(n, 1e-12)[..., None], x)
+        chosen |= use
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=-1)
+
+
+def _blockdiag_rotation(R: NDArray[np.float64]) -> NDArray[np.float64]:
+    Ad = np.zeros((*R.shape[:-2], 6, 6))
+    Ad[..., :3, :3] = R
+    Ad[..., 3:, 3:] = R
+    return Ad
+
+
+@dataclass(frozen=True)
+class ControlFrame:
+    """The compliant frame as the law needs it at one instant (matrices map CF quantities into A).
+
+    ``rotation`` (3, 3): orientation of the CONTROL frame in the world (the CF, or world-z-down
+    for ``hybrid_world_z``); ``cf_rotation`` (3, 3) the skill's CF (world from CF) and ``cf_z``
+    (3,) its z axis (the measured CF-z force is taken along it; the impedance baseline moves its
+    reference along it); ``selection`` (6,) the diagonal of S in the control frame (1 = motion),
+    ``force_axes`` = ``1 - selection``; ``omega`` = Ω = ``Adg K_c S Ad^-1``, ``projector`` =
+    Ω~ = ``Adg S~ Adg^-1``; ``ad`` / ``ad_inv`` the twist adjoint CF -> A and its inverse,
+    ``adg`` / ``adg_inv`` the wrench adjoint and its inverse; ``force_direction`` (6,) =
+    ``Adg S~ e_z``: the wrench in A of 1 N desired along CF z (zero without a force loop).
+    """
+
+    rotation: NDArray[np.float64]
+    cf_rotation: NDArray[np.float64]
+    cf_z: NDArray[np.float64]
+    selection: NDArray[np.float64]
+    force_axes: NDArray[np.float64]
+    omega: NDArray[np.float64]
+    projector: NDArray[np.float64]
+    ad: NDArray[np.float64]
+    ad_inv: NDArray[np.float64]
+    adg: NDArray[np.float64]
+    adg_inv: NDArray[np.float64]
+    force_direction: NDArray[np.float64]
+
+
+_FRAME_FIELDS = tuple(ControlFrame.__dataclass_fields__)
+
+
+class ControlFrameSeries:
+    """Control frames for a sequence of CF orientations (a contour segment), built in one vectorized pass.
+
+    Index it with the control step to get a :class:`ControlFrame` (clamped to the ends).
+    """
+
+    def __init__(self, fields: dict[str, NDArray[np.float64]]) -> None:
+        self._fields = fields
+        self._n = int(fields["rotation"].shape[0])
+        self._frames: list[ControlFrame | None] = [None] * self._n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, k: int) -> ControlFrame:
+        k = min(max(int(k), 0), self._n - 1)
+        frame = self._frames[k]
+        if frame is None:  # built once, so the controller's per-frame cache sees the same object again
+            f = self._fields
+            frame = self._frames[k] = ControlFrame(**{name: f[name][k] for name in _FRAME_FIELDS})
+        return frame
+
+
+class ControlOutput(NamedTuple):
+    """One control step's result.
+
+    ``tau`` (7,) joint torques after limits, N·m (zeros when ``abort_reason`` says non-finite);
+    ``wrench_motion`` and ``wrench_force`` (6,) the task-space commands of the motion subspace
+    (stiffness and damping) and the force subspace in A (applied by the tool, N, N·m);
+    ``saturated``: a joint torque was clipped; ``abort_reason``: why the execution must stop
+    now, or None.
+    """
+
+    tau: NDArray[np.float64]
+    wrench_motion: NDArray[np.float64]
+    wrench_force: NDArray[np.float64]
+    saturated: bool
+    abort_reason: str | None
+
+
+def damping_diagonal(gains: ControllerGains, apparent_inertia: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Return the CF damping diagonal (6,), N·s/m and N·m·s/rad.
+
+    Explicit values win; else ``2 ζ sqrt(K_i m_i)`` with ``m_i`` the apparent inertia of CF axis i
+    (``apparent_inertia`` (6,), kg and kg·m²) or, without it, the nominal apparent mass and inertia.
+    """
+    k = np.concatenate(
+        [
+            np.asarray(gains.translational_stiffness_n_per_m, float),
+            np.asarray(gains.rotational_stiffness_nm_per_rad, float),
+        ]
+    )
+    if apparent_inertia is None:
+        m = np.array([gains.apparent_mass_kg] * 3 + [gains.apparent_inertia_kgm2] * 3)
+    else:
+        m = np.maximum(np.asarray(apparent_inertia, dtype=float), 0.0)
+    d = 2.0 * gains.damping_ratio * np.sqrt(k * m)
+    if gains.translational_damping_ns_per_m is not None:
+        d[:3] = gains.translational_damping_ns_per_m
+    if gains.rotational_damping_nms_per_rad is not None:
+        d[3:] = gains.rotational_damping_nms_per_rad
+    return d
+
+
+def damping_matrix(stiffness: ArrayLike, inertia: ArrayLike, damping_ratio: float) -> NDArray[np.float64]:
+    """Return ``D = 2 ζ L (L^-1 K L^-T)^{1/2} L^T`` (double diagonalization) for SPD ``K`` and ``Λ = L L^T``.
+
+    In the coordinates that diagonalize both ``Λ`` and ``K`` every mode ``i`` gets the damping
+    ``2 ζ sqrt(k_i m_i)``; for ``Λ = m I``, ``K = k I`` this is ``2 ζ sqrt(k m) I``.
+    """
+    K = np.asarray(stiffness, dtype=float)
+    L = np.linalg.cholesky(np.asarray(inertia, dtype=float))
+    X = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (K + K.T)).T)  # L^-1 K L^-T (K symmetric)
+    w, V = np.linalg.eigh(0.5 * (X + X.T))
+    sqrt_x = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+    return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
+
+
+class HybridController:
+    """The hybrid impedance/force controller (see the module docstring for frames and the law).
+
+    ``kind`` picks our law or a baseline; ``gains`` the gains and limits; ``dt`` the control
+    period (s); ``torque_limits`` (7,) N·m (default: the iiwa's); ``posture`` (7,) the null-space
+    target q_0 (rad; also settable with :meth:`reset`); ``compliance_center`` "tool" (default) or
+    "cf_origin". State: the force integral (CF coordinates), the damping diagonal, the
+    null-space projector and the saturation timer.
+    """
+
+    def __init__(
+        self,
+        kind: ControllerKind | str = ControllerKind.hybrid_cf,
+        gains: ControllerGains | None = None,
+        dt: float = 1e-3,
+        torque_limits: ArrayLike | None = None,
+        posture: ArrayLike | None = None,
+        compliance_center: Literal["tool", "cf_origin"] = "tool",
+    ) -> None:
+        self.kind = ControllerKind(kind)
+        self.gains = gains if gains is not None else ControllerGains()
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt}")
+        self.dt = float(dt)
+        limits = IIWA_TORQUE_LIMITS_NM if torque_limits is None else torque_limits
+        self.torque_limits = np.asarray(limits, dtype=float)
+        self._limits = self.torque_limits.tolist()
+        if self.torque_limits.shape != (7,) or np.any(self.torque_limits <= 0):
+            raise ValueError(f"torque_limits must be 7 positive values (N·m), got {self.torque_limits}")
+        if compliance_center not in ("tool", "cf_origin"):
+            raise ValueError(f"compliance_center must be 'tool' or 'cf_origin', got {compliance_center!r}")
+        self.compliance_center = compliance_center
+        g = self.gains
+        self._stiffness = np.concatenate(
+            [np.asarray(g.translational_stiffness_n_per_m, float), np.asarray(g.rotational_stiffness_nm_per_rad, float)]
+        )
+        self._adaptive_damping = g.translational_damping_ns_per_m is None and g.rotational_damping_nms_per_rad is None
+        self.damping = damping_diagonal(g)
+        self.damping_matrix_a: NDArray[np.float64] | None = None
+        """The adaptive damping matrix in A (6, 6), or None while the diagonal ``damping`` (CF) applies."""
+        self._force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
+        self._force_loop = self.kind is not ControllerKind.impedance
+        self._kp = g.force_kp if self._force_loop else 0.0
+        self._ki = g.force_ki if self._force_loop else 0.0
+        self._kz = float(self._stiffness[2])
+        self._dynamic_null = g.null_space is NullSpaceProjection.dynamic
+        self._kn = g.nullspace_stiffness_nm_per_rad
+        self._dn = g.nullspace_damping_nms_per_rad
+        self._integral_bound = g.force_integral_limit_n / self._ki if self._ki > 0.0 else 0.0
+        self._max_force_sq = g.max_force_n**2
+        self.posture = np.zeros(7) if posture is None else np.asarray(posture, dtype=float).copy()
+        self.integral_cf = np.zeros(6)
+        self._projector: NDArray[np.float64] | None = None
+        self._model_version = 0
+        self._gain_frame: ControlFrame | None = None
+        self._gain_version = -1
+        self._motion_gain = np.zeros((6, 18))
+        self._feedforward = np.zeros(6)
+        self._p_projector = np.zeros((6, 6))
+        self._force_axes: list[tuple[int, float, NDArray[np.float64]]] = []
+        self._integral_term = np.zeros(6)
+        self._null_offset = np.zeros(7)
+        self._null_gain = np.zeros((7, 14))
+        self._saturated_for_s = 0.0
+        self._saturated_last = False
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self, posture: ArrayLike | None = None) -> None:
+        """Clear the force integral, projector and saturation timer; optionally set the posture (7,) rad."""
+        if posture is not None:
+            self.posture = np.asarray(posture, dtype=float).copy()
+        self.reset_integral()
+        self._projector = None
+        self.damping_matrix_a = None
+        self._saturated_for_s = 0.0
+        self._saturated_last = False
+
+    def reset_integral(self) -> None:
+        """Clear the force integral (e.g. at the start of a contact segment)."""
+        self.integral_cf = np.zeros(6)
+        self._integral_term = np.zeros(6)
+
+    # ------------------------------------------------------------------ frames
+
+    def _control_rotation_and_selection(
+        self, cf_rotation: NDArray[np.float64], selection: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if self.kind is ControllerKind.impedance:
+            return cf_rotation, np.ones_like(selection)
+        if self.kind is ControllerKind.hybrid_world_z and np.any(selection < 1.0):
+            return world_z_down_rotation(cf_rotation), selection
+        return cf_rotation, selection
+
+    def _frame_fields(
+        self, cf_rotation: ArrayLike, selection: ArrayLike, offset: ArrayLike | None
+    ) -> dict[str, NDArray[np.float64]]:
+        cf_rotation = np.asarray(cf_rotation, dtype=float)
+        batch = cf_rotation.shape[:-2]
+        sel_in = np.broadcast_to(np.asarray(selection, dtype=float), (*batch, 6))
+        R, S = self._control_rotation_and_selection(cf_rotation, sel_in)
+        S = np.ascontiguousarray(S)
+        if offset is None:
+            p = np.zeros((*batch, 3))
+            ad = _blockdiag_rotation(R)
+            ad_inv = np.swapaxes(ad, -1, -2)
+            adg, adg_inv = ad, ad_inv
+        else:
+            p = np.broadcast_to(np.asarray(offset, float), (*batch, 3))
+            ad = adjoint_from_transform(R, p)
+            ad_inv = adjoint_from_transform(*transform_inverse(R, p))
+            adg = wrench_adjoint_from_transform(R, p)
+            adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
+        force_axes = 1.0 - S
+        force_direction = adg[..., :, 2] * force_axes[..., 2:3] if self._force_loop else np.zeros((*batch, 6))
+        return {
+            "rotation": R,
+            "cf_rotation": cf_rotation,
+            "cf_z": np.ascontiguousarray(cf_rotation[..., :, 2]),
+            "selection": S,
+            "force_axes": force_axes,
+            "omega": stiffness_in_frame(R, p, self._stiffness, S),
+            "projector": force_projector_in_frame(R, p, S),
+            "ad": ad,
+            "ad_inv": np.ascontiguousarray(ad_inv),
+            "adg": adg,
+            "adg_inv": np.ascontiguousarray(adg_inv),
+            "force_direction": np.ascontiguousarray(force_direction),
+        }
+
+    def frame(
+        self,
+        cf_rotation: ArrayLike,
+        selection: ArrayLike,
+        cf_origin: ArrayLike | None = None,
+        tool_position: ArrayLike | None = None,
+    ) -> ControlFrame:
+        """Precompute the law's matrices for one CF (``cf_rotation`` (3, 3) world from CF, ``selection`` (6,)).
+
+        ``cf_origin`` and ``tool_position`` (m, world) matter only with ``compliance_center="cf_origin"``.
+        """
+        offset = None
+        if self.compliance_center == "cf_origin":
+            if cf_origin is None or tool_position is None:
+                raise ValueError("compliance_center='cf_origin' needs cf_origin and tool_position")
+            offset = np.asarray(cf_origin, float) - np.asarray(tool_position, float)
+        return ControlFrame(**self._frame_fields(cf_rotation, selection, offset))
+
+    def frames(self, cf_rotations: ArrayLike, selection: ArrayLike) -> ControlFrameSeries:
+        """Precompute control frames for ``(M, 3, 3)`` CF orientations at once (compliance centre at the tool)."""
+        if self.compliance_center != "tool":
+            raise ValueError("frame series need compliance_center='tool' (the offset changes every step otherwise)")
+        R = np.asarray(cf_rotations, dtype=float)
+        if R.ndim != 3 or R.shape[1:] != (3, 3):
+            raise ValueError(f"cf_rotations must have shape (M, 3, 3), got {R.shape}")
+        return ControlFrameSeries(self._frame_fields(R, selection, None))
+
+    # ------------------------------------------------------------------ the law
+
+    def compute(
+        self,
+        *,
+        frame: ControlFrame,
+        jacobian: NDArray[np.float64],
+        q: NDArray[np.float64],
+        qd: NDArray[np.float64],
+        bias_torques: NDArray[np.float64],
+        tool_position: NDArray[np.float64],
+        tool_quaternion: NDArray[np.float64],
+        reference_position: NDArray[np.float64],
+        reference_quaternion: NDArray[np.float64],
+        reference_twist: NDArray[np.float64],
+        wrench: NDArray[np.float64],
+        desired_force: float,
+        in_contact: bool = True,
+        mass_matrix: NDArray[np.float64] | None = None,
+        update_null_space: bool = True,
+    ) -> ControlOutput:
+        """Return the joint torques of one control step (see the module docstring).
+
+        ``jacobian`` (6, 7) of the tool point, world axes; ``q``, ``qd`` (7,) rad, rad/s;
+        ``bias_torques`` (7,) gravity + Coriolis/centrifugal torques, N·m; tool and reference
+        poses in the world (m, ``[x, y, z, w]``); ``reference_twist`` (6,) world, m/s, rad/s;
+        ``wrench`` (6,) measured, applied by the tool, world, at the tool point, N, N·m;
+        ``desired_force`` N along +CF z (into the surface); ``in_contact`` lets the force
+        integral run. The null-space projector (and, with a damping ratio, the damping from the
+        apparent inertia) is rebuilt when ``update_null_space`` (else the last one is reused: it
+        changes with the posture only, so a caller may refresh it every few steps); the dynamic
+        projector and the adaptive damping need ``mass_matrix`` (7, 7) then; without it the
+        static projector and the nominal damping are used.
+        """
+        g = self.gains
+        if update_null_space or self._projector is None:
+            if not (np.isfinite(jacobian).all() and (mass_matrix is None or np.isfinite(mass_matrix).all())):
+                self._projector = None
+                reason = self._non_finite_reason(locals())
+                return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, reason)
+            try:
+                self._update_model(jacobian, mass_matrix, frame)
+            except np.linalg.LinAlgError as exc:
+                self._projector = None
+                return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, f"singular robot model: {exc}")
+        ref_p = reference_position
+        if not self._force_loop and desired_force != 0.0:
+            ref_p = reference_position + frame.cf_z * (desired_force / self._kz)
+        e_p = pose_error(tool_position, tool_quaternion, ref_p, reference_quaternion)
+        if frame is not self._gain_frame or self._gain_version != self._model_version:
+            self._cache_frame(frame)
+        wrench_motion = self._motion_gain @ np.concatenate((e_p, reference_twist, jacobian @ qd))
+
+        # Force subspace: feed-forward + P on the projected error + I in CF coordinates:
+        # F_f = f_d (1 + K_p) Ω~ F_d,1 - K_p Ω~ F + K_i Adg S~ ∫ e_cf dt, one CF force axis at a time.
+        if self._force_loop:
+            wrench_force = desired_force * self._feedforward - self._p_projector @ wrench
+            if in_contact and not self._saturated_last and self._ki > 0.0 and self._force_axes:
+                limit, dt, integral = self._integral_bound, self.dt, self.integral_cf
+                for i, e1_i, row_i in self._force_axes:
+                    error_i = desired_force * e1_i - float(row_i @ wrench)
+                    integral[i] = min(max(integral[i] + error_i * dt, -limit), limit)
+                self._integral_term = self._ki * (frame.adg @ integral)
+            wrench_force = wrench_force + self._integral_term
+        else:
+            wrench_force = _ZERO6
+
+        tau = (
+            jacobian.T @ (wrench_motion + wrench_force)
+            + bias_torques
+            + self._null_offset
+            + self._null_gain @ np.concatenate((q, qd))
+        )
+
+        # Limits and sanity.
+        values = tau.tolist()
+        if not math.isfinite(sum(values) + float(wrench @ wrench)):
+            self._saturated_last = False
+            self._projector = None
+            return ControlOutput(_ZERO7.copy(), wrench_motion, wrench_force, False, self._non_finite_reason(locals()))
+        saturated, joint, worst = False, 0, 1.0
+        for i, (value, limit) in enumerate(zip(values, self._limits, strict=True)):
+            if abs(value) > limit * worst:
+                saturated, joint, worst = True, i, abs(value) / limit
+        reason = None
+        if saturated:
+            limits = self.torque_limits
+            tau = np.minimum(np.maximum(tau, -limits), limits)
+            self._saturated_for_s += self.dt
+            if self._saturated_for_s >= g.torque_saturation_abort_s - 0.5 * self.dt:
+                reason = (
+                    f"torque limit: joint {joint + 1} saturated at {limits[joint]:.0f} N·m "
+                    f"for {self._saturated_for_s:.3f} s"
+                )
+        else:
+            self._saturated_for_s = 0.0
+        self._saturated_last = saturated
+        fx, fy, fz = wrench[:3].tolist()
+        if fx * fx + fy * fy + fz * fz > self._max_force_sq:
+            force_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+            reason = f"force limit: measured {force_norm:.1f} N > max_force_n {g.max_force_n:.1f} N"
+        return ControlOutput(tau, wrench_motion, wrench_force, saturated, reason)
+
+    def _cache_frame(self, frame: ControlFrame) -> None:
+        """Precompute the per-frame products of the law (until the frame or the model changes)."""
+        self._motion_gain = self._motion_gain_of(frame)
+        fa = frame.force_axes
+        e1 = fa * (frame.adg_inv @ frame.force_direction)  # CF force error per N desired (S~ Adg^-1 F_d,1)
+        self._feedforward = frame.force_direction + self._kp * (frame.adg @ e1)
+        self._p_projector = self._kp * (frame.adg @ (fa[:, None] * frame.adg_inv))  # K_p Ω~
+        self._force_axes = [(int(i), float(e1[i]), frame.adg_inv[i].copy()) for i in np.flatnonzero(fa)]
+        self._integral_term = self._ki * (frame.adg @ self.integral_cf)
+        self._gain_frame, self._gain_version = frame, self._model_version
+
+    def _update_model(
+        self, jacobian: NDArray[np.float64], mass_matrix: NDArray[np.float64] | None, frame: ControlFrame
+    ) -> None:
+        """Rebuild the null-space projector and (damping ratio) the damping from the apparent inertia."""
+        self._model_version += 1
+        J = jacobian
+        if mass_matrix is None:
+            JJ = J @ J.T
+            JJ[_DIAG6] += _SINGULAR_DAMPING * float(JJ[_DIAG6].sum()) / 6.0
+            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
+            self._cache_null_space()
+            return
+        JMinv = np.linalg.solve(mass_matrix, J.T).T  # J M^-1 (M symmetric)
+        lam_inv = JMinv @ J.T
+        lam_inv[_DIAG6] += _SINGULAR_DAMPING * float(lam_inv[_DIAG6].sum()) / 6.0
+        lam = np.linalg.inv(lam_inv)
+        if self._dynamic_null:
+            self._projector = _EYE7 - J.T @ (lam @ JMinv)
+        else:
+            JJ = J @ J.T
+            JJ[_DIAG6] += _SINGULAR_DAMPING * float(JJ[_DIAG6].sum()) / 6.0
+            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
+        self._cache_null_space()
+        if self._adaptive_damping and (
+            self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0
+        ):
+            stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
+            self.damping_matrix_a = damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
+
+    def _cache_null_space(self) -> None:
+        """``N^T τ_0 = N^T K_n q_0 + [-K_n N^T, -D_n N^T] [q; q̇]``: the offset and gain used every step."""
+        P = self._projector
+        self._null_offset = P @ (self._kn * self.posture)
+        self._null_gain = np.concatenate([-self._kn * P, -self._dn * P], axis=1)
+
+    def _motion_gain_of(self, frame: ControlFrame) -> NDArray[np.float64]:
+        """Return ``[Ω, D_m, -(D_m + D_f)]`` (6, 18) in A, applied to ``[e_p, ξ_r, ξ]`` (see the damping docs)."""
+        S = frame.selection
+        D_cf = self.damping_in_frame(frame) * S[:, None] * S[None, :]  # S D_cf S
+        D_m = frame.adg @ D_cf @ frame.ad_inv
+        D_f = frame.adg @ ((frame.force_axes * self._force_axis_damping)[:, None] * frame.ad_inv)
+        return np.concatenate([frame.omega, D_m, -(D_m + D_f)], axis=1)
+
+    def damping_in_frame(self, frame: ControlFrame) -> NDArray[np.float64]:
+        """Return the damping matrix (6, 6) in the frame's CF coordinates (before the selection), N·s/m, N·m·s/rad."""
+        if self.damping_matrix_a is None:
+            return np.diag(self.damping)
+        return frame.ad.T @ self.damping_matrix_a @ frame.ad
+
+    def null_space_torque(
+        self,
+        jacobian: NDArray[np.float64],
+        q: NDArray[np.float64],
+        qd: NDArray[np.float64],
+        mass_matrix: NDArray[np.float64] | None,
+    ) -> NDArray[np.float64]:
+        """Return ``N^T τ_0`` with ``τ_0 = K_n (q_0 - q) - D_n q̇`` (see the module docstring); rebuilds N^T."""
+        self._update_model(jacobian, mass_matrix, self.frame(np.eye(3), [1.0] * 6))
+        tau0 = self._kn * (self.posture - q) - self._dn * qd
+        return self._projector @ tau0
+
+    @staticmethod
+    def _non_finite_reason(values: dict[str, object]) -> str:
+        names = (
+            "jacobian",
+            "q",
+            "qd",
+            "bias_torques",
+            "tool_position",
+            "tool_quaternion",
+            "reference_position",
+            "reference_quaternion",
+            "reference_twist",
+            "wrench",
+            "desired_force",
+            "mass_matrix",
+        )
+        bad = [
+            n
+            for n in names
+            if values.get(n) is not None and not np.all(np.isfinite(np.asarray(values[n], dtype=float)))
+        ]
+        what = ", ".join(bad) if bad else "the computed torque"
+        return f"non-finite value (NaN or inf) in {what}; zero torque commanded"
