@@ -234,6 +234,86 @@ def cmd_demo_learn(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- simulate
+
+
+def _add_simulate_parser(commands) -> None:
+    """Register ``contact-skills simulate``."""
+    sim = commands.add_parser(
+        "simulate",
+        help="execute a learned skill in the PyBullet world with the hybrid controller",
+        description=_run_simulate.__doc__,
+    )
+    sim.add_argument("skill", type=Path, help="skill JSON (from `contact-skills learn` or POST /skills)")
+    world = sim.add_mutually_exclusive_group()
+    world.add_argument("--scenario", help="teacher scenario whose world to build (default: from the skill's name)")
+    world.add_argument("--world", type=Path, help="WorldConfig JSON of the world the skill was taught in")
+    sim.add_argument("--offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
+                     help="KNOWN work piece shift, m (applied to the skill and the world)")  # fmt: skip
+    sim.add_argument("--unknown-offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
+                     help="UNKNOWN work piece shift, m (applied to the world only)")  # fmt: skip
+    sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "hybrid_world_z"], default="hybrid_cf")
+    sim.add_argument("--pace", choices=["fast", "realtime"], default="fast")
+    sim.add_argument("--demonstration", type=Path, help="demonstration JSON: the path the path error refers to")
+    sim.add_argument("--figure", type=Path, help="force-tracking figure to write (PNG)")
+    sim.add_argument("--json", type=Path, help="metrics JSON to write")
+    sim.set_defaults(run=_run_simulate)
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    """``contact-skills simulate``: run a skill in simulation, print the metrics (exit 1 if it aborted)."""
+    try:
+        import json
+
+        from schemas import Demonstration, ExecutionSettings, Skill
+        from sim_worker.executor import execute_skill, scenario_of_skill, scenario_world_config
+        from sim_worker.world import WorldConfig
+
+        skill = Skill.model_validate_json(args.skill.read_text())
+        if args.world is not None:
+            world_config = WorldConfig.from_dict(json.loads(args.world.read_text()))
+        else:
+            scenario = args.scenario or scenario_of_skill(skill)
+            if scenario is None:
+                raise UserError(["the skill does not name its teacher scenario: give --scenario NAME or --world FILE"])
+            try:
+                world_config = scenario_world_config(scenario)
+            except ValueError as exc:  # an unknown scenario name
+                raise UserError([str(exc)]) from exc
+        demonstration = (
+            Demonstration.model_validate_json(args.demonstration.read_text()) if args.demonstration else None
+        )
+        settings = ExecutionSettings(
+            controller=args.controller,
+            environment={"offset": args.offset, "unknown_offset": args.unknown_offset},
+            pace=args.pace,
+        )
+        result = execute_skill(skill, world_config, settings, demonstration=demonstration)
+    except Exception as exc:
+        return _report_user_error("simulate", exc)
+    m = result.metrics
+    print(f"controller {m.controller.value}: {m.phase.value}" + (f" ({m.abort_reason})" if m.abort_reason else ""))
+    if m.force_rms_error_n is not None:
+        print(f"  CF-z force error over {m.steady_contact_s:.2f} s of steady contact: RMS {m.force_rms_error_n:.3f} N "
+              f"({m.force_rms_error_pct:.2f} %), max {m.force_max_error_n:.3f} N ({m.force_max_error_pct:.2f} %) "
+              f"of {m.force_reference_n:.2f} N")  # fmt: skip
+    if m.path_rms_m is not None:
+        print(f"  path RMS (CF x-y) {m.path_rms_m * 1e3:.2f} mm; contact ratio {m.contact_ratio * 100:.2f} %")
+    for found in m.contact_found_offsets_m:
+        print(f"  guarded approach: surface found {found * 1e3:+.1f} mm along CF z from where it was taught")
+    print(f"  peak force {m.peak_force_n:.2f} N; {m.duration_s:.2f} s simulated in {result.loop_wall_s:.2f} s "
+          f"(real-time factor {m.real_time_factor:.1f})")  # fmt: skip
+    if args.json is not None:
+        args.json.write_text(m.model_dump_json(indent=1))
+    if args.figure is not None:
+        from services.figures import write_execution_figure
+
+        args.figure.parent.mkdir(parents=True, exist_ok=True)
+        write_execution_figure(result, args.figure)
+        print(f"figure written to {args.figure}")
+    return 0 if m.phase.value == "done" else 1
+
+
 # --------------------------------------------------------------------------- main
 
 
@@ -251,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out-dir", type=Path, default=Path("out"), help="where to write skill.json and learn.png")
     demo.set_defaults(run=cmd_demo_learn)
+    _add_simulate_parser(commands)
     bus_commands.register(commands)
     service_commands.register(commands)
     return parser
