@@ -314,6 +314,53 @@ def _run_simulate(args: argparse.Namespace) -> int:
     return 0 if m.phase.value == "done" else 1
 
 
+def _add_record_parser(commands) -> None:
+    """Register ``contact-skills record``."""
+    from_scenarios = "slide_flat, slide_tilted, slide_two_planes, contour_cylinder, contour_block"
+    record = commands.add_parser(
+        "record",
+        help="record a scripted teacher demonstration in the simulated world",
+        description=f"{_run_record.__doc__} Scenarios: {from_scenarios}.",
+    )
+    record.add_argument("scenario", help="teacher scenario name")
+    record.add_argument("-o", "--output", type=Path, required=True, help="demo.json (a Demonstration) or demo.csv")
+    record.add_argument("--seed", type=int, default=0, help="seed of the teacher's human-like imperfection")
+    record.add_argument(
+        "--truth", type=Path, help="also write the ground truth (normals, force, contact times) as JSON"
+    )
+    record.set_defaults(run=_run_record)
+
+
+def _run_record(args: argparse.Namespace) -> int:
+    """``contact-skills record``: the scripted teacher guides the simulated robot and the recording is written."""
+    try:
+        import json
+
+        from services.csv_import import demonstration_csv_text
+        from sim_worker.teacher import SCENARIOS, record_demonstration
+
+        if args.scenario not in SCENARIOS:
+            raise UserError([f"scenario: unknown {args.scenario!r}; choose one of {', '.join(SCENARIOS)}"])
+        if args.output.suffix.lower() not in (".json", ".csv"):
+            raise UserError([f"output: {args.output} must end in .json or .csv"])
+        recording = record_demonstration(args.scenario, seed=args.seed)
+    except Exception as exc:
+        return _report_user_error("record", exc)
+    demonstration = recording.demonstration
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    if args.output.suffix.lower() == ".csv":
+        args.output.write_text(demonstration_csv_text(demonstration))
+    else:
+        args.output.write_text(demonstration.model_dump_json())
+    intervals = ", ".join(f"{on:.3f}-{off:.3f} s" for on, off in recording.contact_intervals)
+    print(f"recorded {args.scenario} (seed {args.seed}): {demonstration.n_samples} samples, contact {intervals}, "
+          f"target force {recording.target_force_n:.1f} N -> {args.output}")  # fmt: skip
+    if args.truth is not None:
+        args.truth.write_text(json.dumps(recording.ground_truth_dict(), indent=1))
+        print(f"ground truth -> {args.truth}")
+    return 0
+
+
 # --------------------------------------------------------------------------- main
 
 
@@ -331,6 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out-dir", type=Path, default=Path("out"), help="where to write skill.json and learn.png")
     demo.set_defaults(run=cmd_demo_learn)
+    _add_record_parser(commands)
     _add_simulate_parser(commands)
     bus_commands.register(commands)
     service_commands.register(commands)

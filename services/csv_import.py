@@ -548,3 +548,18 @@ __all__ = [
     "resolved_columns",
     "validation_problems",
 ]
+
+
+CSV_HEADER = ("t", "x", "y", "z", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
+"""Columns `demonstration_csv_text` writes: the project conventions, which `demonstration_from_csv` reads back."""
+
+
+def demonstration_csv_text(demonstration: Demonstration) -> str:
+    """Return ``demonstration`` as CSV text (s, m, [x, y, z, w], wrench applied by the tool in world, N and N·m).
+
+    Full float precision (``repr``), so importing it again with the defaults gives the same samples.
+    """
+    a = demonstration.arrays()
+    table = np.column_stack([a.t, a.positions, a.orientations, a.wrenches])
+    rows = (",".join(repr(float(v)) for v in row) for row in table)
+    return "\n".join([",".join(CSV_HEADER), *rows]) + "\n"

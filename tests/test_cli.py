@@ -17,6 +17,7 @@ from cli.main import DATA_ENV, kuleuven_recordings, main
 from schemas import Demonstration, Skill
 from services.csv_import import demonstration_from_csv
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
+from skills.quaternions import matrix_from_quaternion
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "kuleuven_contour"
@@ -206,3 +207,24 @@ def test_help_is_light():
     )
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert result.stdout.strip() == "[]", result.stdout + result.stderr
+
+
+def test_record_to_csv_then_learn_recovers_the_taught_plane(tmp_path: Path) -> None:
+    """The teacher's recording survives the CSV round trip: learning from it finds the true normal and force."""
+    csv_path, truth_path, skill_path = tmp_path / "demo.csv", tmp_path / "truth.json", tmp_path / "skill.json"
+    assert main(["record", "slide_tilted", "-o", str(csv_path), "--truth", str(truth_path)]) == 0
+    assert demonstration_from_csv(csv_path).n_samples > 9000
+    assert main(["learn", str(csv_path), "-o", str(skill_path)]) == 0
+    skill = Skill.model_validate_json(skill_path.read_text())
+    truth = json.loads(truth_path.read_text())
+    [contact] = [s for s in skill.segments if s.kind.value == "contact"]
+    z = matrix_from_quaternion(contact.compliant_frames.orientations[0])[:, 2]
+    [slide] = [s for s in truth["segments"] if s["kind"] == "slide"]
+    normal = np.asarray(slide["normal"])
+    assert np.degrees(np.arccos(np.clip(z @ normal, -1, 1))) < 1.0
+    assert contact.force_constant_n == pytest.approx(truth["target_force_n"], rel=0.02)
+
+
+def test_record_refuses_an_unknown_scenario(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["record", "slide_on_the_moon", "-o", str(tmp_path / "x.json")]) == 2
+    assert "slide_on_the_moon" in capsys.readouterr().err
