@@ -38,6 +38,15 @@ from skills.selection import classify_skill
 UNIFORM_TOLERANCE = 0.01
 """Largest relative deviation of a time step from the median step for a grid to count as uniform."""
 
+MAX_RATE_HZ = 100_000.0
+"""Highest sampling rate learned from, Hz (a force sensor at 10 kHz is plausible; 200 MHz is a unit error)."""
+
+MAX_GAP_S = 1.0
+"""Longest gap between two time stamps, s: across a longer one the motion is unknown, not interpolable."""
+
+MAX_SAMPLES = 1_000_000
+"""Most samples of the uniform grid learned from (about 17 minutes at 1 kHz)."""
+
 
 class LearningError(ValueError):
     """The demonstration cannot give the asked-for skill; ``field`` names the input at fault."""
@@ -53,6 +62,19 @@ def _uniform_arrays(demonstration: Demonstration) -> tuple[NDArray, NDArray, NDA
     a = demonstration.arrays()
     steps = np.diff(a.t)
     median_step = float(np.median(steps))
+    if 1.0 / median_step > MAX_RATE_HZ:
+        raise LearningError("t", f"time stamps {median_step:.3g} s apart ({1 / median_step:.3g} Hz): must be seconds")
+    longest = int(np.argmax(steps))
+    if steps[longest] > MAX_GAP_S:
+        raise LearningError(
+            "t",
+            f"a gap of {steps[longest]:.3g} s between samples {longest} and {longest + 1} (longest allowed "
+            f"{MAX_GAP_S} s): split the recording there",
+        )
+    if (a.t[-1] - a.t[0]) / median_step > MAX_SAMPLES:
+        raise LearningError(
+            "t", f"{(a.t[-1] - a.t[0]) / median_step:.3g} samples at the median rate: at most {MAX_SAMPLES}"
+        )
     if np.max(np.abs(steps - median_step)) <= UNIFORM_TOLERANCE * median_step:
         return a.t, a.positions, quaternions_sign_continuous(a.orientations), a.wrenches
     r = resampled_recording(a.t, a.positions, a.orientations, a.wrenches, rate_hz=1.0 / median_step)

@@ -160,3 +160,17 @@ def test_learned_profiles_do_not_depend_on_the_rollout_step() -> None:
     fine, coarse = force.rollout(0.001).y[:, 0], force.rollout(0.005).y[:, 0]
     assert abs(coarse.max() - fine.max()) < 0.03 * fine.max()
     assert abs(coarse.mean() - fine.mean()) < 0.03 * fine.mean()
+
+
+@pytest.mark.parametrize(
+    ("scale", "gap_s", "reason"),
+    [(1e-6, 0.0, "must be seconds"), (1.0, 100.0, "gap of 100 s")],
+)
+def test_implausible_time_stamps_are_refused_naming_t(scale: float, gap_s: float, reason: str) -> None:
+    demo = synthetic.plane_slide(seed=0)
+    t = demo.t * scale
+    t[t.size // 2 :] += gap_s
+    with pytest.raises(LearningError) as raised:
+        learn_skill(Demonstration.from_arrays(t, demo.positions, demo.orientations, demo.wrenches))
+    assert raised.value.field == "t"
+    assert reason in raised.value.reason
