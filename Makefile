@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/contact-skills demo-learn
+	$(BIN)/contact-skills up
 
 test: $(STAMP)
 	$(BIN)/ruff check .

@@ -1,9 +1,227 @@
-"""Subcommands of `contact-skills` for the Zenoh bus: router, worker, watch (lazy imports inside each command)."""
+"""Subcommands of `contact-skills` for the Zenoh bus: router, worker, watch (lazy imports inside each command).
+
+Settings come from the options, else the environment (``CONTACT_SKILLS_ZENOH_LISTEN``,
+``CONTACT_SKILLS_ZENOH_ENDPOINTS``, ``CONTACT_SKILLS_ZENOH_PREFIX``), else the defaults
+(``tcp/127.0.0.1:7447``, ``cskills``).
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
+
+EXIT_ENDED_EARLY = 1
+"""`watch`: the execution was aborted or failed."""
+EXIT_TIMEOUT = 3
+"""`watch`: nothing final arrived within --timeout."""
+
+
+def _endpoints(values: list[str] | None) -> list[str]:
+    from schemas.bus import split_endpoints
+
+    return [e for v in values or [] for e in split_endpoints(v)]
+
+
+def _logging(level: str) -> None:
+    import logging
+
+    logging.basicConfig(level=level.upper(), stream=sys.stderr, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+# --------------------------------------------------------------------------- router
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    """``contact-skills router``: run a Zenoh router (embedded, eclipse-zenoh) until SIGINT/SIGTERM."""
+    from services.router import listen_from_env, run_router
+
+    _logging(args.log_level)
+    listen = _endpoints(args.listen) or listen_from_env()
+    try:
+        run_router(listen)
+    except ConnectionError as exc:
+        print(f"contact-skills router: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+# --------------------------------------------------------------------------- worker
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """``contact-skills worker``: a sim worker on the bus (executes skills, records demonstrations)."""
+    from sim_worker.zenoh_worker import WorkerSettings, run_worker
+
+    _logging(args.log_level)
+    settings = WorkerSettings.from_env()
+    if args.connect:
+        settings.endpoints = _endpoints(args.connect)
+    if args.prefix:
+        settings.prefix = args.prefix
+    try:
+        return run_worker(settings, worker_id=args.id)
+    except ValueError as exc:  # e.g. an id that cannot be a key chunk
+        print(f"contact-skills worker: error: {exc}", file=sys.stderr)
+        return 2
+
+
+# --------------------------------------------------------------------------- watch
+
+
+def _status_line(execution_id: str, status, last: dict | None, samples: int) -> str:
+    """One line: phase, segment, simulated time, CF-z force vs desired, paused."""
+    phase = status.phase.value if status is not None else (last["phase"] if last else "waiting")
+    segment = status.segment_index if status is not None else -1
+    total = status.segments if status is not None else 0
+    if last is not None:
+        segment = last["segment"]
+    parts = [execution_id, f"{phase:<8s}", f"seg {segment if segment >= 0 else '-'}/{total or '?'}"]
+    if last is not None:
+        parts += [f"t {last['t']:7.3f} s", f"Fz {last['fz']:6.2f} N (desired {last['fdes']:6.2f} N)"]
+    parts.append(f"{samples} samples")
+    if status is not None and status.paused:
+        parts.append("PAUSED")
+    return " | ".join(parts)
+
+
+def _metrics_lines(status) -> list[str]:
+    m = status.metrics
+    lines = [f"{status.execution_id} {status.phase.value} on {status.worker_id}: {status.message}"]
+    if status.error:
+        lines.append(f"  reason: {status.error}")
+    if m is None:
+        return lines
+    lines.append(f"  {m.steps} steps, {m.duration_s:.3f} s simulated, real-time factor {m.real_time_factor:.1f}")
+    if m.force_rms_error_n is not None:
+        pct = f" ({m.force_rms_error_pct:.1f} %)" if m.force_rms_error_pct is not None else ""
+        lines.append(f"  force error RMS {m.force_rms_error_n:.2f} N{pct}, max {m.force_max_error_n:.2f} N")
+    if m.path_rms_m is not None:
+        lines.append(f"  path RMS {m.path_rms_m * 1e3:.2f} mm")
+    if m.contact_ratio is not None:
+        lines.append(f"  contact ratio {m.contact_ratio:.3f}")
+    lines.append(f"  peak force {m.peak_force_n:.1f} N")
+    return lines
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    """``contact-skills watch``: live view of an execution from the bus; exits when it ends, printing its metrics."""
+    import threading
+    import time
+
+    from schemas.bus import ExecutionStatus, KeyExpressions, check_id
+    from schemas.execution import TelemetryBatch
+    from services.bus import BusSettings, open_session
+
+    settings = BusSettings.from_env()
+    endpoints = _endpoints(args.connect) or settings.endpoints
+    try:
+        check_id(args.execution_id, "execution_id")
+        keys = KeyExpressions(args.prefix or settings.prefix)
+        session = open_session("client", connect=endpoints, wait_s=10.0)
+    except (ValueError, ConnectionError) as exc:
+        print(f"contact-skills watch: error: {exc}", file=sys.stderr)
+        return 2
+    lock = threading.Lock()
+    state: dict = {"status": None, "last": None, "samples": 0}
+    ended = threading.Event()
+
+    def on_status(sample) -> None:
+        status = ExecutionStatus.model_validate_json(sample.payload.to_bytes())
+        with lock:
+            current = state["status"]
+            if current is None or status.seq >= current.seq:
+                state["status"] = status
+        if status.final:
+            ended.set()
+
+    def on_telemetry(sample) -> None:
+        batch = TelemetryBatch.model_validate_json(sample.payload.to_bytes())
+        with lock:
+            state["samples"] += len(batch.t)
+            state["last"] = {"t": batch.t[-1], "phase": batch.phase[-1].value, "segment": batch.segment_index[-1],
+                             "fz": batch.wrench_cf[-1][2], "fdes": batch.desired_force_cf_z_n[-1]}  # fmt: skip
+
+    tty = sys.stdout.isatty()
+    subscribers = []
+    try:
+        subscribers = [
+            session.declare_subscriber(keys.status(args.execution_id), on_status),
+            session.declare_subscriber(keys.telemetry(args.execution_id), on_telemetry),
+        ]
+        for reply in session.get(keys.status(args.execution_id), timeout=2.0):  # late joiner: the latest status
+            if reply.ok is not None:
+                on_status(reply.ok)
+        deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        last_print = 0.0
+        while not ended.wait(0.1):
+            with lock:
+                line = _status_line(args.execution_id, state["status"], state["last"], state["samples"])
+            if tty:
+                sys.stdout.write("\r" + line + "\x1b[K")
+                sys.stdout.flush()
+            elif time.monotonic() - last_print >= 1.0:
+                print(line, flush=True)
+                last_print = time.monotonic()
+            if deadline is not None and time.monotonic() > deadline:
+                if tty:
+                    print()
+                print(f"contact-skills watch: no final status within {args.timeout:g} s", file=sys.stderr)
+                return EXIT_TIMEOUT
+        with lock:
+            status, line = (
+                state["status"],
+                _status_line(args.execution_id, state["status"], state["last"], state["samples"]),
+            )
+        print(("\r" + line + "\x1b[K") if tty else line)
+        for text in _metrics_lines(status):
+            print(text)
+        return 0 if status.phase.value == "done" else EXIT_ENDED_EARLY
+    except KeyboardInterrupt:
+        print()
+        return 130
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        session.close()
+
+
+# --------------------------------------------------------------------------- registration
 
 
 def register(commands: argparse._SubParsersAction) -> None:
     """Add this group's subcommands to the `contact-skills` parser."""
+    router = commands.add_parser(
+        "router", help="run the Zenoh router (embedded; until SIGINT/SIGTERM)", description=cmd_router.__doc__
+    )
+    router.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on, repeatable or comma-separated (env CONTACT_SKILLS_ZENOH_LISTEN; "
+        "default tcp/127.0.0.1:7447)",
+    )
+    router.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    router.set_defaults(run=cmd_router)
+
+    connect_help = (
+        "router endpoint to connect to, repeatable or comma-separated (env CONTACT_SKILLS_ZENOH_ENDPOINTS; "
+        "default tcp/127.0.0.1:7447)"
+    )
+    prefix_help = "key-expression prefix (env CONTACT_SKILLS_ZENOH_PREFIX; default cskills)"
+    worker = commands.add_parser(
+        "worker", help="run a sim worker on the Zenoh bus (until SIGINT/SIGTERM)", description=cmd_worker.__doc__
+    )
+    worker.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
+    worker.add_argument("--id", help="worker id (default worker-<hostname>-<pid>)")
+    worker.add_argument("--prefix", help=prefix_help)
+    worker.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    worker.set_defaults(run=cmd_worker)
+
+    watch = commands.add_parser(
+        "watch", help="live view of an execution from the Zenoh bus", description=cmd_watch.__doc__
+    )
+    watch.add_argument("execution_id", metavar="EXECUTION_ID")
+    watch.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
+    watch.add_argument("--prefix", help=prefix_help)
+    watch.add_argument("--timeout", type=float, metavar="S", help="give up after S seconds without a final status")
+    watch.set_defaults(run=cmd_watch)

@@ -1,9 +1,355 @@
-"""Subcommands of `contact-skills` for the service: api, up (lazy imports inside each command)."""
+"""Subcommands of `contact-skills` for the service: api, up (lazy imports inside each command).
+
+- ``contact-skills api``: the REST API (uvicorn) with its SQLite store, connected to a Zenoh router.
+- ``contact-skills up``: everything on this machine, loopback only: an embedded Zenoh router (in this
+  process), the API and N sim workers (child processes), their logs prefixed by name. Ctrl-C or
+  SIGTERM stops all cleanly (children terminated, waited for; exit 0). A child that dies is restarted
+  (the API keeps its database, so nothing stored is lost); one that keeps dying at start is given up,
+  and if that is the API, everything stops (exit 1). Children get SIGTERM if `up` itself is killed.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
+import threading
+from pathlib import Path
+from typing import IO, Any
+
+STOP_TIMEOUT_S = 10.0
+"""How long `up` waits for a child to exit after SIGTERM before killing it."""
+RESTART_DELAY_S = 1.0
+"""`up` restarts a child that died after this (times 1 + its quick exits in a row), s."""
+QUICK_EXIT_S = 5.0
+MAX_QUICK_EXITS = 3
+
+READY_TIMEOUT_S = 60.0
+
+
+def _settings(args: argparse.Namespace):  # -> services.settings.ServiceSettings
+    from services.settings import ServiceSettings
+
+    return ServiceSettings.from_env(
+        host=args.host,
+        port=args.port,
+        db_path=args.db,
+        zenoh_endpoints=getattr(args, "connect", None),
+        max_body_mb=getattr(args, "max_body_mb", None),
+        workers=getattr(args, "workers", None),
+    )
+
+
+def _configure_logging(level: str) -> None:
+    import logging
+
+    logging.basicConfig(
+        level=level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+
+
+# --------------------------------------------------------------------------- api
+
+
+def cmd_api(args: argparse.Namespace) -> int:
+    """``contact-skills api``: serve the REST API (OpenAPI at /docs) over the SQLite store and the Zenoh bus."""
+    import uvicorn
+
+    from services.app import connect_bus, create_app
+    from services.settings import SettingsError
+    from services.store import Store, StoreError
+
+    _configure_logging(args.log_level)
+    try:
+        settings = _settings(args)
+        store = Store(settings.db_path)
+    except (SettingsError, StoreError) as exc:
+        print(f"contact-skills api: error: {exc}", file=sys.stderr)
+        return 2
+    bus = None
+    try:
+        if not args.no_bus:
+            try:
+                bus = connect_bus(settings, store)
+            except ConnectionError as exc:
+                print(f"contact-skills api: error: {exc}", file=sys.stderr)
+                return 1
+        app = create_app(settings, bus, store)
+        print(
+            f"contact-skills api: http://{settings.host}:{settings.port} (OpenAPI /docs), database {settings.db_path}, "
+            f"zenoh {'off' if bus is None else ','.join(settings.zenoh_endpoints)}"
+            + (", token required for POST/DELETE" if settings.token else ""),
+            file=sys.stderr,
+            flush=True,
+        )
+        uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level.lower(), access_log=False)
+    finally:
+        if bus is not None:
+            bus.close()
+        store.close()
+    return 0
+
+
+# --------------------------------------------------------------------------- up
+
+
+class _Printer:
+    """Writes the children's lines with a name prefix, one whole line at a time."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.width = 8
+
+    def line(self, name: str, text: str) -> None:
+        with self._lock:
+            sys.stdout.write(f"{name:>{self.width}} | {text.rstrip()}\n")
+            sys.stdout.flush()
+
+    def pump(self, name: str, stream: IO[str]) -> threading.Thread:
+        def run() -> None:
+            for text in stream:
+                self.line(name, text)
+
+        thread = threading.Thread(target=run, name=f"log-{name}", daemon=True)
+        thread.start()
+        return thread
+
+
+def _parent_death_signal():  # -> Callable[[], None] | None
+    """A ``preexec_fn`` that makes the child get SIGTERM when `up` dies, even by SIGKILL (Linux ``prctl``).
+
+    Resolved here, in the parent: the function run between fork and exec imports nothing."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import signal
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    sigterm = int(signal.SIGTERM)
+
+    def preexec() -> None:
+        prctl(1, sigterm)  # PR_SET_PDEATHSIG
+
+    return preexec
+
+
+class _Child:
+    """One child process of `up`, restartable."""
+
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], printer: _Printer, preexec: Any) -> None:
+        self.name, self.argv, self.env, self.printer, self.preexec = name, argv, env, printer, preexec
+        self.process: Any = None
+        self.restarts = 0
+        self.quick_exits = 0
+        self.given_up = False
+        self.started_at = 0.0
+
+    def start(self) -> None:
+        import subprocess
+        import time
+
+        self.started_at = time.monotonic()
+        self.process = subprocess.Popen(
+            self.argv,
+            env=self.env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            text=True,
+            bufsize=1,
+            start_new_session=True,  # Ctrl-C reaches only `up`, which stops the children in order
+            preexec_fn=self.preexec,
+        )
+        self.printer.pump(self.name, self.process.stdout)
+        shown = " ".join(["contact-skills", *self.argv[3:]])  # argv: python -m cli.main ...
+        self.printer.line("up", f"started {self.name} (pid {self.process.pid}): {shown}")
+
+    def exit_code(self) -> int | None:
+        return None if self.process is None else self.process.poll()
+
+    def terminate(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+
+    def wait(self, timeout_s: float) -> int:
+        import subprocess
+
+        try:
+            return self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.printer.line("up", f"{self.name} did not stop in {timeout_s:.0f} s: killing it")
+            self.process.kill()
+            return self.process.wait()
+
+
+def _wait_ready(url: str, api: _Child, stop: threading.Event, timeout_s: float) -> bool:
+    import time
+    import urllib.request
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not stop.is_set():
+        if api.exit_code() is not None:
+            return False
+        try:
+            with urllib.request.urlopen(url + "/health", timeout=2) as response:
+                if response.status == 200:
+                    return True
+        except OSError:
+            pass
+        stop.wait(0.2)
+    return False
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    """``contact-skills up``: a Zenoh router (in this process), the API and N sim workers on loopback, one command."""
+    import os
+    import signal
+
+    from services.settings import SettingsError
+
+    try:
+        settings = _settings(args)
+    except SettingsError as exc:
+        print(f"contact-skills up: error: {exc}", file=sys.stderr)
+        return 2
+    preexec = _parent_death_signal()
+    listen = f"tcp/127.0.0.1:{args.zenoh_port}"
+    printer = _Printer()
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        if not stop.is_set():
+            printer.line("up", f"{signal.Signals(signum).name}: stopping")
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    env = {
+        **os.environ,
+        "PYTHONUNBUFFERED": "1",
+        "CONTACT_SKILLS_ZENOH_ENDPOINTS": listen,
+        "CONTACT_SKILLS_ZENOH_PREFIX": settings.zenoh_prefix,
+    }
+    env.pop("CONTACT_SKILLS_HOST", None)  # `up` is loopback-only: the API gets --host explicitly
+    base = [sys.executable, "-m", "cli.main"]
+    api_argv = [*base, "api", "--host", settings.host, "--port", str(settings.port), "--db", str(settings.db_path),
+                "--connect", listen, "--log-level", args.log_level]  # fmt: skip
+    api = _Child("api", api_argv, env, printer, preexec)
+    workers = [_Child(f"worker-{k + 1}", [*base, "worker"], env, printer, preexec) for k in range(settings.workers)]
+    code = 0
+    try:
+        from services.router import EmbeddedRouter
+
+        with EmbeddedRouter(listen=[listen]):
+            printer.line("up", f"zenoh router listening on {listen} (in process {os.getpid()})")
+            api.start()
+            for worker in workers:
+                worker.start()
+            url = f"http://{settings.host}:{settings.port}"
+            if _wait_ready(url, api, stop, READY_TIMEOUT_S):
+                printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}")
+            code = _supervise(api, workers, stop, printer)
+            _stop_all([api, *workers], printer)
+    except Exception as exc:  # the router could not start (port taken, ...)
+        printer.line("up", f"error: {type(exc).__name__}: {exc}")
+        _stop_all([api, *workers], printer)
+        code = 1
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    printer.line("up", f"stopped (exit {code})")
+    return code
+
+
+def _supervise(api: _Child, workers: list[_Child], stop: threading.Event, printer: _Printer) -> int:
+    """Wait until stopped, restarting children that die (after a delay growing with their failures).
+
+    A child that dies within :data:`QUICK_EXIT_S` of its start counts as failing; after
+    :data:`MAX_QUICK_EXITS` such exits in a row it is not restarted (and for the API everything stops: 1).
+    Returns 0 when stopped by a signal."""
+    import time
+
+    restart_at: dict[str, float] = {}
+    while not stop.wait(0.2):
+        for child in (api, *workers):
+            code = child.exit_code()
+            if code is None or child.given_up:
+                continue
+            if child.name not in restart_at:
+                quick = time.monotonic() - child.started_at < QUICK_EXIT_S
+                child.quick_exits = child.quick_exits + 1 if quick else 0
+                if child.quick_exits >= MAX_QUICK_EXITS:
+                    child.given_up = True
+                    printer.line("up", f"{child.name} keeps exiting at start (code {code}): not restarting it")
+                    if child is api:
+                        return 1
+                    continue
+                delay = RESTART_DELAY_S * (1 + child.quick_exits)
+                printer.line("up", f"{child.name} ended ({_exit_text(code)}): restarting it in {delay:.0f} s")
+                restart_at[child.name] = time.monotonic() + delay
+            if time.monotonic() >= restart_at[child.name]:
+                del restart_at[child.name]
+                child.restarts += 1
+                child.start()
+    return 0
+
+
+def _exit_text(code: int) -> str:
+    """``exit 0``, or the signal that ended the process (uvicorn re-raises SIGTERM after a clean shutdown)."""
+    import signal
+
+    if code < 0:
+        with contextlib.suppress(ValueError):
+            return (
+                f"{signal.Signals(-code).name} after shutdown"
+                if -code == signal.SIGTERM
+                else signal.Signals(-code).name
+            )
+    return f"exit {code}"
+
+
+def _stop_all(children: list[_Child], printer: _Printer) -> None:
+    running = [c for c in children if c.process is not None and c.exit_code() is None]
+    for child in running:
+        child.terminate()
+    for child in running:
+        code = child.wait(STOP_TIMEOUT_S)
+        printer.line("up", f"{child.name} stopped ({_exit_text(code)})")
+
+
+# --------------------------------------------------------------------------- registration
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", help="interface to listen on (default $CONTACT_SKILLS_HOST or 127.0.0.1)")
+    parser.add_argument("--port", type=int, help="HTTP port (default $CONTACT_SKILLS_PORT or 8000)")
+    parser.add_argument(
+        "--db", type=Path, help="SQLite database file (default $CONTACT_SKILLS_DB or ./contact_skills.db)"
+    )
+    parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
 def register(commands: argparse._SubParsersAction) -> None:
     """Add this group's subcommands to the `contact-skills` parser."""
+    api = commands.add_parser(
+        "api", help="serve the REST API (uvicorn + SQLite + Zenoh client)", description=cmd_api.__doc__
+    )
+    _add_common(api)
+    api.add_argument(
+        "--connect",
+        metavar="ENDPOINTS",
+        help="Zenoh router endpoint(s), comma separated (default $CONTACT_SKILLS_ZENOH_ENDPOINTS, tcp/127.0.0.1:7447)",
+    )
+    api.add_argument("--max-body-mb", type=float, help="request body limit, MiB (default 64)")
+    api.add_argument("--no-bus", action="store_true", help="run without Zenoh (executions and recordings get 503)")
+    api.set_defaults(run=cmd_api)
+
+    up = commands.add_parser(
+        "up", help="run router + API + N sim workers on this machine (loopback)", description=cmd_up.__doc__
+    )
+    _add_common(up)
+    up.add_argument("--workers", type=int, help="sim worker processes (default $CONTACT_SKILLS_WORKERS or 2)")
+    up.add_argument("--zenoh-port", type=int, default=7447, help="TCP port of the embedded Zenoh router (loopback)")
+    up.set_defaults(run=cmd_up)

@@ -1,5 +1,15 @@
 """The wire contract: pydantic models for REST bodies and Zenoh payloads (DESIGN.md "Interfaces")."""
 
+from schemas.bus import (
+    ExecutionCommand,
+    ExecutionStatus,
+    KeyExpressions,
+    RecordReply,
+    RecordRequest,
+    StartExecution,
+    StartReply,
+    WorkerInfo,
+)
 from schemas.demonstration import (
     Demonstration,
     DemonstrationArrays,
@@ -47,14 +57,19 @@ __all__ = [
     "DemonstrationMetadata",
     "DemonstrationSummary",
     "EnvironmentChange",
+    "ExecutionCommand",
     "ExecutionMetrics",
     "ExecutionPhase",
     "ExecutionRequest",
     "ExecutionSettings",
+    "ExecutionStatus",
+    "KeyExpressions",
     "LearnOptions",
     "NullSpaceProjection",
     "Pace",
     "QuaternionOrder",
+    "RecordReply",
+    "RecordRequest",
     "Segment",
     "SegmentKind",
     "SegmentQuality",
@@ -62,8 +77,11 @@ __all__ = [
     "SkillAttributes",
     "SkillType",
     "SkillTypeRequest",
+    "StartExecution",
+    "StartReply",
     "TelemetryBatch",
     "TelemetrySample",
+    "WorkerInfo",
     "WrenchConvention",
     "WrenchFrame",
 ]

@@ -1,0 +1,189 @@
+"""REST-only bodies of the service (``services/app.py``): what the endpoints take and return besides the core models.
+
+Ids are short random strings with a kind prefix (``demo_``, ``skill_``, ``exec_`` + 12 hex digits).
+Times (``created``, ``updated``) are Unix seconds.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from schemas.demonstration import Demonstration, DemonstrationSummary
+from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
+from schemas.skill import LearnOptions, Skill
+
+
+class ExecutionState(StrEnum):
+    """Life cycle of an execution as the API records it."""
+
+    starting = "starting"
+    """Stored, being handed to a worker."""
+    running = "running"
+    """A worker accepted it."""
+    done = "done"
+    """The worker finished every segment."""
+    aborted = "aborted"
+    """Stopped early: a safety limit or an abort request."""
+    failed = "failed"
+    """An internal error, a lost worker, or the API restarted while it ran."""
+
+
+class ApiError(BaseModel):
+    """The body of every 4xx/5xx that is not a validation error: ``detail`` says what and why."""
+
+    detail: str = Field(description="What went wrong and what to do.", examples=["no skill with id 'skill_0a1b'"])
+
+
+class DemonstrationCreated(BaseModel):
+    """``POST /demonstrations`` (JSON, CSV, record): the stored demonstration's id and summary."""
+
+    id: str = Field(description="Id of the stored demonstration.", examples=["demo_3f2a9c01b2d4"])
+    created: float = Field(description="When it was stored, Unix s.")
+    source: str = Field(description="Where it came from: json, csv:<file>, teacher:<scenario>.")
+    summary: DemonstrationSummary
+    import_notes: list[str] = Field(
+        default_factory=list, description="What the importer did (resampling, frame, sign, tare); CSV only."
+    )
+    extra: dict[str, Any] = Field(
+        default_factory=dict, description="Extra information (e.g. the teacher's ground truth for recordings)."
+    )
+
+
+class DemonstrationInfo(BaseModel):
+    """One row of ``GET /demonstrations`` (no samples)."""
+
+    id: str
+    created: float
+    name: str
+    source: str
+    summary: DemonstrationSummary
+
+
+class StoredDemonstration(BaseModel):
+    """``GET /demonstrations/{id}``: the demonstration with its samples."""
+
+    id: str
+    created: float
+    summary: DemonstrationSummary
+    demonstration: Demonstration
+
+
+class SkillRequest(LearnOptions):
+    """``POST /skills``: learn from a stored demonstration (``demonstration_id``) OR an inline one
+    (``demonstration``), with the options of `LearnOptions` (all optional)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {"demonstration_id": "demo_3f2a9c01b2d4", "skill_type": "auto"},
+                {"demonstration_id": "demo_3f2a9c01b2d4", "skill_type": "contour", "n_basis": 80},
+            ]
+        },
+    )
+
+    demonstration_id: str | None = Field(None, description="Id of a stored demonstration (or give `demonstration`).")
+    demonstration: Demonstration | None = Field(
+        None, description="An inline demonstration (not stored; or give `demonstration_id`)."
+    )
+
+    @model_validator(mode="after")
+    def _one_demonstration(self) -> SkillRequest:
+        if (self.demonstration_id is None) == (self.demonstration is None):
+            raise ValueError("give exactly one of demonstration_id (a stored demonstration) or demonstration (inline)")
+        return self
+
+    def learn_options(self) -> LearnOptions:
+        """The `LearnOptions` part of the request."""
+        return LearnOptions(**self.model_dump(include=set(LearnOptions.model_fields)))
+
+
+class StoredSkill(BaseModel):
+    """``POST /skills`` (201) and ``GET /skills/{id}``: the skill with its id."""
+
+    id: str = Field(description="Id of the stored skill.", examples=["skill_9b1c2d3e4f50"])
+    demonstration_id: str | None = Field(description="The stored demonstration it was learned from; None if inline.")
+    created: float = Field(description="When it was stored, Unix s.")
+    learn_seconds: float | None = Field(None, description="How long learning took, s (only in the POST reply).")
+    skill: Skill
+
+
+class SkillInfo(BaseModel):
+    """One row of ``GET /skills`` (no parameters)."""
+
+    id: str
+    demonstration_id: str | None
+    created: float
+    skill_type: str = Field(description="slide or contour.")
+    segments: int = Field(description="Number of segments.")
+    confidence: float | None = Field(description="Confidence of the auto selection, if `auto` was asked.")
+    demonstration_name: str | None = Field(description="Name of the demonstration it was learned from.")
+
+
+class ExecutionCreated(BaseModel):
+    """``POST /executions`` (202): the execution runs on a worker; follow it over REST or Zenoh."""
+
+    id: str = Field(description="Id of the execution.", examples=["exec_0c1d2e3f4a5b"])
+    status: ExecutionState = Field(description="Status when the reply was sent (usually running).")
+    worker_id: str = Field(description="The sim worker that runs it.")
+    telemetry_key: str = Field(
+        description="Zenoh key expression of its telemetry (TelemetryBatch JSON).",
+        examples=["cskills/exec/exec_0c1d2e3f4a5b/telemetry"],
+    )
+    status_key: str = Field(
+        description="Zenoh key expression of its status updates.", examples=["cskills/exec/exec_0c1d2e3f4a5b/status"]
+    )
+
+
+class ExecutionView(BaseModel):
+    """``GET /executions/{id}``: status, phase, metrics of one execution."""
+
+    id: str
+    skill_id: str | None = Field(description="The stored skill it runs (None for an inline skill).")
+    worker_id: str | None = Field(description="The worker that runs/ran it (None until one accepted it).")
+    status: ExecutionState
+    phase: ExecutionPhase = Field(description="Last reported execution phase.")
+    metrics: ExecutionMetrics | None = Field(None, description="What it achieved; present once it has finished.")
+    error: str | None = Field(None, description="Why it failed or aborted, if it did.")
+    created: float
+    updated: float
+    telemetry_key: str = Field(description="Zenoh key expression of its telemetry.")
+    telemetry_batches: int = Field(description="Telemetry batches stored so far.")
+    telemetry_samples: int = Field(description="Telemetry samples (control steps) stored so far.")
+    request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
+
+
+class TelemetryView(TelemetryBatch):
+    """``GET /executions/{id}/telemetry``: the recorded stream as columns (row k of every list is one sample)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    every: int = Field(1, description="Decimation: every N-th stored sample is returned.")
+    n_samples: int = Field(description="Samples returned (rows of each column).")
+    stored_samples: int = Field(description="Samples stored for the execution.")
+    status: ExecutionState = Field(description="Execution status when read (the stream grows while running).")
+
+
+class CommandAccepted(BaseModel):
+    """``POST /executions/{id}/abort|pause|resume`` (202): the command was sent to the worker over Zenoh."""
+
+    id: str
+    command: str = Field(examples=["abort"])
+    sent_to: str = Field(description="Zenoh key expression the command was put on.")
+
+
+class Health(BaseModel):
+    """``GET /health``: the API is alive; the bus and its workers as seen from here."""
+
+    status: str = Field("ok", description="Always ok when the API answers.")
+    version: str
+    bus_connected: bool = Field(description="Whether the API has a Zenoh session (false: executions get 503).")
+    zenoh_endpoints: list[str]
+    workers: list[dict[str, Any]] = Field(description="The sim workers connected now (WorkerInfo).")
+    database: str = Field(description="Path of the SQLite database.")
+    schema_version: int
+    active_executions: int = Field(description="Executions starting or running.")
+    pid: int = Field(description="Process id of the API.")

@@ -1,0 +1,330 @@
+"""The Zenoh bus contract: key expressions, payload models (JSON on the wire) and the session configuration.
+
+Key expressions (``P`` is the prefix, default ``cskills``; ids are single key chunks, see ``ID_PATTERN``):
+
+- ``P/workers/{worker_id}`` — liveliness token, present while the worker process lives.
+- ``P/exec/{worker_id}/info`` — queryable; reply ``WorkerInfo``.
+- ``P/exec/{worker_id}/start`` — queryable; query ``StartExecution``, reply ``StartReply`` (accepted, busy, error).
+- ``P/exec/{worker_id}/record`` — queryable; query ``RecordRequest``, reply ``RecordReply``.
+- ``P/exec/{execution_id}/cmd`` — put/subscribe; ``ExecutionCommand`` (abort | pause | resume).
+- ``P/exec/{execution_id}/status`` — put/subscribe; ``ExecutionStatus`` on acceptance (pending), every phase or
+  segment change, pause and resume, and a final one (done | aborted | failed) with the metrics. Workers also
+  answer a query on it with the latest status of the executions they ran (for late joiners).
+- ``P/exec/{execution_id}/telemetry`` — put/subscribe; ``schemas.execution.TelemetryBatch``: every control step,
+  in batches of ``telemetry_batch`` rows, reliable and never dropped (congestion control BLOCK).
+
+Every payload is the JSON of the pydantic model named (``Model.model_validate_json(sample.payload.to_bytes())``);
+queries carry theirs as the query payload. This module imports neither zenoh nor the simulator: it is the
+contract, shared by the REST side (``services.bus``), the worker (``sim_worker.zenoh_worker``) and any
+subscriber, in Python or another language.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from schemas.demonstration import Demonstration
+from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
+
+DEFAULT_PREFIX = "cskills"
+"""Key-expression prefix used unless configured (``CONTACT_SKILLS_ZENOH_PREFIX``)."""
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where the router listens and the clients connect by default (loopback only)."""
+
+ENV_ENDPOINTS = "CONTACT_SKILLS_ZENOH_ENDPOINTS"
+"""Environment variable: comma-separated endpoints the clients (API, worker, watch) connect to."""
+ENV_LISTEN = "CONTACT_SKILLS_ZENOH_LISTEN"
+"""Environment variable: comma-separated endpoints the embedded router listens on."""
+ENV_PREFIX = "CONTACT_SKILLS_ZENOH_PREFIX"
+"""Environment variable: the key-expression prefix."""
+
+ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.:@+=-]{0,127}$"
+"""Worker and execution ids are one key chunk: no ``/``, no wildcard or reserved characters (``* $ ? #``)."""
+_ID = re.compile(ID_PATTERN)
+
+FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, ExecutionPhase.failed})
+"""Phases after which an execution publishes nothing more."""
+
+CommandName = Literal["abort", "pause", "resume"]
+
+
+def check_id(value: str, what: str = "id") -> str:
+    """Return ``value`` if it can be a key chunk (``ID_PATTERN``), else raise ValueError saying why."""
+    if not isinstance(value, str) or not _ID.match(value):
+        raise ValueError(
+            f"{what} {value!r} cannot be a key-expression chunk: use 1-128 characters from letters, digits and "
+            "_ . : @ + = - (starting with a letter or digit)"
+        )
+    return value
+
+
+def split_endpoints(text: str | None) -> list[str]:
+    """Split a comma-separated endpoint list (``tcp/127.0.0.1:7447,tcp/10.0.0.2:7447``); empty items dropped."""
+    return [item.strip() for item in (text or "").split(",") if item.strip()]
+
+
+class KeyExpressions:
+    """Builds the key expressions of the bus from the prefix (see the module docstring)."""
+
+    def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
+        prefix = prefix.strip("/")
+        if not prefix or any(c in prefix for c in "*$?#") or "//" in prefix:
+            raise ValueError(f"invalid key-expression prefix {prefix!r}")
+        self.prefix = prefix
+
+    def __repr__(self) -> str:
+        return f"KeyExpressions({self.prefix!r})"
+
+    # Workers.
+    def worker(self, worker_id: str) -> str:
+        """Liveliness token of a worker."""
+        return f"{self.prefix}/workers/{check_id(worker_id, 'worker_id')}"
+
+    @property
+    def workers(self) -> str:
+        """Every worker's liveliness token (``P/workers/*``)."""
+        return f"{self.prefix}/workers/*"
+
+    def info(self, worker_id: str = "*") -> str:
+        """A worker's info queryable (``*``: every worker's)."""
+        return f"{self.prefix}/exec/{self._chunk(worker_id, 'worker_id')}/info"
+
+    def start(self, worker_id: str) -> str:
+        """A worker's start queryable."""
+        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/start"
+
+    def record(self, worker_id: str) -> str:
+        """A worker's record queryable."""
+        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/record"
+
+    # Executions.
+    def cmd(self, execution_id: str) -> str:
+        """Commands to an execution."""
+        return f"{self.prefix}/exec/{check_id(execution_id, 'execution_id')}/cmd"
+
+    def status(self, execution_id: str = "*") -> str:
+        """Status of an execution (``*``: of every execution)."""
+        return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/status"
+
+    def telemetry(self, execution_id: str = "*") -> str:
+        """Telemetry of an execution (``*``: of every execution)."""
+        return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/telemetry"
+
+    # Parsing.
+    def worker_id_of(self, key: str) -> str:
+        """The worker id in a liveliness key ``P/workers/{worker_id}``."""
+        head = f"{self.prefix}/workers/"
+        if not key.startswith(head) or "/" in key[len(head) :]:
+            raise ValueError(f"{key!r} is not a worker key under {head}")
+        return key[len(head) :]
+
+    def id_of(self, key: str) -> str:
+        """The worker or execution id in ``P/exec/{id}/...``."""
+        head = f"{self.prefix}/exec/"
+        if not key.startswith(head):
+            raise ValueError(f"{key!r} is not under {head}")
+        return key[len(head) :].split("/", 1)[0]
+
+    @staticmethod
+    def _chunk(value: str, what: str) -> str:
+        return value if value == "*" else check_id(value, what)
+
+
+def session_config(
+    mode: Literal["client", "peer", "router"],
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+) -> dict[str, Any]:
+    """The Zenoh session configuration (a JSON-able dict) every process of the bus uses.
+
+    Multicast scouting is off: sessions meet only through the configured endpoints (a router). A client's
+    ``zenoh.open`` fails after 2 s without a router; the processes retry (start order does not matter, e.g. in
+    docker-compose); once connected, a client reconnects by itself when the router restarts.
+    Open with ``zenoh.open(zenoh.Config.from_json5(json.dumps(session_config(...))))``.
+    """
+    config: dict[str, Any] = {
+        "mode": mode,
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": mode != "client"}},
+    }
+    if connect:
+        config["connect"] = {"endpoints": list(connect)}
+        if mode == "client":
+            config["connect"].update({"timeout_ms": 2000, "exit_on_failure": False})
+    if listen:
+        config["listen"] = {"endpoints": list(listen)}
+    return config
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Payloads
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class WorkerInfo(BaseModel):
+    """What a worker says about itself (reply of ``P/exec/{worker_id}/info``)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "worker_id": "worker-sim1-4242",
+                    "busy": True,
+                    "activity": "executing",
+                    "execution_id": "ex_01",
+                    "hostname": "sim1",
+                    "pid": 4242,
+                    "started_unix_s": 1763700000.0,
+                    "executions_run": 3,
+                }
+            ]
+        },
+    )
+
+    worker_id: str
+    busy: bool = Field(description="True while executing or recording (a start or record request gets 'busy').")
+    activity: Literal["idle", "executing", "recording", "unknown"] = Field(
+        "idle", description="unknown: alive (liveliness token) but its info query was not answered in time."
+    )
+    execution_id: str | None = Field(None, description="The execution running now, if any.")
+    hostname: str = ""
+    pid: int = 0
+    started_unix_s: float = Field(0.0, description="When the worker process started, Unix time, s.")
+    executions_run: int = Field(0, description="Executions accepted since the worker started.")
+
+
+class StartExecution(BaseModel):
+    """Query payload of ``P/exec/{worker_id}/start``: run ``request`` (with the skill INLINE) as ``execution_id``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    execution_id: str = Field(description="Id chosen by the caller; the key chunk of the execution's keys.")
+    request: ExecutionRequest = Field(description="What to run; ``request.skill`` must be given inline.")
+    world_overrides: dict[str, Any] = Field(
+        default_factory=dict,
+        description="WorldConfig fields applied on top of the scenario's world (e.g. those the demonstration "
+        "was recorded with: ``{'table_height_m': 0.12}``).",
+    )
+    demonstration: Demonstration | None = Field(
+        None, description="The demonstration the skill was learned from, for the path metric (optional)."
+    )
+
+    @model_validator(mode="after")
+    def _inline(self) -> StartExecution:
+        check_id(self.execution_id, "execution_id")
+        if self.request.skill is None:
+            raise ValueError("request.skill must be inline on the bus (resolve skill_id before sending)")
+        return self
+
+
+class StartReply(BaseModel):
+    """Reply of ``P/exec/{worker_id}/start``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    accepted: bool
+    code: Literal["accepted", "busy", "error"] = Field(description="busy: the worker runs something else.")
+    worker_id: str
+    execution_id: str
+    reason: str | None = Field(None, description="Why not accepted.")
+
+
+class RecordRequest(BaseModel):
+    """Query payload of ``P/exec/{worker_id}/record``: record the scripted teacher's demonstration of a scenario."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"scenario": "slide_flat", "seed": 0, "overrides": {"target_force_n": 10.0}}]},
+    )
+
+    scenario: str = Field(description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"])
+    seed: int = Field(0, ge=0, description="Seed of the human-like imperfection; same seed, same recording.")
+    overrides: dict[str, Any] = Field(
+        default_factory=dict,
+        description="TeacherParams or WorldConfig fields, e.g. {'target_force_n': 10, 'move_duration_s': 4}.",
+    )
+
+
+class RecordReply(BaseModel):
+    """Reply of ``P/exec/{worker_id}/record``: the demonstration and its ground truth, or an error."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    worker_id: str
+    code: Literal["ok", "busy", "error"]
+    demonstration: Demonstration | None = None
+    ground_truth: dict[str, Any] | None = Field(
+        None,
+        description="The teacher's truth: scenario, seed, skill_type, target force, contact intervals, truth "
+        "segments (with the true normals of slide segments), world_config, teacher params.",
+    )
+    error: str | None = Field(None, description="Why nothing was recorded (e.g. an unknown scenario or override).")
+    wall_s: float = Field(0.0, description="Wall time the recording took, s.")
+
+    @property
+    def ok(self) -> bool:
+        return self.code == "ok" and self.demonstration is not None
+
+
+class ExecutionCommand(BaseModel):
+    """Payload of ``P/exec/{execution_id}/cmd``."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"command": "abort"}]})
+
+    command: CommandName = Field(
+        description="abort: stop now (within one control step of arrival); pause: hold the current reference "
+        "(the control loop keeps running, in contact the force is held); resume: continue."
+    )
+    execution_id: str = ""
+    reason: str | None = Field(None, description="Free text, reported back in the status message.")
+    sent_unix_s: float = Field(default_factory=time.time, description="Sender's wall clock, Unix time, s.")
+
+
+class ExecutionStatus(BaseModel):
+    """Payload of ``P/exec/{execution_id}/status``: published on every change; the last one has a final phase."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "execution_id": "ex_01",
+                    "worker_id": "worker-sim1-4242",
+                    "phase": "contact",
+                    "segment_index": 1,
+                    "segments": 7,
+                    "message": "segment 1: contact",
+                    "t": 2.731,
+                    "seq": 5,
+                }
+            ]
+        },
+    )
+
+    execution_id: str
+    worker_id: str
+    phase: ExecutionPhase
+    segment_index: int = Field(-1, description="Skill segment being executed; -1 before the first one.")
+    segments: int = Field(0, description="Number of segments of the skill.")
+    message: str = ""
+    t: float = Field(0.0, description="Simulated time of the execution at this status, s.")
+    steps: int = Field(0, description="Control steps run so far.")
+    paused: bool = False
+    metrics: ExecutionMetrics | None = Field(None, description="When finished (done, aborted, failed).")
+    error: str | None = Field(None, description="Why it was aborted or failed.")
+    abort_received_t: float | None = Field(
+        None,
+        description="Simulated time of the last control step completed when the worker received the abort "
+        "command, s (the last telemetry sample is at most one control step later).",
+    )
+    seq: int = Field(0, description="Per-execution sequence number of the status, from 0.")
+    sent_unix_s: float = Field(default_factory=time.time, description="Worker's wall clock at publication, s.")
+
+    @property
+    def final(self) -> bool:
+        """True for done, aborted and failed: nothing follows."""
+        return self.phase in FINAL_PHASES

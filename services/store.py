@@ -1,0 +1,501 @@
+"""SQLite persistence of demonstrations, skills, executions and their telemetry (one file, stdlib ``sqlite3``).
+
+Durability: the database runs in WAL mode with ``synchronous=NORMAL``. Every write is its own
+transaction and is committed before the method returns (so before the HTTP response is sent): a
+committed transaction is in the WAL file, handed to the operating system, so it survives the API
+process being killed (``kill -9``) at any moment. Only an OS crash or power cut could lose the last
+transactions before a checkpoint (``synchronous=FULL`` would close that too, at an fsync per
+write; the telemetry writes at 20 Hz per execution make that a poor trade here).
+
+Threads: one connection per thread (``threading.local``); the bus callbacks write from Zenoh
+threads and the REST routes from the thread pool. SQLite serializes the writers (``busy_timeout``
+5 s); readers never block in WAL mode.
+
+Schema: created on open and versioned with ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`);
+a database written by a newer version is refused rather than misread.
+
+Telemetry is append-only: one row per received batch, the batch's columns as a float64 matrix
+(:data:`TELEMETRY_LAYOUT`, phases as :data:`schemas.execution.PHASE_CODES`), zlib-compressed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import secrets
+import sqlite3
+import threading
+import time
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from schemas.api import ExecutionState
+from schemas.demonstration import Demonstration, DemonstrationSummary
+from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch
+
+SCHEMA_VERSION = 1
+"""Version of the tables below, kept in ``PRAGMA user_version``."""
+
+_SCHEMA_V1 = """
+CREATE TABLE demonstrations (
+    id TEXT PRIMARY KEY,
+    created REAL NOT NULL,
+    name TEXT NOT NULL,
+    summary TEXT NOT NULL,
+    body TEXT NOT NULL
+);
+CREATE TABLE skills (
+    id TEXT PRIMARY KEY,
+    demonstration_id TEXT,
+    created REAL NOT NULL,
+    skill_type TEXT NOT NULL,
+    skill TEXT NOT NULL
+);
+CREATE TABLE executions (
+    id TEXT PRIMARY KEY,
+    skill_id TEXT,
+    worker_id TEXT,
+    status TEXT NOT NULL,
+    phase TEXT NOT NULL,
+    request TEXT NOT NULL,
+    metrics TEXT,
+    error TEXT,
+    created REAL NOT NULL,
+    updated REAL NOT NULL
+);
+CREATE INDEX executions_by_status ON executions (status, worker_id);
+CREATE TABLE telemetry (
+    execution_id TEXT NOT NULL,
+    seq INTEGER NOT NULL,
+    received REAL NOT NULL,
+    rows INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (execution_id, seq)
+);
+"""
+
+TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
+    "t": (0, 1),
+    "phase": (1, 2),
+    "segment_index": (2, 3),
+    "tool_position": (3, 6),
+    "tool_orientation": (6, 10),
+    "reference_position": (10, 13),
+    "reference_orientation": (13, 17),
+    "wrench_world": (17, 23),
+    "wrench_cf": (23, 29),
+    "desired_force_cf_z_n": (29, 30),
+}
+"""Column range of each `TelemetryBatch` field in the stored float64 matrix (width :data:`TELEMETRY_WIDTH`)."""
+TELEMETRY_WIDTH = 30
+_PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
+
+
+ACTIVE = (ExecutionState.starting, ExecutionState.running)
+TERMINAL = (ExecutionState.done, ExecutionState.aborted, ExecutionState.failed)
+RESTART_REASON = "API restarted while running; worker state unknown"
+
+
+def new_id(prefix: str) -> str:
+    """A short random id: ``prefix`` + 12 hex digits (48 random bits)."""
+    return f"{prefix}_{secrets.token_hex(6)}"
+
+
+class StoreError(RuntimeError):
+    """The database cannot be used (newer schema, not a database)."""
+
+
+@dataclass(frozen=True)
+class DemonstrationRow:
+    id: str
+    created: float
+    name: str
+    summary: DemonstrationSummary
+    source: str
+
+
+@dataclass(frozen=True)
+class SkillRow:
+    id: str
+    demonstration_id: str | None
+    created: float
+    skill_type: str
+    skill_json: str
+
+
+@dataclass(frozen=True)
+class ExecutionRow:
+    id: str
+    skill_id: str | None
+    worker_id: str | None
+    status: ExecutionState
+    phase: ExecutionPhase
+    request: dict[str, Any]
+    metrics: dict[str, Any] | None
+    error: str | None
+    created: float
+    updated: float
+
+
+def _execution(row: sqlite3.Row) -> ExecutionRow:
+    return ExecutionRow(
+        id=row["id"],
+        skill_id=row["skill_id"],
+        worker_id=row["worker_id"],
+        status=ExecutionState(row["status"]),
+        phase=ExecutionPhase(row["phase"]),
+        request=json.loads(row["request"]),
+        metrics=json.loads(row["metrics"]) if row["metrics"] else None,
+        error=row["error"],
+        created=row["created"],
+        updated=row["updated"],
+    )
+
+
+def telemetry_matrix(batch: TelemetryBatch) -> np.ndarray:
+    """The columns of ``batch`` as one (rows, :data:`TELEMETRY_WIDTH`) float64 matrix."""
+    n = len(batch.t)
+    matrix = np.empty((n, TELEMETRY_WIDTH))
+    for name, (a, b) in TELEMETRY_LAYOUT.items():
+        values = getattr(batch, name)
+        if name == "phase":
+            values = [PHASE_CODES[ExecutionPhase(p)] for p in values]
+        column = np.asarray(values, dtype=float).reshape(n, b - a)
+        matrix[:, a:b] = column
+    return matrix
+
+
+def telemetry_columns(matrix: np.ndarray) -> dict[str, list]:
+    """The inverse of :func:`telemetry_matrix`: `TelemetryBatch` field -> list (phases as names)."""
+    columns: dict[str, list] = {}
+    for name, (a, b) in TELEMETRY_LAYOUT.items():
+        block = matrix[:, a:b]
+        if name == "phase":
+            columns[name] = [_PHASES_BY_CODE.get(int(code), ExecutionPhase.failed).value for code in block[:, 0]]
+        elif name == "segment_index":
+            columns[name] = block[:, 0].astype(int).tolist()
+        elif b - a == 1:
+            columns[name] = block[:, 0].tolist()
+        else:
+            columns[name] = block.tolist()
+    return columns
+
+
+class Store:
+    """The service's database (see the module docstring); safe to share between threads."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if str(path) != ":memory:":
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self._migrate()
+
+    # ------------------------------------------------------------------ connections
+
+    def _connection(self) -> sqlite3.Connection:
+        if self._closed:
+            raise StoreError("the store is closed")
+        connection = getattr(self._local, "connection", None)
+        if connection is None:
+            connection = sqlite3.connect(self.path, timeout=5.0, isolation_level=None, check_same_thread=False)
+            connection.row_factory = sqlite3.Row
+            connection.execute("PRAGMA journal_mode=WAL")
+            connection.execute("PRAGMA synchronous=NORMAL")
+            connection.execute("PRAGMA busy_timeout=5000")
+            self._local.connection = connection
+            with self._lock:
+                self._connections.append(connection)
+        return connection
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        connection = self._connection()
+        connection.execute("BEGIN IMMEDIATE")
+        try:
+            yield connection
+        except BaseException:
+            connection.execute("ROLLBACK")
+            raise
+        connection.execute("COMMIT")
+
+    def _migrate(self) -> None:
+        try:
+            with self._transaction() as db:
+                version = db.execute("PRAGMA user_version").fetchone()[0]
+                if version > SCHEMA_VERSION:
+                    raise StoreError(
+                        f"{self.path}: database schema version {version} is newer than this program's "
+                        f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
+                    )
+                if version == 0:
+                    # not executescript: it would COMMIT the open transaction
+                    for statement in filter(None, (s.strip() for s in _SCHEMA_V1.split(";"))):
+                        db.execute(statement)
+                    db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a usable SQLite database ({exc})") from None
+
+    def schema_version(self) -> int:
+        """The database's schema version."""
+        return int(self._connection().execute("PRAGMA user_version").fetchone()[0])
+
+    def close(self) -> None:
+        """Close every thread's connection (the WAL is checkpointed by the last one)."""
+        with self._lock:
+            self._closed = True
+            connections, self._connections = self._connections, []
+        for connection in connections:
+            with contextlib.suppress(sqlite3.ProgrammingError):  # another thread's, in use right now
+                connection.close()
+
+    # ------------------------------------------------------------------ demonstrations
+
+    def add_demonstration(self, demonstration: Demonstration) -> DemonstrationRow:
+        """Store ``demonstration``; return its row (with the new id)."""
+        summary = DemonstrationSummary.of(demonstration)
+        row = DemonstrationRow(
+            id=new_id("demo"),
+            created=time.time(),
+            name=demonstration.metadata.name,
+            summary=summary,
+            source=demonstration.metadata.source,
+        )
+        body = demonstration.model_dump_json()
+        with self._transaction() as db:
+            db.execute(
+                "INSERT INTO demonstrations (id, created, name, summary, body) VALUES (?, ?, ?, ?, ?)",
+                (row.id, row.created, row.name, summary.model_dump_json(), body),
+            )
+        return row
+
+    def list_demonstrations(self, limit: int = 100, offset: int = 0) -> list[DemonstrationRow]:
+        rows = self._connection().execute(
+            "SELECT id, created, name, summary, json_extract(body, '$.metadata.source') AS source "
+            "FROM demonstrations ORDER BY created DESC, id LIMIT ? OFFSET ?",
+            (limit, offset),
+        )
+        return [
+            DemonstrationRow(
+                id=r["id"],
+                created=r["created"],
+                name=r["name"],
+                summary=DemonstrationSummary.model_validate_json(r["summary"]),
+                source=r["source"] or "",
+            )
+            for r in rows
+        ]
+
+    def demonstration_json(self, demonstration_id: str) -> tuple[DemonstrationRow, str] | None:
+        """The row and the stored body (JSON text of a `Demonstration`), or None."""
+        r = (
+            self._connection()
+            .execute(
+                "SELECT id, created, name, summary, body, json_extract(body, '$.metadata.source') AS source "
+                "FROM demonstrations WHERE id = ?",
+                (demonstration_id,),
+            )
+            .fetchone()
+        )
+        if r is None:
+            return None
+        row = DemonstrationRow(
+            id=r["id"],
+            created=r["created"],
+            name=r["name"],
+            summary=DemonstrationSummary.model_validate_json(r["summary"]),
+            source=r["source"] or "",
+        )
+        return row, r["body"]
+
+    def demonstration(self, demonstration_id: str) -> Demonstration | None:
+        """The stored demonstration (validated again), or None."""
+        found = self.demonstration_json(demonstration_id)
+        return None if found is None else Demonstration.model_validate_json(found[1])
+
+    # ------------------------------------------------------------------ skills
+
+    def add_skill(self, skill_json: str, skill_type: str, demonstration_id: str | None) -> SkillRow:
+        """Store a skill given as JSON text; return its row."""
+        row = SkillRow(new_id("skill"), demonstration_id, time.time(), skill_type, skill_json)
+        with self._transaction() as db:
+            db.execute(
+                "INSERT INTO skills (id, demonstration_id, created, skill_type, skill) VALUES (?, ?, ?, ?, ?)",
+                (row.id, row.demonstration_id, row.created, row.skill_type, row.skill_json),
+            )
+        return row
+
+    def skill(self, skill_id: str) -> SkillRow | None:
+        r = (
+            self._connection()
+            .execute("SELECT id, demonstration_id, created, skill_type, skill FROM skills WHERE id = ?", (skill_id,))
+            .fetchone()
+        )
+        return None if r is None else SkillRow(r[0], r[1], r[2], r[3], r[4])
+
+    def list_skills(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
+        """Skill summaries (no parameters): id, demonstration_id, created, skill_type, segments, confidence."""
+        rows = self._connection().execute(
+            "SELECT id, demonstration_id, created, skill_type, json_array_length(skill, '$.segments') AS segments, "
+            "json_extract(skill, '$.auto_selection.confidence') AS confidence, "
+            "json_extract(skill, '$.demonstration.name') AS demonstration_name "
+            "FROM skills ORDER BY created DESC, id LIMIT ? OFFSET ?",
+            (limit, offset),
+        )
+        return [dict(r) for r in rows]
+
+    def delete_skill(self, skill_id: str) -> bool:
+        """Delete a skill; False if there was none. Executions that used it keep their records."""
+        with self._transaction() as db:
+            return db.execute("DELETE FROM skills WHERE id = ?", (skill_id,)).rowcount > 0
+
+    # ------------------------------------------------------------------ executions
+
+    def add_execution(self, request: dict[str, Any], skill_id: str | None) -> ExecutionRow:
+        """Store a new execution in status ``starting``."""
+        now = time.time()
+        execution_id = new_id("exec")
+        with self._transaction() as db:
+            db.execute(
+                "INSERT INTO executions (id, skill_id, worker_id, status, phase, request, created, updated) "
+                "VALUES (?, ?, NULL, ?, ?, ?, ?, ?)",
+                (
+                    execution_id,
+                    skill_id,
+                    ExecutionState.starting.value,
+                    ExecutionPhase.pending.value,
+                    json.dumps(request),
+                    now,
+                    now,
+                ),
+            )
+        found = self.execution(execution_id)
+        assert found is not None
+        return found
+
+    def execution(self, execution_id: str) -> ExecutionRow | None:
+        r = self._connection().execute("SELECT * FROM executions WHERE id = ?", (execution_id,)).fetchone()
+        return None if r is None else _execution(r)
+
+    def list_executions(self, limit: int = 100, offset: int = 0) -> list[ExecutionRow]:
+        rows = self._connection().execute(
+            "SELECT * FROM executions ORDER BY created DESC, id LIMIT ? OFFSET ?", (limit, offset)
+        )
+        return [_execution(r) for r in rows]
+
+    def active_executions(self) -> list[ExecutionRow]:
+        """Executions in status starting or running."""
+        rows = self._connection().execute(
+            "SELECT * FROM executions WHERE status IN (?, ?) ORDER BY created", tuple(s.value for s in ACTIVE)
+        )
+        return [_execution(r) for r in rows]
+
+    def delete_execution(self, execution_id: str) -> None:
+        """Forget an execution that never started (no worker took it)."""
+        with self._transaction() as db:
+            db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+            db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
+
+    def mark_started(self, execution_id: str, worker_id: str) -> None:
+        """A worker accepted the execution: record it; starting -> running (a status that came first stays)."""
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE executions SET worker_id = ?, updated = ?, status = CASE WHEN status = ? THEN ? ELSE status "
+                "END WHERE id = ?",
+                (worker_id, time.time(), ExecutionState.starting.value, ExecutionState.running.value, execution_id),
+            )
+
+    def update_execution(
+        self,
+        execution_id: str,
+        status: ExecutionState | None = None,
+        phase: ExecutionPhase | None = None,
+        worker_id: str | None = None,
+        metrics: dict[str, Any] | None = None,
+        error: str | None = None,
+    ) -> bool:
+        """Apply a status update to an ACTIVE execution (a finished one is never changed); True if applied."""
+        sets, values = ["updated = ?"], [time.time()]
+        for column, value in (
+            ("status", status.value if status else None),
+            ("phase", phase.value if phase else None),
+            ("worker_id", worker_id),
+            ("metrics", json.dumps(metrics) if metrics is not None else None),
+            ("error", error),
+        ):
+            if value is not None:
+                sets.append(f"{column} = ?")
+                values.append(value)
+        with self._transaction() as db:
+            cursor = db.execute(
+                f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND status IN (?, ?)",
+                (*values, execution_id, *(s.value for s in ACTIVE)),
+            )
+            return cursor.rowcount > 0
+
+    def fail_active(self, reason: str, worker_id: str | None = None, keep_workers: set[str] | None = None) -> list[str]:
+        """Mark active executions failed with ``reason``: those on ``worker_id`` (or all, when None) except
+        those on a worker in ``keep_workers``. Returns the ids marked."""
+        keep = keep_workers or set()
+        marked = []
+        with self._transaction() as db:
+            for r in db.execute(
+                "SELECT id, worker_id FROM executions WHERE status IN (?, ?)", tuple(s.value for s in ACTIVE)
+            ).fetchall():
+                if worker_id is not None and r["worker_id"] != worker_id:
+                    continue
+                if r["worker_id"] in keep:
+                    continue
+                db.execute(
+                    "UPDATE executions SET status = ?, phase = ?, error = ?, updated = ? WHERE id = ?",
+                    (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
+                )
+                marked.append(r["id"])
+        return marked
+
+    # ------------------------------------------------------------------ telemetry
+
+    def add_telemetry(self, execution_id: str, batch: TelemetryBatch) -> bool:
+        """Append a telemetry batch of a KNOWN execution; False (nothing stored) for an unknown one."""
+        matrix = telemetry_matrix(batch)
+        data = zlib.compress(matrix.astype("<f8").tobytes(), 1)
+        with self._transaction() as db:
+            cursor = db.execute(
+                "INSERT INTO telemetry (execution_id, seq, received, rows, data) "
+                "SELECT ?, (SELECT COALESCE(MAX(seq), -1) + 1 FROM telemetry WHERE execution_id = ?), ?, ?, ? "
+                "WHERE EXISTS (SELECT 1 FROM executions WHERE id = ?)",
+                (execution_id, execution_id, time.time(), matrix.shape[0], data, execution_id),
+            )
+            return cursor.rowcount > 0
+
+    def telemetry_counts(self, execution_id: str) -> tuple[int, int]:
+        """(batches, samples) stored for an execution."""
+        r = (
+            self._connection()
+            .execute("SELECT COUNT(*), COALESCE(SUM(rows), 0) FROM telemetry WHERE execution_id = ?", (execution_id,))
+            .fetchone()
+        )
+        return int(r[0]), int(r[1])
+
+    def telemetry(self, execution_id: str) -> np.ndarray:
+        """Every stored sample of an execution, in time order, as one (N, :data:`TELEMETRY_WIDTH`) matrix."""
+        rows = self._connection().execute(
+            "SELECT rows, data FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,)
+        )
+        blocks = [
+            np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, TELEMETRY_WIDTH) for n, data in rows.fetchall()
+        ]
+        if not blocks:
+            return np.empty((0, TELEMETRY_WIDTH))
+        matrix = np.concatenate(blocks)
+        order = np.argsort(matrix[:, 0], kind="stable")  # batches can arrive out of order
+        return matrix[order]

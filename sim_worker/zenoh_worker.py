@@ -1,0 +1,578 @@
+"""The sim worker process on the Zenoh bus: executes skills and records teacher demonstrations on request.
+
+``run_worker(settings)`` opens a Zenoh session (client mode, connected to the router's endpoints; it waits for the
+router if it is not up yet), declares
+
+- the liveliness token ``P/workers/{worker_id}`` (it disappears when the process dies, even by SIGKILL),
+- the queryables ``P/exec/{worker_id}/info`` (``WorkerInfo``), ``P/exec/{worker_id}/start`` (``StartExecution``
+  -> ``StartReply``), ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``) and
+  ``P/exec/*/status`` (the latest ``ExecutionStatus`` of the executions this worker ran, for late joiners),
+
+and serves until SIGINT/SIGTERM. One job at a time: a start or record request while busy gets a ``busy`` reply.
+
+An execution runs ``sim_worker.executor.execute_skill`` in its own thread with the inline skill, in the world of
+the request's ``scenario`` (else the scenario named by the skill's demonstration, else the default flat table) plus
+``world_overrides``. While it runs the worker
+
+- publishes every control step on ``P/exec/{execution_id}/telemetry`` (``TelemetryBatch`` of
+  ``request.telemetry_batch`` rows, reliable, congestion control BLOCK: nothing is dropped),
+- publishes ``ExecutionStatus`` on ``P/exec/{execution_id}/status``: ``pending`` on acceptance, then on every phase
+  or segment change, pause and resume, and a final one (done / aborted / failed) with the metrics,
+- listens on ``P/exec/{execution_id}/cmd``: ``abort`` is polled by the control loop after every step (the
+  execution stops within one control cycle; the final status carries ``abort_received_t``), ``pause`` holds the
+  controller at its current reference with the loop running (throttled to about real time), ``resume`` continues.
+
+Nothing an execution or a recording does can kill the worker: any exception becomes a ``failed`` status or an
+``error`` reply. On SIGINT/SIGTERM the running execution is aborted, its final status published, everything
+undeclared, and the process exits with 0.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from schemas.bus import (
+    DEFAULT_ENDPOINT,
+    DEFAULT_PREFIX,
+    ENV_ENDPOINTS,
+    ENV_PREFIX,
+    ExecutionCommand,
+    ExecutionStatus,
+    KeyExpressions,
+    RecordReply,
+    RecordRequest,
+    StartExecution,
+    StartReply,
+    WorkerInfo,
+    check_id,
+    session_config,
+    split_endpoints,
+)
+from schemas.execution import ExecutionPhase
+from schemas.skill import Skill
+
+log = logging.getLogger("contact_skills.worker")
+_PHASES = list(ExecutionPhase)
+
+STATUS_CACHE = 200
+"""Latest statuses kept for the status queryable (executions of this worker)."""
+PAUSED_SLEEP_S = 1e-3
+"""While paused, each held control step sleeps this long (so a paused fast execution does not spin)."""
+FINAL_STATUS_HEAD_START_S = 0.1
+"""At shutdown, pause between publishing the last status and undeclaring the liveliness token, s."""
+SHUTDOWN_JOIN_S = 10.0
+"""How long shutdown waits for the aborted execution and the publisher to finish, s."""
+
+
+@dataclass
+class WorkerSettings:
+    """Where the worker connects and under which prefix (env: ``CONTACT_SKILLS_ZENOH_ENDPOINTS``, ``..._PREFIX``)."""
+
+    endpoints: list[str] = field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    prefix: str = DEFAULT_PREFIX
+    connect_retry_s: float = 1.0
+    """Pause between attempts while the router is not reachable, s."""
+    connect_timeout_s: float | None = None
+    """Give up connecting after this long (None: keep trying until a signal arrives), s."""
+
+    @classmethod
+    def from_env(cls) -> WorkerSettings:
+        """Settings from the environment, defaults for what is not set."""
+        return cls(
+            endpoints=split_endpoints(os.environ.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
+            prefix=os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX,
+        )
+
+
+def default_worker_id() -> str:
+    """``worker-<hostname>-<pid>``, with characters a key chunk cannot hold replaced by '-'."""
+    host = "".join(c if c.isalnum() or c in "_.-" else "-" for c in socket.gethostname()) or "host"
+    return f"worker-{host}-{os.getpid()}"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Worlds
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def scenario_of(skill: Skill) -> str | None:
+    """The teacher scenario named by the skill's demonstration (``"slide_flat (seed 0)"`` -> ``slide_flat``)."""
+    from sim_worker.teacher import SCENARIOS
+
+    name = (skill.demonstration.name or "").strip()
+    head = name.split(" ", 1)[0] if name else ""
+    return head if head in SCENARIOS else None
+
+
+def world_config_for(scenario: str | None, skill: Skill, overrides: dict[str, Any] | None = None):
+    """The ``WorldConfig`` to execute in: the scenario's world (taught world) plus ``overrides``.
+
+    ``scenario`` None: the one named by the skill's demonstration, else the default world (flat table).
+    Raises ValueError for an unknown scenario or override.
+    """
+    from sim_worker.teacher import _SCENARIOS, SCENARIOS
+    from sim_worker.world import WorldConfig
+
+    name = scenario or scenario_of(skill)
+    config = WorldConfig()
+    if name is not None:
+        if name not in SCENARIOS:
+            raise ValueError(f"unknown scenario {name!r}; known: {sorted(SCENARIOS)}")
+        config = config.replace(**_SCENARIOS[name].world)
+    if overrides:
+        try:
+            config = config.replace(**overrides)
+        except TypeError as exc:
+            raise ValueError(f"world_overrides: {exc}") from exc
+    return config
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# One execution
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class _Run:
+    """State of one execution, shared by its thread, the command callback and the publisher."""
+
+    def __init__(self, worker: Worker, start: StartExecution, world_config) -> None:
+        self.worker = worker
+        self.execution_id = start.execution_id
+        self.start = start
+        self.request = start.request
+        self.skill: Skill = start.request.skill  # type: ignore[assignment]  (checked by StartExecution)
+        self.world_config = world_config
+        self.dt = float(world_config.time_step_s)
+        self.abort_requested = False
+        self.abort_received_t: float | None = None
+        self.abort_reason: str | None = None
+        self.paused = False
+        self.polls = 0
+        """should_abort() calls = control steps completed."""
+        self.phase = ExecutionPhase.pending
+        self.segment_index = -1
+        self.t = 0.0
+        self.seq = 0
+        self.lock = threading.Lock()
+        self.cmd_subscriber = None
+        self.thread: threading.Thread | None = None
+
+    # Polled by the control loop (its thread).
+    def should_abort(self) -> bool:
+        self.polls += 1
+        return self.abort_requested
+
+    def should_pause(self) -> bool:
+        if self.paused and not self.abort_requested:
+            time.sleep(PAUSED_SLEEP_S)
+            return True
+        return False
+
+    def on_sample(self, tel) -> None:
+        """A batch of control steps from the loop: queue it and a status for each phase/segment change."""
+        stamp = time.time()
+        self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp))
+        codes, segments, t = tel.phase_codes, tel.segment_index, tel.t
+        changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
+        for k in (0, *changes.tolist()):
+            phase, segment = _PHASES[int(codes[k])], int(segments[k])
+            if phase is not self.phase or segment != self.segment_index:
+                self.phase, self.segment_index = phase, segment
+                where = f"segment {segment}" if segment >= 0 else "start pose"
+                self.status(message=f"{where}: {phase.value}", t=float(t[k]))
+        self.t = float(t[-1])
+
+    # Any thread.
+    def status(self, **fields: Any) -> ExecutionStatus:
+        """Queue an ExecutionStatus with the current phase, segment, time and pause state (``fields`` override)."""
+        with self.lock:
+            values = {
+                "execution_id": self.execution_id,
+                "worker_id": self.worker.worker_id,
+                "phase": self.phase,
+                "segment_index": self.segment_index,
+                "segments": len(self.skill.segments),
+                "t": self.t,
+                "steps": self.polls,
+                "paused": self.paused,
+                "seq": self.seq,
+                **fields,
+            }
+            self.seq += 1
+            status = ExecutionStatus(**values)
+            self.worker._publish_queue.put(("status", self.execution_id, status, None))
+        return status
+
+    def command(self, command: ExecutionCommand) -> None:
+        """Apply a command (zenoh callback thread)."""
+        note = f" ({command.reason})" if command.reason else ""
+        if command.command == "abort":
+            if not self.abort_requested:
+                # The last control step completed now: polls steps done, the last row at t = (polls - 1) dt.
+                self.abort_received_t = max(self.polls - 1, 0) * self.dt
+                self.abort_reason = command.reason or "aborted on request"
+                self.abort_requested = True
+                log.info("%s: abort received at t=%.3f s%s", self.execution_id, self.abort_received_t, note)
+        elif command.command == "pause":
+            if not self.paused:
+                self.paused = True
+                self.status(message=f"paused{note}")
+        elif command.command == "resume" and self.paused:
+            self.paused = False
+            self.status(message=f"resumed{note}")
+
+    def run(self) -> None:
+        """The execution thread: run the skill, publish the final status, free the worker."""
+        from sim_worker.executor import execute_skill
+
+        final: dict[str, Any]
+        try:
+            self.status(message="accepted")
+            result = execute_skill(
+                self.skill,
+                self.world_config,
+                self.request,
+                on_sample=self.on_sample,
+                should_abort=self.should_abort,
+                should_pause=self.should_pause,
+                demonstration=self.start.demonstration,
+            )
+            metrics = result.metrics
+            phase = metrics.phase
+            error = metrics.abort_reason
+            if phase is ExecutionPhase.aborted and self.abort_requested and error == "aborted on request":
+                error = self.abort_reason
+                metrics = metrics.model_copy(update={"abort_reason": error})
+            message = {"done": "finished every segment"}.get(phase.value, f"{phase.value}: {error}")
+            final = {"phase": phase, "metrics": metrics, "error": error, "message": message,
+                     "t": max(metrics.duration_s - self.dt, 0.0), "steps": metrics.steps}  # fmt: skip
+        except Exception as exc:  # the worker must survive whatever an execution does
+            log.exception("%s failed", self.execution_id)
+            final = {"phase": ExecutionPhase.failed, "error": f"{type(exc).__name__}: {exc}",
+                     "message": f"failed: {type(exc).__name__}: {exc}"}  # fmt: skip
+        self.worker._finish(self, final)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The worker
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class Worker:
+    """A sim worker on the bus (see the module docstring). ``open()``, serve, ``close()``; or ``run_worker``."""
+
+    def __init__(self, settings: WorkerSettings | None = None, worker_id: str | None = None) -> None:
+        self.settings = settings or WorkerSettings()
+        self.worker_id = check_id(worker_id or default_worker_id(), "worker_id")
+        self.keys = KeyExpressions(self.settings.prefix)
+        self.hostname = socket.gethostname()
+        self.started_unix_s = time.time()
+        self.executions_run = 0
+        self._lock = threading.Lock()
+        self._run: _Run | None = None
+        self._recording = False
+        self._statuses: OrderedDict[str, ExecutionStatus] = OrderedDict()
+        self._publish_queue: queue.Queue = queue.Queue()
+        self._publisher: threading.Thread | None = None
+        self._session = None
+        self._declared: list = []
+        self._closed = False
+
+    # ------------------------------------------------------------------------------------------ lifecycle
+
+    def open(self, stop: threading.Event | None = None) -> bool:
+        """Connect (retrying until the router answers, ``stop`` is set or the timeout passes) and declare.
+
+        Returns False if stopped or timed out before a connection.
+        """
+        import zenoh
+
+        config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=self.settings.endpoints)))
+        deadline = None if self.settings.connect_timeout_s is None else time.time() + self.settings.connect_timeout_s
+        warned = False
+        while self._session is None:
+            try:
+                self._session = zenoh.open(config)
+            except zenoh.ZError as exc:
+                if not warned:
+                    log.warning("router not reachable at %s (%s); retrying", self.settings.endpoints, exc)
+                    warned = True
+                if (stop is not None and stop.wait(self.settings.connect_retry_s)) or (
+                    deadline is not None and time.time() > deadline
+                ):
+                    return False
+                if stop is None:
+                    time.sleep(self.settings.connect_retry_s)
+        session, keys = self._session, self.keys
+        self._publisher = threading.Thread(target=self._publish_loop, name="bus-publisher", daemon=True)
+        self._publisher.start()
+        self._declared = [
+            session.declare_queryable(keys.info(self.worker_id), self._on_info),
+            session.declare_queryable(keys.start(self.worker_id), self._on_start),
+            session.declare_queryable(keys.record(self.worker_id), self._on_record),
+            session.declare_queryable(keys.status("*"), self._on_status_query),
+        ]
+        # The token last: whoever sees the worker can use it at once.
+        self._declared.append(session.liveliness().declare_token(keys.worker(self.worker_id)))
+        log.info("worker %s connected to %s (prefix %s)", self.worker_id, self.settings.endpoints, keys.prefix)
+        return True
+
+    def close(self, reason: str = "worker shutting down") -> None:
+        """Abort the running execution, publish its final status, undeclare everything and close the session."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._lock:
+            run = self._run
+        if run is not None:
+            run.command(ExecutionCommand(command="abort", execution_id=run.execution_id, reason=reason))
+            if run.thread is not None:
+                run.thread.join(SHUTDOWN_JOIN_S)
+        if self._publisher is not None:
+            self._publish_queue.put(None)
+            self._publisher.join(SHUTDOWN_JOIN_S)
+            if run is not None:  # the token's DELETE travels on another lane: let the final status go first
+                time.sleep(FINAL_STATUS_HEAD_START_S)
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception:  # already gone with the session
+                log.debug("undeclare failed", exc_info=True)
+        self._declared = []
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        log.info("worker %s stopped", self.worker_id)
+
+    def info(self) -> WorkerInfo:
+        """What this worker reports on its info queryable."""
+        with self._lock:
+            run, recording = self._run, self._recording
+        activity = "executing" if run is not None else "recording" if recording else "idle"
+        return WorkerInfo(
+            worker_id=self.worker_id,
+            busy=activity != "idle",
+            activity=activity,
+            execution_id=run.execution_id if run is not None else None,
+            hostname=self.hostname,
+            pid=os.getpid(),
+            started_unix_s=self.started_unix_s,
+            executions_run=self.executions_run,
+        )
+
+    # ------------------------------------------------------------------------------------------ publishing
+
+    def _publish_loop(self) -> None:
+        """The one thread that puts telemetry and statuses, in the order they were queued."""
+        import zenoh
+
+        block = zenoh.CongestionControl.BLOCK
+        while True:
+            item = self._publish_queue.get()
+            if item is None:
+                return
+            kind, execution_id, payload, stamp = item
+            try:
+                if kind == "telemetry":
+                    batch = payload.to_batch(execution_id)
+                    batch.sent_unix_s = stamp
+                    key, data = self.keys.telemetry(execution_id), batch.model_dump_json()
+                else:
+                    payload.sent_unix_s = time.time()
+                    with self._lock:
+                        self._statuses[execution_id] = payload
+                        self._statuses.move_to_end(execution_id)
+                        while len(self._statuses) > STATUS_CACHE:
+                            self._statuses.popitem(last=False)
+                    key, data = self.keys.status(execution_id), payload.model_dump_json()
+                self._session.put(key, data, congestion_control=block)
+            except Exception:  # keep publishing whatever happens to one item
+                log.exception("publishing %s of %s failed", kind, execution_id)
+
+    # ------------------------------------------------------------------------------------------ queryables
+
+    def _on_info(self, query) -> None:
+        try:
+            query.reply(self.keys.info(self.worker_id), self.info().model_dump_json())
+        except Exception:
+            log.exception("info query failed")
+
+    def _on_status_query(self, query) -> None:
+        import zenoh
+
+        try:
+            wanted = zenoh.KeyExpr(str(query.key_expr))
+            with self._lock:
+                statuses = list(self._statuses.values())
+            for status in statuses:
+                key = self.keys.status(status.execution_id)
+                if wanted.intersects(zenoh.KeyExpr(key)):
+                    query.reply(key, status.model_dump_json())
+        except Exception:
+            log.exception("status query failed")
+
+    def _on_start(self, query) -> None:
+        execution_id = "?"
+
+        def reply(code: str, reason: str | None = None) -> None:
+            answer = StartReply(accepted=code == "accepted", code=code, worker_id=self.worker_id,
+                                execution_id=execution_id, reason=reason)  # fmt: skip
+            query.reply(self.keys.start(self.worker_id), answer.model_dump_json())
+
+        try:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                start = StartExecution.model_validate_json(payload)
+                execution_id = start.execution_id
+                world = world_config_for(start.request.scenario, start.request.skill, start.world_overrides)
+            except Exception as exc:
+                reply("error", _short_error(exc))
+                return
+            with self._lock:
+                busy = self._busy_reason()
+                if busy is None and not self._closed:
+                    run = _Run(self, start, world)
+                    self._run = run
+                    self.executions_run += 1
+            if busy is not None or self._closed:
+                reply("busy", busy or "worker shutting down")
+                return
+            # Listen for commands before anyone knows the execution exists.
+            run.cmd_subscriber = self._session.declare_subscriber(
+                self.keys.cmd(execution_id), lambda sample: self._on_command(run, sample)
+            )
+            reply("accepted")
+            log.info("%s accepted (%d segments, pace %s)", execution_id, len(run.skill.segments), run.request.pace)
+            run.thread = threading.Thread(target=run.run, name=f"execution-{execution_id}", daemon=True)
+            run.thread.start()
+        except Exception as exc:
+            log.exception("start query failed")
+            with self._lock:
+                if self._run is not None and self._run.execution_id == execution_id and self._run.thread is None:
+                    self._run = None
+            try:
+                reply("error", _short_error(exc))
+            except Exception:
+                log.debug("could not reply", exc_info=True)
+
+    def _busy_reason(self) -> str | None:
+        if self._run is not None:
+            return f"worker {self.worker_id} is executing {self._run.execution_id}"
+        if self._recording:
+            return f"worker {self.worker_id} is recording a demonstration"
+        return None
+
+    def _on_command(self, run: _Run, sample) -> None:
+        try:
+            command = ExecutionCommand.model_validate_json(sample.payload.to_bytes())
+            run.command(command)
+        except Exception:
+            log.exception("bad command for %s", run.execution_id)
+
+    def _finish(self, run: _Run, final: dict[str, Any]) -> None:
+        """End of an execution (its thread): free the worker, then publish the final status."""
+        if run.cmd_subscriber is not None:
+            try:
+                run.cmd_subscriber.undeclare()
+            except Exception:
+                log.debug("undeclare cmd failed", exc_info=True)
+        with self._lock:
+            if self._run is run:
+                self._run = None
+        status = run.status(abort_received_t=run.abort_received_t, paused=False, **final)
+        log.info("%s %s after %.3f s simulated", run.execution_id, status.phase.value, status.t)
+
+    def _on_record(self, query) -> None:
+        try:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                request = RecordRequest.model_validate_json(payload)
+            except Exception as exc:
+                query.reply(self.keys.record(self.worker_id), RecordReply(worker_id=self.worker_id, code="error",
+                                                        error=_short_error(exc)).model_dump_json())  # fmt: skip
+                return
+            with self._lock:
+                busy = self._busy_reason() or ("worker shutting down" if self._closed else None)
+                if busy is None:
+                    self._recording = True
+            if busy is not None:
+                query.reply(self.keys.record(self.worker_id), RecordReply(worker_id=self.worker_id, code="busy",
+                                                        error=busy).model_dump_json())  # fmt: skip
+                return
+            # Recording takes seconds: reply from a thread, keep the zenoh callback thread free.
+            threading.Thread(target=self._record, args=(query, request), name="record", daemon=True).start()
+        except Exception:
+            log.exception("record query failed")
+            with self._lock:
+                self._recording = False
+
+    def _record(self, query, request: RecordRequest) -> None:
+        from sim_worker.teacher import record_demonstration
+
+        started = time.perf_counter()
+        try:
+            log.info("recording %s (seed %d, overrides %s)", request.scenario, request.seed, request.overrides)
+            recording = record_demonstration(request.scenario, request.seed, **request.overrides)
+            reply = RecordReply(
+                worker_id=self.worker_id,
+                code="ok",
+                demonstration=recording.demonstration,
+                ground_truth=recording.ground_truth_dict(),
+                wall_s=time.perf_counter() - started,
+            )
+        except Exception as exc:
+            reply = RecordReply(worker_id=self.worker_id, code="error", error=_short_error(exc),
+                                wall_s=time.perf_counter() - started)  # fmt: skip
+        finally:
+            with self._lock:
+                self._recording = False
+        try:
+            query.reply(self.keys.record(self.worker_id), reply.model_dump_json())
+            query.drop()
+        except Exception:
+            log.exception("record reply failed")
+
+
+def _short_error(exc: BaseException) -> str:
+    """One readable line (pydantic errors: field and reason)."""
+    from pydantic import ValidationError
+
+    if isinstance(exc, ValidationError):
+        parts = [f"{'.'.join(str(p) for p in e['loc']) or 'body'}: {e['msg']}" for e in exc.errors()[:5]]
+        return "; ".join(parts)
+    text = str(exc) or type(exc).__name__
+    return text if isinstance(exc, ValueError | TypeError) else f"{type(exc).__name__}: {text}"
+
+
+def run_worker(settings: WorkerSettings | None = None, worker_id: str | None = None) -> int:
+    """Run a worker until SIGINT/SIGTERM (see the module docstring); returns the exit code (0)."""
+    stop = threading.Event()
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
+    worker = Worker(settings, worker_id)
+    try:
+        if worker.open(stop):
+            while not stop.wait(0.5):
+                pass
+    finally:
+        worker.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+__all__ = ["Worker", "WorkerSettings", "default_worker_id", "run_worker", "world_config_for"]

@@ -1,0 +1,405 @@
+"""The Zenoh bus with REAL processes: a router and sim workers started as `contact-skills` subprocesses on
+127.0.0.1 (a free port per module), the API-side ``BusClient`` and independent Zenoh subscribers in this process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+zenoh = pytest.importorskip("zenoh")
+
+from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
+from schemas.bus import ExecutionStatus, KeyExpressions, session_config  # noqa: E402
+from schemas.demonstration import Demonstration  # noqa: E402
+from schemas.execution import ExecutionPhase, TelemetryBatch  # noqa: E402
+from services.bus import BusClient, BusRequestError, BusSettings, NoWorkerAvailable  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DT = 1e-3
+WAIT_S = 30.0
+
+README_SNIPPET = """
+import json, threading, zenoh
+
+config = zenoh.Config.from_json5(
+    '{mode: "client", connect: {endpoints: ["ENDPOINT"]}, scouting: {multicast: {enabled: false}}}')
+finished = threading.Event()
+def on_telemetry(sample):
+    b = json.loads(sample.payload.to_bytes())
+    print(f"{b['execution_id']} t={b['t'][-1]:.3f} s {b['phase'][-1]} Fz={b['wrench_cf'][-1][2]:.2f} N")
+def on_status(sample):
+    s = json.loads(sample.payload.to_bytes())
+    print("status:", s["execution_id"], s["phase"], s["message"])
+    if s["phase"] in ("done", "aborted", "failed"): finished.set()
+with zenoh.open(config) as session:
+    session.declare_subscriber("cskills/exec/*/telemetry", on_telemetry)
+    session.declare_subscriber("cskills/exec/*/status", on_status)
+    finished.wait()
+"""
+"""The README's "watch from any Python process" snippet, run as is (endpoint substituted)."""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Processes
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _spawn(args: list[str], log: Path) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    out = log.open("ab")
+    return subprocess.Popen(
+        [sys.executable, "-m", "cli.main", *args], cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT
+    )
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+
+
+def _wait_port(port: int) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"router not listening on {port}")
+
+
+def _wait(predicate, timeout: float = WAIT_S, what: str = "condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise TimeoutError(f"timed out waiting for {what}")
+
+
+class Recorder:
+    """BusClient callbacks that keep everything, per execution (thread-safe)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.statuses: dict[str, list[ExecutionStatus]] = defaultdict(list)
+        self.telemetry: dict[str, list[TelemetryBatch]] = defaultdict(list)
+        self.lost: list[tuple[str, float]] = []
+
+    def on_status(self, status: ExecutionStatus) -> None:
+        with self.lock:
+            self.statuses[status.execution_id].append(status)
+
+    def on_telemetry(self, batch: TelemetryBatch) -> None:
+        with self.lock:
+            self.telemetry[batch.execution_id].append(batch)
+
+    def on_worker_lost(self, worker_id: str) -> None:
+        with self.lock:
+            self.lost.append((worker_id, time.monotonic()))
+
+    def final(self, execution_id: str, timeout: float = WAIT_S) -> ExecutionStatus:
+        def done():
+            with self.lock:
+                finals = [s for s in self.statuses[execution_id] if s.final]
+            return finals[0] if finals else None
+
+        return _wait(done, timeout, f"the end of {execution_id}")
+
+    def samples(self, execution_id: str) -> int:
+        with self.lock:
+            return sum(len(b.t) for b in self.telemetry[execution_id])
+
+
+class Subscriber:
+    """An independent Zenoh session subscribed to one execution's telemetry (not the BusClient's)."""
+
+    def __init__(self, endpoint: str, execution_id: str, prefix: str = "cskills") -> None:
+        config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint])))
+        self.session = zenoh.open(config)
+        self.batches: list[TelemetryBatch] = []
+        self.received_unix_s: list[float] = []
+        key = KeyExpressions(prefix).telemetry(execution_id)
+        self.subscriber = self.session.declare_subscriber(key, self._on)
+
+    def _on(self, sample) -> None:
+        now = time.time()
+        self.batches.append(TelemetryBatch.model_validate_json(sample.payload.to_bytes()))
+        self.received_unix_s.append(now)
+
+    def t(self) -> np.ndarray:
+        return np.concatenate([b.t for b in self.batches]) if self.batches else np.zeros(0)
+
+    def close(self) -> None:
+        self.subscriber.undeclare()
+        self.session.close()
+
+
+@pytest.fixture(scope="module")
+def bus(tmp_path_factory):
+    """A router and two workers (w-a, w-b) as subprocesses; yields (endpoint, log directory)."""
+    logs = tmp_path_factory.mktemp("bus")
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    processes = [_spawn(["router", "--listen", endpoint], logs / "router.log")]
+    try:
+        _wait_port(port)
+        for name in ("w-a", "w-b"):
+            processes.append(_spawn(["worker", "--connect", endpoint, "--id", name], logs / f"{name}.log"))
+        yield endpoint, logs
+    finally:
+        for process in reversed(processes):
+            _stop(process)
+
+
+@pytest.fixture(scope="module")
+def client(bus):
+    endpoint, _ = bus
+    recorder = Recorder()
+    bus_client = BusClient(
+        BusSettings(endpoints=[endpoint]), recorder.on_status, recorder.on_telemetry, recorder.on_worker_lost
+    )
+    bus_client.recorder = recorder  # type: ignore[attr-defined]
+    try:
+        _wait(lambda: len(bus_client.workers()) == 2, what="two workers")
+        yield bus_client
+    finally:
+        bus_client.close()
+
+
+@pytest.fixture(scope="module")
+def recorded(client):
+    """A short slide_flat demonstration recorded BY A WORKER over the bus (and the time it took)."""
+    started = time.monotonic()
+    reply = client.record_demonstration(
+        RecordRequest(scenario="slide_flat", seed=0, overrides={"move_duration_s": 1.0})
+    )
+    return reply, time.monotonic() - started
+
+
+@pytest.fixture(scope="module")
+def skill(recorded):
+    from skills.parameterize import learn_skill
+
+    reply, _ = recorded
+    return learn_skill(reply.demonstration, LearnOptions(skill_type="slide", min_segment_duration_s=0.5))
+
+
+def _request(skill, **settings) -> ExecutionRequest:
+    return ExecutionRequest(skill=skill, **{"scenario": "slide_flat", "pace": "fast", **settings})
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Tests
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def test_workers_connect_and_are_listed(client):
+    workers = client.workers()
+    assert [w.worker_id for w in workers] == ["w-a", "w-b"]
+    assert all(w.pid > 0 and w.activity in ("idle", "recording") for w in workers), workers
+
+
+def test_record_demonstration_returns_a_valid_demonstration(client, recorded):
+    reply, wall = recorded
+    assert reply.ok, reply.error
+    demo = Demonstration.model_validate_json(reply.demonstration.model_dump_json())
+    assert demo.metadata.source == "teacher:slide_flat"
+    assert np.allclose(np.diff(demo.t), 1e-3)
+    assert reply.ground_truth["scenario"] == "slide_flat" and reply.ground_truth["target_force_n"] == 15.0
+    assert reply.worker_id in ("w-a", "w-b") and wall < 30
+    bad = client.record_demonstration(RecordRequest(scenario="no_such_scenario"))
+    assert bad.code == "error" and "unknown scenario" in bad.error
+
+
+def test_execution_streams_every_sample_and_ends_done_with_metrics(bus, client, skill, tmp_path):
+    endpoint, _ = bus
+    recorder = client.recorder
+    independent = Subscriber(endpoint, "ex-stream")
+    snippet = tmp_path / "snippet.py"
+    snippet.write_text(README_SNIPPET.replace("ENDPOINT", endpoint))
+    readme = subprocess.Popen([sys.executable, str(snippet)], stdout=subprocess.PIPE, text=True)
+    watch = _spawn(["watch", "ex-stream", "--connect", endpoint, "--timeout", "60"], tmp_path / "watch.log")
+    try:
+        time.sleep(1.0)  # the snippet's and the watch's subscriptions (both also catch up on the final status)
+        worker_id = client.start_execution("ex-stream", _request(skill))
+        final = recorder.final("ex-stream")
+        assert final.phase is ExecutionPhase.done and final.worker_id == worker_id
+        assert final.metrics is not None and final.metrics.force_rms_error_n is not None
+        steps = final.metrics.steps
+        _wait(lambda: len(independent.t()) >= steps, 10, "every sample at the independent subscriber")
+        t = independent.t()
+        assert len(t) == steps and t[0] == 0.0
+        np.testing.assert_allclose(np.diff(t), DT, atol=1e-9)  # every control step, in order, none twice
+        assert recorder.samples("ex-stream") == steps  # the BusClient got them all too
+        phases = [s.phase for s in recorder.statuses["ex-stream"]]
+        assert phases[0] is ExecutionPhase.pending
+        for phase in (ExecutionPhase.settle, ExecutionPhase.free, ExecutionPhase.approach, ExecutionPhase.contact):
+            assert phase in phases
+        seqs = [s.seq for s in recorder.statuses["ex-stream"]]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+        assert watch.wait(30) == 0
+        watched = (tmp_path / "watch.log").read_text()
+        assert "done" in watched and "force error RMS" in watched
+        out, _ = readme.communicate(timeout=30)
+        assert readme.returncode == 0 and "status: ex-stream done" in out and "Fz=" in out
+    finally:
+        independent.close()
+        for process in (readme, watch):
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+
+
+def test_abort_stops_within_one_control_step(bus, client, skill):
+    endpoint, _ = bus
+    recorder = client.recorder
+    independent = Subscriber(endpoint, "ex-abort")
+    try:
+        client.start_execution("ex-abort", _request(skill))
+        _wait(lambda: recorder.samples("ex-abort") >= 500, what="telemetry")
+        client.send_command("ex-abort", "abort")
+        final = recorder.final("ex-abort")
+        assert final.phase is ExecutionPhase.aborted and final.error == "aborted on request"
+        assert final.metrics is not None and final.metrics.phase is ExecutionPhase.aborted
+        _wait(lambda: len(independent.t()) == final.metrics.steps, 10, "the last samples")
+        last_t = independent.t()[-1]
+        assert final.abort_received_t is not None
+        assert 0.0 <= last_t - final.abort_received_t <= DT + 1e-9, (last_t, final.abort_received_t)
+        assert last_t < 5.0  # stopped long before the end (~7.5 s)
+    finally:
+        independent.close()
+
+
+def test_pause_holds_the_reference_and_resume_continues(client, skill):
+    recorder = client.recorder
+    client.start_execution("ex-pause", _request(skill))
+
+    def moving():  # in the free segment, where the reference moves every step
+        with recorder.lock:
+            return any(ExecutionPhase.free in b.phase for b in recorder.telemetry["ex-pause"])
+
+    _wait(moving, what="the free segment")
+    client.send_command("ex-pause", "pause")
+    paused = _wait(lambda: [s for s in recorder.statuses["ex-pause"] if s.paused], what="paused")[0]
+    time.sleep(0.3)
+    client.send_command("ex-pause", "resume")
+    resumed = _wait(lambda: [s for s in recorder.statuses["ex-pause"] if s.message == "resumed"], what="resumed")[0]
+
+    def last_t() -> float:
+        with recorder.lock:
+            return recorder.telemetry["ex-pause"][-1].t[-1]
+
+    _wait(lambda: last_t() > resumed.t + 0.3, what="running on after resume")
+    client.send_command("ex-pause", "abort")
+    final = recorder.final("ex-pause")
+    assert final.phase is ExecutionPhase.aborted
+    with recorder.lock:
+        batches = list(recorder.telemetry["ex-pause"])
+    t = np.concatenate([b.t for b in batches])
+    ref = np.concatenate([b.reference_position for b in batches])
+    held = (t > paused.t + 0.06) & (t < resumed.t - 0.01)  # status times are batch ends: keep a margin
+    assert held.sum() > 100  # the loop kept running while paused
+    assert np.ptp(ref[held], axis=0).max() < 1e-12  # ... holding one reference
+    after = t > resumed.t + 0.06
+    assert after.any() and np.ptp(ref[after], axis=0).max() > 1e-5  # and it moves again
+
+
+def test_two_workers_run_two_executions_at_once(client, skill):
+    recorder = client.recorder
+    first = client.start_execution("ex-two-1", _request(skill))
+    second = client.start_execution("ex-two-2", _request(skill))
+    assert {first, second} == {"w-a", "w-b"}
+    busy = client.workers()
+    assert all(w.busy for w in busy) and {w.execution_id for w in busy} == {"ex-two-1", "ex-two-2"}
+    with pytest.raises(NoWorkerAvailable, match=r"2 worker\(s\) connected, none free"):
+        client.start_execution("ex-two-3", _request(skill))
+    _wait(lambda: recorder.samples("ex-two-1") > 200 and recorder.samples("ex-two-2") > 200, what="both streaming")
+    for execution_id in ("ex-two-1", "ex-two-2"):
+        client.send_command(execution_id, "abort")
+    for execution_id in ("ex-two-1", "ex-two-2"):
+        assert recorder.final(execution_id).phase is ExecutionPhase.aborted
+    _wait(lambda: not any(w.busy for w in client.workers()), 10, "both workers free again")
+
+
+def test_bad_requests_are_refused(client, skill):
+    with pytest.raises(BusRequestError, match="unknown scenario"):
+        client.start_execution("ex-bad", _request(skill, scenario="no_such_world"))
+    with pytest.raises(ValueError, match="inline"):
+        client.start_execution("ex-bad", ExecutionRequest(skill_id="sk_1"))
+    with pytest.raises(ValueError, match="key-expression chunk"):
+        client.start_execution("ex/bad", _request(skill))
+
+
+def _isolated_worker(bus, name: str):
+    """A worker under its own prefix, with its own BusClient (so the shared workers are not involved)."""
+    endpoint, logs = bus
+    prefix = f"iso-{name}"
+    process = _spawn(["worker", "--connect", endpoint, "--id", name, "--prefix", prefix], logs / f"{name}.log")
+    recorder = Recorder()
+    bus_client = BusClient(
+        BusSettings(endpoints=[endpoint], prefix=prefix),
+        recorder.on_status,
+        recorder.on_telemetry,
+        recorder.on_worker_lost,
+    )
+    _wait(lambda: bus_client.workers(), what=f"worker {name}")
+    return process, bus_client, recorder
+
+
+def test_sigkill_of_a_worker_mid_execution_is_reported_within_2s(bus, skill):
+    process, bus_client, recorder = _isolated_worker(bus, "w-kill")
+    try:
+        bus_client.start_execution("ex-kill", _request(skill, pace="realtime"))
+        _wait(lambda: recorder.samples("ex-kill") >= 100, what="telemetry")
+        killed = time.monotonic()
+        os.kill(process.pid, signal.SIGKILL)
+        worker_id, seen = _wait(lambda: recorder.lost, 5.0, "on_worker_lost")[0]
+        assert worker_id == "w-kill" and seen - killed < 2.0
+        final = recorder.final("ex-kill", 1.0)  # the client failed the orphaned execution
+        assert final.phase is ExecutionPhase.failed and "w-kill lost" in final.error
+        with pytest.raises(NoWorkerAvailable, match="no worker connected"):
+            bus_client.start_execution("ex-kill-2", _request(skill))
+    finally:
+        bus_client.close()
+        _stop(process)
+
+
+def test_sigterm_aborts_the_execution_and_exits_0(bus, skill):
+    process, bus_client, recorder = _isolated_worker(bus, "w-term")
+    try:
+        bus_client.start_execution("ex-term", _request(skill, pace="realtime"))
+        _wait(lambda: recorder.samples("ex-term") >= 100, what="telemetry")
+        process.send_signal(signal.SIGTERM)
+        log = bus[1] / "w-term.log"
+        assert process.wait(15) == 0, log.read_text()
+        final = recorder.final("ex-term", 5.0)
+        assert final.phase is ExecutionPhase.aborted and final.error == "worker shutting down", (final, log.read_text())
+        assert final.metrics is not None
+        _wait(lambda: recorder.lost, 5.0, "the worker's token to go")
+    finally:
+        bus_client.close()
+        _stop(process)

@@ -1,0 +1,104 @@
+"""docker-compose.yml and the Dockerfile agree with the code (no Docker engine needed): services, commands,
+environment variables, ports, the installed entry point."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+yaml = pytest.importorskip("yaml")
+
+from cli.main import build_parser  # noqa: E402
+from schemas import bus as bus_contract  # noqa: E402
+from services.settings import DEFAULT_PORT, ENV_VARS  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+DOCKERFILE = (REPO / "Dockerfile").read_text()
+PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
+KNOWN_ENV = set(ENV_VARS.values()) | {bus_contract.ENV_ENDPOINTS, bus_contract.ENV_PREFIX, bus_contract.ENV_LISTEN}
+
+
+def _command(service: dict) -> list[str]:
+    command = service.get("command", [])
+    return command.split() if isinstance(command, str) else list(command)
+
+
+def _dockerfile_json(instruction: str) -> list[str]:
+    import json
+
+    match = re.search(rf"^{instruction}\s+(\[.*\])\s*$", DOCKERFILE, re.MULTILINE)
+    assert match, f"Dockerfile has no exec-form {instruction}"
+    return json.loads(match[1])
+
+
+def test_services_exist_and_use_the_right_images():
+    services = COMPOSE["services"]
+    assert {"router", "api", "worker"} <= set(services)
+    assert services["router"]["image"].startswith("eclipse/zenoh")
+    assert "build" in services["api"]
+    assert services["worker"]["image"] == services["api"]["image"]  # same built image
+    assert "build" not in services["worker"] or services["worker"]["build"] == services["api"]["build"]
+
+
+def test_commands_are_real_subcommands():
+    entrypoint = _dockerfile_json("ENTRYPOINT")
+    assert entrypoint == ["contact-skills"]
+    assert "contact-skills" in PYPROJECT["project"]["scripts"]
+    parser = build_parser()
+    for name in ("api", "worker"):
+        argv = _command(COMPOSE["services"][name])
+        args = parser.parse_args(argv)  # exits (SystemExit) on an unknown subcommand or flag
+        assert args.command == name
+    parser.parse_args(_dockerfile_json("CMD"))
+
+
+def test_environment_variables_are_read_by_the_settings():
+    for name in ("api", "worker"):
+        env = COMPOSE["services"][name].get("environment", {})
+        names = set(env) if isinstance(env, dict) else {item.split("=", 1)[0] for item in env}
+        assert names <= KNOWN_ENV, names - KNOWN_ENV
+        assert names, f"{name} sets no environment"
+    api_env = COMPOSE["services"]["api"]["environment"]
+    assert api_env["CONTACT_SKILLS_HOST"] == "0.0.0.0"  # inside the container only
+    assert api_env[bus_contract.ENV_ENDPOINTS] == "tcp/router:7447"
+    assert COMPOSE["services"]["worker"]["environment"][bus_contract.ENV_ENDPOINTS] == "tcp/router:7447"
+    for var in re.findall(r"^ENV\s+(\w+)=", DOCKERFILE, re.MULTILINE):
+        assert var in KNOWN_ENV or not var.startswith("CONTACT_SKILLS_"), var
+
+
+def test_ports_match_the_defaults():
+    api_ports = COMPOSE["services"]["api"]["ports"]
+    assert any(p.endswith(f":{DEFAULT_PORT}") and p.startswith("127.0.0.1:") for p in api_ports)
+    assert str(DEFAULT_PORT) in COMPOSE["services"]["api"]["environment"]["CONTACT_SKILLS_PORT"]
+    router_port = bus_contract.DEFAULT_ENDPOINT.rsplit(":", 1)[1]
+    assert router_port == "7447"
+    assert any(p.endswith(f":{router_port}") for p in COMPOSE["services"]["router"]["ports"])
+    assert f"tcp/0.0.0.0:{router_port}" in _command(COMPOSE["services"]["router"])
+    assert re.search(rf"^EXPOSE\s+{DEFAULT_PORT}\b", DOCKERFILE, re.MULTILINE)
+
+
+def test_database_is_on_a_named_volume():
+    volumes = COMPOSE["services"]["api"]["volumes"]
+    mounted = {v.split(":", 1)[0]: v.split(":", 1)[1] for v in volumes}
+    named = [name for name in mounted if name in (COMPOSE.get("volumes") or {})]
+    assert named, "the API's database needs a named volume"
+    db = COMPOSE["services"]["api"]["environment"]["CONTACT_SKILLS_DB"]
+    assert db.startswith(mounted[named[0]].rstrip("/") + "/")
+
+
+def test_the_dockerfile_installs_the_project():
+    name = PYPROJECT["project"]["name"]
+    built = re.search(r"pip (?:wheel|install)\b[^\n]*\"\.\[service\]\"", DOCKERFILE)
+    installed = re.search(rf"pip install\b[^\n]*(\"{name}\[service\]\"|\"\.\[service\]\")", DOCKERFILE)
+    assert built and installed, "the Dockerfile must build and install the project with its service extra"
+    assert "contact-skills --help" in DOCKERFILE  # the entry point runs in the image
+    copied = set(re.findall(r"^COPY\s+(\S+)", DOCKERFILE, re.MULTILINE))
+    packages = PYPROJECT["tool"]["setuptools"]["packages"]["find"]["include"]
+    for package in packages:
+        name = package.rstrip("*")
+        assert f"{name}/" in copied, f"Dockerfile does not copy {name}/"
+    assert "pyproject.toml" in " ".join(copied)

@@ -1,0 +1,248 @@
+"""The service with REAL processes: `contact-skills up --workers 2` (embedded Zenoh router, the API, two sim
+workers) on free loopback ports with a temporary SQLite database.
+
+record -> learn -> execute, telemetry seen by an independent Zenoh subscriber, metrics stored and served; two
+executions at once on two workers; a worker killed mid-execution; the API killed (-9) and restarted by `up` with
+every stored object kept; `up` stopped by SIGTERM with every child gone and exit code 0.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import pytest
+
+zenoh = pytest.importorskip("zenoh")
+
+from schemas.bus import session_config  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
+FINAL = ("done", "aborted", "failed")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str, every_s: float = 0.2):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            value = predicate()
+        except httpx.HTTPError:
+            value = None
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(every_s)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie child of `up` that was not reaped yet counts as gone
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+class Stack:
+    def __init__(self, tmp: Path) -> None:
+        self.port, self.zenoh_port = _free_port(), _free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
+        self.log_path = tmp / "up.log"
+        self.log = self.log_path.open("w")
+        env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+        env.pop("CONTACT_SKILLS_TOKEN", None)
+        argv = ["up", "--workers", "2", "--port", str(self.port), "--zenoh-port", str(self.zenoh_port),
+                "--db", str(tmp / "service.db")]  # fmt: skip
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "cli.main", *argv], cwd=tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT
+        )
+        self.http = httpx.Client(base_url=self.url, timeout=60)
+
+    def health(self) -> dict | None:
+        if self.process.poll() is not None:
+            raise AssertionError(f"`up` exited ({self.process.returncode}):\n{self.log_path.read_text()[-4000:]}")
+        try:
+            return self.http.get("/health", timeout=5).json()
+        except httpx.HTTPError:
+            return None
+
+    def workers(self, n: int = 2, timeout_s: float = 90) -> list[dict]:
+        def ready():
+            health = self.health()
+            return health["workers"] if health and len(health["workers"]) >= n else None
+
+        return _wait_for(ready, timeout_s, f"{n} workers")
+
+    def post(self, path: str, body: dict, expect: int) -> dict:
+        response = self.http.post(path, json=body)
+        assert response.status_code == expect, response.text
+        return response.json()
+
+    def execution(self, execution_id: str) -> dict:
+        response = self.http.get(f"/executions/{execution_id}")
+        assert response.status_code == 200, response.text
+        return response.json()
+
+    def finished(self, execution_id: str, timeout_s: float = 60) -> dict:
+        return _wait_for(
+            lambda: (lambda v: v if v["status"] in FINAL else None)(self.execution(execution_id)),
+            timeout_s,
+            f"execution {execution_id} to finish",
+        )
+
+    def stop(self) -> int:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(40)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.http.close()
+        self.log.close()
+        return self.process.returncode
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    stack = Stack(tmp_path_factory.mktemp("service"))
+    try:
+        stack.workers(2)
+        yield stack
+    finally:
+        stack.stop()
+
+
+@pytest.fixture(scope="module")
+def skill_id(stack) -> str:
+    demo = stack.post("/demonstrations/record", RECORD, 201)
+    assert demo["source"] == "teacher:slide_flat" and demo["extra"]["ground_truth"]["scenario"] == "slide_flat"
+    skill = stack.post("/skills", {"demonstration_id": demo["id"], "skill_type": "auto"}, 201)
+    assert skill["skill"]["skill_type"] == "slide"
+    return skill["id"]
+
+
+def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
+    received: dict[str, int] = {}
+    statuses: list[str] = []
+    lock = threading.Lock()
+
+    def on_telemetry(sample) -> None:
+        batch = json.loads(sample.payload.to_bytes())
+        with lock:
+            received[batch["execution_id"]] = received.get(batch["execution_id"], 0) + len(batch["t"])
+
+    def on_status(sample) -> None:
+        with lock:
+            statuses.append(json.loads(sample.payload.to_bytes())["phase"])
+
+    config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=[stack.endpoint])))
+    session = zenoh.open(config)
+    try:
+        subscribers = [
+            session.declare_subscriber("cskills/exec/*/telemetry", on_telemetry),
+            session.declare_subscriber("cskills/exec/*/status", on_status),
+        ]
+        time.sleep(0.5)  # the subscriptions reach the router
+        body = {"skill_id": skill_id, "environment": {"unknown_offset": [0.0, 0.0, 0.01]}, "pace": "fast"}
+        created = stack.post("/executions", body, 202)
+        assert created["telemetry_key"] == f"cskills/exec/{created['id']}/telemetry"
+        view = stack.finished(created["id"])
+        time.sleep(0.5)  # the last batches reach the subscriber
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    finally:
+        session.close()
+
+    assert view["status"] == "done", view
+    metrics = view["metrics"]
+    assert metrics["phase"] == "done" and metrics["contact_ratio"] > 0.9 and metrics["force_rms_error_n"] < 5
+    assert metrics["path_rms_m"] is not None  # the stored demonstration was sent along
+    assert received[created["id"]] == metrics["steps"] == view["telemetry_samples"]
+    assert statuses[-1] == "done" and "contact" in statuses
+    telemetry = stack.http.get(f"/executions/{created['id']}/telemetry", params={"every": 10}).json()
+    assert telemetry["stored_samples"] == metrics["steps"] and telemetry["n_samples"] == -(-metrics["steps"] // 10)
+    assert "contact" in telemetry["phase"] and len(telemetry["wrench_cf"][0]) == 6
+
+
+def test_two_executions_run_at_once_on_two_workers(stack, skill_id):
+    stack.workers(2)
+    first = stack.post("/executions", {"skill_id": skill_id}, 202)
+    second = stack.post("/executions", {"skill_id": skill_id}, 202)
+    assert first["worker_id"] != second["worker_id"]
+    views = [stack.finished(first["id"]), stack.finished(second["id"])]
+    assert [v["status"] for v in views] == ["done", "done"]
+    assert views[0]["updated"] > views[1]["created"]  # they overlapped in time
+    third = stack.http.get("/executions").json()
+    assert {first["id"], second["id"]} <= {v["id"] for v in third}
+
+
+def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack, skill_id):
+    workers = {w["worker_id"]: w["pid"] for w in stack.workers(2)}
+    created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
+    _wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
+    os.kill(workers[created["worker_id"]], signal.SIGKILL)
+    view = stack.finished(created["id"], timeout_s=20)
+    assert view["status"] == "failed" and created["worker_id"] in view["error"] and "lost" in view["error"]
+    health = stack.health()
+    assert health is not None and health["status"] == "ok"
+    assert created["worker_id"] not in {w["worker_id"] for w in health["workers"]}
+    assert stack.http.get(f"/skills/{skill_id}").status_code == 200
+    restarted = stack.workers(2)  # `up` restarts the dead worker
+    assert created["worker_id"] not in {w["worker_id"] for w in restarted}
+
+
+def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
+    stack.workers(2)
+    before = {path: stack.http.get(path).json() for path in ("/demonstrations", "/skills", "/executions?limit=1000")}
+    running = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
+    _wait_for(lambda: stack.execution(running["id"])["telemetry_samples"] > 200, 30, "the execution to run")
+    api_pid = stack.health()["pid"]
+    os.kill(api_pid, signal.SIGKILL)  # `up` restarts it on the same database
+    _wait_for(lambda: (h := stack.health()) and h["pid"] != api_pid, 60, "the API to restart")
+
+    after = {path: stack.http.get(path).json() for path in before}
+    assert after["/demonstrations"] == before["/demonstrations"]
+    assert after["/skills"] == before["/skills"]
+    old_executions = {v["id"]: v for v in before["/executions?limit=1000"]}
+    new_executions = {v["id"]: v for v in after["/executions?limit=1000"]}
+    assert set(old_executions) | {running["id"]} == set(new_executions)
+    for execution_id, view in old_executions.items():
+        kept = new_executions[execution_id]
+        assert (kept["status"], kept["metrics"], kept["telemetry_samples"]) == (
+            view["status"], view["metrics"], view["telemetry_samples"]
+        )  # fmt: skip
+    for demo in before["/demonstrations"]:
+        assert stack.http.get(f"/demonstrations/{demo['id']}").status_code == 200
+    # The execution outlived the API: its worker still reports it, so it was kept, and its final status arrived.
+    view = stack.finished(running["id"], timeout_s=60)
+    assert view["status"] == "done" and view["metrics"]["steps"] > 0, view
+
+
+def test_up_stops_cleanly_on_sigterm(stack):
+    health = stack.health()
+    pids = [health["pid"], *(w["pid"] for w in health["workers"])]
+    assert stack.stop() == 0, stack.log_path.read_text()[-3000:]
+    _wait_for(lambda: not any(_alive(pid) for pid in pids), 10, "every child to exit")
+    log = stack.log_path.read_text()
+    assert "stopped (exit 0)" in log and "api | " in log and "worker-1 | " in log
