@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from cli import bus_commands, service_commands
+from cli import bus_commands, demo_command, service_commands
 
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
@@ -266,7 +266,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
         import json
 
         from schemas import Demonstration, ExecutionSettings, Skill
-        from sim_worker.executor import execute_skill, scenario_of_skill, scenario_world_config
+        from sim_worker.executor import execute_skill, scenario_of_skill
+        from sim_worker.teacher import scenario_world_config
         from sim_worker.world import WorldConfig
 
         skill = Skill.model_validate_json(args.skill.read_text())
@@ -382,6 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate_parser(commands)
     bus_commands.register(commands)
     service_commands.register(commands)
+    demo_command.register(commands)
     return parser
 
 

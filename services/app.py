@@ -24,6 +24,7 @@ import logging
 import os
 import re
 import secrets
+import threading
 import time
 from collections.abc import Callable
 from contextlib import asynccontextmanager
@@ -218,17 +219,40 @@ def _guarded(fn: Callable[..., None]) -> Callable[..., None]:
     return call
 
 
+FINAL_TELEMETRY_GRACE_S = 2.0
+"""How long a final status waits for the last telemetry batches (another Zenoh key, no order between them), s."""
+
+
 class BusEvents:
-    """The callbacks given to the `BusClient`: status, telemetry and lost workers go into the store."""
+    """The callbacks given to the `BusClient`: status, telemetry and lost workers go into the store.
+
+    Status and telemetry travel on different keys, so the final status can overtake the last
+    telemetry batches. A final status is therefore stored once the telemetry it counts
+    (``metrics.steps``) is stored, or after :data:`FINAL_TELEMETRY_GRACE_S`: a client that sees
+    ``done`` can read the whole stream.
+    """
 
     def __init__(self, store: Store) -> None:
         self.store = store
         self.on_status = _guarded(self._status)
         self.on_telemetry = _guarded(self._telemetry)
         self.on_worker_lost = _guarded(self._worker_lost)
+        self._held: dict[str, ExecutionStatus] = {}
+        self._lock = threading.Lock()
 
     def _status(self, status: ExecutionStatus) -> None:
         state = FINAL_STATES.get(status.phase, ExecutionState.running)
+        if state is not ExecutionState.running and not self._telemetry_complete(status):
+            with self._lock:
+                self._held[status.execution_id] = status
+            self.store.update_execution(status.execution_id, phase=status.phase, worker_id=status.worker_id)
+            timer = threading.Timer(FINAL_TELEMETRY_GRACE_S, self._release, args=(status.execution_id,))
+            timer.daemon = True
+            timer.start()
+            return
+        self._store_status(status, state)
+
+    def _store_status(self, status: ExecutionStatus, state: ExecutionState) -> None:
         error = status.error
         if error is None and status.metrics is not None and status.metrics.abort_reason:
             error = status.metrics.abort_reason
@@ -241,9 +265,24 @@ class BusEvents:
             error=error,
         )
 
+    def _telemetry_complete(self, status: ExecutionStatus) -> bool:
+        if status.metrics is None:
+            return True
+        return self.store.telemetry_counts(status.execution_id)[1] >= status.metrics.steps
+
+    def _release(self, execution_id: str) -> None:
+        with self._lock:
+            status = self._held.pop(execution_id, None)
+        if status is not None:
+            self._store_status(status, FINAL_STATES[status.phase])
+
     def _telemetry(self, batch: TelemetryBatch) -> None:
         if batch.execution_id and len(batch.t):
             self.store.add_telemetry(batch.execution_id, batch)
+            with self._lock:
+                held = self._held.get(batch.execution_id)
+            if held is not None and self._telemetry_complete(held):
+                self._release(batch.execution_id)
 
     def _worker_lost(self, worker_id: str) -> None:
         marked = self.store.fail_active(f"worker {worker_id} was lost while running (process gone)", worker_id)

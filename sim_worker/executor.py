@@ -54,6 +54,7 @@ from schemas.execution import (
     TelemetrySample,
 )
 from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
+from sim_worker.teacher import scenario_of_name
 from sim_worker.world import SimWorld, WorldConfig
 from skills.control import ControlFrame, ControlFrameSeries, HybridController
 from skills.dmp import DMP, QuaternionDMP
@@ -254,21 +255,9 @@ def shifted_world_config(config: WorldConfig, offset: list[float] | NDArray[np.f
     return config.replace(table_center_xy=(cx + d[0], cy + d[1]), table_height_m=config.table_height_m + d[2])
 
 
-def scenario_world_config(scenario: str) -> WorldConfig:
-    """The ``WorldConfig`` a teacher scenario (``sim_worker.teacher.SCENARIOS``) records in, without recording."""
-    from sim_worker import teacher
-
-    if scenario not in teacher.SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(teacher.SCENARIOS)}")
-    return WorldConfig().replace(**teacher._SCENARIOS[scenario].world)
-
-
 def scenario_of_skill(skill: Skill) -> str | None:
-    """The teacher scenario a skill was learned in, read from its demonstration's name (``"<scenario> (seed N)"``)."""
-    from sim_worker import teacher
-
-    name = skill.demonstration.name.split(" ", 1)[0] if skill.demonstration.name else ""
-    return name if name in teacher.SCENARIOS else None
+    """The teacher scenario a skill was learned in, read from its demonstration's name, or None."""
+    return scenario_of_name(skill.demonstration.name)
 
 
 @dataclass

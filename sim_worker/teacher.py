@@ -283,6 +283,22 @@ _SCENARIOS: dict[str, _Scenario] = {
 assert set(_SCENARIOS) == set(SCENARIOS)
 
 
+def scenario_world_config(scenario: str) -> WorldConfig:
+    """Return the ``WorldConfig`` a scenario records in (the taught world), without recording.
+
+    Raises ValueError naming the known scenarios for an unknown name.
+    """
+    if scenario not in _SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(_SCENARIOS)}")
+    return WorldConfig().replace(**_SCENARIOS[scenario].world)
+
+
+def scenario_of_name(name: str) -> str | None:
+    """Return the scenario a teacher demonstration's name starts with (``"slide_flat (seed 0)"``), or None."""
+    head = name.strip().split(" ", 1)[0] if name else ""
+    return head if head in _SCENARIOS else None
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Human-like signals.
 # ---------------------------------------------------------------------------------------------------------------

@@ -107,30 +107,18 @@ def default_worker_id() -> str:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def scenario_of(skill: Skill) -> str | None:
-    """The teacher scenario named by the skill's demonstration (``"slide_flat (seed 0)"`` -> ``slide_flat``)."""
-    from sim_worker.teacher import SCENARIOS
-
-    name = (skill.demonstration.name or "").strip()
-    head = name.split(" ", 1)[0] if name else ""
-    return head if head in SCENARIOS else None
-
-
 def world_config_for(scenario: str | None, skill: Skill, overrides: dict[str, Any] | None = None):
     """The ``WorldConfig`` to execute in: the scenario's world (taught world) plus ``overrides``.
 
     ``scenario`` None: the one named by the skill's demonstration, else the default world (flat table).
     Raises ValueError for an unknown scenario or override.
     """
-    from sim_worker.teacher import _SCENARIOS, SCENARIOS
+    from sim_worker.executor import scenario_of_skill
+    from sim_worker.teacher import scenario_world_config
     from sim_worker.world import WorldConfig
 
-    name = scenario or scenario_of(skill)
-    config = WorldConfig()
-    if name is not None:
-        if name not in SCENARIOS:
-            raise ValueError(f"unknown scenario {name!r}; known: {sorted(SCENARIOS)}")
-        config = config.replace(**_SCENARIOS[name].world)
+    name = scenario or scenario_of_skill(skill)
+    config = WorldConfig() if name is None else scenario_world_config(name)
     if overrides:
         try:
             config = config.replace(**overrides)
