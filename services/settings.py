@@ -7,7 +7,7 @@
 | db_path | ``CONTACT_SKILLS_DB`` | ``./contact_skills.db`` |
 | token | ``CONTACT_SKILLS_TOKEN`` | none: POST/DELETE are open; set it to require ``Authorization: Bearer <token>`` |
 | max_body_mb | ``CONTACT_SKILLS_MAX_BODY_MB`` | ``64`` (MiB; a larger request body gets 413) |
-| workers | ``CONTACT_SKILLS_WORKERS`` | ``2`` (sim worker processes started by ``contact-skills up``) |
+| workers | ``CONTACT_SKILLS_WORKERS`` | ``1`` (sim worker processes started by ``contact-skills up``) |
 | zenoh_endpoints | ``CONTACT_SKILLS_ZENOH_ENDPOINTS`` | ``tcp/127.0.0.1:7447`` (comma separated) |
 | zenoh_prefix | ``CONTACT_SKILLS_ZENOH_PREFIX`` | ``cskills`` |
 | connect_timeout_s | ``CONTACT_SKILLS_CONNECT_TIMEOUT_S`` | ``30`` (s the API waits for the router) |
@@ -25,7 +25,7 @@ DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8000
 DEFAULT_DB = "contact_skills.db"
 DEFAULT_MAX_BODY_MB = 64.0
-DEFAULT_WORKERS = 2
+DEFAULT_WORKERS = 1
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_ZENOH_PREFIX = "cskills"
 
