@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from skills.dmp import DMP, QuaternionDMP  # noqa: E402
 from skills.quaternions import quaternion_angle_between, quaternions_from_wxyz  # noqa: E402
+from skills.synthetic import minimum_jerk, reach_pose_trajectory  # noqa: E402
 
 N_SAMPLES = 2000
 DURATION_S = 4.0
@@ -51,29 +52,16 @@ COMMAND = ".venv/bin/python benchmarks/bench_dmp_peer.py"
 # --------------------------------------------------------------------------- trajectories
 
 
-def _minimum_jerk(s: np.ndarray) -> np.ndarray:
-    return 10 * s**3 - 15 * s**4 + 6 * s**5
-
-
 def trajectory_reach() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A reach: 36 cm with a lateral wiggle and a 8 cm lift, rotating ~45 deg. Positions m, quaternions [x,y,z,w]."""
-    t = np.linspace(0.0, DURATION_S, N_SAMPLES)
-    s = t / DURATION_S
-    mj = _minimum_jerk(s)
-    bump = 16 * (s * (1 - s)) ** 2
-    position = np.stack(
-        [0.4 + 0.3 * mj, -0.1 + 0.2 * mj + 0.05 * np.sin(2 * np.pi * s) * bump, 0.3 + 0.08 * bump], axis=1
-    )
-    rotvec = np.stack([0.6 * mj, -0.4 * mj + 0.3 * bump * np.sin(3 * np.pi * s), 0.5 * bump], axis=1)
-    q = (Rotation.from_rotvec(rotvec) * Rotation.from_euler("xyz", [0.3, -0.2, 1.0])).as_quat()
-    return t, position, q
+    """The reach of :func:`skills.synthetic.reach_pose_trajectory` at this module's size."""
+    return reach_pose_trajectory(N_SAMPLES, DURATION_S)
 
 
 def trajectory_wipe() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A wipe: 4 strokes of +-6 cm across a 20 cm advance on a plane, the tool tilting +-15 deg with the strokes."""
     t = np.linspace(0.0, DURATION_S, N_SAMPLES)
     s = t / DURATION_S
-    mj = _minimum_jerk(s)
+    mj = minimum_jerk(s)
     envelope = np.sin(np.pi * s) ** 2
     stroke = np.sin(8 * np.pi * mj) * envelope
     position = np.stack([0.5 + 0.2 * mj, 0.06 * stroke, 0.1 + 0.002 * envelope], axis=1)

@@ -47,8 +47,8 @@ class SyntheticDemo:
     phase_change_s: list[float] = field(default_factory=list)
 
 
-def _smooth_step(u: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return the C2 smooth step 6u^5 - 15u^4 + 10u^3 of ``u`` clipped to [0, 1]."""
+def minimum_jerk(u: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return the minimum-jerk profile 10u^3 - 15u^4 + 6u^5 (a C2 smooth step) of ``u`` clipped to [0, 1]."""
     u = np.clip(u, 0.0, 1.0)
     return u**3 * (10.0 - 15.0 * u + 6.0 * u**2)
 
@@ -133,7 +133,7 @@ def _contact_magnitude(
     t: NDArray[np.float64], t_on: float, t_off: float, target: float, ramp_s: float, rng: np.random.Generator
 ) -> NDArray[np.float64]:
     """Return the normal-force magnitude: ramps at contact on/off, wandering target in between, 0 when free."""
-    ramp = _smooth_step((t - t_on) / ramp_s) * _smooth_step((t_off - t) / ramp_s)
+    ramp = minimum_jerk((t - t_on) / ramp_s) * minimum_jerk((t_off - t) / ramp_s)
     wander = _zero_mean_wander(t, t_on, t_off, rng)
     return np.where((t >= t_on) & (t <= t_off), target * (1.0 + wander) * ramp, 0.0)
 
@@ -164,11 +164,11 @@ def plane_slide(
     origin = np.array([0.5, 0.0, 0.2])
 
     # In-plane S-curve with varying speed: s(t) runs 0..1 over the contact, faster in the middle.
-    s = _smooth_step((t - t_on) / (t_off - t_on))
+    s = minimum_jerk((t - t_on) / (t_off - t_on))
     s = s + 0.03 * np.sin(2 * np.pi * np.clip((t - t_on) / (t_off - t_on), 0, 1))
     u = 0.25 * (s - 0.5)
     v = 0.05 * np.sin(2 * np.pi * s)
-    lift = 0.06 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
+    lift = 0.06 * (minimum_jerk((t_on - t) / (0.8 * t_on)) + minimum_jerk((t - t_off) / (0.8 * t_on)))
     path = origin + u[:, None] * u_axis + v[:, None] * v_axis - lift[:, None] * n
     magnitude = _contact_magnitude(t, t_on, t_off, target_force_n, 0.15, rng)
     normals = np.broadcast_to(n, path.shape)
@@ -197,7 +197,7 @@ def two_plane_slide(
     direction2 = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
     crease = np.array([0.5, 0.0, 0.2])
 
-    s = _smooth_step((t - t_on) / (t_off - t_on))
+    s = minimum_jerk((t - t_on) / (t_off - t_on))
     arc = 0.36 * (s - 0.5)  # arc length along the surface from the crease, m
     lateral = 0.03 * np.sin(2 * np.pi * s)
     on_first = arc < 0
@@ -208,7 +208,7 @@ def two_plane_slide(
     )
     path[:, 1] += lateral
     normals = np.where(on_first[:, None], n1, n2)
-    lift = 0.06 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
+    lift = 0.06 * (minimum_jerk((t_on - t) / (0.8 * t_on)) + minimum_jerk((t - t_off) / (0.8 * t_on)))
     path -= lift[:, None] * normals
     magnitude = _contact_magnitude(t, t_on, t_off, target_force_n, 0.15, rng)
     positions, orientations, wrenches, force_dirs = _finish(t, path, normals, magnitude, rng, 3e-4, 0.3)
@@ -243,7 +243,7 @@ def cylinder_contour(
     s = u_lin + 0.1 / (2 * np.pi) * np.sin(2 * np.pi * u_lin)
     angle = np.deg2rad(arc_deg) * (s - 0.5)  # from the top, positive towards +x
     outward = np.stack([np.sin(angle), np.zeros_like(angle), np.cos(angle)], axis=1)
-    lift = 0.04 * (_smooth_step((t_on - t) / (0.8 * t_on)) + _smooth_step((t - t_off) / (0.8 * t_on)))
+    lift = 0.04 * (minimum_jerk((t_on - t) / (0.8 * t_on)) + minimum_jerk((t - t_off) / (0.8 * t_on)))
     path = centre + (radius_m + lift)[:, None] * outward
     path[:, 1] += 0.01 * np.sin(np.pi * np.clip(s, 0, 1))
     u = np.clip((t - t_on) / (t_off - t_on), 0, 1)
@@ -251,3 +251,23 @@ def cylinder_contour(
     magnitude = _contact_magnitude(t, t_on, t_off, 1.0, 0.15, rng) * profile
     positions, orientations, wrenches, force_dirs = _finish(t, path, -outward, magnitude, rng, 3e-4, 0.3)
     return SyntheticDemo(t, positions, orientations, wrenches, [], peak_force_n, t_on, t_off, force_dirs, magnitude)
+
+
+def reach_pose_trajectory(n_samples: int = 2000, duration_s: float = 4.0) -> tuple[NDArray, NDArray, NDArray]:
+    """Return a smooth free-space reach (t (N,) s, positions (N, 3) m, quaternions (N, 4) [x, y, z, w]).
+
+    36 cm with a lateral wiggle and an 8 cm lift, rotating ~45 deg, starting and ending at rest
+    (minimum jerk): the DMP reproduction benchmark and tests use it.
+    """
+    from scipy.spatial.transform import Rotation
+
+    t = np.linspace(0.0, duration_s, n_samples)
+    s = t / duration_s
+    mj = minimum_jerk(s)
+    bump = 16 * (s * (1 - s)) ** 2
+    position = np.stack(
+        [0.4 + 0.3 * mj, -0.1 + 0.2 * mj + 0.05 * np.sin(2 * np.pi * s) * bump, 0.3 + 0.08 * bump], axis=1
+    )
+    rotvec = np.stack([0.6 * mj, -0.4 * mj + 0.3 * bump * np.sin(3 * np.pi * s), 0.5 * bump], axis=1)
+    q = (Rotation.from_rotvec(rotvec) * Rotation.from_euler("xyz", [0.3, -0.2, 1.0])).as_quat()
+    return t, position, q

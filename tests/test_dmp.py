@@ -14,27 +14,15 @@ from skills.quaternions import (
     quaternion_product,
     quaternions_slerp,
 )
+from skills.synthetic import minimum_jerk, reach_pose_trajectory
 
 N_SAMPLES = 2000
 DURATION_S = 4.0
 
 
-def _minimum_jerk(s: np.ndarray) -> np.ndarray:
-    return 10 * s**3 - 15 * s**4 + 6 * s**5
-
-
 def _pose_trajectory() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A smooth 4 s pose at 500 Hz that starts and ends at rest: positions (m), quaternions rotating ~45 deg."""
-    t = np.linspace(0.0, DURATION_S, N_SAMPLES)
-    s = t / DURATION_S
-    mj = _minimum_jerk(s)
-    bump = 16 * (s * (1 - s)) ** 2
-    position = np.stack(
-        [0.4 + 0.3 * mj, -0.1 + 0.2 * mj + 0.05 * np.sin(2 * np.pi * s) * bump, 0.3 + 0.08 * bump], axis=1
-    )
-    rotvec = np.stack([0.6 * mj, -0.4 * mj + 0.3 * bump * np.sin(3 * np.pi * s), 0.5 * bump], axis=1)
-    q = (Rotation.from_rotvec(rotvec) * Rotation.from_euler("xyz", [0.3, -0.2, 1.0])).as_quat()
-    return t, position, q
+    """The reach of :func:`skills.synthetic.reach_pose_trajectory` at this module's size."""
+    return reach_pose_trajectory(N_SAMPLES, DURATION_S)
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +161,7 @@ def test_quaternion_sign_flips_give_identical_result(demo, orientation_dmp):
 
 def test_closed_loop_start_equals_goal_is_reproduced_and_goal_change_does_not_blow_up():
     t = np.linspace(0.0, DURATION_S, N_SAMPLES)
-    phase = 2 * np.pi * _minimum_jerk(t / DURATION_S)
+    phase = 2 * np.pi * minimum_jerk(t / DURATION_S)
     # A circle of radius 0.1 m that returns to its start; z drifts by only 1 µm (0.001 % of the motion).
     loop = np.stack([0.1 * np.sin(phase), 0.1 * (1 - np.cos(phase)), 1e-6 * phase / (2 * np.pi)], axis=1)
     loop += [0.5, 0.0, 0.2]
@@ -194,7 +182,7 @@ def test_closed_loop_start_equals_goal_is_reproduced_and_goal_change_does_not_bl
 
 def test_amplitude_scaling_threshold_is_relative_to_the_largest_motion():
     t = np.linspace(0.0, 2.0, 500)
-    mj = _minimum_jerk(t / 2.0)
+    mj = minimum_jerk(t / 2.0)
     noise = 1e-3 * np.sin(7 * np.pi * t / 2.0) ** 2  # 1 mm of jitter that nets 0.5 mm
     y = np.stack([0.2 * mj, noise + 0.5e-3 * mj, 0.05 * mj], axis=1)
     dmp = DMP.fit(t, y)
@@ -210,7 +198,7 @@ def test_amplitude_scaling_threshold_is_relative_to_the_largest_motion():
 def test_force_dmp_round_trip():
     t = np.linspace(0.0, 3.0, 1500)
     s = t / 3.0
-    force = 15.0 + 5.0 * _minimum_jerk(s) + 2.0 * np.sin(6 * np.pi * s) * np.sin(np.pi * s) ** 2  # N
+    force = 15.0 + 5.0 * minimum_jerk(s) + 2.0 * np.sin(6 * np.pi * s) * np.sin(np.pi * s) ** 2  # N
     dmp = DMP.fit(t, force, kind="force", frame="cf")
     assert dmp.n_dims == 1
     rollout = dmp.rollout(t[1] - t[0])
