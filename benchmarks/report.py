@@ -7,11 +7,14 @@ replaces only that, so scripts can be re-run independently.
 from __future__ import annotations
 
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+from services.machine import machine_line
+
+__all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_threads", "write_section"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS_MD = ROOT / "docs" / "BENCHMARKS.md"
@@ -34,25 +37,6 @@ def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
         result = fn()
         times.append(time.perf_counter() - start)
     return statistics.median(times), result
-
-
-def machine_line(extra: str = "") -> str:
-    """Return one line describing this machine (cores, CPU model, Python and numpy versions)."""
-    import numpy as np
-
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    threads = os.environ.get("OPENBLAS_NUM_THREADS", "default")
-    return (
-        f"Machine: nproc={os.cpu_count()}, {cpu}; Python {platform.python_version()}, numpy {np.__version__}; "
-        f"BLAS threads {threads}{'; ' + extra if extra else ''}. Shared machine: timings are medians and indicative."
-    )
 
 
 def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:

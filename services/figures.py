@@ -222,3 +222,204 @@ def write_execution_figure(result, path: str | os.PathLike[str]) -> None:
         ax.legend(loc="upper right", fontsize=8, ncols=2)
         ax.axhline(0.0, color="black", lw=0.5)
     figure.savefig(os.fspath(path), dpi=120)
+
+
+# --------------------------------------------------------------------------- demo figures (paper Fig. 3/4 a-b, d)
+
+_TRIAL_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:brown", "tab:pink", "tab:olive", "goldenrod", "slategray")
+"""Reproduction colours: none of them red, green or blue, the colours of the CF axes drawn on the paths."""
+_CONTROLLER_STYLE = {
+    "hybrid_cf": ("tab:blue", 1.3, "ours (hybrid_cf)"),
+    "impedance": ("tab:orange", 0.9, "impedance"),
+    "hybrid_world_z": ("tab:purple", 0.9, "hybrid_world_z"),
+}
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One execution's recorded stream, as the figures need it (e.g. from ``GET /executions/{id}/telemetry``).
+
+    ``t`` (N,) s since the execution started; ``phases`` the phase names; ``segment_index`` (N,);
+    ``position`` (N, 3) the measured tool point in the world, m; ``wrench_cf`` (N, 6) the applied wrench in the
+    CF; ``desired`` (N,) the desired CF-z force, N.
+    """
+
+    label: str
+    t: NDArray[np.float64]
+    phases: list[str]
+    segment_index: NDArray[np.int_]
+    position: NDArray[np.float64]
+    wrench_cf: NDArray[np.float64]
+    desired: NDArray[np.float64]
+
+    @classmethod
+    def from_columns(cls, label: str, columns: dict) -> Trace:
+        """From the columns of a ``TelemetryBatch``/``TelemetryView`` JSON (phases as names)."""
+        return cls(
+            label=label,
+            t=np.asarray(columns["t"], dtype=float),
+            phases=[str(p) for p in columns["phase"]],
+            segment_index=np.asarray(columns["segment_index"], dtype=int),
+            position=np.asarray(columns["tool_position"], dtype=float).reshape(-1, 3),
+            wrench_cf=np.asarray(columns["wrench_cf"], dtype=float).reshape(-1, 6),
+            desired=np.asarray(columns["desired_force_cf_z_n"], dtype=float),
+        )
+
+    def mask(self, *phases: str) -> NDArray[np.bool_]:
+        """The samples in any of ``phases``."""
+        return np.array([p in phases for p in self.phases], dtype=bool)
+
+    @property
+    def contact_start(self) -> float | None:
+        """Time of the first contact-phase sample, s (None if the execution never reached contact)."""
+        rows = np.flatnonzero(self.mask("contact"))
+        return float(self.t[rows[0]]) if rows.size else None
+
+
+def _frames_along(
+    positions: NDArray[np.float64], times: NDArray[np.float64], segment: Segment, count: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(origins (K, 3), rotations (K, 3, 3)) of ``count`` CFs of ``segment`` along a path sampled at ``times``
+    (s, from 0 at the segment's start to its end): origins on the path, rotations the learned CF at the same
+    time FRACTION of the segment (a slide's single frame: at the middle)."""
+    if positions.shape[0] == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3))
+    single = segment.compliant_frames is not None and len(segment.compliant_frames.t) == 1
+    fractions = np.array([0.5]) if single else np.linspace(0.0, 1.0, max(count, 2))
+    span = max(float(times[-1] - times[0]), 1e-9)
+    rows = np.clip(np.searchsorted((times - times[0]) / span, fractions), 0, positions.shape[0] - 1)
+    R = compliant_frame_rotations(segment, fractions * (segment.t_end - segment.t_start))
+    return positions[rows], R
+
+
+def _draw_frames(ax, origins: NDArray[np.float64], rotations: NDArray[np.float64], length: float) -> None:
+    for j in range(3):
+        d = rotations[:, :, j]
+        ax.quiver(origins[:, 0], origins[:, 1], origins[:, 2], d[:, 0], d[:, 1], d[:, 2], length=length,
+                  color=_AXIS_COLORS[j], lw=1.1, arrow_length_ratio=0.25)  # fmt: skip
+
+
+def write_paths_figure(
+    demonstration: Demonstration,
+    skill: Skill,
+    trials: list[tuple[str, Trace]],
+    path: str | os.PathLike[str],
+    title: str = "",
+    contour_frames: int = 7,
+    view: tuple[float, float] = (22.0, -58.0),
+) -> None:
+    """Write the 3-D paths of the demonstration and of reproductions with their compliant frames (paper Fig. 3b/4b).
+
+    The demonstration: its contact segments bold black, free motion dotted grey. Each trial (a :class:`Trace`):
+    its contact phase bold in its own colour, the rest thin. Compliant frames (x red, y green, z blue: into the
+    surface) are drawn ON each path: a slide segment's one frame at its middle, a contour's frames at
+    ``contour_frames`` evenly spaced times — the learned CF at the same time fraction of the segment. Axes are
+    to scale (equal metres on x, y, z); ``view`` is the camera (elevation, azimuth), deg.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    a = demonstration.arrays()
+    contact_segments = [s for s in skill.segments if s.kind == SegmentKind.contact and s.compliant_frames is not None]
+    figure = Figure(figsize=(10, 7.5), layout="constrained")
+    FigureCanvasAgg(figure)
+    ax = figure.add_subplot(projection="3d")
+    points = [a.positions]
+    in_contact = np.zeros(a.t.size, dtype=bool)
+    for segment in contact_segments:
+        in_contact |= segment_mask(a.t, segment)
+    free = np.where(in_contact[:, None], np.nan, a.positions)
+    ax.plot(*free.T, color="0.55", lw=0.8, ls=":")
+    ax.plot(*np.where(in_contact[:, None], a.positions, np.nan).T, color="black", lw=2.2)
+    handles = [Line2D([], [], color="black", lw=2.2, label="demonstration (contact)"),
+               Line2D([], [], color="0.55", lw=0.8, ls=":", label="demonstration (free)")]  # fmt: skip
+    frame_sets = []
+    for segment in contact_segments:
+        rows = segment_mask(a.t, segment)
+        frame_sets.append(_frames_along(a.positions[rows], a.t[rows], segment, contour_frames))
+    for k, (label, trace) in enumerate(trials):
+        color = _TRIAL_COLORS[k % len(_TRIAL_COLORS)]
+        contact = trace.mask("contact")
+        moving = trace.mask("free", "approach", "contact", "retreat")
+        ax.plot(*np.where(moving[:, None] & ~contact[:, None], trace.position, np.nan).T, color=color, lw=0.6,
+                alpha=0.6)  # fmt: skip
+        ax.plot(*np.where(contact[:, None], trace.position, np.nan).T, color=color, lw=1.6)
+        handles.append(Line2D([], [], color=color, lw=1.6, label=label))
+        points.append(trace.position[moving])
+        for segment in contact_segments:
+            rows = contact & (trace.segment_index == segment.index)
+            frame_sets.append(_frames_along(trace.position[rows], trace.t[rows], segment, contour_frames))
+    everything = np.concatenate([p for p in points if p.size])
+    low, high = everything.min(axis=0), everything.max(axis=0)
+    extent = float(max(np.max(high - low), 1e-3))
+    for origins, rotations in frame_sets:  # a slide's single frame drawn larger than a contour's series
+        if origins.shape[0]:
+            _draw_frames(ax, origins, rotations, 0.07 * extent if origins.shape[0] == 1 else min(0.08 * extent, 0.015))
+    margin = 0.06 * extent
+    low, high = low - margin, high + margin
+    ranges = np.maximum(high - low, 0.25 * extent)
+    centre = 0.5 * (low + high)
+    ax.set_xlim(centre[0] - ranges[0] / 2, centre[0] + ranges[0] / 2)
+    ax.set_ylim(centre[1] - ranges[1] / 2, centre[1] + ranges[1] / 2)
+    ax.set_zlim(centre[2] - ranges[2] / 2, centre[2] + ranges[2] / 2)
+    ax.set_box_aspect(tuple(ranges))
+    from matplotlib.ticker import MaxNLocator
+
+    for axis, name in ((ax.xaxis, "x"), (ax.yaxis, "y"), (ax.zaxis, "z")):
+        axis.set_major_locator(MaxNLocator(nbins=max(2, round(4 * ranges["xyz".index(name)] / ranges.max()) + 1)))
+        axis.set_label_text(f"{name} (m)")
+    ax.view_init(elev=view[0], azim=view[1])
+    handles += [Line2D([], [], color=c, lw=1.5, label=f"CF {n}") for c, n in zip(_AXIS_COLORS, "xyz", strict=True)]
+    ax.legend(handles=handles, loc="upper left", fontsize=8, ncols=1)
+    ax.set_title(title or f"{demonstration.metadata.name}: demonstration and reproductions", fontsize=11)
+    figure.savefig(os.fspath(path), dpi=110)
+
+
+def write_trials_force_figure(
+    trials: list[tuple[str, dict[str, Trace]]],
+    path: str | os.PathLike[str],
+    ours: str = "hybrid_cf",
+    title: str = "",
+) -> None:
+    """Write the reproduction force in the CF per trial (paper Fig. 3d/4d): one subplot per trial.
+
+    ``trials``: (label, {controller: Trace}). In each subplot, time is measured from that execution's first
+    contact-phase sample; ours (``ours``) shows the measured CF x, y (thin) and z force and the desired CF-z force
+    (dashed black); each baseline its measured CF-z force.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = max(len(trials), 1)
+    figure = Figure(figsize=(9.5, 1.85 * n + 1.0), layout="constrained")
+    FigureCanvasAgg(figure)
+    axes = np.atleast_1d(figure.subplots(n, 1, sharex=True, squeeze=False)[:, 0])
+    for ax, (label, traces) in zip(axes, trials, strict=False):
+        for controller, trace in sorted(traces.items(), key=lambda kv: kv[0] != ours):
+            t0 = trace.contact_start
+            if t0 is None:
+                continue
+            window = trace.mask("approach", "contact", "retreat") & (trace.t >= t0 - 0.3)
+            t = np.where(window, trace.t - t0, np.nan)
+            color, lw, name = _CONTROLLER_STYLE.get(controller, ("tab:gray", 0.9, controller))
+            if controller == ours:
+                for j in (0, 1):
+                    ax.plot(t, trace.wrench_cf[:, j], color=_AXIS_COLORS[j], lw=0.6, alpha=0.6,
+                            label=f"$f_{'xy'[j]}$ CF, ours")  # fmt: skip
+                ax.plot(t, trace.desired, color="black", ls="--", lw=1.3, label="desired $f_z$", zorder=5)
+            ax.plot(t, trace.wrench_cf[:, 2], color=color, lw=lw, label=f"$f_z$ CF, {name}",
+                    zorder=4 if controller == ours else 3)  # fmt: skip
+        ax.set_title(label, fontsize=9, loc="left")
+        ax.axhline(0.0, color="black", lw=0.5)
+        ax.grid(True, lw=0.3)
+        ax.set_ylabel("CF force (N)")
+    axes[-1].set_xlabel("time since contact (s)")
+    if title:
+        figure.suptitle(title, fontsize=11)
+    handles: dict[str, object] = {}
+    for ax in axes:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    figure.legend(list(handles.values()), list(handles), loc="outside lower center", ncols=6, fontsize=8)
+    figure.savefig(os.fspath(path), dpi=110)

@@ -1,0 +1,81 @@
+"""``contact-skills demo``: the paper's experiments end to end against the running service (or an embedded one).
+
+The logic is ``services.demo`` (HTTP + Zenoh client side) and ``services.figures`` (the figures); this module
+only parses the options, runs it and prints the results table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``contact-skills demo``: record, learn and execute the paper's slide (Fig. 3) and contour (Fig. 4) trials
+    with our controller and both baselines through the service, then print the results table and write
+    RESULTS.md and the figures. Starts the embedded stack (`contact-skills up`) if nothing answers at --url."""
+    import time
+
+    from services.demo import DemoError, DemoOptions, run_demo, text_table
+
+    shown = ["contact-skills", "demo", *sys.argv[2:]] if sys.argv[1:2] == ["demo"] else ["contact-skills", "demo"]
+    options = DemoOptions(
+        url=args.url,
+        workers=args.workers,
+        quick=args.quick,
+        out=args.out,
+        seed=args.seed,
+        db=args.db,
+        connect=[e for v in args.connect or [] for e in v.split(",") if e.strip()] or None,
+        prefix=args.prefix,
+        command=shlex.join(shown),
+    )
+    started = time.perf_counter()
+    try:
+        report = run_demo(options)
+    except DemoError as exc:
+        print(f"contact-skills demo: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("contact-skills demo: interrupted", file=sys.stderr)
+        return 130
+    print()
+    print(text_table(report.outcomes))
+    print()
+    for verdict in report.verdicts:
+        print(f"{'MET   ' if verdict.met else 'MISSED'} {verdict.name}: {verdict.detail}")
+    print()
+    timings = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in report.timings.items())
+    print(f"timings: {timings}")
+    print(f"results: {report.results_path}; figures: {', '.join(str(p) for p in report.figures)}")
+    print(f"demo finished in {time.perf_counter() - started:.1f} s")
+    return 0 if report.all_finished else 1
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``demo`` to the `contact-skills` parser."""
+    demo = commands.add_parser(
+        "demo",
+        help="reproduce the paper's experiments (slide Fig. 3, contour Fig. 4) with baselines through the service",
+        description=cmd_demo.__doc__,
+    )
+    demo.add_argument(
+        "--url",
+        default="http://127.0.0.1:8000",
+        help="the service; if none answers there (loopback), the embedded stack is started on its port",
+    )
+    demo.add_argument("--workers", type=int, default=2, help="sim workers of the embedded stack (default 2)")
+    demo.add_argument("--quick", action="store_true", help="the reduced case set (about a minute; used by the test)")
+    demo.add_argument("--out", type=Path, default=Path("docs"), help="where RESULTS.md and figures/ go (default docs)")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the teacher's demonstrations (default 0)")
+    demo.add_argument("--db", type=Path, help="database of the embedded stack (default: a temporary file)")
+    demo.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint for the live view (default: the one the service reports)",
+    )
+    demo.add_argument("--prefix", help="Zenoh key-expression prefix (default $CONTACT_SKILLS_ZENOH_PREFIX or cskills)")
+    demo.set_defaults(run=cmd_demo)
