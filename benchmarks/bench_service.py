@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -35,15 +34,11 @@ pin_blas_threads()
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
+from services.local_processes import free_port  # noqa: E402
+
 LEARN_TARGET_P50_S = 1.5
 SCENARIO = "slide_flat"
 RECORD_OVERRIDES = {"move_duration_s": 2.0}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @contextlib.contextmanager

@@ -38,7 +38,6 @@ import contextlib  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
 import signal  # noqa: E402
-import socket  # noqa: E402
 import subprocess  # noqa: E402
 import tempfile  # noqa: E402
 import threading  # noqa: E402
@@ -52,6 +51,9 @@ from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
 from schemas.bus import ExecutionStatus, KeyExpressions, session_config  # noqa: E402
 from schemas.execution import TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusSettings, NoWorkerAvailable  # noqa: E402
+from services.local_processes import free_port as _free_port  # noqa: E402
+from services.local_processes import port_listening as _listening  # noqa: E402
+from services.local_processes import stop_process as _stop  # noqa: E402
 
 SECTION = "bench_telemetry"
 COMMAND = ".venv/bin/python benchmarks/bench_telemetry.py"
@@ -63,31 +65,10 @@ LOSS_DETECTION_TARGET_S = 2.0
 RECORD = RecordRequest(scenario="slide_flat", seed=0, overrides={"move_duration_s": 1.0})
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _spawn(args: list[str], log: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
     return subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=env,
                             stdout=log.open("ab"), stderr=subprocess.STDOUT)  # fmt: skip
-
-
-def _listening(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
-def _stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        process.terminate()
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def _wait(predicate, timeout: float = 60.0):

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from services.local_processes import free_port
 from services.machine import machine_line
 
 SLIDE_RMS_PCT = 3.0
@@ -446,12 +447,6 @@ def parse_markdown_table(text: str) -> list[dict[str, str]]:
 
 
 # --------------------------------------------------------------------------------------------------- the stack
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _port_free(port: int) -> bool:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -28,21 +27,11 @@ from services.demo import (
     cases,
     parse_markdown_table,
 )
+from services.local_processes import free_port as _free_port
+from services.local_processes import port_listening
 
 REPO = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 300
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _answers(port: int) -> bool:
-    with socket.socket() as s:
-        s.settimeout(1.0)
-        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +53,7 @@ def test_the_demo_runs_against_the_embedded_stack_and_stops_it(demo) -> None:
     assert process.returncode == 0, log[-6000:]
     assert f"no service at http://127.0.0.1:{port}: starting `contact-skills up --workers 2" in log
     assert "embedded stack stopped (exit 0)" in log
-    assert not _answers(port), "the embedded stack still answers after the demo"
+    assert not port_listening(port), "the embedded stack still answers after the demo"
     # the live view followed every execution over Zenoh
     n = sum(len(c.controllers) for c in cases(quick=True))
     live = re.search(r"live view: (\d+) status messages over Zenoh from (\d+) of (\d+) executions", log)

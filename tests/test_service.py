@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -25,16 +24,11 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from schemas.bus import session_config  # noqa: E402
+from services.local_processes import free_port as _free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
 FINAL = ("done", "aborted", "failed")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str, every_s: float = 0.2):
