@@ -60,7 +60,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pybullet
@@ -96,6 +96,33 @@ class RobotState:
     jacobian: NDArray[np.float64]
     twist: NDArray[np.float64]
     gravity_coriolis: NDArray[np.float64]
+
+
+class Sensing(NamedTuple):
+    """One step's measurements for a control loop (:meth:`SimWorld.sense`).
+
+    The world's cached arrays of the current step, NOT copies (a 1 kHz loop cannot afford the copies):
+    treat them as read-only; the next ``step()`` replaces them. ``q``, ``qd`` (7,) rad, rad/s;
+    ``position`` (3,) and ``quat`` (4,) ``[x, y, z, w]`` the tool pose; ``wrench`` (6,) as
+    :meth:`SimWorld.contact_wrench`; ``in_contact`` as :meth:`SimWorld.in_contact`.
+    """
+
+    q: NDArray[np.float64]
+    qd: NDArray[np.float64]
+    position: NDArray[np.float64]
+    quat: NDArray[np.float64]
+    wrench: NDArray[np.float64]
+    in_contact: bool
+
+
+class Dynamics(NamedTuple):
+    """One step's model queries for a control loop (:meth:`SimWorld.dynamics`); cached arrays, read-only as
+    :class:`Sensing`: ``jacobian`` (6, 7) of the tool point, ``gravity_coriolis`` (7,) N·m, ``mass_matrix``
+    (7, 7) or None when not asked for."""
+
+    jacobian: NDArray[np.float64]
+    gravity_coriolis: NDArray[np.float64]
+    mass_matrix: NDArray[np.float64] | None
 
 
 def _rotation_about(axis: ArrayLike, angle_rad: float) -> NDArray[np.float64]:
@@ -565,7 +592,8 @@ class SimWorld:
     """One PyBullet DIRECT world (own client): iiwa + tool, table, optional ramp, cylinder and block.
 
     Several worlds can live in one process; call ``close()`` (or use ``with``) to free the client.
-    State queries are cached until the next ``step()``/``set_joint_positions()``/``reset()``.
+    State queries are cached until the next ``step()``/``set_joint_positions()``/``reset()``; the accessors
+    return copies, ``sense()`` and ``dynamics()`` (for a control loop) the cached arrays themselves.
     """
 
     def __init__(self, config: WorldConfig | None = None):
@@ -610,6 +638,7 @@ class SimWorld:
             self.robot, self._joints, pybullet.VELOCITY_CONTROL, forces=[0.0] * N_JOINTS, physicsClientId=cid
         )
         self.torque_limits = np.asarray(c.torque_limits_nm, dtype=float)
+        self._torque_limits_list = self.torque_limits.tolist()
         # calculateJacobian's localPosition is measured (pybullet 3.2.7) relative to the URDF LINK frame, not the
         # COM frame as documented; the tool point is that frame's origin. getLinkState's link-frame pose is float32,
         # so the tool pose is computed in double precision from the COM frame and the inertial offset.
@@ -617,7 +646,7 @@ class SimWorld:
         dyn = pybullet.getDynamicsInfo(self.robot, TOOL_LINK, physicsClientId=cid)
         R_inertial = np.asarray(pybullet.getMatrixFromQuaternion(dyn[4])).reshape(3, 3)
         self._link_in_com_R = R_inertial.T  # link frame orientation in the COM frame
-        self._link_in_com_p = -R_inertial.T @ np.asarray(dyn[3])  # link origin in the COM frame
+        self._link_origin_in_com = tuple((-R_inertial.T @ np.asarray(dyn[3])).tolist())  # link origin, COM frame
         self._identity_inertial = bool(np.allclose(R_inertial, np.eye(3)))
         self.bodies: dict[str, int] = {}
         self._build_environment()
@@ -767,18 +796,40 @@ class SimWorld:
         cached = self._joints_raw()
         return cached[2].copy(), cached[3].copy()
 
-    def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        cached = self._cache.get("pose")
+    def _com_frame(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+        """The tool link's COM frame in double precision: position, quaternion, rotation matrix (9 floats, by rows)."""
+        cached = self._cache.get("com")
         if cached is None:
             state = pybullet.getLinkState(self.robot, TOOL_LINK, computeForwardKinematics=1, physicsClientId=self._cid)
-            R_com = np.array(pybullet.getMatrixFromQuaternion(state[1])).reshape(3, 3)
-            p = np.array(state[0]) + R_com @ self._link_in_com_p
+            cached = self._cache["com"] = (state[0], state[1], pybullet.getMatrixFromQuaternion(state[1]))
+        return cached
+
+    def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Tool point position and tool quaternion: the link origin ``c + R_com o`` (plain floats: numpy costs more
+        than it computes on 3-vectors) and, for the usual identity inertial frame, the COM quaternion as is."""
+        cached = self._cache.get("pose")
+        if cached is None:
+            (cx, cy, cz), quat_com, r = self._com_frame()
+            ox, oy, oz = self._link_origin_in_com
+            p = np.array(
+                [
+                    cx + (r[0] * ox + r[1] * oy + r[2] * oz),
+                    cy + (r[3] * ox + r[4] * oy + r[5] * oz),
+                    cz + (r[6] * ox + r[7] * oy + r[8] * oz),
+                ]
+            )
             if self._identity_inertial:
-                R, quat = R_com, np.array(state[1])
+                quat = np.array(quat_com)
             else:
-                R = R_com @ self._link_in_com_R
-                quat = np.asarray(_quat_from_matrix(R))
-            cached = self._cache["pose"] = (p, quat, R)
+                quat = np.asarray(_quat_from_matrix(self._rotation_raw()))
+            cached = self._cache["pose"] = (p, quat)
+        return cached
+
+    def _rotation_raw(self) -> NDArray[np.float64]:
+        cached = self._cache.get("rotation")
+        if cached is None:
+            R_com = np.array(self._com_frame()[2]).reshape(3, 3)
+            cached = self._cache["rotation"] = R_com if self._identity_inertial else R_com @ self._link_in_com_R
         return cached
 
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -788,7 +839,7 @@ class SimWorld:
 
     def tool_rotation(self) -> NDArray[np.float64]:
         """Tool orientation as a (3, 3) rotation matrix (tool frame into world)."""
-        return self._pose_raw()[2].copy()
+        return self._rotation_raw().copy()
 
     def _jacobian_raw(self) -> NDArray[np.float64]:
         cached = self._cache.get("jacobian")
@@ -814,30 +865,58 @@ class SimWorld:
         """Tool point twist ``[v, ω]`` (6,) in world (m/s, rad/s)."""
         return self._jacobian_raw() @ self._joints_raw()[3]
 
-    def gravity_coriolis_torques(self) -> NDArray[np.float64]:
-        """Joint torques (7,) that cancel gravity and Coriolis/centrifugal terms (inverse dynamics, qdd = 0)."""
+    def _gravity_coriolis_raw(self) -> NDArray[np.float64]:
         cached = self._cache.get("gc")
         if cached is None:
             q, qd, _, _ = self._joints_raw()
             cached = self._cache["gc"] = np.array(
                 pybullet.calculateInverseDynamics(self.robot, q, qd, self._zeros, physicsClientId=self._cid)
             )
-        return cached.copy()
+        return cached
 
-    def mass_matrix(self) -> NDArray[np.float64]:
-        """Joint-space mass matrix (7, 7)."""
+    def gravity_coriolis_torques(self) -> NDArray[np.float64]:
+        """Joint torques (7,) that cancel gravity and Coriolis/centrifugal terms (inverse dynamics, qdd = 0)."""
+        return self._gravity_coriolis_raw().copy()
+
+    def _mass_matrix_raw(self) -> NDArray[np.float64]:
         cached = self._cache.get("mass")
         if cached is None:
             q = self._joints_raw()[0]
             cached = self._cache["mass"] = np.array(
                 pybullet.calculateMassMatrix(self.robot, q, physicsClientId=self._cid)
             )
-        return cached.copy()
+        return cached
+
+    def mass_matrix(self) -> NDArray[np.float64]:
+        """Joint-space mass matrix (7, 7)."""
+        return self._mass_matrix_raw().copy()
+
+    def sense(self) -> Sensing:
+        """Joint state, tool pose, measured wrench and contact flag of this step in one call, without copies.
+
+        For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
+        returned as cached (read-only by contract, see :class:`Sensing`).
+        """
+        _, _, q, qd = self._joints_raw()
+        p, quat = self._pose_raw()
+        return Sensing(q, qd, p, quat, self._measured_wrench(), self._contact_summary()[1])
+
+    def dynamics(self, with_mass_matrix: bool = False) -> Dynamics:
+        """Jacobian, gravity/Coriolis torques and (if asked) the mass matrix of this step, without copies.
+
+        The model queries of a control loop, as :meth:`sense`: cached arrays, read-only by contract.
+        """
+        return Dynamics(
+            self._jacobian_raw(),
+            self._gravity_coriolis_raw(),
+            self._mass_matrix_raw() if with_mass_matrix else None,
+        )
 
     def read_state(self) -> RobotState:
         """Everything a controller reads in one call (one PyBullet query each, shared caches)."""
         _, _, q_arr, qd_arr = self._joints_raw()
-        p, quat, R = self._pose_raw()
+        p, quat = self._pose_raw()
+        R = self._rotation_raw()
         J = self._jacobian_raw()
         return RobotState(
             q=q_arr.copy(),
@@ -863,14 +942,15 @@ class SimWorld:
         Sets ``last_step_clipped`` (and counts ``clip_count``) when any torque was clipped.
         """
         tau = np.asarray(torque, dtype=float)
-        limits = self.torque_limits
-        clipped = bool(np.any(np.abs(tau) > limits))
+        forces = tau.tolist()
+        clipped = any(abs(f) > limit for f, limit in zip(forces, self._torque_limits_list, strict=True))
         if clipped:
-            tau = np.clip(tau, -limits, limits)
+            limits = self.torque_limits
+            forces = np.clip(tau, -limits, limits).tolist()
             self.clip_count += 1
         self.last_step_clipped = clipped
         pybullet.setJointMotorControlArray(
-            self.robot, self._joints, pybullet.TORQUE_CONTROL, forces=tau.tolist(), physicsClientId=self._cid
+            self.robot, self._joints, pybullet.TORQUE_CONTROL, forces=forces, physicsClientId=self._cid
         )
         pybullet.stepSimulation(physicsClientId=self._cid)
         self.step_count += 1
@@ -890,7 +970,7 @@ class SimWorld:
 
     def in_contact(self) -> bool:
         """Whether the tool touches anything (a contact point at zero or negative distance, or carrying force)."""
-        return any(c[8] <= CONTACT_DISTANCE_M or c[9] > 0.0 for c in self._contact_points())
+        return self._contact_summary()[1]
 
     def contacts(self) -> list[dict[str, Any]]:
         """The tool's contact points: body name, position on the tool, normal force (N), distance (m)."""
@@ -915,17 +995,24 @@ class SimWorld:
         ``-normalForce * n_B + f1 * d1 + f2 * d2`` (sign verified by tests: pressing a table gives ``fz < 0``,
         sliding drags the table along the tool velocity). Moments about the tool point from the contact positions.
         """
-        cached = self._cache.get("wrench")
+        return self._contact_summary()[0].copy()
+
+    def _contact_summary(self) -> tuple[NDArray[np.float64], bool]:
+        """The exact applied wrench (see :meth:`true_contact_wrench`) and the contact flag, in one pass over the
+        contact points (cached until the next step)."""
+        cached = self._cache.get("contact")
         if cached is None:
             points = self._contact_points()
             if not points:
-                cached = np.zeros(6)
+                cached = (np.zeros(6), False)
             else:
                 px, py, pz = self._pose_raw()[0].tolist()
                 fx = fy = fz = mx = my = mz = 0.0
+                touching = False
                 for c in points:  # plain floats: ~1 µs per contact point instead of ~10 with numpy
                     fn, f1, f2 = c[9], c[10], c[12]
                     n, d1, d2, r = c[7], c[11], c[13], c[5]
+                    touching = touching or c[8] <= CONTACT_DISTANCE_M or fn > 0.0
                     ax = -(fn * n[0] + f1 * d1[0] + f2 * d2[0])
                     ay = -(fn * n[1] + f1 * d1[1] + f2 * d2[1])
                     az = -(fn * n[2] + f1 * d1[2] + f2 * d2[2])
@@ -936,9 +1023,9 @@ class SimWorld:
                     mx += ry * az - rz * ay
                     my += rz * ax - rx * az
                     mz += rx * ay - ry * ax
-                cached = np.array([fx, fy, fz, mx, my, mz])
-            self._cache["wrench"] = cached
-        return cached.copy()
+                cached = (np.array([fx, fy, fz, mx, my, mz]), touching)
+            self._cache["contact"] = cached
+        return cached
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The tool's applied contact force split into its normal part and its friction part (3,) each, world frame.
@@ -977,9 +1064,12 @@ class SimWorld:
         With the default config (no noise, no filter) this is ``true_contact_wrench()``; otherwise Gaussian noise
         (``wrench_noise_*``) and a first-order low-pass (``wrench_filter_cutoff_hz``) are applied, once per step.
         """
+        return self._measured_wrench().copy()
+
+    def _measured_wrench(self) -> NDArray[np.float64]:
         c = self.config
         if c.wrench_filter_cutoff_hz is None and c.wrench_noise_force_std_n <= 0 and c.wrench_noise_torque_std_nm <= 0:
-            return self.true_contact_wrench()
+            return self._contact_summary()[0]
         cached = self._cache.get("measured")
         if cached is None:
             if c.wrench_filter_cutoff_hz is not None:
@@ -987,7 +1077,7 @@ class SimWorld:
             else:
                 self._cache["measured"] = self.true_contact_wrench() + self._noise()
             cached = self._cache["measured"]
-        return cached.copy()
+        return cached
 
     # -- kinematics ----------------------------------------------------------------------------------------------
 
@@ -1078,6 +1168,8 @@ class SimWorld:
             "gravity_coriolis_torques": self.gravity_coriolis_torques,
             "mass_matrix": self.mass_matrix,
             "contact_wrench": self.contact_wrench,
+            "sense": self.sense,
+            "dynamics": self.dynamics,
         }
         result: dict[str, float] = {}
         for name, fn in timings.items():

@@ -71,11 +71,19 @@ Limits. Torques are clipped to the robot's limits; a clip lasting ``torque_satur
 aborts. A measured force above ``max_force_n`` aborts at once. Non-finite inputs never give a
 non-finite torque: the output is zero torques with an abort reason.
 
-Cost. Per step the law is ~15 numpy operations on 6- and 7-vectors: ``[Ω, D_m, -(D_m + D_f)]``,
-``K_p Ω~`` and the feed-forward direction are cached per control frame (and model refresh), the
-null-space torque is ``N^T K_n q_0 + [-K_n N^T, -D_n N^T] [q; q̇]``, and the caller decides how
-often the model (projector, apparent inertia; damping every :data:`DAMPING_UPDATE_EVERY`-th time)
-is refreshed (``update_null_space``).
+Cost. The law runs at 1 kHz in Python, where a numpy call on a 6- or 7-vector costs ~0.3-1 µs
+of call overhead whatever it computes, so a step is evaluated as ONE matrix-vector product.
+Everything above is linear in the step's input vector ``x = [e_p, f_d, 1, ξ_r, F, ∫e_cf, ξ, q,
+q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix ``G`` (25 x 53) gives
+``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m + F_f) + (N^T τ_0 + g +
+c)``: five numpy calls per step (``J q̇``, building ``x``, ``G x``, ``J^T (.)``, one sum); the
+pose error, the force integral and the limit checks are plain float arithmetic. The rows of ``G``
+that depend on the control frame (``Ω``, the motion damping ``D_m`` and ``-(D_m + D_f)``, the
+feed-forward ``(1 + K_p) Ω~ F_d,1`` per N desired, ``-K_p Ω~``, ``K_i Adg``) are rebuilt when the
+frame or the damping matrix changes (a contour's frame series every few steps: the frame-only
+products come precomputed, vectorized, with the frames); the null-space rows (``N^T K_n q_0``,
+``-K_n N^T``, ``-D_n N^T``) whenever the caller refreshes the model (``update_null_space``: the
+projector and the apparent inertia, the damping every :data:`DAMPING_UPDATE_EVERY`-th time).
 
 Baselines (``ControllerKind``), the same class with other settings:
 
@@ -92,6 +100,8 @@ Baselines (``ControllerKind``), the same class with other settings:
 from __future__ import annotations
 
 import math
+import operator
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -114,9 +124,28 @@ DAMPING_UPDATE_EVERY = 5
 _SINGULAR_DAMPING = 1e-6
 """Relative Tikhonov term of the task-space inverses in the null-space projector."""
 _ZERO6 = np.zeros(6)
-_DIAG6 = np.diag_indices(6)
 _EYE7 = np.eye(7)
 _ZERO7 = np.zeros(7)
+
+# Layout of the law's per-step input vector x (see the module docstring, "Cost") and of the gain matrix G.
+_X_POSE = slice(0, 6)  # e_p: pose error (m, rad)
+_X_FORCE = 6  # f_d: desired CF-z force (N)
+_X_ONE = 7  # 1: carries the constant null-space torque N^T K_n q_0
+_X_REF_TWIST = slice(8, 14)  # ξ_r: reference twist
+_X_WRENCH = slice(14, 20)  # F: measured wrench
+_X_INTEGRAL = slice(20, 26)  # ∫ S~ e_cf dt: force integral, CF coordinates
+_X_TWIST = slice(26, 32)  # ξ = J q̇: tool twist
+_X_Q = slice(32, 39)  # q
+_X_QD = slice(39, 46)  # q̇
+_X_BIAS = slice(46, 53)  # g + c: gravity and Coriolis torques
+_X_SIZE = 53
+_X_TASK = slice(0, 32)  # the columns the task-space rows of G can use
+_G_MOTION = slice(0, 6)  # rows of G giving F_m
+_G_FORCE = slice(6, 12)  # rows giving F_f
+_G_TASK = slice(0, 12)  # F_m and F_f: the rows that change with the control frame
+_G_WRENCH = slice(12, 18)  # rows giving F_m + F_f (their sum, so that τ needs no further addition)
+_G_JOINT = slice(18, 25)  # rows giving N^T τ_0 + g + c
+_G_ROWS = 25
 
 
 def pose_error(
@@ -127,8 +156,25 @@ def pose_error(
     The rotational part is the rotation vector (world axes) that turns the current orientation
     into the reference one, on the short branch. Quaternions scalar-last.
     """
-    qx, qy, qz, qw = np.asarray(quaternion, dtype=float).tolist()
-    rx, ry, rz, rw = np.asarray(reference_quaternion, dtype=float).tolist()
+    return np.array(
+        _pose_error_values(
+            _floats(position), _floats(quaternion), _floats(reference_position), _floats(reference_quaternion)
+        )
+    )
+
+
+def _floats(values: ArrayLike) -> Sequence[float]:
+    """A small vector as a sequence of Python numbers (an array's ``tolist()``, a list or tuple as is): plain float
+    arithmetic beats numpy on 3-7 values."""
+    if isinstance(values, np.ndarray):
+        return values.tolist()
+    return values if isinstance(values, list | tuple) else np.asarray(values, dtype=float).tolist()
+
+
+def _pose_error_values(p: Sequence[float], q: Sequence[float], pr: Sequence[float], qr: Sequence[float]) -> list[float]:
+    """:func:`pose_error` on sequences of floats (position (3), quaternion xyzw (4), both references): 6 floats."""
+    qx, qy, qz, qw = q
+    rx, ry, rz, rw = qr
     # e = q_r ⊗ conj(q)
     ew = rw * qw + rx * qx + ry * qy + rz * qz
     ex = -rw * qx + qw * rx - (ry * qz - rz * qy)
@@ -138,12 +184,14 @@ def pose_error(
         ex, ey, ez, ew = -ex, -ey, -ez, -ew
     vn = math.sqrt(ex * ex + ey * ey + ez * ez)
     scale = 2.0 * math.atan2(vn, ew) / vn if vn > 1e-12 else 2.0
-    p = np.asarray(position, dtype=float)
-    pr = np.asarray(reference_position, dtype=float)
-    return np.array(
-        [pr[0] - p[0], pr[1] - p[1], pr[2] - p[2], scale * ex, scale * ey, scale * ez],
-        dtype=float,
-    )
+    return [pr[0] - p[0], pr[1] - p[1], pr[2] - p[2], scale * ex, scale * ey, scale * ez]
+
+
+def _regularized(A: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Add ``_SINGULAR_DAMPING * trace(A) / n`` (relative Tikhonov term) to the diagonal of square ``A``, in place."""
+    diagonal = A.reshape(-1)[:: A.shape[0] + 1]  # a view
+    diagonal += _SINGULAR_DAMPING * float(diagonal.sum()) / A.shape[0]
+    return A
 
 
 def world_z_down_rotation(cf_rotation: ArrayLike) -> NDArray[np.float64]:
@@ -186,6 +234,17 @@ class ControlFrame:
     Ω~ = ``Adg S~ Adg^-1``; ``ad`` / ``ad_inv`` the twist adjoint CF -> A and its inverse,
     ``adg`` / ``adg_inv`` the wrench adjoint and its inverse; ``force_direction`` (6,) =
     ``Adg S~ e_z``: the wrench in A of 1 N desired along CF z (zero without a force loop).
+
+    Frame-only products of the law (with the controller's gains, without the robot model),
+    precomputed with the frame so that a contour's changing frame costs little per step:
+    ``damping_left`` = ``Adg S Ad^T`` and ``damping_right`` = ``Ad S Ad^-1`` (6, 6), so that a
+    damping matrix ``D`` in A gives the motion-subspace damping ``D_m = damping_left D
+    damping_right`` (``Adg S D_cf S Ad^-1`` with ``D_cf = Ad^T D Ad``); ``force_error_direction``
+    (6,) ``S~ Adg^-1 F_d,1``, the CF force error per N desired; ``task_gain`` (12, 32) the rows of
+    the controller's gain matrix that give ``[F_m; F_f]`` (module docstring, "Cost") without the
+    motion damping: ``Ω`` on the pose error, ``-D_f`` on the tool twist (``D_f = Adg diag(d_f ⊙
+    S~) Ad^-1``, the force axes' active damping), the feed-forward ``F_d,1 + K_p Ω~ F_d,1`` on
+    ``f_d``, ``-K_p Ω~`` on the wrench and ``K_i Adg`` on the force integral.
     """
 
     rotation: NDArray[np.float64]
@@ -200,6 +259,10 @@ class ControlFrame:
     adg: NDArray[np.float64]
     adg_inv: NDArray[np.float64]
     force_direction: NDArray[np.float64]
+    damping_left: NDArray[np.float64]
+    damping_right: NDArray[np.float64]
+    force_error_direction: NDArray[np.float64]
+    task_gain: NDArray[np.float64]
 
 
 _FRAME_FIELDS = tuple(ControlFrame.__dataclass_fields__)
@@ -212,8 +275,8 @@ class ControlFrameSeries:
     """
 
     def __init__(self, fields: dict[str, NDArray[np.float64]]) -> None:
-        self._fields = fields
         self._n = int(fields["rotation"].shape[0])
+        self._fields = [fields[name] for name in _FRAME_FIELDS]  # (M, ...) each, in ControlFrame's field order
         self._frames: list[ControlFrame | None] = [None] * self._n
 
     def __len__(self) -> int:
@@ -223,8 +286,7 @@ class ControlFrameSeries:
         k = min(max(int(k), 0), self._n - 1)
         frame = self._frames[k]
         if frame is None:  # built once, so the controller's per-frame cache sees the same object again
-            f = self._fields
-            frame = self._frames[k] = ControlFrame(**{name: f[name][k] for name in _FRAME_FIELDS})
+            frame = self._frames[k] = ControlFrame(*[values[k] for values in self._fields])
         return frame
 
 
@@ -337,15 +399,14 @@ class HybridController:
         self.integral_cf = np.zeros(6)
         self._projector: NDArray[np.float64] | None = None
         self._model_version = 0
+        self._gain = np.zeros((_G_ROWS, _X_SIZE))
+        """G: [F_m; F_f; F_m + F_f; N^T τ_0 + g + c] = G x (module docstring, "Cost"), cached by parts."""
+        self._gain[_G_JOINT, _X_BIAS] = _EYE7
         self._gain_frame: ControlFrame | None = None
-        self._gain_version = -1
-        self._motion_gain = np.zeros((6, 18))
-        self._feedforward = np.zeros(6)
-        self._p_projector = np.zeros((6, 6))
-        self._force_axes: list[tuple[int, float, NDArray[np.float64]]] = []
-        self._integral_term = np.zeros(6)
-        self._null_offset = np.zeros(7)
-        self._null_gain = np.zeros((7, 14))
+        self._gain_damping: NDArray[np.float64] | None = None
+        """The damping matrix the frame rows of G were built with (rebuilt when it is replaced)."""
+        self._force_axes: list[tuple[int, float, list[float]]] = []
+        """Per integrated CF force axis i: (i, CF error per N desired, row i of Adg^-1), the integral's inputs."""
         self._saturated_for_s = 0.0
         self._saturated_last = False
 
@@ -364,7 +425,6 @@ class HybridController:
     def reset_integral(self) -> None:
         """Clear the force integral (e.g. at the start of a contact segment)."""
         self.integral_cf = np.zeros(6)
-        self._integral_term = np.zeros(6)
 
     # ------------------------------------------------------------------ frames
 
@@ -398,19 +458,33 @@ class HybridController:
             adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
         force_axes = 1.0 - S
         force_direction = adg[..., :, 2] * force_axes[..., 2:3] if self._force_loop else np.zeros((*batch, 6))
+        omega = stiffness_in_frame(R, p, self._stiffness, S)
+        projector = force_projector_in_frame(R, p, S)
+        error_direction = force_axes * (adg_inv @ force_direction[..., None])[..., 0]  # S~ Adg^-1 F_d,1
+        task_gain = np.zeros((*batch, _G_TASK.stop, _X_TASK.stop))
+        motion, force = task_gain[..., _G_MOTION, :], task_gain[..., _G_FORCE, :]
+        motion[..., _X_POSE] = omega
+        motion[..., _X_TWIST] = -(adg @ ((force_axes * self._force_axis_damping)[..., :, None] * ad_inv))  # -D_f
+        force[..., _X_FORCE] = force_direction + self._kp * (adg @ error_direction[..., None])[..., 0]
+        force[..., _X_WRENCH] = -self._kp * projector
+        force[..., _X_INTEGRAL] = self._ki * adg
         return {
             "rotation": R,
             "cf_rotation": cf_rotation,
             "cf_z": np.ascontiguousarray(cf_rotation[..., :, 2]),
             "selection": S,
             "force_axes": force_axes,
-            "omega": stiffness_in_frame(R, p, self._stiffness, S),
-            "projector": force_projector_in_frame(R, p, S),
+            "omega": omega,
+            "projector": projector,
             "ad": ad,
             "ad_inv": np.ascontiguousarray(ad_inv),
             "adg": adg,
             "adg_inv": np.ascontiguousarray(adg_inv),
             "force_direction": np.ascontiguousarray(force_direction),
+            "damping_left": (adg * S[..., None, :]) @ np.swapaxes(ad, -1, -2),
+            "damping_right": ad @ (S[..., :, None] * ad_inv),
+            "force_error_direction": error_direction,
+            "task_gain": task_gain,
         }
 
     def frame(
@@ -450,10 +524,10 @@ class HybridController:
         q: NDArray[np.float64],
         qd: NDArray[np.float64],
         bias_torques: NDArray[np.float64],
-        tool_position: NDArray[np.float64],
-        tool_quaternion: NDArray[np.float64],
-        reference_position: NDArray[np.float64],
-        reference_quaternion: NDArray[np.float64],
+        tool_position: ArrayLike,
+        tool_quaternion: ArrayLike,
+        reference_position: ArrayLike,
+        reference_quaternion: ArrayLike,
         reference_twist: NDArray[np.float64],
         wrench: NDArray[np.float64],
         desired_force: float,
@@ -465,14 +539,14 @@ class HybridController:
 
         ``jacobian`` (6, 7) of the tool point, world axes; ``q``, ``qd`` (7,) rad, rad/s;
         ``bias_torques`` (7,) gravity + Coriolis/centrifugal torques, N·m; tool and reference
-        poses in the world (m, ``[x, y, z, w]``); ``reference_twist`` (6,) world, m/s, rad/s;
-        ``wrench`` (6,) measured, applied by the tool, world, at the tool point, N, N·m;
-        ``desired_force`` N along +CF z (into the surface); ``in_contact`` lets the force
-        integral run. The null-space projector (and, with a damping ratio, the damping from the
-        apparent inertia) is rebuilt when ``update_null_space`` (else the last one is reused: it
-        changes with the posture only, so a caller may refresh it every few steps); the dynamic
-        projector and the adaptive damping need ``mass_matrix`` (7, 7) then; without it the
-        static projector and the nominal damping are used.
+        poses in the world (m, ``[x, y, z, w]``; arrays or sequences of floats);
+        ``reference_twist`` (6,) world, m/s, rad/s; ``wrench`` (6,) measured, applied by the tool,
+        world, at the tool point, N, N·m; ``desired_force`` N along +CF z (into the surface);
+        ``in_contact`` lets the force integral run. The null-space projector (and, with a damping
+        ratio, the damping from the apparent inertia) is rebuilt when ``update_null_space`` (else
+        the last one is reused: it changes with the posture only, so a caller may refresh it every
+        few steps); the dynamic projector and the adaptive damping need ``mass_matrix`` (7, 7)
+        then; without it the static projector and the nominal damping are used.
         """
         g = self.gains
         if update_null_space or self._projector is None:
@@ -485,38 +559,38 @@ class HybridController:
             except np.linalg.LinAlgError as exc:
                 self._projector = None
                 return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, f"singular robot model: {exc}")
-        ref_p = reference_position
-        if not self._force_loop and desired_force != 0.0:
-            ref_p = reference_position + frame.cf_z * (desired_force / self._kz)
-        e_p = pose_error(tool_position, tool_quaternion, ref_p, reference_quaternion)
-        if frame is not self._gain_frame or self._gain_version != self._model_version:
+        if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
             self._cache_frame(frame)
-        wrench_motion = self._motion_gain @ np.concatenate((e_p, reference_twist, jacobian @ qd))
+        f_d = float(desired_force)
+        w = _floats(wrench)
+        ref_p = _floats(reference_position)
+        if not self._force_loop and f_d != 0.0:
+            shift = f_d / self._kz
+            ref_p = [r + z * shift for r, z in zip(ref_p, frame.cf_z.tolist(), strict=True)]
+        e_p = _pose_error_values(_floats(tool_position), _floats(tool_quaternion), ref_p, _floats(reference_quaternion))
 
-        # Force subspace: feed-forward + P on the projected error + I in CF coordinates:
-        # F_f = f_d (1 + K_p) Ω~ F_d,1 - K_p Ω~ F + K_i Adg S~ ∫ e_cf dt, one CF force axis at a time.
-        if self._force_loop:
-            wrench_force = desired_force * self._feedforward - self._p_projector @ wrench
-            if in_contact and not self._saturated_last and self._ki > 0.0 and self._force_axes:
-                limit, dt, integral = self._integral_bound, self.dt, self.integral_cf
-                for i, e1_i, row_i in self._force_axes:
-                    error_i = desired_force * e1_i - float(row_i @ wrench)
-                    integral[i] = min(max(integral[i] + error_i * dt, -limit), limit)
-                self._integral_term = self._ki * (frame.adg @ integral)
-            wrench_force = wrench_force + self._integral_term
-        else:
-            wrench_force = _ZERO6
+        # Force integral, CF coordinates, one force axis at a time: ∫ S~ (f_d S~ Adg^-1 F_d,1 - Adg^-1 F) dt.
+        if in_contact and not self._saturated_last and self._force_axes:
+            limit, dt, integral = self._integral_bound, self.dt, self.integral_cf
+            for i, error_per_n, row in self._force_axes:
+                error = f_d * error_per_n - sum(map(operator.mul, row, w))
+                integral[i] = min(max(float(integral[i]) + error * dt, -limit), limit)
 
-        tau = (
-            jacobian.T @ (wrench_motion + wrench_force)
-            + bias_torques
-            + self._null_offset
-            + self._null_gain @ np.concatenate((q, qd))
+        # y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c], then τ = J^T (F_m + F_f) + N^T τ_0 + g + c, with
+        # F_m = Ω e_p + D_m ξ_r - (D_m + D_f) ξ and F_f = f_d (1 + K_p) Ω~ F_d,1 - K_p Ω~ F + K_i Adg ∫ e_cf dt.
+        x = np.concatenate(
+            (np.array([*e_p, f_d, 1.0]), reference_twist, wrench, self.integral_cf, jacobian @ qd, q, qd, bias_torques)
         )
+        y = self._gain @ x
+        wrench_motion = y[_G_MOTION]
+        wrench_force = y[_G_FORCE]
+        tau = jacobian.T @ y[_G_WRENCH] + y[_G_JOINT]
 
         # Limits and sanity.
         values = tau.tolist()
-        if not math.isfinite(sum(values) + float(wrench @ wrench)):
+        fx, fy, fz, mx, my, mz = w
+        force_sq = fx * fx + fy * fy + fz * fz
+        if not math.isfinite(sum(values) + force_sq + mx * mx + my * my + mz * mz):
             self._saturated_last = False
             self._projector = None
             return ControlOutput(_ZERO7.copy(), wrench_motion, wrench_force, False, self._non_finite_reason(locals()))
@@ -537,22 +611,23 @@ class HybridController:
         else:
             self._saturated_for_s = 0.0
         self._saturated_last = saturated
-        fx, fy, fz = wrench[:3].tolist()
-        if fx * fx + fy * fy + fz * fz > self._max_force_sq:
-            force_norm = math.sqrt(fx * fx + fy * fy + fz * fz)
-            reason = f"force limit: measured {force_norm:.1f} N > max_force_n {g.max_force_n:.1f} N"
+        if force_sq > self._max_force_sq:
+            reason = f"force limit: measured {math.sqrt(force_sq):.1f} N > max_force_n {g.max_force_n:.1f} N"
         return ControlOutput(tau, wrench_motion, wrench_force, saturated, reason)
 
     def _cache_frame(self, frame: ControlFrame) -> None:
-        """Precompute the per-frame products of the law (until the frame or the model changes)."""
-        self._motion_gain = self._motion_gain_of(frame)
-        fa = frame.force_axes
-        e1 = fa * (frame.adg_inv @ frame.force_direction)  # CF force error per N desired (S~ Adg^-1 F_d,1)
-        self._feedforward = frame.force_direction + self._kp * (frame.adg @ e1)
-        self._p_projector = self._kp * (frame.adg @ (fa[:, None] * frame.adg_inv))  # K_p Ω~
-        self._force_axes = [(int(i), float(e1[i]), frame.adg_inv[i].copy()) for i in np.flatnonzero(fa)]
-        self._integral_term = self._ki * (frame.adg @ self.integral_cf)
-        self._gain_frame, self._gain_version = frame, self._model_version
+        """Build the rows of G that give the wrenches (until the frame or the damping matrix changes)."""
+        G = self._gain
+        G[_G_TASK, _X_TASK] = frame.task_gain
+        D_m = self._motion_damping(frame)
+        G[_G_MOTION, _X_REF_TWIST] = D_m
+        G[_G_MOTION, _X_TWIST] = frame.task_gain[_G_MOTION, _X_TWIST] - D_m  # -(D_f + D_m)
+        G[_G_WRENCH, _X_TASK] = G[_G_MOTION, _X_TASK] + G[_G_FORCE, _X_TASK]
+        self._force_axes = []
+        if self._ki > 0.0:
+            e1, rows = frame.force_error_direction.tolist(), frame.adg_inv.tolist()
+            self._force_axes = [(i, e1[i], rows[i]) for i, axis in enumerate(frame.force_axes.tolist()) if axis]
+        self._gain_frame, self._gain_damping = frame, self.damping_matrix_a
 
     def _update_model(
         self, jacobian: NDArray[np.float64], mass_matrix: NDArray[np.float64] | None, frame: ControlFrame
@@ -561,20 +636,16 @@ class HybridController:
         self._model_version += 1
         J = jacobian
         if mass_matrix is None:
-            JJ = J @ J.T
-            JJ[_DIAG6] += _SINGULAR_DAMPING * float(JJ[_DIAG6].sum()) / 6.0
+            JJ = _regularized(J @ J.T)
             self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
             self._cache_null_space()
             return
         JMinv = np.linalg.solve(mass_matrix, J.T).T  # J M^-1 (M symmetric)
-        lam_inv = JMinv @ J.T
-        lam_inv[_DIAG6] += _SINGULAR_DAMPING * float(lam_inv[_DIAG6].sum()) / 6.0
-        lam = np.linalg.inv(lam_inv)
+        lam = np.linalg.inv(_regularized(JMinv @ J.T))
         if self._dynamic_null:
             self._projector = _EYE7 - J.T @ (lam @ JMinv)
         else:
-            JJ = J @ J.T
-            JJ[_DIAG6] += _SINGULAR_DAMPING * float(JJ[_DIAG6].sum()) / 6.0
+            JJ = _regularized(J @ J.T)
             self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
         self._cache_null_space()
         if self._adaptive_damping and (
@@ -584,18 +655,19 @@ class HybridController:
             self.damping_matrix_a = damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
 
     def _cache_null_space(self) -> None:
-        """``N^T τ_0 = N^T K_n q_0 + [-K_n N^T, -D_n N^T] [q; q̇]``: the offset and gain used every step."""
+        """The joint-torque rows of G: ``N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇`` (plus ``g + c``, set once)."""
         P = self._projector
-        self._null_offset = P @ (self._kn * self.posture)
-        self._null_gain = np.concatenate([-self._kn * P, -self._dn * P], axis=1)
+        G = self._gain
+        G[_G_JOINT, _X_ONE] = P @ (self._kn * self.posture)
+        G[_G_JOINT, _X_Q] = -self._kn * P
+        G[_G_JOINT, _X_QD] = -self._dn * P
 
-    def _motion_gain_of(self, frame: ControlFrame) -> NDArray[np.float64]:
-        """Return ``[Ω, D_m, -(D_m + D_f)]`` (6, 18) in A, applied to ``[e_p, ξ_r, ξ]`` (see the damping docs)."""
-        S = frame.selection
-        D_cf = self.damping_in_frame(frame) * S[:, None] * S[None, :]  # S D_cf S
-        D_m = frame.adg @ D_cf @ frame.ad_inv
-        D_f = frame.adg @ ((frame.force_axes * self._force_axis_damping)[:, None] * frame.ad_inv)
-        return np.concatenate([frame.omega, D_m, -(D_m + D_f)], axis=1)
+    def _motion_damping(self, frame: ControlFrame) -> NDArray[np.float64]:
+        """Return ``D_m = Adg S D_cf S Ad^-1`` (6, 6) in A, the motion-subspace damping (see the damping docs)."""
+        if self.damping_matrix_a is None:
+            S = frame.selection
+            return frame.adg @ ((S * self.damping * S)[:, None] * frame.ad_inv)
+        return frame.damping_left @ self.damping_matrix_a @ frame.damping_right
 
     def damping_in_frame(self, frame: ControlFrame) -> NDArray[np.float64]:
         """Return the damping matrix (6, 6) in the frame's CF coordinates (before the selection), N·s/m, N·m·s/rad."""
