@@ -53,6 +53,7 @@ from schemas.execution import TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusSettings, NoWorkerAvailable  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
 from services.local_processes import port_listening as _listening  # noqa: E402
+from services.local_processes import spawn_cli  # noqa: E402
 from services.local_processes import stop_process as _stop  # noqa: E402
 
 SECTION = "bench_telemetry"
@@ -63,12 +64,6 @@ BATCHES = (10, 20, 50)
 P99_TARGET_MS = 20.0
 LOSS_DETECTION_TARGET_S = 2.0
 RECORD = RecordRequest(scenario="slide_flat", seed=0, overrides={"move_duration_s": 1.0})
-
-
-def _spawn(args: list[str], log: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=env,
-                            stdout=log.open("ab"), stderr=subprocess.STDOUT)  # fmt: skip
 
 
 def _wait(predicate, timeout: float = 60.0):
@@ -115,7 +110,9 @@ class Cluster:
         self.logs, self.prefix = logs, prefix
         port = _free_port()
         self.endpoint = f"tcp/127.0.0.1:{port}"
-        self.processes = [_spawn(["router", "--listen", self.endpoint, "--log-level", "warning"], logs / "router.log")]
+        self.processes = [
+            spawn_cli(["router", "--listen", self.endpoint, "--log-level", "warning"], logs / "router.log", cwd=ROOT)
+        ]
         _wait(lambda: _listening(port))
         self.workers = [self.add_worker(f"bench-w{i}") for i in range(workers)]
         self.recorder = Recorder()
@@ -126,7 +123,7 @@ class Cluster:
 
     def add_worker(self, name: str) -> subprocess.Popen:
         args = ["worker", "--connect", self.endpoint, "--id", name, "--prefix", self.prefix, "--log-level", "warning"]
-        process = _spawn(args, self.logs / f"{name}.log")
+        process = spawn_cli(args, self.logs / f"{name}.log", cwd=ROOT)
         self.processes.append(process)
         return process
 
@@ -236,7 +233,7 @@ def bench_worker_loss(c: Cluster, skill, repeats: int) -> list[float]:
     for i in range(repeats):
         prefix = f"victim{i}"
         args = ["worker", "--connect", c.endpoint, "--id", f"victim-{i}", "--prefix", prefix, "--log-level", "warning"]
-        process = _spawn(args, c.logs / f"victim-{i}.log")
+        process = spawn_cli(args, c.logs / f"victim-{i}.log", cwd=ROOT)
         c.processes.append(process)
         r = Recorder()
         client = BusClient(BusSettings(endpoints=[c.endpoint], prefix=prefix), r.on_status, r.on_telemetry,

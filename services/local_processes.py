@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 LOOPBACK = "127.0.0.1"
 
@@ -41,3 +44,17 @@ def stop_process(process: subprocess.Popen, timeout_s: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+def spawn_cli(args: list[str], log: Path, cwd: Path | None = None) -> subprocess.Popen:
+    """Start ``contact-skills ARGS`` as a child process (this interpreter), its output appended to ``log``.
+
+    One BLAS thread and unbuffered output, so several children share the cores and their logs are current.
+    """
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    if cwd is not None:
+        env["PYTHONPATH"] = str(cwd)
+    with log.open("ab") as out:
+        return subprocess.Popen(
+            [sys.executable, "-m", "cli.main", *args], cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT
+        )

@@ -29,7 +29,7 @@ Torque control
     default link damping (0.04) are zeroed, so ``gravity_coriolis_torques()`` alone holds the arm still.
     Torques are clipped to the iiwa 14 limits ``TORQUE_LIMITS_NM`` (320, 320, 176, 176, 110, 40, 40 N·m);
     ``last_step_clipped`` says whether the last ``step()`` clipped. Joint limits are NOT enforced by
-    PyBullet in torque mode (``joint_limits_violated()`` checks them).
+    PyBullet in torque mode (the executor checks them).
 
 Measured PyBullet 3.2.7 facts this module relies on
     - ``calculateJacobian``'s ``localPosition`` is relative to the URDF LINK frame (not the COM frame the docs
@@ -929,11 +929,6 @@ class SimWorld:
             gravity_coriolis=self.gravity_coriolis_torques(),
         )
 
-    def joint_limits_violated(self) -> bool:
-        """Whether any joint is outside its URDF position limits (PyBullet does not enforce them in torque mode)."""
-        q, _ = self.joint_state()
-        return bool(np.any(q < self.joint_lower) or np.any(q > self.joint_upper))
-
     # -- stepping ------------------------------------------------------------------------------------------------
 
     def step(self, torque: ArrayLike) -> None:
@@ -1150,10 +1145,6 @@ class SimWorld:
     def surface_normal_at(self, point: ArrayLike) -> NDArray[np.float64]:
         """Outward unit normal of the nearest surface (table, ramp, cylinder, block) at ``point`` (3,) or (N, 3)."""
         return self.geometry.surface_normal_at(point)
-
-    def surface_distance(self, point: ArrayLike) -> NDArray[np.float64] | float:
-        """Signed distance (m) of ``point`` to the nearest surface (negative inside an object)."""
-        return self.geometry.signed_distance(point)
 
     # -- diagnostics ---------------------------------------------------------------------------------------------
 

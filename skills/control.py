@@ -669,12 +669,6 @@ class HybridController:
             return frame.adg @ ((S * self.damping * S)[:, None] * frame.ad_inv)
         return frame.damping_left @ self.damping_matrix_a @ frame.damping_right
 
-    def damping_in_frame(self, frame: ControlFrame) -> NDArray[np.float64]:
-        """Return the damping matrix (6, 6) in the frame's CF coordinates (before the selection), N·s/m, N·m·s/rad."""
-        if self.damping_matrix_a is None:
-            return np.diag(self.damping)
-        return frame.ad.T @ self.damping_matrix_a @ frame.ad
-
     def null_space_torque(
         self,
         jacobian: NDArray[np.float64],

@@ -106,15 +106,6 @@ def wrenches_tool_to_world(wrenches_tool: ArrayLike, orientations: ArrayLike) ->
     return np.concatenate([np.einsum("nij,nj->ni", R, w[:, :3]), np.einsum("nij,nj->ni", R, w[:, 3:])], axis=1)
 
 
-def vectors_world_to_tool(vectors_world: ArrayLike, orientations: ArrayLike) -> NDArray[np.float64]:
-    """Return ``(N, 3)`` vectors in the TOOL frame from world ones: ``v_tool = R^T v_world``.
-
-    ``orientations`` are ``(N, 4)`` (or one ``(4,)``) scalar-last world-from-tool quaternions.
-    """
-    R = np.broadcast_to(matrix_from_quaternion(orientations), (*np.shape(vectors_world)[:-1], 3, 3))
-    return np.einsum("nji,nj->ni", R, np.asarray(vectors_world, dtype=float))
-
-
 # --------------------------------------------------------------------------- event-driven logs
 
 

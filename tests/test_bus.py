@@ -25,8 +25,8 @@ from schemas.demonstration import Demonstration  # noqa: E402
 from schemas.execution import ExecutionPhase, TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusRequestError, BusSettings, NoWorkerAvailable  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
+from services.local_processes import spawn_cli, wait_for_port  # noqa: E402
 from services.local_processes import stop_process as _stop  # noqa: E402
-from services.local_processes import wait_for_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DT = 1e-3
@@ -56,14 +56,6 @@ with zenoh.open(config) as session:
 # ---------------------------------------------------------------------------------------------------------------
 # Processes
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _spawn(args: list[str], log: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
-    out = log.open("ab")
-    return subprocess.Popen(
-        [sys.executable, "-m", "cli.main", *args], cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT
-    )
 
 
 def _wait(predicate, timeout: float = WAIT_S, what: str = "condition"):
@@ -140,11 +132,11 @@ def bus(tmp_path_factory):
     logs = tmp_path_factory.mktemp("bus")
     port = _free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    processes = [_spawn(["router", "--listen", endpoint], logs / "router.log")]
+    processes = [spawn_cli(["router", "--listen", endpoint], logs / "router.log", cwd=REPO)]
     try:
         wait_for_port(port, WAIT_S)
         for name in ("w-a", "w-b"):
-            processes.append(_spawn(["worker", "--connect", endpoint, "--id", name], logs / f"{name}.log"))
+            processes.append(spawn_cli(["worker", "--connect", endpoint, "--id", name], logs / f"{name}.log", cwd=REPO))
         yield endpoint, logs
     finally:
         for process in reversed(processes):
@@ -218,7 +210,9 @@ def test_execution_streams_every_sample_and_ends_done_with_metrics(bus, client, 
     snippet = tmp_path / "snippet.py"
     snippet.write_text(README_SNIPPET.replace("ENDPOINT", endpoint))
     readme = subprocess.Popen([sys.executable, str(snippet)], stdout=subprocess.PIPE, text=True)
-    watch = _spawn(["watch", "ex-stream", "--connect", endpoint, "--timeout", "60"], tmp_path / "watch.log")
+    watch = spawn_cli(
+        ["watch", "ex-stream", "--connect", endpoint, "--timeout", "60"], tmp_path / "watch.log", cwd=REPO
+    )
     try:
         time.sleep(1.0)  # the snippet's and the watch's subscriptions (both also catch up on the final status)
         worker_id = client.start_execution("ex-stream", _request(skill))
@@ -338,7 +332,9 @@ def _isolated_worker(bus, name: str):
     """A worker under its own prefix, with its own BusClient (so the shared workers are not involved)."""
     endpoint, logs = bus
     prefix = f"iso-{name}"
-    process = _spawn(["worker", "--connect", endpoint, "--id", name, "--prefix", prefix], logs / f"{name}.log")
+    process = spawn_cli(
+        ["worker", "--connect", endpoint, "--id", name, "--prefix", prefix], logs / f"{name}.log", cwd=REPO
+    )
     recorder = Recorder()
     bus_client = BusClient(
         BusSettings(endpoints=[endpoint], prefix=prefix),
