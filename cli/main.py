@@ -18,7 +18,7 @@ EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
 
 DATA_ENV = "CONTACT_SKILLS_DATA"
-"""Environment variable: the shared data directory (holding ``kuleuven_contour/``) to use instead of the default."""
+"""Environment variable: a data directory (holding ``kuleuven_contour/``) to use instead of the repository's."""
 
 
 def repository_root() -> Path:
@@ -26,10 +26,15 @@ def repository_root() -> Path:
     return Path(__file__).resolve().parents[1]
 
 
+def repository_data_directory() -> Path:
+    """The data vendored in the repository: ``<repo>/data`` (``kuleuven_contour/``: the KU Leuven recordings)."""
+    return repository_root() / "data"
+
+
 def data_directory() -> Path:
-    """The shared data directory: ``$CONTACT_SKILLS_DATA`` or ``<repo>/../shared/data``."""
+    """The data directory: ``$CONTACT_SKILLS_DATA`` if set, else :func:`repository_data_directory`."""
     override = os.environ.get(DATA_ENV)
-    return Path(override) if override else repository_root().parent / "shared" / "data"
+    return Path(override) if override else repository_data_directory()
 
 
 def kuleuven_recordings() -> list[Path]:
@@ -110,7 +115,19 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--wrench-frame", choices=["world", "tool"], default="world", help="frame of the recorded wrench"
     )
-    parser.add_argument("--rate", type=float, metavar="HZ", help="resampling rate (default: the data's own)")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="with a time column: the rate to resample to (default: the data's own); without one: the rate the "
+        "rows were sampled at (t = row / HZ from 0)",
+    )
+    parser.add_argument(
+        "--dt",
+        type=float,
+        metavar="SECONDS",
+        help="the same as --rate 1/SECONDS: the time step of a file without a time column (t = row * SECONDS)",
+    )
     parser.add_argument("--no-tare", action="store_true", help="do not remove a sensor offset seen in free space")
     parser.add_argument(
         "--basis", type=int, default=50, metavar="N", help="fewest DMP basis functions per segment (long ones get more)"
@@ -131,6 +148,7 @@ def _import_demonstration(args: argparse.Namespace):  # -> schemas.Demonstration
         wrench_convention=args.wrench_convention,
         wrench_frame=args.wrench_frame,
         rate_hz=args.rate,
+        dt_s=args.dt,
         tare=not args.no_tare,
     )
 

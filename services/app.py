@@ -350,6 +350,14 @@ MAX_GRID_SAMPLES = 1_000_000
 """Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
 
 
+def _csv_problem_field(problems: list[str]) -> str:
+    """The form field a CSV import problem is about: ``columns``, ``rate``/``dt`` (their values), else ``file``."""
+    for prefix, field in (("--columns", "columns"), ("rate and dt", "rate"), ("rate:", "rate"), ("dt:", "dt")):
+        if any(problem.startswith(prefix) for problem in problems):
+            return field
+    return "file"
+
+
 def check_sampling(demonstration: Demonstration) -> None:
     """Raise `LearningError` on ``t`` for time stamps the pipeline cannot work on in bounded memory: a rate above
     :data:`MAX_RATE_HZ` (filter windows are sized in samples per second) or a uniform grid (duration at the
@@ -494,7 +502,21 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
         ] = WrenchConvention.applied_by_tool,
         wrench_frame: Annotated[WrenchFrame, Form(description="Frame of the recorded wrench.")] = WrenchFrame.world,
         rate: Annotated[
-            float | None, Form(gt=0, le=100_000, description="Resampling rate, Hz (default: the data's own).")
+            float | None,
+            Form(
+                gt=0,
+                le=MAX_RATE_HZ,
+                description="With a time column: the resampling rate, Hz (default: the data's own). Without one: "
+                "the rate the rows were sampled at (t = row / rate from 0); rate or dt is then required.",
+            ),
+        ] = None,
+        dt: Annotated[
+            float | None,
+            Form(
+                ge=1.0 / MAX_RATE_HZ,
+                description="Time step, s: the same as rate = 1/dt (e.g. the fixed step of a file without a time "
+                "column); may be given with rate only if they agree.",
+            ),
         ] = None,
         tare: Annotated[bool, Form(description="Remove a sensor offset seen in free space.")] = True,
         name: Annotated[str | None, Form(description="Name (default: the file name).")] = None,
@@ -512,11 +534,12 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
                 wrench_convention=wrench,
                 wrench_frame=wrench_frame,
                 rate_hz=rate,
+                dt_s=dt,
                 tare=tare,
                 name=name or stem,
             )
         except CsvImportError as exc:
-            field = "columns" if any(p.startswith("--columns") for p in exc.problems) else "file"
+            field = _csv_problem_field(exc.problems)
             raise RequestValidationError(
                 [{"loc": ("body", field), "msg": problem, "type": "csv_import"} for problem in exc.problems]
             ) from None

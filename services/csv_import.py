@@ -1,15 +1,17 @@
 """Importing recorded demonstrations: CSV (any column names, conventions, event-driven logs) and JSON.
 
 The result is always a validated `schemas.Demonstration` in the project's conventions
-(DESIGN.md): SI units, uniform strictly increasing time, scalar-last unit sign-continuous
+(docs/CONVENTIONS.md): SI units, uniform strictly increasing time, scalar-last unit sign-continuous
 quaternions, and the wrench the tool APPLIES to the environment at the tool point in the WORLD
 frame. Steps of :func:`demonstration_from_csv`, in order:
 
 1. read the table (standard ``csv`` module; ``,`` ``;`` tab or whitespace separated, one header
    row, ``#`` comment lines and blank lines skipped) and map its columns (:class:`ColumnMap`);
 2. quaternions to scalar-last (``quaternion_order``), norms checked, renormalized;
-3. per channel group (pose, wrench) keep the real measurements of an event-driven log and
-   resample onto one uniform grid (`skills.preprocess.resampled_recording`);
+3. time: per channel group (pose, wrench) keep the real measurements of an event-driven log and
+   resample onto one uniform grid (`skills.preprocess.resampled_recording`); a file WITHOUT a
+   time column is a fixed-rate recording: its rows are the samples, ``t = row * dt`` from 0,
+   with the rate given (``rate_hz`` or ``dt_s``), nothing resampled;
 4. a TOOL-frame wrench is rotated into the world with the (interpolated) tool orientation;
 5. a ``measured-on-tool`` wrench is negated (``applied-by-tool``);
 6. ``tare``: the sensor offset is estimated over a free-space part and subtracted, if there is one.
@@ -155,7 +157,8 @@ class ResolvedColumns:
     """Where each quantity is in the header and how the quaternion columns are ordered."""
 
     indices: dict[str, int | None]
-    """Header index of every key of :data:`COLUMN_KEYS`; None only for absent moment columns."""
+    """Header index of every key of :data:`COLUMN_KEYS`; None only for absent moment columns, and for an
+    absent time column when it was allowed (``time_optional``: the rows are samples at a given rate)."""
     quaternion_order: QuaternionOrder
     """Order of the four quaternion columns as they appear in the file, left to right."""
 
@@ -216,11 +219,13 @@ def resolved_columns(
     columns: ColumnMap | None = None,
     wrench_frame: WrenchFrame = WrenchFrame.world,
     quaternion_order: QuaternionOrder | None = None,
+    time_optional: bool = False,
 ) -> ResolvedColumns:
     """Find every key of :data:`COLUMN_KEYS` in ``header`` (``columns`` first, then common names).
 
-    ``quaternion_order`` None: taken from the quaternion column names. Raises
-    :class:`CsvImportError` listing every missing column with the names looked for.
+    ``quaternion_order`` None: taken from the quaternion column names. ``time_optional``: a
+    missing time column is not an error (its index is None; the caller knows the sampling rate).
+    Raises :class:`CsvImportError` listing every missing column with the names looked for.
     """
     given = (columns or ColumnMap()).given()
     exact = {name.strip(): j for j, name in enumerate(header)}
@@ -245,6 +250,14 @@ def resolved_columns(
     moments = [found[k] for k in ("mx", "my", "mz")]
     for key in COLUMN_KEYS:
         if found[key] is not None or (key[0] == "m" and all(m is None for m in moments)):
+            continue
+        if key == "t":
+            if not time_optional:
+                problems.append(
+                    f"missing column for t (time): none of {', '.join(_candidates('t', wrench_frame)[:6])}, ... "
+                    "in the header; name it with --columns t=<column>, or, if the rows are samples at a fixed rate, "
+                    "pass --rate HZ or --dt SECONDS (API form fields rate, dt)"
+                )
             continue
         if key[0] in "fm":
             shown = _wrench_candidates(key, None)[:3] + _wrench_candidates(key, wrench_frame)[:2]
@@ -355,6 +368,37 @@ def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, s
 
 # --------------------------------------------------------------------------- import
 
+MAX_RATE_HZ = 100_000.0
+"""Highest sampling or resampling rate accepted, Hz (a ``dt`` down to 10 µs)."""
+RATE_DT_AGREEMENT = 1e-6
+"""Relative tolerance within which a rate and a dt given together count as the same (``rate * dt == 1``)."""
+
+
+def sampling_rate_hz(rate_hz: float | None = None, dt_s: float | None = None) -> float | None:
+    """Return the rate (Hz) given as ``rate_hz`` or as a time step ``dt_s`` (s), or None if neither is given.
+
+    Both may be given if they agree (``rate_hz * dt_s`` = 1 within :data:`RATE_DT_AGREEMENT`).
+    Raises :class:`CsvImportError` for a value that is not a positive finite number, a rate above
+    :data:`MAX_RATE_HZ` (a dt below its inverse), or a rate and a dt that disagree.
+    """
+    problems = []
+    if rate_hz is not None and not (np.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
+        problems.append(f"rate: {rate_hz} Hz is not a rate in (0, {MAX_RATE_HZ:g}] Hz")
+    if dt_s is not None and not (np.isfinite(dt_s) and dt_s >= 1.0 / MAX_RATE_HZ):
+        problems.append(f"dt: {dt_s} s is not a positive time step of at least {1.0 / MAX_RATE_HZ:g} s")
+    if problems:
+        raise CsvImportError(problems)
+    if rate_hz is not None and dt_s is not None:
+        if abs(rate_hz * dt_s - 1.0) > RATE_DT_AGREEMENT:
+            raise CsvImportError(
+                f"rate and dt disagree: rate {rate_hz:g} Hz is a step of {1.0 / rate_hz:g} s, dt {dt_s:g} s "
+                f"is {1.0 / dt_s:g} Hz; give one of them"
+            )
+        return float(rate_hz)
+    if dt_s is not None:
+        return 1.0 / float(dt_s)
+    return None if rate_hz is None else float(rate_hz)
+
 
 def demonstration_from_csv(
     path_or_text: str | os.PathLike[str] | bytes,
@@ -365,6 +409,7 @@ def demonstration_from_csv(
     rate_hz: float | None = None,
     tare: bool = True,
     name: str | None = None,
+    dt_s: float | None = None,
 ) -> Demonstration:
     """Import a CSV recording (a path, or the CSV text itself) as a `schemas.Demonstration`.
 
@@ -374,12 +419,17 @@ def demonstration_from_csv(
     columns (q0..q3) need the order given.
     ``wrench_convention``: 'applied-by-tool' (kept) or 'measured-on-tool' (negated).
     ``wrench_frame``: 'world' (kept) or 'tool' (rotated into the world with the tool
-    orientation; the point stays the tool point). ``rate_hz``: uniform rate to resample to
-    (default: the fastest channel group's median update rate, 200 Hz for the KU Leuven logs).
+    orientation; the point stays the tool point).
+    ``rate_hz`` (Hz) or ``dt_s`` (s, the same as ``rate_hz=1/dt_s``; both may be given if they
+    agree): with a time column, the uniform rate to resample to (default: the fastest channel
+    group's median update rate, 200 Hz for the KU Leuven logs). Without a time column (none of
+    the recognised names and none given in ``columns``) the file is a fixed-rate recording: the
+    rows are the samples, ``t = row * dt`` from 0, nothing is resampled; the rate must then be
+    given (else :class:`CsvImportError` naming the missing time column).
     ``tare``: subtract the sensor offset measured over a free-space part, if there is one.
     ``name``: metadata name (default: the file stem; 'inline' for CSV text).
 
-    Metadata records the conventions on import, the resampled rate, the removed offset
+    Metadata records the conventions on import, the resampled rate (None for a fixed-rate file), the removed offset
     (world, applied-by-tool, or None), and in ``extra``: ``import_notes`` (one line per thing
     done), ``columns`` (key -> header name used) and ``rows``.
     Raises :class:`CsvImportError` naming the column/line/field and the reason.
@@ -390,35 +440,46 @@ def demonstration_from_csv(
         frame = WrenchFrame(wrench_frame)
     except ValueError as exc:
         raise CsvImportError(str(exc)) from None
-    if rate_hz is not None and not (np.isfinite(rate_hz) and 0 < rate_hz <= 100_000):
-        raise CsvImportError(f"rate: {rate_hz} Hz is not a resampling rate in (0, 100000] Hz")
+    rate = sampling_rate_hz(rate_hz, dt_s)
     text, file_name = _text_and_name(path_or_text)
     file_name = file_name or (f"{name}.csv" if name else "inline.csv")
     table = _read_table(text)
-    resolved = resolved_columns(table.header, columns, frame, requested_order)
+    resolved = resolved_columns(table.header, columns, frame, requested_order, time_optional=rate is not None)
     indices, order = resolved.indices, resolved.quaternion_order
     values = _numeric_columns(table, indices)
     if len(table.rows) < 2:
         raise CsvImportError(f"too few rows: {len(table.rows)} data row(s); a recording needs many samples over time")
 
-    t = values["t"]
     positions = np.column_stack([values[k] for k in ("px", "py", "pz")])
     q_file = np.column_stack([values["q" + component] for component in order.value])  # in the file's order
     orientations = preprocess.quaternions_scalar_last(q_file, order.value)
     _check_quaternions(orientations, table, indices)
     notes = []
     if indices["mx"] is None:
-        wrench = np.column_stack([values[k] for k in ("fx", "fy", "fz")] + [np.zeros_like(t)] * 3)
+        wrench = np.column_stack([values[k] for k in ("fx", "fy", "fz")] + [np.zeros(len(table.rows))] * 3)
         notes.append("no moment columns: moments set to zero")
     else:
         wrench = np.column_stack([values[k] for k in ("fx", "fy", "fz", "mx", "my", "mz")])
 
-    if np.ptp(t) <= 0:
-        raise CsvImportError(f"column {table.header[indices['t']]!r} (t): all time stamps are equal ({t[0]:g} s)")
-    try:
-        recording = preprocess.resampled_recording(t, positions, orientations, wrench, rate_hz)
-    except ValueError as exc:
-        raise CsvImportError(f"resampling: {exc}") from None
+    if indices["t"] is None:  # a fixed-rate recording: every row is a sample, nothing to resample
+        assert rate is not None  # resolved_columns refuses a missing time column without a rate
+        recording = _fixed_rate_recording(positions, orientations, wrench, dt_s if dt_s is not None else 1.0 / rate)
+    else:
+        t = values["t"]
+        if np.ptp(t) <= 0:
+            raise CsvImportError(f"column {table.header[indices['t']]!r} (t): all time stamps are equal ({t[0]:g} s)")
+        try:
+            resampled = preprocess.resampled_recording(t, positions, orientations, wrench, rate)
+        except ValueError as exc:
+            raise CsvImportError(f"resampling: {exc}") from None
+        recording = _Samples(
+            t=resampled.t,
+            positions=resampled.positions,
+            orientations=resampled.orientations,
+            wrenches=resampled.wrenches,
+            rate_hz=resampled.rate_hz,
+            notes=resampled.notes,
+        )
     notes = recording.notes + notes
     wrenches = recording.wrenches
     if frame == WrenchFrame.tool:
@@ -436,9 +497,10 @@ def demonstration_from_csv(
     else:
         notes.append("tare off: no sensor offset removed")
     if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
+        remedy = "record longer" if recording.fixed_rate else "record longer, or pass a higher rate"
         raise CsvImportError(
             f"too few samples: {recording.t.size} at {recording.rate_hz:g} Hz over {np.ptp(recording.t):.3g} s, "
-            f"at least {MIN_DEMONSTRATION_SAMPLES} are needed (record longer, or pass a higher rate)"
+            f"at least {MIN_DEMONSTRATION_SAMPLES} are needed ({remedy})"
         )
     metadata = DemonstrationMetadata(
         name=name or Path(file_name).stem,
@@ -446,7 +508,7 @@ def demonstration_from_csv(
         wrench_convention_on_import=convention,
         wrench_frame_on_import=frame,
         quaternion_order_on_import=order,
-        resampled_rate_hz=recording.rate_hz,
+        resampled_rate_hz=None if recording.fixed_rate else recording.rate_hz,
         force_offset_removed=None if offset is None else offset.tolist(),
         extra={
             "import_notes": notes,
@@ -458,6 +520,41 @@ def demonstration_from_csv(
         return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
     except ValidationError as exc:
         raise CsvImportError(validation_problems(exc)) from None
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The recording on its uniform time grid (what the steps after the time step need)."""
+
+    t: np.ndarray
+    positions: np.ndarray
+    orientations: np.ndarray
+    """Unit, scalar-last, sign-continuous."""
+    wrenches: np.ndarray
+    rate_hz: float
+    notes: list[str]
+    fixed_rate: bool = False
+    """True: the rows were taken as samples at a given rate (no time column), not resampled."""
+
+
+def _fixed_rate_recording(
+    positions: np.ndarray, orientations: np.ndarray, wrenches: np.ndarray, dt_s: float
+) -> _Samples:
+    """The rows of a file without a time column as samples ``dt_s`` apart: ``t = row * dt_s`` from 0.
+
+    Every row is a measurement (a value repeated over rows is the robot holding still, not an
+    event-log repeat), so none is dropped and nothing is resampled.
+    """
+    rate_hz = 1.0 / dt_s
+    return _Samples(
+        t=np.arange(positions.shape[0]) * dt_s,
+        positions=positions,
+        orientations=preprocess.quaternions_unit_continuous(orientations),
+        wrenches=wrenches,
+        rate_hz=rate_hz,
+        notes=[f"no time column: rows taken as samples at {rate_hz:g} Hz (dt {dt_s:g} s)"],
+        fixed_rate=True,
+    )
 
 
 UPWARD_FORCE_HINT = 0.5
@@ -546,6 +643,7 @@ __all__ = [
     "demonstration_from_file",
     "demonstration_from_json",
     "resolved_columns",
+    "sampling_rate_hz",
     "validation_problems",
 ]
 

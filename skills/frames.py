@@ -1,4 +1,6 @@
-"""Frame algebra of DESIGN.md "Conventions": rotations between vectors, adjoints, eq. (2)-(3).
+"""Frame algebra of the project conventions: rotations between vectors, adjoints, eq. (2)-(3).
+
+Conventions: docs/CONVENTIONS.md
 
 A transform ``T = (R, p)`` maps coordinates of frame B into frame A: ``x_A = R x_B + p``.
 6-vectors are ``[x, y, z, rx, ry, rz]``: twists ``(v, ω)``, wrenches ``(f, m)``.

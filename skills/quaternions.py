@@ -1,5 +1,7 @@
 """Unit quaternions, scalar-LAST ``[x, y, z, w]`` (the project convention, as PyBullet and scipy).
 
+Conventions: docs/CONVENTIONS.md
+
 Every function takes arrays of shape ``(4,)`` or ``(N, 4)`` and is vectorized over N.
 A quaternion ``q`` maps a vector from the rotated (body) frame into the reference frame,
 ``v_ref = R(q) v_body``. Angles are in rad.

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import KULEUVEN_DATA
 from fastapi.testclient import TestClient
 
 from schemas import Demonstration, ExecutionMetrics, TelemetryBatch
@@ -20,7 +21,7 @@ from services.settings import ServiceSettings, SettingsError
 from services.store import RESTART_REASON, Store
 from skills.synthetic import plane_slide
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kuleuven_contour"
+DATA = KULEUVEN_DATA
 
 
 def _demo_json(rate_hz: float = 200.0, duration_s: float = 4.0, **changes) -> dict:
@@ -226,7 +227,6 @@ def test_learn_from_inline_and_stored_demonstrations(client, demo):
     assert client.get(f"/skills/{skill['id']}").status_code == 404
 
 
-@pytest.mark.skipif(not DATA.is_dir(), reason="KU Leuven recordings not found")
 def test_csv_upload_of_a_kuleuven_recording(client):
     path = DATA / "contour_a_1.csv"
     options = {"quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool", "tare": "true"}
@@ -259,6 +259,23 @@ def test_bad_csv_uploads_are_422(client):
     assert _names(client.post("/demonstrations/csv", data={"rate": "5"}), "file")
     ok = client.post("/demonstrations/csv", files={"file": ("g.csv", good.encode(), "text/csv")}, data={"rate": "100"})
     assert ok.status_code == 201, ok.text
+
+
+def test_csv_upload_without_time_column_takes_the_rate_from_rate_or_dt(client):
+    rows = "px,py,pz,qx,qy,qz,qw,fx,fy,fz\n" + "\n".join(f"{k * 0.001},0,0,0,0,0,1,0,0,1" for k in range(100))
+
+    def upload(**options: str):
+        return client.post("/demonstrations/csv", files={"file": ("k.csv", rows.encode(), "text/csv")}, data=options)
+
+    missing = upload()
+    assert _names(missing, "file") and "missing column for t (time)" in missing.text and "--dt SECONDS" in missing.text
+    created = upload(dt="0.01")
+    assert created.status_code == 201, created.text
+    assert created.json()["import_notes"][0] == "no time column: rows taken as samples at 100 Hz (dt 0.01 s)"
+    stored = client.get(f"/demonstrations/{created.json()['id']}").json()
+    assert stored["demonstration"]["t"][:3] == [0.0, 0.01, 0.02] and len(stored["demonstration"]["t"]) == 100
+    assert _names(upload(dt="0"), "dt")
+    assert _names(upload(rate="100", dt="0.02"), "rate")
 
 
 # --------------------------------------------------------------------------- limits and auth

@@ -12,15 +12,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import KULEUVEN_DATA
 
 from cli.main import DATA_ENV, kuleuven_recordings, main
 from schemas import Demonstration, Skill
 from services.csv_import import demonstration_from_csv
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
 from skills.quaternions import matrix_from_quaternion
+from skills.synthetic import plane_slide
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "kuleuven_contour"
+DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
 KULEUVEN_ARGS = ["--quaternion-order", "wxyz", "--wrench", "measured-on-tool", "--wrench-frame", "tool"]
 README_CF_Z_TOOL = -np.array([-0.03, -0.65, -0.77])  # the README's measured-on-tool direction, negated
@@ -197,6 +199,24 @@ def test_a_demonstration_without_contact_exits_2(tmp_path):
     (tmp_path / "free.json").write_text(demo.model_dump_json())
     code, _, stderr = _run(["learn", str(tmp_path / "free.json"), "--type", "contour", "-o", str(tmp_path / "s.json")])
     assert code == 2 and "error: wrenches:" in stderr, stderr
+
+
+def test_learn_a_file_without_time_column_at_a_given_rate(tmp_path):
+    """A kinesthetic recording at 100 Hz with no time column (w-first quaternions): `--rate 100` gives its time."""
+    d = plane_slide(rate_hz=100.0, duration_s=4.0)
+    rows = np.column_stack([d.positions, d.orientations[:, 3], d.orientations[:, :3], d.wrenches])
+    path = tmp_path / "kinesthetic.csv"
+    np.savetxt(path, rows, delimiter=",", header="x,y,z,qw,qx,qy,qz,fx,fy,fz,mx,my,mz", comments="", fmt="%.10g")
+    skill_path = tmp_path / "s.json"
+    code, stdout, stderr = _run(["learn", str(path), "--rate", "100", "--type", "slide", "-o", str(skill_path)])
+    assert code == 0, stderr
+    assert "import: no time column: rows taken as samples at 100 Hz (dt 0.01 s)" in stdout
+    assert f"{len(d.t)} samples, {(len(d.t) - 1) * 0.01:.2f} s, 100 Hz" in stdout
+    assert Skill.model_validate_json(skill_path.read_text()).skill_type == "slide"
+    code, _, stderr = _run(["learn", str(path), "-o", str(skill_path)])
+    assert code == 2 and "missing column for t (time)" in stderr and "--rate HZ or --dt SECONDS" in stderr
+    code, _, stderr = _run(["learn", str(path), "--rate", "100", "--dt", "0.02", "-o", str(skill_path)])
+    assert code == 2 and "rate and dt disagree" in stderr
 
 
 def test_help_is_light():

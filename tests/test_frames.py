@@ -1,10 +1,11 @@
-"""Invariants of the frame conventions (DESIGN.md "Conventions"): adjoints, eq. (3), Möller-Hughes, quaternions."""
+"""Invariants of the frame conventions (docs/CONVENTIONS.md): adjoints, eq. (3), Möller-Hughes, quaternions, CF."""
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from schemas.skill import SELECTION_CONTACT
+from schemas.skill import SELECTION_CONTACT, SELECTION_FREE
+from skills.compliant_frames import contour_frames, slide_frame
 from skills.frames import (
     adjoint_from_transform,
     force_projector_in_frame,
@@ -61,6 +62,19 @@ def test_wrench_adjoint_moves_a_force_as_physics_says() -> None:
     np.testing.assert_allclose(wrench_a[3:], np.cross(p, R @ f_b), atol=1e-12)
 
 
+def test_twist_adjoint_moves_an_angular_velocity_as_physics_says() -> None:
+    """Twists are (v, ω): a pure rotation ω about B's origin, seen at A's origin, gains the velocity p x (R ω)."""
+    R, p = random_transform()
+    omega_b = np.array([0.0, 0.0, 2.0])
+    twist_a = adjoint_from_transform(R, p) @ np.concatenate([np.zeros(3), omega_b])
+    np.testing.assert_allclose(twist_a[3:], R @ omega_b, atol=1e-12)
+    np.testing.assert_allclose(twist_a[:3], np.cross(p, R @ omega_b), atol=1e-12)
+    # and a pure velocity only rotates
+    v_b = np.array([0.3, -0.1, 0.2])
+    np.testing.assert_allclose(adjoint_from_transform(R, p) @ np.concatenate([v_b, np.zeros(3)]),
+                               np.concatenate([R @ v_b, np.zeros(3)]), atol=1e-12)  # fmt: skip
+
+
 def test_force_projector_keeps_cf_z_and_removes_cf_x() -> None:
     R, p = random_transform()
     projector = force_projector_in_frame(R, p, SELECTION_CONTACT)
@@ -85,6 +99,38 @@ def test_cf_z_position_error_produces_no_motion_wrench() -> None:
 def test_identity_frame_reduces_to_diagonal_stiffness() -> None:
     omega = stiffness_in_frame(np.eye(3), np.zeros(3), STIFFNESS_CF, np.ones(6))
     np.testing.assert_allclose(omega, np.diag(STIFFNESS_CF))
+
+
+def test_selection_diagonals_contact_and_free() -> None:
+    """1 = motion-controlled, 0 = force-controlled: contact frees CF z for force control, free space is all motion."""
+    assert SELECTION_CONTACT == [1.0, 1.0, 0.0, 1.0, 1.0, 1.0] and SELECTION_FREE == [1.0] * 6
+    R, p = random_transform()
+    np.testing.assert_allclose(force_projector_in_frame(R, p, SELECTION_FREE), np.zeros((6, 6)), atol=1e-12)
+    Ad, Adg = adjoint_from_transform(R, p), wrench_adjoint_from_transform(R, p)
+    full = Adg @ np.diag(STIFFNESS_CF) @ np.linalg.inv(Ad)  # every axis stiff: pure impedance
+    np.testing.assert_allclose(stiffness_in_frame(R, p, STIFFNESS_CF, SELECTION_FREE), full, atol=1e-9)
+    # contact: the motion and force subspaces split the wrench space (Ω~ + Adg S Adg^-1 = I)
+    motion_projector = Adg @ np.diag(SELECTION_CONTACT) @ np.linalg.inv(Adg)
+    np.testing.assert_allclose(force_projector_in_frame(R, p, SELECTION_CONTACT) + motion_projector, np.eye(6),
+                               atol=1e-10)  # fmt: skip
+
+
+def test_compliant_frame_z_points_along_the_applied_force() -> None:
+    """CF z is along the force the tool applies (into the surface), so the pressing force is a positive CF f_z."""
+    rng = np.random.default_rng(5)
+    normal_into_surface = np.array([0.2, -0.3, -1.0]) / np.linalg.norm([0.2, -0.3, -1.0])
+    R_plane = rotation_from_vectors([0.0, 0.0, 1.0], normal_into_surface)
+    s = np.linspace(0.0, 1.0, 400)
+    positions = (R_plane @ np.stack([0.2 * s, 0.05 * np.sin(6 * s), 1e-5 * rng.normal(size=s.size)])).T
+    forces = 15.0 * normal_into_surface + 0.5 * rng.normal(size=(s.size, 3))  # applied by the tool, world
+    fit = slide_frame(positions, forces)
+    z = fit.rotation[:, 2]
+    assert np.degrees(np.arccos(z @ normal_into_surface)) < 0.5
+    assert np.all((forces @ fit.rotation)[:, 2] > 0)  # CF f_z = z . f > 0
+    assert fit.rotation[:, 0] @ (positions[-1] - positions[0]) > 0  # x along the motion
+    frames = contour_frames(positions, forces, rate_hz=100.0, segment=slice(0, s.size))
+    assert np.all(np.einsum("kj,kj->k", forces, frames[:, :, 2]) > 0)
+    np.testing.assert_allclose(np.linalg.det(frames), 1.0, atol=1e-9)
 
 
 def test_skew_is_cross_product() -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import KULEUVEN_DATA
 from scipy.spatial.transform import Rotation
 
 from schemas import Demonstration
@@ -21,7 +22,7 @@ from services.csv_import import (
 from skills import preprocess
 from skills.quaternions import quaternion_angle_between
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kuleuven_contour"
+DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
 KULEUVEN = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool"}
 
@@ -32,7 +33,7 @@ KULEUVEN = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool"}
 @pytest.fixture(scope="module")
 def real() -> dict[str, dict[str, Demonstration]]:
     """Each trial imported from the TCP-frame wrench columns and from the world-frame ones."""
-    assert DATA.is_dir(), f"the KU Leuven recordings must be beside the repository: {DATA}"
+    assert DATA.is_dir(), f"the KU Leuven recordings are part of the repository: {DATA}"
     return {
         name: {
             frame: demonstration_from_csv(DATA / f"{name}.csv", wrench_frame=frame, **KULEUVEN)
@@ -408,3 +409,71 @@ def test_json_round_trip_and_field_errors(tmp_path):
         demonstration_from_json(path)
     with pytest.raises(DemonstrationImportError, match="cannot read"):
         demonstration_from_json(tmp_path / "missing.json")
+
+
+# --------------------------------------------------------------------------- files without a time column
+
+NO_TIME_HEADER = ["px", "py", "pz", "qw", "qx", "qy", "qz", "fx", "fy", "fz", "mx", "my", "mz"]
+"""A kinesthetic recording at a fixed rate: no time column, scalar-first quaternion columns."""
+
+
+def _no_time_rows(n: int = 300, dt: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """(true t, rows): the robot holds still for the first 0.5 s, then moves; quaternions w-first."""
+    t = np.arange(n) * dt
+    p, q, w = _truth(np.clip(t - 0.5, 0.0, None))
+    return t, np.column_stack([p, q[:, 3], q[:, :3], w])
+
+
+def test_file_without_time_column_takes_rows_as_samples_at_the_given_rate():
+    t, rows = _no_time_rows()
+    text = _csv(NO_TIME_HEADER, rows)
+    by_rate = demonstration_from_csv(text, rate_hz=100.0, tare=False)
+    by_dt = demonstration_from_csv(text, dt_s=0.01, tare=False)
+    both = demonstration_from_csv(text, rate_hz=100.0, dt_s=0.01, tare=False)
+    assert by_rate.t == by_dt.t == both.t
+    np.testing.assert_allclose(by_rate.t, t, rtol=0, atol=1e-12)  # t = row * dt from 0
+    a = by_dt.arrays()
+    assert a.t.size == rows.shape[0]  # every row is a sample: the 0.5 s hold is not an event-log repeat
+    np.testing.assert_allclose(a.positions, rows[:, :3], atol=1e-9)
+    _, q, w = _truth(np.clip(t - 0.5, 0.0, None))
+    assert _angle(a.orientations, q).max() < 1e-6  # wxyz columns became scalar-last
+    np.testing.assert_allclose(a.wrenches, w, atol=1e-8)
+    meta = by_dt.metadata
+    assert meta.quaternion_order_on_import == "wxyz" and meta.resampled_rate_hz is None
+    assert "t" not in meta.extra["columns"]
+    assert meta.extra["import_notes"][0] == "no time column: rows taken as samples at 100 Hz (dt 0.01 s)"
+
+
+def test_file_without_time_column_needs_rate_or_dt():
+    _, rows = _no_time_rows()
+    with pytest.raises(CsvImportError) as raised:
+        demonstration_from_csv(_csv(NO_TIME_HEADER, rows))
+    message = str(raised.value)
+    assert message.startswith("missing column for t (time): none of t, time, timestamp")
+    assert "pass --rate HZ or --dt SECONDS" in message and len(raised.value.problems) == 1
+
+
+@pytest.mark.parametrize(
+    ("options", "expected"),
+    [
+        ({"dt_s": 0.0}, "dt: 0.0 s is not a positive time step"),
+        ({"dt_s": -0.01}, "dt: -0.01 s is not a positive time step"),
+        ({"dt_s": float("nan")}, "dt: nan s is not a positive time step"),
+        ({"rate_hz": float("nan")}, "rate: nan Hz is not a rate"),
+        ({"rate_hz": 100.0, "dt_s": 0.02}, "rate and dt disagree: rate 100 Hz is a step of 0.01 s, dt 0.02 s is 50 Hz"),
+    ],
+    ids=["dt-zero", "dt-negative", "dt-nan", "rate-nan", "disagree"],
+)
+def test_bad_rate_or_dt_is_refused(options, expected):
+    _, rows = _no_time_rows()
+    with pytest.raises(CsvImportError) as raised:
+        demonstration_from_csv(_csv(NO_TIME_HEADER, rows), **options)
+    assert expected in str(raised.value), str(raised.value)
+
+
+def test_with_a_time_column_dt_is_the_resampling_step():
+    text = _csv(HEADER, _good_rows())  # 200 Hz time stamps
+    by_dt = demonstration_from_csv(text, dt_s=0.01)
+    by_rate = demonstration_from_csv(text, rate_hz=100.0)
+    assert by_dt.t == by_rate.t and by_dt.metadata.resampled_rate_hz == pytest.approx(100.0)
+    assert not any("no time column" in note for note in by_dt.metadata.extra["import_notes"])
