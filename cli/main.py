@@ -128,7 +128,23 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="the same as --rate 1/SECONDS: the time step of a file without a time column (t = row * SECONDS)",
     )
-    parser.add_argument("--no-tare", action="store_true", help="do not remove a sensor offset seen in free space")
+    parser.add_argument(
+        "--no-tare", action="store_true", help="do not remove the sensor offset (estimated over the free-space stretches)"
+    )
+    parser.add_argument(
+        "--tare-window",
+        type=float,
+        nargs=2,
+        metavar=("T0", "T1"),
+        help="take the sensor offset as the median of the file's wrench between T0 and T1 s (nothing touching)",
+    )
+    parser.add_argument(
+        "--force-offset",
+        type=float,
+        nargs="+",
+        metavar="F",
+        help="subtract this sensor offset: FX FY FZ (N) [MX MY MZ (N·m)], as the file reads it with nothing touching",
+    )
     parser.add_argument(
         "--basis", type=int, default=50, metavar="N", help="fewest DMP basis functions per segment (long ones get more)"
     )
@@ -150,6 +166,8 @@ def _import_demonstration(args: argparse.Namespace):  # -> schemas.Demonstration
         rate_hz=args.rate,
         dt_s=args.dt,
         tare=not args.no_tare,
+        tare_window_s=tuple(args.tare_window) if args.tare_window else None,
+        force_offset=args.force_offset,
     )
 
 
@@ -201,7 +219,10 @@ def summary_lines(demonstration, skill) -> list[str]:
     lines.append(f"segments: {len(skill.segments)}")
     for s in skill.segments:
         q = s.quality
-        lines.append(f"  {s.index} {s.kind.value:7s} {s.t_start:7.3f} - {s.t_end:7.3f} s")
+        lines.append(
+            f"  {s.index} {s.kind.value:7s} {s.t_start:7.3f} - {s.t_end:7.3f} s"
+            f"  (starts: {s.start_reason}, ends: {s.end_reason})"
+        )
         if s.kind == SegmentKind.contact and s.compliant_frames is not None:
             axes = compliant_frame_axes(demonstration, s)
             if len(s.compliant_frames.t) == 1:
@@ -213,6 +234,12 @@ def summary_lines(demonstration, skill) -> list[str]:
                 )
         if s.force_constant_n is not None:
             lines.append(f"    force: constant {s.force_constant_n:.2f} N along CF z")
+            if q.force_measured_percentiles_n is not None:
+                p10, p50, p90 = q.force_measured_percentiles_n
+                lines.append(
+                    f"    measured along CF z: median {p50:.2f} N, 10-90 % {p10:.2f}-{p90:.2f} N "
+                    f"(std {q.force_std_low_variance_n:.2f} N in the steady part the constant comes from)"
+                )
         elif s.force_dmp is not None:
             from services.figures import learned_force_curve
 
@@ -336,22 +363,45 @@ def _run_simulate(args: argparse.Namespace) -> int:
 def _add_record_parser(commands) -> None:
     """Register ``contact-skills record``."""
     from_scenarios = "slide_flat, slide_tilted, slide_two_planes, contour_cylinder, contour_block"
+    kinesthetic_scenarios = "wipe_flat, wipe_tilted, wipe_curved"  # sim_worker.kinesthetic_teacher.SCENARIOS
     record = commands.add_parser(
         "record",
-        help="record a scripted teacher demonstration in the simulated world",
-        description=f"{_run_record.__doc__} Scenarios: {from_scenarios}.",
+        help="record a scripted or kinesthetic (hand-guided) teacher demonstration in the simulated world",
+        description=f"{_run_record.__doc__} Scenarios: {from_scenarios} (--style scripted); "
+        f"{kinesthetic_scenarios} (--style kinesthetic: 1-4 wiping strokes as a person guiding the arm makes them, "
+        "written as a real recording file: 100 Hz, no time column, w-first quaternions, raw wrist-sensor wrench).",
     )
     record.add_argument("scenario", help="teacher scenario name")
-    record.add_argument("-o", "--output", type=Path, required=True, help="demo.json (a Demonstration) or demo.csv")
+    record.add_argument(
+        "-o", "--output", type=Path, required=True, help="demo.json (a Demonstration) or demo.csv; kinesthetic: .csv"
+    )
+    record.add_argument(
+        "--style",
+        choices=["scripted", "kinesthetic"],
+        default="scripted",
+        help="scripted: one clean stroke at 1 kHz; kinesthetic: a hand-guided wiping recording",
+    )
+    record.add_argument("--strokes", type=int, metavar="N", help="kinesthetic: number of strokes 1-6 (default: seed)")
+    record.add_argument(
+        "--friction",
+        type=float,
+        metavar="MU",
+        help="kinesthetic: tool-surface friction coefficient (default: from the seed, 0.2-0.4)",
+    )
     record.add_argument("--seed", type=int, default=0, help="seed of the teacher's human-like imperfection")
     record.add_argument(
         "--truth", type=Path, help="also write the ground truth (normals, force, contact times) as JSON"
     )
+    record.add_argument("--world", type=Path, help="also write the world's WorldConfig JSON (for simulate --world)")
     record.set_defaults(run=_run_record)
 
 
 def _run_record(args: argparse.Namespace) -> int:
-    """``contact-skills record``: the scripted teacher guides the simulated robot and the recording is written."""
+    """``contact-skills record``: the teacher guides the simulated robot and the recording is written."""
+    if args.style == "kinesthetic":
+        from cli.record_command import run_kinesthetic_record
+
+        return run_kinesthetic_record(args)
     try:
         import json
 
@@ -362,6 +412,8 @@ def _run_record(args: argparse.Namespace) -> int:
             raise UserError([f"scenario: unknown {args.scenario!r}; choose one of {', '.join(SCENARIOS)}"])
         if args.output.suffix.lower() not in (".json", ".csv"):
             raise UserError([f"output: {args.output} must end in .json or .csv"])
+        if args.strokes is not None or args.friction is not None:
+            raise UserError(["--strokes and --friction go with --style kinesthetic"])
         recording = record_demonstration(args.scenario, seed=args.seed)
     except Exception as exc:
         return _report_user_error("record", exc)
@@ -377,6 +429,9 @@ def _run_record(args: argparse.Namespace) -> int:
     if args.truth is not None:
         args.truth.write_text(json.dumps(recording.ground_truth_dict(), indent=1))
         print(f"ground truth -> {args.truth}")
+    if args.world is not None:
+        args.world.write_text(json.dumps(recording.world_config.to_dict(), indent=1))
+        print(f"world -> {args.world}")
     return 0
 
 

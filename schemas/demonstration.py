@@ -8,7 +8,7 @@ point, in the world frame.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -70,7 +70,14 @@ class DemonstrationMetadata(BaseModel):
         None, description="Uniform rate (Hz) the importer resampled irregular time stamps to, if it did."
     )
     force_offset_removed: Wrench | None = Field(
-        None, description="Sensor offset (N, N·m, world) subtracted on import (tare from the free-space part)."
+        None,
+        description="Sensor offset (N, N·m) subtracted on import, as the file reads it (its sign convention) with "
+        "nothing touching the tool, in the frame named by force_offset_frame.",
+    )
+    force_offset_frame: Literal["tool", "world"] | None = Field(
+        None,
+        description="Frame of force_offset_removed: 'tool' (the sensor frame: estimated over the free-space "
+        "stretches, or given for a tool-frame file) or 'world' (given for a world-frame file).",
     )
     extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
 

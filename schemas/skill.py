@@ -110,6 +110,13 @@ class SegmentQuality(BaseModel):
     force_std_low_variance_n: float | None = Field(
         None, description="Standard deviation of the CF-z force in the low-variance region, N (slide contact only)."
     )
+    force_measured_percentiles_n: list[float] | None = Field(
+        None,
+        min_length=3,
+        max_length=3,
+        description="Slide contact segments: 10th, 50th and 90th percentile of the demonstrated CF-z force over the "
+        "segment (ramps included), N: the measured profile the constant stands for.",
+    )
 
 
 class Segment(BaseModel):
@@ -118,11 +125,21 @@ class Segment(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     index: int = Field(ge=0, description="Position in the sequence, from 0.")
-    kind: SegmentKind = Field(description="Contact or free (from the applied force).")
+    kind: SegmentKind = Field(description="Contact or free (from force and kinematics, see docs/LEARNING.md).")
     start_index: int = Field(ge=0, description="First sample of the (resampled) demonstration in this segment.")
     end_index: int = Field(ge=0, description="One past the last sample in this segment.")
     t_start: float = Field(description="Demonstration time of the first sample, s.")
     t_end: float = Field(description="Demonstration time of the last sample, s.")
+    start_reason: str | None = Field(
+        None,
+        description="What decided where this segment starts: 'force' (rose from the touch level), 'surface' "
+        "(the tool reached the surface), 'crease' (the surface normal jumps), 'recording' (the file starts), or "
+        "'contact' for a free segment that starts where a contact ended.",
+        examples=["force"],
+    )
+    end_reason: str | None = Field(
+        None, description="What decided where this segment ends (same words as start_reason).", examples=["surface"]
+    )
     selection: list[float] = Field(
         min_length=6, max_length=6, description="Diagonal of S in CF, [x, y, z, rx, ry, rz]; 1 = motion, 0 = force."
     )
@@ -159,7 +176,10 @@ class AutoSelection(BaseModel):
     chosen: SkillType
     confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
     turning_within_planes_deg: float = Field(
-        description="How far the normal force direction turns inside the slide segments, deg (planes: ~0)."
+        description="Largest turn of the friction-free normal within one slide segment, deg (planes: a few)."
+    )
+    plane_rms_m: float | None = Field(
+        None, description="Largest planarity residual of the contact within one slide segment, m (planes: < 4 mm)."
     )
     reason: str = Field(description="One sentence: why this type.")
 
@@ -198,7 +218,10 @@ class LearnOptions(BaseModel):
         "(bases are >= 40 ms apart, so a finer grid adds cost, not information).",
     )
     contact_force_threshold_n: float | None = Field(
-        None, gt=0, description="Force magnitude (N) above which the tool is in contact; default: adaptive."
+        None,
+        gt=0,
+        description="Force (N) a stroke presses with at least while sliding (its core); default: 40 % of the "
+        "robust peak. Contact boundaries are then found from the surface and the touch level.",
     )
     min_segment_duration_s: float = Field(0.25, gt=0, description="Segments shorter than this are merged, s.")
     contour_frames_max: int = Field(

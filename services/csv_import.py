@@ -12,9 +12,13 @@ frame. Steps of :func:`demonstration_from_csv`, in order:
    resample onto one uniform grid (`skills.preprocess.resampled_recording`); a file WITHOUT a
    time column is a fixed-rate recording: its rows are the samples, ``t = row * dt`` from 0,
    with the rate given (``rate_hz`` or ``dt_s``), nothing resampled;
-4. a TOOL-frame wrench is rotated into the world with the (interpolated) tool orientation;
-5. a ``measured-on-tool`` wrench is negated (``applied-by-tool``);
-6. ``tare``: the sensor offset is estimated over a free-space part and subtracted, if there is one.
+4. an offset the user gave (``force_offset``) or named by a quiet window (``tare_window_s``) is
+   subtracted from the file's own wrench columns;
+5. a TOOL-frame wrench is rotated into the world with the (interpolated) tool orientation;
+6. a ``measured-on-tool`` wrench is negated (``applied-by-tool``);
+7. otherwise ``tare``: contact is found from force and kinematics (`skills.contact`) and the
+   sensor offset is fitted in the sensor (tool) frame over every free-space stretch, with the
+   hand's push on the arm (`skills.tare`), and subtracted.
 
 Units are assumed SI already (s, m, N, N·m): nothing is rescaled.
 Every problem raises :class:`CsvImportError` (a ``ValueError``) whose message names the column,
@@ -26,7 +30,7 @@ from __future__ import annotations
 import csv
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -36,6 +40,8 @@ from pydantic import ValidationError
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
 from skills import preprocess
+from skills import tare as tare_module
+from skills.contact import analyse_contact
 
 MAX_PROBLEMS_LISTED = 10
 """At most this many problems are listed in one error (the count of the rest is given)."""
@@ -410,6 +416,8 @@ def demonstration_from_csv(
     tare: bool = True,
     name: str | None = None,
     dt_s: float | None = None,
+    tare_window_s: tuple[float, float] | None = None,
+    force_offset: Sequence[float] | None = None,
 ) -> Demonstration:
     """Import a CSV recording (a path, or the CSV text itself) as a `schemas.Demonstration`.
 
@@ -426,12 +434,18 @@ def demonstration_from_csv(
     the recognised names and none given in ``columns``) the file is a fixed-rate recording: the
     rows are the samples, ``t = row * dt`` from 0, nothing is resampled; the rate must then be
     given (else :class:`CsvImportError` naming the missing time column).
-    ``tare``: subtract the sensor offset measured over a free-space part, if there is one.
+    ``tare``: subtract the sensor offset, estimated in the sensor (tool) frame over every
+    free-space stretch (`skills.tare`), if the recording has enough free space.
+    ``tare_window_s`` ``(t0, t1)`` s: instead, the median wrench of the file's rows in that window
+    (nothing touching the tool there) is the offset, in the file's own frame and sign.
+    ``force_offset``: instead, this offset (3 forces, N, or 6 with moments, N·m), as the file reads
+    it with nothing touching the tool (its own frame and sign).
     ``name``: metadata name (default: the file stem; 'inline' for CSV text).
 
     Metadata records the conventions on import, the resampled rate (None for a fixed-rate file), the removed offset
-    (world, applied-by-tool, or None), and in ``extra``: ``import_notes`` (one line per thing
-    done), ``columns`` (key -> header name used) and ``rows``.
+    (as the file reads it, in ``force_offset_frame``), and in ``extra``: ``import_notes`` (one line
+    per thing done), ``columns`` (key -> header name used), ``rows`` and ``tare`` (how the offset
+    was found: method, free-space stretches, samples).
     Raises :class:`CsvImportError` naming the column/line/field and the reason.
     """
     try:
@@ -482,6 +496,9 @@ def demonstration_from_csv(
         )
     notes = recording.notes + notes
     wrenches = recording.wrenches
+    given = _given_offset(recording, tare_window_s, force_offset)
+    if given is not None:
+        wrenches = wrenches - given.offset
     if frame == WrenchFrame.tool:
         wrenches = preprocess.wrenches_tool_to_world(wrenches, recording.orientations)
         notes.append("wrench given in the tool frame: rotated into the world with the interpolated tool orientation")
@@ -489,11 +506,38 @@ def demonstration_from_csv(
         wrenches = preprocess.wrenches_applied_by_tool(wrenches)
         notes.append("wrench measured on the tool: negated to the wrench the tool applies")
     notes.extend(_direction_hint(wrenches, convention))
-    offset = None
-    if tare:
-        tared = preprocess.wrenches_tared(recording.t, wrenches)
-        wrenches, offset = tared.wrenches, tared.offset
-        notes.append(tared.note)
+    offset, offset_frame, tare_report = None, None, {"method": "none"}
+    if given is not None:
+        offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
+        notes.append(given.note)
+    elif tare:
+        estimate = _free_space_offset(recording, wrenches)
+        if estimate is None:
+            notes.append(
+                f"no free-space part of at least {tare_module.MIN_FREE_S} s found: no sensor offset removed "
+                "(--tare-window or --force-offset set one)"
+            )
+        else:
+            wrenches = tare_module.wrenches_without_offset(recording.orientations, wrenches, estimate.wrench)
+            sign = -1.0 if convention == WrenchConvention.measured_on_tool else 1.0
+            offset, offset_frame = sign * estimate.wrench, "tool"
+            where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in estimate.stretches[:6])
+            more = f" and {len(estimate.stretches) - 6} more" if len(estimate.stretches) > 6 else ""
+            force = ", ".join(f"{v:+.2f}" for v in offset[:3])
+            notes.append(
+                f"sensor offset removed: [{force}] N in the sensor (tool) frame as the file reads it, fitted over "
+                f"{estimate.samples} free-space samples ({where}{more}) with the hand's push on the arm "
+                f"(damping {estimate.arm_damping_n_s_m:.1f} N·s/m, mass {estimate.arm_mass_kg:.1f} kg, "
+                f"friction {estimate.arm_friction_n:.1f} N)"
+            )
+            tare_report = {
+                "method": "free-space fit",
+                "stretches_s": [list(s) for s in estimate.stretches],
+                "samples": estimate.samples,
+                "arm_damping_n_s_m": estimate.arm_damping_n_s_m,
+                "arm_mass_kg": estimate.arm_mass_kg,
+                "arm_friction_n": estimate.arm_friction_n,
+            }
     else:
         notes.append("tare off: no sensor offset removed")
     if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
@@ -510,16 +554,67 @@ def demonstration_from_csv(
         quaternion_order_on_import=order,
         resampled_rate_hz=None if recording.fixed_rate else recording.rate_hz,
         force_offset_removed=None if offset is None else offset.tolist(),
+        force_offset_frame=offset_frame,
         extra={
             "import_notes": notes,
             "columns": {k: table.header[j] for k, j in indices.items() if j is not None},
             "rows": len(table.rows),
+            "tare": tare_report,
         },
     )
     try:
         return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
     except ValidationError as exc:
         raise CsvImportError(validation_problems(exc)) from None
+
+
+@dataclass(frozen=True)
+class _GivenOffset:
+    """An offset the user gave (or a window they named), in the file's frame and sign: (6,) N, N·m."""
+
+    offset: np.ndarray
+    method: str
+    note: str
+
+
+def _given_offset(
+    recording: _Samples, tare_window_s: tuple[float, float] | None, force_offset: Sequence[float] | None
+) -> _GivenOffset | None:
+    """Return the offset the options ask for (``--force-offset`` or ``--tare-window``), or None."""
+    if tare_window_s is not None and force_offset is not None:
+        raise CsvImportError("tare: give either a tare window or a force offset, not both")
+    if force_offset is not None:
+        values = np.asarray(force_offset, dtype=float)
+        if values.shape not in ((3,), (6,)) or not np.all(np.isfinite(values)):
+            raise CsvImportError(f"force offset: 3 forces (N) or 6 values with moments (N·m) are needed, got {values}")
+        offset = np.concatenate([values, np.zeros(6 - values.size)])
+        shown = ", ".join(f"{v:+.2f}" for v in offset[:3])
+        return _GivenOffset(offset, "given", f"sensor offset removed as given: [{shown}] N in the file's frame")
+    if tare_window_s is None:
+        return None
+    t0, t1 = (float(v) for v in tare_window_s)
+    inside = (recording.t >= t0) & (recording.t <= t1)
+    if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0) or inside.sum() < 2:
+        raise CsvImportError(
+            f"tare window: {t0:g}-{t1:g} s holds {int(inside.sum())} samples; the recording runs "
+            f"{recording.t[0]:g}-{recording.t[-1]:g} s and the window needs at least 2 of them"
+        )
+    offset = np.median(recording.wrenches[inside], axis=0)
+    shown = ", ".join(f"{v:+.2f}" for v in offset[:3])
+    note = f"sensor offset removed: [{shown}] N, median of the file's wrench over the tare window {t0:g}-{t1:g} s"
+    return _GivenOffset(offset, "window", note)
+
+
+def _free_space_offset(recording: _Samples, wrenches: np.ndarray) -> tare_module.SensorOffset | None:
+    """Estimate the sensor offset over the free-space stretches of an (untared) world-frame applied wrench."""
+    t = recording.t
+    if t.size < MIN_DEMONSTRATION_SAMPLES:
+        return None
+    contact = analyse_contact(t, recording.positions, wrenches[:, :3])
+    if not contact.intervals:
+        return None
+    free = tare_module.free_space_mask(contact.rate_hz, contact.in_contact)
+    return tare_module.sensor_offset_in_free_space(t, recording.positions, recording.orientations, wrenches, free)
 
 
 @dataclass(frozen=True)

@@ -2,9 +2,10 @@
 
 - slide: one CF per contact segment from a plane fitted to the positions (SVD); z = plane
   normal signed along the applied force; x = dominant motion direction in the plane.
-- contour: one CF per sample; z = the normalized, smoothed applied force; x, y from the
-  Möller-Hughes minimal rotation that takes the segment's mean force direction to z,
-  applied to a reference frame, so the frames are unique and vary continuously.
+- contour: one CF per sample; z = the normalized, smoothed applied force with its friction
+  part (the component along the motion) removed, i.e. the surface normal; x, y from the
+  Möller-Hughes minimal rotation that takes the segment's mean direction to z, applied to a
+  reference frame, so the frames are unique and vary continuously.
 
 Inputs are world-frame arrays (positions m, forces N applied by the tool); rotations are
 world-from-CF matrices whose columns are the CF axes in world.
@@ -22,6 +23,9 @@ from skills.frames import rotation_from_vectors
 
 PLANE_CONDITION_RATIO = 3.0
 """A plane fit is trusted when the 2nd singular value exceeds the 3rd by this factor (else the path is a line)."""
+
+FRICTION_SPEED_M_S = 0.005
+"""Speed (m/s) over which the removal of friction (the force along the motion) fades in (tanh)."""
 
 CONTOUR_FORCE_SMOOTHING_S = 0.1
 """Standard deviation of the zero-phase Gaussian smoothing of the force for contour frames, s.
@@ -83,6 +87,24 @@ def slide_frame(positions: NDArray[np.float64], forces: NDArray[np.float64]) -> 
     return PlaneFit(rotation, centroid, float(np.sqrt(np.mean(residual**2))), well_conditioned)
 
 
+def friction_free_forces(
+    positions: NDArray[np.float64], forces: NDArray[np.float64], rate_hz: float
+) -> NDArray[np.float64]:
+    """Return the applied forces (N, 3) N with the friction part removed: the component along the motion.
+
+    On a surface the normal is across the motion and friction along it (Coulomb), so what is
+    left is the normal force. The removal fades out below ``FRICTION_SPEED_M_S`` (at rest static
+    friction can point anywhere in the cone and the motion says nothing about it). Velocities
+    from positions (N, 3) m smoothed over 20 ms.
+    """
+    smoothed = gaussian_filter1d(positions, sigma=max(1.0, 0.02 * rate_hz), axis=0, mode="nearest")
+    velocity = np.gradient(smoothed, 1.0 / rate_hz, axis=0)
+    speed = np.linalg.norm(velocity, axis=1, keepdims=True)
+    v_hat = velocity / np.maximum(speed, 1e-12)
+    along = np.sum(forces * v_hat, axis=1, keepdims=True) * np.tanh(speed / FRICTION_SPEED_M_S)
+    return forces - along * v_hat
+
+
 def contour_frames(
     positions: NDArray[np.float64], forces: NDArray[np.float64], rate_hz: float, segment: slice
 ) -> NDArray[np.float64]:
@@ -90,13 +112,15 @@ def contour_frames(
 
     ``positions`` (N, 3) m and ``forces`` (N, 3) N are the WHOLE demonstration, so that the
     smoothing sees real data on both sides of the segment (free space contributes ~0 force)
-    instead of padding at its edges. z_k is the applied force smoothed with a zero-phase
-    Gaussian of ``CONTOUR_FORCE_SMOOTHING_S`` and normalized. The reference frame has z along
-    the segment's mean force direction and x along the dominant motion; each sample's frame is
-    that reference turned by the Möller-Hughes minimal rotation from the mean direction to z_k.
+    instead of padding at its edges. z_k is the applied force without its friction part
+    (`friction_free_forces`: the surface normal), smoothed with a zero-phase Gaussian of
+    ``CONTOUR_FORCE_SMOOTHING_S`` and normalized. The reference frame has z along the segment's
+    mean direction and x along the dominant motion; each sample's frame is that reference turned
+    by the Möller-Hughes minimal rotation from the mean direction to z_k.
     """
-    smoothed = gaussian_filter1d(forces, sigma=CONTOUR_FORCE_SMOOTHING_S * rate_hz, axis=0, mode="nearest")[segment]
-    z = smoothed / np.linalg.norm(smoothed, axis=1, keepdims=True)
+    normal_forces = friction_free_forces(positions, forces, rate_hz)
+    smoothed = gaussian_filter1d(normal_forces, sigma=CONTOUR_FORCE_SMOOTHING_S * rate_hz, axis=0, mode="nearest")
+    z = smoothed[segment] / np.linalg.norm(smoothed[segment], axis=1, keepdims=True)
     mean_direction = z.mean(axis=0)
     mean_direction /= np.linalg.norm(mean_direction)
     path = positions[segment]

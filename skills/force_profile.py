@@ -18,6 +18,9 @@ LOW_VARIANCE_WINDOW_S = 0.2
 LOW_VARIANCE_FACTOR = 1.5
 """A sample is in the low-variance region when its moving std is below this times the median moving std."""
 
+PLATEAU_FRACTION = 0.5
+"""Samples pressing with less than this fraction of the segment's median force are ramps, not the plateau."""
+
 
 @dataclass(frozen=True)
 class ConstantForce:
@@ -34,14 +37,18 @@ def cf_z_forces(forces: NDArray[np.float64], cf_z_axes: NDArray[np.float64]) -> 
 
 
 def constant_force(cf_z_force: NDArray[np.float64], rate_hz: float) -> ConstantForce:
-    """Return the mean CF-z force over the low-variance region of a slide contact segment.
+    """Return the CF-z force of a slide contact segment: the mean over its low-variance region (paper 4.1).
 
     The region is where the moving standard deviation (``LOW_VARIANCE_WINDOW_S``) is below
-    ``LOW_VARIANCE_FACTOR`` times its median: it leaves out the force ramps at contact on/off
-    and bursts, and keeps the steady pressing the skill should reproduce.
+    ``LOW_VARIANCE_FACTOR`` times its median and the force is at least ``PLATEAU_FRACTION`` of
+    the segment's median: it leaves out the ramps at touch-down and lift-off (steep in the
+    middle, nearly flat at their feet) and bursts, and keeps the steady pressing the skill should
+    reproduce.
     """
     window = max(3, round(LOW_VARIANCE_WINDOW_S * rate_hz))
     spread = moving_std(cf_z_force, window)
-    region = spread <= LOW_VARIANCE_FACTOR * np.median(spread)
+    region = (spread <= LOW_VARIANCE_FACTOR * np.median(spread)) & (
+        cf_z_force >= PLATEAU_FRACTION * np.median(cf_z_force)
+    )
     values = cf_z_force[region]
     return ConstantForce(float(values.mean()), float(values.std()), region)

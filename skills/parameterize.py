@@ -28,11 +28,12 @@ from schemas.skill import (
     SkillTypeRequest,
 )
 from skills.compliant_frames import contour_frames, slide_frame
+from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
 from skills.force_profile import cf_z_forces, constant_force
 from skills.preprocess import resampled_recording
 from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
-from skills.segmentation import SegmentBounds, analyse_contact, segment_demonstration
+from skills.segmentation import SegmentBounds, segment_demonstration
 from skills.selection import classify_skill
 
 UNIFORM_TOLERANCE = 0.01
@@ -123,9 +124,27 @@ def _decimated_indices(n: int, most: int) -> NDArray[np.int_]:
     return np.unique(np.linspace(0, n - 1, min(n, most)).round().astype(int))
 
 
+def _boundary_reasons(bounds: list[SegmentBounds], contact: ContactAnalysis) -> list[tuple[str, str]]:
+    """Return (start_reason, end_reason) per segment: what decided each of its boundaries."""
+    starts = {c.start: c.start_reason for c in contact.intervals}
+    ends = {c.end: c.end_reason for c in contact.intervals}
+    reasons = []
+    for k, b in enumerate(bounds):
+        first, last = k == 0, k == len(bounds) - 1
+        if b.contact:
+            start = starts.get(b.start, "recording" if first else "crease")
+            end = ends.get(b.end, "recording" if last else "crease")
+        else:
+            start = "recording" if first else "contact"
+            end = "recording" if last else "contact"
+        reasons.append((start, end))
+    return reasons
+
+
 def _segment(
     index: int,
     bounds: SegmentBounds,
+    reasons: tuple[str, str],
     skill_type: SkillType,
     t: NDArray,
     positions: NDArray,
@@ -148,6 +167,8 @@ def _segment(
         "end_index": bounds.end,
         "t_start": float(t[bounds.start]),
         "t_end": float(t[bounds.end - 1]),
+        "start_reason": reasons[0],
+        "end_reason": reasons[1],
     }
     if not bounds.contact:
         position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
@@ -183,6 +204,7 @@ def _segment(
                 force_rms_n=_rms(f_z[force.region] - force.value_n),
                 plane_residual_rms_m=plane.residual_rms_m,
                 force_std_low_variance_n=force.std_n,
+                force_measured_percentiles_n=np.percentile(f_z, [10, 50, 90]).tolist(),
             ),
             **common,
         )
@@ -222,12 +244,12 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     t, positions, quaternions, wrenches = _uniform_arrays(demonstration)
     forces = wrenches[:, :3]
     contact = analyse_contact(t, positions, forces, options.contact_force_threshold_n)
-    if not contact.in_contact.any():
+    if not contact.intervals:
         raise LearningError(
             "wrenches",
-            "the tool never touches anything (no force above the contact threshold), so there is no contact skill",
+            "the tool never touches anything (no force pressing on a surface), so there is no contact skill",
         )
-    slide_segments = segment_demonstration(positions, forces, contact, True, options.min_segment_duration_s)
+    slide_segments = segment_demonstration(positions, contact, True, options.min_segment_duration_s)
     if not any(s.contact for s in slide_segments):
         raise LearningError(
             "wrenches",
@@ -236,14 +258,16 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
 
     auto_selection = None
     if options.skill_type is SkillTypeRequest.auto:
-        if np.count_nonzero(np.linalg.norm(contact.directions, axis=1)) < 10:
-            raise LearningError("wrenches", "the tool never moves while in contact: slide or contour cannot be told")
-        verdict = classify_skill(contact.directions, slide_segments, contact.rate_hz)
+        try:
+            verdict = classify_skill(positions, contact.directions, slide_segments, contact.rate_hz)
+        except ValueError as exc:
+            raise LearningError("wrenches", str(exc)) from None
         skill_type = SkillType.slide if verdict.is_slide else SkillType.contour
         auto_selection = AutoSelection(
             chosen=skill_type,
             confidence=verdict.confidence,
             turning_within_planes_deg=verdict.turning_within_planes_deg,
+            plane_rms_m=verdict.plane_rms_m,
             reason=verdict.reason,
         )
     else:
@@ -252,11 +276,12 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     if skill_type is SkillType.slide:
         bounds = slide_segments
     else:
-        bounds = segment_demonstration(positions, forces, contact, False, options.min_segment_duration_s)
+        bounds = segment_demonstration(positions, contact, False, options.min_segment_duration_s)
 
+    reasons = _boundary_reasons(bounds, contact)
     segments = [
-        _segment(k, b, skill_type, t, positions, quaternions, forces, contact.rate_hz, options)
-        for k, b in enumerate(bounds)
+        _segment(k, b, r, skill_type, t, positions, quaternions, forces, contact.rate_hz, options)
+        for k, (b, r) in enumerate(zip(bounds, reasons, strict=True))
     ]
     return Skill(
         skill_type=skill_type,

@@ -19,9 +19,8 @@ Time stamps: a row whose time stamp is BELOW an earlier row's is dropped (out of
 place in time is unknown); samples of one group that share a time stamp are AVERAGED
 (quaternions after sign alignment, then renormalized). Both are counted in the result's notes.
 
-Wrench conventions (:func:`wrenches_applied_by_tool`, :func:`wrenches_tool_to_world`) and the
-sensor offset (:func:`wrenches_tared`, estimated over a free-space part when there is one)
-complete what an importer needs; `services.csv_import` applies them in that order.
+Wrench conventions (:func:`wrenches_applied_by_tool`, :func:`wrenches_tool_to_world`) complete
+what an importer needs; the sensor offset is `skills.tare`'s. `services.csv_import` applies them.
 """
 
 from __future__ import annotations
@@ -32,7 +31,6 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import Akima1DInterpolator
-from scipy.ndimage import median_filter
 
 from skills.quaternions import (
     matrix_from_quaternion,
@@ -358,132 +356,3 @@ def _resampling_notes(r: ResampledRecording) -> list[str]:
     if r.n_rows_out_of_order:
         notes.append(f"{r.n_rows_out_of_order} rows stamped earlier than a previous row were dropped")
     return notes
-
-
-# --------------------------------------------------------------------------- sensor offset (tare)
-
-FREE_REFERENCE_S = 0.1
-"""Length (s) of the window at each end of the recording whose median is the candidate free-space level."""
-FREE_MIN_DURATION_S = 0.2
-"""Shortest quiet stretch (s) accepted as free space."""
-FREE_BAND_NOISE_FACTOR = 6.0
-"""The free-space band is this many noise standard deviations (estimated from sample-to-sample differences)..."""
-FREE_BAND_MIN_N = 0.5
-"""...but at least this wide, N."""
-FREE_MAX_DRIFT_BANDS = 0.5
-"""A free stretch's first and last thirds differ by at most this many bands (no drift)."""
-CONTACT_MIN_CONTRAST_N = 2.0
-"""The rest of the recording must depart from the free level by at least this (95th percentile), N..."""
-CONTACT_MIN_CONTRAST_BANDS = 4.0
-"""...and by at least this many free-space bands: otherwise there is no contact to tell free space from."""
-
-
-@dataclass(frozen=True)
-class FreeStretch:
-    """A free-space (no contact) stretch at one end of a recording: samples ``[start, stop)``."""
-
-    end: Literal["start", "end"]
-    start: int
-    stop: int
-    level: NDArray[np.float64]
-    """Median wrench over the stretch, (6,), N and N·m."""
-    band_n: float
-    """Half-width of the force band the stretch stays in, N."""
-
-
-def _free_length(forces: NDArray[np.float64], dt: float) -> tuple[int, float]:
-    """Samples from the start of ``forces`` (N, 3, N) quiet in a band about the first window; and the band, N."""
-    n_ref = max(5, round(FREE_REFERENCE_S / dt))
-    reference = forces[:n_ref]
-    steps = np.diff(reference, axis=0)
-    sigma = 1.4826 * np.median(np.abs(steps - np.median(steps, axis=0)), axis=0) / np.sqrt(2.0)
-    band = max(FREE_BAND_NOISE_FACTOR * float(np.linalg.norm(sigma)), FREE_BAND_MIN_N)
-    deviation = median_filter(np.linalg.norm(forces - np.median(reference, axis=0), axis=1), size=5, mode="nearest")
-    outside = np.flatnonzero(deviation > band)
-    return (int(outside[0]) if outside.size else forces.shape[0]), band
-
-
-def free_space_stretches(t: ArrayLike, wrenches: ArrayLike) -> list[FreeStretch]:
-    """Return the free-space (no contact) stretches at the start and/or end of a recording.
-
-    ``t`` (N,) s, uniform; ``wrenches`` (N, 6), N and N·m (any constant offset included).
-    From each end: the band is ``max(FREE_BAND_NOISE_FACTOR σ, FREE_BAND_MIN_N)`` with σ the
-    robust (MAD) noise of the sample-to-sample force differences in the first
-    :data:`FREE_REFERENCE_S`; the stretch runs until the (5-sample median filtered) force
-    leaves the band about that window's median. It is free space when it
-
-    - lasts at least :data:`FREE_MIN_DURATION_S` (and is not the whole recording),
-    - is flat: its first and last thirds differ by at most :data:`FREE_MAX_DRIFT_BANDS` bands
-      (a slowly drifting contact force is not a sensor offset),
-    - is the lowest force: ``|level| <=`` the 5th percentile of ``|f|`` plus a band
-      (a steady contact at the end of a recording is not free space), and
-    - the rest clearly departs from it (95th percentile of the deviation at least
-      :data:`CONTACT_MIN_CONTRAST_N` and :data:`CONTACT_MIN_CONTRAST_BANDS` bands).
-
-    A recording cut to its contact part (force ramping from the first sample) has none.
-    """
-    t = np.asarray(t, dtype=float)
-    wrenches = np.asarray(wrenches, dtype=float)
-    n = t.size
-    if n < 10:
-        return []
-    dt = float(np.median(np.diff(t)))
-    magnitude_floor = float(np.percentile(np.linalg.norm(wrenches[:, :3], axis=1), 5))
-    stretches = []
-    for end in ("start", "end"):
-        w = wrenches if end == "start" else wrenches[::-1]
-        length, band = _free_length(w[:, :3], dt)
-        if length * dt < FREE_MIN_DURATION_S or length >= n:
-            continue
-        level = np.median(w[:length], axis=0)
-        third = max(1, length // 3)
-        drift = np.linalg.norm(np.median(w[:third, :3], axis=0) - np.median(w[length - third : length, :3], axis=0))
-        if drift > FREE_MAX_DRIFT_BANDS * band or np.linalg.norm(level[:3]) > magnitude_floor + band:
-            continue
-        contrast = float(np.percentile(np.linalg.norm(w[length:, :3] - level[:3], axis=1), 95))
-        if contrast < max(CONTACT_MIN_CONTRAST_N, CONTACT_MIN_CONTRAST_BANDS * band):
-            continue
-        start, stop = (0, length) if end == "start" else (n - length, n)
-        stretches.append(FreeStretch(end=end, start=start, stop=stop, level=level, band_n=band))
-    return stretches
-
-
-@dataclass(frozen=True)
-class Tare:
-    """The result of :func:`wrenches_tared`."""
-
-    wrenches: NDArray[np.float64]
-    """(N, 6) wrenches with the offset subtracted (unchanged when no free part was found), N and N·m."""
-    offset: NDArray[np.float64] | None
-    """(6,) offset subtracted, same frame as the input, or None."""
-    note: str
-
-
-def wrenches_tared(t: ArrayLike, wrenches: ArrayLike) -> Tare:
-    """Subtract the sensor offset estimated over the free-space part of a recording, if it has one.
-
-    ``t`` (N,) s uniform; ``wrenches`` (N, 6) N and N·m in one fixed frame (the importer passes
-    world-frame, applied-by-tool wrenches, so the offset is assumed constant in the world: valid
-    when the tool orientation changes little or the offset is a weight). The offset is the
-    median wrench over the free stretch (:func:`free_space_stretches`); when both ends are free
-    and agree (levels within a band), both are pooled, otherwise the one with the lower force
-    is used. No free part: nothing is subtracted and the note says so.
-    """
-    wrenches = np.asarray(wrenches, dtype=float)
-    stretches = free_space_stretches(t, wrenches)
-    if not stretches:
-        return Tare(wrenches=wrenches, offset=None, note="no free-space part found: no sensor offset removed")
-    if len(stretches) == 2 and np.linalg.norm(stretches[0].level[:3] - stretches[1].level[:3]) <= max(
-        s.band_n for s in stretches
-    ):
-        used = stretches
-    else:
-        used = [min(stretches, key=lambda s: float(np.linalg.norm(s.level[:3])))]
-    samples = np.concatenate([wrenches[s.start : s.stop] for s in used])
-    offset = np.median(samples, axis=0)
-    t = np.asarray(t, dtype=float)
-    where = " and ".join(f"{s.end} ({t[s.stop - 1] - t[s.start]:.2f} s)" for s in used)
-    force = ", ".join(f"{v:.3g}" for v in offset[:3])
-    moment = ", ".join(f"{v:.3g}" for v in offset[3:])
-    note = f"sensor offset removed: median over the free-space {where}: force [{force}] N, moment [{moment}] N·m"
-    return Tare(wrenches=wrenches - offset, offset=offset, note=note)

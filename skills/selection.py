@@ -1,12 +1,24 @@
-"""Skill selection (beyond the paper): classify a demonstration as slide or contour, with a confidence.
+"""Skill selection (beyond the paper): slide or contour, decided from the geometry of the contact, per stroke.
 
-Idea: a slide presses on one or a few planes, so the direction of the applied normal force
-(friction removed, see `segmentation.normal_directions`) is constant on each plane; a
-contour follows a curved shape, so that direction keeps turning along the path. We take the
-slide segmentation (one contact segment per plane) and measure how far the normal direction
-turns WITHIN each segment, between its averaged beginning and end: near zero for planes
-(noise averages out), tens of degrees for contours. Jumps between planes fall on segment
-boundaries and do not count.
+A slide presses on planes; a contour follows a curved surface. Two measures of each slide
+segment (a plane candidate: a stroke, or a part of one between creases) tell them apart, both
+free of friction (which turns the applied force with the wiping direction on any surface):
+
+- **planarity** — how far the contact positions leave the best plane through them that is
+  pressed on: the RMS residual of the depth along the mean friction-free normal after fitting it
+  linearly over the surface, the plane's tilt from that normal bounded by ``MAX_PLANE_TILT_DEG``
+  (a steeper plane could hold an arc drawn in a vertical plane, but nobody presses on it).
+  Hand-wiped planes: 0.3-3.4 mm (pad compliance, tremor); gently curved parts: 6-14 mm.
+- **turning** — the angular range of the friction-free normal (the force with its component
+  along the motion removed) along the segment: the largest angle between the mean normals of
+  its ``TURNING_WINDOWS`` consecutive parts (a curve may turn out and back). Planes: a few
+  degrees; curves: tens of degrees.
+
+Each measure gives log-odds for contour, ``STEEPNESS`` · ln(value / even-odds value); a
+segment's evidence is their mean (they measure one thing twice, so they are not added), weighted
+by the segment's duration over all segments. When the two measures disagree the log-odds
+cancel and the confidence stays near 0.5: the reason says which measure points where.
+Segments too short or too still to measure carry no evidence.
 """
 
 from __future__ import annotations
@@ -18,22 +30,32 @@ from numpy.typing import NDArray
 
 from skills.segmentation import SegmentBounds
 
+PLANE_RMS_AT_EVEN_ODDS_M = 0.006
+"""Planarity residual (m) at which slide and contour are equally likely."""
+
 TURNING_AT_EVEN_ODDS_DEG = 12.0
-"""Turning within planes (deg) at which slide and contour are equally likely.
+"""Turning of the normal within a segment (deg) at which slide and contour are equally likely."""
 
-Measured: planes 0.3-7.4 deg in PyBullet (its friction is misdirected by up to ~15 deg, which
-leaks into the friction-free direction), 0.3-1 deg synthetic; contours 30-60 deg (PyBullet
-cylinder and block), 60-110 deg (the real KU Leuven recordings), 66 deg synthetic cylinder.
-"""
+STEEPNESS = 4.0
+"""Log-odds per unit of log-ratio: a measure 2x past its even-odds value gives odds of 16:1."""
 
-EDGE_MARGIN_S = 0.1
-"""Time left out at each end of a segment (transitions between planes), s; at most 10 % of the segment."""
+TURNING_WINDOWS = 6
+"""Consecutive parts of a segment whose mean normals are compared for the turning."""
 
-END_WINDOW_S = 0.3
-"""Length of the windows averaged at the beginning and the end of a segment, s; at most 25 % of the segment."""
+MAX_PLANE_TILT_DEG = 8.0
+"""Largest tilt (deg) of a fitted plane from the mean friction-free normal: that normal's uncertainty."""
 
-MIN_WINDOW_SAMPLES = 5
-"""Fewest samples an end window may average."""
+MIN_MEASURED_SAMPLES = 10
+"""A segment needs at least this many samples moving in contact to be measured."""
+
+
+@dataclass(frozen=True)
+class SegmentGeometry:
+    """What one slide segment's contact looks like: planarity residual (m), turning (deg), duration (s)."""
+
+    plane_rms_m: float
+    turning_deg: float
+    duration_s: float
 
 
 @dataclass(frozen=True)
@@ -43,49 +65,87 @@ class SkillClassification:
     is_slide: bool
     confidence: float
     turning_within_planes_deg: float
+    """Largest turning of the normal within one slide segment, deg."""
+    plane_rms_m: float
+    """Largest planarity residual of one slide segment, m."""
     reason: str
 
 
-def turning_within_segments_deg(
-    directions: NDArray[np.float64], segments: list[SegmentBounds], rate_hz: float
-) -> float:
-    """Return the summed angle (deg) the normal direction turns inside each contact segment.
+def segment_geometry(
+    positions: NDArray[np.float64], directions: NDArray[np.float64], segment: SegmentBounds, rate_hz: float
+) -> SegmentGeometry | None:
+    """Return planarity and turning of one contact segment, or None when it has too few moving samples.
 
-    Per contact segment, over the samples that carry a direction (the tool moving in contact),
-    the angle between the mean direction of the first and of the last ``END_WINDOW_S`` worth of
-    them (after ``EDGE_MARGIN_S`` worth) is added up. Short segments use shorter windows, so a
-    contour that the slide segmentation chopped into many short pieces still counts; rests at
-    the ends of a segment carry no direction and are skipped.
+    ``positions`` (N, 3) m; ``directions`` (N, 3) friction-free normals (zero where unknown).
     """
-    total = 0.0
-    for segment in segments:
-        if not segment.contact:
-            continue
-        rows = directions[segment.start : segment.end]
-        moving = rows[np.linalg.norm(rows, axis=1) > 0.5]
-        margin = min(round(EDGE_MARGIN_S * rate_hz), len(moving) // 10)
-        window = min(round(END_WINDOW_S * rate_hz), len(moving) // 4)
-        if window < MIN_WINDOW_SAMPLES:
-            continue
-        first = moving[margin : margin + window].mean(axis=0)
-        last = moving[len(moving) - margin - window : len(moving) - margin].mean(axis=0)
-        cos = np.dot(first, last) / (np.linalg.norm(first) * np.linalg.norm(last))
-        total += float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return total
+    rows = slice(segment.start, segment.end)
+    p, d = positions[rows], directions[rows]
+    valid = np.flatnonzero(np.linalg.norm(d, axis=1) > 0.5)
+    if valid.size < MIN_MEASURED_SAMPLES:
+        return None
+    normal = d[valid].mean(axis=0)
+    normal /= np.linalg.norm(normal)
+    # Depth along the normal, fitted linearly over the in-plane coordinates (least squares: a
+    # straight path leaves the sideways tilt free, lstsq takes the smallest).
+    centred = p[valid] - p[valid].mean(axis=0)
+    depth = centred @ normal
+    in_plane = centred - np.outer(depth, normal)
+    slope, *_ = np.linalg.lstsq(in_plane, depth, rcond=1e-6)
+    # The plane may tilt away from the pressing direction only as far as that direction is uncertain:
+    # a steeper "plane" would hold a curved path (an arc in a vertical plane) but not be pressed on.
+    largest = np.tan(np.radians(MAX_PLANE_TILT_DEG))
+    slope *= min(1.0, largest / max(float(np.linalg.norm(slope)), 1e-12))
+    residual = depth - in_plane @ slope
+    rms = float(np.std(residual))
+    parts = np.array_split(d[valid], min(TURNING_WINDOWS, valid.size // 2))
+    means = np.array([part.mean(axis=0) for part in parts])
+    means /= np.linalg.norm(means, axis=1, keepdims=True)
+    turning = float(np.degrees(np.arccos(np.clip(np.min(means @ means.T), -1.0, 1.0))))
+    return SegmentGeometry(rms, turning, (segment.end - segment.start) / rate_hz)
+
+
+def _log_odds_contour(geometry: SegmentGeometry) -> tuple[float, float]:
+    """Return the log-odds for contour from planarity and from turning of one segment."""
+    from_plane = STEEPNESS * np.log(max(geometry.plane_rms_m, 1e-6) / PLANE_RMS_AT_EVEN_ODDS_M)
+    from_turning = STEEPNESS * np.log(max(geometry.turning_deg, 1e-3) / TURNING_AT_EVEN_ODDS_DEG)
+    return float(from_plane), float(from_turning)
 
 
 def classify_skill(
-    directions: NDArray[np.float64], slide_segments: list[SegmentBounds], rate_hz: float
+    positions: NDArray[np.float64],
+    directions: NDArray[np.float64],
+    slide_segments: list[SegmentBounds],
+    rate_hz: float,
 ) -> SkillClassification:
-    """Classify from the per-sample normal ``directions`` (N, 3; zero where unknown) and the slide segmentation."""
-    turning = turning_within_segments_deg(directions, slide_segments, rate_hz)
-    p_contour = 1.0 / (1.0 + (TURNING_AT_EVEN_ODDS_DEG / max(turning, 1e-6)) ** 3)
+    """Classify from the contact geometry of the slide segmentation's contact segments.
+
+    Raises ValueError when no contact segment has enough moving samples to be measured.
+    """
+    candidates = [segment_geometry(positions, directions, s, rate_hz) for s in slide_segments if s.contact]
+    candidates = [segment_geometry(positions, directions, s, rate_hz) for s in slide_segments if s.contact]
+    measured = [g for g in candidates if g is not None]
+    if not measured:
+        raise ValueError("the tool never slides in contact long enough: slide or contour cannot be told")
+    weights = np.array([g.duration_s for g in measured])
+    odds = np.array([_log_odds_contour(g) for g in measured])
+    per_measure = weights @ odds / weights.sum()
+    total = float(per_measure.mean())
+    p_contour = 1.0 / (1.0 + np.exp(-total))
     is_slide = p_contour < 0.5
-    n_planes = sum(s.contact for s in slide_segments)
-    if is_slide:
-        reason = (
-            f"the normal force keeps its direction on each of {n_planes} plane(s) (turns {turning:.1f} deg within them)"
-        )
+    confidence = float(max(p_contour, 1.0 - p_contour))
+    rms_mm = max(g.plane_rms_m for g in measured) * 1000.0
+    turning = max(g.turning_deg for g in measured)
+    n = len(measured)
+    planes_say = "contour" if per_measure[0] > 0 else "slide"
+    turning_says = "contour" if per_measure[1] > 0 else "slide"
+    facts = (
+        f"contact leaves its plane by up to {rms_mm:.1f} mm RMS and its normal turns up to {turning:.1f} deg "
+        f"within {n} plane candidate(s)"
+    )
+    if planes_say != turning_says:
+        reason = f"mixed evidence: {facts}; planarity says {planes_say}, turning says {turning_says}"
+    elif is_slide:
+        reason = f"planar: {facts}"
     else:
-        reason = f"the normal force turns {turning:.1f} deg along the path where planes would keep it constant"
-    return SkillClassification(is_slide, float(max(p_contour, 1.0 - p_contour)), turning, reason)
+        reason = f"curved: {facts}"
+    return SkillClassification(is_slide, confidence, turning, max(g.plane_rms_m for g in measured), reason)

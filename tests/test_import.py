@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from services.csv_import import (
     demonstration_from_csv,
     demonstration_from_json,
 )
-from skills import preprocess
+from skills import kinesthetic, preprocess
 from skills.quaternions import quaternion_angle_between
 
 DATA = KULEUVEN_DATA
@@ -258,61 +259,62 @@ def test_measured_on_tool_in_the_tool_frame_is_converted_to_applied_in_world():
     np.testing.assert_allclose(demo.arrays().wrenches, _truth(demo.arrays().t)[2], atol=1e-6)
 
 
-def _free_then_contact(offset: np.ndarray, free_at: str, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """1 s in free space, then 3 s pressing ~15 N (applied, world), sensor noise 0.1 N; 500 Hz."""
-    t = np.arange(0.0, 4.0, 0.002)
-    contact_time = t - 1.0 if free_at == "start" else 3.0 - t
-    ramp = np.clip(contact_time / 0.2, 0.0, 1.0)
-    fz = ramp * (15 + 2 * np.sin(3 * t))
-    wrench = np.zeros((t.size, 6))
-    wrench[:, 2] = fz
-    wrench[:, 0] = ramp * 2 * np.sin(2 * t)
-    wrench += rng.normal(0, 0.1, wrench.shape) * [1, 1, 1, 0.01, 0.01, 0.01]
-    p, q, _ = _truth(t)
-    return t, np.column_stack([t, p, q, wrench + offset])
+@cache
+def _kinesthetic(seed: int) -> tuple[kinesthetic.KinestheticDemo, str]:
+    demo = kinesthetic.kinesthetic_wipe("tilted", n_strokes=3, friction=0.3, seed=seed)
+    return demo, kinesthetic.recording_csv_text(demo)
 
 
-@pytest.mark.parametrize("free_at", ["start", "end"])
-def test_sensor_offset_is_estimated_from_free_space_and_removed(free_at):
-    rng = np.random.default_rng(3)
-    offset = np.array([1.5, -2.0, 3.0, 0.05, -0.02, 0.01])
-    t, rows = _free_then_contact(offset, free_at, rng)
-    demo = demonstration_from_csv(_csv(HEADER, rows))
-    estimated = np.asarray(demo.metadata.force_offset_removed)
-    assert np.abs(estimated[:3] - offset[:3]).max() < 0.2
-    assert np.abs(estimated[3:] - offset[3:]).max() < 0.01
-    free = (t < 0.9) if free_at == "start" else (t > 3.1)
-    assert np.abs(np.median(np.asarray(demo.wrenches)[free], axis=0)).max() < 0.05
-    assert "sensor offset removed" in " ".join(demo.metadata.extra["import_notes"])
-    untared = demonstration_from_csv(_csv(HEADER, rows), tare=False)
+REAL_FORMAT = {
+    "rate_hz": 100.0,
+    "quaternion_order": "wxyz",
+    "wrench_convention": "measured-on-tool",
+    "wrench_frame": "tool",
+}
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sensor_offset_is_fitted_in_the_sensor_frame_over_every_free_stretch(seed):
+    """A wrist sensor's offset turns with the tool; the hand pushes the arm in free space."""
+    truth, text = _kinesthetic(seed)
+    demo = demonstration_from_csv(text, **REAL_FORMAT)
+    meta = demo.metadata
+    assert meta.force_offset_frame == "tool"
+    error = np.linalg.norm(np.asarray(meta.force_offset_removed[:3]) - truth.truth.sensor_offset[:3])
+    assert error < 0.5, f"offset off by {error:.2f} N (offset {np.linalg.norm(truth.truth.sensor_offset[:3]):.2f} N)"
+    # Before, between the three strokes and after: every free stretch is used, not only the ends.
+    assert len(meta.extra["tare"]["stretches_s"]) == 4
+    assert meta.extra["tare"]["arm_damping_n_s_m"] > 5.0  # the hand's push explained by the arm's motion
+    assert "sensor offset removed" in " ".join(meta.extra["import_notes"])
+    untared = demonstration_from_csv(text, **REAL_FORMAT, tare=False)
     assert untared.metadata.force_offset_removed is None
 
 
-def test_sensor_offset_of_a_measured_wrench_is_reported_applied_by_tool():
-    rng = np.random.default_rng(4)
-    offset = np.array([1.5, -2.0, 3.0, 0.0, 0.0, 0.0])
-    _, rows = _free_then_contact(offset, "start", rng)
-    rows[:, 8:] *= -1  # the sensor reports the reaction
-    demo = demonstration_from_csv(_csv(HEADER, rows), wrench_convention="measured-on-tool")
-    np.testing.assert_allclose(demo.metadata.force_offset_removed[:3], offset[:3], atol=0.2)
+def test_given_offset_and_tare_window_act_on_the_file_columns():
+    truth, text = _kinesthetic(0)
+    offset = truth.truth.sensor_offset
+    given = demonstration_from_csv(text, **REAL_FORMAT, force_offset=offset[:3].tolist())
+    assert given.metadata.force_offset_removed[:3] == pytest.approx(offset[:3].tolist())
+    assert given.metadata.force_offset_frame == "tool"
+    rows = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1)
+    window = demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(0.0, 0.8))
+    expected = np.median(rows[: round(0.8 * 100) + 1, 7:13], axis=0)
+    np.testing.assert_allclose(window.metadata.force_offset_removed, expected, atol=1e-9)
+    assert "tare window 0-0.8 s" in " ".join(window.metadata.extra["import_notes"])
+    with pytest.raises(CsvImportError, match="either a tare window or a force offset"):
+        demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(0.0, 0.8), force_offset=[1.0, 2.0, 3.0])
+    with pytest.raises(CsvImportError, match="tare window: 50-60 s holds 0 samples"):
+        demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(50.0, 60.0))
+    with pytest.raises(CsvImportError, match="force offset: 3 forces"):
+        demonstration_from_csv(text, **REAL_FORMAT, force_offset=[1.0, 2.0])
 
 
-def test_no_free_space_no_offset():
-    """Contact from the first sample (like the KU Leuven files), and a recording without contact at all."""
-    rng = np.random.default_rng(5)
-    t, rows = _free_then_contact(np.zeros(6), "start", rng)
-    contact_only = rows[t > 1.05]
-    assert demonstration_from_csv(_csv(HEADER, contact_only)).metadata.force_offset_removed is None
-    no_contact = rows[t < 0.95]
-    assert demonstration_from_csv(_csv(HEADER, no_contact)).metadata.force_offset_removed is None
-
-
-def test_free_space_detection_finds_the_stretch():
-    rng = np.random.default_rng(6)
-    t, rows = _free_then_contact(np.zeros(6), "start", rng)
-    stretches = preprocess.free_space_stretches(t, rows[:, 8:])
-    assert [s.end for s in stretches] == ["start"]
-    assert 0.9 < t[stretches[0].stop - 1] <= 1.05
+def test_no_free_space_no_offset(real):
+    """The KU Leuven files are cut to the contact: there is no free space to fit an offset over."""
+    for frames in real.values():
+        demo = frames["tool"]
+        assert demo.metadata.force_offset_removed is None
+        assert "no free-space part" in " ".join(demo.metadata.extra["import_notes"])
 
 
 def test_column_spec_and_common_names():

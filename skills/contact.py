@@ -1,0 +1,282 @@
+"""Contact detection from force AND kinematics: when the tool really touches the work piece.
+
+Force alone cannot tell contact on a human demonstration: a person guiding a gravity-compensated
+arm pushes on it in free space with 2-17 N, as much as a light stroke presses. What only contact
+does is *press without moving along the push*: on the surface the tool slides ACROSS the force
+(the force lies within the friction cone around the surface normal), and the surface stops it
+from going deeper. So contact is decided in two steps (all world frame, SI):
+
+1. **Stroke cores** — samples where the tool presses (|f| above ``CORE_FORCE_FRACTION`` of the
+   robust peak) while sliding (speed above ``CORE_MIN_SPEED_M_S``) ACROSS the force (the force
+   component along the motion is at most ``FRICTION_CONE_MAX`` times the component across it:
+   friction, not a push that moves the arm). Runs shorter than ``CORE_MIN_S`` are noise; gaps
+   shorter than ``CORE_GAP_S`` (a pause on the surface) are bridged.
+2. **Boundaries** — from each core, contact extends back to the touch-down and forward to the
+   lift-off for as long as the tool stays ON the surface the core pressed on (its depth along the
+   local surface normal stays within ``SURFACE_TOLERANCE_M`` of the depth at the core's end, no
+   higher) AND presses into it (force along that normal above the touch level: 4 standard
+   deviations of the smoothed force's noise, at least ``TOUCH_FORCE_MIN_N``). Whichever of the
+   two fails first decides the boundary, and the analysis says which ("force" or "surface").
+   Intervals that overlap are one contact; contacts shorter than ``MIN_CONTACT_S`` are dropped.
+
+Without any sliding press (a press-and-hold), the cores fall back to the pressing samples alone.
+Every input is uniformly sampled: ``t`` (N,) s, ``positions`` (N, 3) m, ``forces`` (N, 3) N
+applied by the tool (world frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import binary_closing, binary_opening, gaussian_filter1d
+
+CORE_FORCE_FRACTION = 0.4
+"""A stroke core presses with at least this fraction of the robust peak force (98th percentile of |f|)."""
+
+CORE_FORCE_MIN_N = 1.0
+"""...and at least this force, N (sensor noise never makes a core)."""
+
+CORE_MIN_SPEED_M_S = 0.005
+"""A stroke core slides at least this fast, m/s (below it the friction direction is undefined)."""
+
+FRICTION_CONE_MAX = 0.7
+"""Largest ratio of the force along the motion to the force across it that counts as friction (mu up to 0.7)."""
+
+CORE_MIN_S = 0.15
+"""Shortest run of sliding-press samples that makes a stroke core, s."""
+
+CORE_GAP_S = 0.3
+"""Gaps in a core shorter than this (a pause, a turn of direction) are bridged, s."""
+
+SURFACE_TOLERANCE_M = 0.003
+"""How far (m) above the surface found under load the tool may be and still touch it (pad relief, tremor)."""
+
+LOCAL_NORMAL_S = 0.5
+"""Length of the core's first/last stretch whose friction-free force direction is the local surface normal, s."""
+
+NORMAL_MIN_SPEED_M_S = 0.02
+"""Least sliding speed (m/s) at which the friction-free force direction is taken as the surface normal.
+
+Slower, the sliding direction is the hand's tremor (~1-2 cm/s at 4-9 Hz), which friction follows
+but the smoothed velocity does not: the friction left in the direction tilts it by up to ~20°.
+"""
+
+TOUCH_FORCE_MIN_N = 0.3
+"""Smallest force along the normal (N) that counts as still touching."""
+
+MIN_CONTACT_S = 0.3
+"""Contacts shorter than this are dropped, s."""
+
+SMOOTHING_S = 0.02
+"""Standard deviation of the zero-phase Gaussian that smooths positions and forces before differentiating, s."""
+
+
+@dataclass(frozen=True)
+class ContactInterval:
+    """One contact ``[start, end)`` in samples, and what decided each boundary.
+
+    ``start_reason`` / ``end_reason``: ``"force"`` (the force along the normal rose from / fell
+    to the touch level), ``"surface"`` (the tool reached / left the surface it pressed on) or
+    ``"recording"`` (the recording starts / ends in contact).
+    """
+
+    start: int
+    end: int
+    start_reason: str
+    end_reason: str
+
+
+@dataclass(frozen=True)
+class ContactAnalysis:
+    """Contact of a uniformly sampled demonstration.
+
+    ``in_contact`` (N,) per sample; ``directions`` (N, 3) unit friction-free force directions
+    (the surface normal into the surface where the tool slides in contact, zero where unknown);
+    ``intervals`` the contacts in time order; ``core_force_n`` the pressing level of the cores
+    and ``touch_force_n`` the touch level (N); ``sliding_cores`` False when no sliding press was
+    found and cores fell back to force alone.
+    """
+
+    rate_hz: float
+    in_contact: NDArray[np.bool_]
+    directions: NDArray[np.float64]
+    intervals: list[ContactInterval]
+    core_force_n: float
+    touch_force_n: float
+    sliding_cores: bool = True
+
+
+def force_noise_std(forces: NDArray[np.float64]) -> float:
+    """Return the robust standard deviation (N) of the sensor noise of (N, 3) forces.
+
+    From sample-to-sample differences (the noise of a difference is sqrt(2) times the sample's),
+    median absolute deviation, largest axis: slow changes of the real force do not count.
+    """
+    diffs = np.diff(forces, axis=0)
+    mad = np.median(np.abs(diffs - np.median(diffs, axis=0)), axis=0)
+    return float(np.max(1.4826 * mad / np.sqrt(2.0)))
+
+
+def normal_directions(
+    forces: NDArray[np.float64], velocities: NDArray[np.float64], in_contact: NDArray[np.bool_]
+) -> NDArray[np.float64]:
+    """Return per-sample unit directions of the applied force with the friction part removed.
+
+    Friction acts along the motion, so the component of the force along the velocity is
+    removed; what is left is the surface normal direction into the surface. Only where the tool
+    SLIDES in contact does that hold: where it rests or creeps (speed < ``NORMAL_MIN_SPEED_M_S``)
+    static friction or tremor can point it anywhere in the cone; where it moves along the force (touching down,
+    lifting off: the force is not within ``FRICTION_CONE_MAX`` of across the motion) the removed
+    component is not friction; where the force is below a third of the median contact force,
+    noise dominates. There the direction says nothing about the normal and is zero, as where not
+    in contact.
+    """
+    speed = np.linalg.norm(velocities, axis=1, keepdims=True)
+    magnitude = np.linalg.norm(forces, axis=1, keepdims=True)
+    typical = float(np.median(magnitude[in_contact])) if in_contact.any() else 0.0
+    v_hat = velocities / np.maximum(speed, 1e-12)
+    along = np.sum(forces * v_hat, axis=1, keepdims=True)
+    normal_part = forces - along * v_hat
+    norm = np.linalg.norm(normal_part, axis=1, keepdims=True)
+    sliding = (speed > NORMAL_MIN_SPEED_M_S) & (magnitude > typical / 3.0) & (np.abs(along) <= FRICTION_CONE_MAX * norm)
+    directions = np.where(norm > 1e-9, normal_part / np.maximum(norm, 1e-12), 0.0)
+    return directions * (in_contact[:, None] & sliding)
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Return ``[start, end)`` of every run of True in ``mask``."""
+    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
+def _stretch_normal(
+    forces: NDArray[np.float64], velocities: NDArray[np.float64], rows: slice
+) -> NDArray[np.float64]:
+    """Return the surface normal (into the surface) over ``rows``: the mean friction-free force direction."""
+    f, v = forces[rows], velocities[rows]
+    speed = np.linalg.norm(v, axis=1, keepdims=True)
+    v_hat = np.where(speed > CORE_MIN_SPEED_M_S, v / np.maximum(speed, 1e-12), 0.0)
+    across = f - np.sum(f * v_hat, axis=1, keepdims=True) * v_hat
+    return _unit(across.mean(axis=0))
+
+
+def analyse_contact(
+    t: NDArray[np.float64],
+    positions: NDArray[np.float64],
+    forces: NDArray[np.float64],
+    core_force_n: float | None = None,
+) -> ContactAnalysis:
+    """Return the contact analysis of a uniformly sampled demonstration (s, m, N applied, world).
+
+    ``core_force_n`` overrides the pressing level of the stroke cores (default: adaptive, see
+    the module docstring).
+    """
+    n = t.size
+    rate_hz = (n - 1) / (t[-1] - t[0])
+    sigma = max(1.0, SMOOTHING_S * rate_hz)
+    p = gaussian_filter1d(positions, sigma, axis=0, mode="nearest")
+    f = gaussian_filter1d(forces, sigma, axis=0, mode="nearest")
+    v = np.gradient(p, t, axis=0)
+    magnitude = np.linalg.norm(f, axis=1)
+    # The touch level: 4 standard deviations of the noise left after the smoothing (white noise
+    # averaged by a Gaussian of sigma samples keeps 1 / sqrt(2 sqrt(pi) sigma) of its std).
+    smoothed_noise = force_noise_std(forces) / np.sqrt(2.0 * np.sqrt(np.pi) * sigma)
+    touch = max(TOUCH_FORCE_MIN_N, 4.0 * smoothed_noise)
+    core_force = core_force_n or max(CORE_FORCE_MIN_N, CORE_FORCE_FRACTION * float(np.percentile(magnitude, 98)))
+
+    speed = np.linalg.norm(v, axis=1)
+    v_hat = v / np.maximum(speed, 1e-12)[:, None]
+    along = np.sum(f * v_hat, axis=1)
+    across = np.linalg.norm(f - along[:, None] * v_hat, axis=1)
+    pressing = magnitude >= core_force
+    sliding = pressing & (speed >= CORE_MIN_SPEED_M_S) & (np.abs(along) <= FRICTION_CONE_MAX * across)
+
+    def cleaned(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        gap = max(1, round(CORE_GAP_S * rate_hz))
+        bridged = binary_closing(np.pad(mask, gap), structure=np.ones(gap))[gap:-gap]
+        return binary_opening(bridged, structure=np.ones(max(1, round(CORE_MIN_S * rate_hz))))
+
+    cores_mask = cleaned(sliding)
+    sliding_cores = bool(cores_mask.any())
+    if not sliding_cores:
+        cores_mask = cleaned(pressing)
+    window = max(2, round(LOCAL_NORMAL_S * rate_hz))
+
+    intervals: list[tuple[int, int, str, str]] = []
+    for c0, c1 in _runs(cores_mask):
+        head = slice(c0, min(c1, c0 + window))
+        tail = slice(max(c0, c1 - window), c1)
+        start, start_reason = _touch_down(p, f, v, head, c0, touch, backward=True)
+        end, end_reason = _touch_down(p, f, v, tail, c1 - 1, touch, backward=False)
+        intervals.append((start, end + 1, start_reason, end_reason))
+
+    merged: list[ContactInterval] = []
+    for start, end, start_reason, end_reason in sorted(intervals):
+        if merged and start <= merged[-1].end:
+            last = merged[-1]
+            if end > last.end:
+                merged[-1] = ContactInterval(last.start, end, last.start_reason, end_reason)
+            continue
+        merged.append(ContactInterval(start, end, start_reason, end_reason))
+    shortest = round(MIN_CONTACT_S * rate_hz)
+    merged = [c for c in merged if c.end - c.start >= shortest]
+
+    in_contact = np.zeros(n, dtype=bool)
+    for c in merged:
+        in_contact[c.start : c.end] = True
+    return ContactAnalysis(
+        rate_hz=rate_hz,
+        in_contact=in_contact,
+        directions=normal_directions(forces, v, in_contact),
+        intervals=merged,
+        core_force_n=core_force,
+        touch_force_n=touch,
+        sliding_cores=sliding_cores,
+    )
+
+
+def _touch_down(
+    p: NDArray[np.float64],
+    f: NDArray[np.float64],
+    v: NDArray[np.float64],
+    reference: slice,
+    edge: int,
+    touch_n: float,
+    backward: bool,
+) -> tuple[int, str]:
+    """Return the first (``backward``: earliest) sample still in contact beyond a core's ``edge``, and why it ends.
+
+    The local surface normal and depth come from the core's ``reference`` stretch next to the
+    edge; contact goes on while the tool is no higher than ``SURFACE_TOLERANCE_M`` above that
+    depth (along the normal) and the force along the normal is at least ``touch_n``.
+    """
+    normal = _stretch_normal(f, v, reference)
+    depth = p @ normal
+    surface_depth = float(np.median(depth[reference]))
+    on_surface = depth >= surface_depth - SURFACE_TOLERANCE_M
+    touching = f @ normal >= touch_n
+    inside = on_surface & touching
+    if backward:
+        outside = np.flatnonzero(~inside[:edge])
+        if outside.size == 0:
+            return 0, "recording"
+        k = int(outside[-1])
+        return k + 1, "surface" if not on_surface[k] else "force"
+    outside = np.flatnonzero(~inside[edge + 1 :])
+    if outside.size == 0:
+        return p.shape[0] - 1, "recording"
+    k = edge + 1 + int(outside[0])
+    return k - 1, "surface" if not on_surface[k] else "force"
+
+
+def mask_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Return ``[start, end)`` of every run of True in a per-sample ``mask``."""
+    return _runs(mask)
+
