@@ -350,9 +350,39 @@ MAX_GRID_SAMPLES = 1_000_000
 """Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
 
 
+def _numbers(text: str | None, field: str, count: tuple[int, ...]) -> tuple[float, ...] | None:
+    """Parse a comma-separated form field of numbers; a 422 naming ``field`` when it is not ``count`` numbers."""
+    if text is None or not text.strip():
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in count:
+        wanted = " or ".join(str(n) for n in count)
+        raise RequestValidationError(
+            [
+                {
+                    "loc": ("body", field),
+                    "msg": f"{wanted} comma-separated numbers are needed, got {text!r}",
+                    "type": "value_error",
+                }
+            ]
+        )
+    return values
+
+
 def _csv_problem_field(problems: list[str]) -> str:
     """The form field a CSV import problem is about: ``columns``, ``rate``/``dt`` (their values), else ``file``."""
-    for prefix, field in (("--columns", "columns"), ("rate and dt", "rate"), ("rate:", "rate"), ("dt:", "dt")):
+    for prefix, field in (
+        ("--columns", "columns"),
+        ("rate and dt", "rate"),
+        ("rate:", "rate"),
+        ("dt:", "dt"),
+        ("tare window", "tare_window"),
+        ("force offset", "force_offset"),
+        ("tare:", "tare_window"),
+    ):
         if any(problem.startswith(prefix) for problem in problems):
             return field
     return "file"
@@ -518,7 +548,18 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
                 "column); may be given with rate only if they agree.",
             ),
         ] = None,
-        tare: Annotated[bool, Form(description="Remove a sensor offset seen in free space.")] = True,
+        tare: Annotated[
+            bool,
+            Form(description="Remove the sensor offset, fitted in the sensor frame over the free-space stretches."),
+        ] = True,
+        tare_window: Annotated[
+            str | None,
+            Form(description="'T0,T1' (s): the offset is the median of the file's wrench there (as --tare-window)."),
+        ] = None,
+        force_offset: Annotated[
+            str | None,
+            Form(description="'FX,FY,FZ[,MX,MY,MZ]': subtract this offset as the file reads it (as --force-offset)."),
+        ] = None,
         name: Annotated[str | None, Form(description="Name (default: the file name).")] = None,
     ) -> DemonstrationCreated:
         """Import a CSV recording with the options of ``contact-skills learn`` (multipart form) and store it."""
@@ -536,6 +577,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
                 rate_hz=rate,
                 dt_s=dt,
                 tare=tare,
+                tare_window_s=_numbers(tare_window, "tare_window", count=(2,)),
+                force_offset=_numbers(force_offset, "force_offset", count=(3, 6)),
                 name=name or stem,
             )
         except CsvImportError as exc:

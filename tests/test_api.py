@@ -19,6 +19,7 @@ from schemas.bus import ExecutionStatus, RecordReply, RecordRequest, WorkerInfo
 from services.app import BusEvents, create_app
 from services.settings import ServiceSettings, SettingsError
 from services.store import RESTART_REASON, Store
+from skills import kinesthetic
 from skills.synthetic import plane_slide
 
 DATA = KULEUVEN_DATA
@@ -276,6 +277,30 @@ def test_csv_upload_without_time_column_takes_the_rate_from_rate_or_dt(client):
     assert stored["demonstration"]["t"][:3] == [0.0, 0.01, 0.02] and len(stored["demonstration"]["t"]) == 100
     assert _names(upload(dt="0"), "dt")
     assert _names(upload(rate="100", dt="0.02"), "rate")
+
+
+def test_csv_upload_of_a_kinesthetic_recording_learns_one_segment_per_stroke(client):
+    """The real format (100 Hz, no time column, w-first, sensor-frame reaction with an offset), end to end."""
+    demo = kinesthetic.kinesthetic_wipe("flat", n_strokes=2, friction=0.3, seed=1)
+    text = kinesthetic.recording_csv_text(demo).encode()
+    options = {"rate": "100", "quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool"}
+
+    def upload(**extra: str):
+        return client.post("/demonstrations/csv", files={"file": ("wipe.csv", text, "text/csv")}, data=options | extra)
+
+    created = upload()
+    assert created.status_code == 201, created.text
+    assert any("sensor offset removed" in note for note in created.json()["import_notes"])
+    learned = client.post("/skills", json={"demonstration_id": created.json()["id"], "skill_type": "auto"})
+    assert learned.status_code == 201, learned.text
+    skill = learned.json()["skill"]
+    assert skill["skill_type"] == "slide" and skill["auto_selection"]["confidence"] >= 0.8
+    assert sum(s["kind"] == "contact" for s in skill["segments"]) == 2
+    assert upload(tare_window="0,0.8").status_code == 201
+    assert upload(force_offset="1,2,3").status_code == 201
+    assert _names(upload(force_offset="1,2"), "force_offset")
+    assert _names(upload(tare_window="0,x"), "tare_window")
+    assert _names(upload(tare_window="50,60"), "tare_window")
 
 
 # --------------------------------------------------------------------------- limits and auth
