@@ -120,9 +120,13 @@ def learned_force_curve(segment: Segment, dt: float) -> tuple[NDArray[np.float64
 def write_learning_figure(demonstration: Demonstration, skill: Skill, path: str | os.PathLike[str]) -> None:
     """Write a PNG (or any matplotlib format, by suffix) of the demonstrated force and the learned one.
 
-    Top: applied force in the world, x/y/z (N). Bottom: the same force in the compliant frame,
+    Top: applied force in the world, x/y/z (N). Middle: the same force in the compliant frame,
     x/y/z (N), with the learned CF-z force (constant or the force DMP's rollout) dashed black.
-    Segments are background spans (contact orange, free grey) labelled with kind and index.
+    Bottom: the tool's height above the touched surface (mm, along the mean CF z of the contact
+    segments) and its speed (m/s): contact is pressing ON the surface, which is what tells a
+    stroke from a hand's push in the air. Segments are background spans (contact orange, free
+    grey) labelled with kind and index; each boundary is a dotted line labelled with what decided
+    it (force, surface, crease).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -131,20 +135,30 @@ def write_learning_figure(demonstration: Demonstration, skill: Skill, path: str 
     dt = float(np.median(np.diff(a.t)))
     f_cf = forces_in_compliant_frames(demonstration, skill)
 
-    figure = Figure(figsize=(9, 6), layout="constrained")
+    figure = Figure(figsize=(9, 8.5), layout="constrained")
     FigureCanvasAgg(figure)
-    ax_world, ax_cf = figure.subplots(2, 1, sharex=True)
+    ax_world, ax_cf, ax_height = figure.subplots(3, 1, sharex=True, height_ratios=(1.0, 1.0, 0.8))
     for j, axis in enumerate("xyz"):
         ax_world.plot(a.t, a.wrenches[:, j], color=_AXIS_COLORS[j], lw=1.0, label=f"$f_{axis}$ world")
         ax_cf.plot(a.t, f_cf[:, j], color=_AXIS_COLORS[j], lw=1.0, label=f"$f_{axis}$ CF")
+    _plot_height_and_speed(ax_height, a.t, a.positions, skill)
     learned_label = "learned $f_z$ (DMP)" if skill.skill_type.value == "contour" else "learned $f_z$ (constant)"
+    previous = None
     for segment in skill.segments:
         curve = learned_force_curve(segment, dt)
         if curve is not None:
             ax_cf.plot(*curve, color="black", ls="--", lw=1.6, label=learned_label)
             learned_label = "_nolegend_"
-        for ax in (ax_world, ax_cf):
+        for ax in (ax_world, ax_cf, ax_height):
             ax.axvspan(segment.t_start, segment.t_end, color=_SEGMENT_COLORS[segment.kind], alpha=0.12, lw=0)
+        if previous is not None:  # what decided the boundary: the contact's own reason, on either side
+            reason = segment.start_reason if segment.kind is SegmentKind.contact else previous.end_reason
+            ax_height.axvline(segment.t_start, color="black", ls=":", lw=0.8)
+            ax_height.text(
+                segment.t_start, 0.98, f" {reason or ''}", transform=ax_height.get_xaxis_transform(),
+                rotation=90, ha="right", va="top", fontsize=7,
+            )  # fmt: skip
+        previous = segment
         ax_world.text(
             (segment.t_start + segment.t_end) / 2, 1.0, f"{segment.kind.value} {segment.index}",
             transform=ax_world.get_xaxis_transform(), ha="center", va="bottom", fontsize=8,
@@ -157,12 +171,37 @@ def write_learning_figure(demonstration: Demonstration, skill: Skill, path: str 
     ax_world.set_title(f"{title}: {chosen} skill, {len(skill.segments)} segment(s)", pad=14)
     ax_world.set_ylabel("applied force, world (N)")
     ax_cf.set_ylabel("applied force, compliant frame (N)")
-    ax_cf.set_xlabel("time (s)")
+    ax_height.set_xlabel("time (s)")
     for ax in (ax_world, ax_cf):
         ax.grid(True, lw=0.3)
         ax.legend(loc="upper right", fontsize=8, ncols=2)
         ax.axhline(0.0, color="black", lw=0.5)
     figure.savefig(os.fspath(path), dpi=120)
+
+
+def _plot_height_and_speed(ax, t: np.ndarray, positions: np.ndarray, skill: Skill) -> None:
+    """Plot the tool's height (mm) above the touched surface along the contact segments' mean CF z, and its speed."""
+    axes = [
+        matrix_from_quaternion(np.asarray(s.compliant_frames.orientations))[:, :, 2].mean(axis=0)
+        for s in skill.segments
+        if s.compliant_frames is not None
+    ]
+    down = np.mean(axes, axis=0) if axes else np.array([0.0, 0.0, -1.0])
+    down /= np.linalg.norm(down)
+    depth = positions @ down
+    contact = np.zeros(t.size, dtype=bool)
+    for s in skill.segments:
+        if s.compliant_frames is not None:
+            contact |= (t >= s.t_start) & (t <= s.t_end)
+    surface = np.median(depth[contact]) if contact.any() else depth.max()
+    ax.plot(t, 1000.0 * (surface - depth), color="tab:blue", lw=1.0, label="height above the surface (mm)")
+    ax.set_ylabel("tool height (mm)")
+    speed = np.linalg.norm(np.gradient(positions, t, axis=0), axis=1)
+    twin = ax.twinx()
+    twin.plot(t, speed, color="tab:gray", lw=0.7, alpha=0.7, label="speed (m/s)")
+    twin.set_ylabel("speed (m/s)")
+    ax.legend(loc="upper left", fontsize=8)
+    twin.legend(loc="upper right", fontsize=8)
 
 
 def write_execution_figure(result, path: str | os.PathLike[str]) -> None:

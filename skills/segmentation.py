@@ -36,17 +36,19 @@ from skills.contact import ContactAnalysis
 CLUSTERING_SAMPLES = 600
 """Samples one clustering works on: a stroke is block-averaged down to about this many."""
 
-NORMAL_SPLIT_DEG = 8.0
+NORMAL_SPLIT_DEG = 10.0
 """Least change of the surface normal (deg) between two planes, and least jump at the cut between them.
 
 Below it a slide keeps one plane: the force control along CF z absorbs the difference, while
-PyBullet's friction (misdirected by up to ~15°) and a hand's lean wobble the normal by up to ~6°.
+PyBullet's friction (misdirected by up to ~15°) wobbles the normal by up to ~6°, and the arm's
+inertia that a hand works against when it turns a wipe (m·a across the motion, in the surface)
+tilts it by up to ~11° for a moment.
 """
 
 JUMP_DISTANCE_M = 0.02
 """Length of path just before and just after a cut whose normals make the jump, m."""
 
-CREASE_CONTRAST = 2.5
+CREASE_CONTRAST = 3.0
 """A cut is a crease when the normal jumps across it this many times more than it turns on either side."""
 
 MAX_PLANES_PER_STROKE = 6

@@ -109,6 +109,7 @@ def test_auto_picks_contour_on_real_trials(tmp_path, name):
     assert code == 0, stderr
     skill = Skill.model_validate_json((tmp_path / "s.json").read_text())
     assert skill.skill_type == "contour" and skill.auto_selection.chosen == "contour"
+    assert skill.auto_selection.confidence >= 0.8, skill.auto_selection.reason
     assert "skill type: contour (auto, confidence" in stdout
 
 
