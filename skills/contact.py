@@ -13,11 +13,13 @@ from going deeper. So contact is decided in two steps (all world frame, SI):
    shorter than ``CORE_GAP_S`` (a pause on the surface) are bridged.
 2. **Boundaries** — from each core, contact extends back to the touch-down and forward to the
    lift-off for as long as the tool stays ON the surface the core pressed on (its depth along the
-   local surface normal stays within ``SURFACE_TOLERANCE_M`` of the depth at the core's end, no
-   higher) AND presses into it (force along that normal above the touch level: 4 standard
+   local surface normal stays within ``SURFACE_TOLERANCE_M`` of the surface found at the core's
+   end, no higher, where the surface's depth allows for a compliant pad that sinks with the
+   press) AND presses into it (force along that normal above the touch level: 4 standard
    deviations of the smoothed force's noise, at least ``TOUCH_FORCE_MIN_N``). Whichever of the
    two fails first decides the boundary, and the analysis says which ("force" or "surface").
-   Intervals that overlap are one contact; contacts shorter than ``MIN_CONTACT_S`` are dropped.
+   Intervals that overlap or are less than ``CORE_GAP_S`` apart are one contact; contacts shorter
+   than ``MIN_CONTACT_S`` are dropped.
 
 Without any sliding press (a press-and-hold), the cores fall back to the pressing samples alone.
 Every input is uniformly sampled: ``t`` (N,) s, ``positions`` (N, 3) m, ``forces`` (N, 3) N
@@ -53,8 +55,14 @@ CORE_GAP_S = 0.3
 SURFACE_TOLERANCE_M = 0.003
 """How far (m) above the surface found under load the tool may be and still touch it (pad relief, tremor)."""
 
-LOCAL_NORMAL_S = 0.5
-"""Length of the core's first/last stretch whose friction-free force direction is the local surface normal, s."""
+LOCAL_NORMAL_S = 1.0
+"""Length of the core's first/last stretch that gives the local surface: normal, plane and pad compliance, s."""
+
+RAMP_FRACTION = 0.25
+"""The surface model uses the ramp next to a core down to this fraction of the core's press."""
+
+MAX_COMPLIANCE_M_N = 2.0e-3
+"""Softest pad or part the surface model allows: 2 mm of sink per N (a sponge under a light press)."""
 
 NORMAL_MIN_SPEED_M_S = 0.02
 """Least sliding speed (m/s) at which the friction-free force direction is taken as the surface normal.
@@ -218,8 +226,10 @@ def analyse_contact(
         intervals.append((start, end + 1, start_reason, end_reason))
 
     merged: list[ContactInterval] = []
+    bridge = round(CORE_GAP_S * rate_hz)
     for start, end, start_reason, end_reason in sorted(intervals):
-        if merged and start <= merged[-1].end:
+        # Overlapping, or apart for less than a pause: no lift fits in there, it is one contact.
+        if merged and start <= merged[-1].end + bridge:
             last = merged[-1]
             if end > last.end:
                 merged[-1] = ContactInterval(last.start, end, last.start_reason, end_reason)
@@ -242,6 +252,33 @@ def analyse_contact(
     )
 
 
+def _surface_model(
+    p: NDArray[np.float64], pressing: NDArray[np.float64], normal: NDArray[np.float64], reference: slice
+) -> tuple[NDArray[np.float64], float]:
+    """Return the depth (N,) m each sample would have ON the surface, and the model's RMS residual (m).
+
+    Over the ``reference`` stretch the depth along ``normal`` is fitted as a plane through the
+    in-surface coordinates plus the tool's sink into a compliant pad or part, ``compliance`` ×
+    the force along the normal (a sponge sinks ~10 mm under 20 N: as the press relaxes at a
+    lift-off the tool rises on the surface, not off it). The compliance is kept within
+    ``[0, MAX_COMPLIANCE_M_N]``.
+    """
+    depth = p @ normal
+    basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
+    in_surface = p @ basis
+    rows = np.arange(p.shape[0])[reference]
+    design = np.column_stack([np.ones(rows.size), in_surface[rows] - in_surface[rows].mean(axis=0), pressing[rows]])
+    coefficients, *_ = np.linalg.lstsq(design, depth[rows], rcond=1e-9)
+    compliance = float(np.clip(coefficients[3], 0.0, MAX_COMPLIANCE_M_N))
+    plane = depth[rows] - compliance * pressing[rows]
+    tilt, *_ = np.linalg.lstsq(design[:, :3], plane, rcond=1e-9)
+    residual = float(np.std(plane - design[:, :3] @ tilt))
+    expected = (
+        tilt[0] + (in_surface - in_surface[rows].mean(axis=0)) @ tilt[1:] + compliance * np.maximum(pressing, 0.0)
+    )
+    return expected, residual
+
+
 def _touch_down(
     p: NDArray[np.float64],
     f: NDArray[np.float64],
@@ -253,15 +290,25 @@ def _touch_down(
 ) -> tuple[int, str]:
     """Return the first (``backward``: earliest) sample still in contact beyond a core's ``edge``, and why it ends.
 
-    The local surface normal and depth come from the core's ``reference`` stretch next to the
-    edge; contact goes on while the tool is no higher than ``SURFACE_TOLERANCE_M`` above that
-    depth (along the normal) and the force along the normal is at least ``touch_n``.
+    The local surface (normal, plane, pad compliance: `_surface_model`) comes from the core's
+    ``reference`` stretch next to the edge; contact goes on while the tool is no higher than
+    ``SURFACE_TOLERANCE_M`` (or 2 model residuals) above the surface at the force it presses with,
+    and the force along the normal is at least ``touch_n``.
     """
     normal = _stretch_normal(f, v, reference)
-    depth = p @ normal
-    surface_depth = float(np.median(depth[reference]))
-    on_surface = depth >= surface_depth - SURFACE_TOLERANCE_M
-    touching = f @ normal >= touch_n
+    pressing = f @ normal
+    # The surface model also takes the upper part of the ramp next to the core (the press above
+    # RAMP_FRACTION of the core's): there the force changes most, which shows the pad's compliance.
+    firm = pressing >= RAMP_FRACTION * float(np.median(pressing[reference]))
+    if backward:
+        soft = np.flatnonzero(~firm[: reference.start])
+        model_rows = slice(int(soft[-1]) + 1 if soft.size else 0, reference.stop)
+    else:
+        soft = np.flatnonzero(~firm[reference.stop :])
+        model_rows = slice(reference.start, reference.stop + int(soft[0]) if soft.size else p.shape[0])
+    expected, residual = _surface_model(p, pressing, normal, model_rows)
+    on_surface = p @ normal >= expected - max(SURFACE_TOLERANCE_M, 2.0 * residual)
+    touching = pressing >= touch_n
     inside = on_surface & touching
     if backward:
         outside = np.flatnonzero(~inside[:edge])

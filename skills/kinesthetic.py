@@ -339,11 +339,13 @@ def kinesthetic_wipe(
     seed: int = 0,
     operator: OperatorModel | None = None,
     sensor_rate_hz: float = 100.0,
+    pad_stiffness_n_m: float | None = None,
 ) -> KinestheticDemo:
     """Return a kinesthetic wiping demonstration on ``surface`` with ``n_strokes`` strokes and its truth.
 
     ``friction`` is the Coulomb coefficient (the tangential force is ``friction`` × normal force,
-    along the motion); ``seed`` makes it reproducible. See the module docstring for the facts it carries.
+    along the motion); ``seed`` makes it reproducible; ``pad_stiffness_n_m`` fixes the tool pad's
+    stiffness (default: drawn from ``PAD_STIFFNESS_N_M``). See the module docstring for the facts it carries.
     """
     if not 1 <= n_strokes <= 6:
         raise ValueError(f"n_strokes must be 1..6, got {n_strokes}")
@@ -442,7 +444,7 @@ def kinesthetic_wipe(
     # The pad gives under the load; the hand trembles (tangentially only while on the surface).
     tremor = 4e-4 * _slow_wander(t, rng, 4.0, 9.0, dims=3)
     tremor -= in_contact[:, None] * np.sum(tremor * outward, axis=1, keepdims=True) * outward
-    pad_stiffness = rng.uniform(*PAD_STIFFNESS_N_M)
+    pad_stiffness = rng.uniform(*PAD_STIFFNESS_N_M) if pad_stiffness_n_m is None else pad_stiffness_n_m
     positions_fine = path - (normal_force / pad_stiffness)[:, None] * outward + tremor
     velocity = np.gradient(gaussian_filter1d(positions_fine, 5.0, axis=0, mode="nearest"), dt, axis=0)
 

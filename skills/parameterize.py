@@ -259,7 +259,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     auto_selection = None
     if options.skill_type is SkillTypeRequest.auto:
         try:
-            verdict = classify_skill(positions, contact.directions, slide_segments, contact.rate_hz)
+            verdict = classify_skill(positions, forces, contact.directions, slide_segments, contact.rate_hz)
         except ValueError as exc:
             raise LearningError("wrenches", str(exc)) from None
         skill_type = SkillType.slide if verdict.is_slide else SkillType.contour

@@ -6,9 +6,10 @@ free of friction (which turns the applied force with the wiping direction on any
 
 - **planarity** — how far the contact positions leave the best plane through them that is
   pressed on: the RMS residual of the depth along the mean friction-free normal after fitting it
-  linearly over the surface, the plane's tilt from that normal bounded by ``MAX_PLANE_TILT_DEG``
-  (a steeper plane could hold an arc drawn in a vertical plane, but nobody presses on it).
-  Hand-wiped planes: 0.3-3.4 mm (pad compliance, tremor); gently curved parts: 6-14 mm.
+  linearly over the surface and the press (a compliant pad sinks with the force), the plane's
+  tilt from that normal bounded by ``MAX_PLANE_TILT_DEG`` (a steeper plane could hold an arc
+  drawn in a vertical plane, but nobody presses on it).
+  Hand-wiped planes: 0.3-3.4 mm (pad compliance, tremor); curved parts: 5.8-19 mm.
 - **turning** — the angular range of the friction-free normal (the force with its component
   along the motion removed) along the segment: the largest angle between the mean normals of
   its ``TURNING_WINDOWS`` consecutive parts (a curve may turn out and back). Planes: a few
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from skills.contact import MAX_COMPLIANCE_M_N
 from skills.segmentation import SegmentBounds
 
 PLANE_RMS_AT_EVEN_ODDS_M = 0.006
@@ -72,11 +74,16 @@ class SkillClassification:
 
 
 def segment_geometry(
-    positions: NDArray[np.float64], directions: NDArray[np.float64], segment: SegmentBounds, rate_hz: float
+    positions: NDArray[np.float64],
+    forces: NDArray[np.float64],
+    directions: NDArray[np.float64],
+    segment: SegmentBounds,
+    rate_hz: float,
 ) -> SegmentGeometry | None:
     """Return planarity and turning of one contact segment, or None when it has too few moving samples.
 
-    ``positions`` (N, 3) m; ``directions`` (N, 3) friction-free normals (zero where unknown).
+    ``positions`` (N, 3) m; ``forces`` (N, 3) N applied; ``directions`` (N, 3) friction-free
+    normals (zero where unknown).
     """
     rows = slice(segment.start, segment.end)
     p, d = positions[rows], directions[rows]
@@ -86,10 +93,17 @@ def segment_geometry(
     normal = d[valid].mean(axis=0)
     normal /= np.linalg.norm(normal)
     # Depth along the normal, fitted linearly over the in-plane coordinates (least squares: a
-    # straight path leaves the sideways tilt free, lstsq takes the smallest).
+    # straight path leaves the sideways tilt free, lstsq takes the smallest) and over the press:
+    # a compliant pad sinks with the force, which is no curvature of the surface.
     centred = p[valid] - p[valid].mean(axis=0)
     depth = centred @ normal
     in_plane = centred - np.outer(depth, normal)
+    press = forces[rows][valid] @ normal
+    press -= press.mean()
+    design = np.column_stack([in_plane, press])
+    coefficients, *_ = np.linalg.lstsq(design, depth, rcond=1e-6)
+    compliance = float(np.clip(coefficients[3], 0.0, MAX_COMPLIANCE_M_N))
+    depth = depth - compliance * press
     slope, *_ = np.linalg.lstsq(in_plane, depth, rcond=1e-6)
     # The plane may tilt away from the pressing direction only as far as that direction is uncertain:
     # a steeper "plane" would hold a curved path (an arc in a vertical plane) but not be pressed on.
@@ -113,6 +127,7 @@ def _log_odds_contour(geometry: SegmentGeometry) -> tuple[float, float]:
 
 def classify_skill(
     positions: NDArray[np.float64],
+    forces: NDArray[np.float64],
     directions: NDArray[np.float64],
     slide_segments: list[SegmentBounds],
     rate_hz: float,
@@ -121,8 +136,8 @@ def classify_skill(
 
     Raises ValueError when no contact segment has enough moving samples to be measured.
     """
-    candidates = [segment_geometry(positions, directions, s, rate_hz) for s in slide_segments if s.contact]
-    candidates = [segment_geometry(positions, directions, s, rate_hz) for s in slide_segments if s.contact]
+    candidates = [segment_geometry(positions, forces, directions, s, rate_hz) for s in slide_segments if s.contact]
+    candidates = [segment_geometry(positions, forces, directions, s, rate_hz) for s in slide_segments if s.contact]
     measured = [g for g in candidates if g is not None]
     if not measured:
         raise ValueError("the tool never slides in contact long enough: slide or contour cannot be told")

@@ -115,3 +115,16 @@ def test_a_hand_wiped_plane_that_leaves_its_plane_by_mm_is_still_a_slide() -> No
     assert skill.auto_selection.plane_rms_m > 0.0015
     assert skill.skill_type.value == "slide" and skill.auto_selection.confidence >= 0.8
     assert len(contacts(skill)) == len(demo.truth.strokes)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_a_soft_pad_that_sinks_15_mm_keeps_touch_down_and_lift_off(seed: int) -> None:
+    """A sponge (2 kN/m) sinks ~15 mm under the press: as it relaxes the tool rises ON the surface, not off it."""
+    demo = kinesthetic.kinesthetic_wipe("flat", n_strokes=2, friction=0.3, seed=seed, pad_stiffness_n_m=2000.0)
+    skill = learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT))
+    assert skill.skill_type.value == "slide" and skill.auto_selection.confidence >= 0.8
+    segments = contacts(skill)
+    assert len(segments) == len(demo.truth.strokes)
+    for segment, stroke in zip(segments, demo.truth.strokes, strict=True):
+        assert abs(segment.t_start - stroke.t_on) < 0.3 and abs(segment.t_end - stroke.t_off) < 0.3
+        assert segment.force_constant_n == pytest.approx(stroke.plateau_force_n, rel=0.05)
