@@ -134,8 +134,9 @@ def normal_directions(
 
     Friction acts along the motion, so the component of the force along the velocity is
     removed; what is left is the surface normal direction into the surface. Only where the tool
-    SLIDES in contact does that hold: where it rests or creeps (speed < ``NORMAL_MIN_SPEED_M_S``)
-    static friction or tremor can point it anywhere in the cone; where it moves along the force (touching down,
+    SLIDES in contact does that hold: where it rests or creeps (speed below ``NORMAL_MIN_SPEED_M_S``,
+    or half the median speed in contact for a slow wipe, at least ``CORE_MIN_SPEED_M_S``) static
+    friction or tremor can point it anywhere in the cone; where it moves along the force (touching down,
     lifting off: the force is not within ``FRICTION_CONE_MAX`` of across the motion) the removed
     component is not friction; where the force is below a third of the median contact force,
     noise dominates. There the direction says nothing about the normal and is zero, as where not
@@ -148,7 +149,10 @@ def normal_directions(
     along = np.sum(forces * v_hat, axis=1, keepdims=True)
     normal_part = forces - along * v_hat
     norm = np.linalg.norm(normal_part, axis=1, keepdims=True)
-    sliding = (speed > NORMAL_MIN_SPEED_M_S) & (magnitude > typical / 3.0) & (np.abs(along) <= FRICTION_CONE_MAX * norm)
+    # A slow wipe (a few cm/s) still has its normals: the floor is lowered to half its median speed.
+    wiping_speed = float(np.median(speed[in_contact])) if in_contact.any() else 0.0
+    floor = float(np.clip(0.5 * wiping_speed, CORE_MIN_SPEED_M_S, NORMAL_MIN_SPEED_M_S))
+    sliding = (speed > floor) & (magnitude > typical / 3.0) & (np.abs(along) <= FRICTION_CONE_MAX * norm)
     directions = np.where(norm > 1e-9, normal_part / np.maximum(norm, 1e-12), 0.0)
     return directions * (in_contact[:, None] & sliding)
 
