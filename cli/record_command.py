@@ -1,0 +1,71 @@
+"""``contact-skills record --style kinesthetic``: a hand-guided wiping recording from the PyBullet world.
+
+Writes the recording as a real kinesthetic recording file holds it (100 Hz, no time column, w-first
+quaternions, the raw wrist-sensor reading: sensor frame, measured on the tool, with its offset), the ground
+truth as JSON and, if asked, the ``WorldConfig`` JSON of the world (for ``contact-skills simulate --world``).
+Imported lazily by ``cli.main`` (numpy and PyBullet load only when the command runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from cli.main import UserError, _report_user_error
+
+
+def _vector(values, digits: int = 2) -> str:
+    return "[" + ", ".join(f"{x:+.{digits}f}" for x in values) + "]"
+
+
+def run_kinesthetic_record(args: argparse.Namespace) -> int:
+    """Record ``args.scenario`` (a kinesthetic scenario) with ``args.seed``, ``args.strokes``, ``args.friction``;
+    write ``args.output`` (CSV), ``args.truth`` and ``args.world`` (JSON, optional); print the summary."""
+    try:
+        from sim_worker.kinesthetic_teacher import (
+            LEARN_IMPORT_OPTIONS,
+            SCENARIOS,
+            kinesthetic_truth_dict,
+            record_kinesthetic,
+        )
+        from skills.kinesthetic import recording_csv_text
+
+        problems = []
+        if args.scenario not in SCENARIOS:
+            problems.append(f"scenario: unknown kinesthetic scenario {args.scenario!r}; choose one of "
+                            f"{', '.join(SCENARIOS)}")  # fmt: skip
+        if args.output.suffix.lower() != ".csv":
+            problems.append(f"output: {args.output} must end in .csv (a kinesthetic recording file)")
+        if args.strokes is not None and not 1 <= args.strokes <= 6:
+            problems.append(f"strokes: {args.strokes} is not in 1..6")
+        if args.friction is not None and not 0.0 <= args.friction <= 1.0:
+            problems.append(f"friction: {args.friction} is not in [0, 1]")
+        if problems:
+            raise UserError(problems)
+        demo = record_kinesthetic(args.scenario, seed=args.seed, n_strokes=args.strokes, friction=args.friction)
+    except Exception as exc:
+        return _report_user_error("record", exc)
+    truth = demo.truth
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(recording_csv_text(demo))
+    print(f"recorded {args.scenario} (kinesthetic, seed {args.seed}): {len(truth.strokes)} strokes, friction "
+          f"{truth.friction:.3f}, {demo.t.size} samples at 100 Hz, {demo.simulated_s:.1f} s simulated in "
+          f"{demo.wall_time_s:.1f} s -> {args.output}")  # fmt: skip
+    for k, stroke in enumerate(truth.strokes, start=1):
+        turn = f", normal turns {stroke.normal_turn_deg:.1f} deg" if stroke.normal is None else ""
+        print(f"  stroke {k}: contact {stroke.t_on:.3f} - {stroke.t_off:.3f} s ({stroke.t_off - stroke.t_on:.2f} s), "
+              f"plateau {stroke.plateau_force_n:.1f} N{turn}")  # fmt: skip
+    offset = truth.sensor_offset
+    print(f"  sensor offset (sensor frame, measured on the tool, as in the file): force {_vector(offset[:3])} N, "
+          f"moment {_vector(offset[3:], 3)} N·m")  # fmt: skip
+    print(f"  largest free-space hand force {truth.operator_force_max_n:.1f} N")
+    if args.truth is not None:
+        args.truth.parent.mkdir(parents=True, exist_ok=True)
+        args.truth.write_text(json.dumps(kinesthetic_truth_dict(demo)))
+        print(f"ground truth -> {args.truth}")
+    if args.world is not None and demo.world_config is not None:
+        args.world.parent.mkdir(parents=True, exist_ok=True)
+        args.world.write_text(json.dumps(demo.world_config.to_dict(), indent=1))
+        print(f"world -> {args.world} (contact-skills simulate SKILL --world {args.world})")
+    print(f"learn it with: contact-skills learn {args.output} {LEARN_IMPORT_OPTIONS} -o skill.json")
+    return 0
