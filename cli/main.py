@@ -129,7 +129,7 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
         help="the same as --rate 1/SECONDS: the time step of a file without a time column (t = row * SECONDS)",
     )
     parser.add_argument(
-        "--no-tare", action="store_true", help="do not remove the sensor offset (estimated over the free-space stretches)"
+        "--no-tare", action="store_true", help="keep the sensor offset (else fitted over the free-space stretches)"
     )
     parser.add_argument(
         "--tare-window",

@@ -18,7 +18,7 @@ operator's hand force (``operator_forces``) and a wrist sensor (``random_wrist_s
 gives (sensor frame, measured ON the tool, constant offset, noise), exactly as ``kinesthetic_wipe`` does.
 
 Ground truth (``KinestheticTruth``) comes from the simulation, not from the plan: contact intervals from
-PyBullet's contact points (first touch to lift-off of each stroke), the plateau force as the median TRUE
+PyBullet's contact points (first touch to lift-off of each stroke), the plateau force as the mean TRUE
 normal force between the ramps, normals from the exact world geometry at the tool ball's centre.
 
 Scenarios (``SCENARIOS``): ``wipe_flat``, ``wipe_tilted`` (table tilted 35°), ``wipe_curved`` (a cylinder of
@@ -750,7 +750,7 @@ def record_kinesthetic(
             StrokeTruth(
                 t_on=float(t[on[0]]),
                 t_off=float(t[on[-1]]),
-                plateau_force_n=float(np.median(normal_force[plateau])),
+                plateau_force_n=float(np.mean(normal_force[plateau])),
                 normal=None if curved else inward[on[0]].copy(),
                 normal_turn_deg=turn,
             )

@@ -128,3 +128,29 @@ def test_a_soft_pad_that_sinks_15_mm_keeps_touch_down_and_lift_off(seed: int) ->
     for segment, stroke in zip(segments, demo.truth.strokes, strict=True):
         assert abs(segment.t_start - stroke.t_on) < 0.3 and abs(segment.t_end - stroke.t_off) < 0.3
         assert segment.force_constant_n == pytest.approx(stroke.plateau_force_n, rel=0.05)
+
+
+# --------------------------------------------------------------------------- the PyBullet kinesthetic teacher
+
+
+@cache
+def simulated(scenario: str) -> tuple[kinesthetic.KinestheticDemo, Skill]:
+    from sim_worker.kinesthetic_teacher import record_kinesthetic
+
+    demo = record_kinesthetic(scenario, seed=1)  # 2 strokes, real PyBullet contact, friction and arm
+    return demo, learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT))
+
+
+@pytest.mark.parametrize("scenario", ["wipe_flat", "wipe_tilted", "wipe_curved"])
+def test_learning_holds_on_the_simulated_kinesthetic_teacher(scenario: str) -> None:
+    demo, skill = simulated(scenario)
+    truth = demo.truth
+    assert skill.skill_type.value == truth.skill_type and skill.auto_selection.confidence >= 0.8
+    segments = contacts(skill)
+    assert len(segments) == len(truth.strokes)
+    for segment, stroke in zip(segments, truth.strokes, strict=True):
+        assert abs(segment.t_start - stroke.t_on) < 0.3 and abs(segment.t_end - stroke.t_off) < 0.3
+        if stroke.normal is not None:
+            z = matrix_from_quaternion(segment.compliant_frames.orientations[0])[:, 2]
+            assert angle_deg(z, stroke.normal) < 3.0
+            assert segment.force_constant_n == pytest.approx(stroke.plateau_force_n, rel=0.05)
