@@ -16,7 +16,8 @@ from going deeper. So contact is decided in two steps (all world frame, SI):
    local surface normal stays within ``SURFACE_TOLERANCE_M`` of the surface found at the core's
    end, no higher, where the surface's depth allows for a compliant pad that sinks with the
    press) AND presses into it (force along that normal above the touch level: 4 standard
-   deviations of the smoothed force's noise, at least ``TOUCH_FORCE_MIN_N``). Whichever of the
+   deviations of the smoothed force's noise, at least ``TOUCH_FORCE_MIN_N``) or rests on it
+   (moving along the normal slower than ``RESTING_SPEED_M_S``, not pulling off). Whichever of the
    two fails first decides the boundary, and the analysis says which ("force" or "surface").
    Intervals that overlap or are less than ``CORE_GAP_S`` apart are one contact; contacts shorter
    than ``MIN_CONTACT_S`` are dropped.
@@ -70,6 +71,9 @@ NORMAL_MIN_SPEED_M_S = 0.02
 Slower, the sliding direction is the hand's tremor (~1-2 cm/s at 4-9 Hz), which friction follows
 but the smoothed velocity does not: the friction left in the direction tilts it by up to ~20°.
 """
+
+RESTING_SPEED_M_S = 0.002
+"""A tool on the surface moving along its normal slower than this (m/s) rests on it: still in contact."""
 
 TOUCH_FORCE_MIN_N = 0.3
 """Smallest force along the normal (N) that counts as still touching."""
@@ -297,7 +301,7 @@ def _touch_down(
     The local surface (normal, plane, pad compliance: `_surface_model`) comes from the core's
     ``reference`` stretch next to the edge; contact goes on while the tool is no higher than
     ``SURFACE_TOLERANCE_M`` (or 2 model residuals) above the surface at the force it presses with,
-    and the force along the normal is at least ``touch_n``.
+    and the force along the normal is at least ``touch_n`` or the tool rests there without pulling.
     """
     normal = _stretch_normal(f, v, reference)
     pressing = f @ normal
@@ -312,7 +316,10 @@ def _touch_down(
         model_rows = slice(reference.start, reference.stop + int(soft[0]) if soft.size else p.shape[0])
     expected, residual = _surface_model(p, pressing, normal, model_rows)
     on_surface = p @ normal >= expected - max(SURFACE_TOLERANCE_M, 2.0 * residual)
-    touching = pressing >= touch_n
+    # Touching: pressing above the touch level, or resting on the surface without pulling off it
+    # (a hand that has let go of the press before it lifts: the surface still stops the tool).
+    resting = (np.abs(v @ normal) < RESTING_SPEED_M_S) & (pressing > -touch_n)
+    touching = (pressing >= touch_n) | resting
     inside = on_surface & touching
     if backward:
         outside = np.flatnonzero(~inside[:edge])
