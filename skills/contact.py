@@ -35,6 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import binary_closing, binary_opening, gaussian_filter1d
 
+from skills.surface import pressed_surface
+
 CORE_FORCE_FRACTION = 0.4
 """A stroke core presses with at least this fraction of the robust peak force (98th percentile of |f|)."""
 
@@ -61,9 +63,6 @@ LOCAL_NORMAL_S = 1.0
 
 RAMP_FRACTION = 0.25
 """The surface model uses the ramp next to a core down to this fraction of the core's press."""
-
-MAX_COMPLIANCE_M_N = 2.0e-3
-"""Softest pad or part the surface model allows: 2 mm of sink per N (a sponge under a light press)."""
 
 NORMAL_MIN_SPEED_M_S = 0.02
 """Least sliding speed (m/s) at which the friction-free force direction is taken as the surface normal.
@@ -260,33 +259,6 @@ def analyse_contact(
     )
 
 
-def _surface_model(
-    p: NDArray[np.float64], pressing: NDArray[np.float64], normal: NDArray[np.float64], reference: slice
-) -> tuple[NDArray[np.float64], float]:
-    """Return the depth (N,) m each sample would have ON the surface, and the model's RMS residual (m).
-
-    Over the ``reference`` stretch the depth along ``normal`` is fitted as a plane through the
-    in-surface coordinates plus the tool's sink into a compliant pad or part, ``compliance`` ×
-    the force along the normal (a sponge sinks ~10 mm under 20 N: as the press relaxes at a
-    lift-off the tool rises on the surface, not off it). The compliance is kept within
-    ``[0, MAX_COMPLIANCE_M_N]``.
-    """
-    depth = p @ normal
-    basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
-    in_surface = p @ basis
-    rows = np.arange(p.shape[0])[reference]
-    design = np.column_stack([np.ones(rows.size), in_surface[rows] - in_surface[rows].mean(axis=0), pressing[rows]])
-    coefficients, *_ = np.linalg.lstsq(design, depth[rows], rcond=1e-9)
-    compliance = float(np.clip(coefficients[3], 0.0, MAX_COMPLIANCE_M_N))
-    plane = depth[rows] - compliance * pressing[rows]
-    tilt, *_ = np.linalg.lstsq(design[:, :3], plane, rcond=1e-9)
-    residual = float(np.std(plane - design[:, :3] @ tilt))
-    expected = (
-        tilt[0] + (in_surface - in_surface[rows].mean(axis=0)) @ tilt[1:] + compliance * np.maximum(pressing, 0.0)
-    )
-    return expected, residual
-
-
 def _touch_down(
     p: NDArray[np.float64],
     f: NDArray[np.float64],
@@ -298,7 +270,7 @@ def _touch_down(
 ) -> tuple[int, str]:
     """Return the first (``backward``: earliest) sample still in contact beyond a core's ``edge``, and why it ends.
 
-    The local surface (normal, plane, pad compliance: `_surface_model`) comes from the core's
+    The local surface (normal, plane, pad compliance: `skills.surface`) comes from the core's
     ``reference`` stretch next to the edge; contact goes on while the tool is no higher than
     ``SURFACE_TOLERANCE_M`` (or 2 model residuals) above the surface at the force it presses with,
     and the force along the normal is at least ``touch_n`` or the tool rests there without pulling.
@@ -314,8 +286,9 @@ def _touch_down(
     else:
         soft = np.flatnonzero(~firm[reference.stop :])
         model_rows = slice(reference.start, reference.stop + int(soft[0]) if soft.size else p.shape[0])
-    expected, residual = _surface_model(p, pressing, normal, model_rows)
-    on_surface = p @ normal >= expected - max(SURFACE_TOLERANCE_M, 2.0 * residual)
+    surface = pressed_surface(p[model_rows], pressing[model_rows], normal)
+    tolerance = max(SURFACE_TOLERANCE_M, 2.0 * surface.residual_rms_m)
+    on_surface = p @ normal >= surface.depth_at(p, pressing) - tolerance
     # Touching: pressing above the touch level, or resting on the surface without pulling off it
     # (a hand that has let go of the press before it lifts: the surface still stops the tool).
     resting = (np.abs(v @ normal) < RESTING_SPEED_M_S) & (pressing > -touch_n)

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from skills.contact import MAX_COMPLIANCE_M_N
 from skills.segmentation import SegmentBounds
+from skills.surface import pressed_surface
 
 PLANE_RMS_AT_EVEN_ODDS_M = 0.006
 """Planarity residual (m) at which slide and contour are equally likely."""
@@ -92,25 +92,8 @@ def segment_geometry(
         return None
     normal = d[valid].mean(axis=0)
     normal /= np.linalg.norm(normal)
-    # Depth along the normal, fitted linearly over the in-plane coordinates (least squares: a
-    # straight path leaves the sideways tilt free, lstsq takes the smallest) and over the press:
-    # a compliant pad sinks with the force, which is no curvature of the surface.
-    centred = p[valid] - p[valid].mean(axis=0)
-    depth = centred @ normal
-    in_plane = centred - np.outer(depth, normal)
-    press = forces[rows][valid] @ normal
-    press -= press.mean()
-    design = np.column_stack([in_plane, press])
-    coefficients, *_ = np.linalg.lstsq(design, depth, rcond=1e-6)
-    compliance = float(np.clip(coefficients[3], 0.0, MAX_COMPLIANCE_M_N))
-    depth = depth - compliance * press
-    slope, *_ = np.linalg.lstsq(in_plane, depth, rcond=1e-6)
-    # The plane may tilt away from the pressing direction only as far as that direction is uncertain:
-    # a steeper "plane" would hold a curved path (an arc in a vertical plane) but not be pressed on.
-    largest = np.tan(np.radians(MAX_PLANE_TILT_DEG))
-    slope *= min(1.0, largest / max(float(np.linalg.norm(slope)), 1e-12))
-    residual = depth - in_plane @ slope
-    rms = float(np.std(residual))
+    surface = pressed_surface(p[valid], forces[rows][valid] @ normal, normal, max_tilt_deg=MAX_PLANE_TILT_DEG)
+    rms = surface.residual_rms_m
     parts = np.array_split(d[valid], min(TURNING_WINDOWS, valid.size // 2))
     means = np.array([part.mean(axis=0) for part in parts])
     means /= np.linalg.norm(means, axis=1, keepdims=True)
