@@ -12,6 +12,7 @@ COPY schemas/ schemas/
 COPY skills/ skills/
 COPY services/ services/
 COPY sim_worker/ sim_worker/
+COPY experiments/ experiments/
 COPY cli/ cli/
 RUN pip wheel --no-cache-dir --wheel-dir /wheels ".[service]"
 

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python benchmarks/bench_service.py [--repeats 15] [--executions
 ``bench_service`` section of docs/BENCHMARKS.md.
 
 1. Learning latency: ``contact-skills api --no-bus`` (a real uvicorn process, temp SQLite), a 10 s 1 kHz
-   demonstration (``skills.synthetic.plane_slide(duration_s=10)``, 10 000 samples, ~2.6 MB of JSON):
+   demonstration (``skills.synthetic.plane_slide(duration_s=10)``, 10 000 samples):
    ``POST /skills`` with the demonstration inline, and with it stored (``demonstration_id``); p50 and p99 of
    the client-side wall time (request sent -> 201 parsed). Target: p50 < 1.5 s.
 2. Throughput: ``contact-skills up --workers N`` (N = 1, 2): one scripted slide demonstration is recorded and
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -37,8 +38,12 @@ import numpy as np  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 LEARN_TARGET_P50_S = 1.5
+POLL_S = 0.1
+"""How often the throughput loop polls each running execution over REST, s."""
 SCENARIO = "slide_flat"
 RECORD_OVERRIDES = {"move_duration_s": 2.0}
+LEARN_DEMO_S = 10.0
+"""Duration of the synthetic demonstration learned through the API (``skills.synthetic.plane_slide``), s."""
 
 
 @contextlib.contextmanager
@@ -73,7 +78,7 @@ def running(argv: list[str], url: str, timeout_s: float = 90.0, workers: int = 0
 def demonstration_body() -> dict:
     from skills.synthetic import plane_slide
 
-    d = plane_slide(duration_s=10)
+    d = plane_slide(duration_s=LEARN_DEMO_S)
     return {
         "t": d.t.tolist(),
         "positions": d.positions.tolist(),
@@ -89,6 +94,7 @@ def percentiles(times: list[float]) -> tuple[float, float]:
 
 def bench_learning(repeats: int) -> tuple[list[str], dict[str, float]]:
     body = demonstration_body()
+    size_mb = len(json.dumps({"demonstration": body, "skill_type": "auto"})) / 1e6
     port = free_port()
     url = f"http://127.0.0.1:{port}"
     with (
@@ -101,7 +107,7 @@ def bench_learning(repeats: int) -> tuple[list[str], dict[str, float]]:
         client.post("/skills", json={"demonstration_id": demo_id})  # warm-up (imports, caches)
         rows, numbers = [], {}
         for label, request in (
-            ("inline demonstration (body ~2.6 MB)", {"demonstration": body, "skill_type": "auto"}),
+            (f"inline demonstration (body {size_mb:.1f} MB)", {"demonstration": body, "skill_type": "auto"}),
             ("stored demonstration (demonstration_id)", {"demonstration_id": demo_id, "skill_type": "auto"}),
         ):
             times, learn = [], []
@@ -160,7 +166,7 @@ def bench_executions(workers: int, executions: int) -> tuple[float, list[dict], 
                 assert response.status_code == 202, response.text
                 running_ids.append(response.json()["id"])
                 submitted += 1
-            time.sleep(0.1)
+            time.sleep(POLL_S)
             for execution_id in list(running_ids):
                 view = client.get(f"/executions/{execution_id}").json()
                 if view["status"] in ("done", "aborted", "failed"):
@@ -181,7 +187,12 @@ def main() -> None:
 
     learn_rows, _ = bench_learning(args.repeats)
     print("\n".join(learn_rows), flush=True)
+    sample = demonstration_body()
+    n_samples = len(sample["t"])
+    duration = sample["t"][-1] - sample["t"][0]
+    rate = (n_samples - 1) / duration
     throughput_rows = []
+    runs: dict[int, dict] = {}
     for workers in (1, 2):
         per_minute, finished, cpu = bench_executions(workers, args.executions)
         phases = {}
@@ -189,6 +200,8 @@ def main() -> None:
             phases[view["status"]] = phases.get(view["status"], 0) + 1
         sim_s = [v["metrics"]["duration_s"] for v in finished if v.get("metrics")]
         rtf = [v["metrics"]["real_time_factor"] for v in finished if v.get("metrics")]
+        batches = [v["telemetry_batches"] for v in finished]
+        runs[workers] = {"per_minute": per_minute, "cpu": cpu, "batches": float(np.median(batches))}
         row = (
             f"| {workers} | {len(finished)} | {per_minute:.1f} | {np.median(sim_s):.2f} | {np.median(rtf):.1f} | "
             f"{' / '.join(f'{cpu[k]:.2f}' for k in ('workers', 'API', 'router (up)'))} | "
@@ -197,6 +210,11 @@ def main() -> None:
         throughput_rows.append(row)
         print(row, flush=True)
 
+    cores = os.cpu_count() or 1
+    last = runs[max(runs)]
+    per_execution = sum(last["cpu"].values())
+    ceiling = cores * 60.0 / per_execution if per_execution > 0 else float("inf")
+    busy = last["per_minute"] / 60.0 * per_execution  # cores kept busy by these processes during the run
     body = "\n".join(
         [
             "## Service: learning latency through the API, executions per minute",
@@ -204,11 +222,12 @@ def main() -> None:
             "Reproduce: `.venv/bin/python benchmarks/bench_service.py` (real processes on loopback: "
             "`contact-skills api`, `contact-skills up --workers N`, a temporary SQLite database).",
             "",
-            "Learning: `POST /skills` with a 10 s, 1 kHz demonstration (`skills.synthetic.plane_slide(duration_s=10)`, "
-            "10 000 samples), skill_type auto; client wall time from sending the request to the parsed 201 "
-            f"(JSON parsing, validation, learning in the thread pool, storing). {args.repeats} requests per variant "
-            f"after one warm-up; p99 of {args.repeats} samples is close to the maximum. Target p50 < "
-            f"{LEARN_TARGET_P50_S} s.",
+            f"Learning: `POST /skills` with a {duration:.0f} s, {rate:.0f} Hz demonstration "
+            f"(`skills.synthetic.plane_slide(duration_s={LEARN_DEMO_S:g})`, {n_samples} samples), skill_type auto; "
+            "client wall "
+            "time from sending the request to the parsed 201 (JSON parsing, validation, learning in the thread pool, "
+            f"storing). {args.repeats} requests per variant after one warm-up (p99 of {args.repeats} samples "
+            f"interpolates between the two largest). Target p50 < {LEARN_TARGET_P50_S} s.",
             "",
             "| request | n | p50 s | p99 s | learn_skill median s (server) | target |",
             "| --- | ---: | ---: | ---: | ---: | --- |",
@@ -216,20 +235,23 @@ def main() -> None:
             "",
             f"Executions: `{SCENARIO}` recorded by the worker (overrides {RECORD_OVERRIDES}), learned, executed "
             f"{args.executions} times per worker count with pace fast (one execution queued per idle worker, status "
-            "polled every 0.1 s over REST); executions per minute = finished / wall time from the first submission "
-            "to the last finish.",
+            f"polled every {POLL_S:g} s over REST); executions per minute = finished / wall time from the first "
+            "submission to the last finish.",
             "",
             "| workers | executions | per minute | simulated s each (median) | real-time factor (median) | "
             "CPU s per execution: workers / API / router | outcome |",
             "| ---: | ---: | ---: | ---: | ---: | --- | --- |",
             *throughput_rows,
             "",
-            "Throughput is CPU-bound: an execution costs the worker ~1.3 CPU s (simulation, controller, telemetry "
-            "JSON) and the API ~0.2 CPU s (decoding and storing ~180 telemetry batches), so two workers on two cores "
-            f"that also run the API cannot double it (ceiling ~80/min). Load average during the run: "
-            f"{os.getloadavg()[0]:.1f} (1 min; other jobs share this machine).",
+            f"With {max(runs)} workers an execution cost {per_execution:.2f} CPU s in all "
+            f"({last['cpu']['workers']:.2f} the workers: simulation, controller, telemetry JSON; "
+            f"{last['cpu']['API']:.2f} the API: decoding and storing a median {last['batches']:.0f} telemetry "
+            f"batches; {last['cpu']['router (up)']:.2f} `up` and its router). At that cost {cores} cores allow at most "
+            f"{ceiling:.0f} executions per minute; the {last['per_minute']:.1f}/min measured kept {busy:.1f} of the "
+            f"{cores} cores busy with these processes (this benchmark client and other jobs use the rest). Load "
+            f"average during the run: {os.getloadavg()[0]:.1f} (1 min; other jobs share this machine).",
             "",
-            machine_line("2 cores shared by the API, the router and the workers"),
+            machine_line(f"{cores} cores shared by the API, the router and the workers"),
         ]
     )
     print(body)

@@ -1,7 +1,7 @@
 """``contact-skills demo``: the paper's experiments end to end against the running service (or an embedded one).
 
-The logic is ``services.demo`` (HTTP + Zenoh client side) and ``services.figures`` (the figures); this module
-only parses the options, runs it and prints the results table.
+The logic is ``experiments.paper_demo`` (the runner; HTTP + Zenoh client side, cases, report) and
+``services.figures`` (the figures); this module only parses the options, runs it and prints the results table.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from pathlib import Path
 def cmd_demo(args: argparse.Namespace) -> int:
     """``contact-skills demo``: record, learn and execute the paper's slide (Fig. 3) and contour (Fig. 4) trials
     with our controller and both baselines through the service, then print the results table and write
-    RESULTS.md and the figures. Starts the embedded stack (`contact-skills up`) if nothing answers at --url."""
+    RESULTS.md and the figures (to ./demo-output unless --out says; --out docs regenerates docs/RESULTS.md and
+    docs/figures). Starts the embedded stack (`contact-skills up`) if nothing answers at --url."""
     import time
 
-    from services.demo import DemoError, DemoOptions, run_demo, text_table
+    from experiments.paper_demo import DemoError, DemoOptions, run_demo, text_table
 
     shown = ["contact-skills", "demo", *sys.argv[2:]] if sys.argv[1:2] == ["demo"] else ["contact-skills", "demo"]
     options = DemoOptions(
@@ -56,6 +57,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def register(commands: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the `contact-skills` parser."""
+    from experiments.cases import DEFAULT_OUT
+
     demo = commands.add_parser(
         "demo",
         help="reproduce the paper's experiments (slide Fig. 3, contour Fig. 4) with baselines through the service",
@@ -68,7 +71,12 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     demo.add_argument("--workers", type=int, default=2, help="sim workers of the embedded stack (default 2)")
     demo.add_argument("--quick", action="store_true", help="the reduced case set (about a minute; used by the test)")
-    demo.add_argument("--out", type=Path, default=Path("docs"), help="where RESULTS.md and figures/ go (default docs)")
+    demo.add_argument(
+        "--out",
+        type=Path,
+        default=DEFAULT_OUT,
+        help=f"where RESULTS.md and figures/ go (default ./{DEFAULT_OUT}; `--out docs` regenerates the tracked docs)",
+    )
     demo.add_argument("--seed", type=int, default=0, help="seed of the teacher's demonstrations (default 0)")
     demo.add_argument("--db", type=Path, help="database of the embedded stack (default: a temporary file)")
     demo.add_argument(

@@ -115,27 +115,6 @@ class _Printer:
         return thread
 
 
-def _parent_death_signal():  # -> Callable[[], None] | None
-    """A ``preexec_fn`` that makes the child get SIGTERM when `up` dies, even by SIGKILL (Linux ``prctl``).
-
-    Resolved here, in the parent: the function run between fork and exec imports nothing."""
-    if not sys.platform.startswith("linux"):
-        return None
-    import ctypes
-    import signal
-
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None
-    sigterm = int(signal.SIGTERM)
-
-    def preexec() -> None:
-        prctl(1, sigterm)  # PR_SET_PDEATHSIG
-
-    return preexec
-
-
 class _Child:
     """One child process of `up`, restartable."""
 
@@ -215,7 +194,9 @@ def cmd_up(args: argparse.Namespace) -> int:
     except SettingsError as exc:
         print(f"contact-skills up: error: {exc}", file=sys.stderr)
         return 2
-    preexec = _parent_death_signal()
+    from services.local_processes import parent_death_signal
+
+    preexec = parent_death_signal()
     listen = f"tcp/127.0.0.1:{args.zenoh_port}"
     printer = _Printer()
     stop = threading.Event()

@@ -1,4 +1,4 @@
-"""REST-only bodies of the service (``services/app.py``): what the endpoints take and return besides the core models.
+"""REST-only bodies of the service (``services/api/``): what the endpoints take and return besides the core models.
 
 Ids are short random strings with a kind prefix (``demo_``, ``skill_``, ``exec_`` + 12 hex digits).
 Times (``created``, ``updated``) are Unix seconds.

@@ -1,4 +1,5 @@
-"""Loopback ports and child processes: what the demo, the tests and the benchmarks share to run the stack locally."""
+"""Loopback ports and child processes: what `contact-skills up`, the demo, the tests and the benchmarks share to run
+the stack locally."""
 
 from __future__ import annotations
 
@@ -58,3 +59,25 @@ def spawn_cli(args: list[str], log: Path, cwd: Path | None = None) -> subprocess
         return subprocess.Popen(
             [sys.executable, "-m", "cli.main", *args], cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT
         )
+
+
+def parent_death_signal():  # -> Callable[[], None] | None
+    """A ``preexec_fn`` that makes the child get SIGTERM when its parent dies, even by SIGKILL (Linux ``prctl``);
+    None elsewhere.
+
+    Resolved here, in the parent: the function run between fork and exec imports nothing."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import signal
+
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    sigterm = int(signal.SIGTERM)
+
+    def preexec() -> None:
+        prctl(1, sigterm)  # PR_SET_PDEATHSIG
+
+    return preexec

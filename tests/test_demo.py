@@ -18,15 +18,16 @@ import pytest
 pytest.importorskip("zenoh")
 pytest.importorskip("httpx")
 
-from services.demo import (
+from experiments.cases import (
     BASELINE_FACTOR,
     CONTOUR_RMS_PCT,
+    DEFAULT_OUT,
     MIN_CONTACT_RATIO,
     SKILLS,
     SLIDE_RMS_PCT,
     cases,
-    parse_markdown_table,
 )
+from experiments.report import parse_markdown_table
 from services.local_processes import free_port as _free_port
 from services.local_processes import port_listening
 
@@ -99,3 +100,11 @@ def test_the_figures_are_written(demo) -> None:
             figure = out / "figures" / f"demo_{key}_{kind}.png"
             assert figure.stat().st_size > 20_000, figure
             assert f"figures/demo_{key}_{kind}.png" in text
+
+
+def test_the_demo_rewrites_the_tracked_docs_only_when_asked() -> None:
+    from cli.main import build_parser
+
+    assert build_parser().parse_args(["demo"]).out == DEFAULT_OUT != Path("docs")
+    assert f"/{DEFAULT_OUT}/" in (REPO / ".gitignore").read_text().splitlines()
+    assert build_parser().parse_args(["demo", "--out", "docs"]).out == Path("docs")

@@ -1,0 +1,71 @@
+"""What the routes share, as ``Annotated`` dependencies: the store, the settings, the bus and the Zenoh key
+expressions live on ``app.state`` (set by ``services.app.create_app``) and are resolved through the ``Request``;
+the token guard of the mutating routes; the paging parameters.
+
+The bus is optional (``BusDep`` is None without one): a route asks for it with :func:`need_bus` where it needs it,
+after validating its input, so a bad body is still a 422 and an unknown id a 404 when no bus is connected.
+"""
+
+from __future__ import annotations
+
+import secrets
+from typing import Annotated
+
+from fastapi import Depends, Query, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+
+from schemas.bus import KeyExpressions
+from services.api import errors
+from services.bus import BusClient
+from services.settings import ServiceSettings
+from services.store import Store
+
+
+def get_store(request: Request) -> Store:
+    return request.app.state.store
+
+
+def get_settings(request: Request) -> ServiceSettings:
+    return request.app.state.settings
+
+
+def get_bus(request: Request) -> BusClient | None:
+    return request.app.state.bus
+
+
+def get_keys(request: Request) -> KeyExpressions:
+    return request.app.state.keys
+
+
+StoreDep = Annotated[Store, Depends(get_store)]
+SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
+BusDep = Annotated[BusClient | None, Depends(get_bus)]
+KeysDep = Annotated[KeyExpressions, Depends(get_keys)]
+
+
+def need_bus(bus: BusClient | None) -> BusClient:
+    """The bus, or a 503 when the API runs without one."""
+    if bus is None:
+        raise errors.no_bus()
+    return bus
+
+
+BEARER = HTTPBearer(auto_error=False, description="Set CONTACT_SKILLS_TOKEN on the server to require it.")
+"""Optional bearer token of the mutating endpoints."""
+
+
+def require_token(
+    settings: SettingsDep, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(BEARER)]
+) -> None:
+    """401 unless the request carries the configured token (no token configured: everyone passes)."""
+    if settings.token is None:
+        return
+    if credentials is None or not secrets.compare_digest(credentials.credentials.encode(), settings.token.encode()):
+        raise errors.unauthorized()
+
+
+TOKEN_GUARD = [Depends(require_token)]
+"""``dependencies=`` of every POST/DELETE route."""
+
+Limit = Annotated[int, Query(ge=1, le=1000)]
+Offset = Annotated[int, Query(ge=0)]

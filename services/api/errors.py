@@ -1,0 +1,172 @@
+"""Every error the API answers, in one place: how a failure of the store, the science, the importer or the bus
+becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodies, and the OpenAPI ``responses``.
+
+- 422: any bad body or parameter — pydantic's errors, plus `LearningError` and `CsvImportError`
+  with ``loc`` naming the field (``["body", "demonstration", "wrenches"]``, ``["body", "file"]``);
+  error entries never echo large inputs back.
+- 404: unknown id. 409: a command to a finished execution. 401: missing/wrong bearer token on
+  POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``). 413: body over the limit
+  (``body_limit.BodyLimit``).
+- 503: no Zenoh bus or no sim worker connected; 504: a recording timed out.
+- 500 only for a bug: logged with its traceback, answered with a short JSON body.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from typing import TYPE_CHECKING, Any
+
+from fastapi import FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from schemas.api import ApiError
+
+if TYPE_CHECKING:
+    from services.csv_import import CsvImportError
+    from skills.parameterize import LearningError
+
+log = logging.getLogger("contact_skills.api")
+
+MAX_ECHOED_INPUT = 200
+"""A validation error echoes the offending input only if its JSON is at most this many characters."""
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {404: {"model": ApiError}}
+"""OpenAPI ``responses`` of a route that looks an id up."""
+MUTATING_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 413: {"model": ApiError}}
+"""OpenAPI ``responses`` of a route behind the token guard and the body limit."""
+UNAVAILABLE: dict[int | str, dict[str, Any]] = {503: {"model": ApiError}}
+"""OpenAPI ``responses`` of a route that needs the bus."""
+
+
+# --------------------------------------------------------------------------- the errors routes raise
+
+
+def unprocessable(loc: list[str | int], message: str, kind: str = "value_error") -> RequestValidationError:
+    """A 422 in FastAPI's shape: ``{"detail": [{"loc": loc, "msg": message, "type": kind}]}``."""
+    return RequestValidationError([{"loc": tuple(loc), "msg": message, "type": kind}])
+
+
+def not_found(kind: str, ident: str) -> HTTPException:
+    return HTTPException(404, f"no {kind} with id {ident!r}")
+
+
+def no_bus() -> HTTPException:
+    return HTTPException(503, "no Zenoh bus: start the API connected to a router (contact-skills up / api)")
+
+
+def unavailable(detail: str) -> HTTPException:
+    """503: no sim worker can take the request now (none connected, every one busy, the bus failed)."""
+    return HTTPException(503, detail)
+
+
+def recording_timed_out(exc: TimeoutError) -> HTTPException:
+    return HTTPException(504, f"the recording did not finish in time: {exc}")
+
+
+def already_finished(execution_id: str, status: str) -> HTTPException:
+    return HTTPException(409, f"execution {execution_id} has already finished ({status})")
+
+
+def unauthorized() -> HTTPException:
+    return HTTPException(
+        401, "missing or wrong bearer token (Authorization: Bearer <token>)", {"WWW-Authenticate": "Bearer"}
+    )
+
+
+def bad_numbers(field: str, text: str, count: tuple[int, ...]) -> RequestValidationError:
+    """422 naming the form ``field`` that should hold ``count`` comma-separated numbers."""
+    wanted = " or ".join(str(n) for n in count)
+    return unprocessable(["body", field], f"{wanted} comma-separated numbers are needed, got {text!r}")
+
+
+def csv_import_failed(exc: CsvImportError) -> RequestValidationError:
+    """422 with one entry per import problem, each naming the form field it is about."""
+    field = _csv_problem_field(exc.problems)
+    return RequestValidationError(
+        [{"loc": ("body", field), "msg": problem, "type": "csv_import"} for problem in exc.problems]
+    )
+
+
+def learning_failed(exc: LearningError, loc: list[str | int], demonstration_id: str | None) -> RequestValidationError:
+    """422 for a demonstration the science refused: inline, ``loc`` + the field; stored, on ``demonstration_id``
+    with the field in the message."""
+    if demonstration_id is None:
+        return unprocessable([*loc, exc.field], exc.reason, "learning_error")
+    return unprocessable(loc, f"demonstration {demonstration_id}: {exc.field}: {exc.reason}", "learning_error")
+
+
+def cannot_learn(exc: ValueError, loc: list[str | int]) -> RequestValidationError:
+    """422 for a ValueError of the science that names no field: still the input's fault."""
+    log.warning("learning failed on valid-looking input (%s)", exc, exc_info=True)
+    return unprocessable(loc, f"cannot learn from this demonstration: {exc}", "learning_error")
+
+
+def _csv_problem_field(problems: list[str]) -> str:
+    """The form field a CSV import problem is about: ``columns``, ``rate``/``dt`` (their values), else ``file``."""
+    for prefix, field in (
+        ("--columns", "columns"),
+        ("rate and dt", "rate"),
+        ("rate:", "rate"),
+        ("dt:", "dt"),
+        ("tare window", "tare_window"),
+        ("force offset", "force_offset"),
+        ("tare:", "tare_window"),
+    ):
+        if any(problem.startswith(prefix) for problem in problems):
+            return field
+    return "file"
+
+
+# --------------------------------------------------------------------------- the handlers
+
+_NAMES_A_FIELD = re.compile(r"^(?:Value error, )?(\w+) has ")
+
+
+def tidy_error(error: dict[str, Any]) -> dict[str, Any]:
+    """An error entry without large inputs; a model-level error whose message starts with a field name gets it
+    appended to ``loc`` (``positions has 4 samples but t has 5`` -> ``[..., "positions"]``)."""
+    loc = list(error.get("loc", ()))
+    msg = str(error.get("msg", ""))
+    match = _NAMES_A_FIELD.match(msg)
+    if match and (not loc or loc[-1] != match[1]) and error.get("type") == "value_error":
+        loc.append(match[1])
+    tidy: dict[str, Any] = {
+        "loc": loc,
+        "msg": msg.removeprefix("Value error, "),
+        "type": error.get("type", "value_error"),
+    }
+    if "input" in error:
+        try:  # strictly JSON: the echo of a NaN is its text (a JSONResponse refuses NaN)
+            text = json.dumps(error["input"], allow_nan=False, default=str)
+            echo: Any = json.loads(text)
+        except ValueError:
+            text = json.dumps(error["input"], default=str)
+            echo = text
+        if len(text) <= MAX_ECHOED_INPUT:
+            tidy["input"] = echo
+    ctx = error.get("ctx")
+    if isinstance(ctx, dict) and set(ctx) - {"error"}:  # limits like {"gt": 0}; an exception is already in msg
+        tidy["ctx"] = {
+            k: v if isinstance(v, int | float | str | bool) else str(v) for k, v in ctx.items() if k != "error"
+        }
+    return tidy
+
+
+async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+    return JSONResponse(status_code=422, content={"detail": [tidy_error(dict(e)) for e in exc.errors()]})
+
+
+async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("bug: %s %s raised %s", request.method, request.url.path, type(exc).__name__)
+    return JSONResponse(
+        status_code=500, content={"detail": f"internal error ({type(exc).__name__}); it is logged by the API"}
+    )
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """422 bodies through :func:`tidy_error`; any other exception a logged 500 with a short JSON body."""
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(Exception, _unexpected_error)

@@ -1,0 +1,13 @@
+"""The API's routes: one APIRouter per resource, included in the order the OpenAPI document lists them."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from services.api.routes import demonstrations, executions, health, skills
+
+api_router = APIRouter()
+api_router.include_router(health.router)
+api_router.include_router(demonstrations.router)
+api_router.include_router(skills.router)
+api_router.include_router(executions.router)

@@ -1,0 +1,15 @@
+"""Replies built from already-serialized JSON (stored demonstrations and skills are kept as JSON text)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from fastapi import Response
+
+
+def raw_json(parts: dict[str, Any], raw: dict[str, str], status_code: int = 200) -> Response:
+    """A JSON object from JSON-able ``parts`` and already-serialized ``raw`` members (no re-encoding)."""
+    members = [f"{json.dumps(k)}:{json.dumps(v)}" for k, v in parts.items()]
+    members += [f"{json.dumps(k)}:{v}" for k, v in raw.items()]
+    return Response("{" + ",".join(members) + "}", status_code=status_code, media_type="application/json")

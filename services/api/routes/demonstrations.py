@@ -1,0 +1,192 @@
+"""``/demonstrations``: store one (JSON, a CSV upload, or recorded by a sim worker's scripted teacher), list, get."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, Response, UploadFile
+
+from schemas.api import ApiError, DemonstrationCreated, DemonstrationInfo, StoredDemonstration
+from schemas.bus import RecordRequest
+from schemas.demonstration import Demonstration, QuaternionOrder, WrenchConvention, WrenchFrame
+from services.api import errors
+from services.api.deps import TOKEN_GUARD, BusDep, Limit, Offset, StoreDep, need_bus
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
+from services.api.limits import MAX_RATE_HZ
+from services.api.responses import raw_json
+from services.store import DemonstrationRow
+
+RECORD_TIMEOUT_S = 120.0
+"""How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
+
+router = APIRouter(tags=["demonstrations"])
+
+
+def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict | None = None) -> DemonstrationCreated:
+    return DemonstrationCreated(
+        id=row.id,
+        created=row.created,
+        source=row.source,
+        summary=row.summary,
+        import_notes=notes or [],
+        extra=extra or {},
+    )
+
+
+def _numbers(text: str | None, field: str, count: tuple[int, ...]) -> tuple[float, ...] | None:
+    """Parse a comma-separated form field of numbers; a 422 naming ``field`` when it is not ``count`` numbers."""
+    if text is None or not text.strip():
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in count:
+        raise errors.bad_numbers(field, text, count)
+    return values
+
+
+@router.post(
+    "/demonstrations",
+    status_code=201,
+    response_model=DemonstrationCreated,
+    responses=MUTATING_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def post_demonstration(demonstration: Demonstration, store: StoreDep) -> DemonstrationCreated:
+    """Store a demonstration given as JSON (a `Demonstration`; CSV: ``POST /demonstrations/csv``)."""
+    return _created(store.add_demonstration(demonstration))
+
+
+@router.post(
+    "/demonstrations/csv",
+    status_code=201,
+    response_model=DemonstrationCreated,
+    responses=MUTATING_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def post_demonstration_csv(
+    store: StoreDep,
+    file: Annotated[UploadFile, File(description="The CSV recording (header row + samples, SI units).")],
+    columns: Annotated[
+        str | None, Form(description="Column names, e.g. t=time,px=tcp_x,qw=tcp_qw,fz=Fz (as --columns).")
+    ] = None,
+    quaternion_order: Annotated[
+        QuaternionOrder | None, Form(description="Order of the quaternion columns (default: from their names).")
+    ] = None,
+    wrench: Annotated[
+        WrenchConvention, Form(description="measured-on-tool (a sensor's reaction) is negated.")
+    ] = WrenchConvention.applied_by_tool,
+    wrench_frame: Annotated[WrenchFrame, Form(description="Frame of the recorded wrench.")] = WrenchFrame.world,
+    rate: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            le=MAX_RATE_HZ,
+            description="With a time column: the resampling rate, Hz (default: the data's own). Without one: "
+            "the rate the rows were sampled at (t = row / rate from 0); rate or dt is then required.",
+        ),
+    ] = None,
+    dt: Annotated[
+        float | None,
+        Form(
+            ge=1.0 / MAX_RATE_HZ,
+            description="Time step, s: the same as rate = 1/dt (e.g. the fixed step of a file without a time "
+            "column); may be given with rate only if they agree.",
+        ),
+    ] = None,
+    tare: Annotated[
+        bool,
+        Form(description="Remove the sensor offset, fitted in the sensor frame over the free-space stretches."),
+    ] = True,
+    tare_window: Annotated[
+        str | None,
+        Form(description="'T0,T1' (s): the offset is the median of the file's wrench there (as --tare-window)."),
+    ] = None,
+    force_offset: Annotated[
+        str | None,
+        Form(description="'FX,FY,FZ[,MX,MY,MZ]': subtract this offset as the file reads it (as --force-offset)."),
+    ] = None,
+    name: Annotated[str | None, Form(description="Name (default: the file name).")] = None,
+) -> DemonstrationCreated:
+    """Import a CSV recording with the options of ``contact-skills learn`` (multipart form) and store it."""
+    from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv
+
+    data = file.file.read()
+    stem = (file.filename or "upload.csv").rsplit("/", 1)[-1].removesuffix(".csv")
+    try:
+        demonstration = demonstration_from_csv(
+            data,
+            columns=ColumnMap.parse(columns) if columns else None,
+            quaternion_order=quaternion_order,
+            wrench_convention=wrench,
+            wrench_frame=wrench_frame,
+            rate_hz=rate,
+            dt_s=dt,
+            tare=tare,
+            tare_window_s=_numbers(tare_window, "tare_window", count=(2,)),
+            force_offset=_numbers(force_offset, "force_offset", count=(3, 6)),
+            name=name or stem,
+        )
+    except CsvImportError as exc:
+        raise errors.csv_import_failed(exc) from None
+    if file.filename:
+        demonstration.metadata.source = f"csv:{file.filename}"
+    row = store.add_demonstration(demonstration)
+    return _created(row, notes=list(demonstration.metadata.extra.get("import_notes", [])))
+
+
+@router.post(
+    "/demonstrations/record",
+    status_code=201,
+    response_model=DemonstrationCreated,
+    responses={**MUTATING_RESPONSES, **errors.UNAVAILABLE, 504: {"model": ApiError}},
+    dependencies=TOKEN_GUARD,
+)
+def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -> DemonstrationCreated:
+    """Ask a sim worker to record the scripted teacher's demonstration of a scenario, and store it.
+
+    The teacher's ground truth is returned in ``extra.ground_truth`` and kept in the demonstration's
+    metadata (``metadata.extra.ground_truth``)."""
+    from services.bus import NoWorkerAvailable
+
+    client = need_bus(bus)
+    try:
+        reply = client.record_demonstration(request, timeout_s=RECORD_TIMEOUT_S)
+    except NoWorkerAvailable as exc:
+        raise errors.unavailable(f"no sim worker available to record: {exc}") from None
+    except TimeoutError as exc:
+        raise errors.recording_timed_out(exc) from None
+    if reply.code == "busy":
+        raise errors.unavailable(f"every sim worker is busy: {reply.error or 'try again later'}")
+    if not reply.ok or reply.demonstration is None:
+        raise errors.unprocessable(["body"], reply.error or "the worker recorded nothing")
+    demonstration = reply.demonstration
+    demonstration.metadata.extra.setdefault("scenario", request.scenario)
+    demonstration.metadata.extra["record_request"] = request.model_dump(mode="json")
+    if reply.ground_truth is not None:
+        demonstration.metadata.extra["ground_truth"] = reply.ground_truth
+    row = store.add_demonstration(demonstration)
+    return _created(row, extra={"ground_truth": reply.ground_truth, "worker_id": reply.worker_id})
+
+
+@router.get("/demonstrations", response_model=list[DemonstrationInfo])
+def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list[DemonstrationInfo]:
+    """Stored demonstrations, newest first (summaries, no samples)."""
+    return [
+        DemonstrationInfo(id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary)
+        for r in store.list_demonstrations(limit, offset)
+    ]
+
+
+@router.get("/demonstrations/{demonstration_id}", responses={200: {"model": StoredDemonstration}, **ERROR_RESPONSES})
+def get_demonstration(demonstration_id: str, store: StoreDep) -> Response:
+    """A stored demonstration with all its samples."""
+    found = store.demonstration_json(demonstration_id)
+    if found is None:
+        raise errors.not_found("demonstration", demonstration_id)
+    row, body = found
+    return raw_json(
+        {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")},
+        {"demonstration": body},
+    )

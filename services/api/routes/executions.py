@@ -1,0 +1,211 @@
+"""``/executions``: run a skill on a sim worker over Zenoh, list, get, abort/pause/resume, the recorded telemetry."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Query, Response
+
+from schemas.api import ApiError, CommandAccepted, ExecutionCreated, ExecutionState, ExecutionView, TelemetryView
+from schemas.bus import KeyExpressions
+from schemas.demonstration import Demonstration
+from schemas.execution import ExecutionPhase, ExecutionRequest
+from services.api import errors
+from services.api.deps import TOKEN_GUARD, BusDep, KeysDep, Limit, Offset, StoreDep, need_bus
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
+from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
+
+log = logging.getLogger("contact_skills.api")
+
+router = APIRouter(tags=["executions"])
+
+COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
+    **ERROR_RESPONSES,
+    **MUTATING_RESPONSES,
+    409: {"model": ApiError},
+    **errors.UNAVAILABLE,
+}
+
+
+def _scenario_of(demonstration: Demonstration | None) -> str | None:
+    """The teacher scenario a demonstration was recorded in (``teacher:<scenario>``), if any."""
+    if demonstration is None:
+        return None
+    scenario = demonstration.metadata.extra.get("scenario")
+    if isinstance(scenario, str):
+        return scenario
+    source = demonstration.metadata.source
+    return source.split(":", 1)[1] if source.startswith("teacher:") else None
+
+
+def _taught_world(demonstration: Demonstration | None) -> dict[str, Any]:
+    """The world a recorded demonstration was taught in (the teacher's ``ground_truth.world_config``), else {}."""
+    if demonstration is None:
+        return {}
+    truth = demonstration.metadata.extra.get("ground_truth")
+    world = truth.get("world_config") if isinstance(truth, dict) else None
+    return dict(world) if isinstance(world, dict) else {}
+
+
+def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionView:
+    batches, samples = store.telemetry_counts(row.id)
+    return ExecutionView(
+        id=row.id,
+        skill_id=row.skill_id,
+        worker_id=row.worker_id,
+        status=row.status,
+        phase=row.phase,
+        metrics=row.metrics,
+        error=row.error,
+        created=row.created,
+        updated=row.updated,
+        telemetry_key=keys.telemetry(row.id),
+        telemetry_batches=batches,
+        telemetry_samples=samples,
+        request=row.request,
+    )
+
+
+def _found(store: Store, execution_id: str) -> ExecutionRow:
+    row = store.execution(execution_id)
+    if row is None:
+        raise errors.not_found("execution", execution_id)
+    return row
+
+
+@router.post(
+    "/executions",
+    status_code=202,
+    response_model=ExecutionCreated,
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
+    dependencies=TOKEN_GUARD,
+)
+def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys: KeysDep) -> ExecutionCreated:
+    """Run a skill on a sim worker: the world changed by the known ``environment.offset`` and the
+    ``environment.unknown_offset``, with the controller, gains and pace asked for.
+
+    Replies 202 at once with the execution id and the Zenoh key of its telemetry; follow it with
+    ``GET /executions/{id}`` or a Zenoh subscriber. 503 when no worker is connected."""
+    from schemas.skill import Skill
+    from services.bus import BusRequestError, NoWorkerAvailable
+
+    skill, demonstration = request.skill, None
+    if request.skill_id is not None:
+        row = store.skill(request.skill_id)
+        if row is None:
+            raise errors.not_found("skill", request.skill_id)
+        skill = Skill.model_validate_json(row.skill_json)
+        if row.demonstration_id is not None:
+            demonstration = store.demonstration(row.demonstration_id)
+    client = need_bus(bus)
+    scenario = request.scenario or _scenario_of(demonstration)
+    world = _taught_world(demonstration) if scenario == _scenario_of(demonstration) else {}
+    stored = request.model_dump(mode="json", exclude={"skill"})
+    stored.update(scenario=scenario, inline_skill=request.skill is not None, taught_world=bool(world))
+    row = store.add_execution(stored, request.skill_id)
+    wire = request.model_copy(update={"skill": skill, "skill_id": None, "scenario": scenario})
+    try:
+        worker_id = client.start_execution(row.id, wire, world_overrides=world, demonstration=demonstration)
+    except NoWorkerAvailable as exc:
+        store.delete_execution(row.id)
+        raise errors.unavailable(str(exc)) from None
+    except BusRequestError as exc:  # the worker refused the request (unknown scenario, bad world override)
+        store.delete_execution(row.id)
+        raise errors.unprocessable(["body", "scenario"] if "scenario" in str(exc) else ["body"], str(exc)) from None
+    except Exception as exc:
+        log.exception("starting execution %s failed", row.id)
+        store.update_execution(row.id, ExecutionState.failed, ExecutionPhase.failed, error=f"start failed: {exc}")
+        raise errors.unavailable(f"the bus could not start the execution: {type(exc).__name__}: {exc}") from None
+    store.mark_started(row.id, worker_id)
+    current = store.execution(row.id)
+    return ExecutionCreated(
+        id=row.id,
+        status=current.status if current else ExecutionState.running,
+        worker_id=worker_id,
+        telemetry_key=keys.telemetry(row.id),
+        status_key=keys.status(row.id),
+    )
+
+
+@router.get("/executions", response_model=list[ExecutionView])
+def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[ExecutionView]:
+    """Executions, newest first."""
+    return [_view(row, store, keys) for row in store.list_executions(limit, offset)]
+
+
+@router.get("/executions/{execution_id}", response_model=ExecutionView, responses=ERROR_RESPONSES)
+def get_execution(execution_id: str, store: StoreDep, keys: KeysDep) -> ExecutionView:
+    """Status, phase and (once finished) metrics of an execution."""
+    return _view(_found(store, execution_id), store, keys)
+
+
+def _command(execution_id: str, name: str, store: Store, bus: Any, keys: KeyExpressions) -> CommandAccepted:
+    row = _found(store, execution_id)
+    if row.status in TERMINAL:
+        raise errors.already_finished(execution_id, row.status.value)
+    need_bus(bus).send_command(execution_id, name)  # type: ignore[arg-type]
+    return CommandAccepted(id=execution_id, command=name, sent_to=keys.cmd(execution_id))
+
+
+@router.post(
+    "/executions/{execution_id}/abort",
+    status_code=202,
+    response_model=CommandAccepted,
+    responses=COMMAND_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
+    """Abort a running execution (a live command over Zenoh; the final status follows)."""
+    return _command(execution_id, "abort", store, bus, keys)
+
+
+@router.post(
+    "/executions/{execution_id}/pause",
+    status_code=202,
+    response_model=CommandAccepted,
+    responses=COMMAND_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
+    """Pause a running execution: it holds its current reference (and force) until resumed."""
+    return _command(execution_id, "pause", store, bus, keys)
+
+
+@router.post(
+    "/executions/{execution_id}/resume",
+    status_code=202,
+    response_model=CommandAccepted,
+    responses=COMMAND_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def resume_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
+    """Resume a paused execution."""
+    return _command(execution_id, "resume", store, bus, keys)
+
+
+@router.get("/executions/{execution_id}/telemetry", responses={200: {"model": TelemetryView}, **ERROR_RESPONSES})
+def get_telemetry(
+    execution_id: str,
+    store: StoreDep,
+    every: Annotated[int, Query(ge=1, le=1_000_000, description="Return every N-th sample.")] = 1,
+) -> Response:
+    """The recorded telemetry stream (wrenches, poses, references, phases) as columns of arrays."""
+    row = _found(store, execution_id)
+    matrix = store.telemetry(execution_id)
+    picked = matrix[::every]
+    columns: dict[str, Any] = telemetry_columns(picked)
+    if not np.isfinite(picked).all():  # never expected (the executor reports no NaN); keep the JSON valid
+        columns = json.loads(re.sub(r"-?Infinity|NaN", "null", json.dumps(columns)))
+    body = {
+        "execution_id": execution_id,
+        "every": every,
+        "n_samples": int(picked.shape[0]),
+        "stored_samples": int(matrix.shape[0]),
+        "status": row.status.value,
+        **columns,
+    }
+    return Response(json.dumps(body), media_type="application/json")
