@@ -41,7 +41,8 @@ from schemas import ControllerKind, ExecutionSettings, LearnOptions  # noqa: E40
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
 from sim_worker.executor import NULL_SPACE_UPDATE_STEPS, execute_skill  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
-from sim_worker.world import SimWorld, WorldConfig  # noqa: E402
+from sim_worker.world import SimWorld  # noqa: E402
+from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.control import HybridController  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 

@@ -313,7 +313,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         from schemas import Demonstration, ExecutionSettings, Skill
         from sim_worker.executor import execute_skill, scenario_of_skill
         from sim_worker.teacher import scenario_world_config
-        from sim_worker.world import WorldConfig
+        from sim_worker.world_config import WorldConfig
 
         skill = Skill.model_validate_json(args.skill.read_text())
         if args.world is not None:

@@ -33,7 +33,6 @@ stop the loop cleanly and are reported in the metrics; nothing is ever NaN.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -50,44 +49,20 @@ from schemas.execution import (
     ExecutionSettings,
     NullSpaceProjection,
     Pace,
-    TelemetryBatch,
-    TelemetrySample,
 )
-from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
+from schemas.skill import Segment, SegmentKind, Skill
+from sim_worker.metrics import compute_metrics, reference_force
+from sim_worker.plans import PhasePlan, PhasePlanner, first_force
 from sim_worker.teacher import scenario_of_name
-from sim_worker.world import SimWorld, WorldConfig
-from skills.control import ControlFrame, ControlFrameSeries, HybridController
-from skills.dmp import DMP, QuaternionDMP
-from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
+from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
+from skills.control import ControlFrame, HybridController
 
-STEADY_CONTACT_DELAY_S = 0.2
-"""The steady contact phase starts this long after contact (and after each force ramp), s."""
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
-MAX_CONTOUR_FRAMES = 2000
-"""Most control frames precomputed per contour segment (the series is indexed at a coarser stride)."""
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
-
-TELEMETRY_COLUMNS: dict[str, slice] = {
-    "t": slice(0, 1),
-    "phase": slice(1, 2),
-    "segment_index": slice(2, 3),
-    "tool_position": slice(3, 6),
-    "tool_orientation": slice(6, 10),
-    "reference_position": slice(10, 13),
-    "reference_orientation": slice(13, 17),
-    "wrench_world": slice(17, 23),
-    "wrench_cf": slice(23, 29),
-    "desired_force_cf_z_n": slice(29, 30),
-    "in_contact": slice(30, 31),
-}
-"""Columns of one telemetry row: t (s), phase code (``PHASE_CODES``), segment (-1 settling), tool and
-reference pose (world, m, xyzw), measured wrench applied by the tool (world; CF axes), desired CF-z force
-(N), in contact (1/0, the simulator's contact points)."""
-TELEMETRY_WIDTH = 31
-_PHASES = list(ExecutionPhase)
-
 
 class ExecutionAbortError(Exception):
     """Raised inside the loop to stop the execution with a reason."""
@@ -96,114 +71,6 @@ class ExecutionAbortError(Exception):
         super().__init__(reason)
         self.reason = reason
         self.phase = phase
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Telemetry
-# ---------------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Telemetry:
-    """Recorded control steps, one row each (``data`` (N, 31), columns :data:`TELEMETRY_COLUMNS`).
-
-    The properties are views: ``t`` (N,), ``phase_codes`` (N,), ``segment_index`` (N,),
-    ``tool_position`` (N, 3), ``tool_orientation`` (N, 4), ``reference_position``,
-    ``reference_orientation``, ``wrench_world`` (N, 6), ``wrench_cf`` (N, 6),
-    ``desired_force`` (N,), ``in_contact`` (N,) bool.
-    """
-
-    data: NDArray[np.float64]
-
-    def _col(self, name: str) -> NDArray[np.float64]:
-        return self.data[:, TELEMETRY_COLUMNS[name]]
-
-    def __len__(self) -> int:
-        return int(self.data.shape[0])
-
-    @property
-    def t(self) -> NDArray[np.float64]:
-        return self.data[:, 0]
-
-    @property
-    def phase_codes(self) -> NDArray[np.int_]:
-        return self.data[:, 1].astype(int)
-
-    @property
-    def phases(self) -> list[ExecutionPhase]:
-        return [_PHASES[c] for c in self.phase_codes]
-
-    @property
-    def segment_index(self) -> NDArray[np.int_]:
-        return self.data[:, 2].astype(int)
-
-    @property
-    def tool_position(self) -> NDArray[np.float64]:
-        return self._col("tool_position")
-
-    @property
-    def tool_orientation(self) -> NDArray[np.float64]:
-        return self._col("tool_orientation")
-
-    @property
-    def reference_position(self) -> NDArray[np.float64]:
-        return self._col("reference_position")
-
-    @property
-    def reference_orientation(self) -> NDArray[np.float64]:
-        return self._col("reference_orientation")
-
-    @property
-    def wrench_world(self) -> NDArray[np.float64]:
-        return self._col("wrench_world")
-
-    @property
-    def wrench_cf(self) -> NDArray[np.float64]:
-        return self._col("wrench_cf")
-
-    @property
-    def desired_force(self) -> NDArray[np.float64]:
-        return self.data[:, 29]
-
-    @property
-    def in_contact(self) -> NDArray[np.bool_]:
-        return self.data[:, 30] > 0.5
-
-    def to_batch(self, execution_id: str = "") -> TelemetryBatch:
-        """Return the rows as the columnar wire payload (``schemas.TelemetryBatch``)."""
-        return TelemetryBatch(
-            execution_id=execution_id,
-            t=self.t.tolist(),
-            phase=self.phases,
-            segment_index=self.segment_index.tolist(),
-            tool_position=self.tool_position.tolist(),
-            tool_orientation=self.tool_orientation.tolist(),
-            reference_position=self.reference_position.tolist(),
-            reference_orientation=self.reference_orientation.tolist(),
-            wrench_world=self.wrench_world.tolist(),
-            wrench_cf=self.wrench_cf.tolist(),
-            desired_force_cf_z_n=self.desired_force.tolist(),
-        )
-
-    def samples(self, every: int = 1) -> list[TelemetrySample]:
-        """Return every ``every``-th row as ``schemas.TelemetrySample`` (slow: for REST answers, not the loop)."""
-        rows = range(0, len(self), max(1, int(every)))
-        phases = self.phases
-        return [
-            TelemetrySample(
-                t=float(self.t[k]),
-                phase=phases[k],
-                segment_index=int(self.segment_index[k]),
-                tool_position=self.tool_position[k].tolist(),
-                tool_orientation=self.tool_orientation[k].tolist(),
-                reference_position=self.reference_position[k].tolist(),
-                reference_orientation=self.reference_orientation[k].tolist(),
-                wrench_world=self.wrench_world[k].tolist(),
-                wrench_cf=self.wrench_cf[k].tolist(),
-                desired_force_cf_z_n=float(self.desired_force[k]),
-            )
-            for k in rows
-        ]
 
 
 @dataclass
@@ -260,93 +127,6 @@ def scenario_of_skill(skill: Skill) -> str | None:
     return scenario_of_name(skill.demonstration.name)
 
 
-@dataclass
-class _ContactGeometry:
-    """A contact segment's frames, shifted by the known offset: rotations (K, 3, 3), origins (K, 3), times (K,)."""
-
-    t: NDArray[np.float64]
-    rotations: NDArray[np.float64]
-    origins: NDArray[np.float64]
-    start_world: NDArray[np.float64]
-    """The taught contact start point (shifted), m."""
-
-    @property
-    def first_rotation(self) -> NDArray[np.float64]:
-        return self.rotations[0]
-
-    def rotations_at(self, fractions: NDArray[np.float64]) -> NDArray[np.float64]:
-        """CF rotations (M, 3, 3) at time fractions (0..1) of the segment, slerped."""
-        if self.t.size == 1:
-            return np.broadcast_to(self.rotations[0], (fractions.size, 3, 3))
-        quats = quaternions_sign_continuous(_quaternions(self.rotations))
-        q = quaternions_slerp(fractions * self.t[-1], self.t, quats)
-        return matrix_from_quaternion(q)
-
-
-def _quaternions(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    from skills.quaternions import quaternion_from_matrix
-
-    return quaternion_from_matrix(R)
-
-
-def _contact_geometry(segment: Segment, offset: NDArray[np.float64]) -> _ContactGeometry:
-    frames = segment.compliant_frames
-    if frames is None:
-        raise ValueError(f"contact segment {segment.index} has no compliant frame")
-    quats = quaternions_sign_continuous(np.asarray(frames.orientations, dtype=float))
-    rotations = matrix_from_quaternion(quats).reshape(-1, 3, 3)
-    origins = np.asarray(frames.origins, dtype=float).reshape(-1, 3) + offset
-    start = np.asarray(segment.position_dmp.start, dtype=float)
-    in_cf = segment.position_dmp.frame == "cf"
-    start_world = origins[0] + rotations[0][:, :2] @ start[:2] if in_cf else start + offset
-    return _ContactGeometry(np.asarray(frames.t, dtype=float), rotations, origins, start_world)
-
-
-def _reference_force(skill: Skill, dt: float = 1e-3) -> float:
-    """The force the % errors refer to: the largest learned constant, or the peak of the force profile
-    rolled out at the control step ``dt`` (s), as executed (N)."""
-    values = [s.force_constant_n for s in skill.segments if s.force_constant_n is not None]
-    for s in skill.segments:
-        if s.force_dmp is not None:
-            values.append(float(np.max(DMP.from_parameters(s.force_dmp).rollout(dt).y)))
-    return max(values) if values else 0.0
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Phase plans: per-step references precomputed before a phase runs
-# ---------------------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class _Plan:
-    phase: ExecutionPhase
-    segment: int
-    ref_p: NDArray[np.float64]
-    ref_q: NDArray[np.float64]
-    ref_twist: NDArray[np.float64]
-    force: NDArray[np.float64]
-    frame: ControlFrame | None = None
-    series: ControlFrameSeries | None = None
-    stride: int = 1
-    stop_axis: NDArray[np.float64] | None = None
-    """Guarded: end the phase when the measured force along this axis exceeds the contact threshold."""
-    exhausted_reason: str | None = None
-    """Abort with this reason if the phase runs to its end (the guarded approach found nothing)."""
-
-    @property
-    def steps(self) -> int:
-        return int(self.ref_p.shape[0])
-
-
-def _ramp(a: float, b: float, n: int) -> NDArray[np.float64]:
-    """``n`` values from a towards b along a smoothstep, the last equal to b."""
-    if n <= 0:
-        return np.zeros(0)
-    x = np.arange(1, n + 1) / n
-    s = x * x * (3.0 - 2.0 * x)
-    return a + (b - a) * s
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # The executor
 # ---------------------------------------------------------------------------------------------------------------
@@ -376,15 +156,13 @@ class _Execution:
         self.kind = ControllerKind(settings.controller)
         self.controller = HybridController(self.kind, gains, dt=self.dt, torque_limits=self.world.torque_limits)
         self._dynamic_null = gains.null_space is NullSpaceProjection.dynamic
-        self.reference_force = _reference_force(skill, self.dt)
+        self.reference_force = reference_force(skill, self.dt)
         if gains.contact_force_threshold_n is not None:
             self.contact_threshold = float(gains.contact_force_threshold_n)
         else:
             self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
-        self.geometry = {
-            s.index: _contact_geometry(s, self.offset) for s in skill.segments if s.kind is SegmentKind.contact
-        }
-        self.identity_frame = self.controller.frame(np.eye(3), SELECTION_FREE)
+        self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.contact_threshold, self.dt)
+        self.geometry = self.planner.geometry
         # Recording.
         self.capacity = 4096
         self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
@@ -396,138 +174,8 @@ class _Execution:
 
     # -------------------------------------------------------------------------------------- state helpers
 
-    def _tool(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return self.world.tool_pose()
-
     def _contact_force_along(self, axis: NDArray[np.float64]) -> float:
         return float(self.world.contact_wrench()[:3] @ axis)
-
-    # -------------------------------------------------------------------------------------- plans
-
-    def _free_plan(self, segment: Segment, goal: NDArray[np.float64], stop_axis: NDArray | None) -> _Plan:
-        p, q = self._tool()
-        pos = DMP.from_parameters(segment.position_dmp)
-        ori = QuaternionDMP.from_parameters(segment.orientation_dmp)
-        duration = segment.position_dmp.duration_s
-        rp = pos.rollout(self.dt, start=p, goal=goal, duration_s=duration)
-        rq = ori.rollout(self.dt, start=q, duration_s=duration)
-        n = min(len(rp.t), len(rq.t))
-        twist = np.hstack([rp.yd[:n], rq.omega[:n]])
-        return _Plan(
-            ExecutionPhase.free,
-            segment.index,
-            rp.y[:n],
-            rq.q[:n],
-            twist,
-            np.zeros(n),
-            frame=self.identity_frame,
-            stop_axis=stop_axis,
-        )
-
-    def _approach_plan(self, segment: Segment, ref_q: NDArray[np.float64]) -> _Plan:
-        s = self.settings
-        geo = self.geometry[segment.index]
-        z = geo.first_rotation[:, 2]
-        p, _ = self._tool()
-        n = math.ceil(s.approach_max_distance_m / s.approach_speed_m_s / self.dt) + 1
-        travel = np.arange(n) * self.dt * s.approach_speed_m_s
-        ref_p = p + travel[:, None] * z
-        twist = np.zeros((n, 6))
-        twist[:, :3] = s.approach_speed_m_s * z
-        frame = self.controller.frame(geo.first_rotation, SELECTION_FREE)
-        return _Plan(
-            ExecutionPhase.approach,
-            segment.index,
-            ref_p,
-            np.broadcast_to(ref_q, (n, 4)),
-            twist,
-            np.zeros(n),
-            frame=frame,
-            stop_axis=z,
-            exhausted_reason=(
-                f"contact not found: no contact force above {self.contact_threshold:.1f} N within "
-                f"{s.approach_max_distance_m:.3f} m of guarded approach along CF z (segment {segment.index})"
-            ),
-        )
-
-    def _surface_reference(self, segment: Segment, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The reference point for tool position ``p`` in a contact segment: found or taught surface (see module)."""
-        if self.kind is not ControllerKind.impedance:
-            return p
-        geo = self.geometry[segment.index]
-        z = geo.first_rotation[:, 2]
-        return p - z * float((p - geo.start_world) @ z)
-
-    def _first_force(self, segment: Segment) -> float:
-        if segment.force_constant_n is not None:
-            return max(0.0, float(segment.force_constant_n))
-        if segment.force_dmp is not None:
-            return max(0.0, float(segment.force_dmp.start[0]))
-        return 0.0
-
-    def _hold_plan(
-        self, segment: Segment, phase: ExecutionPhase, f_from: float, f_to: float, duration: float, ref_q
-    ) -> _Plan:
-        p, _ = self._tool()
-        n = max(1, round(duration / self.dt))
-        geo = self.geometry[segment.index]
-        ref = self._surface_reference(segment, p)
-        frame = self.controller.frame(
-            geo.first_rotation if phase is not ExecutionPhase.retreat else self._last_cf, segment.selection
-        )
-        return _Plan(
-            phase,
-            segment.index,
-            np.broadcast_to(ref, (n, 3)),
-            np.broadcast_to(ref_q, (n, 4)),
-            np.zeros((n, 6)),
-            _ramp(f_from, f_to, n),
-            frame=frame,
-        )
-
-    def _contact_plan(self, segment: Segment, f_previous: float | None) -> _Plan:
-        geo = self.geometry[segment.index]
-        p, q = self._tool()
-        duration = segment.position_dmp.duration_s
-        pos = DMP.from_parameters(segment.position_dmp)
-        ori = QuaternionDMP.from_parameters(segment.orientation_dmp)
-        rq = ori.rollout(self.dt, start=q, duration_s=duration)
-        p_ref0 = self._surface_reference(segment, p)
-        if segment.position_dmp.frame == "cf":
-            R, o = geo.rotations[0], geo.origins[0]
-            xy0 = (p_ref0 - o) @ R[:, :2]
-            z0 = float((p_ref0 - o) @ R[:, 2])
-            rp = pos.rollout(self.dt, start=xy0, duration_s=duration)
-            n = min(len(rp.t), len(rq.t))
-            ref_p = o + rp.y[:n, :2] @ R[:, :2].T + z0 * R[:, 2]
-            v = rp.yd[:n, :2] @ R[:, :2].T
-        else:
-            goal = np.asarray(segment.position_dmp.goal, dtype=float) + self.offset
-            rp = pos.rollout(self.dt, start=p_ref0, goal=goal, duration_s=duration)
-            n = min(len(rp.t), len(rq.t))
-            ref_p, v = rp.y[:n], rp.yd[:n]
-        if segment.force_dmp is not None:
-            force = DMP.from_parameters(segment.force_dmp).rollout(self.dt, duration_s=duration).y[:, 0]
-            force = np.maximum(force[:n], 0.0)
-            if force.size < n:
-                force = np.concatenate([force, np.full(n - force.size, force[-1])])
-        else:
-            force = np.full(n, max(0.0, float(segment.force_constant_n or 0.0)))
-        if f_previous is not None:  # contact -> contact: ramp between the levels
-            k = min(n, round(self.settings.gains.force_ramp_s / self.dt))
-            if k > 0:
-                blend = _ramp(0.0, 1.0, k)
-                force[:k] = f_previous + blend * (force[:k] - f_previous)
-        twist = np.hstack([v, rq.omega[:n]])
-        plan = _Plan(ExecutionPhase.contact, segment.index, ref_p, rq.q[:n], twist, force)
-        if geo.t.size == 1:
-            plan.frame = self.controller.frame(geo.rotations[0], segment.selection)
-        else:
-            stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
-            fractions = np.arange(0, n, stride) / max(n - 1, 1)
-            plan.series = self.controller.frames(geo.rotations_at(np.minimum(fractions, 1.0)), segment.selection)
-            plan.stride = stride
-        return plan
 
     # -------------------------------------------------------------------------------------- the loop
 
@@ -543,7 +191,7 @@ class _Execution:
             self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
             self.emitted = self.n
 
-    def run_plan(self, plan: _Plan) -> str:
+    def run_plan(self, plan: PhasePlan) -> str:
         """Run a phase; return "done" or "contact" (a guarded phase met the surface). Raises ExecutionAbortError.
 
         One control step: sensing and the model queries (``SimWorld.sense`` / ``dynamics``: one PyBullet
@@ -680,7 +328,7 @@ class _Execution:
     def _record_contact_offset(self, segment: Segment) -> None:
         geo = self.geometry[segment.index]
         z = geo.first_rotation[:, 2]
-        p, _ = self._tool()
+        p, _ = self.world.tool_pose()
         self.contact_offsets.append(float((p - geo.start_world) @ z))
 
     def run(self) -> None:
@@ -697,23 +345,23 @@ class _Execution:
         q_joints = self.world.inverse_kinematics(p_start, q_start_ref)
         self.world.reset(q_joints)
         self.controller.reset(posture=q_joints)
-        self._last_cf = np.eye(3)
         self.wall_start = time.perf_counter()
         n_settle = max(1, round(s.settle_s / self.dt))
-        settle = _Plan(
+        settle = PhasePlan(
             ExecutionPhase.settle,
             -1,
             np.broadcast_to(p_start, (n_settle, 3)),
             np.broadcast_to(q_start_ref, (n_settle, 4)),
             np.zeros((n_settle, 6)),
             np.zeros(n_settle),
-            frame=self.identity_frame,
+            frame=self.planner.identity_frame,
         )
         self.run_plan(settle)
         last_ref_q = q_start_ref
         in_contact_run = False
         f_last: float | None = None
         found_early = False
+        planner, tool_pose = self.planner, self.world.tool_pose
         for i, segment in enumerate(segments):
             nxt = segments[i + 1] if i + 1 < len(segments) else None
             if segment.kind is SegmentKind.free:
@@ -721,9 +369,10 @@ class _Execution:
                     geo = self.geometry[nxt.index]
                     z = geo.first_rotation[:, 2]
                     goal = geo.start_world - s.approach_clearance_m * z
-                    plan = self._free_plan(segment, goal, stop_axis=z)
+                    plan = planner.free(segment, *tool_pose(), goal, stop_axis=z)
                 else:
-                    plan = self._free_plan(segment, np.asarray(segment.position_dmp.goal, float) + self.offset, None)
+                    goal = np.asarray(segment.position_dmp.goal, float) + self.offset
+                    plan = planner.free(segment, *tool_pose(), goal, None)
                 found_early = self.run_plan(plan) == "contact"
                 last_ref_q = plan.ref_q[-1]
                 continue
@@ -731,29 +380,39 @@ class _Execution:
             if not in_contact_run:
                 self.controller.reset_integral()
                 if not found_early:
-                    self.run_plan(self._approach_plan(segment, last_ref_q))
+                    self.run_plan(planner.approach(segment, tool_pose()[0], last_ref_q))
                 self._record_contact_offset(segment)
-                f_found = self._contact_force_along(self.geometry[segment.index].first_rotation[:, 2])
-                ramp = self._hold_plan(
+                first_cf = self.geometry[segment.index].first_rotation
+                f_found = float(self.world.contact_wrench()[:3] @ first_cf[:, 2])
+                ramp = planner.hold(
                     segment,
                     ExecutionPhase.approach,
+                    tool_pose()[0],
                     max(f_found, 0.0),
-                    self._first_force(segment),
+                    first_force(segment),
                     s.gains.force_ramp_s,
                     last_ref_q,
+                    first_cf,
                 )
                 self.run_plan(ramp)
                 f_last = None
-            plan = self._contact_plan(segment, f_last)
+            plan = planner.contact(segment, *tool_pose(), f_last)
             self.run_plan(plan)
             in_contact_run = True
             f_last = float(plan.force[-1])
             last_ref_q = plan.ref_q[-1]
-            self._last_cf = (plan.frame or plan.series[len(plan.series) - 1]).cf_rotation
+            last_cf = (plan.frame or plan.series[len(plan.series) - 1]).cf_rotation
             found_early = False
             if nxt is None or nxt.kind is SegmentKind.free:
-                release = self._hold_plan(
-                    segment, ExecutionPhase.retreat, f_last, 0.0, s.gains.force_release_s, last_ref_q
+                release = planner.hold(
+                    segment,
+                    ExecutionPhase.retreat,
+                    tool_pose()[0],
+                    f_last,
+                    0.0,
+                    s.gains.force_release_s,
+                    last_ref_q,
+                    last_cf,
                 )
                 self.run_plan(release)
                 in_contact_run = False
@@ -761,124 +420,6 @@ class _Execution:
 
     def close(self) -> None:
         self.world.close()
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Metrics
-# ---------------------------------------------------------------------------------------------------------------
-
-
-def _steady_mask(tel: Telemetry, ramp_s: float) -> NDArray[np.bool_]:
-    """Contact-phase rows at least max(0.2 s, the force ramp) after the start of their contact segment."""
-    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
-    mask = np.zeros(len(tel), dtype=bool)
-    if not contact.any():
-        return mask
-    seg = tel.segment_index
-    t = tel.t
-    delay = max(STEADY_CONTACT_DELAY_S, ramp_s)
-    for s in np.unique(seg[contact]):
-        rows = contact & (seg == s)
-        t0 = t[rows][0]
-        mask |= rows & (t >= t0 + delay - 1e-9)
-    return mask
-
-
-def _demonstrated_path(
-    skill: Skill, segment: Segment, offset: NDArray[np.float64], demonstration: Demonstration | None, dt: float
-) -> NDArray[np.float64]:
-    """The demonstrated tool path of a contact segment (K, 3), shifted by the known offset (world, m)."""
-    if demonstration is not None:
-        a = demonstration.arrays()
-        rows = (a.t >= segment.t_start - 1e-9) & (a.t <= segment.t_end + 1e-9)
-        if rows.sum() >= 2:
-            return a.positions[rows] + offset
-    geo = _contact_geometry(segment, offset)
-    y = DMP.from_parameters(segment.position_dmp).rollout(dt).y
-    if segment.position_dmp.frame == "cf":
-        return geo.origins[0] + y[:, :2] @ geo.rotations[0][:, :2].T
-    return y + offset
-
-
-def _path_rms(
-    skill: Skill,
-    tel: Telemetry,
-    offset: NDArray[np.float64],
-    demonstration: Demonstration | None,
-    dt: float,
-) -> float | None:
-    """RMS distance, in the motion subspace (CF x-y), of the executed contact path to the demonstrated one (m)."""
-    from scipy.spatial import cKDTree
-
-    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
-    if not contact.any():
-        return None
-    squared: list[NDArray[np.float64]] = []
-    segs = {s.index: s for s in skill.segments}
-    for index in np.unique(tel.segment_index[contact]):
-        segment = segs[int(index)]
-        rows = contact & (tel.segment_index == index)
-        executed = tel.tool_position[rows]
-        demo = _demonstrated_path(skill, segment, offset, demonstration, dt)
-        geo = _contact_geometry(segment, offset)
-        if geo.t.size == 1:  # one CF: distances in its x-y plane
-            R = geo.rotations[0]
-            tree = cKDTree((demo - geo.origins[0]) @ R[:, :2])
-            d, _ = tree.query((executed - geo.origins[0]) @ R[:, :2])
-            squared.append(d**2)
-        else:  # a CF series: nearest demonstrated point, error without its component along that point's CF z
-            tree = cKDTree(demo)
-            _, nearest = tree.query(executed)
-            err = executed - demo[nearest]
-            frac = nearest / max(len(demo) - 1, 1)
-            z = geo.rotations_at(frac)[:, :, 2]
-            err_tangent = err - np.sum(err * z, axis=1, keepdims=True) * z
-            squared.append(np.sum(err_tangent**2, axis=1))
-    return float(np.sqrt(np.mean(np.concatenate(squared))))
-
-
-def compute_metrics(
-    skill: Skill,
-    tel: Telemetry,
-    settings: ExecutionSettings,
-    phase: ExecutionPhase,
-    abort_reason: str | None,
-    loop_wall_s: float,
-    contact_offsets: list[float],
-    demonstration: Demonstration | None = None,
-    dt: float = 1e-3,
-) -> ExecutionMetrics:
-    """Compute DESIGN.md "Measures" from the recorded telemetry of one execution."""
-    reference = _reference_force(skill, dt)
-    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
-    steady = _steady_mask(tel, settings.gains.force_ramp_s)
-    f_meas = tel.wrench_cf[:, 2]
-    metrics: dict = {}
-    if steady.any():
-        err = f_meas[steady] - tel.desired_force[steady]
-        rms = float(np.sqrt(np.mean(err**2)))
-        worst = float(np.max(np.abs(err)))
-        metrics.update(force_rms_error_n=rms, force_max_error_n=worst)
-        if reference > 0:
-            metrics.update(force_rms_error_pct=100.0 * rms / reference, force_max_error_pct=100.0 * worst / reference)
-    if contact.any():
-        metrics["contact_ratio"] = float(np.mean(tel.in_contact[contact]))
-        metrics["path_rms_m"] = _path_rms(skill, tel, np.asarray(settings.environment.offset, float), demonstration, dt)
-    duration = float(len(tel) * dt)
-    forces = np.linalg.norm(tel.wrench_world[:, :3], axis=1) if len(tel) else np.zeros(1)
-    return ExecutionMetrics(
-        controller=ControllerKind(settings.controller),
-        phase=phase,
-        force_reference_n=reference if reference > 0 else None,
-        real_time_factor=duration / loop_wall_s if loop_wall_s > 0 else 0.0,
-        duration_s=duration,
-        steps=len(tel),
-        peak_force_n=float(forces.max()),
-        contact_found_offsets_m=contact_offsets,
-        steady_contact_s=float(steady.sum() * dt),
-        abort_reason=abort_reason,
-        **metrics,
-    )
 
 
 # ---------------------------------------------------------------------------------------------------------------

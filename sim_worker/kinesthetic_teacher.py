@@ -40,8 +40,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from sim_worker.geometry import CylinderSolid, WorldGeometry
+from sim_worker.robot_model import Q_HOME
 from sim_worker.teacher import R_TOOL_DOWN, TeacherParams
-from sim_worker.world import Q_HOME, CylinderSolid, SimWorld, WorldConfig, WorldGeometry
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
 from skills.kinesthetic import (
     KinestheticDemo,
     KinestheticTruth,

@@ -37,15 +37,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration, DemonstrationMetadata
-from sim_worker.world import (
-    N_JOINTS,
-    Q_HOME,
-    SimWorld,
-    WorldConfig,
-    WorldGeometry,
-    _rotation_about,
-    _rotation_vector,
-)
+from sim_worker.geometry import WorldGeometry
+from sim_worker.robot_model import N_JOINTS, Q_HOME
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
+from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
 
 R_TOOL_DOWN = np.diag([-1.0, 1.0, -1.0])
@@ -215,7 +211,7 @@ def _two_planes_path(geometry: WorldGeometry):
         y = 0.07 * math.sin(2.0 * math.pi * s)
         point = geometry.table_point(c.ramp_crease_x_m + u, y) if u < 0 else geometry.ramp_point(u, y)
         w = float(_smoothstep((u + _TWO_PLANES_BLEND) / (2.0 * _TWO_PLANES_BLEND)))
-        R_blend = _rotation_about(axis, -tilt * w) @ R_table
+        R_blend = matrix_from_axis_angle(axis, -tilt * w) @ R_table
         n = n_table if u < 0 else n_ramp
         if abs(u) < _TWO_PLANES_BLEND:
             n = -R_blend[:, 2]
@@ -233,7 +229,7 @@ def _cylinder_path(geometry: WorldGeometry):
         y = 0.02 * math.sin(math.pi * s)
         local = np.array([cyl.radius * math.sin(theta), y, cyl.radius * math.cos(theta)])
         n = cyl.R @ np.array([math.sin(theta), 0.0, math.cos(theta)])
-        R = cyl.R @ _rotation_about((0.0, 1.0, 0.0), theta) @ R_TOOL_DOWN
+        R = cyl.R @ matrix_from_axis_angle((0.0, 1.0, 0.0), theta) @ R_TOOL_DOWN
         return cyl.p + cyl.R @ local, n, R
 
     return path
@@ -249,7 +245,7 @@ def _block_path(geometry: WorldGeometry):
         nx, nz = block.profile_normal(phi)
         y = 0.015 * math.sin(math.pi * s)
         tilt = math.atan2(float(nx), float(nz))
-        R = block.R @ _rotation_about((0.0, 1.0, 0.0), tilt) @ R_TOOL_DOWN
+        R = block.R @ matrix_from_axis_angle((0.0, 1.0, 0.0), tilt) @ R_TOOL_DOWN
         return block.p + block.R @ np.array([float(x), y, float(z)]), block.R @ np.array([float(nx), 0.0, float(nz)]), R
 
     return path
@@ -365,7 +361,7 @@ class _Controller:
         else:
             self.force_integral = 0.0
         F[:3] = f_lin
-        F[3:] = prm.rot_stiffness_nm_rad * _rotation_vector(R_d @ R.T) - prm.rot_damping_nm_s_rad * omega
+        F[3:] = prm.rot_stiffness_nm_rad * rotation_vector_from_matrix(R_d @ R.T) - prm.rot_damping_nm_s_rad * omega
         JJt = J @ J.T + 1e-4 * np.eye(6)
         J_pinv = J.T @ np.linalg.inv(JJt)
         null = np.eye(N_JOINTS) - J.T @ J_pinv.T
@@ -483,7 +479,7 @@ def _record(
 
     def run(p_d, v_d, R_d, nominal, push=None, f_des=0.0, s_val=-1.0):
         nonlocal k
-        wob = _rotation_about(wobble[k], float(np.linalg.norm(wobble[k]))) if np.any(wobble[k]) else np.eye(3)
+        wob = matrix_from_axis_angle(wobble[k], float(np.linalg.norm(wobble[k]))) if np.any(wobble[k]) else np.eye(3)
         R_cmd = wob @ R_d
         f_meas = 0.0
         wrench = world.true_contact_wrench()

@@ -1,24 +1,15 @@
-"""The simulated world: a KUKA LBR iiwa with a ball-tipped tool, a table (tiltable, with an optional ramp)
-and contour objects (a cylinder lying on the table, a curved block), in PyBullet at 1 kHz.
+"""The simulated world in PyBullet at 1 kHz: the robot of ``robot_model`` (iiwa + ball tool) among the static
+solids of ``geometry`` (table, ramp, contour objects, rebuilt work pieces), stepped under torque control, with the
+tool's contact wrench sensed through ``sensor``.
 
-Conventions (DESIGN.md): SI units, world frame, quaternions ``[x, y, z, w]``, 6-vectors
+Conventions (docs/CONVENTIONS.md): SI units, world frame, quaternions ``[x, y, z, w]``, 6-vectors
 ``[x, y, z, rx, ry, rz]``; the contact wrench is the wrench the TOOL APPLIES TO THE ENVIRONMENT,
 at the tool point, in the world frame.
-
-Tool and tool point
-    A rigid tool is part of the robot URDF, built at run time: a shaft (radius 8 mm, 70 mm long)
-    on the iiwa flange (45 mm beyond the link-7 frame) ending in a ball of radius
-    ``WorldConfig.tool_radius_m`` (10 mm). It is a separate link (``tool_link``, index 7) on a FIXED
-    joint, so it has an exact link frame and Jacobian. The TOOL POINT (the origin of that link frame)
-    is the ball's lowest point along the tool axis, i.e. ball centre + radius along the tool's z axis,
-    125 mm from the link-7 frame. The tool frame's z axis points out of the flange, along the tool:
-    when the tool is held perpendicular to a surface, the tool point is the contact point and the tool
-    z axis points INTO the surface, along the force the tool applies (like the compliant frame).
 
 Contact model
     Rigid PyBullet contact at 1 kHz chatters (0-50 N around a 15 N target), so the tool link is made
     compliant: ``contactStiffness = 3e4 N/m, contactDamping = 300 N·s/m`` (a stiff polishing pad; at 15 N
-    the pad compresses 0.5 mm; DESIGN.md measured 15 N ± 0.7 N at 1 kHz). Bullet combines the friction
+    the pad compresses 0.5 mm; measured 15 N ± 0.7 N at 1 kHz). Bullet combines the friction
     coefficients of the two bodies by product: the environment bodies get ``lateralFriction = 1`` and the
     tool ``WorldConfig.lateral_friction`` (0.2), so every tool contact has μ = 0.2. Rolling and spinning
     friction are zero.
@@ -46,9 +37,7 @@ Measured PyBullet 3.2.7 facts this module relies on
       rotational damping of 3 N·m·s/rad is unstable at 1 kHz (D·dt/I > 2); 0.3 N·m·s/rad is fine.
 
 Geometry for ground truth
-    ``WorldGeometry`` (pure numpy, no PyBullet) holds the exact shapes: each object is a convex solid
-    with an exact signed distance; the world is their union, so outside the objects the distance to the
-    world is the minimum over the objects and the outward normal is that of the nearest one.
+    ``sim_worker.geometry.WorldGeometry`` (pure numpy) holds the exact shapes the PyBullet bodies are built from.
 """
 
 from __future__ import annotations
@@ -59,26 +48,19 @@ import os
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 import pybullet
-import pybullet_data
 from numpy.typing import ArrayLike, NDArray
 
-N_JOINTS = 7
-TOOL_LINK = 7
-"""Link index of the tool (fixed joint on link 7); its frame origin is the tool point."""
-
-TORQUE_LIMITS_NM = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
-"""Joint torque limits of the KUKA LBR iiwa 14 R820 (N·m), joints 1-7."""
-
-FLANGE_OFFSET_M = 0.045
-"""Distance of the iiwa flange from the link-7 frame along its z axis (the link-7 mesh ends there)."""
-
-Q_HOME = (0.0, 0.5325, 0.0, -1.6083, 0.0, 1.0008, 0.0)
-"""Home posture (rad): tool pointing straight down (tool x = -world x), tool point at (0.55, 0, 0.30) m."""
+from sim_worker.geometry import BoxSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
+from sim_worker.robot_model import N_JOINTS, Q_HOME, TOOL_LINK, robot_urdf
+from sim_worker.sensor import WrenchSensor
+from sim_worker.world_config import WorldConfig
+from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
+from skills.quaternions import quaternion_from_matrix
 
 CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
@@ -125,467 +107,14 @@ class Dynamics(NamedTuple):
     mass_matrix: NDArray[np.float64] | None
 
 
-def _rotation_about(axis: ArrayLike, angle_rad: float) -> NDArray[np.float64]:
-    """Rotation matrix of ``angle_rad`` about the unit ``axis`` (Rodrigues)."""
-    a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    return np.eye(3) + math.sin(angle_rad) * K + (1.0 - math.cos(angle_rad)) * (K @ K)
-
-
 def _quat_from_matrix(R: NDArray[np.float64]) -> list[float]:
-    """Scalar-last quaternion of a rotation matrix (via PyBullet-free Shepperd's method)."""
-    from skills.quaternions import quaternion_from_matrix
-
+    """Scalar-last quaternion of a rotation matrix, as a list for PyBullet."""
     return quaternion_from_matrix(R).tolist()
-
-
-@dataclass
-class WorldConfig:
-    """Everything that defines a world; JSON-able via ``to_dict`` / ``from_dict``.
-
-    The table top is a plane through ``(table_center_xy, table_height_m)``, tilted by ``table_tilt_deg``
-    about the horizontal ``table_tilt_axis`` through that point. The ramp (the second plane) starts at a
-    crease line on the table top, parallel to the table's y axis at table-x ``ramp_crease_x_m`` (relative to
-    the table centre), and rises towards +x by ``ramp_tilt_deg`` relative to the table. The cylinder and the
-    curved block lie on the table top at table-frame ``(x, y)`` positions, turned by a yaw about the table
-    normal; their ``*_offset_m`` shifts them (world frame) away from lying on the table, e.g. to move a
-    contour object for execution.
-    """
-
-    time_step_s: float = 1e-3
-    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
-    # Table: a box, top surface through (center, height).
-    table_height_m: float = 0.10
-    table_center_xy: tuple[float, float] = (0.60, 0.0)
-    table_size_xy: tuple[float, float] = (0.60, 0.80)
-    table_thickness_m: float = 0.04
-    table_tilt_deg: float = 0.0
-    table_tilt_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
-    # Ramp: the second plane ("two planes" scenario).
-    ramp_enabled: bool = False
-    ramp_tilt_deg: float = 20.0
-    ramp_crease_x_m: float = 0.0
-    ramp_length_m: float = 0.20
-    ramp_thickness_m: float = 0.04
-    # Cylinder lying on the table, axis along the table y axis turned by the yaw.
-    cylinder_enabled: bool = False
-    cylinder_radius_m: float = 0.08
-    cylinder_length_m: float = 0.30
-    cylinder_xy_m: tuple[float, float] = (0.0, 0.0)
-    cylinder_yaw_deg: float = 0.0
-    cylinder_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    # Curved block: a base slab of height block_base_height_m capped by a half-ellipse of semi-axes
-    # (block_half_length_m along the block x, block_cap_height_m up), extruded over block_width_m.
-    block_enabled: bool = False
-    block_half_length_m: float = 0.15
-    block_cap_height_m: float = 0.06
-    block_base_height_m: float = 0.02
-    block_width_m: float = 0.16
-    block_xy_m: tuple[float, float] = (0.0, 0.0)
-    block_yaw_deg: float = 0.0
-    block_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    block_mesh_segments: int = 180
-    # Contact model and tool.
-    contact_stiffness: float = 3.0e4
-    contact_damping: float = 300.0
-    lateral_friction: float = 0.2
-    tool_radius_m: float = 0.010
-    tool_shaft_length_m: float = 0.070
-    tool_shaft_radius_m: float = 0.008
-    tool_mass_kg: float = 0.2
-    # Robot.
-    torque_limits_nm: tuple[float, ...] = TORQUE_LIMITS_NM
-    # Wrench sensor model (both off by default).
-    wrench_noise_force_std_n: float = 0.0
-    wrench_noise_torque_std_nm: float = 0.0
-    wrench_filter_cutoff_hz: float | None = None
-    seed: int = 0
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able dict (tuples become lists)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> WorldConfig:
-        """Inverse of ``to_dict``; unknown keys raise ``TypeError``."""
-        kwargs = {}
-        for f in fields(cls):
-            if f.name in data:
-                value = data[f.name]
-                kwargs[f.name] = tuple(value) if isinstance(value, list) else value
-        unknown = set(data) - {f.name for f in fields(cls)}
-        if unknown:
-            raise TypeError(f"unknown WorldConfig fields: {sorted(unknown)}")
-        return cls(**kwargs)
-
-    def replace(self, **changes: Any) -> WorldConfig:
-        """A copy with ``changes`` applied."""
-        data = self.to_dict()
-        data.update(changes)
-        return WorldConfig.from_dict(data)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Exact geometry (numpy only): convex solids with signed distance and outward normal.
-# ---------------------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Solid:
-    """A convex solid at pose ``(R, p)`` (body frame into world) with an exact signed distance."""
-
-    name: str
-    R: NDArray[np.float64]
-    p: NDArray[np.float64]
-
-    def _local(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (points - self.p) @ self.R
-
-    def signed_distance(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Return (distance (N,), outward unit normal (N, 3) in world) for points (N, 3); negative inside."""
-        local = self._local(np.atleast_2d(np.asarray(points, dtype=float)))
-        d, n_local = self._sdf_local(local)
-        return d, n_local @ self.R.T
-
-    def _sdf_local(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        raise NotImplementedError
-
-    def outward_normal(self, point: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Outward unit normal (3,) of the nearest surface point to one ``point`` (3,) outside or near the solid."""
-        return self.signed_distance(point[None, :])[1][0]
-
-
-def _box_sdf(x: NDArray[np.float64], half: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Signed distance and gradient of an axis-aligned box of half extents ``half`` at the origin."""
-    q = np.abs(x) - half
-    outside = np.maximum(q, 0.0)
-    out_norm = np.linalg.norm(outside, axis=1)
-    inside = np.minimum(q.max(axis=1), 0.0)
-    d = out_norm + inside
-    grad = np.zeros_like(x)
-    is_out = out_norm > 0
-    grad[is_out] = outside[is_out] / out_norm[is_out, None]
-    k = np.argmax(q[~is_out], axis=1)
-    grad_in = np.zeros((k.size, 3))
-    grad_in[np.arange(k.size), k] = 1.0
-    grad[~is_out] = grad_in
-    return d, grad * np.where(x < 0, -1.0, 1.0)
-
-
-def _extrude_sdf(
-    d2: NDArray[np.float64], g2: NDArray[np.float64], y: NDArray[np.float64], half_width: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Combine a 2-D (x, z) signed distance with a slab |y| <= half_width into a 3-D one (exact)."""
-    dy = np.abs(y) - half_width
-    a = np.maximum(d2, 0.0)
-    b = np.maximum(dy, 0.0)
-    out = np.hypot(a, b)
-    d = out + np.minimum(np.maximum(d2, dy), 0.0)
-    grad = np.zeros((d2.size, 3))
-    sy = np.where(y < 0, -1.0, 1.0)
-    is_out = out > 0
-    grad[is_out, 0] = g2[is_out, 0] * a[is_out] / out[is_out]
-    grad[is_out, 2] = g2[is_out, 1] * a[is_out] / out[is_out]
-    grad[is_out, 1] = sy[is_out] * b[is_out] / out[is_out]
-    use_2d = ~is_out & (d2 >= dy)
-    grad[use_2d, 0] = g2[use_2d, 0]
-    grad[use_2d, 2] = g2[use_2d, 1]
-    use_y = ~is_out & ~use_2d
-    grad[use_y, 1] = sy[use_y]
-    return d, grad
-
-
-@dataclass
-class BoxSolid(Solid):
-    """A box of half extents ``half`` centred at ``p``."""
-
-    half: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-
-    def _sdf_local(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return _box_sdf(x, self.half)
-
-
-@dataclass
-class CylinderSolid(Solid):
-    """A finite cylinder, axis = body y axis through ``p``, of ``radius`` and ``length``."""
-
-    radius: float = 0.0
-    length: float = 0.0
-
-    def _sdf_local(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        r = np.hypot(x[:, 0], x[:, 2])
-        safe = np.maximum(r, 1e-12)
-        d2 = r - self.radius
-        g2 = np.stack([x[:, 0] / safe, x[:, 2] / safe], axis=1)
-        g2[r < 1e-12] = (0.0, 1.0)
-        return _extrude_sdf(d2, g2, x[:, 1], 0.5 * self.length)
-
-    def outward_normal(self, point: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Radial outward normal (fast path for points beside the lateral surface)."""
-        x = (point - self.p) @ self.R
-        if abs(x[1]) > 0.5 * self.length:
-            return super().outward_normal(point)
-        r = math.hypot(x[0], x[2])
-        return self.R @ np.array([x[0] / r, 0.0, x[2] / r])
-
-    @property
-    def axis(self) -> NDArray[np.float64]:
-        """Unit axis direction in world."""
-        return self.R[:, 1].copy()
-
-
-def nearest_on_ellipse(px: ArrayLike, pz: ArrayLike, a: float, b: float, iterations: int = 8):
-    """Nearest points ``(x, z)`` on the ellipse ``(x/a)² + (z/b)² = 1`` to points ``(px, pz)`` (vectorized).
-
-    Curvature-centre iteration (converges for points inside and outside); returns arrays x, z.
-    """
-    px = np.asarray(px, dtype=float)
-    pz = np.asarray(pz, dtype=float)
-    ax, az = np.abs(px), np.abs(pz)
-    tx = np.full_like(ax, math.sqrt(0.5))
-    tz = np.full_like(az, math.sqrt(0.5))
-    for _ in range(iterations):
-        x, z = a * tx, b * tz
-        ex = (a * a - b * b) * tx**3 / a
-        ez = (b * b - a * a) * tz**3 / b
-        rx, rz = x - ex, z - ez
-        qx, qz = ax - ex, az - ez
-        r = np.hypot(rx, rz)
-        q = np.maximum(np.hypot(qx, qz), 1e-15)
-        tx = np.clip((qx * r / q + ex) / a, 0.0, 1.0)
-        tz = np.clip((qz * r / q + ez) / b, 0.0, 1.0)
-        t = np.maximum(np.hypot(tx, tz), 1e-15)
-        tx, tz = tx / t, tz / t
-    return np.copysign(a * tx, px), np.copysign(b * tz, pz)
-
-
-def _nearest_on_ellipse_scalar(px: float, pz: float, a: float, b: float, iterations: int = 8) -> tuple[float, float]:
-    """Scalar version of ``nearest_on_ellipse`` (plain floats, ~10x faster for one point)."""
-    ax, az = abs(px), abs(pz)
-    tx = tz = math.sqrt(0.5)
-    for _ in range(iterations):
-        x, z = a * tx, b * tz
-        ex = (a * a - b * b) * tx**3 / a
-        ez = (b * b - a * a) * tz**3 / b
-        r = math.hypot(x - ex, z - ez)
-        qx, qz = ax - ex, az - ez
-        q = max(math.hypot(qx, qz), 1e-15)
-        tx = min(1.0, max(0.0, (qx * r / q + ex) / a))
-        tz = min(1.0, max(0.0, (qz * r / q + ez) / b))
-        t = max(math.hypot(tx, tz), 1e-15)
-        tx, tz = tx / t, tz / t
-    return math.copysign(a * tx, px), math.copysign(b * tz, pz)
-
-
-@dataclass
-class CurvedBlockSolid(Solid):
-    """A slab ``|x| <= a, 0 <= z <= base`` capped by the upper half-ellipse of semi-axes (a, cap) centred at
-    ``(0, base)``, extruded over ``|y| <= width / 2``; body frame origin on the table top under the block centre.
-    """
-
-    a: float = 0.0
-    cap: float = 0.0
-    base: float = 0.0
-    width: float = 0.0
-
-    def profile_point(self, phi: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Body-frame (x, z) of the cap at ellipse angle ``phi`` (rad, 0 = +x end, pi/2 = top)."""
-        phi = np.asarray(phi, dtype=float)
-        return self.a * np.cos(phi), self.base + self.cap * np.sin(phi)
-
-    def profile_normal(self, phi: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Body-frame outward unit normal (x, z) of the cap at ellipse angle ``phi``."""
-        phi = np.asarray(phi, dtype=float)
-        nx, nz = np.cos(phi) / self.a, np.sin(phi) / self.cap
-        norm = np.hypot(nx, nz)
-        return nx / norm, nz / norm
-
-    def outward_normal(self, point: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Ellipse normal (fast path for points outside the cap, above the base, within the width); else exact."""
-        x = (point - self.p) @ self.R
-        outside_cap = (x[0] / self.a) ** 2 + ((x[2] - self.base) / self.cap) ** 2 >= 1.0
-        if x[2] <= self.base or abs(x[1]) > 0.5 * self.width or abs(x[0]) > self.a or not outside_cap:
-            return super().outward_normal(point)
-        ex, ez = _nearest_on_ellipse_scalar(float(x[0]), float(x[2]) - self.base, self.a, self.cap)
-        gx, gz = ex / self.a**2, ez / self.cap**2
-        g = math.hypot(gx, gz)
-        return self.R @ np.array([gx / g, 0.0, gz / g])
-
-    def _sdf_local(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        px, pz = x[:, 0], x[:, 2]
-        # Rectangle [-a, a] x [0, base].
-        centre = np.array([0.0, 0.5 * self.base])
-        rect_pts = np.stack([px, np.zeros_like(px), pz - centre[1]], axis=1)
-        d_rect, g_rect3 = _box_sdf(rect_pts, np.array([self.a, 1.0, 0.5 * self.base]))
-        g_rect = g_rect3[:, [0, 2]]
-        # Cap: ellipse intersected with z >= base.
-        ex, ez = nearest_on_ellipse(px, pz - self.base, self.a, self.cap)
-        dist = np.hypot(px - ex, pz - self.base - ez)
-        inside = (px / self.a) ** 2 + ((pz - self.base) / self.cap) ** 2 < 1.0
-        d_ell = np.where(inside, -dist, dist)
-        gx, gz = ex / self.a**2, ez / self.cap**2
-        gn = np.maximum(np.hypot(gx, gz), 1e-15)
-        g_ell = np.stack([gx / gn, gz / gn], axis=1)
-        d_half = self.base - pz
-        use_half = d_half > d_ell
-        d_cap = np.where(use_half, d_half, d_ell)
-        g_cap = np.where(use_half[:, None], np.array([0.0, -1.0]), g_ell)
-        use_rect = d_rect < d_cap
-        d2 = np.where(use_rect, d_rect, d_cap)
-        g2 = np.where(use_rect[:, None], g_rect, g_cap)
-        return _extrude_sdf(d2, g2, x[:, 1], 0.5 * self.width)
-
-
-@dataclass
-class SurfaceQuery:
-    """The nearest surface to points: distance (N,), outward normal (N, 3), solid name per point."""
-
-    distance: NDArray[np.float64]
-    normal: NDArray[np.float64]
-    name: list[str]
-
-
-class WorldGeometry:
-    """Exact shapes of a ``WorldConfig`` (no PyBullet): the table, ramp, cylinder and block as convex solids."""
-
-    def __init__(self, config: WorldConfig):
-        c = config
-        self.config = c
-        self.table_R = _rotation_about(c.table_tilt_axis, math.radians(c.table_tilt_deg))
-        self.table_origin = np.array([c.table_center_xy[0], c.table_center_xy[1], c.table_height_m])
-        self.solids: dict[str, Solid] = {}
-        half = np.array([0.5 * c.table_size_xy[0], 0.5 * c.table_size_xy[1], 0.5 * c.table_thickness_m])
-        self.solids["table"] = BoxSolid(
-            "table", self.table_R, self.table_origin - self.table_R @ np.array([0.0, 0.0, half[2]]), half
-        )
-        if c.ramp_enabled:
-            buried = 0.05
-            R = self.table_R @ _rotation_about((0.0, 1.0, 0.0), -math.radians(c.ramp_tilt_deg))
-            half_r = np.array([0.5 * (c.ramp_length_m + buried), half[1], 0.5 * c.ramp_thickness_m])
-            crease = self.table_point(c.ramp_crease_x_m, 0.0)
-            centre = crease - R @ np.array([-half_r[0] + buried, 0.0, half_r[2]])
-            self.solids["ramp"] = BoxSolid("ramp", R, centre, half_r)
-        if c.cylinder_enabled:
-            R = self.table_R @ _rotation_about((0.0, 0.0, 1.0), math.radians(c.cylinder_yaw_deg))
-            centre = (
-                self.table_point(*c.cylinder_xy_m)
-                + self.table_normal * c.cylinder_radius_m
-                + np.asarray(c.cylinder_offset_m)
-            )
-            self.solids["cylinder"] = CylinderSolid(
-                "cylinder", R, centre, radius=c.cylinder_radius_m, length=c.cylinder_length_m
-            )
-        if c.block_enabled:
-            R = self.table_R @ _rotation_about((0.0, 0.0, 1.0), math.radians(c.block_yaw_deg))
-            origin = self.table_point(*c.block_xy_m) + np.asarray(c.block_offset_m)
-            self.solids["block"] = CurvedBlockSolid(
-                "block",
-                R,
-                origin,
-                a=c.block_half_length_m,
-                cap=c.block_cap_height_m,
-                base=c.block_base_height_m,
-                width=c.block_width_m,
-            )
-
-    @property
-    def table_normal(self) -> NDArray[np.float64]:
-        """Outward (up) unit normal of the table top."""
-        return self.table_R[:, 2].copy()
-
-    def table_point(self, x: float, y: float) -> NDArray[np.float64]:
-        """World point of the table top at table-frame coordinates ``(x, y)`` (relative to the table centre)."""
-        return self.table_origin + self.table_R @ np.array([x, y, 0.0])
-
-    @property
-    def ramp_normal(self) -> NDArray[np.float64]:
-        """Outward unit normal of the ramp top (requires ``ramp_enabled``)."""
-        return self.solids["ramp"].R[:, 2].copy()
-
-    def ramp_point(self, s: float, y: float) -> NDArray[np.float64]:
-        """World point on the ramp top ``s`` m up the slope from the crease, ``y`` along the crease."""
-        ramp = self.solids["ramp"]
-        crease = self.table_point(self.config.ramp_crease_x_m, 0.0)
-        return crease + ramp.R @ np.array([s, y, 0.0])
-
-    def query(self, points: ArrayLike) -> SurfaceQuery:
-        """Nearest surface of the union of all solids to ``points`` (3,) or (N, 3)."""
-        pts = np.atleast_2d(np.asarray(points, dtype=float))
-        best_d = np.full(pts.shape[0], np.inf)
-        best_n = np.zeros((pts.shape[0], 3))
-        best_name = np.array([""] * pts.shape[0], dtype=object)
-        for name, solid in self.solids.items():
-            d, n = solid.signed_distance(pts)
-            better = d < best_d
-            best_d[better] = d[better]
-            best_n[better] = n[better]
-            best_name[better] = name
-        return SurfaceQuery(best_d, best_n, list(best_name))
-
-    def surface_normal_at(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Outward unit normal of the nearest surface: (3,) for one point, (N, 3) for N points."""
-        n = self.query(points).normal
-        return n[0] if np.asarray(points).ndim == 1 else n
-
-    def signed_distance(self, points: ArrayLike) -> NDArray[np.float64] | float:
-        """Signed distance (m) of points to the union of all solids (negative inside)."""
-        d = self.query(points).distance
-        return float(d[0]) if np.asarray(points).ndim == 1 else d
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # The PyBullet world.
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _robot_urdf(config: WorldConfig) -> str:
-    """The iiwa URDF with absolute mesh paths and the tool link appended on a fixed joint."""
-    data = pybullet_data.getDataPath()
-    with open(os.path.join(data, "kuka_iiwa", "model.urdf"), encoding="utf-8") as handle:
-        text = handle.read()
-    text = text.replace('filename="meshes/', f'filename="{os.path.join(data, "kuka_iiwa", "meshes")}/')
-    r = config.tool_radius_m
-    L = config.tool_shaft_length_m
-    rs = config.tool_shaft_radius_m
-    m = config.tool_mass_kg
-    tip = FLANGE_OFFSET_M + L + r  # link-7 frame to tool point
-    com = -(0.5 * L + r)  # shaft centre in the tool frame
-    ixx = m * (3 * rs * rs + L * L) / 12.0
-    izz = 0.5 * m * rs * rs
-    tool = f"""
-  <joint name="tool_joint" type="fixed">
-    <parent link="lbr_iiwa_link_7"/>
-    <child link="tool_link"/>
-    <origin rpy="0 0 0" xyz="0 0 {tip:.6f}"/>
-  </joint>
-  <link name="tool_link">
-    <inertial>
-      <origin rpy="0 0 0" xyz="0 0 {com:.6f}"/>
-      <mass value="{m:.6f}"/>
-      <inertia ixx="{ixx:.8f}" ixy="0" ixz="0" iyy="{ixx:.8f}" iyz="0" izz="{izz:.8f}"/>
-    </inertial>
-    <visual>
-      <origin rpy="0 0 0" xyz="0 0 {-(r + 0.5 * L):.6f}"/>
-      <geometry><cylinder radius="{rs:.6f}" length="{L:.6f}"/></geometry>
-      <material name="Grey"/>
-    </visual>
-    <visual>
-      <origin rpy="0 0 0" xyz="0 0 {-r:.6f}"/>
-      <geometry><sphere radius="{r:.6f}"/></geometry>
-      <material name="Orange"/>
-    </visual>
-    <collision>
-      <origin rpy="0 0 0" xyz="0 0 {-(r + 0.5 * L):.6f}"/>
-      <geometry><cylinder radius="{rs:.6f}" length="{L:.6f}"/></geometry>
-    </collision>
-    <collision>
-      <origin rpy="0 0 0" xyz="0 0 {-r:.6f}"/>
-      <geometry><sphere radius="{r:.6f}"/></geometry>
-    </collision>
-  </link>
-"""
-    return text.replace("</robot>", tool + "</robot>")
 
 
 class SimWorld:
@@ -606,7 +135,7 @@ class SimWorld:
         pybullet.setPhysicsEngineParameter(
             fixedTimeStep=c.time_step_s, numSubSteps=0, deterministicOverlappingPairs=1, physicsClientId=cid
         )
-        urdf = _robot_urdf(c)
+        urdf = robot_urdf(c)
         fd, path = tempfile.mkstemp(suffix=".urdf", prefix="iiwa_tool_")
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as handle:
@@ -651,13 +180,12 @@ class SimWorld:
         self.bodies: dict[str, int] = {}
         self._build_environment()
         self._zeros = [0.0] * N_JOINTS
-        self._rng = np.random.default_rng(c.seed)
+        self.sensor = WrenchSensor(c)
         self.last_step_clipped = False
         self.clip_count = 0
         self.step_count = 0
         self._version = 0
         self._cache: dict[str, Any] = {}
-        self._filtered: NDArray[np.float64] | None = None
         self.reset()
 
     # -- construction --------------------------------------------------------------------------------------------
@@ -692,7 +220,7 @@ class SimWorld:
                 self._static_body(name, shape, visual, solid.R, solid.p)
             elif isinstance(solid, CylinderSolid):
                 # PyBullet cylinders lie along their local z; ours along the body y axis.
-                R = solid.R @ _rotation_about((1.0, 0.0, 0.0), -math.pi / 2)
+                R = solid.R @ matrix_from_axis_angle((1.0, 0.0, 0.0), -math.pi / 2)
                 shape = pybullet.createCollisionShape(
                     pybullet.GEOM_CYLINDER, radius=solid.radius, height=solid.length, physicsClientId=cid
                 )
@@ -767,7 +295,7 @@ class SimWorld:
     def reset(self, q: ArrayLike | None = None) -> None:
         """Set the joints to ``q`` (default ``Q_HOME``: tool pointing down above the table) at rest."""
         self.set_joint_positions(Q_HOME if q is None else q)
-        self._filtered = None
+        self.sensor.reset()
         self.last_step_clipped = False
         self.clip_count = 0
         self.step_count = 0
@@ -950,8 +478,8 @@ class SimWorld:
         pybullet.stepSimulation(physicsClientId=self._cid)
         self.step_count += 1
         self._invalidate()
-        if self.config.wrench_filter_cutoff_hz is not None:
-            self._update_filter()
+        if not self.sensor.ideal:  # the sensor samples every step, read or not (its filter runs on)
+            self._measured_wrench()
 
     # -- contact -------------------------------------------------------------------------------------------------
 
@@ -1036,23 +564,6 @@ class SimWorld:
             friction -= c[10] * np.asarray(c[11]) + c[12] * np.asarray(c[13])
         return normal, friction
 
-    def _noise(self) -> NDArray[np.float64]:
-        c = self.config
-        if c.wrench_noise_force_std_n <= 0.0 and c.wrench_noise_torque_std_nm <= 0.0:
-            return np.zeros(6)
-        std = np.array([c.wrench_noise_force_std_n] * 3 + [c.wrench_noise_torque_std_nm] * 3)
-        return self._rng.normal(0.0, 1.0, 6) * std
-
-    def _update_filter(self) -> None:
-        raw = self.true_contact_wrench() + self._noise()
-        if self._filtered is None:
-            self._filtered = raw
-        else:
-            dt = self.config.time_step_s
-            alpha = dt / (dt + 1.0 / (2.0 * math.pi * self.config.wrench_filter_cutoff_hz))
-            self._filtered = self._filtered + alpha * (raw - self._filtered)
-        self._cache["measured"] = self._filtered.copy()
-
     def contact_wrench(self) -> NDArray[np.float64]:
         """Wrench (6,) the tool applies to the environment at the tool point, world frame, as the sensor reports it.
 
@@ -1062,16 +573,11 @@ class SimWorld:
         return self._measured_wrench().copy()
 
     def _measured_wrench(self) -> NDArray[np.float64]:
-        c = self.config
-        if c.wrench_filter_cutoff_hz is None and c.wrench_noise_force_std_n <= 0 and c.wrench_noise_torque_std_nm <= 0:
+        if self.sensor.ideal:
             return self._contact_summary()[0]
         cached = self._cache.get("measured")
         if cached is None:
-            if c.wrench_filter_cutoff_hz is not None:
-                self._update_filter()
-            else:
-                self._cache["measured"] = self.true_contact_wrench() + self._noise()
-            cached = self._cache["measured"]
+            cached = self._cache["measured"] = self.sensor.measure(self._contact_summary()[0])
         return cached
 
     # -- kinematics ----------------------------------------------------------------------------------------------
@@ -1119,7 +625,7 @@ class SimWorld:
                 R = self.tool_rotation()
                 err = np.empty(6)
                 err[:3] = target_p - p
-                err[3:] = _rotation_vector(target_R @ R.T)
+                err[3:] = rotation_vector_from_matrix(target_R @ R.T)
                 err_p, err_o = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
                 if err_p < position_tolerance_m and err_o < orientation_tolerance_rad:
                     break
@@ -1175,15 +681,3 @@ class SimWorld:
         return result
 
 
-def _rotation_vector(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rotation vector (axis * angle, rad) of a rotation matrix, robust near 0 and pi (fast closed form below 170°)."""
-    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-    if c > -0.985:
-        w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-        s = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-        if s < 1e-12:
-            return w
-        return w * (math.atan2(s, c) / s)
-    from skills.quaternions import quaternion_from_matrix, quaternion_log
-
-    return 2.0 * quaternion_log(quaternion_from_matrix(R))

@@ -118,7 +118,7 @@ def world_config_for(scenario: str | None, skill: Skill, overrides: dict[str, An
     """
     from sim_worker.executor import scenario_of_skill
     from sim_worker.teacher import scenario_world_config
-    from sim_worker.world import WorldConfig
+    from sim_worker.world_config import WorldConfig
 
     name = scenario or scenario_of_skill(skill)
     config = WorldConfig() if name is None else scenario_world_config(name)
@@ -375,7 +375,7 @@ class Worker:
         """
         import zenoh
 
-        from sim_worker.executor import Telemetry
+        from sim_worker.telemetry import Telemetry
 
         block = zenoh.CongestionControl.BLOCK
         nothing = object()  # "no item held back" (None is the queue's stop sentinel)

@@ -14,6 +14,8 @@ A transform ``T = (R, p)`` maps coordinates of frame B into frame A: ``x_A = R x
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -65,6 +67,33 @@ def rotation_from_vectors(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
         else:
             R[near_opposite] = flipped
     return R
+
+
+def matrix_from_axis_angle(axis: ArrayLike, angle_rad: float) -> NDArray[np.float64]:
+    """Rotation matrix (3, 3) of ``angle_rad`` (rad) about the unit direction of ``axis`` (Rodrigues)."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    K = skew(a)
+    return np.eye(3) + math.sin(angle_rad) * K + (1.0 - math.cos(angle_rad)) * (K @ K)
+
+
+def rotation_vector_from_matrix(R: ArrayLike) -> NDArray[np.float64]:
+    """Rotation vector (3,) (unit axis times angle, rad) of a rotation matrix (3, 3).
+
+    Closed form below 170° (plain floats: it runs inside inverse-kinematics loops), through the quaternion
+    logarithm near pi, where the closed form loses its axis.
+    """
+    R = np.asarray(R, dtype=float)
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    if c > -0.985:
+        w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+        s = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        if s < 1e-12:
+            return w
+        return w * (math.atan2(s, c) / s)
+    from skills.quaternions import quaternion_from_matrix, quaternion_log
+
+    return 2.0 * quaternion_log(quaternion_from_matrix(R))
 
 
 def transform_inverse(R: ArrayLike, p: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -21,8 +21,9 @@ from schemas.execution import (
     ExecutionSettings,
 )
 from schemas.skill import LearnOptions, SegmentKind
-from sim_worker.executor import ExecutionResult, Telemetry, execute_skill
+from sim_worker.executor import ExecutionResult, execute_skill
 from sim_worker.teacher import record_demonstration
+from sim_worker.telemetry import Telemetry
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion
 

@@ -9,7 +9,9 @@ from skills.compliant_frames import contour_frames, slide_frame
 from skills.frames import (
     adjoint_from_transform,
     force_projector_in_frame,
+    matrix_from_axis_angle,
     rotation_from_vectors,
+    rotation_vector_from_matrix,
     skew,
     stiffness_in_frame,
     transform_inverse,
@@ -178,3 +180,15 @@ def test_sign_continuity_flips_only_signs() -> None:
     continuous = quaternions_sign_continuous(flipped)
     assert np.all(np.sum(continuous[1:] * continuous[:-1], axis=1) > 0)
     np.testing.assert_allclose(continuous, quaternions_sign_continuous(q))
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 0.3, 2.0, np.pi - 0.1, np.pi - 1e-6])
+def test_axis_angle_and_rotation_vector_are_inverse(angle: float) -> None:
+    """Rodrigues and its inverse agree with scipy, also next to pi where the closed form loses the axis."""
+    axis = RNG.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    R = matrix_from_axis_angle(axis, angle)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(axis * angle).as_matrix(), atol=1e-12)
+    r = rotation_vector_from_matrix(R)
+    np.testing.assert_allclose(matrix_from_axis_angle(r, np.linalg.norm(r)) if angle > 0 else np.eye(3), R, atol=1e-8)
+    assert np.linalg.norm(r) == pytest.approx(angle, abs=1e-7)

@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from cli.main import main
+from sim_worker.geometry import WorldGeometry
 from sim_worker.kinesthetic_teacher import (
     SCENARIOS,
     SimKinestheticDemo,
     kinesthetic_world_config,
     record_kinesthetic,
 )
-from sim_worker.world import WorldConfig, WorldGeometry
+from sim_worker.world_config import WorldConfig
 from skills.kinesthetic import RECORDING_COLUMNS, KinestheticDemo, recording_csv_text
 from skills.quaternions import matrix_from_quaternion
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from schemas.demonstration import Demonstration
+from sim_worker.geometry import WorldGeometry
 from sim_worker.teacher import SCENARIOS, TeacherRecording, record_demonstration
-from sim_worker.world import WorldGeometry
 
 _CACHE: dict[str, TeacherRecording] = {}
 

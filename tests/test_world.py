@@ -8,16 +8,11 @@ import numpy as np
 import pybullet
 import pytest
 
-from sim_worker.world import (
-    Q_HOME,
-    TOOL_LINK,
-    TORQUE_LIMITS_NM,
-    SimWorld,
-    WorldConfig,
-    WorldGeometry,
-    _rotation_about,
-    _rotation_vector,
-)
+from sim_worker.geometry import WorldGeometry
+from sim_worker.robot_model import Q_HOME, TOOL_LINK, TORQUE_LIMITS_NM
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
+from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 R_DOWN = np.diag([-1.0, 1.0, -1.0])
@@ -52,7 +47,7 @@ def _press(world: SimWorld, force_n: float, steps: int, slide_velocity=None):
             F[:2] = -100.0 * v[:2]
             p_d = state.position.copy()
         F[2] = -force_n - 50.0 * v[2]
-        F[3:] = 30.0 * _rotation_vector(R_DOWN @ state.rotation.T) - 0.3 * v[3:]
+        F[3:] = 30.0 * rotation_vector_from_matrix(R_DOWN @ state.rotation.T) - 0.3 * v[3:]
         world.step(state.gravity_coriolis + state.jacobian.T @ F - 0.5 * state.qd)
         wrenches.append(world.contact_wrench())
         twists.append(world.tool_twist())
@@ -138,7 +133,7 @@ def test_jacobian_matches_finite_differences_of_the_tool_pose(world):
         dq[j] = h
         world.set_joint_positions(q0 + dq)
         J_fd[:3, j] = (world.tool_pose()[0] - p0) / h
-        J_fd[3:, j] = _rotation_vector(world.tool_rotation() @ R0.T) / h
+        J_fd[3:, j] = rotation_vector_from_matrix(world.tool_rotation() @ R0.T) / h
     assert np.abs(J - J_fd).max() < 1e-5
     # The twist is J qd at the tool point: compare with the pose change over one small step.
     world.set_joint_positions(q0, qd=np.full(7, 0.1))
@@ -168,12 +163,12 @@ def test_mass_matrix_and_inverse_dynamics_agree(world):
 def test_inverse_kinematics_reaches_targets(world, position, tilt_deg):
     world.reset()
     q_before, _ = world.joint_state()
-    R = _rotation_about((1.0, 0.0, 0.0), math.radians(tilt_deg)) @ R_DOWN
+    R = matrix_from_axis_angle((1.0, 0.0, 0.0), math.radians(tilt_deg)) @ R_DOWN
     q = world.inverse_kinematics(position, quaternion_from_matrix(R), Q_HOME)
     assert np.allclose(world.joint_state()[0], q_before)  # the simulated state is restored
     p, quat = world.forward_kinematics(q)
     assert np.linalg.norm(p - np.asarray(position)) < 1e-4
-    assert np.linalg.norm(_rotation_vector(matrix_from_quaternion(quat) @ R.T)) < 1e-3
+    assert np.linalg.norm(rotation_vector_from_matrix(matrix_from_quaternion(quat) @ R.T)) < 1e-3
     assert np.all(q >= world.joint_lower) and np.all(q <= world.joint_upper)
 
 

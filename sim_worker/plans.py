@@ -1,0 +1,254 @@
+"""Phase plans: the per-step references of one execution phase, precomputed before the phase runs.
+
+A plan holds, for every 1 kHz control step of a phase, the reference pose and twist (world frame, m, m/s,
+quaternions ``[x, y, z, w]``, rad/s), the desired force along CF z (N) and the control frame(s) with their
+selection. :class:`PhasePlanner` builds them from the skill's segments and the tool pose at the moment the phase
+starts (see ``sim_worker.executor`` for the order of the phases; docs/CONVENTIONS.md for the frames).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas.execution import ControllerKind, ExecutionPhase, ExecutionSettings
+from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
+from skills.control import ControlFrame, ControlFrameSeries, HybridController
+from skills.dmp import DMP, QuaternionDMP
+from skills.quaternions import (
+    matrix_from_quaternion,
+    quaternion_from_matrix,
+    quaternions_sign_continuous,
+    quaternions_slerp,
+)
+
+MAX_CONTOUR_FRAMES = 2000
+"""Most control frames precomputed per contour segment (the series is indexed at a coarser stride)."""
+
+
+@dataclass
+class ContactGeometry:
+    """A contact segment's frames, shifted by the known offset: rotations (K, 3, 3), origins (K, 3), times (K,)."""
+
+    t: NDArray[np.float64]
+    rotations: NDArray[np.float64]
+    origins: NDArray[np.float64]
+    start_world: NDArray[np.float64]
+    """The taught contact start point (shifted), m."""
+
+    @property
+    def first_rotation(self) -> NDArray[np.float64]:
+        return self.rotations[0]
+
+    def rotations_at(self, fractions: NDArray[np.float64]) -> NDArray[np.float64]:
+        """CF rotations (M, 3, 3) at time fractions (0..1) of the segment, slerped."""
+        if self.t.size == 1:
+            return np.broadcast_to(self.rotations[0], (fractions.size, 3, 3))
+        quats = quaternions_sign_continuous(quaternion_from_matrix(self.rotations))
+        q = quaternions_slerp(fractions * self.t[-1], self.t, quats)
+        return matrix_from_quaternion(q)
+
+
+def contact_geometry(segment: Segment, offset: NDArray[np.float64]) -> ContactGeometry:
+    """The frames of a contact ``segment`` moved by ``offset`` (3,) m, world."""
+    frames = segment.compliant_frames
+    if frames is None:
+        raise ValueError(f"contact segment {segment.index} has no compliant frame")
+    quats = quaternions_sign_continuous(np.asarray(frames.orientations, dtype=float))
+    rotations = matrix_from_quaternion(quats).reshape(-1, 3, 3)
+    origins = np.asarray(frames.origins, dtype=float).reshape(-1, 3) + offset
+    start = np.asarray(segment.position_dmp.start, dtype=float)
+    in_cf = segment.position_dmp.frame == "cf"
+    start_world = origins[0] + rotations[0][:, :2] @ start[:2] if in_cf else start + offset
+    return ContactGeometry(np.asarray(frames.t, dtype=float), rotations, origins, start_world)
+
+
+@dataclass
+class PhasePlan:
+    """One phase's references, one row per control step."""
+
+    phase: ExecutionPhase
+    segment: int
+    ref_p: NDArray[np.float64]
+    ref_q: NDArray[np.float64]
+    ref_twist: NDArray[np.float64]
+    force: NDArray[np.float64]
+    frame: ControlFrame | None = None
+    series: ControlFrameSeries | None = None
+    stride: int = 1
+    stop_axis: NDArray[np.float64] | None = None
+    """Guarded: end the phase when the measured force along this axis exceeds the contact threshold."""
+    exhausted_reason: str | None = None
+    """Abort with this reason if the phase runs to its end (the guarded approach found nothing)."""
+
+    @property
+    def steps(self) -> int:
+        return int(self.ref_p.shape[0])
+
+
+def smooth_ramp(a: float, b: float, n: int) -> NDArray[np.float64]:
+    """``n`` values from a towards b along a smoothstep, the last equal to b."""
+    if n <= 0:
+        return np.zeros(0)
+    x = np.arange(1, n + 1) / n
+    s = x * x * (3.0 - 2.0 * x)
+    return a + (b - a) * s
+
+
+def first_force(segment: Segment) -> float:
+    """The desired CF-z force at the start of a contact segment, N (never negative)."""
+    if segment.force_constant_n is not None:
+        return max(0.0, float(segment.force_constant_n))
+    if segment.force_dmp is not None:
+        return max(0.0, float(segment.force_dmp.start[0]))
+    return 0.0
+
+
+class PhasePlanner:
+    """Builds the phase plans of one execution of ``skill`` (its contact frames moved by the known ``offset``)."""
+
+    def __init__(
+        self,
+        skill: Skill,
+        settings: ExecutionSettings,
+        controller: HybridController,
+        offset: NDArray[np.float64],
+        contact_threshold_n: float,
+        dt: float,
+    ) -> None:
+        self.settings = settings
+        self.controller = controller
+        self.kind = ControllerKind(settings.controller)
+        self.offset = offset
+        self.contact_threshold_n = contact_threshold_n
+        self.dt = dt
+        self.geometry = {s.index: contact_geometry(s, offset) for s in skill.segments if s.kind is SegmentKind.contact}
+        self.identity_frame = controller.frame(np.eye(3), SELECTION_FREE)
+
+    def free(
+        self, segment: Segment, p: NDArray, q: NDArray, goal: NDArray[np.float64], stop_axis: NDArray | None
+    ) -> PhasePlan:
+        """A free segment from the tool pose ``(p, q)`` to ``goal`` (m), guarded along ``stop_axis`` if given."""
+        pos = DMP.from_parameters(segment.position_dmp)
+        ori = QuaternionDMP.from_parameters(segment.orientation_dmp)
+        duration = segment.position_dmp.duration_s
+        rp = pos.rollout(self.dt, start=p, goal=goal, duration_s=duration)
+        rq = ori.rollout(self.dt, start=q, duration_s=duration)
+        n = min(len(rp.t), len(rq.t))
+        twist = np.hstack([rp.yd[:n], rq.omega[:n]])
+        return PhasePlan(
+            ExecutionPhase.free,
+            segment.index,
+            rp.y[:n],
+            rq.q[:n],
+            twist,
+            np.zeros(n),
+            frame=self.identity_frame,
+            stop_axis=stop_axis,
+        )
+
+    def approach(self, segment: Segment, p: NDArray, ref_q: NDArray[np.float64]) -> PhasePlan:
+        """The guarded approach from ``p`` along the segment's first CF z, at the approach speed."""
+        s = self.settings
+        geo = self.geometry[segment.index]
+        z = geo.first_rotation[:, 2]
+        n = math.ceil(s.approach_max_distance_m / s.approach_speed_m_s / self.dt) + 1
+        travel = np.arange(n) * self.dt * s.approach_speed_m_s
+        ref_p = p + travel[:, None] * z
+        twist = np.zeros((n, 6))
+        twist[:, :3] = s.approach_speed_m_s * z
+        frame = self.controller.frame(geo.first_rotation, SELECTION_FREE)
+        return PhasePlan(
+            ExecutionPhase.approach,
+            segment.index,
+            ref_p,
+            np.broadcast_to(ref_q, (n, 4)),
+            twist,
+            np.zeros(n),
+            frame=frame,
+            stop_axis=z,
+            exhausted_reason=(
+                f"contact not found: no contact force above {self.contact_threshold_n:.1f} N within "
+                f"{s.approach_max_distance_m:.3f} m of guarded approach along CF z (segment {segment.index})"
+            ),
+        )
+
+    def surface_reference(self, segment: Segment, p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The reference point for tool position ``p`` in a contact segment: where the surface was FOUND (hybrid
+        kinds) or where it was TAUGHT (``impedance``, which presses only through its reference)."""
+        if self.kind is not ControllerKind.impedance:
+            return p
+        geo = self.geometry[segment.index]
+        z = geo.first_rotation[:, 2]
+        return p - z * float((p - geo.start_world) @ z)
+
+    def hold(
+        self,
+        segment: Segment,
+        phase: ExecutionPhase,
+        p: NDArray,
+        f_from: float,
+        f_to: float,
+        duration: float,
+        ref_q: NDArray,
+        cf_rotation: NDArray[np.float64],
+    ) -> PhasePlan:
+        """Hold the place at ``p`` in the frame ``cf_rotation`` while the desired force ramps ``f_from`` -> ``f_to``."""
+        n = max(1, round(duration / self.dt))
+        ref = self.surface_reference(segment, p)
+        return PhasePlan(
+            phase,
+            segment.index,
+            np.broadcast_to(ref, (n, 3)),
+            np.broadcast_to(ref_q, (n, 4)),
+            np.zeros((n, 6)),
+            smooth_ramp(f_from, f_to, n),
+            frame=self.controller.frame(cf_rotation, segment.selection),
+        )
+
+    def contact(self, segment: Segment, p: NDArray, q: NDArray, f_previous: float | None) -> PhasePlan:
+        """A contact segment from the tool pose ``(p, q)``; ``f_previous`` (N) ramps in from the previous segment."""
+        geo = self.geometry[segment.index]
+        duration = segment.position_dmp.duration_s
+        pos = DMP.from_parameters(segment.position_dmp)
+        ori = QuaternionDMP.from_parameters(segment.orientation_dmp)
+        rq = ori.rollout(self.dt, start=q, duration_s=duration)
+        p_ref0 = self.surface_reference(segment, p)
+        if segment.position_dmp.frame == "cf":
+            R, o = geo.rotations[0], geo.origins[0]
+            xy0 = (p_ref0 - o) @ R[:, :2]
+            z0 = float((p_ref0 - o) @ R[:, 2])
+            rp = pos.rollout(self.dt, start=xy0, duration_s=duration)
+            n = min(len(rp.t), len(rq.t))
+            ref_p = o + rp.y[:n, :2] @ R[:, :2].T + z0 * R[:, 2]
+            v = rp.yd[:n, :2] @ R[:, :2].T
+        else:
+            goal = np.asarray(segment.position_dmp.goal, dtype=float) + self.offset
+            rp = pos.rollout(self.dt, start=p_ref0, goal=goal, duration_s=duration)
+            n = min(len(rp.t), len(rq.t))
+            ref_p, v = rp.y[:n], rp.yd[:n]
+        if segment.force_dmp is not None:
+            force = DMP.from_parameters(segment.force_dmp).rollout(self.dt, duration_s=duration).y[:, 0]
+            force = np.maximum(force[:n], 0.0)
+            if force.size < n:
+                force = np.concatenate([force, np.full(n - force.size, force[-1])])
+        else:
+            force = np.full(n, max(0.0, float(segment.force_constant_n or 0.0)))
+        if f_previous is not None:  # contact -> contact: ramp between the levels
+            k = min(n, round(self.settings.gains.force_ramp_s / self.dt))
+            if k > 0:
+                blend = smooth_ramp(0.0, 1.0, k)
+                force[:k] = f_previous + blend * (force[:k] - f_previous)
+        twist = np.hstack([v, rq.omega[:n]])
+        plan = PhasePlan(ExecutionPhase.contact, segment.index, ref_p, rq.q[:n], twist, force)
+        if geo.t.size == 1:
+            plan.frame = self.controller.frame(geo.rotations[0], segment.selection)
+        else:
+            stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
+            fractions = np.arange(0, n, stride) / max(n - 1, 1)
+            plan.series = self.controller.frames(geo.rotations_at(np.minimum(fractions, 1.0)), segment.selection)
+            plan.stride = stride
+        return plan

@@ -1,0 +1,133 @@
+"""An execution's recorded control steps: one float row per 1 kHz step, viewed by columns (world frame, SI units,
+quaternions ``[x, y, z, w]``; docs/CONVENTIONS.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas.execution import ExecutionPhase, TelemetryBatch, TelemetrySample
+
+TELEMETRY_COLUMNS: dict[str, slice] = {
+    "t": slice(0, 1),
+    "phase": slice(1, 2),
+    "segment_index": slice(2, 3),
+    "tool_position": slice(3, 6),
+    "tool_orientation": slice(6, 10),
+    "reference_position": slice(10, 13),
+    "reference_orientation": slice(13, 17),
+    "wrench_world": slice(17, 23),
+    "wrench_cf": slice(23, 29),
+    "desired_force_cf_z_n": slice(29, 30),
+    "in_contact": slice(30, 31),
+}
+"""Columns of one telemetry row: t (s), phase code (``PHASE_CODES``), segment (-1 settling), tool and
+reference pose (world, m, xyzw), measured wrench applied by the tool (world; CF axes), desired CF-z force
+(N), in contact (1/0, the simulator's contact points)."""
+TELEMETRY_WIDTH = 31
+_PHASES = list(ExecutionPhase)
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """Recorded control steps, one row each (``data`` (N, 31), columns :data:`TELEMETRY_COLUMNS`).
+
+    The properties are views: ``t`` (N,), ``phase_codes`` (N,), ``segment_index`` (N,),
+    ``tool_position`` (N, 3), ``tool_orientation`` (N, 4), ``reference_position``,
+    ``reference_orientation``, ``wrench_world`` (N, 6), ``wrench_cf`` (N, 6),
+    ``desired_force`` (N,), ``in_contact`` (N,) bool.
+    """
+
+    data: NDArray[np.float64]
+
+    def _col(self, name: str) -> NDArray[np.float64]:
+        return self.data[:, TELEMETRY_COLUMNS[name]]
+
+    def __len__(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def t(self) -> NDArray[np.float64]:
+        return self.data[:, 0]
+
+    @property
+    def phase_codes(self) -> NDArray[np.int_]:
+        return self.data[:, 1].astype(int)
+
+    @property
+    def phases(self) -> list[ExecutionPhase]:
+        return [_PHASES[c] for c in self.phase_codes]
+
+    @property
+    def segment_index(self) -> NDArray[np.int_]:
+        return self.data[:, 2].astype(int)
+
+    @property
+    def tool_position(self) -> NDArray[np.float64]:
+        return self._col("tool_position")
+
+    @property
+    def tool_orientation(self) -> NDArray[np.float64]:
+        return self._col("tool_orientation")
+
+    @property
+    def reference_position(self) -> NDArray[np.float64]:
+        return self._col("reference_position")
+
+    @property
+    def reference_orientation(self) -> NDArray[np.float64]:
+        return self._col("reference_orientation")
+
+    @property
+    def wrench_world(self) -> NDArray[np.float64]:
+        return self._col("wrench_world")
+
+    @property
+    def wrench_cf(self) -> NDArray[np.float64]:
+        return self._col("wrench_cf")
+
+    @property
+    def desired_force(self) -> NDArray[np.float64]:
+        return self.data[:, 29]
+
+    @property
+    def in_contact(self) -> NDArray[np.bool_]:
+        return self.data[:, 30] > 0.5
+
+    def to_batch(self, execution_id: str = "") -> TelemetryBatch:
+        """Return the rows as the columnar wire payload (``schemas.TelemetryBatch``)."""
+        return TelemetryBatch(
+            execution_id=execution_id,
+            t=self.t.tolist(),
+            phase=self.phases,
+            segment_index=self.segment_index.tolist(),
+            tool_position=self.tool_position.tolist(),
+            tool_orientation=self.tool_orientation.tolist(),
+            reference_position=self.reference_position.tolist(),
+            reference_orientation=self.reference_orientation.tolist(),
+            wrench_world=self.wrench_world.tolist(),
+            wrench_cf=self.wrench_cf.tolist(),
+            desired_force_cf_z_n=self.desired_force.tolist(),
+        )
+
+    def samples(self, every: int = 1) -> list[TelemetrySample]:
+        """Return every ``every``-th row as ``schemas.TelemetrySample`` (slow: for REST answers, not the loop)."""
+        rows = range(0, len(self), max(1, int(every)))
+        phases = self.phases
+        return [
+            TelemetrySample(
+                t=float(self.t[k]),
+                phase=phases[k],
+                segment_index=int(self.segment_index[k]),
+                tool_position=self.tool_position[k].tolist(),
+                tool_orientation=self.tool_orientation[k].tolist(),
+                reference_position=self.reference_position[k].tolist(),
+                reference_orientation=self.reference_orientation[k].tolist(),
+                wrench_world=self.wrench_world[k].tolist(),
+                wrench_cf=self.wrench_cf[k].tolist(),
+                desired_force_cf_z_n=float(self.desired_force[k]),
+            )
+            for k in rows
+        ]
