@@ -8,6 +8,7 @@ the skill) print one line per problem to stderr and exit with code 2, never a tr
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
@@ -291,58 +292,105 @@ def _add_simulate_parser(commands) -> None:
     )
     sim.add_argument("skill", type=Path, help="skill JSON (from `contact-skills learn` or POST /skills)")
     world = sim.add_mutually_exclusive_group()
-    world.add_argument("--scenario", help="teacher scenario whose world to build (default: from the skill's name)")
-    world.add_argument("--world", type=Path, help="WorldConfig JSON of the world the skill was taught in")
+    world.add_argument("--scenario", help="run in this teacher scenario's world instead of the skill's own")
+    world.add_argument("--world", type=Path,
+                       help="run in this world: a WorldConfig JSON or the file `record --truth` writes")  # fmt: skip
+    sim.add_argument("--work-piece", choices=["auto", "taught", "rebuilt"], default="auto",
+                     help="taught: the world a simulator recording carries; rebuilt: surfaces rebuilt from "
+                          "the skill (planes under slides, strips along contours); auto: taught if known")  # fmt: skip
+    sim.add_argument("--placement", type=float, nargs="+", metavar="V",
+                     help="where the skill and its rebuilt work piece go in the robot's world: X Y Z (m), "
+                          "X Y Z YAW_DEG, or X Y Z QX QY QZ QW (default: chosen to be in reach)")  # fmt: skip
     sim.add_argument("--offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                      help="KNOWN work piece shift, m (applied to the skill and the world)")  # fmt: skip
     sim.add_argument("--unknown-offset", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                      help="UNKNOWN work piece shift, m (applied to the world only)")  # fmt: skip
+    sim.add_argument("--friction", type=float, metavar="MU", help="tool-surface friction (default 0.2)")
+    sim.add_argument("--contact-stiffness", type=float, metavar="N_PER_M", help="contact stiffness (default 3e4)")
     sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "hybrid_world_z"], default="hybrid_cf")
     sim.add_argument("--pace", choices=["fast", "realtime"], default="fast")
     sim.add_argument("--demonstration", type=Path, help="demonstration JSON: the path the path error refers to")
     sim.add_argument("--figure", type=Path, help="force-tracking figure to write (PNG)")
+    sim.add_argument("--scene", type=Path, help="3-D figure of the work piece, learned and executed paths (PNG)")
     sim.add_argument("--json", type=Path, help="metrics JSON to write")
     sim.set_defaults(run=_run_simulate)
 
 
+def _placement_of(values: list[float] | None) -> dict | None:
+    """``--placement`` numbers as a ``Placement`` dict: X Y Z, X Y Z YAW_DEG or X Y Z QX QY QZ QW."""
+    if values is None:
+        return None
+    if len(values) == 3:
+        return {"translation_m": values}
+    if len(values) == 4:
+        half = math.radians(values[3]) / 2
+        return {"translation_m": values[:3], "rotation": [0.0, 0.0, math.sin(half), math.cos(half)]}
+    if len(values) == 7:
+        return {"translation_m": values[:3], "rotation": values[3:]}
+    raise UserError([f"placement: give 3, 4 or 7 numbers (X Y Z [YAW_DEG | QX QY QZ QW]), not {len(values)}"])
+
+
 def _run_simulate(args: argparse.Namespace) -> int:
-    """``contact-skills simulate``: run a skill in simulation, print the metrics (exit 1 if it aborted)."""
+    """``contact-skills simulate``: run a skill in simulation, print the metrics (exit 1 if it aborted).
+
+    Any skill runs with no other argument: a skill recorded in the simulator runs in the world it carries; any
+    other (a real recording) runs on a work piece rebuilt from what it learned, placed in the robot's reach.
+    """
     try:
         import json
 
         from schemas import Demonstration, ExecutionSettings, Skill
-        from sim_worker.executor import execute_skill, scenario_of_skill
-        from sim_worker.teacher import scenario_world_config
-        from sim_worker.world_config import WorldConfig
+        from sim_worker.execution_world import execution_world
+        from sim_worker.executor import run_skill
 
         skill = Skill.model_validate_json(args.skill.read_text())
-        if args.world is not None:
-            world_config = WorldConfig.from_dict(json.loads(args.world.read_text()))
-        else:
-            scenario = args.scenario or scenario_of_skill(skill)
-            if scenario is None:
-                raise UserError(["the skill does not name its teacher scenario: give --scenario NAME or --world FILE"])
-            try:
-                world_config = scenario_world_config(scenario)
-            except ValueError as exc:  # an unknown scenario name
-                raise UserError([str(exc)]) from exc
         demonstration = (
             Demonstration.model_validate_json(args.demonstration.read_text()) if args.demonstration else None
         )
         settings = ExecutionSettings(
             controller=args.controller,
-            environment={"offset": args.offset, "unknown_offset": args.unknown_offset},
+            environment={
+                "offset": args.offset,
+                "unknown_offset": args.unknown_offset,
+                "work_piece": args.work_piece,
+                "placement": _placement_of(args.placement),
+                "friction": args.friction,
+                "contact_stiffness_n_m": args.contact_stiffness,
+            },
             pace=args.pace,
         )
-        result = execute_skill(skill, world_config, settings, demonstration=demonstration)
+        world_file = json.loads(args.world.read_text()) if args.world is not None else None
+        try:
+            world = execution_world(
+                skill,
+                settings.environment,
+                scenario=args.scenario,
+                world=world_file,
+                demonstration=demonstration,
+                approach_clearance_m=settings.approach_clearance_m,
+            )
+        except ValueError as exc:  # unknown scenario or world field, a skill out of reach: the message says why
+            raise UserError([str(exc)]) from None
+        print(_world_line(world))
+        result = run_skill(world, settings)
     except Exception as exc:
         return _report_user_error("simulate", exc)
     m = result.metrics
     print(f"controller {m.controller.value}: {m.phase.value}" + (f" ({m.abort_reason})" if m.abort_reason else ""))
-    if m.force_rms_error_n is not None:
-        print(f"  CF-z force error over {m.steady_contact_s:.2f} s of steady contact: RMS {m.force_rms_error_n:.3f} N "
-              f"({m.force_rms_error_pct:.2f} %), max {m.force_max_error_n:.3f} N ({m.force_max_error_pct:.2f} %) "
+    if m.true_force_rms_error_n is not None:
+        print(f"  true normal force error over {m.steady_contact_s:.2f} s of steady contact: RMS "
+              f"{m.true_force_rms_error_n:.3f} N ({m.true_force_rms_error_pct:.2f} %), "
+              f"max {m.true_force_max_error_n:.3f} N ({m.true_force_max_error_pct:.2f} %) "
               f"of {m.force_reference_n:.2f} N")  # fmt: skip
+        print(f"  CF-z force error (the controller's view): RMS {m.force_rms_error_n:.3f} N "
+              f"({m.force_rms_error_pct:.2f} %), max {m.force_max_error_n:.3f} N "
+              f"({m.force_max_error_pct:.2f} %)")  # fmt: skip
+    if m.touchdown_peak_n is not None:
+        settle = f", settled within 5 % after {m.settle_time_s:.2f} s" if m.settle_time_s is not None else ""
+        print(f"  touch-down peak {m.touchdown_peak_n:.2f} N ({m.touchdown_peak_ratio or 0:.2f} x the target){settle}")
+    if m.cf_normal_angle_deg is not None:
+        print(f"  learned CF z vs true surface normal: mean {m.cf_normal_angle_deg:.2f} deg, "
+              f"max {m.cf_normal_angle_max_deg:.2f} deg")  # fmt: skip
     if m.path_rms_m is not None:
         print(f"  path RMS (CF x-y) {m.path_rms_m * 1e3:.2f} mm; contact ratio {m.contact_ratio * 100:.2f} %")
     for found in m.contact_found_offsets_m:
@@ -357,7 +405,24 @@ def _run_simulate(args: argparse.Namespace) -> int:
         args.figure.parent.mkdir(parents=True, exist_ok=True)
         write_execution_figure(result, args.figure)
         print(f"figure written to {args.figure}")
+    if args.scene is not None:
+        from services.figures import write_scene_figure
+
+        args.scene.parent.mkdir(parents=True, exist_ok=True)
+        pieces = [piece["vertices"] for piece in result.world_config.work_pieces]
+        write_scene_figure(world.skill, result.telemetry, pieces, args.scene, title=_world_line(world))
+        print(f"scene figure written to {args.scene}")
     return 0 if m.phase.value == "done" else 1
+
+
+def _world_line(world) -> str:
+    """One line: which world a skill runs in, and where it was placed."""
+    if world.placement is None:
+        return f"work piece: {world.source} world"
+    t = ", ".join(f"{v:+.3f}" for v in world.placement.translation_m)
+    q = ", ".join(f"{v:+.3f}" for v in world.placement.rotation)
+    return (f"work piece: rebuilt from the skill ({len(world.config.work_pieces)} parts); placement "
+            f"({world.placement_reason}): translation [{t}] m, rotation [{q}] (xyzw)")  # fmt: skip
 
 
 def _add_record_parser(commands) -> None:

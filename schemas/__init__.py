@@ -1,4 +1,4 @@
-"""The wire contract: pydantic models for REST bodies and Zenoh payloads (DESIGN.md "Interfaces")."""
+"""The wire contract: pydantic models for REST bodies and Zenoh payloads (docs/CONVENTIONS.md for frames and units)."""
 
 from schemas.bus import (
     ExecutionCommand,
@@ -29,8 +29,10 @@ from schemas.execution import (
     ExecutionSettings,
     NullSpaceProjection,
     Pace,
+    Placement,
     TelemetryBatch,
     TelemetrySample,
+    WorkPieceSource,
 )
 from schemas.skill import (
     AutoSelection,
@@ -67,6 +69,7 @@ __all__ = [
     "LearnOptions",
     "NullSpaceProjection",
     "Pace",
+    "Placement",
     "QuaternionOrder",
     "RecordReply",
     "RecordRequest",
@@ -81,6 +84,7 @@ __all__ = [
     "StartReply",
     "TelemetryBatch",
     "TelemetrySample",
+    "WorkPieceSource",
     "WorkerInfo",
     "WrenchConvention",
     "WrenchFrame",

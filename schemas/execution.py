@@ -1,6 +1,6 @@
 """Executing a learned skill: the request, the controller settings, telemetry and the measured result.
 
-Conventions (DESIGN.md): SI units; quaternions scalar-last ``[x, y, z, w]``; 6-vectors
+Conventions (docs/CONVENTIONS.md): SI units; quaternions scalar-last ``[x, y, z, w]``; 6-vectors
 ``[x, y, z, rx, ry, rz]``; wrenches are the wrench the TOOL APPLIES TO THE ENVIRONMENT at the
 tool point, in the world frame unless a field says CF. The compliant frame (CF) z axis points
 into the surface, so the desired normal force is a positive CF ``f_z``.
@@ -8,6 +8,7 @@ into the surface, so the desired normal force is a positive CF ``f_z``.
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -171,12 +172,73 @@ class ControllerGains(BaseModel):
     )
 
 
+class Placement(BaseModel):
+    """A rigid transform from the skill's frame (the recording's: another robot's base, a tracker's world) into
+    the simulated robot's world: ``x_world = R x_skill + translation_m``, ``R`` from ``rotation``."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"translation_m": [0.55, 0.0, 0.2], "rotation": [0.0, 0.0, 0.0, 1.0]}]},
+    )
+
+    translation_m: Vector3 = Field(description="Translation, m (world frame).")
+    rotation: Quaternion = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0, 1.0],
+        description="Rotation world-from-skill, unit quaternion [x, y, z, w] (normalized on use).",
+    )
+    tool_alignment: Quaternion = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0, 1.0],
+        description="A constant rotation of the tool frame, [x, y, z, w], right-multiplied onto every learned tool "
+        "orientation so that the simulated tool presses along its own axis as the recorded tool pressed along "
+        "its mean pressing direction (identity when the recording's tool frame already does).",
+    )
+
+    @model_validator(mode="after")
+    def _finite(self) -> Placement:
+        values = [*self.translation_m, *self.rotation, *self.tool_alignment]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("placement values must be finite")
+        if max(abs(v) for v in self.translation_m) > 100.0:
+            raise ValueError("placement translation_m beyond 100 m: give metres")
+        for q in (self.rotation, self.tool_alignment):
+            if math.fsum(v * v for v in q) < 1e-6:
+                raise ValueError("placement quaternions must be unit quaternions (a norm of ~0 was given)")
+        return self
+
+
+class WorkPieceSource(StrEnum):
+    """Which work piece an execution runs on."""
+
+    auto = "auto"
+    """The taught world when the skill carries one (a simulator recording), else the rebuilt work piece."""
+    taught = "taught"
+    """The world the demonstration was recorded in (the skill must carry it)."""
+    rebuilt = "rebuilt"
+    """Surfaces rebuilt from what the skill learned: a plane under each slide segment, a strip along each contour."""
+
+
 class EnvironmentChange(BaseModel):
-    """How the world differs from the one the skill was taught in."""
+    """Which world the skill runs in and how it differs from the one the skill was taught in."""
 
     model_config = ConfigDict(
         extra="forbid",
         json_schema_extra={"examples": [{"offset": [0.02, 0.0, 0.0], "unknown_offset": [0.0, 0.0, 0.03]}]},
+    )
+
+    work_piece: WorkPieceSource = Field(
+        WorkPieceSource.auto, description="Taught world or work piece rebuilt from the skill (auto: taught if known)."
+    )
+    placement: Placement | None = Field(
+        None,
+        description="Where the skill (and its rebuilt work piece) goes in the robot's world; default: none for a "
+        "taught world or a skill already in reach, else one chosen to put the path in the arm's comfortable reach "
+        "(reported in the metrics).",
+    )
+    friction: float | None = Field(
+        None, ge=0.0, le=2.0, description="Tool-surface friction coefficient (default: the world's, 0.2)."
+    )
+    contact_stiffness_n_m: float | None = Field(
+        None, ge=1e2, le=1e7, description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4)."
     )
 
     offset: Vector3 = Field(
@@ -373,3 +435,36 @@ class ExecutionMetrics(BaseModel):
     )
     steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
     abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")
+    work_piece: str | None = Field(
+        None, description="What the skill ran on: 'taught', 'scenario', 'given' (a world file) or 'rebuilt'."
+    )
+    placement: Placement | None = Field(None, description="The placement applied to the skill and work piece.")
+    true_force_rms_error_n: float | None = Field(
+        None,
+        description="RMS of (force along the TRUE surface normal at the contact - desired) over the steady contact "
+        "phase, N: the simulator's exact contact force, whatever the learned CF or the sensor say.",
+    )
+    true_force_rms_error_pct: float | None = Field(None, description="The same in % of the reference force.")
+    true_force_max_error_n: float | None = Field(
+        None, description="Largest |true normal force - desired| over the steady contact phase, N."
+    )
+    true_force_max_error_pct: float | None = Field(None, description="The same in % of the reference force.")
+    touchdown_peak_n: float | None = Field(
+        None,
+        description="Largest true normal force from each first touch until the contact phase is steady, N "
+        "(the impact of the guarded approach and the force ramp).",
+    )
+    touchdown_peak_ratio: float | None = Field(
+        None, description="The touch-down peak over the first desired force of its contact segment (1 = no overshoot)."
+    )
+    settle_time_s: float | None = Field(
+        None,
+        description="Longest time from a first touch until the true normal force stays within 5 % of the desired "
+        "force (of the reference), s.",
+    )
+    cf_normal_angle_deg: float | None = Field(
+        None, description="Mean angle between the learned CF z and the true surface normal over the contact phase, deg."
+    )
+    cf_normal_angle_max_deg: float | None = Field(
+        None, description="Largest angle between the learned CF z and the true surface normal in contact, deg."
+    )

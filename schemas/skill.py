@@ -9,7 +9,7 @@ points along the force the tool applies (into the surface). Selection diagonals 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -195,6 +195,12 @@ class Skill(BaseModel):
     auto_selection: AutoSelection | None = Field(None, description="Present when skill_type 'auto' was asked for.")
     demonstration: DemonstrationSummary
     sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
+    taught_world: dict[str, Any] | None = Field(
+        None,
+        description="The simulated world the demonstration was recorded in (simulator recordings carry it as "
+        "metadata.extra['world']); executions run in it. None for real recordings: executions rebuild the work "
+        "piece from the skill.",
+    )
 
 
 class LearnOptions(BaseModel):

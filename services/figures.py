@@ -462,3 +462,77 @@ def write_trials_force_figure(
             handles.setdefault(name, handle)
     figure.legend(list(handles.values()), list(handles), loc="outside lower center", ncols=6, fontsize=8)
     figure.savefig(os.fspath(path), dpi=110)
+
+
+def write_scene_figure(
+    skill: Skill,
+    telemetry,
+    work_pieces: list,
+    path: str | os.PathLike[str],
+    title: str = "",
+    view: tuple[float, float] = (28.0, -60.0),
+) -> None:
+    """Write the 3-D scene of an execution: the work piece, the learned and the executed paths, the CFs.
+
+    ``telemetry`` is a ``sim_worker.telemetry.Telemetry`` (its ``tool_position`` and phases are read);
+    ``work_pieces`` the vertex arrays (K, 3) of the rebuilt work piece's convex parts (world frame, m; empty for a
+    taught world). The learned path is each contact segment's DMP rolled out from its demonstrated start (black);
+    the executed contact phase in blue. Compliant frames (x red, y green, z blue: into the surface) are drawn on the
+    learned path, a slide's frame once at its middle, a contour's at 7 times, with arrows sized to the scene.
+    Axes are to scale (equal metres on x, y, z).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from scipy.spatial import ConvexHull
+
+    from skills.placement import segment_positions
+
+    figure = Figure(figsize=(10, 7.5), layout="constrained")
+    FigureCanvasAgg(figure)
+    ax = figure.add_subplot(projection="3d")
+    points = []
+    for vertices in work_pieces:
+        v = np.asarray(vertices, dtype=float)
+        hull = ConvexHull(v)
+        ax.add_collection3d(Poly3DCollection(v[hull.simplices], facecolor=(0.85, 0.65, 0.35, 0.25),
+                                             edgecolor=(0.6, 0.4, 0.2, 0.15), lw=0.2))  # fmt: skip
+        points.append(v)
+    learned = []
+    for segment in skill.segments:
+        if segment.kind == SegmentKind.contact and segment.compliant_frames is not None:
+            p = segment_positions(segment, 0.01)
+            learned.append((segment, p))
+            ax.plot(*p.T, color="black", lw=2.0)
+            points.append(p)
+    contact = np.array([ph.value == "contact" for ph in telemetry.phases], dtype=bool)
+    executed = telemetry.tool_position
+    moving = np.array([ph.value in ("free", "approach", "contact", "retreat") for ph in telemetry.phases])
+    ax.plot(*np.where((moving & ~contact)[:, None], executed, np.nan).T, color="tab:blue", lw=0.6, alpha=0.6)
+    ax.plot(*np.where(contact[:, None], executed, np.nan).T, color="tab:blue", lw=1.4)
+    points.append(executed[moving])
+    everything = np.concatenate([p for p in points if p.size])
+    low, high = everything.min(axis=0), everything.max(axis=0)
+    extent = float(max(np.max(high - low), 1e-3))
+    for segment, p in learned:
+        times = np.linspace(0.0, 1.0, p.shape[0])
+        origins, rotations = _frames_along(p, times, segment, 7)
+        _draw_frames(ax, origins, rotations, 0.12 * extent if origins.shape[0] == 1 else 0.06 * extent)
+    centre = 0.5 * (low + high)
+    half = 0.55 * extent
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1.0, 1.0, 1.0))
+    for axis, name in ((ax.xaxis, "x"), (ax.yaxis, "y"), (ax.zaxis, "z")):
+        axis.set_label_text(f"{name} (m)")
+    ax.view_init(elev=view[0], azim=view[1])
+    handles = [Line2D([], [], color="black", lw=2.0, label="learned contact path"),
+               Line2D([], [], color="tab:blue", lw=1.4, label="executed (contact)")]  # fmt: skip
+    if work_pieces:
+        handles.append(Line2D([], [], color=(0.85, 0.65, 0.35), lw=6, alpha=0.5, label="rebuilt work piece"))
+    handles += [Line2D([], [], color=c, lw=1.5, label=f"CF {n}") for c, n in zip(_AXIS_COLORS, "xyz", strict=True)]
+    ax.legend(handles=handles, loc="upper left", fontsize=8)
+    ax.set_title(title, fontsize=9, wrap=True)
+    figure.savefig(os.fspath(path), dpi=110)

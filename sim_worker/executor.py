@@ -51,9 +51,9 @@ from schemas.execution import (
     Pace,
 )
 from schemas.skill import Segment, SegmentKind, Skill
+from sim_worker.execution_world import ExecutionWorld
 from sim_worker.metrics import compute_metrics, reference_force
 from sim_worker.plans import PhasePlan, PhasePlanner, first_force
-from sim_worker.teacher import scenario_of_name
 from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
@@ -105,12 +105,16 @@ class ExecutionResult:
 def shifted_world_config(config: WorldConfig, offset: list[float] | NDArray[np.float64]) -> WorldConfig:
     """Return ``config`` with its work piece moved by ``offset`` [dx, dy, dz] (m, world).
 
-    The work piece is the contour object(s) (cylinder, curved block) when the world has any, else the
-    table (with its ramp): the table centre and height move, so the table top plane moves by ``offset``.
+    The work piece is the rebuilt one (``work_pieces``) when the world has one, else the contour object(s)
+    (cylinder, curved block) when it has any, else the table (with its ramp): the table centre and height move,
+    so the table top plane moves by ``offset``.
     """
     d = np.asarray(offset, dtype=float)
     if not np.any(d):
         return config
+    if config.work_pieces:
+        moved = [{**piece, "vertices": (np.asarray(piece["vertices"]) + d).tolist()} for piece in config.work_pieces]
+        return config.replace(work_pieces=moved)
     if config.cylinder_enabled or config.block_enabled:
         changes = {}
         if config.cylinder_enabled:
@@ -120,11 +124,6 @@ def shifted_world_config(config: WorldConfig, offset: list[float] | NDArray[np.f
         return config.replace(**changes)
     cx, cy = config.table_center_xy
     return config.replace(table_center_xy=(cx + d[0], cy + d[1]), table_height_m=config.table_height_m + d[2])
-
-
-def scenario_of_skill(skill: Skill) -> str | None:
-    """The teacher scenario a skill was learned in, read from its demonstration's name, or None."""
-    return scenario_of_name(skill.demonstration.name)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -202,7 +201,7 @@ class _Execution:
         arithmetic, written into the row array in one assignment.
         """
         world = self.world
-        sense, dynamics, step = world.sense, world.dynamics, world.step
+        sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_force
         compute = self.controller.compute
         perf = time.perf_counter
         dt = self.dt
@@ -269,6 +268,7 @@ class _Execution:
                 )
                 t3 = perf()
                 # Record the step (state measured before it, reference and desired force of it).
+                fn_true, n_true = true_normal()
                 if self.n >= self.capacity:
                     self._grow()
                 self.rows[self.n] = [
@@ -283,6 +283,8 @@ class _Execution:
                     *w_cf,
                     f_des,
                     1.0 if touching else 0.0,
+                    fn_true,
+                    *n_true,
                 ]
                 self.n += 1
                 if self.n - self.emitted >= batch:
@@ -437,7 +439,7 @@ def execute_skill(
     should_pause: Callable[[], bool] | None = None,
     demonstration: Demonstration | None = None,
 ) -> ExecutionResult:
-    """Execute ``skill`` in ``world_config`` (the world it was taught in) and return metrics and telemetry.
+    """Execute ``skill`` in ``world_config`` and return metrics and telemetry (:func:`run_skill` chooses the world).
 
     ``settings`` (an ``ExecutionSettings`` or an ``ExecutionRequest``) gives the environment change,
     controller kind, gains, guarded approach and pace. ``on_sample(telemetry)`` gets every recorded step,
@@ -489,3 +491,26 @@ def execute_skill(
         loop_wall_s=loop_wall_s,
         timings_us=timings,
     )
+
+
+def run_skill(
+    world: ExecutionWorld,
+    settings: ExecutionSettings | None = None,
+    *,
+    on_sample: Callable[[Telemetry], None] | None = None,
+    should_abort: Callable[[], bool] | None = None,
+    should_pause: Callable[[], bool] | None = None,
+) -> ExecutionResult:
+    """Execute a resolved :class:`ExecutionWorld` (``sim_worker.execution_world.execution_world``): its placed skill
+    in its world, the metrics saying which work piece and placement it ran on (else as :func:`execute_skill`)."""
+    result = execute_skill(
+        world.skill,
+        world.config,
+        settings,
+        on_sample=on_sample,
+        should_abort=should_abort,
+        should_pause=should_pause,
+        demonstration=world.demonstration,
+    )
+    result.metrics = result.metrics.model_copy(update={"work_piece": world.source, "placement": world.placement})
+    return result

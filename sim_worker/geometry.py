@@ -224,6 +224,28 @@ class CurvedBlockSolid(Solid):
 
 
 @dataclass
+class ConvexSolid(Solid):
+    """The convex hull of ``vertices`` (K, 3) (world frame; ``R``, ``p`` the identity): a rebuilt work piece part.
+
+    Its faces are the half-spaces ``n·x + d <= 0`` of the hull; the signed distance is the largest ``n·x + d``:
+    exact inside and over each face, a lower bound beyond the edges and corners (the contact happens over a
+    face).
+    """
+
+    vertices: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def __post_init__(self) -> None:
+        from scipy.spatial import ConvexHull
+
+        self.equations = ConvexHull(self.vertices).equations  # (F, 4): unit outward normal, offset
+
+    def _sdf_local(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        heights = x @ self.equations[:, :3].T + self.equations[:, 3]
+        face = np.argmax(heights, axis=1)
+        return heights[np.arange(x.shape[0]), face], self.equations[face, :3]
+
+
+@dataclass
 class SurfaceQuery:
     """The nearest surface to points: distance (N,), outward normal (N, 3), solid name per point."""
 
@@ -233,7 +255,7 @@ class SurfaceQuery:
 
 
 class WorldGeometry:
-    """Exact shapes of a ``WorldConfig`` (no PyBullet): the table, ramp, cylinder and block as convex solids."""
+    """Exact shapes of a ``WorldConfig`` (no PyBullet): table, ramp, cylinder, block and work pieces as solids."""
 
     def __init__(self, config: WorldConfig):
         c = config
@@ -242,9 +264,10 @@ class WorldGeometry:
         self.table_origin = np.array([c.table_center_xy[0], c.table_center_xy[1], c.table_height_m])
         self.solids: dict[str, Solid] = {}
         half = np.array([0.5 * c.table_size_xy[0], 0.5 * c.table_size_xy[1], 0.5 * c.table_thickness_m])
-        self.solids["table"] = BoxSolid(
-            "table", self.table_R, self.table_origin - self.table_R @ np.array([0.0, 0.0, half[2]]), half
-        )
+        if c.table_enabled:
+            self.solids["table"] = BoxSolid(
+                "table", self.table_R, self.table_origin - self.table_R @ np.array([0.0, 0.0, half[2]]), half
+            )
         if c.ramp_enabled:
             buried = 0.05
             R = self.table_R @ matrix_from_axis_angle((0.0, 1.0, 0.0), -math.radians(c.ramp_tilt_deg))
@@ -274,6 +297,9 @@ class WorldGeometry:
                 base=c.block_base_height_m,
                 width=c.block_width_m,
             )
+        for k, piece in enumerate(c.work_pieces):
+            name = str(piece.get("name", f"work_piece_{k}"))
+            self.solids[name] = ConvexSolid(name, np.eye(3), np.zeros(3), np.asarray(piece["vertices"], dtype=float))
 
     @property
     def table_normal(self) -> NDArray[np.float64]:

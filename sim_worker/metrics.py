@@ -15,6 +15,10 @@ from skills.dmp import DMP
 
 STEADY_CONTACT_DELAY_S = 0.2
 """The steady contact phase starts this long after contact (and after each force ramp), s."""
+SETTLED_BAND = 0.05
+"""Settled: the true normal force within this fraction of the reference force of the desired one ..."""
+SETTLED_HOLD_S = 0.1
+"""... for at least this long, s."""
 
 
 def reference_force(skill: Skill, dt: float = 1e-3) -> float:
@@ -96,6 +100,71 @@ def _path_rms(
     return float(np.sqrt(np.mean(np.concatenate(squared))))
 
 
+def _errors(error: NDArray[np.float64], reference: float, prefix: str) -> dict[str, float]:
+    """RMS and largest absolute ``error`` (N), also in % of ``reference`` (N), as metric fields."""
+    rms = float(np.sqrt(np.mean(error**2)))
+    worst = float(np.max(np.abs(error)))
+    fields = {f"{prefix}_rms_error_n": rms, f"{prefix}_max_error_n": worst}
+    if reference > 0:
+        fields[f"{prefix}_rms_error_pct"] = 100.0 * rms / reference
+        fields[f"{prefix}_max_error_pct"] = 100.0 * worst / reference
+    return fields
+
+
+def _learned_cf_z(skill: Skill, tel: Telemetry, contact: NDArray[np.bool_], offset: NDArray) -> NDArray[np.float64]:
+    """The learned CF z the controller used at each contact-phase row (N, 3); NaN elsewhere. Contour frames by the
+    row's time fraction of its segment, as the executor indexes them."""
+    z = np.full((len(tel), 3), np.nan)
+    segments = {s.index: s for s in skill.segments}
+    for index in np.unique(tel.segment_index[contact]):
+        rows = np.flatnonzero(contact & (tel.segment_index == index))
+        geo = contact_geometry(segments[int(index)], offset)
+        fractions = np.arange(rows.size) / max(rows.size - 1, 1)
+        z[rows] = geo.rotations_at(fractions)[:, :, 2]
+    return z
+
+
+def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt: float) -> dict[str, float]:
+    """Touch-down peak (N, and over the first desired force) and the longest settle time (s) over the contact runs.
+
+    A run starts at the first row in contact after a free stretch and ends where its steady contact starts; its
+    settle time is from the first touch until the true normal force stays within ``SETTLED_BAND`` of the reference
+    of the desired force for ``SETTLED_HOLD_S``."""
+    touching = tel.normal_force_true > 0.0
+    approach_or_contact = np.isin(
+        tel.phase_codes, [PHASE_CODES[ExecutionPhase.approach], PHASE_CODES[ExecutionPhase.contact]]
+    )
+    starts = np.flatnonzero(touching & approach_or_contact & ~np.r_[False, touching[:-1]])
+    steady_starts = np.flatnonzero(steady & ~np.r_[False, steady[:-1]])
+    error = np.abs(tel.normal_force_true - tel.desired_force)
+    hold = max(1, round(SETTLED_HOLD_S / dt))
+    peaks, ratios, settles = [], [], []
+    for begin in starts:
+        later = steady_starts[steady_starts > begin]
+        if later.size == 0:
+            continue
+        end = int(later[0])
+        if np.any(~touching[begin:end] & ~approach_or_contact[begin:end]):
+            continue  # lifted off in between: not one touch-down
+        peak = float(tel.normal_force_true[begin:end].max())
+        peaks.append(peak)
+        target = float(tel.desired_force[end])
+        if target > 0:
+            ratios.append(peak / target)
+        outside = error[begin:] > SETTLED_BAND * max(reference, 1e-9)
+        settled_for = np.convolve(~outside, np.ones(hold), mode="valid") >= hold  # the next `hold` rows are inside
+        if settled_for.any():
+            settles.append(float(np.argmax(settled_for)) * dt)
+    result: dict[str, float] = {}
+    if peaks:
+        result["touchdown_peak_n"] = max(peaks)
+    if ratios:
+        result["touchdown_peak_ratio"] = max(ratios)
+    if settles:
+        result["settle_time_s"] = max(settles)
+    return result
+
+
 def compute_metrics(
     skill: Skill,
     tel: Telemetry,
@@ -111,18 +180,22 @@ def compute_metrics(
     reference = reference_force(skill, dt)
     contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
     steady = _steady_mask(tel, settings.gains.force_ramp_s)
-    f_meas = tel.wrench_cf[:, 2]
+    offset = np.asarray(settings.environment.offset, float)
     metrics: dict = {}
     if steady.any():
-        err = f_meas[steady] - tel.desired_force[steady]
-        rms = float(np.sqrt(np.mean(err**2)))
-        worst = float(np.max(np.abs(err)))
-        metrics.update(force_rms_error_n=rms, force_max_error_n=worst)
-        if reference > 0:
-            metrics.update(force_rms_error_pct=100.0 * rms / reference, force_max_error_pct=100.0 * worst / reference)
+        desired = tel.desired_force[steady]
+        metrics |= _errors(tel.wrench_cf[steady, 2] - desired, reference, "force")
+        metrics |= _errors(tel.normal_force_true[steady] - desired, reference, "true_force")
     if contact.any():
         metrics["contact_ratio"] = float(np.mean(tel.in_contact[contact]))
-        metrics["path_rms_m"] = _path_rms(skill, tel, np.asarray(settings.environment.offset, float), demonstration, dt)
+        metrics["path_rms_m"] = _path_rms(skill, tel, offset, demonstration, dt)
+        touching = contact & (tel.normal_force_true > 0.0)
+        if touching.any():
+            cf_z = _learned_cf_z(skill, tel, contact, offset)[touching]
+            cosine = np.clip(np.sum(cf_z * tel.contact_normal[touching], axis=1), -1.0, 1.0)
+            angles = np.degrees(np.arccos(cosine))
+            metrics |= {"cf_normal_angle_deg": float(angles.mean()), "cf_normal_angle_max_deg": float(angles.max())}
+    metrics |= _touchdowns(tel, steady, reference, dt)
     duration = float(len(tel) * dt)
     forces = np.linalg.norm(tel.wrench_world[:, :3], axis=1) if len(tel) else np.zeros(1)
     return ExecutionMetrics(

@@ -603,7 +603,13 @@ def _record(
     metadata = DemonstrationMetadata(
         name=f"{scenario} (seed {seed})",
         source=f"teacher:{scenario}",
-        extra={"scenario": scenario, "seed": seed, "skill_type": spec.kind, "target_force_n": F},
+        extra={
+            "scenario": scenario,
+            "seed": seed,
+            "skill_type": spec.kind,
+            "target_force_n": F,
+            "world": world.config.to_dict(),
+        },
     )
     demonstration = Demonstration.from_arrays(t, positions, quats, wrenches, metadata)
     return TeacherRecording(

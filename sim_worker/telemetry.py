@@ -22,22 +22,25 @@ TELEMETRY_COLUMNS: dict[str, slice] = {
     "wrench_cf": slice(23, 29),
     "desired_force_cf_z_n": slice(29, 30),
     "in_contact": slice(30, 31),
+    "normal_force_true_n": slice(31, 32),
+    "contact_normal": slice(32, 35),
 }
 """Columns of one telemetry row: t (s), phase code (``PHASE_CODES``), segment (-1 settling), tool and
 reference pose (world, m, xyzw), measured wrench applied by the tool (world; CF axes), desired CF-z force
-(N), in contact (1/0, the simulator's contact points)."""
-TELEMETRY_WIDTH = 31
+(N), in contact (1/0, the simulator's contact points), the exact force along the true surface normal (N) and
+that normal (into the surface; zeros without contact), from the simulator's contact points, not the sensor."""
+TELEMETRY_WIDTH = 35
 _PHASES = list(ExecutionPhase)
 
 
 @dataclass(frozen=True)
 class Telemetry:
-    """Recorded control steps, one row each (``data`` (N, 31), columns :data:`TELEMETRY_COLUMNS`).
+    """Recorded control steps, one row each (``data`` (N, 35), columns :data:`TELEMETRY_COLUMNS`).
 
     The properties are views: ``t`` (N,), ``phase_codes`` (N,), ``segment_index`` (N,),
     ``tool_position`` (N, 3), ``tool_orientation`` (N, 4), ``reference_position``,
     ``reference_orientation``, ``wrench_world`` (N, 6), ``wrench_cf`` (N, 6),
-    ``desired_force`` (N,), ``in_contact`` (N,) bool.
+    ``desired_force`` (N,), ``in_contact`` (N,) bool, ``normal_force_true`` (N,), ``contact_normal`` (N, 3).
     """
 
     data: NDArray[np.float64]
@@ -95,6 +98,14 @@ class Telemetry:
     @property
     def in_contact(self) -> NDArray[np.bool_]:
         return self.data[:, 30] > 0.5
+
+    @property
+    def normal_force_true(self) -> NDArray[np.float64]:
+        return self.data[:, 31]
+
+    @property
+    def contact_normal(self) -> NDArray[np.float64]:
+        return self._col("contact_normal")
 
     def to_batch(self, execution_id: str = "") -> TelemetryBatch:
         """Return the rows as the columnar wire payload (``schemas.TelemetryBatch``)."""

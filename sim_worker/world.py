@@ -55,7 +55,7 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
-from sim_worker.geometry import BoxSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
+from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME, TOOL_LINK, robot_urdf
 from sim_worker.sensor import WrenchSensor
 from sim_worker.world_config import WorldConfig
@@ -110,6 +110,18 @@ class Dynamics(NamedTuple):
 def _quat_from_matrix(R: NDArray[np.float64]) -> list[float]:
     """Scalar-last quaternion of a rotation matrix, as a list for PyBullet."""
     return quaternion_from_matrix(R).tolist()
+
+
+def _hull_indices(vertices: NDArray[np.float64]) -> list[int]:
+    """Triangle indices of the convex hull of ``vertices`` (K, 3), wound counter-clockwise seen from outside."""
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(vertices)
+    triangles = hull.simplices.copy()
+    a, b, c = (vertices[triangles[:, i]] for i in range(3))
+    inward = np.einsum("ij,ij->i", np.cross(b - a, c - a), hull.equations[:, :3]) < 0
+    triangles[inward] = triangles[inward][:, ::-1]
+    return triangles.ravel().tolist()
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -215,6 +227,17 @@ class SimWorld:
                     pybullet.GEOM_BOX,
                     halfExtents=solid.half.tolist(),
                     rgbaColor=[0.6, 0.5, 0.4, 1],
+                    physicsClientId=cid,
+                )
+                self._static_body(name, shape, visual, solid.R, solid.p)
+            elif isinstance(solid, ConvexSolid):
+                vertices = solid.vertices.tolist()
+                shape = pybullet.createCollisionShape(pybullet.GEOM_MESH, vertices=vertices, physicsClientId=cid)
+                visual = pybullet.createVisualShape(
+                    pybullet.GEOM_MESH,
+                    vertices=vertices,
+                    indices=_hull_indices(solid.vertices),
+                    rgbaColor=[0.8, 0.6, 0.3, 1],
                     physicsClientId=cid,
                 )
                 self._static_body(name, shape, visual, solid.R, solid.p)
@@ -520,17 +543,18 @@ class SimWorld:
         """
         return self._contact_summary()[0].copy()
 
-    def _contact_summary(self) -> tuple[NDArray[np.float64], bool]:
-        """The exact applied wrench (see :meth:`true_contact_wrench`) and the contact flag, in one pass over the
-        contact points (cached until the next step)."""
+    def _contact_summary(self) -> tuple[NDArray[np.float64], bool, float, tuple[float, float, float]]:
+        """The exact applied wrench (see :meth:`true_contact_wrench`), the contact flag, and the normal force with its
+        direction (see :meth:`true_normal_force`), in one pass over the contact points (cached until the next step)."""
         cached = self._cache.get("contact")
         if cached is None:
             points = self._contact_points()
             if not points:
-                cached = (np.zeros(6), False)
+                cached = (np.zeros(6), False, 0.0, (0.0, 0.0, 0.0))
             else:
                 px, py, pz = self._pose_raw()[0].tolist()
                 fx = fy = fz = mx = my = mz = 0.0
+                fn_sum = nx = ny = nz = 0.0
                 touching = False
                 for c in points:  # plain floats: ~1 µs per contact point instead of ~10 with numpy
                     fn, f1, f2 = c[9], c[10], c[12]
@@ -546,9 +570,26 @@ class SimWorld:
                     mx += ry * az - rz * ay
                     my += rz * ax - rx * az
                     mz += rx * ay - ry * ax
-                cached = (np.array([fx, fy, fz, mx, my, mz]), touching)
+                    fn_sum += fn
+                    nx -= fn * n[0]
+                    ny -= fn * n[1]
+                    nz -= fn * n[2]
+                norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+                direction = (nx / norm, ny / norm, nz / norm) if norm > 0.0 else (0.0, 0.0, 0.0)
+                cached = (np.array([fx, fy, fz, mx, my, mz]), touching, fn_sum, direction)
             self._cache["contact"] = cached
         return cached
+
+    def true_normal_force(self) -> tuple[float, tuple[float, float, float]]:
+        """The exact force (N) the tool presses with along the TRUE surface normal, and that normal (unit, into the
+        surface, world frame; zeros without contact).
+
+        The sum of the contact points' normal forces, each along its contact normal (the collision geometry's own
+        surface normal), so it holds whatever the learned frame or the sensor say; the direction is the
+        force-weighted mean of the contact normals (one surface: its normal).
+        """
+        _, _, force, direction = self._contact_summary()
+        return force, direction
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The tool's applied contact force split into its normal part and its friction part (3,) each, world frame.

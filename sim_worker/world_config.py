@@ -24,11 +24,16 @@ class WorldConfig:
     curved block lie on the table top at table-frame ``(x, y)`` positions, turned by a yaw about the table
     normal; their ``*_offset_m`` shifts them (world frame) away from lying on the table, e.g. to move a
     contour object for execution.
+
+    ``work_pieces`` are further static convex solids, each ``{"name": str, "vertices": [[x, y, z], ...]}`` (the
+    convex hull of the vertices, world frame, m): the work piece rebuilt from a skill (``sim_worker.work_piece``),
+    usually with ``table_enabled`` false.
     """
 
     time_step_s: float = 1e-3
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     # Table: a box, top surface through (center, height).
+    table_enabled: bool = True
     table_height_m: float = 0.10
     table_center_xy: tuple[float, float] = (0.60, 0.0)
     table_size_xy: tuple[float, float] = (0.60, 0.80)
@@ -59,6 +64,8 @@ class WorldConfig:
     block_yaw_deg: float = 0.0
     block_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     block_mesh_segments: int = 180
+    # Work pieces: convex solids given by their vertices (rebuilt from a skill).
+    work_pieces: tuple[dict[str, Any], ...] = ()
     # Contact model and tool.
     contact_stiffness: float = 3.0e4
     contact_damping: float = 300.0

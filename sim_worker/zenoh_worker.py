@@ -110,24 +110,22 @@ def default_worker_id() -> str:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def world_config_for(scenario: str | None, skill: Skill, overrides: dict[str, Any] | None = None):
-    """The ``WorldConfig`` to execute in: the scenario's world (taught world) plus ``overrides``.
+def world_for(start: StartExecution):
+    """Where ``start``'s skill runs (``sim_worker.execution_world``): its world and its placed skill.
 
-    ``scenario`` None: the one named by the skill's demonstration, else the default world (flat table).
-    Raises ValueError for an unknown scenario or override.
+    Raises ValueError (an unknown scenario or world field, a skill out of reach) with the message to reply.
     """
-    from sim_worker.executor import scenario_of_skill
-    from sim_worker.teacher import scenario_world_config
-    from sim_worker.world_config import WorldConfig
+    from sim_worker.execution_world import execution_world
 
-    name = scenario or scenario_of_skill(skill)
-    config = WorldConfig() if name is None else scenario_world_config(name)
-    if overrides:
-        try:
-            config = config.replace(**overrides)
-        except TypeError as exc:
-            raise ValueError(f"world_overrides: {exc}") from exc
-    return config
+    request = start.request
+    return execution_world(
+        request.skill,  # type: ignore[arg-type]  (inline, checked by StartExecution)
+        request.environment,
+        scenario=request.scenario,
+        overrides=start.world_overrides,
+        demonstration=start.demonstration,
+        approach_clearance_m=request.approach_clearance_m,
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -138,14 +136,15 @@ def world_config_for(scenario: str | None, skill: Skill, overrides: dict[str, An
 class _Run:
     """State of one execution, shared by its thread, the command callback and the publisher."""
 
-    def __init__(self, worker: Worker, start: StartExecution, world_config) -> None:
+    def __init__(self, worker: Worker, start: StartExecution, world) -> None:
         self.worker = worker
         self.execution_id = start.execution_id
         self.start = start
         self.request = start.request
-        self.skill: Skill = start.request.skill  # type: ignore[assignment]  (checked by StartExecution)
-        self.world_config = world_config
-        self.dt = float(world_config.time_step_s)
+        self.world = world
+        """The resolved ``ExecutionWorld``: world config, placed skill and demonstration."""
+        self.skill: Skill = world.skill
+        self.dt = float(world.config.time_step_s)
         self.abort_requested = False
         self.abort_received_t: float | None = None
         self.abort_reason: str | None = None
@@ -226,19 +225,17 @@ class _Run:
 
     def run(self) -> None:
         """The execution thread: run the skill, publish the final status, free the worker."""
-        from sim_worker.executor import execute_skill
+        from sim_worker.executor import run_skill
 
         final: dict[str, Any]
         try:
             self.status(message="accepted")
-            result = execute_skill(
-                self.skill,
-                self.world_config,
+            result = run_skill(
+                self.world,
                 self.request,
                 on_sample=self.on_sample,
                 should_abort=self.should_abort,
                 should_pause=self.should_pause,
-                demonstration=self.start.demonstration,
             )
             metrics = result.metrics
             phase = metrics.phase
@@ -448,7 +445,7 @@ class Worker:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 start = StartExecution.model_validate_json(payload)
                 execution_id = start.execution_id
-                world = world_config_for(start.request.scenario, start.request.skill, start.world_overrides)
+                world = world_for(start)
             except Exception as exc:
                 reply("error", _short_error(exc))
                 return
@@ -587,4 +584,4 @@ def run_worker(settings: WorkerSettings | None = None, worker_id: str | None = N
     return 0
 
 
-__all__ = ["Worker", "WorkerSettings", "default_worker_id", "run_worker", "world_config_for"]
+__all__ = ["Worker", "WorkerSettings", "default_worker_id", "run_worker", "world_for"]

@@ -293,4 +293,11 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
         auto_selection=auto_selection,
         demonstration=DemonstrationSummary.of(demonstration),
         sample_rate_hz=contact.rate_hz,
+        taught_world=_taught_world(demonstration),
     )
+
+
+def _taught_world(demonstration: Demonstration) -> dict | None:
+    """The simulated world a simulator recording carries (``metadata.extra['world']``), passed on to the skill."""
+    world = demonstration.metadata.extra.get("world")
+    return dict(world) if isinstance(world, dict) else None

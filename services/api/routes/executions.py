@@ -12,7 +12,6 @@ from fastapi import APIRouter, Query, Response
 
 from schemas.api import ApiError, CommandAccepted, ExecutionCreated, ExecutionState, ExecutionView, TelemetryView
 from schemas.bus import KeyExpressions
-from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.api import errors
 from services.api.deps import TOKEN_GUARD, BusDep, KeysDep, Limit, Offset, StoreDep, need_bus
@@ -31,24 +30,14 @@ COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 
 
-def _scenario_of(demonstration: Demonstration | None) -> str | None:
-    """The teacher scenario a demonstration was recorded in (``teacher:<scenario>``), if any."""
-    if demonstration is None:
-        return None
-    scenario = demonstration.metadata.extra.get("scenario")
-    if isinstance(scenario, str):
-        return scenario
-    source = demonstration.metadata.source
-    return source.split(":", 1)[1] if source.startswith("teacher:") else None
-
-
-def _taught_world(demonstration: Demonstration | None) -> dict[str, Any]:
-    """The world a recorded demonstration was taught in (the teacher's ``ground_truth.world_config``), else {}."""
-    if demonstration is None:
-        return {}
-    truth = demonstration.metadata.extra.get("ground_truth")
-    world = truth.get("world_config") if isinstance(truth, dict) else None
-    return dict(world) if isinstance(world, dict) else {}
+def _refused_field(reason: str) -> list[str]:
+    """The request field a worker's refusal is about (the worker's messages name it or say what failed)."""
+    if reason.startswith("unknown scenario"):
+        return ["body", "scenario"]
+    if reason.startswith(("environment.", "the skill cannot be placed")):
+        field = reason.split(":", 1)[0] if reason.startswith("environment.") else "environment.placement"
+        return ["body", *field.split(".")]
+    return ["body"]
 
 
 def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionView:
@@ -85,8 +74,10 @@ def _found(store: Store, execution_id: str) -> ExecutionRow:
     dependencies=TOKEN_GUARD,
 )
 def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys: KeysDep) -> ExecutionCreated:
-    """Run a skill on a sim worker: the world changed by the known ``environment.offset`` and the
-    ``environment.unknown_offset``, with the controller, gains and pace asked for.
+    """Run a skill on a sim worker: in the world its demonstration was recorded in (simulator recordings), else on
+    a work piece rebuilt from the skill and placed in the robot's reach (``environment.work_piece``,
+    ``environment.placement``), changed by the known ``environment.offset`` and the ``environment.unknown_offset``,
+    with the controller, gains and pace asked for. 422 when the skill cannot be placed in reach.
 
     Replies 202 at once with the execution id and the Zenoh key of its telemetry; follow it with
     ``GET /executions/{id}`` or a Zenoh subscriber. 503 when no worker is connected."""
@@ -102,20 +93,18 @@ def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys
         if row.demonstration_id is not None:
             demonstration = store.demonstration(row.demonstration_id)
     client = need_bus(bus)
-    scenario = request.scenario or _scenario_of(demonstration)
-    world = _taught_world(demonstration) if scenario == _scenario_of(demonstration) else {}
     stored = request.model_dump(mode="json", exclude={"skill"})
-    stored.update(scenario=scenario, inline_skill=request.skill is not None, taught_world=bool(world))
+    stored.update(inline_skill=request.skill is not None)
     row = store.add_execution(stored, request.skill_id)
-    wire = request.model_copy(update={"skill": skill, "skill_id": None, "scenario": scenario})
+    wire = request.model_copy(update={"skill": skill, "skill_id": None})
     try:
-        worker_id = client.start_execution(row.id, wire, world_overrides=world, demonstration=demonstration)
+        worker_id = client.start_execution(row.id, wire, demonstration=demonstration)
     except NoWorkerAvailable as exc:
         store.delete_execution(row.id)
         raise errors.unavailable(str(exc)) from None
-    except BusRequestError as exc:  # the worker refused the request (unknown scenario, bad world override)
+    except BusRequestError as exc:  # the worker refused: an unknown scenario, a skill it cannot place in reach
         store.delete_execution(row.id)
-        raise errors.unprocessable(["body", "scenario"] if "scenario" in str(exc) else ["body"], str(exc)) from None
+        raise errors.unprocessable(_refused_field(str(exc)), str(exc)) from None
     except Exception as exc:
         log.exception("starting execution %s failed", row.id)
         store.update_execution(row.id, ExecutionState.failed, ExecutionPhase.failed, error=f"start failed: {exc}")
