@@ -289,12 +289,6 @@ def scenario_world_config(scenario: str) -> WorldConfig:
     return WorldConfig().replace(**_SCENARIOS[scenario].world)
 
 
-def scenario_of_name(name: str) -> str | None:
-    """Return the scenario a teacher demonstration's name starts with (``"slide_flat (seed 0)"``), or None."""
-    head = name.strip().split(" ", 1)[0] if name else ""
-    return head if head in _SCENARIOS else None
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # Human-like signals.
 # ---------------------------------------------------------------------------------------------------------------

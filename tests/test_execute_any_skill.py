@@ -143,7 +143,7 @@ def test_a_placement_is_refused_for_a_taught_world() -> None:
     skill = learn_skill(record_demonstration("slide_flat", seed=0).demonstration)
     assert skill.taught_world is not None and execution_world(skill).source == "taught"
     environment = EnvironmentChange(placement={"translation_m": [0.1, 0.0, 0.0]})
-    with pytest.raises(ValueError, match="environment.placement"):
+    with pytest.raises(ValueError, match=r"environment\.placement"):
         execution_world(skill, environment)
     rebuilt = execution_world(skill, EnvironmentChange(work_piece="rebuilt"))
     assert rebuilt.source == "rebuilt" and math.isclose(rebuilt.placement.translation_m[0], 0.0)

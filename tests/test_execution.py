@@ -263,8 +263,12 @@ def test_cli_simulate_prints_metrics_and_writes_the_figure(slide_flat, tmp_path,
     assert figure.stat().st_size > 10_000
     metrics = ExecutionMetrics.model_validate_json(metrics_file.read_text())
     assert metrics.force_rms_error_pct < 5.0
-    # a skill that does not name its scenario needs --scenario or --world
-    anonymous = skill.model_copy(update={"demonstration": skill.demonstration.model_copy(update={"name": ""})})
-    skill_file.write_text(anonymous.model_dump_json())
-    assert main(["simulate", str(skill_file)]) == 2
-    assert "--scenario" in capsys.readouterr().err
+    # a skill without its taught world (a real recording) runs on the work piece rebuilt from it
+    real = skill.model_copy(update={"taught_world": None})
+    skill_file.write_text(real.model_dump_json())
+    assert main(["simulate", str(skill_file)]) == 0
+    assert "work piece: rebuilt from the skill" in capsys.readouterr().out
+    assert main(["simulate", str(skill_file), "--work-piece", "taught"]) == 2
+    assert "environment.work_piece: the skill carries no taught world" in capsys.readouterr().err
+    assert main(["simulate", str(skill_file), "--placement", "1", "2"]) == 2
+    assert "placement: give 3, 4 or 7 numbers" in capsys.readouterr().err
