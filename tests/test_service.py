@@ -191,6 +191,38 @@ def test_two_executions_run_at_once_on_two_workers(stack, skill_id):
     assert {first["id"], second["id"]} <= {v["id"] for v in third}
 
 
+def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
+    """POST /executions for a skill learned from a CSV (KU Leuven, another lab's frame): the worker rebuilds its work
+    piece and places it in reach; a skill too large to place is refused with 422 on environment.placement."""
+    stack.workers(2)
+    path = REPO / "data" / "kuleuven_contour" / "contour_a_2.csv"
+    options = {"quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool"}
+    with path.open("rb") as f:
+        response = stack.http.post("/demonstrations/csv", files={"file": (path.name, f, "text/csv")}, data=options)
+    assert response.status_code == 201, response.text
+    learned = stack.post("/skills", {"demonstration_id": response.json()["id"], "skill_type": "auto"}, 201)
+    created = stack.post("/executions", {"skill_id": learned["id"]}, 202)
+    view = stack.finished(created["id"], timeout_s=120)
+    metrics = view["metrics"]
+    assert view["status"] == "done", view
+    assert metrics["work_piece"] == "rebuilt" and metrics["placement"]["translation_m"] != [0.0, 0.0, 0.0]
+    assert metrics["force_rms_error_pct"] <= 10.0 and metrics["contact_ratio"] >= 0.95, metrics
+    assert metrics["true_force_rms_error_pct"] is not None and metrics["touchdown_peak_n"] > 0
+
+    skill = learned["skill"]
+    for segment in skill["segments"]:  # the same skill read in the wrong unit: 8x too large for any placement
+        for dmp in (segment["position_dmp"],):
+            dmp["start"] = [8 * v for v in dmp["start"]]
+            dmp["goal"] = [8 * v for v in dmp["goal"]]
+            dmp["weights"] = [[8 * v for v in row] for row in dmp["weights"]]
+        frames = segment["compliant_frames"]
+        frames["origins"] = [[8 * v for v in o] for o in frames["origins"]]
+    response = stack.http.post("/executions", json={"skill": skill})
+    assert response.status_code == 422, response.text
+    assert response.json()["detail"][0]["loc"] == ["body", "environment", "placement"]
+    assert "reach" in response.text
+
+
 def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack, skill_id):
     workers = {w["worker_id"]: w["pid"] for w in stack.workers(2)}
     created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
