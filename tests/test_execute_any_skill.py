@@ -147,3 +147,18 @@ def test_a_placement_is_refused_for_a_taught_world() -> None:
         execution_world(skill, environment)
     rebuilt = execution_world(skill, EnvironmentChange(work_piece="rebuilt"))
     assert rebuilt.source == "rebuilt" and math.isclose(rebuilt.placement.translation_m[0], 0.0)
+
+
+@pytest.mark.parametrize("controller", ["hybrid_cf", "impedance", "hybrid_world_z"])
+def test_offsets_and_the_three_controllers_work_on_a_rebuilt_work_piece(kinesthetic_slides, controller) -> None:
+    """A known shift moves the skill and its rebuilt slab together; an unknown one only the slab."""
+    _, skill = kinesthetic_slides["wipe_tilted"]
+    settings = ExecutionSettings(
+        controller=controller, environment={"offset": [0.02, 0.0, 0.0], "unknown_offset": [0.0, 0.0, 0.01]}
+    )
+    metrics = run_skill(execution_world(skill, settings.environment), settings).metrics
+    assert metrics.phase.value == "done", metrics.abort_reason
+    if controller == "hybrid_cf":
+        assert metrics.true_force_rms_error_pct <= 3.0 and metrics.contact_ratio >= 0.99
+    else:  # the baselines press along the wrong axis (world z) or through a reference 1 cm off the surface
+        assert metrics.true_force_rms_error_pct > 10.0
