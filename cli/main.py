@@ -307,7 +307,8 @@ def _add_simulate_parser(commands) -> None:
                      help="UNKNOWN work piece shift, m (applied to the world only)")  # fmt: skip
     sim.add_argument("--friction", type=float, metavar="MU", help="tool-surface friction (default 0.2)")
     sim.add_argument("--contact-stiffness", type=float, metavar="N_PER_M", help="contact stiffness (default 3e4)")
-    sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "hybrid_world_z"], default="hybrid_cf")
+    sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z"],
+                     default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
     sim.add_argument("--pace", choices=["fast", "realtime"], default="fast")
     sim.add_argument("--demonstration", type=Path, help="demonstration JSON: the path the path error refers to")
     sim.add_argument("--figure", type=Path, help="force-tracking figure to write (PNG)")

@@ -24,14 +24,23 @@ class ControllerKind(StrEnum):
       with feed-forward on the CF force axis (CF z), frames from the skill.
     - ``impedance``: pure Cartesian impedance, ``S = I`` everywhere, no force loop; the force
       only as the pose reference implies it (the reference is pushed ``f_desired / k_z``
-      into the taught surface along CF z).
+      into the TAUGHT surface along CF z): it cannot know that the surface moved.
+    - ``impedance_found_surface``: the same law with its reference re-based where the guarded
+      approach FOUND the surface (``f_desired / k_z`` beyond the found contact point): the fair
+      classical baseline when the surface is not where it was taught.
     - ``hybrid_world_z``: the classical hybrid controller of earlier work, force control fixed
       to the world z axis (pressing down, -z_world) whatever the skill's CF says.
     """
 
     hybrid_cf = "hybrid_cf"
     impedance = "impedance"
+    impedance_found_surface = "impedance_found_surface"
     hybrid_world_z = "hybrid_world_z"
+
+    @property
+    def is_impedance(self) -> bool:
+        """Pure impedance (no force loop), whichever surface its reference is based on."""
+        return self in (ControllerKind.impedance, ControllerKind.impedance_found_surface)
 
 
 class NullSpaceProjection(StrEnum):

@@ -270,6 +270,7 @@ _TRIAL_COLORS = ("tab:orange", "tab:purple", "tab:cyan", "tab:brown", "tab:pink"
 _CONTROLLER_STYLE = {
     "hybrid_cf": ("tab:blue", 1.3, "ours (hybrid_cf)"),
     "impedance": ("tab:orange", 0.9, "impedance"),
+    "impedance_found_surface": ("tab:brown", 0.9, "impedance (found surface)"),
     "hybrid_world_z": ("tab:purple", 0.9, "hybrid_world_z"),
 }
 

@@ -178,7 +178,8 @@ class PhasePlanner:
 
     def surface_reference(self, segment: Segment, p: NDArray[np.float64]) -> NDArray[np.float64]:
         """The reference point for tool position ``p`` in a contact segment: where the surface was FOUND (hybrid
-        kinds) or where it was TAUGHT (``impedance``, which presses only through its reference)."""
+        kinds, ``impedance_found_surface``) or where it was TAUGHT (``impedance``, which presses only through its
+        reference and is not told that the surface moved)."""
         if self.kind is not ControllerKind.impedance:
             return p
         geo = self.geometry[segment.index]

@@ -90,7 +90,9 @@ Baselines (``ControllerKind``), the same class with other settings:
 - ``impedance``: ``S = I`` on every axis (no force loop, no feed-forward), stiffness and damping
   in the CF; the force is only what the reference implies: during contact the reference is
   moved ``f_d / k_z`` along +CF z (``k_z`` the CF-z translational stiffness), so the spring
-  presses with ``f_d`` if the surface is exactly where it was taught.
+  presses with ``f_d`` if the surface is exactly where its reference is based: the taught surface
+  (``impedance``) or the surface the guarded approach found (``impedance_found_surface``, the
+  executor re-bases the reference; the law is the same).
 - ``hybrid_world_z``: the CF orientation is replaced by the "world z down" frame: z = -z_world,
   x = the CF x axis projected onto the horizontal plane (world x if the CF x is vertical),
   y = z × x. The selection and force loop are as in ``hybrid_cf``, so the desired force pushes
@@ -386,7 +388,7 @@ class HybridController:
         self.damping_matrix_a: NDArray[np.float64] | None = None
         """The adaptive damping matrix in A (6, 6), or None while the diagonal ``damping`` (CF) applies."""
         self._force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
-        self._force_loop = self.kind is not ControllerKind.impedance
+        self._force_loop = not self.kind.is_impedance
         self._kp = g.force_kp if self._force_loop else 0.0
         self._ki = g.force_ki if self._force_loop else 0.0
         self._kz = float(self._stiffness[2])
@@ -431,7 +433,7 @@ class HybridController:
     def _control_rotation_and_selection(
         self, cf_rotation: NDArray[np.float64], selection: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        if self.kind is ControllerKind.impedance:
+        if self.kind.is_impedance:
             return cf_rotation, np.ones_like(selection)
         if self.kind is ControllerKind.hybrid_world_z and np.any(selection < 1.0):
             return world_z_down_rotation(cf_rotation), selection

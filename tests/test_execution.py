@@ -139,6 +139,13 @@ def test_impedance_baseline_cannot_handle_an_unknown_height(slide_tilted) -> Non
     assert ours.contact_ratio >= 0.99
     # 1 cm deeper than taught at 3000 N/m: the reference presses ~30 N too hard
     assert impedance.force_rms_error_pct > 100.0
+    # the fair classical baseline: the same law re-based where the guarded approach found the surface
+    found = _run(
+        slide_tilted, controller=ControllerKind.impedance_found_surface, unknown_offset=(0.0, 0.0, 0.01)
+    ).metrics
+    assert found.phase is ExecutionPhase.done and found.contact_ratio >= 0.99
+    assert found.true_force_rms_error_pct < 10.0
+    assert found.true_force_rms_error_pct > ours.true_force_rms_error_pct
 
 
 @pytest.mark.parametrize("offset", [(0.02, 0.0, 0.0), (0.0, 0.02, 0.0)])

@@ -50,3 +50,20 @@ def test_slide_normals_and_force_match_the_teacher(scenario: str) -> None:
         # Two planes: each plane holds only part of the ±20 % wander, so its mean is looser.
         tolerance = 0.02 if scenario != "slide_two_planes" else 0.05
         assert segment.force_constant_n == pytest.approx(recording.target_force_n, rel=tolerance)
+
+
+@pytest.mark.parametrize("scenario", ["slide_flat", "slide_tilted"])
+def test_a_slide_demonstrated_with_high_friction_is_a_slide_and_presses_right(scenario: str) -> None:
+    """Friction 0.6 turns the applied force 31° off the normal with the wiping direction: still a slide, and the
+    learned force is the normal one (it executes within 3 % of the TRUE normal force)."""
+    from schemas import ExecutionSettings
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    recording = record_demonstration(scenario, seed=0, lateral_friction=0.6)
+    skill = learn_skill(recording.demonstration)
+    assert skill.skill_type.value == "slide" and skill.auto_selection.confidence >= 0.8
+    [force] = [s.force_constant_n for s in skill.segments if s.kind is SegmentKind.contact]
+    assert force == pytest.approx(recording.target_force_n, rel=0.02)
+    metrics = run_skill(execution_world(skill), ExecutionSettings()).metrics
+    assert metrics.work_piece == "taught" and metrics.true_force_rms_error_pct < 3.0
