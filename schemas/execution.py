@@ -281,7 +281,28 @@ class ExecutionSettings(BaseModel):
     environment: EnvironmentChange = Field(default_factory=EnvironmentChange)
     controller: ControllerKind = Field(ControllerKind.hybrid_cf, description="The control law.")
     gains: ControllerGains = Field(default_factory=ControllerGains)
-    approach_speed_m_s: float = Field(0.03, gt=0, le=0.2, description="Speed of the guarded approach along +CF z, m/s.")
+    approach_speed_m_s: float = Field(
+        0.03,
+        gt=0,
+        le=0.2,
+        description="Speed of the guarded approach along +CF z until approach_slow_distance_m before the taught "
+        "contact point, m/s.",
+    )
+    approach_slow_distance_m: float = Field(
+        0.02,
+        ge=0,
+        le=0.5,
+        description="The last part of the guarded approach before the taught contact point (and any distance beyond "
+        "it) runs at the touch-down speed, m: as far as the surface may be from where it was taught.",
+    )
+    touchdown_speed_m_s: float | None = Field(
+        None,
+        gt=0,
+        le=0.2,
+        description="Speed at which the tool meets the surface, m/s; default: from the first target force F and the "
+        "contact stiffness k so that the impact stays below the target (v = 0.8 F / sqrt(k m), m the arm's apparent "
+        "mass along CF z), within [0.5 mm/s, approach_speed_m_s].",
+    )
     approach_max_distance_m: float = Field(
         0.15, gt=0, description="Longest guarded approach before aborting with 'contact not found', m."
     )

@@ -150,16 +150,28 @@ class PhasePlanner:
             stop_axis=stop_axis,
         )
 
-    def approach(self, segment: Segment, p: NDArray, ref_q: NDArray[np.float64]) -> PhasePlan:
-        """The guarded approach from ``p`` along the segment's first CF z, at the approach speed."""
+    def approach(
+        self, segment: Segment, p: NDArray, ref_q: NDArray[np.float64], touchdown_speed_m_s: float
+    ) -> PhasePlan:
+        """The guarded approach from ``p`` along the segment's first CF z: at the approach speed until
+        ``approach_slow_distance_m`` before the taught contact point, then at ``touchdown_speed_m_s`` (m/s) for the
+        rest of ``approach_max_distance_m``; the speed blends over 10 ms."""
         s = self.settings
         geo = self.geometry[segment.index]
         z = geo.first_rotation[:, 2]
-        n = math.ceil(s.approach_max_distance_m / s.approach_speed_m_s / self.dt) + 1
-        travel = np.arange(n) * self.dt * s.approach_speed_m_s
+        v_fast, v_slow = s.approach_speed_m_s, min(touchdown_speed_m_s, s.approach_speed_m_s)
+        fast_m = float(np.clip((geo.start_world - p) @ z - s.approach_slow_distance_m, 0.0, s.approach_max_distance_m))
+        fast_steps = round(fast_m / v_fast / self.dt)
+        slow_steps = math.ceil((s.approach_max_distance_m - fast_m) / v_slow / self.dt) + 1
+        speed = np.concatenate([np.full(fast_steps, v_fast), np.full(slow_steps, v_slow)])
+        blend = min(10, fast_steps)
+        if blend:
+            speed[fast_steps - blend : fast_steps] = np.linspace(v_fast, v_slow, blend + 2)[1:-1]
+        n = speed.size
+        travel = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * self.dt
         ref_p = p + travel[:, None] * z
         twist = np.zeros((n, 6))
-        twist[:, :3] = s.approach_speed_m_s * z
+        twist[:, :3] = speed[:, None] * z
         frame = self.controller.frame(geo.first_rotation, SELECTION_FREE)
         return PhasePlan(
             ExecutionPhase.approach,

@@ -7,6 +7,7 @@ skills (default learning options) are cached per module.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -279,3 +280,23 @@ def test_cli_simulate_prints_metrics_and_writes_the_figure(slide_flat, tmp_path,
     assert "environment.work_piece: the skill carries no taught world" in capsys.readouterr().err
     assert main(["simulate", str(skill_file), "--placement", "1", "2"]) == 2
     assert "placement: give 3, 4 or 7 numbers" in capsys.readouterr().err
+
+
+@functools.cache
+def _flat_skill_pressing(target_n: float):
+    return learn_skill(record_demonstration("slide_flat", seed=0, target_force_n=target_n).demonstration)
+
+
+@pytest.mark.parametrize(("target_n", "stiffness"), [(5.0, 3e4), (5.0, 1e6), (30.0, 1e6)])
+def test_touch_down_stays_within_20_percent_of_the_target_on_soft_and_stiff_surfaces(target_n, stiffness) -> None:
+    """The touch-down speed follows from the target and the contact stiffness (a 3 cm/s approach would peak at 13 N
+    for a 5 N skill on the pad and at 70 N on a 1e6 N/m surface); judged by the TRUE normal force."""
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    skill = _flat_skill_pressing(target_n)
+    settings = ExecutionSettings(environment={"contact_stiffness_n_m": stiffness, "unknown_offset": [0, 0, -0.01]})
+    metrics = run_skill(execution_world(skill, settings.environment), settings).metrics
+    assert metrics.phase is ExecutionPhase.done, metrics.abort_reason
+    assert metrics.touchdown_peak_ratio <= 1.2, metrics.touchdown_peak_n
+    assert metrics.true_force_rms_error_pct < 5.0 and metrics.settle_time_s < 0.5
