@@ -54,7 +54,7 @@ from schemas.execution import (
 from schemas.skill import Segment, SegmentKind, Skill
 from sim_worker.execution_world import ExecutionWorld
 from sim_worker.metrics import compute_metrics, reference_force
-from sim_worker.plans import PhasePlan, PhasePlanner, first_force
+from sim_worker.plans import PhasePlan, PhasePlanner, first_force, smooth_ramp
 from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
@@ -67,8 +67,18 @@ TOUCHDOWN_IMPACT_FRACTION = 0.8
 desired force ramps up, so the touch-down peak is then the target itself."""
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less)."""
+CONTACT_LOSS_TRAVEL_M = 0.01
+"""In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
+(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
+CONTACT_LOSS_RETRACT_M = 0.05
+"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
+CONTACT_LOSS_RETRACT_S = 1.0
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
+
+class ContactLostError(Exception):
+    """Raised inside the loop when the tool lost the surface in a contact phase (it is retracted, then aborted)."""
+
 
 class ExecutionAbortError(Exception):
     """Raised inside the loop to stop the execution with a reason."""
@@ -168,6 +178,8 @@ class _Execution:
             self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.contact_threshold, self.dt)
         self.geometry = self.planner.geometry
+        self._cf_rotation = np.eye(3)
+        """The CF rotation of the control frame in use (world from CF)."""
         # Recording.
         self.capacity = 4096
         self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
@@ -212,6 +224,8 @@ class _Execution:
         perf = time.perf_counter
         dt = self.dt
         phase_code = float(PHASE_CODES[plan.phase])
+        guard_loss = plan.phase is ExecutionPhase.contact
+        loss_travel = CONTACT_LOSS_TRAVEL_M
         seg = float(plan.segment)
         ts = td = tc = tp = tt = 0.0
         batch = self.settings.telemetry_batch
@@ -243,6 +257,7 @@ class _Execution:
                 current = single if single is not None else series[k // stride]
                 if current is not frame:  # a new control frame: its CF rotation as floats, for the CF wrench
                     frame = current
+                    self._cf_rotation = frame.cf_rotation
                     r00, r01, r02, r10, r11, r12, r20, r21, r22 = frame.cf_rotation.ravel().tolist()
                 f_des = force[k]
                 wl = w.tolist()
@@ -310,6 +325,16 @@ class _Execution:
                     raise ExecutionAbortError("aborted on request")
                 if stop_axis is not None and fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2] > threshold:
                     return "contact"
+                if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
+                    rx, ry, rz = ref_p[k]
+                    px, py, pz = p.tolist()
+                    beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
+                    if beyond > loss_travel:
+                        raise ContactLostError(
+                            f"contact lost in segment {plan.segment} at t = {self.step_count * dt:.3f} s: no contact "
+                            f"{beyond * 1e3:.0f} mm beyond the surface along CF z (an edge or a hole?); the tool "
+                            f"stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
+                        )
                 if realtime and self.step_count % REALTIME_CHECK_STEPS == 0:
                     lag = self.step_count * dt - (perf() - self.wall_start)
                     if lag > 0:
@@ -344,6 +369,19 @@ class _Execution:
         impedance = math.sqrt(self.world_config.contact_stiffness * mass)
         speed = TOUCHDOWN_IMPACT_FRACTION * first_force(segment) / impedance
         return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
+
+    def retract(self) -> None:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -CF z from the current pose with motion control on every axis."""
+        p, q = self.world.tool_pose()
+        z = self._cf_rotation[:, 2]
+        n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
+        ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * z
+        twist = np.zeros((n, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
+        plan = PhasePlan(ExecutionPhase.retreat, -1, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
+                         frame=self.planner.identity_frame)  # fmt: skip
+        self.controller.reset_integral()
+        self.run_plan(plan)
 
     def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
         """Name the joint outside its URDF limits (PyBullet does not enforce them in torque mode)."""
@@ -485,7 +523,11 @@ def execute_skill(
     phase, reason = ExecutionPhase.done, None
     execution.wall_start = time.perf_counter()
     try:
-        execution.run()
+        try:
+            execution.run()
+        except ContactLostError as lost:
+            execution.retract()
+            raise ExecutionAbortError(str(lost)) from None
     except ExecutionAbortError as abort:
         phase, reason = abort.phase, abort.reason
     except Exception as exc:  # a bug or an unreachable pose: report, do not crash the worker
