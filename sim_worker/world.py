@@ -554,7 +554,7 @@ class SimWorld:
             else:
                 px, py, pz = self._pose_raw()[0].tolist()
                 fx = fy = fz = mx = my = mz = 0.0
-                fn_sum = nx = ny = nz = 0.0
+                nx = ny = nz = 0.0
                 touching = False
                 for c in points:  # plain floats: ~1 µs per contact point instead of ~10 with numpy
                     fn, f1, f2 = c[9], c[10], c[12]
@@ -570,13 +570,12 @@ class SimWorld:
                     mx += ry * az - rz * ay
                     my += rz * ax - rx * az
                     mz += rx * ay - ry * ax
-                    fn_sum += fn
                     nx -= fn * n[0]
                     ny -= fn * n[1]
                     nz -= fn * n[2]
                 norm = math.sqrt(nx * nx + ny * ny + nz * nz)
                 direction = (nx / norm, ny / norm, nz / norm) if norm > 0.0 else (0.0, 0.0, 0.0)
-                cached = (np.array([fx, fy, fz, mx, my, mz]), touching, fn_sum, direction)
+                cached = (np.array([fx, fy, fz, mx, my, mz]), touching, norm, direction)
             self._cache["contact"] = cached
         return cached
 
@@ -584,9 +583,10 @@ class SimWorld:
         """The exact force (N) the tool presses with along the TRUE surface normal, and that normal (unit, into the
         surface, world frame; zeros without contact).
 
-        The sum of the contact points' normal forces, each along its contact normal (the collision geometry's own
-        surface normal), so it holds whatever the learned frame or the sensor say; the direction is the
-        force-weighted mean of the contact normals (one surface: its normal).
+        The magnitude of the vector sum of the contact points' normal forces, each along its own contact normal (the
+        collision geometry's surface normal), so it holds whatever the learned frame or the sensor say; its
+        direction is the normal (on one surface its normal; in a corner, e.g. a ball pressing on both planes of a
+        crease, the direction the two press along together). Friction is not part of it.
         """
         _, _, force, direction = self._contact_summary()
         return force, direction
