@@ -307,6 +307,9 @@ def _add_simulate_parser(commands) -> None:
                      help="UNKNOWN work piece shift, m (applied to the world only)")  # fmt: skip
     sim.add_argument("--friction", type=float, metavar="MU", help="tool-surface friction (default 0.2)")
     sim.add_argument("--contact-stiffness", type=float, metavar="N_PER_M", help="contact stiffness (default 3e4)")
+    sim.add_argument("--sensor", choices=["wrist", "ideal"], default="wrist",
+                     help="force/torque sensor the controller reads: a realistic wrist sensor (noise, drift, 2 ms "
+                          "delay, 200 Hz filter, tool inertia) or the exact contact wrench")  # fmt: skip
     sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z"],
                      default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
     sim.add_argument("--pace", choices=["fast", "realtime"], default="fast")
@@ -357,6 +360,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
                 "placement": _placement_of(args.placement),
                 "friction": args.friction,
                 "contact_stiffness_n_m": args.contact_stiffness,
+                "sensor": args.sensor,
             },
             pace=args.pace,
         )

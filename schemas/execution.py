@@ -226,6 +226,16 @@ class WorkPieceSource(StrEnum):
     """Surfaces rebuilt from what the skill learned: a plane under each slide segment, a strip along each contour."""
 
 
+class SensorChoice(StrEnum):
+    """The force/torque sensor the controller reads (``sim_worker.sensor``)."""
+
+    wrist = "wrist"
+    """A realistic wrist sensor between flange and tool: tool weight compensated, its inertia not; 0.06 N noise,
+    bias drift, 2 ms delay, 200 Hz driver low-pass."""
+    ideal = "ideal"
+    """The exact contact wrench (for tests of the control law)."""
+
+
 class EnvironmentChange(BaseModel):
     """Which world the skill runs in and how it differs from the one the skill was taught in."""
 
@@ -249,6 +259,7 @@ class EnvironmentChange(BaseModel):
     contact_stiffness_n_m: float | None = Field(
         None, ge=1e2, le=1e7, description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4)."
     )
+    sensor: SensorChoice = Field(SensorChoice.wrist, description="The force/torque sensor the controller reads.")
 
     offset: Vector3 = Field(
         default_factory=lambda: [0.0, 0.0, 0.0],

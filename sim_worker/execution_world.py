@@ -11,7 +11,8 @@ In order of precedence:
    robot's reach (``sim_worker.placement``; the placement asked for, or one chosen), the skill and its work piece
    moved together ("rebuilt").
 
-The environment's friction and contact stiffness override the world's. Frames: world, metres
+The environment's friction and contact stiffness override the world's, and its sensor choice sets the sensor the
+controller reads (a realistic wrist sensor unless ``ideal`` is asked for). Frames: world, metres
 (docs/CONVENTIONS.md).
 """
 
@@ -23,9 +24,10 @@ from typing import Any
 import numpy as np
 
 from schemas.demonstration import Demonstration
-from schemas.execution import EnvironmentChange, Placement, WorkPieceSource
+from schemas.execution import EnvironmentChange, Placement, SensorChoice, WorkPieceSource
 from schemas.skill import Skill
 from sim_worker.placement import PlacementChoice, PlacementError, choose_placement
+from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.teacher import scenario_world_config
 from sim_worker.work_piece import rebuilt_world_config
 from sim_worker.world_config import WorldConfig
@@ -87,6 +89,8 @@ def execution_world(
         changes["lateral_friction"] = env.friction
     if env.contact_stiffness_n_m is not None:
         changes["contact_stiffness"] = env.contact_stiffness_n_m
+    if env.sensor is SensorChoice.wrist:
+        changes = {**WRIST_SENSOR, **changes}
     source = None
     if world is not None:
         config, source = world_config_from_file_dict(world), "given"
@@ -137,8 +141,6 @@ def _unit(q: list[float]) -> np.ndarray:
 
 
 def _with(config: WorldConfig, changes: dict[str, Any]) -> WorldConfig:
-    if not changes:
-        return config
     try:
         return config.replace(**changes)
     except TypeError as exc:

@@ -1,50 +1,104 @@
 """The force/torque sensor model: what the controller reads instead of the exact contact wrench.
 
-The exact wrench is the one the tool applies to the environment at the tool point, world frame (N, N·m;
-docs/CONVENTIONS.md). The sensor adds white Gaussian noise (``WorldConfig.wrench_noise_*``) and then a
-first-order low-pass (``WorldConfig.wrench_filter_cutoff_hz``), once per control step. With neither set it is
-ideal: the controller reads the exact wrench.
+Every reading is the wrench the tool applies to the environment at the tool point, world frame (N, N·m;
+docs/CONVENTIONS.md). Its source (``WorldConfig.sensor_model``):
+
+- ``ideal``: the exact contact wrench (the sum over the simulator's contact points);
+- ``wrist``: a force/torque sensor between the flange and the tool, as mounted on a real arm. It reads the force
+  the flange exerts on the tool (PyBullet's reaction of the fixed tool joint, whose origin is the tool point) and
+  the tool's weight is compensated from the tool model (mass, centre of mass) as a real integration does; the
+  tool's inertia is not, so accelerating the tool shows up (0.2 kg x a).
+
+Then, once per control step and in this order: a bias that drifts as a random walk
+(``wrench_bias_drift_n_per_sqrt_s``; the sensor is tared at the start), white noise (``wrench_noise_*``), a delay
+(``wrench_delay_s``, whole steps) and the driver's first-order low-pass (``wrench_filter_cutoff_hz``). With none
+of them and the ideal source the controller reads the exact wrench.
+
+:data:`WRIST_SENSOR` is what a real cell has (values of a small six-axis sensor at 1 kHz, e.g. the
+ATI Mini45 class: 0.06 N / 0.002 N·m noise, 2 ms of transport and driver delay, a 200 Hz driver filter, a
+0.02 N/sqrt(s) bias drift); executions use it unless asked for the ideal sensor.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim_worker.world_config import WorldConfig
 
+WRIST_SENSOR = {
+    "sensor_model": "wrist",
+    "wrench_noise_force_std_n": 0.06,
+    "wrench_noise_torque_std_nm": 0.002,
+    "wrench_bias_drift_n_per_sqrt_s": 0.02,
+    "wrench_delay_s": 0.002,
+    "wrench_filter_cutoff_hz": 200.0,
+}
+"""The realistic wrist sensor (``WorldConfig`` fields)."""
+BLOCK = 1024
+"""Steps of noise drawn at once (a generator call costs as much as a control law step's arithmetic)."""
+
 
 class WrenchSensor:
-    """A noisy, low-pass filtered wrench sensor; ``measure`` is called once per control step."""
+    """Drift, noise, delay and low-pass on a wrench source; ``measure`` is called once per control step."""
 
     def __init__(self, config: WorldConfig) -> None:
+        if config.sensor_model not in ("ideal", "wrist"):
+            raise ValueError(f"sensor_model: {config.sensor_model!r} is neither 'ideal' nor 'wrist'")
         self.config = config
+        dt = config.time_step_s
         self._std = np.array([config.wrench_noise_force_std_n] * 3 + [config.wrench_noise_torque_std_nm] * 3)
         self._noisy = bool(np.any(self._std > 0.0))
+        self._drift_step = config.wrench_bias_drift_n_per_sqrt_s * math.sqrt(dt)
+        self._delay_steps = round(config.wrench_delay_s / dt)
         self._cutoff_hz = config.wrench_filter_cutoff_hz
+        self._alpha = 1.0 if self._cutoff_hz is None else dt / (dt + 1.0 / (2.0 * math.pi * self._cutoff_hz))
         self._rng = np.random.default_rng(config.seed)
-        self._filtered: NDArray[np.float64] | None = None
+        self._scale = np.concatenate([self._std, np.full(3, self._drift_step)])
+        self._block = np.zeros((0, 9))
+        self._next = 0
+        self.reset()
 
     @property
     def ideal(self) -> bool:
-        """True when the sensor reports the exact wrench (no noise, no filter)."""
-        return not self._noisy and self._cutoff_hz is None
+        """True when the reading is the exact contact wrench (ideal source, nothing added)."""
+        return (
+            self.config.sensor_model == "ideal"
+            and not self._noisy
+            and self._drift_step == 0.0
+            and self._delay_steps == 0
+            and self._cutoff_hz is None
+        )
 
     def reset(self) -> None:
-        """Forget the filter state (the next measurement starts it again)."""
-        self._filtered = None
+        """Tare: zero bias, empty delay line, filter restarts from the next reading."""
+        self._bias = np.zeros(6)
+        self._line: deque[NDArray[np.float64]] = deque(maxlen=self._delay_steps + 1)
+        self._filtered: NDArray[np.float64] | None = None
 
-    def measure(self, exact: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The reading (6,) for this step's exact wrench (6,): noise added, then low-pass filtered."""
-        raw = exact + self._rng.normal(0.0, 1.0, 6) * self._std if self._noisy else exact.copy()
-        if self._cutoff_hz is None:
-            return raw
+    def _random(self) -> NDArray[np.float64]:
+        """This step's noise (6,) and bias increment (3,), drawn in blocks (one generator call per ``BLOCK`` steps)."""
+        if self._next >= self._block.shape[0]:
+            self._block = self._rng.normal(0.0, 1.0, (BLOCK, 9)) * self._scale
+            self._next = 0
+        row = self._block[self._next]
+        self._next += 1
+        return row
+
+    def measure(self, source: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The reading (6,) for this step's source wrench (6,)."""
+        raw = source.copy()
+        if self._noisy or self._drift_step > 0.0:
+            random = self._random()
+            self._bias[:3] += random[6:]
+            raw += random[:6] + self._bias
+        self._line.append(raw)
+        delayed = self._line[0]
         if self._filtered is None:
-            self._filtered = raw
+            self._filtered = delayed.copy()
         else:
-            dt = self.config.time_step_s
-            alpha = dt / (dt + 1.0 / (2.0 * math.pi * self._cutoff_hz))
-            self._filtered = self._filtered + alpha * (raw - self._filtered)
+            self._filtered = self._filtered + self._alpha * (delayed - self._filtered)
         return self._filtered.copy()

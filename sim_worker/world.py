@@ -193,6 +193,13 @@ class SimWorld:
         self._build_environment()
         self._zeros = [0.0] * N_JOINTS
         self.sensor = WrenchSensor(c)
+        self._wrist = c.sensor_model == "wrist"
+        if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
+            pybullet.enableJointForceTorqueSensor(self.robot, TOOL_LINK, True, physicsClientId=cid)
+        self._tool_com = (0.0, 0.0, -(0.5 * c.tool_shaft_length_m + c.tool_radius_m))
+        """The tool's centre of mass in the tool frame (the tool model the weight is compensated with), m."""
+        self._tool_weight = tuple(c.tool_mass_kg * g for g in c.gravity)
+        """The tool's weight in the world, N."""
         self.last_step_clipped = False
         self.clip_count = 0
         self.step_count = 0
@@ -608,17 +615,48 @@ class SimWorld:
     def contact_wrench(self) -> NDArray[np.float64]:
         """Wrench (6,) the tool applies to the environment at the tool point, world frame, as the sensor reports it.
 
-        With the default config (no noise, no filter) this is ``true_contact_wrench()``; otherwise Gaussian noise
-        (``wrench_noise_*``) and a first-order low-pass (``wrench_filter_cutoff_hz``) are applied, once per step.
+        With the default config (ideal sensor) this is ``true_contact_wrench()``; otherwise the sensor model of
+        ``sim_worker.sensor`` (a wrist sensor, drift, noise, delay, low-pass), once per step.
         """
         return self._measured_wrench().copy()
+
+    def wrist_wrench(self) -> NDArray[np.float64]:
+        """What a wrist force/torque sensor between flange and tool reports, weight-compensated and turned into the
+        convention of :meth:`true_contact_wrench` (applied by the tool, at the tool point, world frame), noise-free.
+
+        The fixed tool joint's reaction is the force ``F`` the flange exerts on the tool, in the tool frame, and its
+        moment ``M_c`` about the tool's centre of mass ``c`` (measured with PyBullet 3.2.7: ``-m g`` along the
+        tool z when it hangs pointing down; a lateral force at the tool point gives ``M_c = F × c``). Tool
+        equilibrium gives the applied wrench at the tool point, ``F + m g`` and ``M_c + c × (F + m g)``, minus
+        the tool's inertial terms, which a real integration does not know either.
+        """
+        fx, fy, fz, mx, my, mz = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
+        r = self._rotation_raw().ravel().tolist()  # world from tool, by rows
+        gx, gy, gz = self._tool_weight
+        wx = r[0] * gx + r[3] * gy + r[6] * gz  # the weight in the tool frame: R^T m g
+        wy = r[1] * gx + r[4] * gy + r[7] * gz
+        wz = r[2] * gx + r[5] * gy + r[8] * gz
+        fx, fy, fz = fx + wx, fy + wy, fz + wz
+        cz = self._tool_com[2]  # the centre of mass lies on the tool axis: c = (0, 0, cz)
+        mx, my = mx - cz * fy, my + cz * fx  # M_c + c x F
+        return np.array(
+            [
+                r[0] * fx + r[1] * fy + r[2] * fz,
+                r[3] * fx + r[4] * fy + r[5] * fz,
+                r[6] * fx + r[7] * fy + r[8] * fz,
+                r[0] * mx + r[1] * my + r[2] * mz,
+                r[3] * mx + r[4] * my + r[5] * mz,
+                r[6] * mx + r[7] * my + r[8] * mz,
+            ]
+        )
 
     def _measured_wrench(self) -> NDArray[np.float64]:
         if self.sensor.ideal:
             return self._contact_summary()[0]
         cached = self._cache.get("measured")
         if cached is None:
-            cached = self._cache["measured"] = self.sensor.measure(self._contact_summary()[0])
+            source = self.wrist_wrench() if self._wrist else self._contact_summary()[0]
+            cached = self._cache["measured"] = self.sensor.measure(source)
         return cached
 
     # -- kinematics ----------------------------------------------------------------------------------------------

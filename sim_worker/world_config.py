@@ -76,9 +76,15 @@ class WorldConfig:
     tool_mass_kg: float = 0.2
     # Robot.
     torque_limits_nm: tuple[float, ...] = TORQUE_LIMITS_NM
-    # Wrench sensor model (both off by default).
+    # Wrench sensor model (sim_worker.sensor): "ideal" reads the exact contact wrench; "wrist" a force/torque
+    # sensor between flange and tool (tool weight compensated from the tool model, its inertia not). Noise, bias
+    # drift, delay and the driver's low-pass apply to either (all off by default; executions turn on a realistic
+    # wrist sensor unless asked for the ideal one, see ``sim_worker.sensor.WRIST_SENSOR``).
+    sensor_model: str = "ideal"
     wrench_noise_force_std_n: float = 0.0
     wrench_noise_torque_std_nm: float = 0.0
+    wrench_bias_drift_n_per_sqrt_s: float = 0.0
+    wrench_delay_s: float = 0.0
     wrench_filter_cutoff_hz: float | None = None
     seed: int = 0
 

@@ -264,3 +264,44 @@ def test_per_step_costs_are_small(world):
     costs = world.measure_costs(300)
     print("per-call cost (µs):", {k: round(v, 1) for k, v in costs.items()})
     assert costs["step"] < 500 and costs["jacobian"] < 200 and costs["contact_wrench"] < 200
+
+
+def test_the_wrist_sensor_reads_the_contact_wrench_with_the_tool_weight_compensated() -> None:
+    """A force/torque sensor between flange and tool: pressing with a lateral push, its compensated reading equals
+    the exact contact wrench (force and moment at the tool point); hanging free it reads nothing."""
+    from sim_worker.world import SimWorld
+
+    with SimWorld(WorldConfig(sensor_model="wrist")) as world:
+        for _ in range(200):
+            world.step(world.gravity_coriolis_torques())
+        np.testing.assert_allclose(world.wrist_wrench(), np.zeros(6), atol=1e-6)
+        _, q = world.tool_pose()
+        world.reset(world.inverse_kinematics([0.55, 0.0, 0.0997], q))
+        push = np.array([0.5, 0.3, -10.0, 0.0, 0.0, 0.0])
+        for _ in range(500):
+            world.step(world.gravity_coriolis_torques() + world.jacobian().T @ push)
+        np.testing.assert_allclose(world.wrist_wrench(), world.true_contact_wrench(), atol=2e-3)
+        assert world.true_contact_wrench()[2] == pytest.approx(-10.0, abs=0.05)
+
+
+def test_the_sensor_model_delays_drifts_adds_noise_and_filters_as_configured() -> None:
+    from sim_worker.sensor import WRIST_SENSOR, WrenchSensor
+
+    config = WorldConfig().replace(**WRIST_SENSOR)
+    config = config.replace(wrench_filter_cutoff_hz=None, wrench_bias_drift_n_per_sqrt_s=0.0)
+    sensor = WrenchSensor(config)
+    steps = np.zeros((4000, 6))
+    steps[1000:, 2] = 10.0  # a step of 10 N at step 1000
+    readings = np.array([sensor.measure(w) for w in steps])
+    first = int(np.argmax(readings[:, 2] > 5.0))
+    assert first == 1000 + round(WRIST_SENSOR["wrench_delay_s"] / config.time_step_s)  # 2 ms late
+    assert np.std(readings[2000:, 0]) == pytest.approx(WRIST_SENSOR["wrench_noise_force_std_n"], rel=0.1)
+    drifting = WrenchSensor(config.replace(wrench_bias_drift_n_per_sqrt_s=0.02, wrench_noise_force_std_n=0.0,
+                                           wrench_noise_torque_std_nm=0.0))  # fmt: skip
+    ends = [np.array([drifting.measure(np.zeros(6)) for _ in range(1000)])[-1, :3] for _ in range(100)]
+    assert np.std(np.diff(np.array(ends), axis=0)) == pytest.approx(0.02, rel=0.25)  # the increment over 1 s
+    filtered = WrenchSensor(config.replace(wrench_filter_cutoff_hz=20.0, wrench_noise_force_std_n=0.0,
+                                           wrench_noise_torque_std_nm=0.0, wrench_delay_s=0.0))  # fmt: skip
+    response = np.array([filtered.measure(w) for w in steps])[:, 2]
+    k63 = int(np.argmax(response > 10.0 * (1 - np.exp(-1)))) - 1000
+    assert k63 == pytest.approx(1000 / (2 * np.pi * 20.0), abs=1.5)  # time constant 1 / (2 pi fc), in steps
