@@ -1,6 +1,6 @@
 """The demonstration: time-stamped tool poses and the wrench the tool applied.
 
-Conventions (DESIGN.md): SI units; quaternions scalar-last ``[x, y, z, w]``; wrench
+Conventions (docs/CONVENTIONS.md): SI units; quaternions scalar-last ``[x, y, z, w]``; wrench
 ``[fx, fy, fz, mx, my, mz]`` is the wrench the TOOL APPLIES TO THE ENVIRONMENT, at the tool
 point, in the world frame.
 """

@@ -412,7 +412,7 @@ class TelemetryBatch(BaseModel):
 
 
 class ExecutionMetrics(BaseModel):
-    """What an execution achieved (DESIGN.md "Measures"); None where a measure does not apply."""
+    """What an execution achieved (sim_worker/metrics.py); None where a measure does not apply."""
 
     model_config = ConfigDict(
         extra="forbid",

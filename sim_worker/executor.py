@@ -1,4 +1,4 @@
-"""Execute a learned skill in the simulated world with the hybrid controller (DESIGN.md "The method" 6-7).
+"""Execute a learned skill in the simulated world with the hybrid controller (the paper's section 6; docs/CONVENTIONS.md).
 
 ``execute_skill(skill, world_config, settings)`` builds a ``SimWorld`` (the taught world plus the
 known and the unknown offset of the work piece), puts the robot at the skill's start (IK +
