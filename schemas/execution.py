@@ -326,6 +326,12 @@ class ExecutionSettings(BaseModel):
     pace: Pace = Field(
         Pace.fast, description="realtime: simulated time follows the wall clock; fast: as fast as possible."
     )
+    follow_surface_normal: bool = Field(
+        False,
+        description="hybrid_cf on slide segments: turn the CF z towards the surface normal estimated online from the "
+        "applied force without its friction part (within 40 deg of the learned one, 60 deg/s at most), for a "
+        "surface tilted differently than taught. Off: the paper's fixed CF.",
+    )
     settle_s: float = Field(0.5, ge=0, description="Time to settle at the start pose before the first segment, s.")
     telemetry_batch: int = Field(
         10,

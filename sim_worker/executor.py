@@ -1,4 +1,4 @@
-"""Execute a learned skill in the simulated world with the hybrid controller (the paper's section 6; docs/CONVENTIONS.md).
+"""Execute a learned skill in the simulated world with the hybrid controller (the paper's section 6).
 
 ``execute_skill(skill, world_config, settings)`` builds a ``SimWorld`` (the taught world plus the
 known and the unknown offset of the work piece), puts the robot at the skill's start (IK +
@@ -59,6 +59,8 @@ from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
 from skills.control import ControlFrame, HybridController
+from skills.frames import rotation_from_vectors
+from skills.normal_tracking import SurfaceNormalTracker
 
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
@@ -73,6 +75,8 @@ CONTACT_LOSS_TRAVEL_M = 0.01
 CONTACT_LOSS_RETRACT_M = 0.05
 """How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
 CONTACT_LOSS_RETRACT_S = 1.0
+NORMAL_TRACKING_STEPS = 10
+"""With ``follow_surface_normal``, the CF follows the estimated normal every this many steps."""
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
 
@@ -179,6 +183,7 @@ class _Execution:
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.contact_threshold, self.dt)
         self.geometry = self.planner.geometry
         self._cf_rotation = np.eye(3)
+        self._selection = {s.index: s.selection for s in skill.segments}
         """The CF rotation of the control frame in use (world from CF)."""
         # Recording.
         self.capacity = 4096
@@ -241,6 +246,8 @@ class _Execution:
         should_abort, should_pause = self.should_abort, self.should_pause
         hold_twist = np.zeros(6)
         frame: ControlFrame | None = None
+        tracker = self._normal_tracker(plan)
+        p_tracked: list[float] | None = None
         try:
             k = 0
             while k < plan.steps:
@@ -325,6 +332,16 @@ class _Execution:
                     raise ExecutionAbortError("aborted on request")
                 if stop_axis is not None and fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2] > threshold:
                     return "contact"
+                if tracker is not None and k % NORMAL_TRACKING_STEPS == 0:
+                    p_now = p.tolist()
+                    if p_tracked is not None:
+                        span = NORMAL_TRACKING_STEPS * dt
+                        velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
+                        z_new = tracker.update(w[:3], velocity)
+                        if z_new @ frame.cf_rotation[:, 2] < 1.0 - 1e-10:
+                            turned = rotation_from_vectors(frame.cf_rotation[:, 2], z_new) @ frame.cf_rotation
+                            single = self.controller.frame(turned, self._selection[plan.segment])
+                    p_tracked = p_now
                 if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
                     rx, ry, rz = ref_p[k]
                     px, py, pz = p.tolist()
@@ -369,6 +386,17 @@ class _Execution:
         impedance = math.sqrt(self.world_config.contact_stiffness * mass)
         speed = TOUCHDOWN_IMPACT_FRACTION * first_force(segment) / impedance
         return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
+
+    def _normal_tracker(self, plan: PhasePlan) -> SurfaceNormalTracker | None:
+        """A tracker of the surface normal for a slide contact phase of ``hybrid_cf`` when asked for, else None."""
+        if not (
+            self.settings.follow_surface_normal
+            and self.kind is ControllerKind.hybrid_cf
+            and plan.phase is ExecutionPhase.contact
+            and plan.frame is not None
+        ):
+            return None
+        return SurfaceNormalTracker(plan.frame.cf_rotation[:, 2], NORMAL_TRACKING_STEPS * self.dt)
 
     def retract(self) -> None:
         """Back off ``CONTACT_LOSS_RETRACT_M`` along -CF z from the current pose with motion control on every axis."""
