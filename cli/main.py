@@ -93,7 +93,11 @@ def _report_user_error(command: str, exc: BaseException) -> int:
 
 
 def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="demonstration: a CSV recording or a JSON Demonstration")
+    parser.add_argument(
+        "file",
+        type=Path,
+        help="demonstration: a CSV recording, a JSON Demonstration, or a ROS 2 bag (a bag directory, .mcap or .db3)",
+    )
     parser.add_argument("--type", dest="skill_type", choices=["slide", "contour", "auto"], default="auto")
     parser.add_argument(
         "--columns",
@@ -114,7 +118,18 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
         help="what the recorded wrench is: measured-on-tool (a sensor's reaction) is negated",
     )
     parser.add_argument(
-        "--wrench-frame", choices=["world", "tool"], default="world", help="frame of the recorded wrench"
+        "--wrench-frame",
+        choices=["world", "tool"],
+        help="frame of the recorded wrench (default: world for a CSV file; from the messages' frame_id for a bag)",
+    )
+    bag = parser.add_argument_group("ROS 2 bags (topics are chosen automatically when the bag holds one candidate)")
+    bag.add_argument("--wrench-topic", metavar="TOPIC", help="the geometry_msgs/msg/WrenchStamped topic")
+    bag.add_argument("--pose-topic", metavar="TOPIC", help="the geometry_msgs/msg/PoseStamped topic of the tool pose")
+    bag.add_argument(
+        "--tf", nargs=2, metavar=("PARENT", "CHILD"), help="the tool pose from /tf instead: world and tool frames"
+    )
+    bag.add_argument(
+        "--tool-frame", metavar="FRAME", help="the frame a PoseStamped is the pose of (a wrench in it is the tool's)"
     )
     parser.add_argument(
         "--rate",
@@ -158,12 +173,20 @@ def _import_demonstration(args: argparse.Namespace):  # -> schemas.Demonstration
 
     if args.file.suffix.lower() == ".json":
         return demonstration_from_json(args.file)
+    if args.file.is_dir() or args.file.suffix.lower() in (".mcap", ".db3"):
+        from cli.bag_options import bag_demonstration
+
+        return bag_demonstration(args)
+    bag_only = [flag for flag, value in (("--wrench-topic", args.wrench_topic), ("--pose-topic", args.pose_topic),
+                                         ("--tf", args.tf), ("--tool-frame", args.tool_frame)) if value]  # fmt: skip
+    if bag_only:
+        raise UserError([f"{', '.join(bag_only)}: for ROS 2 bags only; {args.file} is read as CSV"])
     return demonstration_from_csv(
         args.file,
         columns=ColumnMap.parse(args.columns) if args.columns else None,
         quaternion_order=args.quaternion_order,
         wrench_convention=args.wrench_convention,
-        wrench_frame=args.wrench_frame,
+        wrench_frame=args.wrench_frame or "world",
         rate_hz=args.rate,
         dt_s=args.dt,
         tare=not args.no_tare,
@@ -513,7 +536,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="contact-skills", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     learn = commands.add_parser(
-        "learn", help="learn a skill from a recorded demonstration (CSV or JSON)", description=cmd_learn.__doc__
+        "learn",
+        help="learn a skill from a recorded demonstration (CSV, JSON, ROS 2 bag)",
+        description=cmd_learn.__doc__,
     )
     _add_learn_arguments(learn)
     learn.set_defaults(run=cmd_learn)

@@ -486,7 +486,7 @@ def demonstration_from_csv(
             resampled = preprocess.resampled_recording(t, positions, orientations, wrench, rate)
         except ValueError as exc:
             raise CsvImportError(f"resampling: {exc}") from None
-        recording = _Samples(
+        recording = RecordingSamples(
             t=resampled.t,
             positions=resampled.positions,
             orientations=resampled.orientations,
@@ -494,9 +494,51 @@ def demonstration_from_csv(
             rate_hz=resampled.rate_hz,
             notes=resampled.notes,
         )
-    notes = recording.notes + notes
+    return demonstration_from_samples(
+        recording,
+        wrench_frame=frame,
+        wrench_convention=convention,
+        tare=tare,
+        tare_window_s=tare_window_s,
+        force_offset=force_offset,
+        metadata=DemonstrationMetadata(
+            name=name or Path(file_name).stem, source=f"csv:{file_name}", quaternion_order_on_import=order
+        ),
+        extra={"columns": {k: table.header[j] for k, j in indices.items() if j is not None}, "rows": len(table.rows)},
+        notes=notes,
+        error=CsvImportError,
+    )
+
+
+def demonstration_from_samples(
+    recording: RecordingSamples,
+    *,
+    wrench_frame: WrenchFrame,
+    wrench_convention: WrenchConvention,
+    tare: bool,
+    tare_window_s: tuple[float, float] | None,
+    force_offset: Sequence[float] | None,
+    metadata: DemonstrationMetadata,
+    extra: dict[str, object] | None = None,
+    notes: Sequence[str] = (),
+    error: type[DemonstrationImportError] = DemonstrationImportError,
+) -> Demonstration:
+    """The shared last steps of every importer (CSV, ROS 2 bags): a recording on its time grid -> a validated
+    `schemas.Demonstration` in the project's conventions.
+
+    ``recording`` holds the file's wrench in ``wrench_frame`` and ``wrench_convention`` at the tool point
+    (N, N·m). In order: a given offset (``force_offset``) or a quiet window's median (``tare_window_s``,
+    s) is subtracted in the file's own frame and sign; a TOOL-frame wrench is rotated into the world with
+    the tool orientation; a ``measured-on-tool`` wrench is negated; otherwise with ``tare`` the sensor
+    offset is fitted in the tool frame over every free-space stretch and removed. ``metadata`` gives the
+    name, source and quaternion order; the conventions, rate, offset and ``extra`` (plus ``import_notes``:
+    ``recording.notes``, then ``notes``, then one line per step, and ``tare``) are filled in here.
+    Every problem raises ``error`` (naming the option or field and the reason).
+    """
+    frame, convention = wrench_frame, wrench_convention
+    notes = [*recording.notes, *notes]
     wrenches = recording.wrenches
-    given = _given_offset(recording, tare_window_s, force_offset)
+    given = _given_offset(recording, tare_window_s, force_offset, error)
     if given is not None:
         wrenches = wrenches - given.offset
     if frame == WrenchFrame.tool:
@@ -542,30 +584,24 @@ def demonstration_from_csv(
         notes.append("tare off: no sensor offset removed")
     if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
         remedy = "record longer" if recording.fixed_rate else "record longer, or pass a higher rate"
-        raise CsvImportError(
+        raise error(
             f"too few samples: {recording.t.size} at {recording.rate_hz:g} Hz over {np.ptp(recording.t):.3g} s, "
             f"at least {MIN_DEMONSTRATION_SAMPLES} are needed ({remedy})"
         )
-    metadata = DemonstrationMetadata(
-        name=name or Path(file_name).stem,
-        source=f"csv:{file_name}",
-        wrench_convention_on_import=convention,
-        wrench_frame_on_import=frame,
-        quaternion_order_on_import=order,
-        resampled_rate_hz=None if recording.fixed_rate else recording.rate_hz,
-        force_offset_removed=None if offset is None else offset.tolist(),
-        force_offset_frame=offset_frame,
-        extra={
-            "import_notes": notes,
-            "columns": {k: table.header[j] for k, j in indices.items() if j is not None},
-            "rows": len(table.rows),
-            "tare": tare_report,
-        },
+    metadata = metadata.model_copy(
+        update={
+            "wrench_convention_on_import": convention,
+            "wrench_frame_on_import": frame,
+            "resampled_rate_hz": None if recording.fixed_rate else recording.rate_hz,
+            "force_offset_removed": None if offset is None else offset.tolist(),
+            "force_offset_frame": offset_frame,
+            "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
+        }
     )
     try:
         return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
     except ValidationError as exc:
-        raise CsvImportError(validation_problems(exc)) from None
+        raise error(validation_problems(exc)) from None
 
 
 @dataclass(frozen=True)
@@ -578,15 +614,18 @@ class _GivenOffset:
 
 
 def _given_offset(
-    recording: _Samples, tare_window_s: tuple[float, float] | None, force_offset: Sequence[float] | None
+    recording: RecordingSamples,
+    tare_window_s: tuple[float, float] | None,
+    force_offset: Sequence[float] | None,
+    error: type[DemonstrationImportError],
 ) -> _GivenOffset | None:
-    """Return the offset the options ask for (``--force-offset`` or ``--tare-window``), or None."""
+    """Return the offset the options ask for (``--force-offset`` or ``--tare-window``), or None; else ``error``."""
     if tare_window_s is not None and force_offset is not None:
-        raise CsvImportError("tare: give either a tare window or a force offset, not both")
+        raise error("tare: give either a tare window or a force offset, not both")
     if force_offset is not None:
         values = np.asarray(force_offset, dtype=float)
         if values.shape not in ((3,), (6,)) or not np.all(np.isfinite(values)):
-            raise CsvImportError(f"force offset: 3 forces (N) or 6 values with moments (N·m) are needed, got {values}")
+            raise error(f"force offset: 3 forces (N) or 6 values with moments (N·m) are needed, got {values}")
         offset = np.concatenate([values, np.zeros(6 - values.size)])
         shown = ", ".join(f"{v:+.2f}" for v in offset[:3])
         return _GivenOffset(offset, "given", f"sensor offset removed as given: [{shown}] N in the file's frame")
@@ -595,7 +634,7 @@ def _given_offset(
     t0, t1 = (float(v) for v in tare_window_s)
     inside = (recording.t >= t0) & (recording.t <= t1)
     if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0) or inside.sum() < 2:
-        raise CsvImportError(
+        raise error(
             f"tare window: {t0:g}-{t1:g} s holds {int(inside.sum())} samples; the recording runs "
             f"{recording.t[0]:g}-{recording.t[-1]:g} s and the window needs at least 2 of them"
         )
@@ -605,7 +644,7 @@ def _given_offset(
     return _GivenOffset(offset, "window", note)
 
 
-def _free_space_offset(recording: _Samples, wrenches: np.ndarray) -> tare_module.SensorOffset | None:
+def _free_space_offset(recording: RecordingSamples, wrenches: np.ndarray) -> tare_module.SensorOffset | None:
     """Estimate the sensor offset over the free-space stretches of an (untared) world-frame applied wrench."""
     t = recording.t
     if t.size < MIN_DEMONSTRATION_SAMPLES:
@@ -618,8 +657,10 @@ def _free_space_offset(recording: _Samples, wrenches: np.ndarray) -> tare_module
 
 
 @dataclass(frozen=True)
-class _Samples:
-    """The recording on its uniform time grid (what the steps after the time step need)."""
+class RecordingSamples:
+    """A recording on its uniform time grid (what the steps after the time step need): ``t`` (N,) s, ``positions``
+    (N, 3) m, ``orientations`` (N, 4), ``wrenches`` (N, 6) N and N·m as the file holds them, ``rate_hz``, the
+    notes of the time step."""
 
     t: np.ndarray
     positions: np.ndarray
@@ -634,14 +675,14 @@ class _Samples:
 
 def _fixed_rate_recording(
     positions: np.ndarray, orientations: np.ndarray, wrenches: np.ndarray, dt_s: float
-) -> _Samples:
+) -> RecordingSamples:
     """The rows of a file without a time column as samples ``dt_s`` apart: ``t = row * dt_s`` from 0.
 
     Every row is a measurement (a value repeated over rows is the robot holding still, not an
     event-log repeat), so none is dropped and nothing is resampled.
     """
     rate_hz = 1.0 / dt_s
-    return _Samples(
+    return RecordingSamples(
         t=np.arange(positions.shape[0]) * dt_s,
         positions=positions,
         orientations=preprocess.quaternions_unit_continuous(orientations),
@@ -733,10 +774,12 @@ __all__ = [
     "ColumnMap",
     "CsvImportError",
     "DemonstrationImportError",
+    "RecordingSamples",
     "ResolvedColumns",
     "demonstration_from_csv",
     "demonstration_from_file",
     "demonstration_from_json",
+    "demonstration_from_samples",
     "resolved_columns",
     "sampling_rate_hz",
     "validation_problems",

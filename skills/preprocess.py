@@ -304,6 +304,49 @@ def resampled_recording(
 
     pose = channel_group_samples(t, np.hstack([positions, orientations]), quaternion_columns=slice(3, 7))
     wrench = channel_group_samples(t, wrenches)
+    return recording_from_groups(
+        pose,
+        wrench,
+        rate_hz,
+        position_method,
+        n_rows_out_of_order=int(np.count_nonzero(~in_order)),
+        n_duplicate_stamps=int(np.count_nonzero(np.diff(t) == 0)),
+    )
+
+
+def stream_samples(t: ArrayLike, values: ArrayLike, quaternion_columns: slice | None = None) -> GroupSamples:
+    """Return the measurements of one message stream (e.g. a ROS topic) as a channel group.
+
+    Unlike a row of an event-driven log, every message is a measurement (a repeated value is the
+    robot holding still): nothing is dropped. ``t`` (N,) s in any order is sorted (stable); samples
+    sharing a time stamp are averaged (``quaternion_columns`` as quaternions: sign-aligned, averaged,
+    renormalized).
+    """
+    t = np.asarray(t, dtype=float)
+    values = np.asarray(values, dtype=float)
+    order = np.argsort(t, kind="stable")
+    t_unique, merged = _same_time_averaged(t[order], values[order], quaternion_columns)
+    return GroupSamples(
+        t=t_unique,
+        values=merged,
+        n_rows=int(t.size),
+        n_repeats_dropped=0,
+        n_holds=0,
+        n_same_time_merged=int(t.size - t_unique.size),
+    )
+
+
+def recording_from_groups(
+    pose: GroupSamples,
+    wrench: GroupSamples,
+    rate_hz: float | None = None,
+    position_method: PositionMethod = "cubic",
+    n_rows_out_of_order: int = 0,
+    n_duplicate_stamps: int = 0,
+) -> ResampledRecording:
+    """Interpolate a pose group (values: position (m) then scalar-last quaternion) and a wrench group onto one
+    uniform grid at ``rate_hz`` (default :func:`default_rate_hz`) over the span where both have measurements
+    (no extrapolation): positions by ``position_method``, orientations by slerp, wrenches linearly."""
     if rate_hz is None:
         if pose.t.size < 2 and wrench.t.size < 2:
             raise ValueError("cannot choose a resampling rate: no channel changes over time")
@@ -326,8 +369,8 @@ def resampled_recording(
         rate_hz=float(rate_hz),
         pose=pose,
         wrench=wrench,
-        n_rows_out_of_order=int(np.count_nonzero(~in_order)),
-        n_duplicate_stamps=int(np.count_nonzero(np.diff(t) == 0)),
+        n_rows_out_of_order=n_rows_out_of_order,
+        n_duplicate_stamps=n_duplicate_stamps,
     )
     result.notes.extend(_resampling_notes(result))
     return result
@@ -335,9 +378,14 @@ def resampled_recording(
 
 def _resampling_notes(r: ResampledRecording) -> list[str]:
     """One line per thing the resampling did, for the import report."""
+    source = (
+        f"{r.pose.n_rows} rows"
+        if r.pose.n_rows == r.wrench.n_rows
+        else f"{r.pose.n_rows} pose and {r.wrench.n_rows} wrench messages"
+    )
     notes = [
         f"resampled to {r.rate_hz:g} Hz ({r.t.size} samples, {r.t[-1] - r.t[0]:.3f} s) from "
-        f"{r.pose.n_rows} rows: pose {r.pose.t.size} measurements (median {r.pose.median_rate_hz:.3g} Hz), "
+        f"{source}: pose {r.pose.t.size} measurements (median {r.pose.median_rate_hz:.3g} Hz), "
         f"wrench {r.wrench.t.size} (median {r.wrench.median_rate_hz:.3g} Hz)"
     ]
     repeats = r.pose.n_repeats_dropped + r.wrench.n_repeats_dropped

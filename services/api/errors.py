@@ -25,7 +25,7 @@ from fastapi.responses import JSONResponse
 from schemas.api import ApiError
 
 if TYPE_CHECKING:
-    from services.csv_import import CsvImportError
+    from services.csv_import import CsvImportError, DemonstrationImportError
     from skills.parameterize import LearningError
 
 log = logging.getLogger("contact_skills.api")
@@ -88,6 +88,21 @@ def csv_import_failed(exc: CsvImportError) -> RequestValidationError:
     return RequestValidationError(
         [{"loc": ("body", field), "msg": problem, "type": "csv_import"} for problem in exc.problems]
     )
+
+
+BAG_PROBLEM_FIELDS = {"wrench_topic": "wrench_topic", "pose_topic": "pose_topic", "tf": "tf_parent",
+                      "wrench_frame": "wrench_frame", "file": "file"}  # fmt: skip
+"""A bag import problem's prefix (``services.bag_import``) -> the form field of ``POST /demonstrations/bag``."""
+
+
+def import_failed(exc: DemonstrationImportError) -> RequestValidationError:
+    """422 for a bag import: one entry per problem, on the form field its prefix names (else as for a CSV)."""
+    entries = []
+    for problem in exc.problems:
+        prefix = problem.partition(":")[0]
+        field = BAG_PROBLEM_FIELDS.get(prefix) or _csv_problem_field([problem])
+        entries.append({"loc": ("body", field), "msg": problem, "type": "bag_import"})
+    return RequestValidationError(entries)
 
 
 def learning_failed(exc: LearningError, loc: list[str | int], demonstration_id: str | None) -> RequestValidationError:

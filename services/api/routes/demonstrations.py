@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
 
-from schemas.api import ApiError, DemonstrationCreated, DemonstrationInfo, StoredDemonstration
+from schemas.api import ApiError, BagImportForm, DemonstrationCreated, DemonstrationInfo, StoredDemonstration
 from schemas.bus import RecordRequest
 from schemas.demonstration import Demonstration, QuaternionOrder, WrenchConvention, WrenchFrame
 from services.api import errors
@@ -132,6 +132,40 @@ def post_demonstration_csv(
         raise errors.csv_import_failed(exc) from None
     if file.filename:
         demonstration.metadata.source = f"csv:{file.filename}"
+    row = store.add_demonstration(demonstration)
+    return _created(row, notes=list(demonstration.metadata.extra.get("import_notes", [])))
+
+
+@router.post(
+    "/demonstrations/bag",
+    status_code=201,
+    response_model=DemonstrationCreated,
+    responses=MUTATING_RESPONSES,
+    dependencies=TOKEN_GUARD,
+)
+def post_demonstration_bag(
+    store: StoreDep,
+    file: Annotated[
+        UploadFile, File(description="The bag's storage file: the .mcap or .db3 inside a ROS 2 bag directory.")
+    ],
+    options: Annotated[BagImportForm, Form()],
+) -> DemonstrationCreated:
+    """Import a ROS 2 bag (a WrenchStamped topic and the tool pose as a PoseStamped topic or /tf) and store it.
+
+    Topics are chosen automatically when the bag holds one candidate, else named by the form fields; header stamps
+    and frames are honoured, the asynchronous topics aligned on one time base (as ``contact-skills learn BAG``)."""
+    from services.bag_import import BagImportError, demonstration_from_bag_upload
+
+    try:
+        demonstration = demonstration_from_bag_upload(
+            file.file.read(),
+            file.filename or "upload.mcap",
+            **options.import_options(),
+            tare_window_s=_numbers(options.tare_window, "tare_window", count=(2,)),
+            force_offset=_numbers(options.force_offset, "force_offset", count=(3, 6)),
+        )
+    except BagImportError as exc:
+        raise errors.import_failed(exc) from None
     row = store.add_demonstration(demonstration)
     return _created(row, notes=list(demonstration.metadata.extra.get("import_notes", [])))
 
