@@ -13,7 +13,7 @@ import os
 import sys
 from pathlib import Path
 
-from cli import bus_commands, demo_command, service_commands
+from cli import bus_commands, demo_command, export_command, service_commands
 
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
@@ -552,6 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
     bus_commands.register(commands)
     service_commands.register(commands)
     demo_command.register(commands)
+    export_command.register(commands)
     return parser
 
 

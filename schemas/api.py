@@ -31,6 +31,17 @@ class ExecutionState(StrEnum):
     """An internal error, a lost worker, or the API restarted while it ran."""
 
 
+class TelemetryFormat(StrEnum):
+    """What ``GET .../telemetry`` returns."""
+
+    json = "json"
+    """Columns of arrays (JSON)."""
+    csv = "csv"
+    """One row per sample, a header row naming the columns (text/csv)."""
+    mcap = "mcap"
+    """MCAP with ROS 2 message types (Foxglove, PlotJuggler; see services/telemetry_export.py)."""
+
+
 class ApiError(BaseModel):
     """The body of every 4xx/5xx that is not a validation error: ``detail`` says what and why."""
 

@@ -796,6 +796,11 @@ def demonstration_csv_text(demonstration: Demonstration) -> str:
     Full float precision (``repr``), so importing it again with the defaults gives the same samples.
     """
     a = demonstration.arrays()
-    table = np.column_stack([a.t, a.positions, a.orientations, a.wrenches])
+    return samples_csv_text(a.t, a.positions, a.orientations, a.wrenches)
+
+
+def samples_csv_text(t: np.ndarray, positions: np.ndarray, orientations: np.ndarray, wrenches: np.ndarray) -> str:
+    """Samples in the project's conventions as the CSV text of :func:`demonstration_csv_text` (any number of rows)."""
+    table = np.column_stack([t, positions, orientations, wrenches])
     rows = (",".join(repr(float(v)) for v in row) for row in table)
     return "\n".join([",".join(CSV_HEADER), *rows]) + "\n"

@@ -70,11 +70,12 @@ def write_bag(
     wrench_frame: str = "tool",
     pose: str = "pose_stamped",
     second_wrench_topic: bool = False,
+    pose_every: int = POSE_EVERY,
     seed: int = 0,
 ) -> Path:
     """Write the truth (``t`` s, ``positions`` m, ``orientations`` [x, y, z, w], ``wrenches`` applied by the tool at
     the tool point in the world) as a rosbag2 directory at ``path`` (``storage`` 'mcap' or 'sqlite3'); see the
-    module docstring for what it holds. Returns ``path``."""
+    module docstring for what it holds (``pose_every``: the pose at 1/pose_every of the wrench rate); returns it."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -99,7 +100,7 @@ def write_bag(
         messages.append((int(stamp + rng.integers(0, 30_000_000)), "/ft_sensor/wrench", message))
         if second_wrench_topic:
             messages.append((int(stamp), "/ft_sensor/wrench_filtered", message))
-    pose_rows = np.arange(1, len(t), POSE_EVERY)
+    pose_rows = np.arange(1, len(t), pose_every)
     if pose == "pose_stamped":
         for k in pose_rows:
             q = orientations[k]
@@ -118,7 +119,9 @@ def write_bag(
         r_bf, p_bf = r_wb.inv() * r_wf, r_wb.inv().apply(p_wf - p_wb)
         for j, k in enumerate(pose_rows):
             tf = _transform(types, int(stamps[k]), "base", "flange", r_bf[j], p_bf[j])
-            messages.append((int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types["tf2_msgs/msg/TFMessage"]([tf])))
+            messages.append(
+                (int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types["tf2_msgs/msg/TFMessage"]([tf]))
+            )
         static = [
             _transform(types, int(stamps[0]), "world", "base", r_wb, p_wb),
             _transform(types, int(stamps[0]), "flange", "tool", r_ft, p_ft),

@@ -17,11 +17,11 @@ from rosbag_files import POSE_EVERY, STAMP_BASE_NS, storage_file, write_bag
 
 pytest.importorskip("rosbags")
 
-from schemas import Skill, SkillType  # noqa: E402
-from schemas.skill import SegmentKind  # noqa: E402
-from services.bag_import import BagImportError, demonstration_from_bag  # noqa: E402
-from skills import synthetic  # noqa: E402
-from skills.quaternions import matrix_from_quaternion  # noqa: E402
+from schemas import Skill, SkillType
+from schemas.skill import SegmentKind
+from services.bag_import import BagImportError, demonstration_from_bag
+from skills import synthetic
+from skills.quaternions import matrix_from_quaternion
 
 REPO = Path(__file__).resolve().parents[1]
 TILT_15 = (np.sin(np.radians(15.0)), 0.0, -np.cos(np.radians(15.0)))
@@ -72,7 +72,9 @@ def test_bag_samples_are_the_truth_in_the_conventions(tmp_path, storage, wrench_
     np.testing.assert_allclose(a.wrenches, truth.wrenches[rows], atol=1e-5)
     frames = demo.metadata.extra["bag"]["frames"]
     assert frames["world"] == "world" and frames["wrench"] == wrench_frame
-    assert demo.metadata.source == "bag:bag" and demo.metadata.extra["bag"]["start_stamp_ns"] == STAMP_BASE_NS + 1_000_000
+    assert (
+        demo.metadata.source == "bag:bag" and demo.metadata.extra["bag"]["start_stamp_ns"] == STAMP_BASE_NS + 1_000_000
+    )
 
 
 def test_the_bag_is_logged_out_of_stamp_order(tmp_path):
@@ -147,7 +149,7 @@ def test_ambiguous_topics_and_unknown_frames_name_the_option(tmp_path):
     chosen = demonstration_from_bag(bag, **MEASURED, tool_frame="tool", wrench_topic="/ft_sensor/wrench_filtered")
     assert chosen.metadata.extra["bag"]["wrench_topic"] == "/ft_sensor/wrench_filtered"
 
-    with pytest.raises(BagImportError, match="wrench_frame: the wrench's frame_id is 'tool'.*--wrench-frame"):
+    with pytest.raises(BagImportError, match=r"wrench_frame: the wrench's frame_id is 'tool'.*--wrench-frame"):
         demonstration_from_bag(bag, **MEASURED, wrench_topic="/ft_sensor/wrench")  # no --tool-frame: tool unknown
     with pytest.raises(BagImportError, match="wrench_topic: no topic '/nope'"):
         demonstration_from_bag(bag, wrench_topic="/nope")
@@ -158,7 +160,7 @@ def test_ambiguous_topics_and_unknown_frames_name_the_option(tmp_path):
         demonstration_from_bag(tf_bag, tf_frames=("world", "gripper"))
     broken = tmp_path / "broken.mcap"
     broken.write_bytes(b"not a bag")
-    with pytest.raises(BagImportError, match="file: cannot read the bag 'broken.mcap'"):
+    with pytest.raises(BagImportError, match=r"file: cannot read the bag 'broken\.mcap'"):
         demonstration_from_bag(broken)
 
 

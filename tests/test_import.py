@@ -365,7 +365,16 @@ def _with_cell(line: int, column: int, value: str) -> str:
         (_with_cell(5, 7, "3.0"), "quaternion (qx, qy, qz, qw), line 5: norm"),
     ],
     ids=[
-        "missing", "non-numeric", "empty", "nan", "inf", "one-row", "short", "empty-file", "no-header", "ragged",
+        "missing",
+        "non-numeric",
+        "empty",
+        "nan",
+        "inf",
+        "one-row",
+        "short",
+        "empty-file",
+        "no-header",
+        "ragged",
         "quaternion-norm",
     ],
 )

@@ -14,6 +14,7 @@ from typing import Annotated
 from fastapi import Depends, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from schemas.api import TelemetryFormat
 from schemas.bus import KeyExpressions
 from services.api import errors
 from services.bus import BusClient
@@ -69,3 +70,18 @@ TOKEN_GUARD = [Depends(require_token)]
 
 Limit = Annotated[int, Query(ge=1, le=1000)]
 Offset = Annotated[int, Query(ge=0)]
+
+ExportFormat = Annotated[
+    TelemetryFormat,
+    Query(
+        alias="format",
+        description="json: columns of arrays; csv: one row per sample; mcap: ROS 2 messages for Foxglove or "
+        "PlotJuggler (topics in README 'Export').",
+    ),
+]
+WindowStart = Annotated[float | None, Query(description="Only samples at or after this time, s (the record's t).")]
+WindowEnd = Annotated[float | None, Query(description="Only samples at or before this time, s (the record's t).")]
+"""The export parameters of ``GET .../telemetry``."""
+EXPORT_RESPONSES: dict[int | str, dict] = {
+    200: {"content": {"text/csv": {}, "application/octet-stream": {}}, "description": "JSON, CSV or MCAP."}
+}

@@ -49,6 +49,12 @@ def unprocessable(loc: list[str | int], message: str, kind: str = "value_error")
     return RequestValidationError([{"loc": tuple(loc), "msg": message, "type": kind}])
 
 
+def check_window(t0: float | None, t1: float | None) -> None:
+    """422 on ``t1`` when a time window ends before it starts."""
+    if t0 is not None and t1 is not None and t1 < t0:
+        raise unprocessable(["query", "t1"], f"the window ends ({t1:g} s) before it starts (t0 = {t0:g} s)")
+
+
 def not_found(kind: str, ident: str) -> HTTPException:
     return HTTPException(404, f"no {kind} with id {ident!r}")
 

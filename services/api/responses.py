@@ -13,3 +13,10 @@ def raw_json(parts: dict[str, Any], raw: dict[str, str], status_code: int = 200)
     members = [f"{json.dumps(k)}:{json.dumps(v)}" for k, v in parts.items()]
     members += [f"{json.dumps(k)}:{v}" for k, v in raw.items()]
     return Response("{" + ",".join(members) + "}", status_code=status_code, media_type="application/json")
+
+
+def download(content: str | bytes, media_type: str, filename: str) -> Response:
+    """A file to save: ``content`` with its media type and a ``Content-Disposition`` naming ``filename``."""
+    return Response(
+        content, media_type=media_type, headers={"Content-Disposition": f'attachment; filename="{filename}"'}
+    )

@@ -2,18 +2,37 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
 
-from schemas.api import ApiError, BagImportForm, DemonstrationCreated, DemonstrationInfo, StoredDemonstration
+from schemas.api import (
+    ApiError,
+    BagImportForm,
+    DemonstrationCreated,
+    DemonstrationInfo,
+    StoredDemonstration,
+    TelemetryFormat,
+)
 from schemas.bus import RecordRequest
 from schemas.demonstration import Demonstration, QuaternionOrder, WrenchConvention, WrenchFrame
 from services.api import errors
-from services.api.deps import TOKEN_GUARD, BusDep, Limit, Offset, StoreDep, need_bus
+from services.api.deps import (
+    EXPORT_RESPONSES,
+    TOKEN_GUARD,
+    BusDep,
+    ExportFormat,
+    Limit,
+    Offset,
+    StoreDep,
+    WindowEnd,
+    WindowStart,
+    need_bus,
+)
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
 from services.api.limits import MAX_RATE_HZ
-from services.api.responses import raw_json
+from services.api.responses import download, raw_json
 from services.store import DemonstrationRow
 
 RECORD_TIMEOUT_S = 120.0
@@ -223,4 +242,45 @@ def get_demonstration(demonstration_id: str, store: StoreDep) -> Response:
     return raw_json(
         {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")},
         {"demonstration": body},
+    )
+
+
+@router.get(
+    "/demonstrations/{demonstration_id}/telemetry",
+    responses={**EXPORT_RESPONSES, **ERROR_RESPONSES},
+)
+def get_demonstration_telemetry(
+    demonstration_id: str,
+    store: StoreDep,
+    format: ExportFormat = TelemetryFormat.json,
+    t0: WindowStart = None,
+    t1: WindowEnd = None,
+) -> Response:
+    """A stored demonstration's samples to save or plot: JSON columns, CSV (as the importer reads it) or MCAP.
+
+    ``t0``/``t1`` (s) cut a window; MCAP holds the tool pose, the applied wrench and /tf as ROS 2 messages, a bag
+    that ``contact-skills learn`` reads back."""
+    from services.csv_import import samples_csv_text
+    from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, demonstration_mcap, window_mask
+
+    found = store.demonstration_json(demonstration_id)
+    if found is None:
+        raise errors.not_found("demonstration", demonstration_id)
+    errors.check_window(t0, t1)
+    row, body = found
+    demonstration = Demonstration.model_validate_json(body)
+    a = demonstration.arrays()
+    keep = window_mask(a.t, t0, t1)
+    if format is TelemetryFormat.csv:
+        text = samples_csv_text(a.t[keep], a.positions[keep], a.orientations[keep], a.wrenches[keep])
+        return download(text, CSV_MEDIA_TYPE, f"{demonstration_id}.csv")
+    if format is TelemetryFormat.mcap:
+        return download(
+            demonstration_mcap(demonstration, keep, row.created).data, MCAP_MEDIA_TYPE, f"{demonstration_id}.mcap"
+        )
+    columns = {"t": a.t[keep], "positions": a.positions[keep], "orientations": a.orientations[keep],
+               "wrenches": a.wrenches[keep]}  # fmt: skip
+    return raw_json(
+        {"demonstration_id": demonstration_id, "n_samples": int(keep.sum())},
+        {name: json.dumps(values.tolist()) for name, values in columns.items()},
     )

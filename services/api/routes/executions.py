@@ -10,12 +10,33 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Query, Response
 
-from schemas.api import ApiError, CommandAccepted, ExecutionCreated, ExecutionState, ExecutionView, TelemetryView
+from schemas.api import (
+    ApiError,
+    CommandAccepted,
+    ExecutionCreated,
+    ExecutionState,
+    ExecutionView,
+    TelemetryFormat,
+    TelemetryView,
+)
 from schemas.bus import KeyExpressions
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.api import errors
-from services.api.deps import TOKEN_GUARD, BusDep, KeysDep, Limit, Offset, StoreDep, need_bus
+from services.api.deps import (
+    EXPORT_RESPONSES,
+    TOKEN_GUARD,
+    BusDep,
+    ExportFormat,
+    KeysDep,
+    Limit,
+    Offset,
+    StoreDep,
+    WindowEnd,
+    WindowStart,
+    need_bus,
+)
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
+from services.api.responses import download
 from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
 
 log = logging.getLogger("contact_skills.api")
@@ -176,16 +197,32 @@ def resume_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: Keys
     return _command(execution_id, "resume", store, bus, keys)
 
 
-@router.get("/executions/{execution_id}/telemetry", responses={200: {"model": TelemetryView}, **ERROR_RESPONSES})
+@router.get(
+    "/executions/{execution_id}/telemetry",
+    responses={200: {"model": TelemetryView, **EXPORT_RESPONSES[200]}, **ERROR_RESPONSES},
+)
 def get_telemetry(
     execution_id: str,
     store: StoreDep,
     every: Annotated[int, Query(ge=1, le=1_000_000, description="Return every N-th sample.")] = 1,
+    format: ExportFormat = TelemetryFormat.json,
+    t0: WindowStart = None,
+    t1: WindowEnd = None,
 ) -> Response:
-    """The recorded telemetry stream (wrenches, poses, references, phases) as columns of arrays."""
+    """The recorded telemetry stream (wrenches, poses, references, phases): JSON columns, CSV or MCAP.
+
+    ``t0``/``t1`` (s of the execution's time) cut a window, ``every`` decimates; MCAP holds ROS 2 messages
+    (poses, wrenches in world and CF, desired force, phases, /tf) stamped from the execution's creation time."""
+    from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, execution_csv, execution_mcap, window_mask
+
     row = _found(store, execution_id)
+    errors.check_window(t0, t1)
     matrix = store.telemetry(execution_id)
-    picked = matrix[::every]
+    picked = matrix[window_mask(matrix[:, 0], t0, t1)][::every]
+    if format is TelemetryFormat.csv:
+        return download(execution_csv(picked), CSV_MEDIA_TYPE, f"{execution_id}.csv")
+    if format is TelemetryFormat.mcap:
+        return download(execution_mcap(picked, row.created, execution_id).data, MCAP_MEDIA_TYPE, f"{execution_id}.mcap")
     columns: dict[str, Any] = telemetry_columns(picked)
     if not np.isfinite(picked).all():  # never expected (the executor reports no NaN); keep the JSON valid
         columns = json.loads(re.sub(r"-?Infinity|NaN", "null", json.dumps(columns)))

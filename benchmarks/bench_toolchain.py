@@ -1,0 +1,134 @@
+"""ROS 2 bag import and MCAP/CSV/JSON export: time and size.
+
+Import: a 60 s demonstration (``skills.synthetic.plane_slide``) written as a ROS 2 bag by ``rosbags`` with a
+WrenchStamped and a PoseStamped topic at 1 kHz each (tests/rosbag_files.py: header stamps, messages logged out of
+order), in MCAP and in sqlite3 storage, imported by ``services.bag_import.demonstration_from_bag`` (read, align,
+tare, validate). Export: a real execution in PyBullet (``slide_flat``, teacher seed 0), its first 10 s of telemetry
+(the API's stored matrix) as MCAP, CSV and JSON through ``GET /executions/{id}/telemetry`` (in-process app).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section
+
+pin_blas_threads()
+
+import numpy as np  # noqa: E402
+
+SECTION = "bench_toolchain"
+COMMAND = ".venv/bin/python benchmarks/bench_toolchain.py"
+BAG_SECONDS = 60.0
+EXPORT_SECONDS = 10.0
+
+
+def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
+    from rosbag_files import write_bag
+
+    from services.bag_import import demonstration_from_bag
+    from skills.synthetic import plane_slide
+
+    demo = plane_slide(duration_s=BAG_SECONDS, rate_hz=1000.0)
+    rows, seconds = [], {}
+    with tempfile.TemporaryDirectory() as folder:
+        for storage in ("mcap", "sqlite3"):
+            bag = write_bag(Path(folder) / storage, demo.t, demo.positions, demo.orientations, demo.wrenches,
+                            storage=storage, wrench_frame="world", pose_every=1)  # fmt: skip
+            size = sum(p.stat().st_size for p in bag.iterdir())
+            elapsed, imported = median_time(
+                lambda bag=bag: demonstration_from_bag(bag, wrench_convention="measured-on-tool"), repeats
+            )
+            seconds[storage] = elapsed
+            messages = sum(imported.metadata.extra["bag"]["messages"].values())
+            rows.append(f"| {storage} | {messages} | {size / 1e6:.1f} | {imported.n_samples} | {elapsed:.2f} | "
+                        f"{messages / elapsed / 1e3:.0f} |")  # fmt: skip
+    return rows, seconds
+
+
+def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
+    from fastapi.testclient import TestClient
+
+    from schemas import ExecutionSettings
+    from services.app import create_app
+    from services.settings import ServiceSettings
+    from services.store import Store
+    from sim_worker.executor import execute_skill
+    from sim_worker.teacher import record_demonstration
+    from skills.parameterize import learn_skill
+
+    recording = record_demonstration("slide_flat", seed=0)
+    result = execute_skill(learn_skill(recording.demonstration), recording.world_config, ExecutionSettings())
+    rows, measured = [], {}
+    with tempfile.TemporaryDirectory() as folder:
+        store = Store(Path(folder) / "bench.db")
+        execution = store.add_execution({}, None)
+        store.add_telemetry(execution.id, result.telemetry.to_batch(execution.id))
+        samples = int((store.telemetry(execution.id)[:, 0] <= EXPORT_SECONDS).sum())
+        app = create_app(ServiceSettings(db_path=Path(folder) / "bench.db"), bus=None, store=store)
+        with TestClient(app) as client:
+            for fmt in ("mcap", "csv", "json"):
+                params = {"format": fmt, "t1": EXPORT_SECONDS}
+                url = f"/executions/{execution.id}/telemetry"
+                elapsed, response = median_time(lambda params=params, url=url: client.get(url, params=params), repeats)
+                assert response.status_code == 200, response.text
+                measured[fmt] = (elapsed, len(response.content))
+                rows.append(f"| {fmt} | {samples} | {len(response.content) / 1e6:.2f} | "
+                            f"{len(response.content) / samples:.0f} | {elapsed:.2f} |")  # fmt: skip
+        store.close()
+    return rows, measured
+
+
+def build_report(repeats: int) -> str:
+    imports, import_s = import_rows(repeats)
+    exports, export_measured = export_rows(repeats)
+    mcap_s, mcap_bytes = export_measured["mcap"]
+    sentences = [
+        f"A {BAG_SECONDS:.0f} s bag at 1 kHz imports in {import_s['mcap']:.1f} s from MCAP and "
+        f"{import_s['sqlite3']:.1f} s from sqlite3 (median of {repeats}).",
+        f"A {EXPORT_SECONDS:.0f} s execution exports as MCAP in {mcap_s:.1f} s ({mcap_bytes / 1e6:.1f} MB, "
+        f"{np.round(mcap_bytes / export_measured['json'][1], 2)} of its JSON).",
+    ]
+    return "\n".join([
+        "## ROS 2 bag import, MCAP/CSV/JSON export",
+        "",
+        f"Command: `{COMMAND}`. Import: a {BAG_SECONDS:.0f} s demonstration as a ROS 2 bag written by `rosbags`, "
+        "WrenchStamped and PoseStamped at 1 kHz each, imported with `contact-skills learn`'s importer (read, align "
+        "on one time base, tare, validate). Export: the first 10 s of a real PyBullet execution's stored telemetry "
+        "(1 kHz) through `GET /executions/{id}/telemetry?format=...&t1=10` (in-process app). Medians of "
+        f"{repeats} runs.",
+        "",
+        "| bag storage | messages | MB | samples imported | import s | k messages / s |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+        *imports,
+        "",
+        "| format | samples | MB | bytes / sample | export s |",
+        "| --- | ---: | ---: | ---: | ---: |",
+        *exports,
+        "",
+        *sentences,
+        "",
+        machine_line(),
+    ])  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (the median is reported)")
+    parser.add_argument("--no-write", action="store_true", help="only print the tables")
+    args = parser.parse_args(argv)
+    report = build_report(args.repeats)
+    print(report)
+    if not args.no_write:
+        write_section(SECTION, report)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

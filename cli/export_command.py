@@ -1,0 +1,106 @@
+"""``contact-skills export``: a stored demonstration or execution (from the API) or a local demonstration file, as
+MCAP (ROS 2 messages for Foxglove and PlotJuggler), CSV or JSON, optionally a time window of it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+EXAMPLES = """examples:
+  contact-skills export exec_0c1d2e3f4a5b -o scratch/run.mcap              # from the API at --url
+  contact-skills export demo_3f2a9c01b2d4 -o scratch/demo.csv --t0 2 --t1 6
+  contact-skills export scratch/slide_tilted.csv -o scratch/slide_tilted.mcap  # a local recording, no API
+"""
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Export a demonstration or an execution: an id (demo_..., exec_...) is fetched from the API, a local JSON or
+    CSV demonstration (in the project's conventions, as `record` writes them) is converted here. The format
+    follows the output's suffix (.mcap, .csv, .json) unless --format says."""
+    from cli.main import UserError, _report_user_error
+
+    try:
+        fmt = args.format or {".mcap": "mcap", ".csv": "csv", ".json": "json"}.get(args.output.suffix.lower())
+        if fmt is None:
+            raise UserError([f"format: {args.output} ends in neither .mcap, .csv nor .json: pass --format"])
+        if args.t0 is not None and args.t1 is not None and args.t1 < args.t0:
+            raise UserError([f"--t1 {args.t1:g} s is before --t0 {args.t0:g} s"])
+        source = Path(args.source)
+        if source.exists():
+            data, what = _local(source, fmt, args.t0, args.t1)
+        else:
+            data, what = _remote(args, fmt)
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_bytes(data)
+    except Exception as exc:
+        return _report_user_error("export", exc)
+    print(f"{what} -> {args.output} ({fmt}, {len(data) / 1e6:.2f} MB)")
+    return 0
+
+
+def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[bytes, str]:
+    """A local demonstration file exported: its samples unchanged (no tare), in the window."""
+    import json
+
+    from services.csv_import import demonstration_from_file, samples_csv_text
+    from services.telemetry_export import demonstration_mcap, window_mask
+
+    if source.is_dir() or source.suffix.lower() in (".mcap", ".db3"):
+        from services.bag_import import demonstration_from_bag
+
+        demonstration = demonstration_from_bag(source, tare=False)
+    else:
+        demonstration = demonstration_from_file(source, tare=False)
+    a = demonstration.arrays()
+    keep = window_mask(a.t, t0, t1)
+    what = f"demonstration {source} ({int(keep.sum())} of {a.t.size} samples)"
+    if fmt == "mcap":
+        return demonstration_mcap(demonstration, keep, source.stat().st_mtime).data, what
+    if fmt == "csv":
+        return samples_csv_text(a.t[keep], a.positions[keep], a.orientations[keep], a.wrenches[keep]).encode(), what
+    columns = {"t": a.t, "positions": a.positions, "orientations": a.orientations, "wrenches": a.wrenches}
+    return json.dumps({name: values[keep].tolist() for name, values in columns.items()}).encode(), what
+
+
+def _remote(args: argparse.Namespace, fmt: str) -> tuple[bytes, str]:
+    """The record ``args.source`` (an id) fetched from the API at ``args.url``."""
+    import httpx
+
+    from cli.main import UserError
+
+    kinds = {"demo_": "demonstrations", "exec_": "executions"}
+    kind = next((path for prefix, path in kinds.items() if args.source.startswith(prefix)), None)
+    if kind is None:
+        raise UserError([f"{args.source}: no such file, and not an id (demo_... or exec_...)"])
+    params = {"format": fmt, "t0": args.t0, "t1": args.t1, "every": args.every if kind == "executions" else None}
+    try:
+        response = httpx.get(f"{args.url}/{kind}/{args.source}/telemetry", params=_given(params), timeout=120)
+    except httpx.HTTPError as exc:
+        raise UserError([f"the API at {args.url} does not answer ({exc}): start it (contact-skills up)"]) from None
+    if response.status_code != 200:
+        raise UserError([f"{response.status_code}: {response.json().get('detail', response.text)}"])
+    return response.content, f"{args.source} from {args.url}"
+
+
+def _given(params: dict) -> dict:
+    return {k: v for k, v in params.items() if v is not None}
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``export`` to the `contact-skills` parser."""
+    export = commands.add_parser(
+        "export",
+        help="export a demonstration or execution as MCAP (Foxglove, PlotJuggler), CSV or JSON",
+        description=cmd_export.__doc__,
+        epilog=EXAMPLES,
+    )
+    export.add_argument("source", metavar="ID_OR_FILE", help="demo_... or exec_... (from the API), or a local file")
+    export.add_argument("-o", "--output", type=Path, required=True, help="file to write (.mcap, .csv or .json)")
+    export.add_argument("--format", choices=["mcap", "csv", "json"], help="default: from the output's suffix")
+    export.add_argument("--t0", type=float, metavar="S", help="only samples at or after S seconds")
+    export.add_argument("--t1", type=float, metavar="S", help="only samples at or before S seconds")
+    export.add_argument("--every", type=int, default=1, metavar="N", help="every N-th sample (executions)")
+    export.add_argument(
+        "--url", default="http://127.0.0.1:8000", help="the API to fetch ids from (default http://127.0.0.1:8000)"
+    )
+    export.set_defaults(run=cmd_export)

@@ -1,0 +1,237 @@
+"""Demonstrations and execution telemetry out: CSV, and MCAP with ROS 2 message types that Foxglove and PlotJuggler
+open without configuration.
+
+MCAP (profile ``ros2``, schemas ``ros2msg``, messages CDR-encoded with the ``rosbags`` type store for ROS 2 Humble,
+zstd chunks, written with the ``mcap`` library). Every message is stamped ``start + t`` (ns since the epoch;
+``start`` the record's creation time) in its header and as its log and publish time. Topics:
+
+- ``/tool/pose`` (``geometry_msgs/msg/PoseStamped``, ``world``): the tool point and orientation;
+- ``/reference/pose`` (PoseStamped, ``world``): the controller's reference (executions);
+- ``/wrench/world`` (``geometry_msgs/msg/WrenchStamped``, ``world``): the wrench the tool applies, world axes,
+  moment about the TOOL POINT (the project's convention);
+- ``/wrench/cf`` (WrenchStamped, ``cf``): the same wrench in the compliant frame, force z into the surface
+  (executions);
+- ``/force/desired`` (WrenchStamped, ``cf``): the desired CF force on force z, zero elsewhere (executions);
+- ``/phase`` (``std_msgs/msg/String``) and ``/segment`` (``std_msgs/msg/Int32``): at the start and at every
+  change (executions);
+- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> tool`` (and ``world -> reference``), for the 3D panels.
+
+A demonstration's MCAP is also a bag ``contact-skills learn`` reads back (the wrench is in ``world``, the pose
+frame). CSV: one row per sample, the columns named in :data:`EXECUTION_CSV_COLUMNS` (an execution) or the
+importer's own columns (a demonstration: `services.csv_import.demonstration_csv_text`).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from schemas.demonstration import Demonstration
+from schemas.execution import PHASE_CODES
+from services.store import TELEMETRY_LAYOUT, telemetry_columns
+
+PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
+MCAP_MEDIA_TYPE = "application/octet-stream"
+CSV_MEDIA_TYPE = "text/csv"
+WORLD_FRAME, TOOL_FRAME, REFERENCE_FRAME, CF_FRAME = "world", "tool", "reference", "cf"
+CONVENTIONS = (
+    "SI units; quaternions [x, y, z, w]; /wrench/world is the wrench the tool applies, world axes, moment about the "
+    "tool point; /wrench/cf the same in the compliant frame (force z into the surface); stamps = start + t"
+)
+"""Stored in the file's metadata record ``contact_skills``."""
+
+
+def _expanded(name: str, width: int) -> list[str]:
+    suffixes = {
+        3: ["x", "y", "z"],
+        4: ["qx", "qy", "qz", "qw"],
+        6: ["fx", "fy", "fz", "mx", "my", "mz"],
+    }
+    return [name] if width == 1 else [f"{name}_{suffix}" for suffix in suffixes[width]]
+
+
+EXECUTION_CSV_COLUMNS = [c for name, (a, b) in TELEMETRY_LAYOUT.items() for c in _expanded(name, b - a)]
+"""Columns of an execution's CSV: t (s), phase (name), segment_index, each vector's components (SI, [x, y, z, w])."""
+
+
+def window_mask(t: np.ndarray, t0: float | None, t1: float | None) -> np.ndarray:
+    """The samples with ``t0 <= t <= t1`` (s; None: unbounded)."""
+    mask = np.ones(t.shape, dtype=bool)
+    if t0 is not None:
+        mask &= t >= t0
+    if t1 is not None:
+        mask &= t <= t1
+    return mask
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def execution_csv(matrix: np.ndarray) -> str:
+    """An execution's telemetry (rows of the store's matrix, :data:`services.store.TELEMETRY_LAYOUT`) as CSV text."""
+    columns = telemetry_columns(matrix)
+    lines = [",".join(EXECUTION_CSV_COLUMNS)]
+    numbers = np.delete(matrix, TELEMETRY_LAYOUT["phase"][0], axis=1)  # t, segment_index, the vectors
+    for phase, row in zip(columns["phase"], numbers, strict=True):
+        lines.append(",".join([repr(float(row[0])), phase, str(int(row[1])), *(repr(float(v)) for v in row[2:])]))
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- MCAP
+
+
+class _McapOut:
+    """An MCAP file in memory with ROS 2 schemas (``ros2msg``) and CDR messages."""
+
+    def __init__(self, start_ns: int, metadata: dict[str, str]) -> None:
+        from mcap.writer import CompressionType, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        self.typestore = get_typestore(Stores.ROS2_HUMBLE)
+        self.types = self.typestore.types
+        self.start_ns = start_ns
+        self.buffer = io.BytesIO()
+        self.writer = Writer(self.buffer, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="contact-skills")
+        self.writer.add_metadata("contact_skills", metadata)
+        self._schemas: dict[str, int] = {}
+
+    def stamps(self, t: np.ndarray) -> np.ndarray:
+        """Nanoseconds since the epoch of times ``t`` (s from the start)."""
+        return self.start_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
+
+    def write(self, topic: str, msgtype: str, stamps_ns: Iterable[int], messages: Iterable[Any]) -> None:
+        if msgtype not in self._schemas:
+            definition = self.typestore.generate_msgdef(msgtype, ros_version=2)[0]
+            self._schemas[msgtype] = self.writer.register_schema(msgtype, "ros2msg", definition.encode())
+        channel = self.writer.register_channel(topic, "cdr", self._schemas[msgtype])
+        for sequence, (stamp, message) in enumerate(zip(stamps_ns, messages, strict=True)):
+            data = self.typestore.serialize_cdr(message, msgtype)
+            self.writer.add_message(channel, int(stamp), data, int(stamp), sequence)
+
+    def finish(self) -> bytes:
+        self.writer.finish()
+        return self.buffer.getvalue()
+
+    # ------------------------------------------------------------------ message builders
+
+    def header(self, stamp_ns: int, frame: str):
+        t = self.types
+        time = t["builtin_interfaces/msg/Time"](
+            sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)
+        )
+        return t["std_msgs/msg/Header"](stamp=time, frame_id=frame)
+
+    def vector(self, v: Sequence[float]):
+        return self.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def quaternion(self, q: Sequence[float]):
+        return self.types["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+    def poses(self, stamps: np.ndarray, positions: np.ndarray, orientations: np.ndarray, frame: str) -> list:
+        t = self.types
+        return [
+            t["geometry_msgs/msg/PoseStamped"](
+                header=self.header(s, frame),
+                pose=t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](*map(float, p)), orientation=self.quaternion(q)
+                ),
+            )
+            for s, p, q in zip(stamps, positions, orientations, strict=True)
+        ]
+
+    def wrenches(self, stamps: np.ndarray, wrenches: np.ndarray, frame: str) -> list:
+        t = self.types
+        return [
+            t["geometry_msgs/msg/WrenchStamped"](
+                header=self.header(s, frame),
+                wrench=t["geometry_msgs/msg/Wrench"](force=self.vector(w[:3]), torque=self.vector(w[3:])),
+            )
+            for s, w in zip(stamps, wrenches, strict=True)
+        ]
+
+    def transforms(self, stamps: np.ndarray, frames: dict[str, tuple[np.ndarray, np.ndarray]]) -> list:
+        """One TFMessage per stamp with ``world -> child`` for each child frame (positions, orientations)."""
+        t = self.types
+        messages = []
+        for k, stamp in enumerate(stamps):
+            transforms = [
+                t["geometry_msgs/msg/TransformStamped"](
+                    header=self.header(stamp, WORLD_FRAME),
+                    child_frame_id=child,
+                    transform=t["geometry_msgs/msg/Transform"](
+                        translation=self.vector(positions[k]), rotation=self.quaternion(orientations[k])
+                    ),
+                )
+                for child, (positions, orientations) in frames.items()
+            ]
+            messages.append(t["tf2_msgs/msg/TFMessage"](transforms=transforms))
+        return messages
+
+    def changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> None:
+        """``values`` as ``std_msgs`` messages at the first sample and wherever the value changes."""
+        kept = [k for k in range(len(values)) if k == 0 or values[k] != values[k - 1]]
+        message = self.types[msgtype]
+        self.write(topic, msgtype, stamps[kept], [message(data=values[k]) for k in kept])
+
+
+@dataclass(frozen=True)
+class McapExport:
+    """An exported MCAP file and what it holds."""
+
+    data: bytes
+    messages: int
+    topics: list[str]
+
+
+def execution_mcap(matrix: np.ndarray, start_unix_s: float, execution_id: str) -> McapExport:
+    """An execution's telemetry (the store's matrix rows) as MCAP (see the module docstring for the topics)."""
+    out = _McapOut(int(start_unix_s * 1e9), {"execution_id": execution_id, "conventions": CONVENTIONS})
+    columns = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
+    stamps = out.stamps(columns["t"][:, 0])
+    tool = (columns["tool_position"], columns["tool_orientation"])
+    reference = (columns["reference_position"], columns["reference_orientation"])
+    desired = np.zeros((matrix.shape[0], 6))
+    desired[:, 2] = columns["desired_force_cf_z_n"][:, 0]
+    pose, wrench = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/WrenchStamped"
+    out.write("/tool/pose", pose, stamps, out.poses(stamps, *tool, WORLD_FRAME))
+    out.write("/reference/pose", pose, stamps, out.poses(stamps, *reference, WORLD_FRAME))
+    out.write("/wrench/world", wrench, stamps, out.wrenches(stamps, columns["wrench_world"], WORLD_FRAME))
+    out.write("/wrench/cf", wrench, stamps, out.wrenches(stamps, columns["wrench_cf"], CF_FRAME))
+    out.write("/force/desired", wrench, stamps, out.wrenches(stamps, desired, CF_FRAME))
+    out.write(
+        "/tf", "tf2_msgs/msg/TFMessage", stamps, out.transforms(stamps, {TOOL_FRAME: tool, REFERENCE_FRAME: reference})
+    )
+    if matrix.shape[0]:
+        phases = [PHASE_NAMES.get(int(code), "failed") for code in columns["phase"][:, 0]]
+        out.changes("/phase", "std_msgs/msg/String", stamps, phases)
+        out.changes("/segment", "std_msgs/msg/Int32", stamps, [int(v) for v in columns["segment_index"][:, 0]])
+    return _finished(out)
+
+
+def demonstration_mcap(demonstration: Demonstration, mask: np.ndarray | None, start_unix_s: float) -> McapExport:
+    """A demonstration (the samples in ``mask``) as MCAP: ``/tool/pose``, ``/wrench/world``, ``/tf``."""
+    a = demonstration.arrays()
+    keep = np.ones(a.t.shape, dtype=bool) if mask is None else mask
+    out = _McapOut(int(start_unix_s * 1e9), {"demonstration": demonstration.metadata.name, "conventions": CONVENTIONS})
+    stamps = out.stamps(a.t[keep])
+    tool = (a.positions[keep], a.orientations[keep])
+    out.write("/tool/pose", "geometry_msgs/msg/PoseStamped", stamps, out.poses(stamps, *tool, WORLD_FRAME))
+    wrenches = out.wrenches(stamps, a.wrenches[keep], WORLD_FRAME)
+    out.write("/wrench/world", "geometry_msgs/msg/WrenchStamped", stamps, wrenches)
+    out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, out.transforms(stamps, {TOOL_FRAME: tool}))
+    return _finished(out)
+
+
+def _finished(out: _McapOut) -> McapExport:
+    data = out.finish()
+    from mcap.reader import make_reader
+
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    assert summary is not None and summary.statistics is not None
+    topics = sorted(channel.topic for channel in summary.channels.values())
+    return McapExport(data, summary.statistics.message_count, topics)
