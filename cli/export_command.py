@@ -64,26 +64,17 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
 
 def _remote(args: argparse.Namespace, fmt: str) -> tuple[bytes, str]:
     """The record ``args.source`` (an id) fetched from the API at ``args.url``."""
-    import httpx
-
     from cli.main import UserError
+    from services.client import Client, ServiceError
 
-    kinds = {"demo_": "demonstrations", "exec_": "executions"}
-    kind = next((path for prefix, path in kinds.items() if args.source.startswith(prefix)), None)
-    if kind is None:
-        raise UserError([f"{args.source}: no such file, and not an id (demo_... or exec_...)"])
-    params = {"format": fmt, "t0": args.t0, "t1": args.t1, "every": args.every if kind == "executions" else None}
     try:
-        response = httpx.get(f"{args.url}/{kind}/{args.source}/telemetry", params=_given(params), timeout=120)
-    except httpx.HTTPError as exc:
-        raise UserError([f"the API at {args.url} does not answer ({exc}): start it (contact-skills up)"]) from None
-    if response.status_code != 200:
-        raise UserError([f"{response.status_code}: {response.json().get('detail', response.text)}"])
-    return response.content, f"{args.source} from {args.url}"
-
-
-def _given(params: dict) -> dict:
-    return {k: v for k, v in params.items() if v is not None}
+        with Client(args.url) as client:
+            data = client.export(args.source, format=fmt, t0=args.t0, t1=args.t1, every=args.every)
+    except ServiceError as exc:
+        raise UserError([str(exc)]) from None
+    except ValueError as exc:  # neither a file nor an id
+        raise UserError([f"{args.source}: no such file, and {exc}"]) from None
+    return data, f"{args.source} from {args.url}"
 
 
 def register(commands: argparse._SubParsersAction) -> None:
