@@ -22,6 +22,7 @@ from fastapi import FastAPI
 
 from schemas.bus import KeyExpressions
 from services.api.body_limit import BodyLimit
+from services.api.docs import install_offline_docs
 from services.api.errors import install_error_handlers
 from services.api.main import api_router
 from services.bus_events import BusEvents, connect_bus, reconcile
@@ -63,6 +64,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
         description="Learn robot contact skills (slide, contour) from one demonstration and execute them with a "
         "hybrid impedance/force controller in a PyBullet simulation. Telemetry streams over Zenoh.",
         lifespan=lifespan,
+        docs_url=None,  # served offline by install_offline_docs
+        redoc_url=None,
     )
     app.state.store = store
     app.state.bus = bus
@@ -71,4 +74,5 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     install_error_handlers(app)
     app.include_router(api_router)
+    install_offline_docs(app)
     return app

@@ -73,7 +73,10 @@ def _numbers(text: str | None, field: str, count: tuple[int, ...]) -> tuple[floa
     dependencies=TOKEN_GUARD,
 )
 def post_demonstration(demonstration: Demonstration, store: StoreDep) -> DemonstrationCreated:
-    """Store a demonstration given as JSON (a `Demonstration`; CSV: ``POST /demonstrations/csv``)."""
+    """Store a demonstration given as JSON (a `Demonstration`; CSV: ``POST /demonstrations/csv``).
+
+    The samples must already follow the conventions (SI, quaternions [x, y, z, w], the wrench the tool applies in
+    the world frame at the tool point); a field that does not is a 422 naming it. 201 with the id and summary."""
     return _created(store.add_demonstration(demonstration))
 
 
@@ -128,7 +131,11 @@ def post_demonstration_csv(
     ] = None,
     name: Annotated[str | None, Form(description="Name (default: the file name).")] = None,
 ) -> DemonstrationCreated:
-    """Import a CSV recording with the options of ``contact-skills learn`` (multipart form) and store it."""
+    """Import a CSV recording with the options of ``contact-skills learn`` (multipart form) and store it.
+
+    Columns are found by their names (or ``columns``), quaternions reordered, event-driven logs resampled, the
+    wrench turned into the one the tool applies in the world, the sensor offset removed; ``import_notes`` says what
+    was done. A problem is a 422 naming the form field and, for the file, the column and line."""
     from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv
 
     data = file.file.read()
@@ -225,7 +232,10 @@ def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -
 
 @router.get("/demonstrations", response_model=list[DemonstrationInfo])
 def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list[DemonstrationInfo]:
-    """Stored demonstrations, newest first (summaries, no samples)."""
+    """Stored demonstrations, newest first (summaries, no samples).
+
+    Each row: id, name, source (json, csv:FILE, bag:FILE, teacher:SCENARIO), creation time and the summary
+    (samples, duration, rate, largest force); ``limit`` and ``offset`` page through them."""
     return [
         DemonstrationInfo(id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary)
         for r in store.list_demonstrations(limit, offset)
@@ -234,7 +244,10 @@ def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0)
 
 @router.get("/demonstrations/{demonstration_id}", responses={200: {"model": StoredDemonstration}, **ERROR_RESPONSES})
 def get_demonstration(demonstration_id: str, store: StoreDep) -> Response:
-    """A stored demonstration with all its samples."""
+    """A stored demonstration with all its samples.
+
+    Time, tool positions and orientations ([x, y, z, w]) and the wrench the tool applied (world frame, at the tool
+    point), with the import metadata (conventions of the file, resampling, tare, notes); 404 for an unknown id."""
     found = store.demonstration_json(demonstration_id)
     if found is None:
         raise errors.not_found("demonstration", demonstration_id)

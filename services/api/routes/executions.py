@@ -143,13 +143,19 @@ def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys
 
 @router.get("/executions", response_model=list[ExecutionView])
 def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[ExecutionView]:
-    """Executions, newest first."""
+    """Executions, newest first.
+
+    Each with its status (starting, running, paused, done, aborted, failed), phase, worker, metrics once
+    finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them."""
     return [_view(row, store, keys) for row in store.list_executions(limit, offset)]
 
 
 @router.get("/executions/{execution_id}", response_model=ExecutionView, responses=ERROR_RESPONSES)
 def get_execution(execution_id: str, store: StoreDep, keys: KeysDep) -> ExecutionView:
-    """Status, phase and (once finished) metrics of an execution."""
+    """Status, phase and (once finished) metrics of an execution.
+
+    Poll it until the status is done, aborted or failed (or follow the Zenoh keys it names); the metrics hold the
+    CF-z force errors, path error, contact ratio and real-time factor. 404 for an unknown id."""
     return _view(_found(store, execution_id), store, keys)
 
 
@@ -169,7 +175,10 @@ def _command(execution_id: str, name: str, store: Store, bus: Any, keys: KeyExpr
     dependencies=TOKEN_GUARD,
 )
 def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
-    """Abort a running execution (a live command over Zenoh; the final status follows)."""
+    """Abort a running execution (a live command over Zenoh; the final status follows).
+
+    202 once the command is put on the bus; the worker stops within one control step and reports ``aborted``.
+    409 if the execution has already finished, 503 without a bus."""
     return _command(execution_id, "abort", store, bus, keys)
 
 
@@ -181,7 +190,10 @@ def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysD
     dependencies=TOKEN_GUARD,
 )
 def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
-    """Pause a running execution: it holds its current reference (and force) until resumed."""
+    """Pause a running execution: it holds its current reference (and force) until resumed.
+
+    202 once the command is put on the bus; the status then reads ``paused``. 409 if the execution has already
+    finished, 503 without a bus."""
     return _command(execution_id, "pause", store, bus, keys)
 
 
@@ -193,7 +205,10 @@ def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysD
     dependencies=TOKEN_GUARD,
 )
 def resume_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
-    """Resume a paused execution."""
+    """Resume a paused execution.
+
+    202 once the command is put on the bus; the execution continues from where it held and its status goes
+    back from paused to running. 409 if it has already finished, 503 without a bus."""
     return _command(execution_id, "resume", store, bus, keys)
 
 

@@ -14,7 +14,11 @@ router = APIRouter(tags=["service"])
 
 @router.get("/health", response_model=Health)
 def health(request: Request, store: StoreDep, settings: SettingsDep, bus: BusDep) -> Health:
-    """Liveness, and the sim workers connected over Zenoh."""
+    """Liveness, and the sim workers connected over Zenoh.
+
+    Always 200 while the API answers (docker-compose's healthcheck uses it): the version, whether the Zenoh bus is
+    connected, each connected worker's state (idle, executing, recording), the database and its schema version,
+    the executions running now."""
     workers = [info.model_dump(mode="json") for info in bus.workers()] if bus is not None else []
     return Health(
         version=request.app.version,

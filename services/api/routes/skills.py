@@ -55,13 +55,19 @@ def post_skill(request: SkillRequest, store: StoreDep) -> Response:
 
 @router.get("/skills", response_model=list[SkillInfo])
 def list_skills(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list[SkillInfo]:
-    """Stored skills, newest first (no parameters)."""
+    """Stored skills, newest first (no parameters).
+
+    Each row: id, the demonstration it was learned from, type (slide or contour), number of segments and the
+    auto selection's confidence; ``limit`` and ``offset`` page through them."""
     return [SkillInfo(**row) for row in store.list_skills(limit, offset)]
 
 
 @router.get("/skills/{skill_id}", responses={200: {"model": StoredSkill}, **ERROR_RESPONSES})
 def get_skill(skill_id: str, store: StoreDep) -> Response:
-    """A stored skill with all its parameters."""
+    """A stored skill with all its parameters.
+
+    Segments with their compliant frames, DMPs (position, orientation, force), selection matrices, the force and
+    the quality figures, as ``schemas.Skill``; 404 for an unknown id."""
     row = store.skill(skill_id)
     if row is None:
         raise errors.not_found("skill", skill_id)
@@ -76,7 +82,9 @@ def get_skill(skill_id: str, store: StoreDep) -> Response:
     dependencies=TOKEN_GUARD,
 )
 def delete_skill(skill_id: str, store: StoreDep) -> Response:
-    """Delete a stored skill (executions that ran it keep their records)."""
+    """Delete a stored skill (executions that ran it keep their records).
+
+    204 when deleted, 404 for an unknown id; needs the bearer token when one is set."""
     if not store.delete_skill(skill_id):
         raise errors.not_found("skill", skill_id)
     return Response(status_code=204)
