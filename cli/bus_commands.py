@@ -14,6 +14,9 @@ EXIT_ENDED_EARLY = 1
 """`watch`: the execution was aborted or failed."""
 EXIT_TIMEOUT = 3
 """`watch`: nothing final arrived within --timeout."""
+LOG_LEVELS = ["debug", "info", "warning", "error"]
+DEFAULT_API_URL = "http://127.0.0.1:8000"
+LOG_LEVEL_HELP = "how much the process logs to stderr (default info)"
 
 
 def _endpoints(values: list[str] | None) -> list[str]:
@@ -103,8 +106,41 @@ def _metrics_lines(status) -> list[str]:
     return lines
 
 
+def _asked_the_api(args: argparse.Namespace) -> int | None:
+    """Ask the API at ``--url`` about the execution first: exit 2 for an id it does not know, the stored metrics for
+    a finished one (exit 0 done, 1 ended early); None to follow it on the bus (running, or no API answers there)."""
+    from schemas.bus import ExecutionStatus
+    from services.client import Client, NotFoundError, ServiceError
+
+    try:
+        with Client(args.url, timeout_s=5.0) as client:
+            view = client.execution(args.execution_id).status()
+    except NotFoundError as exc:
+        print(f"contact-skills watch: error: {exc.detail} (asked the API at {args.url})", file=sys.stderr)
+        return 2
+    except ServiceError:
+        return None
+    if view.status.value not in ("done", "aborted", "failed"):
+        return None
+    status = ExecutionStatus(
+        execution_id=view.id,
+        worker_id=view.worker_id or "?",
+        phase=view.phase,
+        message=f"finished ({view.status.value})",
+        metrics=view.metrics,
+        error=view.error,
+    )
+    for text in _metrics_lines(status):
+        print(text)
+    return 0 if view.status.value == "done" else EXIT_ENDED_EARLY
+
+
 def cmd_watch(args: argparse.Namespace) -> int:
-    """``contact-skills watch``: live view of an execution from the bus; exits when it ends, printing its metrics."""
+    """``contact-skills watch``: live view of an execution from the bus; exits when it ends, printing its metrics.
+
+    The API at --url is asked first: an id it does not know is an error at once, a finished execution's metrics are
+    printed from it. Without an answer from the API, the bus alone is watched: no status within --wait seconds is
+    an error (an unknown id, or no worker runs it)."""
     import threading
     import time
 
@@ -116,6 +152,13 @@ def cmd_watch(args: argparse.Namespace) -> int:
     endpoints = _endpoints(args.connect) or settings.endpoints
     try:
         check_id(args.execution_id, "execution_id")
+    except ValueError as exc:
+        print(f"contact-skills watch: error: {exc}", file=sys.stderr)
+        return 2
+    answered = _asked_the_api(args)
+    if answered is not None:
+        return answered
+    try:
         keys = KeyExpressions(args.prefix or settings.prefix)
         session = open_session("client", connect=endpoints, wait_s=10.0)
     except (ValueError, ConnectionError) as exc:
@@ -152,8 +195,18 @@ def cmd_watch(args: argparse.Namespace) -> int:
             if reply.ok is not None:
                 on_status(reply.ok)
         deadline = None if args.timeout is None else time.monotonic() + args.timeout
+        first_deadline = time.monotonic() + args.wait
         last_print = 0.0
         while not ended.wait(0.1):
+            with lock:
+                heard = state["status"] is not None or state["samples"] > 0
+            if not heard and time.monotonic() > first_deadline:
+                print(
+                    f"contact-skills watch: no status from {args.execution_id} on the bus ({', '.join(endpoints)}) "
+                    f"within {args.wait:g} s: unknown id, or no worker runs it (the API at {args.url} did not answer)",
+                    file=sys.stderr,
+                )
+                return EXIT_TIMEOUT
             with lock:
                 line = _status_line(args.execution_id, state["status"], state["last"], state["samples"])
             if tty:
@@ -200,7 +253,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="endpoint to listen on, repeatable or comma-separated (env CONTACT_SKILLS_ZENOH_LISTEN; "
         "default tcp/127.0.0.1:7447)",
     )
-    router.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    router.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     router.set_defaults(run=cmd_router)
 
     connect_help = (
@@ -214,14 +267,26 @@ def register(commands: argparse._SubParsersAction) -> None:
     worker.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
     worker.add_argument("--id", help="worker id (default worker-<hostname>-<pid>)")
     worker.add_argument("--prefix", help=prefix_help)
-    worker.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    worker.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     worker.set_defaults(run=cmd_worker)
 
     watch = commands.add_parser(
         "watch", help="live view of an execution from the Zenoh bus", description=cmd_watch.__doc__
     )
-    watch.add_argument("execution_id", metavar="EXECUTION_ID")
+    watch.add_argument("execution_id", metavar="EXECUTION_ID", help="the execution to follow (exec_...)")
     watch.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
     watch.add_argument("--prefix", help=prefix_help)
     watch.add_argument("--timeout", type=float, metavar="S", help="give up after S seconds without a final status")
+    watch.add_argument(
+        "--wait",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="without an answer from the API: give up if the bus says nothing of the execution for S s (default 10)",
+    )
+    watch.add_argument(
+        "--url",
+        default=DEFAULT_API_URL,
+        help=f"the API asked about the execution first (default {DEFAULT_API_URL})",
+    )
     watch.set_defaults(run=cmd_watch)

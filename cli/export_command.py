@@ -6,12 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-EXAMPLES = """examples:
-  contact-skills export exec_0c1d2e3f4a5b -o scratch/run.mcap              # from the API at --url
-  contact-skills export demo_3f2a9c01b2d4 -o scratch/demo.csv --t0 2 --t1 6
-  contact-skills export scratch/slide_tilted.csv -o scratch/slide_tilted.mcap  # a local recording, no API
-"""
-
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a demonstration or an execution: an id (demo_..., exec_...) is fetched from the API, a local JSON or
@@ -83,7 +77,6 @@ def register(commands: argparse._SubParsersAction) -> None:
         "export",
         help="export a demonstration or execution as MCAP (Foxglove, PlotJuggler), CSV or JSON",
         description=cmd_export.__doc__,
-        epilog=EXAMPLES,
     )
     export.add_argument("source", metavar="ID_OR_FILE", help="demo_... or exec_... (from the API), or a local file")
     export.add_argument("-o", "--output", type=Path, required=True, help="file to write (.mcap, .csv or .json)")

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from cli import bus_commands, demo_command, export_command, service_commands
+from cli.help import polish
 
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
@@ -98,7 +99,13 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="demonstration: a CSV recording, a JSON Demonstration, or a ROS 2 bag (a bag directory, .mcap or .db3)",
     )
-    parser.add_argument("--type", dest="skill_type", choices=["slide", "contour", "auto"], default="auto")
+    parser.add_argument(
+        "--type",
+        dest="skill_type",
+        choices=["slide", "contour", "auto"],
+        default="auto",
+        help="the skill to learn; auto chooses slide or contour from the contact's geometry (default auto)",
+    )
     parser.add_argument(
         "--columns",
         metavar="SPEC",
@@ -335,7 +342,12 @@ def _add_simulate_parser(commands) -> None:
                           "delay, 200 Hz filter, tool inertia) or the exact contact wrench")  # fmt: skip
     sim.add_argument("--controller", choices=["hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z"],
                      default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
-    sim.add_argument("--pace", choices=["fast", "realtime"], default="fast")
+    sim.add_argument(
+        "--pace",
+        choices=["fast", "realtime"],
+        default="fast",
+        help="fast: as fast as it runs; realtime: simulated time follows the clock (default fast)",
+    )
     sim.add_argument("--demonstration", type=Path, help="demonstration JSON: the path the path error refers to")
     sim.add_argument("--figure", type=Path, help="force-tracking figure to write (PNG)")
     sim.add_argument("--scene", type=Path, help="3-D figure of the work piece, learned and executed paths (PNG)")
@@ -533,7 +545,10 @@ def _run_record(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of all subcommands."""
+    from services.settings import package_version
+
     parser = argparse.ArgumentParser(prog="contact-skills", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"contact-skills {package_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     learn = commands.add_parser(
         "learn",
@@ -553,6 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     service_commands.register(commands)
     demo_command.register(commands)
     export_command.register(commands)
+    polish(parser)
     return parser
 
 

@@ -17,6 +17,9 @@ import threading
 from pathlib import Path
 from typing import IO, Any
 
+from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS
+from services.settings import DEFAULT_WORKERS
+
 STOP_TIMEOUT_S = 10.0
 """How long `up` waits for a child to exit after SIGTERM before killing it."""
 RESTART_DELAY_S = 1.0
@@ -164,22 +167,34 @@ class _Child:
             return self.process.wait()
 
 
-def _wait_ready(url: str, api: _Child, stop: threading.Event, timeout_s: float) -> bool:
+def _not_ready(url: str, api: _Child, stop: threading.Event, timeout_s: float) -> str | None:
+    """None once THIS API (its pid) answers ``/health``; else why not (stopped, exited, another process, timeout)."""
+    import json
     import time
     import urllib.request
 
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and not stop.is_set():
         if api.exit_code() is not None:
-            return False
+            return f"the API exited ({_exit_text(api.exit_code())})"
         try:
             with urllib.request.urlopen(url + "/health", timeout=2) as response:
-                if response.status == 200:
-                    return True
-        except OSError:
+                pid = json.loads(response.read()).get("pid")
+                if pid == api.process.pid:
+                    return None
+                return f"{url} is answered by another process (pid {pid}), not this API (pid {api.process.pid})"
+        except (OSError, ValueError):
             pass
         stop.wait(0.2)
-    return False
+    return "stopped" if stop.is_set() else f"the API did not answer {url}/health within {timeout_s:.0f} s"
+
+
+def _ports_taken(settings, zenoh_port: int) -> list[str]:
+    """The ports `up` needs that something else holds: ``"HTTP port 8000 on 127.0.0.1"``, ..."""
+    from services.local_processes import LOOPBACK, port_free
+
+    wanted = [("HTTP", settings.host, settings.port), ("Zenoh router", LOOPBACK, zenoh_port)]
+    return [f"{what} port {port} on {host}" for what, host, port in wanted if not port_free(port, host)]
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -193,6 +208,15 @@ def cmd_up(args: argparse.Namespace) -> int:
         settings = _settings(args)
     except SettingsError as exc:
         print(f"contact-skills up: error: {exc}", file=sys.stderr)
+        return 2
+    taken = _ports_taken(settings, args.zenoh_port)
+    if taken:
+        print(
+            f"contact-skills up: error: {' and '.join(taken)} already in use (another contact-skills up? "
+            f"curl http://{settings.host}:{settings.port}/health tells); stop it, or choose free ones with --port "
+            "and --zenoh-port",
+            file=sys.stderr,
+        )
         return 2
     from services.local_processes import parent_death_signal
 
@@ -229,9 +253,17 @@ def cmd_up(args: argparse.Namespace) -> int:
             for worker in workers:
                 worker.start()
             url = f"http://{settings.host}:{settings.port}"
-            if _wait_ready(url, api, stop, READY_TIMEOUT_S):
+            reason = _not_ready(url, api, stop, READY_TIMEOUT_S)
+            if reason is None:
                 printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}")
-            code = _supervise(api, workers, stop, printer)
+                code = _supervise(api, workers, stop, printer)
+            elif "another process" in reason:
+                printer.line("up", f"error: {reason}: stopping")
+                code = 1
+            else:
+                if not stop.is_set():
+                    printer.line("up", f"not ready: {reason}")
+                code = _supervise(api, workers, stop, printer)
             _stop_all([api, *workers], printer)
     except Exception as exc:  # the router could not start (port taken, ...)
         printer.line("up", f"error: {type(exc).__name__}: {exc}")
@@ -309,7 +341,7 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--db", type=Path, help="SQLite database file (default $CONTACT_SKILLS_DB or ./contact_skills.db)"
     )
-    parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    parser.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -331,6 +363,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         "up", help="run router + API + N sim workers on this machine (loopback)", description=cmd_up.__doc__
     )
     _add_common(up)
-    up.add_argument("--workers", type=int, help="sim worker processes (default $CONTACT_SKILLS_WORKERS or 2)")
+    up.add_argument(
+        "--workers", type=int, help=f"sim worker processes (default $CONTACT_SKILLS_WORKERS or {DEFAULT_WORKERS})"
+    )
     up.add_argument("--zenoh-port", type=int, default=7447, help="TCP port of the embedded Zenoh router (loopback)")
     up.set_defaults(run=cmd_up)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,7 +23,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from experiments.cases import DemoOptions
-from services.local_processes import free_port, parent_death_signal
+from services.local_processes import free_port, parent_death_signal, port_free
 
 READY_TIMEOUT_S = 180.0
 """How long the embedded stack may take to answer /health with every worker connected."""
@@ -42,15 +41,6 @@ def say(text: str) -> None:
 
 
 # --------------------------------------------------------------------------------------------------- the stack
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
 
 
 class EmbeddedStack:
@@ -271,7 +261,7 @@ def service_session(
             if parts.hostname not in ("127.0.0.1", "localhost"):
                 raise DemoError(f"no service answers {options.url}/health (and only a loopback one is started here)")
             port = parts.port or 80
-            if not _port_free(port):
+            if not port_free(port):
                 port = free_port()
             tmp = tempfile.TemporaryDirectory(prefix="contact-skills-demo-")
             db = options.db or Path(tmp.name) / "demo.db"

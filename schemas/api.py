@@ -23,6 +23,8 @@ class ExecutionState(StrEnum):
     """Stored, being handed to a worker."""
     running = "running"
     """A worker accepted it."""
+    paused = "paused"
+    """The worker holds it paused (``POST /executions/{id}/resume`` continues it)."""
     done = "done"
     """The worker finished every segment."""
     aborted = "aborted"

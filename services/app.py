@@ -15,7 +15,6 @@ expressions) on ``app.state``, the body limit, the error handlers and the router
 from __future__ import annotations
 
 from contextlib import asynccontextmanager
-from importlib import metadata
 from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
@@ -26,20 +25,13 @@ from services.api.docs import install_offline_docs
 from services.api.errors import install_error_handlers
 from services.api.main import api_router
 from services.bus_events import BusEvents, connect_bus, reconcile
-from services.settings import ServiceSettings
+from services.settings import ServiceSettings, package_version
 from services.store import Store
 
 if TYPE_CHECKING:
     from services.bus import BusClient
 
 __all__ = ["BusEvents", "connect_bus", "create_app"]
-
-
-def _version() -> str:
-    try:
-        return metadata.version("contact-skills")
-    except metadata.PackageNotFoundError:
-        return "0+unknown"
 
 
 def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: Store | None = None) -> FastAPI:
@@ -60,7 +52,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
 
     app = FastAPI(
         title="Contact Skills",
-        version=_version(),
+        version=package_version(),
         description="Learn robot contact skills (slide, contour) from one demonstration and execute them with a "
         "hybrid impedance/force controller in a PyBullet simulation. Telemetry streams over Zenoh.",
         lifespan=lifespan,

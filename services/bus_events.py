@@ -65,8 +65,8 @@ class BusEvents:
         self._lock = threading.Lock()
 
     def _status(self, status: ExecutionStatus) -> None:
-        state = FINAL_STATES.get(status.phase, ExecutionState.running)
-        if state is not ExecutionState.running and not self._telemetry_complete(status):
+        state = FINAL_STATES.get(status.phase, ExecutionState.paused if status.paused else ExecutionState.running)
+        if status.final and not self._telemetry_complete(status):
             with self._lock:
                 self._held[status.execution_id] = status
             self.store.update_execution(status.execution_id, phase=status.phase, worker_id=status.worker_id)

@@ -20,6 +20,17 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def port_free(port: int, host: str = LOOPBACK) -> bool:
+    """Return whether a server could listen on ``host``:``port`` now (nothing bound there)."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn and zenoh bind: TIME_WAIT is no obstacle
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def port_listening(port: int) -> bool:
     """Return whether something accepts TCP connections on 127.0.0.1:``port``."""
     with socket.socket() as s:

@@ -115,3 +115,13 @@ class ServiceSettings:
     def replace(self, **changes: Any) -> ServiceSettings:
         """A copy with ``changes`` (None values ignored)."""
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+def package_version() -> str:
+    """The installed contact-skills version (``0+unknown`` when run from a tree that was never installed)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("contact-skills")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"

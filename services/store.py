@@ -97,7 +97,9 @@ TELEMETRY_WIDTH = 30
 _PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
 
 
-ACTIVE = (ExecutionState.starting, ExecutionState.running)
+ACTIVE = (ExecutionState.starting, ExecutionState.running, ExecutionState.paused)
+_ACTIVE_IN = f"status IN ({', '.join('?' * len(ACTIVE))})"
+"""SQL condition on the active statuses (their values as the parameters)."""
 TERMINAL = (ExecutionState.done, ExecutionState.aborted, ExecutionState.failed)
 RESTART_REASON = "API restarted while running; worker state unknown"
 
@@ -395,7 +397,7 @@ class Store:
     def active_executions(self) -> list[ExecutionRow]:
         """Executions in status starting or running."""
         rows = self._connection().execute(
-            "SELECT * FROM executions WHERE status IN (?, ?) ORDER BY created", tuple(s.value for s in ACTIVE)
+            f"SELECT * FROM executions WHERE {_ACTIVE_IN} ORDER BY created", tuple(s.value for s in ACTIVE)
         )
         return [_execution(r) for r in rows]
 
@@ -437,7 +439,7 @@ class Store:
                 values.append(value)
         with self._transaction() as db:
             cursor = db.execute(
-                f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND status IN (?, ?)",
+                f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND {_ACTIVE_IN}",
                 (*values, execution_id, *(s.value for s in ACTIVE)),
             )
             return cursor.rowcount > 0
@@ -449,7 +451,7 @@ class Store:
         marked = []
         with self._transaction() as db:
             for r in db.execute(
-                "SELECT id, worker_id FROM executions WHERE status IN (?, ?)", tuple(s.value for s in ACTIVE)
+                f"SELECT id, worker_id FROM executions WHERE {_ACTIVE_IN}", tuple(s.value for s in ACTIVE)
             ).fetchall():
                 if worker_id is not None and r["worker_id"] != worker_id:
                     continue

@@ -1,12 +1,13 @@
 """The typed client (services/client.py) against the REAL stack: `contact-skills up` (embedded Zenoh router, the API,
 two sim workers) on free loopback ports. record / upload (CSV, JSON, a ROS 2 bag) -> learn -> execute -> live
-telemetry over Zenoh while it runs -> wait -> telemetry as numpy
+telemetry over Zenoh while it runs, pause (the API reports ``paused``) and resume -> wait -> telemetry as numpy
 arrays equal to what was streamed; every error a typed exception carrying the API's message."""
 
 from __future__ import annotations
 
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from rosbag_files import storage_file, write_bag  # noqa: E402
-from test_service import RECORD, Stack  # noqa: E402
+from test_service import RECORD, Stack, _wait_for  # noqa: E402
 
 from schemas import Demonstration  # noqa: E402
 from services.client import (  # noqa: E402
@@ -80,8 +81,16 @@ def test_record_learn_execute_live_and_telemetry(client, stack):
     skill = client.learn(demo.id)
     execution = client.execute(skill.id, unknown_offset=[0.0, 0.0, 0.01], pace="realtime")
     assert execution.created is not None and execution.created.telemetry_key.endswith(f"{execution.id}/telemetry")
-    streamed = list(execution.live(timeout_s=120))
+    streamed, states = [], []
+    for batch in execution.live(timeout_s=120):
+        streamed.append(batch)
+        if not states and batch.t[-1] > 2.0:  # pause: the API reports it, then resume
+            execution.pause()
+            states.append(_wait_for(lambda: execution.status().status.value == "paused" and "paused", 10, "paused"))
+            execution.resume()
+            states.append(_wait_for(lambda: execution.status().status.value == "running" and "running", 10, "resumed"))
     view = execution.wait(timeout_s=120)
+    assert states == ["paused", "running"]
     assert view.status.value == "done" and view.metrics is not None and view.metrics.contact_ratio > 0.9
     telemetry = execution.telemetry()
     assert len(telemetry) == view.metrics.steps == view.telemetry_samples
@@ -101,6 +110,10 @@ def test_record_learn_execute_live_and_telemetry(client, stack):
         and len(window) == int(((telemetry.t >= 1) & (telemetry.t <= 2)).sum() + 9) // 10
     )
     assert list(execution.live()) == []  # finished: nothing live any more
+    watch = [sys.executable, "-m", "cli.main", "watch", execution.id, "--url", stack.url]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    watched = subprocess.run(watch, env=env, capture_output=True, text=True, timeout=60)
+    assert watched.returncode == 0 and f"{execution.id} done" in watched.stdout and "force error RMS" in watched.stdout
     with pytest.raises(ConflictError, match=f"execution {execution.id} has already finished"):
         execution.abort()
 

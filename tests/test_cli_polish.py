@@ -1,0 +1,134 @@
+"""The command line as a new user meets it: --version, help on every option, plain help text with examples, defaults
+the help states that are the defaults used, `up` refusing ports that are taken, `watch` on an unknown id answering at
+once (the API) or within --wait (the bus alone), `demo` exiting 1 on a missed target unless --report-only."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import socket
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from cli.main import build_parser
+from services.local_processes import free_port, stop_process, wait_for_port
+from services.settings import ENV_VARS, ServiceSettings
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cli.main", *args], env=ENV, capture_output=True, text=True,
+                          timeout=timeout)  # fmt: skip
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    [action] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(action.choices)
+
+
+def test_version_is_the_package_version():
+    result = _cli("--version")
+    version = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"]
+    assert result.returncode == 0 and result.stdout.strip() == f"contact-skills {version}"
+
+
+def test_every_option_of_every_command_has_help():
+    for name, parser in _subparsers().items():
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"contact-skills {name}: {action.option_strings or action.dest} has no help"
+
+
+def test_help_is_plain_text_with_examples():
+    for name, parser in _subparsers().items():
+        text = parser.format_help()
+        assert "`" not in text, f"contact-skills {name} --help shows markup:\n{text}"
+        examples = text.split("examples:\n", 1)
+        assert len(examples) == 2, f"contact-skills {name} --help has no examples"
+        lines = [line for line in examples[1].splitlines() if line.strip()]
+        assert lines and all(line.startswith(f"  contact-skills {name}") for line in lines), lines
+    assert "`" not in build_parser().format_help()
+
+
+def _same(stated: str, default: object) -> bool:
+    if isinstance(default, int | float) and not isinstance(default, bool):
+        return float(stated) == float(default)
+    return stated == str(default)
+
+
+def test_stated_defaults_are_the_defaults():
+    """'(default X)' is argparse's default; 'default $ENV or X' is what the settings use without the variable."""
+    settings = ServiceSettings()
+    for name, parser in _subparsers().items():
+        for action in parser._actions:
+            help_text = action.help or ""
+            for env, value in re.findall(r"default \$(\w+) or ([\w./:-]+)", help_text):
+                fields = [f for f, var in ENV_VARS.items() if var == env]
+                if fields and isinstance(getattr(settings, fields[0]), int | float):
+                    assert _same(value, getattr(settings, fields[0])), f"{name} {action.dest}: {help_text}"
+            stated = re.search(r"\(default ([\w./-]+)\)", help_text)
+            if stated and action.default not in (None, False):
+                assert _same(stated[1], action.default), f"{name} {action.dest}: {help_text}"
+    assert " ".join(_subparsers()["up"].format_help().split()).count("$CONTACT_SKILLS_WORKERS or 1)") == 1
+
+
+@pytest.mark.parametrize("which", ["http", "zenoh"])
+def test_up_refuses_a_taken_port_before_starting_anything(which):
+    port, zenoh_port = free_port(), free_port()
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", port if which == "http" else zenoh_port))
+        holder.listen()
+        result = _cli("up", "--port", str(port), "--zenoh-port", str(zenoh_port), timeout=30)
+    assert result.returncode == 2, result.stdout + result.stderr
+    taken = f"HTTP port {port}" if which == "http" else f"Zenoh router port {zenoh_port}"
+    assert f"{taken} on 127.0.0.1 already in use" in result.stderr and "ready" not in result.stdout
+    assert "started api" not in result.stdout
+
+
+def test_watch_an_unknown_id_asks_the_api_or_gives_up_on_the_bus(tmp_path):
+    port, zenoh_port = free_port(), free_port()
+    log = (tmp_path / "log").open("w")
+    api = subprocess.Popen([sys.executable, "-m", "cli.main", "api", "--no-bus", "--port", str(port), "--db",
+                            str(tmp_path / "w.db")], env=ENV, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    router = subprocess.Popen([sys.executable, "-m", "cli.main", "router", "--listen", f"tcp/127.0.0.1:{zenoh_port}"],
+                              env=ENV, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        wait_for_port(port, 60)
+        wait_for_port(zenoh_port, 60)
+        connect = ["--connect", f"tcp/127.0.0.1:{zenoh_port}"]
+        asked = _cli("watch", "exec_000000000000", "--url", f"http://127.0.0.1:{port}", *connect)
+        assert asked.returncode == 2
+        assert "no execution with id 'exec_000000000000' (asked the API at" in asked.stderr
+        nobody = f"http://127.0.0.1:{free_port()}"  # no API there: the bus alone
+        alone = _cli("watch", "exec_000000000000", "--url", nobody, *connect, "--wait", "2")
+        assert alone.returncode == 3
+        assert "no status from exec_000000000000 on the bus" in alone.stderr and "within 2 s" in alone.stderr
+    finally:
+        stop_process(api)
+        stop_process(router)
+        log.close()
+
+
+def test_demo_exits_1_on_a_missed_target_unless_report_only(monkeypatch, capsys):
+    """The exit code contract of `contact-skills demo` (the run itself is tests/test_demo.py's)."""
+    import experiments.paper_demo as paper_demo
+    from experiments.cases import DemoReport, TargetVerdict
+
+    verdicts = [TargetVerdict("ours < 3 %", True, "1.3 %"), TargetVerdict("impedance >= 3x ours", False, "1.7x")]
+    monkeypatch.setattr(paper_demo, "run_demo", lambda options: DemoReport([], verdicts, {}))
+    parser = build_parser()
+    assert parser.parse_args(["demo"]).run(parser.parse_args(["demo"])) == 1
+    assert "1 target(s) MISSED" in capsys.readouterr().err
+    args = parser.parse_args(["demo", "--report-only"])
+    assert args.run(args) == 0
+    monkeypatch.setattr(paper_demo, "run_demo", lambda options: DemoReport([], verdicts[:1], {}))
+    assert args.run(parser.parse_args(["demo"])) == 0
