@@ -29,12 +29,12 @@ RUN pip install --no-cache-dir --no-index --find-links /wheels "contact-skills[s
     && rm -rf /wheels \
     && contact-skills --help > /dev/null
 
-# The database lives on a volume; the API listens on all interfaces INSIDE the container only
-# (docker-compose publishes it on the host's loopback).
+# The API's database goes to /data, where docker-compose mounts the named volume (no VOLUME here: it would give
+# every container, each worker too, an anonymous volume). The API listens on all interfaces INSIDE the container
+# only (docker-compose publishes it on the host's loopback).
 RUN useradd --create-home --uid 1000 cskills && mkdir -p /data && chown cskills /data
 USER cskills
 WORKDIR /home/cskills
-VOLUME ["/data"]
 ENV CONTACT_SKILLS_DB=/data/contact_skills.db
 EXPOSE 8000
 

@@ -102,3 +102,45 @@ def test_the_dockerfile_installs_the_project():
         name = package.rstrip("*")
         assert f"{name}/" in copied, f"Dockerfile does not copy {name}/"
     assert "pyproject.toml" in " ".join(copied)
+
+
+def test_the_api_is_healthy_on_health_and_the_workers_wait_for_it():
+    api, worker = COMPOSE["services"]["api"], COMPOSE["services"]["worker"]
+    check = " ".join(api["healthcheck"]["test"])
+    assert f"http://127.0.0.1:{api['environment']['CONTACT_SKILLS_PORT']}/health" in check
+    assert api["healthcheck"]["test"][0] == "CMD" and api["healthcheck"]["test"][1] == "python"  # in the image
+    assert worker["depends_on"]["api"] == {"condition": "service_healthy"}
+    assert api["depends_on"]["router"]["condition"] == "service_started"
+    from services.api.routes.health import router
+
+    assert "/health" in {route.path for route in router.routes}
+
+
+def test_built_images_are_built_not_pulled_and_every_service_has_an_init():
+    services = COMPOSE["services"]
+    for name in ("api", "worker"):
+        assert services[name]["pull_policy"] == "build" and services[name]["build"] == services["api"]["build"]
+    assert all(service.get("init") is True for service in services.values())
+
+
+def test_no_anonymous_volume_per_worker():
+    assert not re.search(r"^VOLUME\b", DOCKERFILE, re.MULTILINE), "VOLUME gives every container an anonymous volume"
+    assert "volumes" not in COMPOSE["services"]["worker"]
+
+
+def test_zenoh_is_the_same_version_in_the_router_image_and_the_python_package():
+    router_tag = COMPOSE["services"]["router"]["image"].split(":", 1)[1]
+    [pin] = [d for d in PYPROJECT["project"]["optional-dependencies"]["service"] if d.startswith("eclipse-zenoh")]
+    assert pin.split("==", 1)[1] == router_tag, (pin, router_tag)
+    from importlib import metadata
+
+    assert metadata.version("eclipse-zenoh") == router_tag
+
+
+def test_the_build_context_leaves_out_what_the_image_does_not_need():
+    ignored = [line.strip() for line in (REPO / ".dockerignore").read_text().splitlines() if line.strip()]
+    ignored = [line for line in ignored if not line.startswith("#")]
+    assert {".venv", ".git", "*.db", "tests"} <= set(ignored)
+    copied = {c.rstrip("/") for c in re.findall(r"^COPY\s+(?!--)(.+?)\s+\S+$", DOCKERFILE, re.MULTILINE)}
+    copied = {name for group in copied for name in group.split()}
+    assert not copied & set(ignored), copied & set(ignored)
