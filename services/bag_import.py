@@ -40,6 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
+from services.cdr import pose_stamped, wrench_stamped
 from services.csv_import import (
     DemonstrationImportError,
     RecordingSamples,
@@ -127,15 +128,6 @@ class _Transforms:
         return None
 
 
-def _stamp_ns(header, log_time_ns: int, stream: _Stream) -> int:
-    """The header's stamp in ns; the bag's log time when the stamp was never set (zero)."""
-    stamp = int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-    if stamp == 0:
-        stream.log_time_used += 1
-        return log_time_ns
-    return stamp
-
-
 def _vector(v) -> list[float]:
     return [float(v.x), float(v.y), float(v.z)]
 
@@ -202,26 +194,23 @@ def _read_bag(path: Path, wrench_topic: str | None, pose_topic: str | None, use_
         assert wrench_name is not None
         pose_name = None if use_tf else _topic_choice(topics, pose_topic, POSE_TYPE, "pose_topic", allow_none=True)
         wanted = {wrench_name, pose_name} | {t for t in TF_TOPICS if topics.get(t) == TF_TYPE}
-        wrench, pose, transforms = _Stream(), (None if pose_name is None else _Stream()), _Transforms()
+        raw_messages: dict[str, tuple[list[int], list[bytes]]] = {wrench_name: ([], []), pose_name or "": ([], [])}
+        transforms = _Transforms()
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, log_time_ns, raw in reader.messages(connections=connections):
-            message = reader.deserialize(raw, connection.msgtype)
-            if connection.topic == wrench_name:
-                wrench.frames.add(message.header.frame_id.lstrip("/"))
-                wrench.stamps_ns.append(_stamp_ns(message.header, log_time_ns, wrench))
-                wrench.values.append(_vector(message.wrench.force) + _vector(message.wrench.torque))
-            elif connection.topic == pose_name:
-                assert pose is not None
-                pose.frames.add(message.header.frame_id.lstrip("/"))
-                pose.stamps_ns.append(_stamp_ns(message.header, log_time_ns, pose))
-                pose.values.append(_vector(message.pose.position) + _quaternion(message.pose.orientation))
+            if connection.topic in raw_messages:  # decoded below, all at once
+                raw_messages[connection.topic][0].append(log_time_ns)
+                raw_messages[connection.topic][1].append(raw)
             else:
+                message = reader.deserialize(raw, connection.msgtype)
                 for tf in message.transforms:
                     stamp = int(tf.header.stamp.sec) * 1_000_000_000 + int(tf.header.stamp.nanosec) or log_time_ns
                     value = _vector(tf.transform.translation) + _quaternion(tf.transform.rotation)
                     transforms.add(
                         tf.header.frame_id, tf.child_frame_id, stamp, value, connection.topic == "/tf_static"
                     )
+        wrench = _stream(reader, WRENCH_TYPE, *raw_messages[wrench_name])
+        pose = None if pose_name is None else _stream(reader, POSE_TYPE, *raw_messages[pose_name])
     except BagImportError:
         raise
     except Exception as exc:
@@ -229,6 +218,38 @@ def _read_bag(path: Path, wrench_topic: str | None, pose_topic: str | None, use_
     finally:
         reader.close()
     return _BagContents(topics, counts, wrench_name, wrench, pose_name, pose, transforms)
+
+
+def _stream(reader, msgtype: str, log_times_ns: list[int], raws: list[bytes]) -> _Stream:
+    """A WrenchStamped or PoseStamped topic: stamps (the bag's log time where a header stamp is zero), values
+    ([f, m] or [p, q]) and frames; decoded all at once when every message has the first one's layout
+    (`services.cdr`), else one by one."""
+    if not raws:
+        return _Stream()
+    first = reader.deserialize(raws[0], msgtype)
+    layout, field = (wrench_stamped, "wrench") if msgtype == WRENCH_TYPE else (pose_stamped, "pose")
+    decoded = layout(first.header.frame_id).decoded(raws)
+    if decoded is not None:
+        stamps, values, frames = decoded["stamp"], decoded[field], {first.header.frame_id.lstrip("/")}
+    else:
+        messages = [reader.deserialize(raw, msgtype) for raw in raws]
+        stamps = np.array([int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec) for m in messages])
+        values = np.array([_message_values(m) for m in messages])
+        frames = {m.header.frame_id.lstrip("/") for m in messages}
+    unset = stamps == 0
+    return _Stream(
+        stamps_ns=np.where(unset, np.asarray(log_times_ns, dtype=np.int64), stamps).tolist(),
+        values=values.tolist(),
+        frames=frames,
+        log_time_used=int(unset.sum()),
+    )
+
+
+def _message_values(message) -> list[float]:
+    """[f, m] of a WrenchStamped, [p, q] of a PoseStamped."""
+    if hasattr(message, "wrench"):
+        return _vector(message.wrench.force) + _vector(message.wrench.torque)
+    return _vector(message.pose.position) + _quaternion(message.pose.orientation)
 
 
 # --------------------------------------------------------------------------- poses and frames

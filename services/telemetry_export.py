@@ -24,7 +24,7 @@ importer's own columns (a demonstration: `services.csv_import.demonstration_csv_
 from __future__ import annotations
 
 import io
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +32,7 @@ import numpy as np
 
 from schemas.demonstration import Demonstration
 from schemas.execution import PHASE_CODES
+from services.cdr import pose_stamped, tf_message, wrench_stamped
 from services.store import TELEMETRY_LAYOUT, telemetry_columns
 
 PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
@@ -92,7 +93,6 @@ class _McapOut:
         from rosbags.typesys import Stores, get_typestore
 
         self.typestore = get_typestore(Stores.ROS2_HUMBLE)
-        self.types = self.typestore.types
         self.start_ns = start_ns
         self.buffer = io.BytesIO()
         self.writer = Writer(self.buffer, compression=CompressionType.ZSTD)
@@ -104,79 +104,26 @@ class _McapOut:
         """Nanoseconds since the epoch of times ``t`` (s from the start)."""
         return self.start_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
 
-    def write(self, topic: str, msgtype: str, stamps_ns: Iterable[int], messages: Iterable[Any]) -> None:
+    def write(self, topic: str, msgtype: str, stamps_ns: np.ndarray, payloads: Sequence[bytes]) -> None:
+        """CDR ``payloads`` of ``msgtype`` on ``topic``, logged and published at ``stamps_ns``."""
         if msgtype not in self._schemas:
             definition = self.typestore.generate_msgdef(msgtype, ros_version=2)[0]
             self._schemas[msgtype] = self.writer.register_schema(msgtype, "ros2msg", definition.encode())
         channel = self.writer.register_channel(topic, "cdr", self._schemas[msgtype])
-        for sequence, (stamp, message) in enumerate(zip(stamps_ns, messages, strict=True)):
-            data = self.typestore.serialize_cdr(message, msgtype)
-            self.writer.add_message(channel, int(stamp), data, int(stamp), sequence)
+        add = self.writer.add_message
+        for sequence, (stamp, data) in enumerate(zip(stamps_ns.tolist(), payloads, strict=True)):
+            add(channel, stamp, data, stamp, sequence)
+
+    def changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> None:
+        """``values`` as ``std_msgs`` messages (``data``) at the first sample and wherever the value changes."""
+        kept = [k for k in range(len(values)) if k == 0 or values[k] != values[k - 1]]
+        message = self.typestore.types[msgtype]
+        payloads = [bytes(self.typestore.serialize_cdr(message(data=values[k]), msgtype)) for k in kept]
+        self.write(topic, msgtype, stamps[kept], payloads)
 
     def finish(self) -> bytes:
         self.writer.finish()
         return self.buffer.getvalue()
-
-    # ------------------------------------------------------------------ message builders
-
-    def header(self, stamp_ns: int, frame: str):
-        t = self.types
-        time = t["builtin_interfaces/msg/Time"](
-            sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000)
-        )
-        return t["std_msgs/msg/Header"](stamp=time, frame_id=frame)
-
-    def vector(self, v: Sequence[float]):
-        return self.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-    def quaternion(self, q: Sequence[float]):
-        return self.types["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
-
-    def poses(self, stamps: np.ndarray, positions: np.ndarray, orientations: np.ndarray, frame: str) -> list:
-        t = self.types
-        return [
-            t["geometry_msgs/msg/PoseStamped"](
-                header=self.header(s, frame),
-                pose=t["geometry_msgs/msg/Pose"](
-                    position=t["geometry_msgs/msg/Point"](*map(float, p)), orientation=self.quaternion(q)
-                ),
-            )
-            for s, p, q in zip(stamps, positions, orientations, strict=True)
-        ]
-
-    def wrenches(self, stamps: np.ndarray, wrenches: np.ndarray, frame: str) -> list:
-        t = self.types
-        return [
-            t["geometry_msgs/msg/WrenchStamped"](
-                header=self.header(s, frame),
-                wrench=t["geometry_msgs/msg/Wrench"](force=self.vector(w[:3]), torque=self.vector(w[3:])),
-            )
-            for s, w in zip(stamps, wrenches, strict=True)
-        ]
-
-    def transforms(self, stamps: np.ndarray, frames: dict[str, tuple[np.ndarray, np.ndarray]]) -> list:
-        """One TFMessage per stamp with ``world -> child`` for each child frame (positions, orientations)."""
-        t = self.types
-        messages = []
-        for k, stamp in enumerate(stamps):
-            transforms = [
-                t["geometry_msgs/msg/TransformStamped"](
-                    header=self.header(stamp, WORLD_FRAME),
-                    child_frame_id=child,
-                    transform=t["geometry_msgs/msg/Transform"](
-                        translation=self.vector(positions[k]), rotation=self.quaternion(orientations[k])
-                    ),
-                )
-                for child, (positions, orientations) in frames.items()
-            ]
-            messages.append(t["tf2_msgs/msg/TFMessage"](transforms=transforms))
-        return messages
-
-    def changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> None:
-        """``values`` as ``std_msgs`` messages at the first sample and wherever the value changes."""
-        kept = [k for k in range(len(values)) if k == 0 or values[k] != values[k - 1]]
-        message = self.types[msgtype]
-        self.write(topic, msgtype, stamps[kept], [message(data=values[k]) for k in kept])
 
 
 @dataclass(frozen=True)
@@ -191,25 +138,30 @@ class McapExport:
 def execution_mcap(matrix: np.ndarray, start_unix_s: float, execution_id: str) -> McapExport:
     """An execution's telemetry (the store's matrix rows) as MCAP (see the module docstring for the topics)."""
     out = _McapOut(int(start_unix_s * 1e9), {"execution_id": execution_id, "conventions": CONVENTIONS})
-    columns = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
-    stamps = out.stamps(columns["t"][:, 0])
-    tool = (columns["tool_position"], columns["tool_orientation"])
-    reference = (columns["reference_position"], columns["reference_orientation"])
+    column = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
+    stamps = out.stamps(column["t"][:, 0])
+    tool = np.hstack([column["tool_position"], column["tool_orientation"]])
+    reference = np.hstack([column["reference_position"], column["reference_orientation"]])
     desired = np.zeros((matrix.shape[0], 6))
-    desired[:, 2] = columns["desired_force_cf_z_n"][:, 0]
+    desired[:, 2] = column["desired_force_cf_z_n"][:, 0]
     pose, wrench = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/WrenchStamped"
-    out.write("/tool/pose", pose, stamps, out.poses(stamps, *tool, WORLD_FRAME))
-    out.write("/reference/pose", pose, stamps, out.poses(stamps, *reference, WORLD_FRAME))
-    out.write("/wrench/world", wrench, stamps, out.wrenches(stamps, columns["wrench_world"], WORLD_FRAME))
-    out.write("/wrench/cf", wrench, stamps, out.wrenches(stamps, columns["wrench_cf"], CF_FRAME))
-    out.write("/force/desired", wrench, stamps, out.wrenches(stamps, desired, CF_FRAME))
-    out.write(
-        "/tf", "tf2_msgs/msg/TFMessage", stamps, out.transforms(stamps, {TOOL_FRAME: tool, REFERENCE_FRAME: reference})
+    out.write("/tool/pose", pose, stamps, pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=tool))
+    out.write("/reference/pose", pose, stamps, pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=reference))
+    for topic, frame, values in (
+        ("/wrench/world", WORLD_FRAME, column["wrench_world"]),
+        ("/wrench/cf", CF_FRAME, column["wrench_cf"]),
+        ("/force/desired", CF_FRAME, desired),
+    ):
+        out.write(topic, wrench, stamps, wrench_stamped(frame).messages(stamp=stamps, wrench=values))  # fmt: skip
+    tf = tf_message(WORLD_FRAME, [TOOL_FRAME, REFERENCE_FRAME])
+    transforms = tf.messages(
+        **{"stamp_tool": stamps, "stamp_reference": stamps, TOOL_FRAME: tool, REFERENCE_FRAME: reference}
     )
+    out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)
     if matrix.shape[0]:
-        phases = [PHASE_NAMES.get(int(code), "failed") for code in columns["phase"][:, 0]]
+        phases = [PHASE_NAMES.get(int(code), "failed") for code in column["phase"][:, 0]]
         out.changes("/phase", "std_msgs/msg/String", stamps, phases)
-        out.changes("/segment", "std_msgs/msg/Int32", stamps, [int(v) for v in columns["segment_index"][:, 0]])
+        out.changes("/segment", "std_msgs/msg/Int32", stamps, [int(v) for v in column["segment_index"][:, 0]])
     return _finished(out)
 
 
@@ -219,11 +171,17 @@ def demonstration_mcap(demonstration: Demonstration, mask: np.ndarray | None, st
     keep = np.ones(a.t.shape, dtype=bool) if mask is None else mask
     out = _McapOut(int(start_unix_s * 1e9), {"demonstration": demonstration.metadata.name, "conventions": CONVENTIONS})
     stamps = out.stamps(a.t[keep])
-    tool = (a.positions[keep], a.orientations[keep])
-    out.write("/tool/pose", "geometry_msgs/msg/PoseStamped", stamps, out.poses(stamps, *tool, WORLD_FRAME))
-    wrenches = out.wrenches(stamps, a.wrenches[keep], WORLD_FRAME)
+    tool = np.hstack([a.positions[keep], a.orientations[keep]])
+    out.write(
+        "/tool/pose",
+        "geometry_msgs/msg/PoseStamped",
+        stamps,
+        pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=tool),
+    )
+    wrenches = wrench_stamped(WORLD_FRAME).messages(stamp=stamps, wrench=a.wrenches[keep])
     out.write("/wrench/world", "geometry_msgs/msg/WrenchStamped", stamps, wrenches)
-    out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, out.transforms(stamps, {TOOL_FRAME: tool}))
+    transforms = tf_message(WORLD_FRAME, [TOOL_FRAME]).messages(stamp_tool=stamps, tool=tool)
+    out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)
     return _finished(out)
 
 

@@ -198,3 +198,52 @@ def test_the_export_command_fetches_from_the_api_and_converts_local_files(stored
     )  # fmt: skip
     assert offline.returncode == 0, offline.stderr
     assert len(_mcap_messages((tmp_path / "local.mcap").read_bytes())["/tool/pose"]) == demonstration.n_samples
+
+
+def test_the_vectorized_cdr_is_byte_identical_to_rosbags():
+    """services.telemetry_export.CdrLayout writes what rosbags' serializer writes, for every message it builds."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from services.cdr import pose_stamped, tf_message, wrench_stamped
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    rng = np.random.default_rng(0)
+    stamps = np.array([0, 1_700_000_000_123_456_789, 2_000_000_000_999_999_999])
+    values = rng.normal(size=(3, 7))
+
+    def header(stamp, frame):
+        time = types["builtin_interfaces/msg/Time"](sec=int(stamp // 10**9), nanosec=int(stamp % 10**9))
+        return types["std_msgs/msg/Header"](stamp=time, frame_id=frame)
+
+    def vector(v):
+        return types["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2])
+
+    def quaternion(q):
+        return types["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])
+
+    for frame in ("world", "cf", "a_longer_frame"):  # string lengths move the alignment of what follows
+        poses = pose_stamped(frame).messages(stamp=stamps, pose=values)
+        wrenches = wrench_stamped(frame).messages(stamp=stamps, wrench=values[:, :6])
+        tfs = tf_message(frame, ["tool", "reference"]).messages(
+            stamp_tool=stamps, stamp_reference=stamps, tool=values, reference=values[::-1]
+        )
+        for k, stamp in enumerate(stamps):
+            v, r = values[k], values[::-1][k]
+            pose = types["geometry_msgs/msg/Pose"](position=types["geometry_msgs/msg/Point"](*v[:3]),
+                                                   orientation=quaternion(v[3:]))  # fmt: skip
+            expected = store.serialize_cdr(types["geometry_msgs/msg/PoseStamped"](header(stamp, frame), pose),
+                                           "geometry_msgs/msg/PoseStamped")  # fmt: skip
+            assert poses[k] == bytes(expected)
+            wrench = types["geometry_msgs/msg/Wrench"](force=vector(v[:3]), torque=vector(v[3:6]))
+            expected = store.serialize_cdr(types["geometry_msgs/msg/WrenchStamped"](header(stamp, frame), wrench),
+                                           "geometry_msgs/msg/WrenchStamped")  # fmt: skip
+            assert wrenches[k] == bytes(expected)
+            transforms = [
+                types["geometry_msgs/msg/TransformStamped"](
+                    header(stamp, frame), child, types["geometry_msgs/msg/Transform"](vector(x[:3]), quaternion(x[3:]))
+                )
+                for child, x in (("tool", v), ("reference", r))
+            ]
+            expected = store.serialize_cdr(types["tf2_msgs/msg/TFMessage"](transforms), "tf2_msgs/msg/TFMessage")
+            assert tfs[k] == bytes(expected)
