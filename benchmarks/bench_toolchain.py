@@ -9,7 +9,6 @@ tare, validate). Export: a real execution in PyBullet (``slide_flat``, teacher s
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -17,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section
+from benchmarks.report import machine_line, median_time, pin_blas_threads, run_benchmark
 
 pin_blas_threads()
 
@@ -119,15 +118,7 @@ def build_report(repeats: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (the median is reported)")
-    parser.add_argument("--no-write", action="store_true", help="only print the tables")
-    args = parser.parse_args(argv)
-    report = build_report(args.repeats)
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report)
-    return 0
+    return run_benchmark(__doc__.splitlines()[0], SECTION, build_report, "runs per measurement (median)", argv)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from services.machine import machine_line
 
-__all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_threads", "write_section"]
+__all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_threads", "run_benchmark", "write_section"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS_MD = ROOT / "docs" / "BENCHMARKS.md"
@@ -51,3 +51,21 @@ def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:
         text = text.rstrip("\n") + "\n\n" + section + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
+
+
+def run_benchmark(
+    description: str, section: str, build_report: Callable[[int], str], repeats_help: str, argv: list[str] | None
+) -> int:
+    """The command line of a benchmark script: ``--repeats N`` (passed to ``build_report``), ``--no-write``; prints
+    the report and writes it as section ``section`` of docs/BENCHMARKS.md."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--repeats", type=int, default=3, help=repeats_help)
+    parser.add_argument("--no-write", action="store_true", help="only print the report")
+    args = parser.parse_args(argv)
+    report = build_report(args.repeats)
+    print(report)
+    if not args.no_write:
+        write_section(section, report)
+    return 0

@@ -16,7 +16,7 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from rosbag_files import storage_file, write_bag  # noqa: E402
-from test_service import RECORD, Stack, _wait_for  # noqa: E402
+from test_service import RECORD, _wait_for, running_stack  # noqa: E402
 
 from schemas import Demonstration  # noqa: E402
 from services.client import (  # noqa: E402
@@ -34,12 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
-    stack = Stack(tmp_path_factory.mktemp("client"))
-    try:
-        stack.workers(2)
-        yield stack
-    finally:
-        stack.stop()
+    yield from running_stack(tmp_path_factory.mktemp("client"))
 
 
 @pytest.fixture(scope="module")

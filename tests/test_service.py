@@ -15,7 +15,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -117,14 +117,19 @@ class Stack:
         return self.process.returncode
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory):
-    stack = Stack(tmp_path_factory.mktemp("service"))
+def running_stack(tmp: Path) -> Iterator[Stack]:
+    """`contact-skills up --workers 2` in ``tmp`` with both workers connected; stopped afterwards."""
+    stack = Stack(tmp)
     try:
         stack.workers(2)
         yield stack
     finally:
         stack.stop()
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    yield from running_stack(tmp_path_factory.mktemp("service"))
 
 
 @pytest.fixture(scope="module")
