@@ -85,6 +85,9 @@ def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
 
 
 def build_report(repeats: int) -> str:
+    import os
+
+    load = os.getloadavg()[0]
     imports, import_s = import_rows(repeats)
     exports, export_measured = export_rows(repeats)
     mcap_s, mcap_bytes = export_measured["mcap"]
@@ -113,7 +116,7 @@ def build_report(repeats: int) -> str:
         "",
         *sentences,
         "",
-        machine_line(),
+        machine_line(f"1-minute load average {load:.1f} when the run started"),
     ])  # fmt: skip
 
 
