@@ -9,7 +9,10 @@ write; the telemetry writes at 20 Hz per execution make that a poor trade here).
 
 Threads: one connection per thread (``threading.local``); the bus callbacks write from Zenoh
 threads and the REST routes from the thread pool. SQLite serializes the writers (``busy_timeout``
-5 s); readers never block in WAL mode.
+5 s); readers never block in WAL mode. Every read fetches its rows and closes its cursor before
+anything is built from them (:meth:`Store._all`, :meth:`Store._one`): a cursor left open by a
+failed read would keep its connection in a read transaction on an old snapshot, and the next write
+on that thread would fail with "database is locked".
 
 Schema: created on open and versioned with ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`);
 a database written by a newer version is refused rather than misread.
@@ -219,6 +222,22 @@ class Store:
                 self._connections.append(connection)
         return connection
 
+    def _all(self, sql: str, parameters: tuple = ()) -> list[sqlite3.Row]:
+        """Every row of a query; the cursor is closed before they are returned."""
+        cursor = self._connection().execute(sql, parameters)
+        try:
+            return cursor.fetchall()
+        finally:
+            cursor.close()
+
+    def _one(self, sql: str, parameters: tuple = ()) -> sqlite3.Row | None:
+        """The first row of a query (or None); the cursor is closed before it is returned."""
+        cursor = self._connection().execute(sql, parameters)
+        try:
+            return cursor.fetchone()
+        finally:
+            cursor.close()
+
     @contextmanager
     def _transaction(self) -> Iterator[sqlite3.Connection]:
         connection = self._connection()
@@ -249,7 +268,8 @@ class Store:
 
     def schema_version(self) -> int:
         """The database's schema version."""
-        return int(self._connection().execute("PRAGMA user_version").fetchone()[0])
+        row = self._one("PRAGMA user_version")
+        return int(row[0]) if row is not None else 0
 
     def close(self) -> None:
         """Close every thread's connection (the WAL is checkpointed by the last one)."""
@@ -281,7 +301,7 @@ class Store:
         return row
 
     def list_demonstrations(self, limit: int = 100, offset: int = 0) -> list[DemonstrationRow]:
-        rows = self._connection().execute(
+        rows = self._all(
             "SELECT id, created, name, summary, json_extract(body, '$.metadata.source') AS source "
             "FROM demonstrations ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (limit, offset),
@@ -299,14 +319,10 @@ class Store:
 
     def demonstration_json(self, demonstration_id: str) -> tuple[DemonstrationRow, str] | None:
         """The row and the stored body (JSON text of a `Demonstration`), or None."""
-        r = (
-            self._connection()
-            .execute(
-                "SELECT id, created, name, summary, body, json_extract(body, '$.metadata.source') AS source "
-                "FROM demonstrations WHERE id = ?",
-                (demonstration_id,),
-            )
-            .fetchone()
+        r = self._one(
+            "SELECT id, created, name, summary, body, json_extract(body, '$.metadata.source') AS source "
+            "FROM demonstrations WHERE id = ?",
+            (demonstration_id,),
         )
         if r is None:
             return None
@@ -337,16 +353,12 @@ class Store:
         return row
 
     def skill(self, skill_id: str) -> SkillRow | None:
-        r = (
-            self._connection()
-            .execute("SELECT id, demonstration_id, created, skill_type, skill FROM skills WHERE id = ?", (skill_id,))
-            .fetchone()
-        )
+        r = self._one("SELECT id, demonstration_id, created, skill_type, skill FROM skills WHERE id = ?", (skill_id,))
         return None if r is None else SkillRow(r[0], r[1], r[2], r[3], r[4])
 
     def list_skills(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
         """Skill summaries (no parameters): id, demonstration_id, created, skill_type, segments, confidence."""
-        rows = self._connection().execute(
+        rows = self._all(
             "SELECT id, demonstration_id, created, skill_type, json_array_length(skill, '$.segments') AS segments, "
             "json_extract(skill, '$.auto_selection.confidence') AS confidence, "
             "json_extract(skill, '$.demonstration.name') AS demonstration_name "
@@ -385,18 +397,16 @@ class Store:
         return found
 
     def execution(self, execution_id: str) -> ExecutionRow | None:
-        r = self._connection().execute("SELECT * FROM executions WHERE id = ?", (execution_id,)).fetchone()
+        r = self._one("SELECT * FROM executions WHERE id = ?", (execution_id,))
         return None if r is None else _execution(r)
 
     def list_executions(self, limit: int = 100, offset: int = 0) -> list[ExecutionRow]:
-        rows = self._connection().execute(
-            "SELECT * FROM executions ORDER BY created DESC, id LIMIT ? OFFSET ?", (limit, offset)
-        )
+        rows = self._all("SELECT * FROM executions ORDER BY created DESC, id LIMIT ? OFFSET ?", (limit, offset))
         return [_execution(r) for r in rows]
 
     def active_executions(self) -> list[ExecutionRow]:
         """Executions in status starting or running."""
-        rows = self._connection().execute(
+        rows = self._all(
             f"SELECT * FROM executions WHERE {_ACTIVE_IN} ORDER BY created", tuple(s.value for s in ACTIVE)
         )
         return [_execution(r) for r in rows]
@@ -481,21 +491,13 @@ class Store:
 
     def telemetry_counts(self, execution_id: str) -> tuple[int, int]:
         """(batches, samples) stored for an execution."""
-        r = (
-            self._connection()
-            .execute("SELECT COUNT(*), COALESCE(SUM(rows), 0) FROM telemetry WHERE execution_id = ?", (execution_id,))
-            .fetchone()
-        )
-        return int(r[0]), int(r[1])
+        r = self._one("SELECT COUNT(*), COALESCE(SUM(rows), 0) FROM telemetry WHERE execution_id = ?", (execution_id,))
+        return (int(r[0]), int(r[1])) if r is not None else (0, 0)
 
     def telemetry(self, execution_id: str) -> np.ndarray:
         """Every stored sample of an execution, in time order, as one (N, :data:`TELEMETRY_WIDTH`) matrix."""
-        rows = self._connection().execute(
-            "SELECT rows, data FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,)
-        )
-        blocks = [
-            np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, TELEMETRY_WIDTH) for n, data in rows.fetchall()
-        ]
+        rows = self._all("SELECT rows, data FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,))
+        blocks = [np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, TELEMETRY_WIDTH) for n, data in rows]
         if not blocks:
             return np.empty((0, TELEMETRY_WIDTH))
         matrix = np.concatenate(blocks)

@@ -1,0 +1,83 @@
+"""The SQLite store under failure: a read that fails half-way leaves no cursor (and so no read transaction) open,
+so later writes on the same thread never see "database is locked"."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+
+import pytest
+
+from schemas import Demonstration
+from services.store import Store
+from skills.synthetic import plane_slide
+
+
+def _demonstration() -> Demonstration:
+    d = plane_slide(rate_hz=100.0, duration_s=1.0)
+    return Demonstration.from_arrays(d.t, d.positions, d.orientations, d.wrenches)
+
+
+def _in_thread(fn):
+    """Run ``fn`` in a new thread (its own store connection); return what it returned or raise what it raised."""
+    box: dict = {}
+
+    def run() -> None:
+        try:
+            box["value"] = fn()
+        except BaseException as exc:  # handed to the caller
+            box["error"] = exc
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join(30)
+    if "error" in box:
+        raise box["error"]
+    return box.get("value")
+
+
+def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
+    store = Store(tmp_path / "s.db")
+    demonstration = _demonstration()
+    for _ in range(3):
+        store.add_demonstration(demonstration)
+    # One stored row whose summary no longer reads (as an overflowed force summary did): reading the list fails.
+    raw = sqlite3.connect(tmp_path / "s.db")
+    raw.execute("UPDATE demonstrations SET summary = '{\"max_force_n\": null}' WHERE rowid = 2")
+    raw.commit()
+    raw.close()
+
+    kept: list[BaseException] = []  # what a web framework does with an exception: keep it (and its frames) a while
+    done = threading.Event()
+    go_on = threading.Event()
+    outcome: dict = {}
+
+    def reader_then_writer() -> None:
+        try:
+            store.list_demonstrations(limit=10)
+        except Exception as exc:
+            kept.append(exc)
+        done.set()
+        go_on.wait(30)
+        try:
+            outcome["row"] = store.add_demonstration(demonstration)
+        except Exception as exc:
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=reader_then_writer)
+    thread.start()
+    assert done.wait(30) and kept, "the corrupt row should make the read fail"
+    _in_thread(lambda: store.add_demonstration(demonstration))  # another connection writes meanwhile
+    go_on.set()
+    thread.join(30)
+    assert "error" not in outcome, f"write after a failed read: {outcome.get('error')!r}"
+    assert outcome["row"].id.startswith("demo_")
+    store.close()
+
+
+@pytest.mark.parametrize("offset", [0, 10**9])
+def test_large_offsets_read_nothing(tmp_path, offset):
+    store = Store(tmp_path / "s.db")
+    store.add_demonstration(_demonstration())
+    assert len(store.list_demonstrations(limit=10, offset=offset)) == (1 if offset == 0 else 0)
+    store.close()
