@@ -231,8 +231,10 @@ def cmd_up(args: argparse.Namespace) -> int:
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    from services.local_processes import with_thread_limits
+
     env = {
-        **os.environ,
+        **with_thread_limits(dict(os.environ)),  # every child: one BLAS thread (unless the environment says otherwise)
         "PYTHONUNBUFFERED": "1",
         "CONTACT_SKILLS_ZENOH_ENDPOINTS": listen,
         "CONTACT_SKILLS_ZENOH_PREFIX": settings.zenoh_prefix,

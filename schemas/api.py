@@ -249,15 +249,39 @@ class CommandAccepted(BaseModel):
     sent_to: str = Field(description="Zenoh key expression the command was put on.")
 
 
+class WorkerSummary(BaseModel):
+    """A connected sim worker as ``GET /health`` shows it to anyone (no host name, no process id)."""
+
+    worker_id: str
+    busy: bool
+    activity: str = Field(description="idle, executing, recording, or unknown (not answering).")
+    execution_id: str | None = Field(None, description="The execution it runs now, if any.")
+    executions_run: int = Field(0, description="Executions it accepted since it started.")
+
+
+class HealthDetail(BaseModel):
+    """What ``GET /health`` adds for a client that presents the bearer token."""
+
+    database: str = Field(description="Path of the SQLite database.")
+    schema_version: int
+    pid: int = Field(description="Process id of the API.")
+    workers: list[dict[str, Any]] = Field(description="The sim workers' full WorkerInfo (host names, process ids).")
+
+
 class Health(BaseModel):
-    """``GET /health``: the API is alive; the bus and its workers as seen from here."""
+    """``GET /health``: the API is alive; the bus, its workers, the queue and the learners as seen from here.
+
+    Details (database path, process ids, host names) only with the bearer token (``CONTACT_SKILLS_TOKEN``)."""
 
     status: str = Field("ok", description="Always ok when the API answers.")
     version: str
+    started_unix_s: float = Field(description="When this API process started, Unix s.")
     bus_connected: bool = Field(description="Whether the API has a Zenoh session (false: executions get 503).")
-    zenoh_endpoints: list[str]
-    workers: list[dict[str, Any]] = Field(description="The sim workers connected now (WorkerInfo).")
-    database: str = Field(description="Path of the SQLite database.")
-    schema_version: int
+    zenoh_endpoints: list[str] = Field(description="The router endpoints the API connects to.")
+    workers: list[WorkerSummary] = Field(description="The sim workers connected now.")
     active_executions: int = Field(description="Executions starting or running.")
-    pid: int = Field(description="Process id of the API.")
+    learning: dict[str, int] = Field(
+        description="The learner processes: processes, running, waiting, completed, timed_out, cancelled, restarted, "
+        "rejected."
+    )
+    detail: HealthDetail | None = Field(None, description="Only for a request with the bearer token.")

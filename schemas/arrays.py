@@ -25,3 +25,16 @@ def strictly_increasing(t: np.ndarray) -> None:
             f"time stamps must be strictly increasing: sample {k} has t={t[k]:.6g} s after "
             f"t={t[k - 1]:.6g} s ({bad.size} such steps; the CSV importer resamples irregular data)"
         )
+
+
+def bounded_rows(array: np.ndarray, limit: float, what: str, unit: str, hint: str = "") -> None:
+    """Raise ValueError naming the first row of a 2-D ``array`` with a value whose magnitude exceeds ``limit``
+    (in ``unit``): finite but implausible values (1e300 N, positions in mm) never reach the science or the store."""
+    bad = np.abs(array) > limit
+    if bad.any():
+        row = int(np.flatnonzero(bad.any(axis=-1))[0])
+        value = float(array[row][np.flatnonzero(bad[row])[0]])
+        raise ValueError(
+            f"{what} {row} holds {value:.6g} {unit}, beyond the plausible ±{limit:g} {unit}"
+            f"{hint}; {int(bad.any(axis=-1).sum())} such rows"
+        )

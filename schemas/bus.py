@@ -21,11 +21,12 @@ subscriber, in Python or another language.
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
@@ -50,6 +51,45 @@ FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, Execution
 """Phases after which an execution publishes nothing more."""
 
 CommandName = Literal["abort", "pause", "resume"]
+
+OVERRIDE_BOUNDS: dict[str, tuple[float, float]] = {
+    "_s": (0.0, 60.0),
+    "_hz": (0.0, 10_000.0),
+    "_m": (-2.0, 2.0),
+    "_m_s": (0.0, 2.0),
+    "_n": (-500.0, 500.0),
+    "_nm": (-1000.0, 1000.0),
+    "_deg": (-360.0, 360.0),
+    "_rad": (-6.3, 6.3),
+    "_kg": (0.0, 100.0),
+    "_n_m": (0.0, 1e7),
+    "_n_s_m": (0.0, 1e6),
+    "_nm_rad": (0.0, 1e5),
+    "_nm_s_rad": (0.0, 1e4),
+}
+"""Range of a recording override by the unit its name ends with (the longest matching suffix applies): a teacher
+move of 2000 s or a table 100 m away is refused before a worker spends minutes and gigabytes on it."""
+OVERRIDE_DEFAULT_BOUND = 1e5
+"""Magnitude bound of an override whose name ends with no known unit (gains, ratios)."""
+_OVERRIDE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
+
+
+def check_override(name: str, value: Any) -> None:
+    """Raise ValueError unless ``value`` is a plausible override ``name``: a snake_case name, a boolean, null, or a
+    finite number (or a list of at most 16) within the bounds of :data:`OVERRIDE_BOUNDS` for its unit suffix."""
+    if not _OVERRIDE_NAME.match(name):
+        raise ValueError(f"override {name!r}: not a field name (snake_case, at most 64 characters)")
+    if value is None or isinstance(value, bool):
+        return
+    items = value if isinstance(value, list) else [value]
+    if len(items) > 16 or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in items):
+        raise ValueError(f"override {name}: a number, a boolean or a list of at most 16 numbers is needed, got "
+                         f"{str(value)[:80]}")  # fmt: skip
+    suffix = max((s for s in OVERRIDE_BOUNDS if name.endswith(s)), key=len, default=None)
+    low, high = OVERRIDE_BOUNDS[suffix] if suffix else (-OVERRIDE_DEFAULT_BOUND, OVERRIDE_DEFAULT_BOUND)
+    for v in items:
+        if not (math.isfinite(v) and low <= v <= high):
+            raise ValueError(f"override {name}: {v!r} is outside the plausible range [{low:g}, {high:g}]")
 
 
 def check_id(value: str, what: str = "id") -> str:
@@ -241,12 +281,27 @@ class RecordRequest(BaseModel):
         json_schema_extra={"examples": [{"scenario": "slide_flat", "seed": 0, "overrides": {"target_force_n": 10.0}}]},
     )
 
-    scenario: str = Field(description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"])
-    seed: int = Field(0, ge=0, description="Seed of the human-like imperfection; same seed, same recording.")
+    scenario: str = Field(
+        max_length=64, description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"]
+    )
+    seed: int = Field(
+        0, ge=0, le=2**32 - 1, description="Seed of the human-like imperfection; same seed, same recording."
+    )
     overrides: dict[str, Any] = Field(
         default_factory=dict,
-        description="TeacherParams or WorldConfig fields, e.g. {'target_force_n': 10, 'move_duration_s': 4}.",
+        max_length=32,
+        description="TeacherParams or WorldConfig fields, e.g. {'target_force_n': 10, 'move_duration_s': 4}. Booleans, "
+        "null or numbers (or lists of up to 16), the numbers bounded by the unit their name ends with: "
+        + ", ".join(f"``*{suffix}`` within [{low:g}, {high:g}]" for suffix, (low, high) in OVERRIDE_BOUNDS.items())
+        + f", any other within ±{OVERRIDE_DEFAULT_BOUND:g}.",
     )
+
+    @field_validator("overrides")
+    @classmethod
+    def _overrides_are_bounded(cls, value: dict[str, Any]) -> dict[str, Any]:
+        for name, item in value.items():
+            check_override(name, item)
+        return value
 
 
 class RecordReply(BaseModel):

@@ -13,10 +13,23 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from schemas.arrays import finite_rows, strictly_increasing
+from schemas.arrays import bounded_rows, finite_rows, strictly_increasing
 
 MIN_DEMONSTRATION_SAMPLES = 50
 """Fewest samples a demonstration may have: segmentation and 50-basis DMPs need more than a handful."""
+MAX_DEMONSTRATION_SAMPLES = 200_000
+"""Most samples a demonstration may have (200 s at 1 kHz, 33 min at 100 Hz): learning stays within seconds and
+a few hundred MB; the CSV importer refuses to resample to more."""
+MAX_DURATION_S = 3600.0
+"""Longest time span of a demonstration, s (one hour: a skill is taught in seconds to minutes)."""
+MAX_TIME_S = 1e10
+"""Largest time stamp magnitude, s (Unix time stamps fit; 1e300 does not)."""
+MAX_POSITION_M = 10.0
+"""Largest tool position coordinate, m: no robot's workspace reaches further from its world origin."""
+MAX_FORCE_N = 10_000.0
+"""Largest force component, N (well beyond any contact tool's sensor)."""
+MAX_MOMENT_NM = 1_000.0
+"""Largest moment component, N·m."""
 
 QUATERNION_NORM_TOLERANCE = 0.01
 """Largest accepted deviation of a quaternion's norm from 1; inside it quaternions are renormalized."""
@@ -24,6 +37,22 @@ QUATERNION_NORM_TOLERANCE = 0.01
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Quaternion = Annotated[list[float], Field(min_length=4, max_length=4)]
 Wrench = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+
+def _bounded_number(limit: float) -> dict[str, Any]:
+    """JSON schema of a number within ±``limit`` (the bounds the validators enforce, declared in the OpenAPI)."""
+    return {"type": "number", "minimum": -limit, "maximum": limit}
+
+
+def _bounded_row(limits: list[float]) -> dict[str, Any]:
+    """JSON schema of a fixed-length row whose element k lies within ±``limits[k]``."""
+    return {
+        "type": "array",
+        "prefixItems": [_bounded_number(limit) for limit in limits],
+        "items": False,
+        "minItems": len(limits),
+        "maxItems": len(limits),
+    }
 
 
 class WrenchConvention(StrEnum):
@@ -105,14 +134,28 @@ class Demonstration(BaseModel):
         },
     )
 
-    t: list[float] = Field(description="Time stamps, s, strictly increasing.")
-    positions: list[Vector3] = Field(description="Tool point positions, m, world frame; one [x, y, z] per sample.")
+    t: list[float] = Field(
+        max_length=MAX_DEMONSTRATION_SAMPLES,
+        description=f"Time stamps, s, strictly increasing; {MIN_DEMONSTRATION_SAMPLES}-{MAX_DEMONSTRATION_SAMPLES} "
+        f"samples spanning at most {MAX_DURATION_S:g} s.",
+        json_schema_extra={"minItems": MIN_DEMONSTRATION_SAMPLES, "items": _bounded_number(MAX_TIME_S)},
+    )
+    positions: list[Vector3] = Field(
+        max_length=MAX_DEMONSTRATION_SAMPLES,
+        description=f"Tool point positions, m, world frame; one [x, y, z] per sample, within ±{MAX_POSITION_M:g} m.",
+        json_schema_extra={"items": _bounded_row([MAX_POSITION_M] * 3)},
+    )
     orientations: list[Quaternion] = Field(
-        description="Tool orientations in world, unit quaternions scalar-last [x, y, z, w]; one per sample."
+        max_length=MAX_DEMONSTRATION_SAMPLES,
+        description="Tool orientations in world, unit quaternions scalar-last [x, y, z, w]; one per sample.",
+        json_schema_extra={"items": _bounded_row([1.0 + QUATERNION_NORM_TOLERANCE] * 4)},
     )
     wrenches: list[Wrench] = Field(
+        max_length=MAX_DEMONSTRATION_SAMPLES,
         description="Wrench applied BY the tool TO the environment at the tool point, world frame, "
-        "[fx, fy, fz, mx, my, mz] in N and N·m; one per sample."
+        f"[fx, fy, fz, mx, my, mz] in N and N·m; one per sample; forces within ±{MAX_FORCE_N:g} N, moments within "
+        f"±{MAX_MOMENT_NM:g} N·m.",
+        json_schema_extra={"items": _bounded_row([MAX_FORCE_N] * 3 + [MAX_MOMENT_NM] * 3)},
     )
     metadata: DemonstrationMetadata = Field(default_factory=DemonstrationMetadata)
 
@@ -123,13 +166,30 @@ class Demonstration(BaseModel):
         if array.size < MIN_DEMONSTRATION_SAMPLES:
             raise ValueError(f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}")
         finite_rows(array[:, None], "time stamp")
+        bounded_rows(array[:, None], MAX_TIME_S, "time stamp", "s")
         strictly_increasing(array)
+        if array[-1] - array[0] > MAX_DURATION_S:
+            raise ValueError(
+                f"spans {array[-1] - array[0]:.6g} s, more than {MAX_DURATION_S:g} s: are the time stamps in seconds?"
+            )
         return value
 
-    @field_validator("positions", "wrenches")
+    @field_validator("positions")
     @classmethod
-    def _rows_are_finite(cls, value: list[list[float]]) -> list[list[float]]:
-        finite_rows(np.asarray(value, dtype=float), "row")
+    def _positions_are_plausible(cls, value: list[list[float]]) -> list[list[float]]:
+        array = np.asarray(value, dtype=float)
+        finite_rows(array, "row")
+        bounded_rows(array, MAX_POSITION_M, "row", "m", " (is the recording in millimetres? positions are in m)")
+        return value
+
+    @field_validator("wrenches")
+    @classmethod
+    def _wrenches_are_plausible(cls, value: list[list[float]]) -> list[list[float]]:
+        array = np.asarray(value, dtype=float)
+        finite_rows(array, "row")
+        if array.ndim == 2 and array.shape[1] == 6:
+            bounded_rows(array[:, :3], MAX_FORCE_N, "row", "N", " (forces are in N)")
+            bounded_rows(array[:, 3:], MAX_MOMENT_NM, "row", "N·m", " (moments are in N·m)")
         return value
 
     @field_validator("orientations")

@@ -10,11 +10,28 @@ from __future__ import annotations
 
 import math
 from enum import StrEnum
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Quaternion, Vector3, Wrench
 from schemas.skill import Skill
+
+
+def _triple(low: float, high: float) -> type[list[float]]:
+    """Three numbers, each within [low, high] (the bound is declared in the OpenAPI and enforced)."""
+    return Annotated[list[Annotated[float, Field(ge=low, le=high)]], Field(min_length=3, max_length=3)]  # type: ignore[return-value]
+
+
+Stiffness3 = _triple(0.0, 1e5)
+"""Translational stiffness or damping diagonal: 0 to 1e5 (N/m, N·s/m), beyond any real arm's impedance."""
+RotStiffness3 = _triple(0.0, 1e4)
+"""Rotational stiffness or damping diagonal: 0 to 1e4 (N·m/rad, N·m·s/rad)."""
+MAX_OFFSET_M = 1.0
+"""Largest work-piece offset per axis, m: further than that it is another work cell, not a moved piece."""
+Offset3 = _triple(-MAX_OFFSET_M, MAX_OFFSET_M)
+MAX_PAUSE_TIMEOUT_S = 3600.0
+"""Longest a paused execution may wait for resume before it is aborted, s."""
 
 
 class ControllerKind(StrEnum):
@@ -109,11 +126,11 @@ class ControllerGains(BaseModel):
         },
     )
 
-    translational_stiffness_n_per_m: Vector3 = Field(
+    translational_stiffness_n_per_m: Stiffness3 = Field(
         default_factory=lambda: [3000.0, 3000.0, 3000.0],
         description="CF translational stiffness K_c (x, y, z), N/m; only the motion axes use it.",
     )
-    rotational_stiffness_nm_per_rad: Vector3 = Field(
+    rotational_stiffness_nm_per_rad: RotStiffness3 = Field(
         default_factory=lambda: [40.0, 40.0, 40.0],
         description="CF rotational stiffness K_c (rx, ry, rz), N·m/rad.",
     )
@@ -127,55 +144,68 @@ class ControllerGains(BaseModel):
     apparent_mass_kg: float = Field(
         3.0,
         gt=0,
+        le=1000,
         description="Nominal translational apparent mass for the damping ratio before/without a mass matrix, kg.",
     )
     apparent_inertia_kgm2: float = Field(
         0.002,
         gt=0,
+        le=100,
         description="Nominal rotational apparent inertia for the damping ratio before/without a mass matrix, kg·m² "
         "(small: the iiwa's inertia about the tool axis is ~0.001 kg·m²).",
     )
-    translational_damping_ns_per_m: Vector3 | None = Field(
+    translational_damping_ns_per_m: Stiffness3 | None = Field(
         None, description="Explicit CF translational damping (x, y, z), N·s/m; overrides the damping ratio."
     )
-    rotational_damping_nms_per_rad: Vector3 | None = Field(
+    rotational_damping_nms_per_rad: RotStiffness3 | None = Field(
         None, description="Explicit CF rotational damping (rx, ry, rz), N·m·s/rad; overrides the damping ratio."
     )
     force_axis_damping_ns_per_m: float = Field(
         150.0,
         ge=0,
+        le=1e5,
         description="Damping of the tool velocity along the CF force axes, N·s/m (keeps the force loop "
         "stable on a stiff surface; the motion axes use the translational damping).",
     )
-    force_kp: float = Field(0.3, ge=0, description="Proportional force gain K_p, N per N of force error (1).")
-    force_ki: float = Field(10.0, ge=0, description="Integral force gain K_i, N per N·s of force error (1/s).")
+    force_kp: float = Field(0.3, ge=0, le=100, description="Proportional force gain K_p, N per N of force error (1).")
+    force_ki: float = Field(10.0, ge=0, le=1e4, description="Integral force gain K_i, N per N·s of force error (1/s).")
     force_integral_limit_n: float = Field(
-        20.0, ge=0, description="Anti-windup: bound on |K_i ∫e_f dt| per CF force axis, N."
+        20.0, ge=0, le=1000, description="Anti-windup: bound on |K_i ∫e_f dt| per CF force axis, N."
     )
     nullspace_stiffness_nm_per_rad: float = Field(
-        10.0, ge=0, description="Joint stiffness of the null-space posture task (to the start posture), N·m/rad."
+        10.0,
+        ge=0,
+        le=1e4,
+        description="Joint stiffness of the null-space posture task (to the start posture), N·m/rad.",
     )
     nullspace_damping_nms_per_rad: float = Field(
-        1.0, ge=0, description="Joint damping of the null-space posture task, N·m·s/rad."
+        1.0, ge=0, le=1e3, description="Joint damping of the null-space posture task, N·m·s/rad."
     )
     null_space: NullSpaceProjection = Field(
         NullSpaceProjection.dynamic, description="Null-space projector: dynamically consistent or static."
     )
-    max_force_n: float = Field(80.0, gt=0, description="Abort threshold on the measured contact force magnitude, N.")
+    max_force_n: float = Field(
+        80.0, gt=0, le=1000, description="Abort threshold on the measured contact force magnitude, N."
+    )
     torque_saturation_abort_s: float = Field(
         0.2,
         gt=0,
+        le=10,
         description="Abort when the torque command stays at a joint's limit (from the robot) this long, s.",
     )
     force_ramp_s: float = Field(
-        0.25, ge=0, description="Time to ramp the desired force from the contact force to its target after contact, s."
+        0.25,
+        ge=0,
+        le=10,
+        description="Time to ramp the desired force from the contact force to its target after contact, s.",
     )
     force_release_s: float = Field(
-        0.1, ge=0, description="Time to ramp the desired force down to zero after a contact segment, s."
+        0.1, ge=0, le=10, description="Time to ramp the desired force down to zero after a contact segment, s."
     )
     contact_force_threshold_n: float | None = Field(
         None,
         gt=0,
+        le=1000,
         description="CF-z force that counts as contact for the guarded approach (and ends a guarded free "
         "segment early), N; default: 10 % of the skill's reference force, within [1, 3] N.",
     )
@@ -261,12 +291,12 @@ class EnvironmentChange(BaseModel):
     )
     sensor: SensorChoice = Field(SensorChoice.wrist, description="The force/torque sensor the controller reads.")
 
-    offset: Vector3 = Field(
+    offset: Offset3 = Field(
         default_factory=lambda: [0.0, 0.0, 0.0],
         description="KNOWN translation of the work piece [dx, dy, dz], m: applied to the simulated work piece "
         "and to the skill (DMP starts and goals, compliant frames).",
     )
-    unknown_offset: Vector3 = Field(
+    unknown_offset: Offset3 = Field(
         default_factory=lambda: [0.0, 0.0, 0.0],
         description="UNKNOWN translation [dx, dy, dz], m: applied to the simulated work piece only; "
         "the controller has to cope (e.g. a table height found by the guarded approach).",
@@ -315,11 +345,12 @@ class ExecutionSettings(BaseModel):
         "mass along CF z), within [0.5 mm/s, approach_speed_m_s].",
     )
     approach_max_distance_m: float = Field(
-        0.15, gt=0, description="Longest guarded approach before aborting with 'contact not found', m."
+        0.15, gt=0, le=0.5, description="Longest guarded approach before aborting with 'contact not found', m."
     )
     approach_clearance_m: float = Field(
         0.06,
         ge=0,
+        le=0.3,
         description="The free segment before a contact segment ends this far before the taught contact point "
         "(back along CF z); the guarded approach covers the rest, m.",
     )
@@ -332,7 +363,16 @@ class ExecutionSettings(BaseModel):
         "applied force without its friction part (within 40 deg of the learned one, 60 deg/s at most), for a "
         "surface tilted differently than taught. Off: the paper's fixed CF.",
     )
-    settle_s: float = Field(0.5, ge=0, description="Time to settle at the start pose before the first segment, s.")
+    settle_s: float = Field(
+        0.5, ge=0, le=10, description="Time to settle at the start pose before the first segment, s."
+    )
+    pause_timeout_s: float = Field(
+        300.0,
+        gt=0,
+        le=MAX_PAUSE_TIMEOUT_S,
+        description="A paused execution that is not resumed within this time is aborted (reason 'paused for "
+        "longer than pause_timeout_s'), so a forgotten pause never holds a worker, s.",
+    )
     telemetry_batch: int = Field(
         10,
         ge=1,

@@ -13,12 +13,18 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.demonstration import DemonstrationSummary, Quaternion, Vector3
+from schemas.demonstration import MAX_DURATION_S, DemonstrationSummary, Quaternion, Vector3
 
 SELECTION_CONTACT: list[float] = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
 """Selection diagonal in CF for slide and contour contact segments: force control along CF z."""
 SELECTION_FREE: list[float] = [1.0] * 6
 """Selection diagonal for free (no contact) segments: motion control on every axis."""
+MAX_BASIS = 1000
+"""Most basis functions a DMP may have (``LearnOptions.max_basis`` at most)."""
+MAX_FRAMES = 5000
+"""Most compliant frames per segment (``LearnOptions.contour_frames_max`` at most)."""
+MAX_SEGMENTS = 500
+"""Most segments a skill may have."""
 
 
 class SkillType(StrEnum):
@@ -64,15 +70,21 @@ class DMPParameters(BaseModel):
     frame: Literal["world", "cf"] = Field(
         "world", description="Coordinates of y: world frame, or the segment's compliant frame (slide positions)."
     )
-    duration_s: float = Field(gt=0, description="Time constant tau: the demonstrated duration, s.")
+    duration_s: float = Field(gt=0, le=MAX_DURATION_S, description="Time constant tau: the demonstrated duration, s.")
     alpha_z: float = Field(gt=0, description="Spring-damper gain alpha_z, 1/s scaled by tau.")
     beta_z: float = Field(gt=0, description="Spring gain beta_z (alpha_z/4 is critically damped).")
     alpha_x: float = Field(gt=0, description="Canonical system decay alpha_x.")
-    centers: list[float] = Field(description="Basis centres c_i in phase x (dimensionless, in (0, 1]).")
-    widths: list[float] = Field(description="Basis widths h_i (1/phase^2).")
-    weights: list[list[float]] = Field(description="Weights w, one row per basis, one column per dimension.")
-    start: list[float] = Field(description="Demonstrated start y0 (m, N or quaternion [x, y, z, w]).")
-    goal: list[float] = Field(description="Demonstrated goal g (same units as start).")
+    centers: list[float] = Field(
+        max_length=MAX_BASIS, description="Basis centres c_i in phase x (dimensionless, in (0, 1])."
+    )
+    widths: list[float] = Field(max_length=MAX_BASIS, description="Basis widths h_i (1/phase^2).")
+    weights: list[list[float]] = Field(
+        max_length=MAX_BASIS, description="Weights w, one row per basis, one column per dimension."
+    )
+    start: list[float] = Field(
+        min_length=1, max_length=4, description="Demonstrated start y0 (m, N or quaternion [x, y, z, w])."
+    )
+    goal: list[float] = Field(min_length=1, max_length=4, description="Demonstrated goal g (same units as start).")
     amplitude_scaling: list[bool] = Field(
         description="Per dimension: whether the forcing term scales with (g - y0) on rollout."
     )
@@ -87,9 +99,13 @@ class CompliantFrames(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    t: list[float] = Field(description="Time since segment start, s; one per frame.")
-    origins: list[Vector3] = Field(description="CF origins in world, m.")
-    orientations: list[Quaternion] = Field(description="World-from-CF rotations, unit quaternions [x, y, z, w].")
+    t: list[float] = Field(
+        min_length=1, max_length=MAX_FRAMES, description="Time since segment start, s; one per frame."
+    )
+    origins: list[Vector3] = Field(min_length=1, max_length=MAX_FRAMES, description="CF origins in world, m.")
+    orientations: list[Quaternion] = Field(
+        min_length=1, max_length=MAX_FRAMES, description="World-from-CF rotations, unit quaternions [x, y, z, w]."
+    )
 
 
 class SegmentQuality(BaseModel):
@@ -191,7 +207,7 @@ class Skill(BaseModel):
 
     skill_type: SkillType
     attributes: SkillAttributes
-    segments: list[Segment] = Field(min_length=1)
+    segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
     auto_selection: AutoSelection | None = Field(None, description="Present when skill_type 'auto' was asked for.")
     demonstration: DemonstrationSummary
     sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
@@ -209,27 +225,30 @@ class LearnOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
-    n_basis: int = Field(50, ge=2, le=1000, description="Fewest DMP basis functions per dimension and segment.")
+    n_basis: int = Field(50, ge=2, le=500, description="Fewest DMP basis functions per dimension and segment.")
     basis_per_second: float = Field(
         15.0,
         ge=0,
+        le=200,
         description="More basis functions for long segments: at least this many per second of segment "
         "(denser bases fit faster detail but make the rollout depend on its time step).",
     )
-    max_basis: int = Field(300, ge=2, le=2000, description="Most basis functions per dimension and segment.")
+    max_basis: int = Field(300, ge=2, le=MAX_BASIS, description="Most basis functions per dimension and segment.")
     max_fit_samples: int = Field(
         10_000,
         ge=100,
+        le=100_000,
         description="DMPs of longer segments are fitted on this many evenly strided samples "
         "(bases are >= 40 ms apart, so a finer grid adds cost, not information).",
     )
     contact_force_threshold_n: float | None = Field(
         None,
         gt=0,
+        le=1000,
         description="Force (N) a stroke presses with at least while sliding (its core); default: 40 % of the "
         "robust peak. Contact boundaries are then found from the surface and the touch level.",
     )
-    min_segment_duration_s: float = Field(0.25, gt=0, description="Segments shorter than this are merged, s.")
+    min_segment_duration_s: float = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
     contour_frames_max: int = Field(
-        500, ge=2, description="Most compliant frames stored per contour segment (decimated evenly)."
+        500, ge=2, le=MAX_FRAMES, description="Most compliant frames stored per contour segment (decimated evenly)."
     )

@@ -5,26 +5,32 @@ expressions) on ``app.state``, the body limit, the error handlers and the router
 
 - ``services/api/routes/``: one APIRouter per resource (``health``, ``demonstrations``, ``skills``,
   ``executions``). Route functions are thin: they validate (the pydantic models of ``schemas/``), call the
-  store, the science (``skills.parameterize.learn_skill``, in the thread pool) or the bus, and shape the reply;
+  store, the science (``skills.parameterize.learn_skill``, in a learner process) or the bus, and shape the reply;
 - ``services/api/deps.py``: the shared dependencies as ``Annotated`` types, resolved through the ``Request``;
 - ``services/api/errors.py``: every error answer (422 naming the field, 404, 409, 401, 503, 504, the logged 500);
+- ``services/api/browser_guard.py``: the CORS policy (none by default) and the Host check of a loopback API;
+- ``services/learner_pool.py``: learning in separate processes with a time and memory budget;
 - ``services/bus_events.py``: the bus callbacks (:class:`BusEvents`) that write status, metrics and telemetry
   into the same store from Zenoh threads, and :func:`connect_bus`.
 """
 
 from __future__ import annotations
 
+import time
 from contextlib import asynccontextmanager
 from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
 
 from schemas.bus import KeyExpressions
 from services.api.body_limit import BodyLimit
+from services.api.browser_guard import LOOPBACK_NAMES, BrowserGuard
 from services.api.docs import install_offline_docs
 from services.api.errors import install_error_handlers
 from services.api.main import api_router
 from services.bus_events import BusEvents, connect_bus, reconcile
+from services.learner_pool import LearnerPool
 from services.settings import ServiceSettings, package_version
 from services.store import Store
 
@@ -40,6 +46,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     ``store``: the open store; default: opened from ``settings.db_path`` and closed with the app."""
     own_store = store is None
     store = store if store is not None else Store(settings.db_path)
+    learners = LearnerPool(settings.learn_processes, settings.learn_timeout_s, settings.learn_memory_mb)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -47,6 +54,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
 
         await run_in_threadpool(reconcile, store, bus)
         yield
+        learners.close()
         if own_store:
             store.close()
 
@@ -63,7 +71,19 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     app.state.bus = bus
     app.state.settings = settings
     app.state.keys = KeyExpressions(settings.zenoh_prefix)
+    app.state.learners = learners
+    app.state.started_unix_s = time.time()
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "DELETE"],
+            allow_headers=["Authorization", "Content-Type"],
+        )
+    app.add_middleware(
+        BrowserGuard, allowed_origins=settings.cors_origins, loopback_only=settings.host in LOOPBACK_NAMES
+    )
     install_error_handlers(app)
     app.include_router(api_router)
     install_offline_docs(app)

@@ -38,7 +38,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
-from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
+from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES, MIN_DEMONSTRATION_SAMPLES
 from skills import preprocess
 from skills import tare as tare_module
 from skills.contact import analyse_contact
@@ -274,9 +274,37 @@ def resolved_columns(
         if key[0] in "fm" and any(c in by_normal for c in _wrench_candidates(key, other)):
             problem += f" (the file has a {other.value}-frame wrench: pass wrench_frame={other.value!r})"
         problems.append(problem + f"; name it with --columns {key}=<column>")
+    problems.extend(_unit_problems(header, found))
     if problems:
         raise CsvImportError(problems)
     return ResolvedColumns(indices=found, quaternion_order=order)
+
+
+SI_UNITS: dict[str, frozenset[str]] = {
+    "t": frozenset({"s", "sec", "second", "seconds"}),
+    "p": frozenset({"m", "meter", "meters", "metre", "metres"}),
+    "q": frozenset({"", "-", "1"}),
+    "f": frozenset({"n", "newton", "newtons"}),
+    "m": frozenset({"nm", "n.m", "n·m", "n*m", "n m", "newton metre", "newton meter"}),
+}
+"""Units a column may declare in brackets (``x [m]``), by the first letter of its key; anything else is refused."""
+
+
+def _unit_problems(header: list[str], found: dict[str, int | None]) -> list[str]:
+    """One problem per used column whose header names a unit that is not SI (``x [mm]``, ``Fx (kN)``): nothing
+    is rescaled on import, so a file in millimetres would be learned 1000 times too large."""
+    problems = []
+    for key, j in found.items():
+        if j is None:
+            continue
+        unit = re.search(r"[\[(]\s*(.*?)\s*[\])]", header[j])
+        if unit is not None and unit[1].lower() not in SI_UNITS[key[0]]:
+            wanted = {"t": "s", "p": "m", "q": "none", "f": "N", "m": "N·m"}[key[0]]
+            problems.append(
+                f"column {header[j]!r} ({key}): unit {unit[1]!r}; the importer takes SI units only ({wanted}) and "
+                "rescales nothing: convert the file"
+            )
+    return problems
 
 
 # --------------------------------------------------------------------------- reading
@@ -302,7 +330,10 @@ def _read_table(text: str) -> _Table:
     if delimiter is None:
         split = [line.split() for _, line in numbered]
     else:
-        split = list(csv.reader((line for _, line in numbered), delimiter=delimiter, skipinitialspace=True))
+        try:
+            split = list(csv.reader((line for _, line in numbered), delimiter=delimiter, skipinitialspace=True))
+        except csv.Error as exc:  # e.g. a field longer than the csv module's limit (131 072 characters)
+            raise CsvImportError(f"the file is not a readable CSV table: {exc}") from None
     header = [name.strip() for name in split[0]]
     if all(_is_number(name) for name in header):
         raise CsvImportError("the first row holds numbers, not column names: a header row is required")
@@ -483,7 +514,11 @@ def demonstration_from_csv(
         if np.ptp(t) <= 0:
             raise CsvImportError(f"column {table.header[indices['t']]!r} (t): all time stamps are equal ({t[0]:g} s)")
         try:
-            resampled = preprocess.resampled_recording(t, positions, orientations, wrench, rate)
+            resampled = preprocess.resampled_recording(
+                t, positions, orientations, wrench, rate, max_samples=MAX_DEMONSTRATION_SAMPLES
+            )
+        except preprocess.TooManySamples as exc:
+            raise CsvImportError(f"{'rate' if rate is not None else 'resampling'}: {exc}") from None
         except ValueError as exc:
             raise CsvImportError(f"resampling: {exc}") from None
         recording = RecordingSamples(

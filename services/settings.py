@@ -11,6 +11,11 @@
 | zenoh_endpoints | ``CONTACT_SKILLS_ZENOH_ENDPOINTS`` | ``tcp/127.0.0.1:7447`` (comma separated) |
 | zenoh_prefix | ``CONTACT_SKILLS_ZENOH_PREFIX`` | ``cskills`` |
 | connect_timeout_s | ``CONTACT_SKILLS_CONNECT_TIMEOUT_S`` | ``30`` (s the API waits for the router) |
+| token_reads | ``CONTACT_SKILLS_TOKEN_READS`` | ``false``; ``true``: GETs need the token too (``/health`` stays open) |
+| cors_origins | ``CONTACT_SKILLS_CORS_ORIGINS`` | none: no cross-origin browser request (comma-separated origins) |
+| learn_processes | ``CONTACT_SKILLS_LEARN_PROCESSES`` | the number of CPUs (learner processes of ``POST /skills``) |
+| learn_timeout_s | ``CONTACT_SKILLS_LEARN_TIMEOUT_S`` | ``120`` (time budget of one learning job, s) |
+| learn_memory_mb | ``CONTACT_SKILLS_LEARN_MEMORY_MB`` | ``4096`` (address space of a learner process, MiB; 0: none) |
 """
 
 from __future__ import annotations
@@ -40,6 +45,11 @@ ENV_VARS: dict[str, str] = {
     "zenoh_endpoints": "CONTACT_SKILLS_ZENOH_ENDPOINTS",
     "zenoh_prefix": "CONTACT_SKILLS_ZENOH_PREFIX",
     "connect_timeout_s": "CONTACT_SKILLS_CONNECT_TIMEOUT_S",
+    "token_reads": "CONTACT_SKILLS_TOKEN_READS",
+    "cors_origins": "CONTACT_SKILLS_CORS_ORIGINS",
+    "learn_processes": "CONTACT_SKILLS_LEARN_PROCESSES",
+    "learn_timeout_s": "CONTACT_SKILLS_LEARN_TIMEOUT_S",
+    "learn_memory_mb": "CONTACT_SKILLS_LEARN_MEMORY_MB",
 }
 """Setting name -> the environment variable that sets it."""
 
@@ -56,6 +66,16 @@ def _endpoints(value: str | list[str]) -> list[str]:
     return endpoints
 
 
+def _flag(text: str) -> bool:
+    """``1/true/yes/on`` or ``0/false/no/off`` (any case); ValueError otherwise."""
+    value = text.strip().lower()
+    if value in ("1", "true", "yes", "on"):
+        return True
+    if value in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(text)
+
+
 @dataclass(frozen=True)
 class ServiceSettings:
     """Where the API listens, where it stores, how it reaches the Zenoh router (see the module table)."""
@@ -69,6 +89,11 @@ class ServiceSettings:
     zenoh_endpoints: list[str] = field(default_factory=lambda: [DEFAULT_ZENOH_ENDPOINT])
     zenoh_prefix: str = DEFAULT_ZENOH_PREFIX
     connect_timeout_s: float = 30.0
+    token_reads: bool = False
+    cors_origins: list[str] = field(default_factory=list)
+    learn_processes: int = field(default_factory=lambda: os.cpu_count() or 1)
+    learn_timeout_s: float = 120.0
+    learn_memory_mb: int = 4096
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -79,6 +104,16 @@ class ServiceSettings:
             raise SettingsError(f"workers: {self.workers} must be >= 0")
         if self.connect_timeout_s < 0:
             raise SettingsError(f"connect_timeout_s: {self.connect_timeout_s} must be >= 0")
+        if self.learn_processes < 1:
+            raise SettingsError(f"learn_processes: {self.learn_processes} must be >= 1")
+        if not self.learn_timeout_s > 0:
+            raise SettingsError(f"learn_timeout_s: {self.learn_timeout_s} must be > 0")
+        if self.learn_memory_mb < 0:
+            raise SettingsError(f"learn_memory_mb: {self.learn_memory_mb} must be >= 0 (0: no limit)")
+        if self.token_reads and not self.token:
+            raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")
+        cors = self.cors_origins.split(",") if isinstance(self.cors_origins, str) else self.cors_origins
+        object.__setattr__(self, "cors_origins", [origin.strip() for origin in cors if origin.strip()])
         object.__setattr__(self, "db_path", Path(self.db_path))
         object.__setattr__(self, "zenoh_endpoints", _endpoints(self.zenoh_endpoints))
         object.__setattr__(self, "token", self.token or None)
@@ -105,6 +140,8 @@ class ServiceSettings:
                     values[name] = int(raw)
                 elif kind == "float":
                     values[name] = float(raw)
+                elif kind == "bool":
+                    values[name] = _flag(raw)
                 else:
                     values[name] = raw.strip()
             except ValueError:

@@ -149,6 +149,8 @@ class _Run:
         self.abort_received_t: float | None = None
         self.abort_reason: str | None = None
         self.paused = False
+        self.paused_at = 0.0
+        """time.monotonic() of the last pause (see ``should_pause``)."""
         self.polls = 0
         """should_abort() calls = control steps completed."""
         self.phase = ExecutionPhase.pending
@@ -165,7 +167,14 @@ class _Run:
         return self.abort_requested
 
     def should_pause(self) -> bool:
+        """Hold the reference while paused; a pause longer than ``request.pause_timeout_s`` aborts the run, so a
+        forgotten pause never holds the worker."""
         if self.paused and not self.abort_requested:
+            waited = time.monotonic() - self.paused_at
+            if waited > self.request.pause_timeout_s:
+                reason = f"paused for {waited:.0f} s, longer than pause_timeout_s ({self.request.pause_timeout_s:g} s)"
+                self.command(ExecutionCommand(command="abort", execution_id=self.execution_id, reason=reason))
+                return False
             time.sleep(PAUSED_SLEEP_S)
             return True
         return False
@@ -217,6 +226,7 @@ class _Run:
                 log.info("%s: abort received at t=%.3f s%s", self.execution_id, self.abort_received_t, note)
         elif command.command == "pause":
             if not self.paused:
+                self.paused_at = time.monotonic()
                 self.paused = True
                 self.status(message=f"paused{note}")
         elif command.command == "resume" and self.paused:

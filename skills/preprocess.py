@@ -277,6 +277,10 @@ class ResampledRecording:
     notes: list[str] = field(default_factory=list)
 
 
+class TooManySamples(ValueError):  # noqa: N818 (reads as what happened)
+    """The uniform grid asked for would hold more samples than allowed."""
+
+
 def resampled_recording(
     t: ArrayLike,
     positions: ArrayLike,
@@ -284,6 +288,7 @@ def resampled_recording(
     wrenches: ArrayLike,
     rate_hz: float | None = None,
     position_method: PositionMethod = "cubic",
+    max_samples: int | None = None,
 ) -> ResampledRecording:
     """Resample an (event-driven or irregular) recording onto one uniform time grid.
 
@@ -293,7 +298,7 @@ def resampled_recording(
     :func:`channel_group_samples`, and interpolated at ``rate_hz`` (default
     :func:`default_rate_hz`) over the time span where every group has measurements
     (no extrapolation: the grid starts at the later first sample and ends at or before the
-    earlier last sample).
+    earlier last sample). ``max_samples``: raise :class:`TooManySamples` before building a longer grid.
     """
     t = np.asarray(t, dtype=float)
     in_order = rows_in_time_order(t)
@@ -358,6 +363,12 @@ def recording_from_groups(
             raise ValueError(f"the {name} has a single sample: nothing to interpolate over time")
     t_start = max(pose.t[0], wrench.t[0])
     t_end = min(pose.t[-1], wrench.t[-1])
+    wanted = (t_end - t_start) * rate_hz + 1
+    if max_samples is not None and wanted > max_samples:
+        raise TooManySamples(
+            f"{t_end - t_start:.6g} s at {rate_hz:g} Hz would be {wanted:.4g} samples, more than {max_samples}: "
+            "choose a lower rate"
+        )
     grid = uniform_time_grid(t_start, t_end, rate_hz)
 
     q_measured = quaternions_sign_continuous(pose.values[:, 3:7])

@@ -302,6 +302,19 @@ def test_pause_holds_the_reference_and_resume_continues(client, skill):
     assert after.any() and np.ptp(ref[after], axis=0).max() > 1e-5  # and it moves again
 
 
+def test_a_forgotten_pause_times_out_and_frees_the_worker(client, skill):
+    recorder = client.recorder
+    worker = client.start_execution("ex-pause-timeout", _request(skill, pace="realtime", pause_timeout_s=0.5))
+    _wait(lambda: recorder.samples("ex-pause-timeout") >= 200, what="telemetry")
+    client.send_command("ex-pause-timeout", "pause")
+    paused = _wait(lambda: [s for s in recorder.statuses["ex-pause-timeout"] if s.paused], what="paused")[0]
+    final = recorder.final("ex-pause-timeout")
+    assert final.phase is ExecutionPhase.aborted
+    assert final.error is not None and "longer than pause_timeout_s (0.5 s)" in final.error
+    assert final.t - paused.t < 2.0  # the simulation held for the pause (0.5 s) and then stopped
+    _wait(lambda: not next(w for w in client.workers() if w.worker_id == worker).busy, 10, "the worker free again")
+
+
 def test_two_workers_run_two_executions_at_once(client, skill):
     recorder = client.recorder
     first = client.start_execution("ex-two-1", _request(skill))

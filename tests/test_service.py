@@ -29,6 +29,8 @@ from services.local_processes import free_port as _free_port  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
 FINAL = ("done", "aborted", "failed")
+TOKEN = "stack-token"
+"""The stack runs with a token: the tests read process ids from the health details it unlocks."""
 
 
 def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str, every_s: float = 0.2):
@@ -63,14 +65,15 @@ class Stack:
         self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
         self.log_path = tmp / "up.log"
         self.log = self.log_path.open("w")
-        env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-        env.pop("CONTACT_SKILLS_TOKEN", None)
+        env = {**os.environ, "PYTHONPATH": str(REPO), "CONTACT_SKILLS_TOKEN": TOKEN}
+        for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "CONTACT_SKILLS_TOKEN_READS"):
+            env.pop(name, None)  # `up` sets the thread limits of its children itself
         argv = ["up", "--workers", "2", "--port", str(self.port), "--zenoh-port", str(self.zenoh_port),
                 "--db", str(tmp / "service.db")]  # fmt: skip
         self.process = subprocess.Popen(
             [sys.executable, "-m", "cli.main", *argv], cwd=tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT
         )
-        self.http = httpx.Client(base_url=self.url, timeout=60)
+        self.http = httpx.Client(base_url=self.url, timeout=60, headers={"Authorization": f"Bearer {TOKEN}"})
 
     def health(self) -> dict | None:
         if self.process.poll() is not None:
@@ -229,7 +232,8 @@ def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
 
 
 def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack, skill_id):
-    workers = {w["worker_id"]: w["pid"] for w in stack.workers(2)}
+    stack.workers(2)
+    workers = {w["worker_id"]: w["pid"] for w in stack.health()["detail"]["workers"]}
     created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
     _wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
     os.kill(workers[created["worker_id"]], signal.SIGKILL)
@@ -248,9 +252,9 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
     before = {path: stack.http.get(path).json() for path in ("/demonstrations", "/skills", "/executions?limit=1000")}
     running = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
     _wait_for(lambda: stack.execution(running["id"])["telemetry_samples"] > 200, 30, "the execution to run")
-    api_pid = stack.health()["pid"]
+    api_pid = stack.health()["detail"]["pid"]
     os.kill(api_pid, signal.SIGKILL)  # `up` restarts it on the same database
-    _wait_for(lambda: (h := stack.health()) and h["pid"] != api_pid, 60, "the API to restart")
+    _wait_for(lambda: (h := stack.health()) and h["detail"]["pid"] != api_pid, 60, "the API to restart")
 
     after = {path: stack.http.get(path).json() for path in before}
     assert after["/demonstrations"] == before["/demonstrations"]
@@ -270,9 +274,18 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
     assert view["status"] == "done" and view["metrics"]["steps"] > 0, view
 
 
+def test_up_limits_the_blas_threads_of_every_child(stack):
+    detail = stack.health()["detail"]
+    for pid in (detail["pid"], *(w["pid"] for w in detail["workers"])):
+        environ = dict(
+            item.split("=", 1) for item in Path(f"/proc/{pid}/environ").read_text().split("\0") if "=" in item
+        )
+        assert {environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")} == {"1"}
+
+
 def test_up_stops_cleanly_on_sigterm(stack):
-    health = stack.health()
-    pids = [health["pid"], *(w["pid"] for w in health["workers"])]
+    detail = stack.health()["detail"]
+    pids = [detail["pid"], *(w["pid"] for w in detail["workers"])]
     assert stack.stop() == 0, stack.log_path.read_text()[-3000:]
     _wait_for(lambda: not any(_alive(pid) for pid in pids), 10, "every child to exit")
     log = stack.log_path.read_text()

@@ -18,6 +18,7 @@ from schemas.api import TelemetryFormat
 from schemas.bus import KeyExpressions
 from services.api import errors
 from services.bus import BusClient
+from services.learner_pool import LearnerPool
 from services.settings import ServiceSettings
 from services.store import Store
 
@@ -38,10 +39,15 @@ def get_keys(request: Request) -> KeyExpressions:
     return request.app.state.keys
 
 
+def get_learners(request: Request) -> LearnerPool:
+    return request.app.state.learners
+
+
 StoreDep = Annotated[Store, Depends(get_store)]
 SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 BusDep = Annotated[BusClient | None, Depends(get_bus)]
 KeysDep = Annotated[KeyExpressions, Depends(get_keys)]
+LearnersDep = Annotated[LearnerPool, Depends(get_learners)]
 
 
 def need_bus(bus: BusClient | None) -> BusClient:
@@ -55,21 +61,40 @@ BEARER = HTTPBearer(auto_error=False, description="Set CONTACT_SKILLS_TOKEN on t
 """Optional bearer token of the mutating endpoints."""
 
 
-def require_token(
-    settings: SettingsDep, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(BEARER)]
-) -> None:
+Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(BEARER)]
+
+
+def authenticated(settings: SettingsDep, credentials: Credentials) -> bool:
+    """Whether the request carries the configured token (False when none is configured)."""
+    if settings.token is None or credentials is None:
+        return False
+    return secrets.compare_digest(credentials.credentials.encode(), settings.token.encode())
+
+
+AuthenticatedDep = Annotated[bool, Depends(authenticated)]
+
+
+def require_token(settings: SettingsDep, known: AuthenticatedDep) -> None:
     """401 unless the request carries the configured token (no token configured: everyone passes)."""
-    if settings.token is None:
-        return
-    if credentials is None or not secrets.compare_digest(credentials.credentials.encode(), settings.token.encode()):
+    if settings.token is not None and not known:
+        raise errors.unauthorized()
+
+
+def require_token_to_read(settings: SettingsDep, known: AuthenticatedDep) -> None:
+    """401 on a read without the token when ``token_reads`` is set."""
+    if settings.token_reads and not known:
         raise errors.unauthorized()
 
 
 TOKEN_GUARD = [Depends(require_token)]
 """``dependencies=`` of every POST/DELETE route."""
+READ_GUARD = [Depends(require_token_to_read)]
+"""``dependencies=`` of every GET route but ``/health`` (open unless ``token_reads``)."""
 
-Limit = Annotated[int, Query(ge=1, le=1000)]
-Offset = Annotated[int, Query(ge=0)]
+MAX_OFFSET = 1_000_000_000
+"""Largest list offset (SQLite takes 64-bit integers; a larger one would overflow)."""
+Limit = Annotated[int, Query(ge=1, le=1000, description="Most items to return.")]
+Offset = Annotated[int, Query(ge=0, le=MAX_OFFSET, description="Items to skip (newest first).")]
 
 ExportFormat = Annotated[
     TelemetryFormat,

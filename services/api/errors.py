@@ -5,8 +5,9 @@ becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodi
   with ``loc`` naming the field (``["body", "demonstration", "wrenches"]``, ``["body", "file"]``);
   error entries never echo large inputs back.
 - 404: unknown id. 409: a command to a finished execution. 401: missing/wrong bearer token on
-  POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``). 413: body over the limit
-  (``body_limit.BodyLimit``).
+  POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``; on GET too with
+  ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed request
+  or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
 - 503: no Zenoh bus or no sim worker connected; 504: a recording timed out.
 - 500 only for a bug: logged with its traceback, answered with a short JSON body.
 """
@@ -26,7 +27,7 @@ from schemas.api import ApiError
 
 if TYPE_CHECKING:
     from services.csv_import import CsvImportError, DemonstrationImportError
-    from skills.parameterize import LearningError
+    from services.learner_pool import LearnOutcome
 
 log = logging.getLogger("contact_skills.api")
 
@@ -37,6 +38,9 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {404: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that looks an id up."""
 MUTATING_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 413: {"model": ApiError}}
 """OpenAPI ``responses`` of a route behind the token guard and the body limit."""
+READ_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 403: {"model": ApiError}}
+"""OpenAPI ``responses`` of every resource route: 401 without the token (reads too with ``token_reads``), 403 for a
+cross-origin browser request (``browser_guard``)."""
 UNAVAILABLE: dict[int | str, dict[str, Any]] = {503: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that needs the bus."""
 
@@ -88,6 +92,13 @@ def bad_numbers(field: str, text: str, count: tuple[int, ...]) -> RequestValidat
     return unprocessable(["body", field], f"{wanted} comma-separated numbers are needed, got {text!r}")
 
 
+def incoherent_skill(problems: list[tuple[list[str | int], str]]) -> RequestValidationError:
+    """422 with one entry per incoherence of an inline skill (``services.api.limits.skill_problems``)."""
+    return RequestValidationError(
+        [{"loc": ("body", "skill", *loc), "msg": reason, "type": "incoherent_skill"} for loc, reason in problems]
+    )
+
+
 def csv_import_failed(exc: CsvImportError) -> RequestValidationError:
     """422 with one entry per import problem, each naming the form field it is about."""
     field = _csv_problem_field(exc.problems)
@@ -111,18 +122,30 @@ def import_failed(exc: DemonstrationImportError) -> RequestValidationError:
     return RequestValidationError(entries)
 
 
-def learning_failed(exc: LearningError, loc: list[str | int], demonstration_id: str | None) -> RequestValidationError:
-    """422 for a demonstration the science refused: inline, ``loc`` + the field; stored, on ``demonstration_id``
-    with the field in the message."""
-    if demonstration_id is None:
-        return unprocessable([*loc, exc.field], exc.reason, "learning_error")
-    return unprocessable(loc, f"demonstration {demonstration_id}: {exc.field}: {exc.reason}", "learning_error")
-
-
-def cannot_learn(exc: ValueError, loc: list[str | int]) -> RequestValidationError:
-    """422 for a ValueError of the science that names no field: still the input's fault."""
-    log.warning("learning failed on valid-looking input (%s)", exc, exc_info=True)
-    return unprocessable(loc, f"cannot learn from this demonstration: {exc}", "learning_error")
+def learning_outcome_failed(
+    outcome: LearnOutcome, loc: list[str | int], demonstration_id: str | None, memory_mb: int
+) -> RequestValidationError:
+    """422 for a learner process's answer other than ok: the science refused the demonstration (naming the field),
+    failed on it without naming one (in our words; the library's text goes to the log), or ran out of the memory
+    budget. A bug in the learner is a logged 500."""
+    if outcome.kind == "learning":
+        if demonstration_id is None:
+            return unprocessable([*loc, outcome.field], outcome.reason, "learning_error")
+        return unprocessable(
+            loc, f"demonstration {demonstration_id}: {outcome.field}: {outcome.reason}", "learning_error"
+        )
+    if outcome.kind == "value":
+        log.warning("learning failed on valid-looking input: %s", outcome.reason)
+        return unprocessable(
+            loc, "cannot learn from this demonstration: the segmentation or the fit failed on its samples "
+            "(degenerate or inconsistent motion and force)", "learning_error",
+        )  # fmt: skip
+    if outcome.kind == "memory":
+        return unprocessable(
+            loc, f"cannot learn from this demonstration within the learner's memory budget of {memory_mb} MiB "
+            "(CONTACT_SKILLS_LEARN_MEMORY_MB): use fewer samples or fewer basis functions", "learning_budget",
+        )  # fmt: skip
+    raise RuntimeError(f"the learner failed:\n{outcome.reason}")
 
 
 def _csv_problem_field(problems: list[str]) -> str:

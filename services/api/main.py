@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
+from schemas.api import ApiError
 from services.api.routes import demonstrations, executions, health, skills
 
-api_router = APIRouter()
+api_router = APIRouter(responses={400: {"model": ApiError, "description": "Malformed request (body, header, host)"}})
 api_router.include_router(health.router)
 api_router.include_router(demonstrations.router)
 api_router.include_router(skills.router)

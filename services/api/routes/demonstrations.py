@@ -20,6 +20,7 @@ from schemas.demonstration import Demonstration, QuaternionOrder, WrenchConventi
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
+    READ_GUARD,
     TOKEN_GUARD,
     BusDep,
     ExportFormat,
@@ -30,7 +31,7 @@ from services.api.deps import (
     WindowStart,
     need_bus,
 )
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.api.limits import MAX_RATE_HZ
 from services.api.responses import download, raw_json
 from services.store import DemonstrationRow
@@ -38,7 +39,7 @@ from services.store import DemonstrationRow
 RECORD_TIMEOUT_S = 120.0
 """How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
 
-router = APIRouter(tags=["demonstrations"])
+router = APIRouter(tags=["demonstrations"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
 
 def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict | None = None) -> DemonstrationCreated:

@@ -24,6 +24,7 @@ from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
+    READ_GUARD,
     TOKEN_GUARD,
     BusDep,
     ExportFormat,
@@ -35,13 +36,14 @@ from services.api.deps import (
     WindowStart,
     need_bus,
 )
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.limits import skill_problems
 from services.api.responses import download
 from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
 
 log = logging.getLogger("contact_skills.api")
 
-router = APIRouter(tags=["executions"])
+router = APIRouter(tags=["executions"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
 COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
     **ERROR_RESPONSES,
@@ -106,6 +108,8 @@ def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys
     from services.bus import BusRequestError, NoWorkerAvailable
 
     skill, demonstration = request.skill, None
+    if skill is not None and (problems := skill_problems(skill)):
+        raise errors.incoherent_skill(problems)
     if request.skill_id is not None:
         row = store.skill(request.skill_id)
         if row is None:

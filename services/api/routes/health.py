@@ -1,32 +1,49 @@
-"""``GET /health``: liveness, and the sim workers connected over Zenoh."""
+"""``GET /health``: liveness, the sim workers connected over Zenoh, the learner processes; details with the token."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 from fastapi import APIRouter, Request
 
-from schemas.api import Health
-from services.api.deps import BusDep, SettingsDep, StoreDep
+from schemas.api import Health, HealthDetail, WorkerSummary
+from services.api.deps import AuthenticatedDep, BusDep, LearnersDep, SettingsDep, StoreDep
 
 router = APIRouter(tags=["service"])
 
 
 @router.get("/health", response_model=Health)
-def health(request: Request, store: StoreDep, settings: SettingsDep, bus: BusDep) -> Health:
-    """Liveness, and the sim workers connected over Zenoh.
+def health(
+    request: Request,
+    store: StoreDep,
+    settings: SettingsDep,
+    bus: BusDep,
+    learners: LearnersDep,
+    known: AuthenticatedDep,
+) -> Health:
+    """Liveness, the sim workers connected over Zenoh and the learner processes.
 
     Always 200 while the API answers (docker-compose's healthcheck uses it): the version, whether the Zenoh bus is
-    connected, each connected worker's state (idle, executing, recording), the database and its schema version,
-    the executions running now."""
-    workers = [info.model_dump(mode="json") for info in bus.workers()] if bus is not None else []
+    connected, each connected worker's state (idle, executing, recording), the executions running now, the learner
+    processes. The database path and the process ids and host names of the API and its workers only for a request
+    with the bearer token."""
+    infos = bus.workers() if bus is not None else []
+    detail = None
+    if known:
+        detail = HealthDetail(
+            database=str(store.path),
+            schema_version=store.schema_version(),
+            pid=os.getpid(),
+            workers=[info.model_dump(mode="json") for info in infos],
+        )
     return Health(
         version=request.app.version,
+        started_unix_s=request.app.state.started_unix_s,
         bus_connected=bus is not None,
         zenoh_endpoints=settings.zenoh_endpoints,
-        workers=workers,
-        database=str(store.path),
-        schema_version=store.schema_version(),
+        workers=[WorkerSummary(**info.model_dump(include=set(WorkerSummary.model_fields))) for info in infos],
         active_executions=len(store.active_executions()),
-        pid=os.getpid(),
+        learning=dataclasses.asdict(learners.stats),
+        detail=detail,
     )

@@ -1,56 +1,58 @@
-"""``/skills``: learn one from a stored or an inline demonstration (``skills.parameterize.learn_skill``, in the thread
-pool), list, get, delete."""
+"""``/skills``: learn one from a stored or an inline demonstration (``skills.parameterize.learn_skill``, in a learner
+process of ``services.learner_pool``: the event loop never waits on it), list, get, delete."""
 
 from __future__ import annotations
 
-import time
+import asyncio
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Request, Response
 
-from schemas.api import SkillInfo, SkillRequest, StoredSkill
+from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from services.api import errors
-from services.api.deps import TOKEN_GUARD, Limit, Offset, StoreDep
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES
-from services.api.limits import check_sampling
+from services.api.deps import READ_GUARD, TOKEN_GUARD, LearnersDep, Limit, Offset, StoreDep
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.api.responses import raw_json
+from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
 
-router = APIRouter(tags=["skills"])
+router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
 
 @router.post(
     "/skills",
     status_code=201,
-    responses={201: {"model": StoredSkill}, **ERROR_RESPONSES, **MUTATING_RESPONSES},
+    responses={201: {"model": StoredSkill}, **ERROR_RESPONSES, **MUTATING_RESPONSES, 503: {"model": ApiError}},
     dependencies=TOKEN_GUARD,
 )
-def post_skill(request: SkillRequest, store: StoreDep) -> Response:
+async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersDep, http: Request) -> Response:
     """Learn a skill (slide, contour or auto) from a stored or an inline demonstration, and store it.
 
-    Runs in the thread pool. A demonstration that cannot give the skill is a 422 naming the field."""
-    from skills.parameterize import LearningError, learn_skill
-
+    Learns in a separate process within the service's time and memory budget (422 past either); a request
+    whose client goes away is cancelled. A demonstration that cannot give the skill is a 422 naming the field;
+    503 when too many learning requests are waiting."""
     if request.demonstration is not None:
-        demonstration, loc = request.demonstration, ["body", "demonstration"]
+        demonstration_json = await asyncio.to_thread(request.demonstration.model_dump_json)
+        loc, stored_id = ["body", "demonstration"], None
     else:
         assert request.demonstration_id is not None
-        demonstration = store.demonstration(request.demonstration_id)
-        if demonstration is None:
+        found = await asyncio.to_thread(store.demonstration_json, request.demonstration_id)
+        if found is None:
             raise errors.not_found("demonstration", request.demonstration_id)
-        loc = ["body", "demonstration_id"]
-    started = time.perf_counter()
+        demonstration_json = found[1]
+        loc, stored_id = ["body", "demonstration_id"], request.demonstration_id
+    options_json = request.learn_options().model_dump_json()
     try:
-        check_sampling(demonstration)
-        skill = learn_skill(demonstration, request.learn_options())
-    except LearningError as exc:
-        stored_id = None if request.demonstration is not None else request.demonstration_id
-        raise errors.learning_failed(exc, loc, stored_id) from None
-    except ValueError as exc:  # the science refused the data without saying which field: still the input's
-        raise errors.cannot_learn(exc, loc) from None
-    elapsed = time.perf_counter() - started
-    skill_json = skill.model_dump_json()
-    row = store.add_skill(skill_json, skill.skill_type.value, request.demonstration_id)
+        outcome = await learners.learn(demonstration_json, options_json, http.is_disconnected)
+    except LearnerPoolFull as exc:
+        raise errors.unavailable(str(exc)) from None
+    except LearningTimedOut as exc:
+        raise errors.unprocessable(loc, f"cannot learn from this demonstration: {exc}", "learning_budget") from None
+    except LearningCancelled:
+        return Response(status_code=499)  # nobody reads it: the client is gone
+    if outcome.kind != "ok":
+        raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
+    row = await asyncio.to_thread(store.add_skill, outcome.skill_json, outcome.skill_type, stored_id)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
-    return raw_json({**parts, "learn_seconds": round(elapsed, 4)}, {"skill": skill_json}, status_code=201)
+    return raw_json({**parts, "learn_seconds": round(outcome.seconds, 4)}, {"skill": outcome.skill_json}, 201)
 
 
 @router.get("/skills", response_model=list[SkillInfo])

@@ -1,0 +1,243 @@
+"""Learning off the API's event loop: a pool of learner processes with a time and memory budget per job.
+
+``POST /skills`` hands the demonstration (JSON text) and the `LearnOptions` to :meth:`LearnerPool.learn`, which waits
+for a free process without blocking the event loop, sends the job, and polls for the reply. Each process
+(``multiprocessing`` forkserver: forked from a clean server with the science preloaded, never from the API's threads)
+
+- runs ONE BLAS/OpenMP thread (``threadpoolctl`` plus the ``*_NUM_THREADS`` variables), so N processes use N cores
+  instead of oversubscribing them,
+- has an address-space limit (``memory_mb``, ``RLIMIT_AS``): a job that needs more gets ``MemoryError``, answered
+  as a 422 instead of taking the machine's memory,
+- is killed and replaced when its job runs past ``time_budget_s`` (:class:`LearningTimedOut`) or when the client
+  that asked for it goes away (:class:`LearningCancelled`): abandoned requests stop computing.
+
+At most ``max_waiting`` jobs wait for a process; more get :class:`LearnerPoolFull` (503).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import multiprocessing
+import os
+import pickle
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+from services.local_processes import THREAD_LIMIT_ENV
+
+log = logging.getLogger("contact_skills.learning")
+
+POLL_S = 0.1
+"""How often a running job checks its budget and its client, s."""
+
+
+class LearningTimedOut(RuntimeError):  # noqa: N818 (the name is the interface)
+    """The job ran past the pool's time budget; its process was killed."""
+
+
+class LearningCancelled(RuntimeError):  # noqa: N818
+    """The client went away; the job's process was killed (or the job never started)."""
+
+
+class LearnerPoolFull(RuntimeError):  # noqa: N818
+    """Too many jobs are waiting for a learner process."""
+
+
+@dataclass(frozen=True)
+class LearnOutcome:
+    """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``), ``learning`` (a
+    `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
+    ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
+
+    kind: str
+    skill_json: str = ""
+    skill_type: str = ""
+    seconds: float = 0.0
+    field: str = ""
+    reason: str = ""
+
+
+def _limit_process(memory_mb: int) -> None:
+    """In a learner process: one BLAS thread, and an address-space limit of ``memory_mb`` MiB (0: none)."""
+    import resource
+
+    from threadpoolctl import threadpool_limits
+
+    os.environ.update(THREAD_LIMIT_ENV)
+    threadpool_limits(1)
+    if memory_mb > 0:
+        limit = memory_mb * 1024 * 1024
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+
+def _learn(payload: bytes) -> LearnOutcome:
+    """One job in a learner process: validate the demonstration, check its sampling, learn."""
+    import traceback
+
+    from pydantic import ValidationError
+
+    from schemas.demonstration import Demonstration
+    from schemas.skill import LearnOptions
+    from services.api.limits import check_sampling
+    from skills.parameterize import LearningError, learn_skill
+
+    demonstration_json, options_json = pickle.loads(payload)
+    started = time.perf_counter()
+    try:
+        demonstration = Demonstration.model_validate_json(demonstration_json)
+        check_sampling(demonstration)
+        skill = learn_skill(demonstration, LearnOptions.model_validate_json(options_json))
+        seconds = time.perf_counter() - started
+        return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds)
+    except LearningError as exc:
+        return LearnOutcome("learning", field=exc.field, reason=exc.reason)
+    except MemoryError:
+        return LearnOutcome("memory")
+    except ValidationError as exc:  # a stored demonstration that no longer validates (bounds added since)
+        first = exc.errors()[0]
+        return LearnOutcome("learning", field=".".join(str(p) for p in first["loc"]), reason=first["msg"])
+    except ValueError as exc:
+        return LearnOutcome("value", reason=f"{type(exc).__name__}: {exc}")
+    except Exception:
+        return LearnOutcome("bug", reason=traceback.format_exc())
+
+
+def _serve(connection: Connection, memory_mb: int) -> None:
+    """A learner process: answer jobs until the pipe closes."""
+    _limit_process(memory_mb)
+    while True:
+        try:
+            payload = connection.recv_bytes()
+        except (EOFError, OSError):
+            return
+        connection.send_bytes(pickle.dumps(_learn(payload)))
+
+
+@dataclass
+class _Slot:
+    process: Any
+    connection: Connection
+
+
+@dataclass
+class PoolStats:
+    """Counters of the pool since it started (in ``GET /health``)."""
+
+    processes: int
+    running: int = 0
+    waiting: int = 0
+    completed: int = 0
+    timed_out: int = 0
+    cancelled: int = 0
+    restarted: int = 0
+    rejected: int = 0
+
+
+class LearnerPool:
+    """``processes`` learner processes, started on first use (see the module docstring)."""
+
+    def __init__(self, processes: int, time_budget_s: float, memory_mb: int = 0, max_waiting: int = 200) -> None:
+        self.processes = max(1, processes)
+        self.time_budget_s = time_budget_s
+        self.memory_mb = memory_mb
+        self.max_waiting = max_waiting
+        self.stats = PoolStats(processes=self.processes)
+        self._idle: list[_Slot] = []
+        self._started = 0
+        self._free: asyncio.Semaphore | None = None
+        self._context = multiprocessing.get_context("forkserver")
+        self._context.set_forkserver_preload(["services.learner_pool", "skills.parameterize"])
+        for name, value in THREAD_LIMIT_ENV.items():  # the forkserver inherits them (it starts on first use)
+            os.environ.setdefault(name, value)
+        self._closed = False
+
+    def _spawn(self) -> _Slot:
+        parent, child = self._context.Pipe()
+        process = self._context.Process(target=_serve, args=(child, self.memory_mb), name="learner", daemon=True)
+        process.start()
+        child.close()
+        return _Slot(process, parent)
+
+    @staticmethod
+    def _kill(slot: _Slot) -> None:
+        slot.process.kill()
+        slot.process.join(5)
+        slot.connection.close()
+
+    async def learn(
+        self, demonstration_json: str, options_json: str, client_gone: Callable[[], Awaitable[bool]]
+    ) -> LearnOutcome:
+        """Learn in a free process; raises :class:`LearnerPoolFull`, :class:`LearningTimedOut`,
+        :class:`LearningCancelled` (``client_gone()`` became true while waiting or learning)."""
+        if self._closed:
+            raise LearningCancelled("the learner pool is shut down")
+        if self._free is None:
+            self._free = asyncio.Semaphore(self.processes)
+        if self.stats.waiting >= self.max_waiting:
+            self.stats.rejected += 1
+            raise LearnerPoolFull(f"{self.stats.waiting} learning requests are already waiting; try again later")
+        self.stats.waiting += 1
+        try:
+            while True:
+                try:
+                    await asyncio.wait_for(self._free.acquire(), POLL_S * 5)
+                    break
+                except TimeoutError:
+                    if await client_gone():
+                        self.stats.cancelled += 1
+                        raise LearningCancelled("the client went away while waiting") from None
+        finally:
+            self.stats.waiting -= 1
+        slot: _Slot | None = None
+        try:
+            slot = self._idle.pop() if self._idle else await asyncio.to_thread(self._spawn)
+            self.stats.running += 1
+            outcome = await self._run(slot, pickle.dumps((demonstration_json, options_json)), client_gone)
+            if slot.process.is_alive():
+                self._idle.append(slot)
+                slot = None
+            return outcome
+        finally:
+            if slot is not None:  # its process died, ran past the budget or lost its client: replace it
+                await asyncio.to_thread(self._kill, slot)
+                self.stats.restarted += 1
+            self.stats.running -= 1
+            self._free.release()
+
+    async def _run(self, slot: _Slot, payload: bytes, client_gone: Callable[[], Awaitable[bool]]) -> LearnOutcome:
+        deadline = time.monotonic() + self.time_budget_s
+        await asyncio.to_thread(slot.connection.send_bytes, payload)
+        while True:
+            if await asyncio.to_thread(slot.connection.poll, POLL_S):
+                try:
+                    outcome = pickle.loads(await asyncio.to_thread(slot.connection.recv_bytes))
+                except (EOFError, OSError):  # the process died (the OOM killer, a crash in native code)
+                    return LearnOutcome("memory", reason="the learner process died")
+                self.stats.completed += 1
+                return outcome
+            if time.monotonic() > deadline:
+                self.stats.timed_out += 1
+                raise LearningTimedOut(f"learning took longer than the budget of {self.time_budget_s:g} s")
+            if await client_gone():
+                self.stats.cancelled += 1
+                raise LearningCancelled("the client went away while learning")
+
+    def pids(self) -> list[int]:
+        """Process ids of the idle learner processes (for tests and logs)."""
+        return [slot.process.pid for slot in self._idle]
+
+    def close(self) -> None:
+        """Stop every idle learner process (running jobs end with their requests)."""
+        self._closed = True
+        slots, self._idle = self._idle, []
+        for slot in slots:
+            with contextlib.suppress(OSError):
+                slot.connection.close()
+            slot.process.join(2)
+            if slot.process.is_alive():
+                self._kill(slot)
