@@ -19,8 +19,10 @@ from schemas.skill import LearnOptions, Skill
 class ExecutionState(StrEnum):
     """Life cycle of an execution as the API records it."""
 
+    queued = "queued"
+    """Waiting for a free sim worker (``services/queue.py``; kept in the database across API restarts)."""
     starting = "starting"
-    """Stored, being handed to a worker."""
+    """Being handed to a worker."""
     running = "running"
     """A worker accepted it."""
     paused = "paused"
@@ -28,7 +30,7 @@ class ExecutionState(StrEnum):
     done = "done"
     """The worker finished every segment."""
     aborted = "aborted"
-    """Stopped early: a safety limit or an abort request."""
+    """Stopped early: a safety limit or an abort request (or cancelled while queued)."""
     failed = "failed"
     """An internal error, a lost worker, or the API restarted while it ran."""
 
@@ -201,8 +203,12 @@ class ExecutionCreated(BaseModel):
     """``POST /executions`` (202): the execution runs on a worker; follow it over REST or Zenoh."""
 
     id: str = Field(description="Id of the execution.", examples=["exec_0c1d2e3f4a5b"])
-    status: ExecutionState = Field(description="Status when the reply was sent (usually running).")
-    worker_id: str = Field(description="The sim worker that runs it.")
+    status: ExecutionState = Field(description="Status when the reply was sent: running, or queued while every "
+                                   "worker is busy.")  # fmt: skip
+    worker_id: str | None = Field(description="The sim worker that runs it (None while queued).")
+    queue_position: int | None = Field(
+        None, description="While queued: how many queued executions start before it (0: the next one)."
+    )
     telemetry_key: str = Field(
         description="Zenoh key expression of its telemetry (TelemetryBatch JSON).",
         examples=["cskills/exec/exec_0c1d2e3f4a5b/telemetry"],
@@ -228,6 +234,10 @@ class ExecutionView(BaseModel):
     telemetry_batches: int = Field(description="Telemetry batches stored so far.")
     telemetry_samples: int = Field(description="Telemetry samples (control steps) stored so far.")
     request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
+    priority: int = Field(0, description="Its queue priority.")
+    queue_position: int | None = Field(
+        None, description="While queued: how many queued executions start before it (0: the next one)."
+    )
 
 
 class TelemetryView(TelemetryBatch):
@@ -280,6 +290,7 @@ class Health(BaseModel):
     zenoh_endpoints: list[str] = Field(description="The router endpoints the API connects to.")
     workers: list[WorkerSummary] = Field(description="The sim workers connected now.")
     active_executions: int = Field(description="Executions starting or running.")
+    queued_executions: int = Field(0, description="Executions waiting for a free worker.")
     learning: dict[str, int] = Field(
         description="The learner processes: processes, running, waiting, completed, timed_out, cancelled, restarted, "
         "rejected."

@@ -409,6 +409,14 @@ class ExecutionRequest(ExecutionSettings):
         examples=["slide_flat"],
     )
 
+    priority: int = Field(
+        0,
+        ge=-100,
+        le=100,
+        description="Queue priority: when every worker is busy, higher priorities start first; equal ones in the "
+        "order they were submitted.",
+    )
+
     @model_validator(mode="after")
     def _one_skill(self) -> ExecutionRequest:
         if (self.skill_id is None) == (self.skill is None):

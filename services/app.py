@@ -10,6 +10,7 @@ expressions) on ``app.state``, the body limit, the error handlers and the router
 - ``services/api/errors.py``: every error answer (422 naming the field, 404, 409, 401, 503, 504, the logged 500);
 - ``services/api/browser_guard.py``: the CORS policy (none by default) and the Host check of a loopback API;
 - ``services/learner_pool.py``: learning in separate processes with a time and memory budget;
+- ``services/queue.py``: executions wait in the database for a free worker, in priority order;
 - ``services/bus_events.py``: the bus callbacks (:class:`BusEvents`) that write status, metrics and telemetry
   into the same store from Zenoh threads, and :func:`connect_bus`.
 """
@@ -31,6 +32,7 @@ from services.api.errors import install_error_handlers
 from services.api.main import api_router
 from services.bus_events import BusEvents, connect_bus, reconcile
 from services.learner_pool import LearnerPool
+from services.queue import ExecutionQueue
 from services.settings import ServiceSettings, package_version
 from services.store import Store
 
@@ -47,13 +49,18 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     own_store = store is None
     store = store if store is not None else Store(settings.db_path)
     learners = LearnerPool(settings.learn_processes, settings.learn_timeout_s, settings.learn_memory_mb)
+    queue = ExecutionQueue(store, bus, settings.queue_max) if bus is not None else None
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         from starlette.concurrency import run_in_threadpool
 
         await run_in_threadpool(reconcile, store, bus)
+        if queue is not None:
+            queue.start()
         yield
+        if queue is not None:
+            queue.close()
         learners.close()
         if own_store:
             store.close()
@@ -72,6 +79,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     app.state.settings = settings
     app.state.keys = KeyExpressions(settings.zenoh_prefix)
     app.state.learners = learners
+    app.state.queue = queue
     app.state.started_unix_s = time.time()
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     if settings.cors_origins:

@@ -116,8 +116,8 @@ class BusEvents:
 
 def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOVERY_S) -> list[str]:
     """Executions left starting/running by a previous API process: keep those a live worker reports running
-    (``WorkerInfo.execution_id``; their statuses keep arriving), mark the rest failed (:data:`RESTART_REASON`).
-    Returns the ids marked failed."""
+    (``WorkerInfo.execution_id``; their statuses keep arriving), put those still being handed over back in the
+    queue (``services.queue``), mark the rest failed (:data:`RESTART_REASON`). Returns the ids marked failed."""
     active = store.active_executions()
     if not active:
         return []
@@ -134,7 +134,9 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
             time.sleep(0.1)
     marked = []
     for row in active:
-        if row.id not in running and store.update_execution(
+        if row.id in running or (row.status is ExecutionState.starting and store.requeue(row.id)):
+            continue
+        if store.update_execution(
             row.id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=RESTART_REASON
         ):
             marked.append(row.id)

@@ -15,6 +15,7 @@
 | cors_origins | ``CONTACT_SKILLS_CORS_ORIGINS`` | none: no cross-origin browser request (comma-separated origins) |
 | learn_processes | ``CONTACT_SKILLS_LEARN_PROCESSES`` | the number of CPUs (learner processes of ``POST /skills``) |
 | learn_timeout_s | ``CONTACT_SKILLS_LEARN_TIMEOUT_S`` | ``120`` (time budget of one learning job, s) |
+| queue_max | ``CONTACT_SKILLS_QUEUE_MAX`` | ``1000`` (executions waiting for a worker at most; more get 503) |
 | learn_memory_mb | ``CONTACT_SKILLS_LEARN_MEMORY_MB`` | ``4096`` (address space of a learner process, MiB; 0: none) |
 """
 
@@ -50,6 +51,7 @@ ENV_VARS: dict[str, str] = {
     "learn_processes": "CONTACT_SKILLS_LEARN_PROCESSES",
     "learn_timeout_s": "CONTACT_SKILLS_LEARN_TIMEOUT_S",
     "learn_memory_mb": "CONTACT_SKILLS_LEARN_MEMORY_MB",
+    "queue_max": "CONTACT_SKILLS_QUEUE_MAX",
 }
 """Setting name -> the environment variable that sets it."""
 
@@ -94,6 +96,7 @@ class ServiceSettings:
     learn_processes: int = field(default_factory=lambda: os.cpu_count() or 1)
     learn_timeout_s: float = 120.0
     learn_memory_mb: int = 4096
+    queue_max: int = 1000
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -108,6 +111,8 @@ class ServiceSettings:
             raise SettingsError(f"learn_processes: {self.learn_processes} must be >= 1")
         if not self.learn_timeout_s > 0:
             raise SettingsError(f"learn_timeout_s: {self.learn_timeout_s} must be > 0")
+        if self.queue_max < 1:
+            raise SettingsError(f"queue_max: {self.queue_max} must be >= 1")
         if self.learn_memory_mb < 0:
             raise SettingsError(f"learn_memory_mb: {self.learn_memory_mb} must be >= 0 (0: no limit)")
         if self.token_reads and not self.token:

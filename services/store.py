@@ -42,8 +42,8 @@ from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration, DemonstrationSummary
 from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch
 
-SCHEMA_VERSION = 1
-"""Version of the tables below, kept in ``PRAGMA user_version``."""
+SCHEMA_VERSION = 2
+"""Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns)."""
 
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
@@ -83,6 +83,14 @@ CREATE TABLE telemetry (
 );
 """
 
+_SCHEMA_V2 = """
+ALTER TABLE executions ADD COLUMN priority INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE executions ADD COLUMN dispatch TEXT;
+CREATE INDEX executions_queue ON executions (status, priority DESC, created, id)
+"""
+"""Version 2: an execution's queue priority, and what to send to a worker while it is queued (``dispatch``: JSON
+with the request with its skill inline, the world overrides and the demonstration id; cleared once started)."""
+
 TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
     "t": (0, 1),
     "phase": (1, 2),
@@ -116,6 +124,10 @@ class StoreError(RuntimeError):
     """The database cannot be used (newer schema, not a database)."""
 
 
+class QueueFull(RuntimeError):  # noqa: N818 (reads as what happened)
+    """The execution queue holds its maximum."""
+
+
 @dataclass(frozen=True)
 class DemonstrationRow:
     id: str
@@ -146,6 +158,7 @@ class ExecutionRow:
     error: str | None
     created: float
     updated: float
+    priority: int = 0
 
 
 def _execution(row: sqlite3.Row) -> ExecutionRow:
@@ -160,6 +173,7 @@ def _execution(row: sqlite3.Row) -> ExecutionRow:
         error=row["error"],
         created=row["created"],
         updated=row["updated"],
+        priority=row["priority"],
     )
 
 
@@ -258,10 +272,11 @@ class Store:
                         f"{self.path}: database schema version {version} is newer than this program's "
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
-                if version == 0:
-                    # not executescript: it would COMMIT the open transaction
-                    for statement in filter(None, (s.strip() for s in _SCHEMA_V1.split(";"))):
+                # not executescript: it would COMMIT the open transaction
+                for script in (_SCHEMA_V1, _SCHEMA_V2)[version:]:
+                    for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
+                if version < SCHEMA_VERSION:
                     db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a usable SQLite database ({exc})") from None
@@ -374,22 +389,37 @@ class Store:
 
     # ------------------------------------------------------------------ executions
 
-    def add_execution(self, request: dict[str, Any], skill_id: str | None) -> ExecutionRow:
-        """Store a new execution in status ``starting``."""
+    def add_execution(
+        self,
+        request: dict[str, Any],
+        skill_id: str | None,
+        dispatch: str | None = None,
+        priority: int = 0,
+        max_queued: int | None = None,
+    ) -> ExecutionRow:
+        """Store a new execution: in status ``starting`` without ``dispatch``; with it (what to send to a worker,
+        JSON) in status ``queued`` at ``priority``. Raises :class:`QueueFull` when ``max_queued`` are queued."""
         now = time.time()
         execution_id = new_id("exec")
+        status = ExecutionState.starting if dispatch is None else ExecutionState.queued
         with self._transaction() as db:
+            if max_queued is not None:
+                queued = db.execute("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
+                if queued.fetchone()[0] >= max_queued:
+                    raise QueueFull(f"{max_queued} executions are already queued; try again later")
             db.execute(
-                "INSERT INTO executions (id, skill_id, worker_id, status, phase, request, created, updated) "
-                "VALUES (?, ?, NULL, ?, ?, ?, ?, ?)",
+                "INSERT INTO executions (id, skill_id, worker_id, status, phase, request, created, updated, priority, "
+                "dispatch) VALUES (?, ?, NULL, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     execution_id,
                     skill_id,
-                    ExecutionState.starting.value,
+                    status.value,
                     ExecutionPhase.pending.value,
                     json.dumps(request),
                     now,
                     now,
+                    priority,
+                    dispatch,
                 ),
             )
         found = self.execution(execution_id)
@@ -411,6 +441,62 @@ class Store:
         )
         return [_execution(r) for r in rows]
 
+    # ------------------------------------------------------------------ the queue (services/queue.py)
+
+    def queued_executions(self, limit: int = 1) -> list[tuple[ExecutionRow, str]]:
+        """The first ``limit`` queued executions in dispatch order (priority high first, then oldest first), each
+        with its dispatch JSON."""
+        rows = self._all(
+            "SELECT * FROM executions WHERE status = ? ORDER BY priority DESC, created, id LIMIT ?",
+            (ExecutionState.queued.value, limit),
+        )
+        return [(_execution(r), r["dispatch"]) for r in rows]
+
+    def queue_position(self, execution_id: str) -> int | None:
+        """How many queued executions go before this one (0: next), or None if it is not queued."""
+        r = self._one(
+            "SELECT (SELECT COUNT(*) FROM executions o WHERE o.status = e.status AND (o.priority > e.priority OR "
+            "(o.priority = e.priority AND (o.created < e.created OR (o.created = e.created AND o.id < e.id))))) "
+            "FROM executions e WHERE e.id = ? AND e.status = ?",
+            (execution_id, ExecutionState.queued.value),
+        )
+        return None if r is None else int(r[0])
+
+    def queued_count(self) -> int:
+        """Executions waiting in the queue."""
+        r = self._one("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
+        return int(r[0]) if r is not None else 0
+
+    def claim_queued(self, execution_id: str) -> bool:
+        """queued -> starting, if it is still queued (a cancel may have come first); True if claimed."""
+        with self._transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, updated = ? WHERE id = ? AND status = ?",
+                (ExecutionState.starting.value, time.time(), execution_id, ExecutionState.queued.value),
+            )
+            return cursor.rowcount > 0
+
+    def requeue(self, execution_id: str) -> bool:
+        """starting -> queued (no worker took it after all) if it still has its dispatch JSON; it keeps its place
+        (priority, creation time). True if requeued."""
+        with self._transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, updated = ? WHERE id = ? AND status = ? AND dispatch IS NOT NULL",
+                (ExecutionState.queued.value, time.time(), execution_id, ExecutionState.starting.value),
+            )
+            return cursor.rowcount > 0
+
+    def cancel_queued(self, execution_id: str, reason: str) -> bool:
+        """queued -> aborted with ``reason``; True if it was still queued."""
+        with self._transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, phase = ?, error = ?, dispatch = NULL, updated = ? "
+                "WHERE id = ? AND status = ?",
+                (ExecutionState.aborted.value, ExecutionPhase.aborted.value, reason, time.time(), execution_id,
+                 ExecutionState.queued.value),
+            )  # fmt: skip
+            return cursor.rowcount > 0
+
     def delete_execution(self, execution_id: str) -> None:
         """Forget an execution that never started (no worker took it)."""
         with self._transaction() as db:
@@ -418,11 +504,12 @@ class Store:
             db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
 
     def mark_started(self, execution_id: str, worker_id: str) -> None:
-        """A worker accepted the execution: record it; starting -> running (a status that came first stays)."""
+        """A worker accepted the execution: record it; starting -> running (a status that came first stays); its
+        dispatch JSON is no longer needed."""
         with self._transaction() as db:
             db.execute(
-                "UPDATE executions SET worker_id = ?, updated = ?, status = CASE WHEN status = ? THEN ? ELSE status "
-                "END WHERE id = ?",
+                "UPDATE executions SET worker_id = ?, updated = ?, dispatch = NULL, "
+                "status = CASE WHEN status = ? THEN ? ELSE status END WHERE id = ?",
                 (worker_id, time.time(), ExecutionState.starting.value, ExecutionState.running.value, execution_id),
             )
 

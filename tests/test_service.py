@@ -274,6 +274,53 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
     assert view["status"] == "done" and view["metrics"]["steps"] > 0, view
 
 
+def _started(stack: Stack, execution_id: str) -> dict:
+    return _wait_for(
+        lambda: (lambda v: v if v["worker_id"] is not None else None)(stack.execution(execution_id)), 30, "a worker"
+    )
+
+
+def test_executions_queue_by_priority_when_every_worker_is_busy(stack, skill_id):
+    stack.workers(2)
+    busy = [stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202) for _ in range(2)]
+    assert [b["status"] for b in busy] == ["running", "running"] and len({b["worker_id"] for b in busy}) == 2
+    low = stack.post("/executions", {"skill_id": skill_id}, 202)
+    dropped = stack.post("/executions", {"skill_id": skill_id}, 202)
+    high = stack.post("/executions", {"skill_id": skill_id, "priority": 5}, 202)
+    assert (low["status"], low["worker_id"], low["queue_position"]) == ("queued", None, 0)
+    assert dropped["queue_position"] == 1 and high["queue_position"] == 0
+    assert [stack.execution(e["id"])["queue_position"] for e in (high, low, dropped)] == [0, 1, 2]
+    assert stack.http.post(f"/executions/{low['id']}/pause").status_code == 409
+    cancelled = stack.post(f"/executions/{dropped['id']}/abort", {}, 202)
+    assert cancelled["sent_to"] == "queue"
+    view = stack.execution(dropped["id"])
+    assert (view["status"], view["error"], view["queue_position"]) == ("aborted", "cancelled while queued", None)
+
+    stack.post(f"/executions/{busy[0]['id']}/abort", {}, 202)  # one worker frees: the higher priority goes first
+    first = _started(stack, high["id"])
+    assert first["worker_id"] == busy[0]["worker_id"]
+    assert stack.execution(low["id"])["status"] == "queued"
+    stack.post(f"/executions/{busy[1]['id']}/abort", {}, 202)  # the other worker takes the next one
+    assert _started(stack, low["id"])["worker_id"] == busy[1]["worker_id"]
+    for execution in (high, low):
+        assert stack.finished(execution["id"])["status"] == "done"
+    assert stack.health()["queued_executions"] == 0
+
+
+def test_the_queue_survives_an_api_restart(stack, skill_id):
+    stack.workers(2)
+    busy = [stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202) for _ in range(2)]
+    waiting = stack.post("/executions", {"skill_id": skill_id}, 202)
+    assert waiting["status"] == "queued"
+    api_pid = stack.health()["detail"]["pid"]
+    os.kill(api_pid, signal.SIGKILL)
+    _wait_for(lambda: (h := stack.health()) and h["detail"]["pid"] != api_pid, 60, "the API to restart")
+    assert stack.execution(waiting["id"])["status"] in ("queued", "running")  # still there, in the database
+    for execution in busy:
+        stack.post(f"/executions/{execution['id']}/abort", {}, 202)
+    assert stack.finished(waiting["id"], timeout_s=60)["status"] == "done"
+
+
 def test_up_limits_the_blas_threads_of_every_child(stack):
     detail = stack.health()["detail"]
     for pid in (detail["pid"], *(w["pid"] for w in detail["workers"])):

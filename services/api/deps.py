@@ -19,6 +19,7 @@ from schemas.bus import KeyExpressions
 from services.api import errors
 from services.bus import BusClient
 from services.learner_pool import LearnerPool
+from services.queue import ExecutionQueue
 from services.settings import ServiceSettings
 from services.store import Store
 
@@ -43,11 +44,16 @@ def get_learners(request: Request) -> LearnerPool:
     return request.app.state.learners
 
 
+def get_queue(request: Request) -> ExecutionQueue | None:
+    return request.app.state.queue
+
+
 StoreDep = Annotated[Store, Depends(get_store)]
 SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 BusDep = Annotated[BusClient | None, Depends(get_bus)]
 KeysDep = Annotated[KeyExpressions, Depends(get_keys)]
 LearnersDep = Annotated[LearnerPool, Depends(get_learners)]
+QueueDep = Annotated[ExecutionQueue | None, Depends(get_queue)]
 
 
 def need_bus(bus: BusClient | None) -> BusClient:
@@ -55,6 +61,13 @@ def need_bus(bus: BusClient | None) -> BusClient:
     if bus is None:
         raise errors.no_bus()
     return bus
+
+
+def need_queue(queue: ExecutionQueue | None) -> ExecutionQueue:
+    """The execution queue, or a 503 when the API runs without a bus."""
+    if queue is None:
+        raise errors.no_bus()
+    return queue
 
 
 BEARER = HTTPBearer(auto_error=False, description="Set CONTACT_SKILLS_TOKEN on the server to require it.")

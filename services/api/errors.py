@@ -80,6 +80,10 @@ def already_finished(execution_id: str, status: str) -> HTTPException:
     return HTTPException(409, f"execution {execution_id} has already finished ({status})")
 
 
+def not_running(execution_id: str, status: str) -> HTTPException:
+    return HTTPException(409, f"execution {execution_id} is {status}, not running: only abort applies (it cancels it)")
+
+
 def unauthorized() -> HTTPException:
     return HTTPException(
         401, "missing or wrong bearer token (Authorization: Bearer <token>)", {"WWW-Authenticate": "Bearer"}

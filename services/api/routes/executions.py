@@ -20,7 +20,7 @@ from schemas.api import (
     TelemetryView,
 )
 from schemas.bus import KeyExpressions
-from schemas.execution import ExecutionPhase, ExecutionRequest
+from schemas.execution import ExecutionRequest
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
@@ -31,14 +31,17 @@ from services.api.deps import (
     KeysDep,
     Limit,
     Offset,
+    QueueDep,
     StoreDep,
     WindowEnd,
     WindowStart,
     need_bus,
+    need_queue,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.api.limits import skill_problems
 from services.api.responses import download
+from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
 
 log = logging.getLogger("contact_skills.api")
@@ -65,6 +68,7 @@ def _refused_field(reason: str) -> list[str]:
 
 def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionView:
     batches, samples = store.telemetry_counts(row.id)
+    position = store.queue_position(row.id) if row.status is ExecutionState.queued else None
     return ExecutionView(
         id=row.id,
         skill_id=row.skill_id,
@@ -79,6 +83,8 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         telemetry_batches=batches,
         telemetry_samples=samples,
         request=row.request,
+        priority=row.priority,
+        queue_position=position,
     )
 
 
@@ -96,50 +102,47 @@ def _found(store: Store, execution_id: str) -> ExecutionRow:
     responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
     dependencies=TOKEN_GUARD,
 )
-def post_execution(request: ExecutionRequest, store: StoreDep, bus: BusDep, keys: KeysDep) -> ExecutionCreated:
+def post_execution(request: ExecutionRequest, store: StoreDep, queue: QueueDep, keys: KeysDep) -> ExecutionCreated:
     """Run a skill on a sim worker: in the world its demonstration was recorded in (simulator recordings), else on
     a work piece rebuilt from the skill and placed in the robot's reach (``environment.work_piece``,
     ``environment.placement``), changed by the known ``environment.offset`` and the ``environment.unknown_offset``,
     with the controller, gains and pace asked for. 422 when the skill cannot be placed in reach.
 
     Replies 202 at once with the execution id and the Zenoh key of its telemetry; follow it with
-    ``GET /executions/{id}`` or a Zenoh subscriber. 503 when no worker is connected."""
+    ``GET /executions/{id}`` or a Zenoh subscriber. When every worker is busy it is ``queued`` (with its
+    ``queue_position``; ``priority`` orders the queue) and starts as soon as one is free. 503 when no worker is
+    connected or the queue is full."""
     from schemas.skill import Skill
     from services.bus import BusRequestError, NoWorkerAvailable
+    from services.queue import Dispatch
+    from services.store import QueueFull
 
-    skill, demonstration = request.skill, None
+    skill, demonstration_id = request.skill, None
     if skill is not None and (problems := skill_problems(skill)):
         raise errors.incoherent_skill(problems)
     if request.skill_id is not None:
-        row = store.skill(request.skill_id)
-        if row is None:
+        stored_skill = store.skill(request.skill_id)
+        if stored_skill is None:
             raise errors.not_found("skill", request.skill_id)
-        skill = Skill.model_validate_json(row.skill_json)
-        if row.demonstration_id is not None:
-            demonstration = store.demonstration(row.demonstration_id)
-    client = need_bus(bus)
+        skill = Skill.model_validate_json(stored_skill.skill_json)
+        demonstration_id = stored_skill.demonstration_id  # the queue sends it along, for the path metric
+    executions = need_queue(queue)
     stored = request.model_dump(mode="json", exclude={"skill"})
     stored.update(inline_skill=request.skill is not None)
-    row = store.add_execution(stored, request.skill_id)
     wire = request.model_copy(update={"skill": skill, "skill_id": None})
     try:
-        worker_id = client.start_execution(row.id, wire, demonstration=demonstration)
-    except NoWorkerAvailable as exc:
-        store.delete_execution(row.id)
+        row, position = executions.submit(
+            Dispatch(wire, {}, demonstration_id), stored, request.skill_id, request.priority
+        )
+    except (NoWorkerAvailable, QueueFull) as exc:
         raise errors.unavailable(str(exc)) from None
     except BusRequestError as exc:  # the worker refused: an unknown scenario, a skill it cannot place in reach
-        store.delete_execution(row.id)
         raise errors.unprocessable(_refused_field(str(exc)), str(exc)) from None
-    except Exception as exc:
-        log.exception("starting execution %s failed", row.id)
-        store.update_execution(row.id, ExecutionState.failed, ExecutionPhase.failed, error=f"start failed: {exc}")
-        raise errors.unavailable(f"the bus could not start the execution: {type(exc).__name__}: {exc}") from None
-    store.mark_started(row.id, worker_id)
-    current = store.execution(row.id)
     return ExecutionCreated(
         id=row.id,
-        status=current.status if current else ExecutionState.running,
-        worker_id=worker_id,
+        status=row.status,
+        worker_id=row.worker_id,
+        queue_position=position,
         telemetry_key=keys.telemetry(row.id),
         status_key=keys.status(row.id),
     )
@@ -163,8 +166,16 @@ def get_execution(execution_id: str, store: StoreDep, keys: KeysDep) -> Executio
     return _view(_found(store, execution_id), store, keys)
 
 
-def _command(execution_id: str, name: str, store: Store, bus: Any, keys: KeyExpressions) -> CommandAccepted:
+def _command(
+    execution_id: str, name: str, store: Store, bus: Any, queue: ExecutionQueue | None, keys: KeyExpressions
+) -> CommandAccepted:
     row = _found(store, execution_id)
+    if row.status is ExecutionState.queued:  # not on a worker yet: abort cancels it, pause/resume make no sense
+        if name == "abort" and need_queue(queue).cancel(execution_id):
+            return CommandAccepted(id=execution_id, command=name, sent_to="queue")
+        if name != "abort":
+            raise errors.not_running(execution_id, "queued")
+        row = _found(store, execution_id)  # it left the queue meanwhile
     if row.status in TERMINAL:
         raise errors.already_finished(execution_id, row.status.value)
     need_bus(bus).send_command(execution_id, name)  # type: ignore[arg-type]
@@ -178,12 +189,15 @@ def _command(execution_id: str, name: str, store: Store, bus: Any, keys: KeyExpr
     responses=COMMAND_RESPONSES,
     dependencies=TOKEN_GUARD,
 )
-def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
-    """Abort a running execution (a live command over Zenoh; the final status follows).
+def abort_execution(
+    execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep
+) -> CommandAccepted:
+    """Abort a running execution (a live command over Zenoh; the final status follows), or cancel a queued one
+    (status aborted at once, ``sent_to`` "queue").
 
     202 once the command is put on the bus; the worker stops within one control step and reports ``aborted``.
     409 if the execution has already finished, 503 without a bus."""
-    return _command(execution_id, "abort", store, bus, keys)
+    return _command(execution_id, "abort", store, bus, queue, keys)
 
 
 @router.post(
@@ -193,12 +207,14 @@ def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysD
     responses=COMMAND_RESPONSES,
     dependencies=TOKEN_GUARD,
 )
-def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
+def pause_execution(
+    execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep
+) -> CommandAccepted:
     """Pause a running execution: it holds its current reference (and force) until resumed.
 
     202 once the command is put on the bus; the status then reads ``paused``. 409 if the execution has already
-    finished, 503 without a bus."""
-    return _command(execution_id, "pause", store, bus, keys)
+    finished or is still queued, 503 without a bus."""
+    return _command(execution_id, "pause", store, bus, queue, keys)
 
 
 @router.post(
@@ -208,12 +224,14 @@ def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysD
     responses=COMMAND_RESPONSES,
     dependencies=TOKEN_GUARD,
 )
-def resume_execution(execution_id: str, store: StoreDep, bus: BusDep, keys: KeysDep) -> CommandAccepted:
+def resume_execution(
+    execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep
+) -> CommandAccepted:
     """Resume a paused execution.
 
     202 once the command is put on the bus; the execution continues from where it held and its status goes
     back from paused to running. 409 if it has already finished, 503 without a bus."""
-    return _command(execution_id, "resume", store, bus, keys)
+    return _command(execution_id, "resume", store, bus, queue, keys)
 
 
 @router.get(

@@ -44,6 +44,7 @@ def health(
         zenoh_endpoints=settings.zenoh_endpoints,
         workers=[WorkerSummary(**info.model_dump(include=set(WorkerSummary.model_fields))) for info in infos],
         active_executions=len(store.active_executions()),
+        queued_executions=store.queued_count(),
         learning=dataclasses.asdict(learners.stats),
         detail=detail,
     )

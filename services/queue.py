@@ -1,0 +1,209 @@
+"""The execution queue: executions wait for a free sim worker, in the database, in priority order.
+
+``POST /executions`` (and later the sweeps of issue 14) call :meth:`ExecutionQueue.submit` with what to send to a
+worker (:class:`Dispatch`: the request with its skill inline, the world overrides, the demonstration's id), the
+request as it is shown back, and a priority. The execution is stored in status ``queued`` with its dispatch JSON
+(so the queue survives an API restart) and handed to a free worker at once when nothing waits before it; else
+the dispatcher thread hands it over as soon as one is free.
+
+Order: higher ``priority`` first, then submission order. Fairness across workers: each hand-over goes through
+`services.bus.BusClient.start_execution`, which tries the free workers with the fewest executions run first (round
+robin among equals), so every worker on the bus gets work. A queued execution can be cancelled
+(:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher polls the workers every ``poll_s`` while something
+is queued, and wakes at once on :meth:`ExecutionQueue.wake` (a submission).
+
+Status flow: queued -> starting (claimed by the dispatcher, atomically in SQLite) -> running (a worker accepted it),
+or back to queued (every worker busy after all), or failed (the worker refused it as invalid), or aborted
+(cancelled while queued). An execution left ``starting`` by an API that died is put back in the queue on restart
+unless a worker reports running it (`services.bus_events.reconcile`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING, Any
+
+from schemas.api import ExecutionState
+from schemas.execution import ExecutionPhase, ExecutionRequest
+from services.store import ExecutionRow, Store
+
+if TYPE_CHECKING:
+    from services.bus import BusClient
+
+log = logging.getLogger("contact_skills.queue")
+
+POLL_S = 0.2
+"""How often the dispatcher asks the workers whether one is free while executions are queued, s."""
+IDLE_POLL_S = 2.0
+"""How often the dispatcher looks at an empty queue (it is woken on every submission anyway), s."""
+DEFAULT_MAX_QUEUED = 1000
+"""Most executions waiting at once (more get 503)."""
+
+
+@dataclass(frozen=True)
+class Dispatch:
+    """What the queue sends to a worker for one execution; stored as JSON while it waits."""
+
+    request: ExecutionRequest
+    """The request with its skill inline (``skill_id`` resolved)."""
+    world_overrides: dict[str, Any]
+    """WorldConfig fields on top of the scenario's world (the world the skill was taught in)."""
+    demonstration_id: str | None = None
+    """The stored demonstration the skill was learned from (for the path metric), if any."""
+
+    def to_json(self) -> str:
+        return json.dumps(
+            {
+                "request": json.loads(self.request.model_dump_json()),
+                "world_overrides": self.world_overrides,
+                "demonstration_id": self.demonstration_id,
+            }
+        )
+
+    @classmethod
+    def from_json(cls, text: str) -> Dispatch:
+        data = json.loads(text)
+        return cls(ExecutionRequest.model_validate(data["request"]), data["world_overrides"], data["demonstration_id"])
+
+
+class Handover(Enum):
+    """What happened when the queue tried to hand an execution to a worker."""
+
+    started = "started"
+    busy = "busy"
+    """Every worker was busy: back in the queue, in its place."""
+    refused = "refused"
+    """A worker refused it as invalid (unknown scenario, bad world override)."""
+    gone = "gone"
+    """It was no longer queued (cancelled meanwhile)."""
+
+
+class ExecutionQueue:
+    """The queue over ``store`` and ``bus`` (see the module docstring). ``start()`` the dispatcher, ``close()``."""
+
+    def __init__(
+        self, store: Store, bus: BusClient, max_queued: int = DEFAULT_MAX_QUEUED, poll_s: float = POLL_S
+    ) -> None:
+        self.store = store
+        self.bus = bus
+        self.max_queued = max_queued
+        self.poll_s = poll_s
+        self._lock = threading.Lock()  # one hand-over at a time: the order of the queue is the order of starts
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ what the service calls
+
+    def submit(
+        self, dispatch: Dispatch, shown_request: dict[str, Any], skill_id: str | None, priority: int = 0
+    ) -> tuple[ExecutionRow, int | None]:
+        """Queue an execution and hand it to a free worker at once if nothing waits before it.
+
+        Returns its row (status running, or queued when every worker is busy) and its queue position. Raises
+        `services.bus.NoWorkerAvailable` when no worker is connected at all (nothing stored),
+        `services.store.QueueFull`, or `services.bus.BusRequestError` when the worker refused it as invalid
+        (nothing stored)."""
+        from services.bus import BusRequestError, NoWorkerAvailable
+
+        if not self.bus.workers():
+            raise NoWorkerAvailable("no worker connected: cannot run executions (start one: contact-skills worker)")
+        row = self.store.add_execution(shown_request, skill_id, dispatch.to_json(), priority, self.max_queued)
+        with self._lock:
+            if self.store.queue_position(row.id) == 0:
+                outcome, reason = self._hand_over(row.id, dispatch)
+                if outcome is Handover.refused:
+                    self.store.delete_execution(row.id)
+                    raise BusRequestError(reason)
+            found, position = self.store.execution(row.id), self.store.queue_position(row.id)
+        self.wake()
+        return found or row, position
+
+    def cancel(self, execution_id: str, reason: str = "cancelled while queued") -> bool:
+        """Take a queued execution out of the queue (status aborted with ``reason``); False if it was not queued."""
+        with self._lock:
+            return self.store.cancel_queued(execution_id, reason)
+
+    def position(self, execution_id: str) -> int | None:
+        """0 for the next one to start, None for one not queued."""
+        return self.store.queue_position(execution_id)
+
+    def wake(self) -> None:
+        """Look at the queue now (a submission, a worker freed)."""
+        self._wake.set()
+
+    # ------------------------------------------------------------------ the dispatcher
+
+    def start(self) -> ExecutionQueue:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="execution-queue", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the dispatcher (queued executions stay queued in the database)."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(10)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                waiting = self._drain()
+            except Exception:  # keep the dispatcher alive whatever one hand-over does
+                log.exception("the execution queue failed to dispatch")
+                waiting = True
+            self._wake.wait(self.poll_s if waiting else IDLE_POLL_S)
+            self._wake.clear()
+
+    def _drain(self) -> bool:
+        """Hand queued executions to free workers until the queue is empty or every worker is busy; returns
+        whether executions are still waiting."""
+        while not self._stop.is_set():
+            with self._lock:
+                heads = self.store.queued_executions(limit=1)
+                if not heads:
+                    return False
+                row, dispatch_json = heads[0]
+                outcome, reason = self._hand_over(row.id, Dispatch.from_json(dispatch_json))
+            if outcome is Handover.busy:
+                return True
+            if outcome is Handover.refused:
+                self.store.update_execution(
+                    row.id, ExecutionState.failed, ExecutionPhase.failed, error=f"the worker refused it: {reason}"
+                )
+        return True
+
+    def _hand_over(self, execution_id: str, dispatch: Dispatch) -> tuple[Handover, str]:
+        """Claim a queued execution and start it on a free worker (hold ``self._lock``)."""
+        from services.bus import BusRequestError, NoWorkerAvailable
+
+        if all(worker.busy for worker in self.bus.workers()):  # checked first: a queued one stays queued meanwhile
+            return Handover.busy, "every worker busy"
+        if not self.store.claim_queued(execution_id):
+            return Handover.gone, "not queued"
+        demonstration = None
+        if dispatch.demonstration_id is not None:
+            demonstration = self.store.demonstration(dispatch.demonstration_id)
+        try:
+            worker_id = self.bus.start_execution(
+                execution_id, dispatch.request, world_overrides=dispatch.world_overrides, demonstration=demonstration
+            )
+        except NoWorkerAvailable:
+            self.store.requeue(execution_id)
+            return Handover.busy, "every worker busy"
+        except BusRequestError as exc:
+            return Handover.refused, str(exc)
+        except Exception as exc:  # the bus failed: keep it queued and try again later
+            log.exception("handing %s to a worker failed", execution_id)
+            self.store.requeue(execution_id)
+            return Handover.busy, f"{type(exc).__name__}: {exc}"
+        self.store.mark_started(execution_id, worker_id)
+        log.info("execution %s started on %s", execution_id, worker_id)
+        return Handover.started, worker_id
