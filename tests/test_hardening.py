@@ -11,19 +11,16 @@ from __future__ import annotations
 
 import asyncio
 import json
-import threading
 import time
-from pathlib import Path
 
 import httpx
 import pytest
-import uvicorn
+from conftest import LiveApi
 from test_api import FakeBus, _client, _demo_json, _locs, _names, _settings
 
 from schemas import Demonstration
 from services.app import BusEvents, create_app
 from services.learner_pool import LearnerPool, LearningCancelled, LearningTimedOut
-from services.local_processes import free_port
 from services.store import Store
 from skills.synthetic import plane_slide
 
@@ -294,32 +291,10 @@ def test_the_pool_cancels_a_job_whose_client_is_gone():
         pool.close()
 
 
-class _LiveApi:
-    """The app served by uvicorn on a free loopback port, in a thread of this process."""
-
-    def __init__(self, tmp_path: Path, **settings) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        app = create_app(_settings(tmp_path, port=self.port, **settings), bus=None)
-        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning"))
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-
-    def __enter__(self) -> _LiveApi:
-        self.thread.start()
-        deadline = time.monotonic() + 30
-        while not self.server.started:
-            assert time.monotonic() < deadline, "uvicorn did not start"
-            time.sleep(0.05)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.server.should_exit = True
-        self.thread.join(30)
-
-
 def test_an_abandoned_learn_stops_and_health_answers_meanwhile(tmp_path):
     body = {"demonstration": json.loads(_slow_demonstration_json()), **SLOW_OPTIONS}
-    with _LiveApi(tmp_path, learn_processes=1) as api, httpx.Client(base_url=api.url, timeout=30) as http:
+    app = create_app(_settings(tmp_path, learn_processes=1), bus=None)
+    with LiveApi(app) as api, httpx.Client(base_url=api.url, timeout=30) as http:
         with pytest.raises(httpx.ReadTimeout):  # the client gives up after 2 s and closes its connection
             http.post("/skills", json=body, timeout=httpx.Timeout(30, read=2.0))
         health = http.get("/health", timeout=5).json()  # the event loop is free while the learner computes
