@@ -8,6 +8,7 @@ Settings come from the options, else the environment (``CONTACT_SKILLS_ZENOH_LIS
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 EXIT_ENDED_EARLY = 1
@@ -25,6 +26,27 @@ def _endpoints(values: list[str] | None) -> list[str]:
     return [e for v in values or [] for e in split_endpoints(v)]
 
 
+def login_arguments(parser: argparse.ArgumentParser) -> None:
+    """--zenoh-user and --tls-ca of a bus client (the password only from CONTACT_SKILLS_ZENOH_PASSWORD)."""
+    parser.add_argument(
+        "--zenoh-user", help="log in to the router as this user (env CONTACT_SKILLS_ZENOH_USER; password from env "
+        "CONTACT_SKILLS_ZENOH_PASSWORD)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--tls-ca", metavar="PEM", help="CA certificate of the router's TLS (env CONTACT_SKILLS_ZENOH_TLS_CA)"
+    )
+
+
+def apply_login(args: argparse.Namespace) -> None:
+    """Put --zenoh-user / --tls-ca into the environment, where every bus session of this process and its children
+    reads them (``schemas.bus_security.BusSecurity.from_env``)."""
+    from schemas.bus_security import ENV_TLS_CA, ENV_USER
+
+    for value, name in ((getattr(args, "zenoh_user", None), ENV_USER), (getattr(args, "tls_ca", None), ENV_TLS_CA)):
+        if value:
+            os.environ[name] = value
+
+
 def _logging(level: str) -> None:
     import logging
 
@@ -36,13 +58,16 @@ def _logging(level: str) -> None:
 
 def cmd_router(args: argparse.Namespace) -> int:
     """``contact-skills router``: run a Zenoh router (embedded, eclipse-zenoh) until SIGINT/SIGTERM."""
+    from schemas.bus import DEFAULT_PREFIX, ENV_PREFIX
+    from schemas.bus_security import BusSecurity, BusSecurityError
     from services.router import listen_from_env, run_router
 
     _logging(args.log_level)
     listen = _endpoints(args.listen) or listen_from_env()
     try:
-        run_router(listen)
-    except ConnectionError as exc:
+        security = BusSecurity.from_env(users_file=args.users, tls_cert=args.tls_cert, tls_key=args.tls_key)
+        run_router(listen, security, args.prefix or os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX)
+    except (ConnectionError, BusSecurityError, OSError) as exc:
         print(f"contact-skills router: error: {exc}", file=sys.stderr)
         return 2
     return 0
@@ -56,6 +81,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from sim_worker.zenoh_worker import WorkerSettings, run_worker
 
     _logging(args.log_level)
+    apply_login(args)
     settings = WorkerSettings.from_env()
     if args.connect:
         settings.endpoints = _endpoints(args.connect)
@@ -148,6 +174,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     from schemas.execution import TelemetryBatch
     from services.bus import BusSettings, open_session
 
+    apply_login(args)
     settings = BusSettings.from_env()
     endpoints = _endpoints(args.connect) or settings.endpoints
     try:
@@ -253,6 +280,11 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="endpoint to listen on, repeatable or comma-separated (env CONTACT_SKILLS_ZENOH_LISTEN; "
         "default tcp/127.0.0.1:7447)",
     )
+    router.add_argument("--users", metavar="FILE", help="require a login: role:user:password per line, role api, "
+                        "worker or observer (env CONTACT_SKILLS_ZENOH_USERS); access control by role")  # fmt: skip
+    router.add_argument("--tls-cert", metavar="PEM", help="TLS certificate for tls/ endpoints (env ..._ZENOH_TLS_CERT)")
+    router.add_argument("--tls-key", metavar="PEM", help="its private key (env CONTACT_SKILLS_ZENOH_TLS_KEY)")
+    router.add_argument("--prefix", help="key-expression prefix the access control covers (default cskills)")
     router.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     router.set_defaults(run=cmd_router)
 
@@ -267,6 +299,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     worker.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
     worker.add_argument("--id", help="worker id (default worker-<hostname>-<pid>)")
     worker.add_argument("--prefix", help=prefix_help)
+    login_arguments(worker)
     worker.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     worker.set_defaults(run=cmd_worker)
 
@@ -276,6 +309,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     watch.add_argument("execution_id", metavar="EXECUTION_ID", help="the execution to follow (exec_...)")
     watch.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
     watch.add_argument("--prefix", help=prefix_help)
+    login_arguments(watch)
     watch.add_argument("--timeout", type=float, metavar="S", help="give up after S seconds without a final status")
     watch.add_argument(
         "--wait",

@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 from typing import IO, Any
 
-from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS
+from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS, apply_login, login_arguments
 from services.settings import DEFAULT_WORKERS
 
 STOP_TIMEOUT_S = 10.0
@@ -59,6 +59,8 @@ def cmd_api(args: argparse.Namespace) -> int:
     import uvicorn
 
     from services.app import connect_bus, create_app
+
+    apply_login(args)
     from services.settings import SettingsError
     from services.store import Store, StoreError
 
@@ -359,6 +361,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     api.add_argument("--max-body-mb", type=float, help="request body limit, MiB (default 64)")
     api.add_argument("--no-bus", action="store_true", help="run without Zenoh (executions and recordings get 503)")
+    login_arguments(api)
     api.set_defaults(run=cmd_api)
 
     up = commands.add_parser(

@@ -24,12 +24,15 @@ from __future__ import annotations
 import math
 import re
 import time
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
+
+if TYPE_CHECKING:
+    from schemas.bus_security import BusSecurity
 
 DEFAULT_PREFIX = "cskills"
 """Key-expression prefix used unless configured (``CONTACT_SKILLS_ZENOH_PREFIX``)."""
@@ -178,12 +181,16 @@ def session_config(
     mode: Literal["client", "peer", "router"],
     connect: list[str] | None = None,
     listen: list[str] | None = None,
+    security: BusSecurity | None = None,
+    access_control: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The Zenoh session configuration (a JSON-able dict) every process of the bus uses.
 
     Multicast scouting is off: sessions meet only through the configured endpoints (a router). A client's
     ``zenoh.open`` fails after 2 s without a router; the processes retry (start order does not matter, e.g. in
     docker-compose); once connected, a client reconnects by itself when the router restarts.
+    ``security`` (`schemas.bus_security.BusSecurity`): the login and TLS of the session, or what the router
+    requires; ``access_control``: the router's (`schemas.bus_security.access_control`). Neither: an open bus.
     Open with ``zenoh.open(zenoh.Config.from_json5(json.dumps(session_config(...))))``.
     """
     config: dict[str, Any] = {
@@ -196,6 +203,11 @@ def session_config(
             config["connect"].update({"timeout_ms": 2000, "exit_on_failure": False})
     if listen:
         config["listen"] = {"endpoints": list(listen)}
+    transport = security.transport(mode) if security is not None else {}
+    if transport:
+        config["transport"] = transport
+    if access_control is not None:
+        config["access_control"] = access_control
     return config
 
 

@@ -47,6 +47,7 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
+from schemas.bus_security import BusSecurity
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest, TelemetryBatch
 
@@ -72,6 +73,8 @@ class BusSettings:
     mode: str = "client"
     connect_timeout_s: float = 30.0
     """How long ``BusClient()`` keeps trying to reach the router before raising ``ConnectionError``, s."""
+    security: BusSecurity | None = None
+    """Login and TLS (None: from the environment, ``schemas.bus_security``)."""
 
     @classmethod
     def from_env(cls) -> BusSettings:
@@ -89,14 +92,26 @@ class BusRequestError(ValueError):
     """A worker refused a request as invalid (e.g. an unknown scenario or world override); the message says why."""
 
 
-def open_session(mode: str, connect: list[str] | None = None, listen: list[str] | None = None, wait_s: float = 0.0):
+def open_session(
+    mode: str,
+    connect: list[str] | None = None,
+    listen: list[str] | None = None,
+    wait_s: float = 0.0,
+    security: BusSecurity | None = None,
+    access_control: dict[str, Any] | None = None,
+):
     """Open a Zenoh session with the bus configuration (``schemas.bus.session_config``).
 
-    A client retries for ``wait_s`` seconds while no router answers, then raises ``ConnectionError``.
+    ``security`` None: the login and TLS settings of the environment (``schemas.bus_security``; none: an open bus).
+    A client retries for ``wait_s`` seconds while no router answers (or it refuses the login), then raises
+    ``ConnectionError``.
     """
     import zenoh
 
-    config = zenoh.Config.from_json5(json.dumps(session_config(mode, connect=connect, listen=listen)))  # type: ignore[arg-type]
+    security = security if security is not None else BusSecurity.from_env()
+    config = zenoh.Config.from_json5(
+        json.dumps(session_config(mode, connect, listen, security, access_control))  # type: ignore[arg-type]
+    )
     deadline = time.monotonic() + wait_s
     while True:
         try:
@@ -130,7 +145,9 @@ class BusClient:
         self._rotation = itertools.count()
         self._lost_timers: dict[str, threading.Timer] = {}
         self._closed = False
-        self._session = open_session(settings.mode, connect=settings.endpoints, wait_s=settings.connect_timeout_s)
+        self._session = open_session(
+            settings.mode, connect=settings.endpoints, wait_s=settings.connect_timeout_s, security=settings.security
+        )
         try:
             s, k = self._session, self.keys
             self._subscribers = [

@@ -65,6 +65,11 @@ class BusEvents:
         self._lock = threading.Lock()
 
     def _status(self, status: ExecutionStatus) -> None:
+        row = self.store.execution(status.execution_id)
+        if row is not None and row.worker_id is not None and row.worker_id != status.worker_id:
+            log.warning("status of %s from %s ignored: it runs on %s", status.execution_id, status.worker_id,
+                        row.worker_id)  # fmt: skip
+            return
         state = FINAL_STATES.get(status.phase, ExecutionState.paused if status.paused else ExecutionState.running)
         if status.final and not self._telemetry_complete(status):
             with self._lock:

@@ -66,12 +66,15 @@ def stop_process(process: subprocess.Popen, timeout_s: float = 10.0) -> None:
             process.wait()
 
 
-def spawn_cli(args: list[str], log: Path, cwd: Path | None = None) -> subprocess.Popen:
-    """Start ``contact-skills ARGS`` as a child process (this interpreter), its output appended to ``log``.
+def spawn_cli(
+    args: list[str], log: Path, cwd: Path | None = None, env: dict[str, str] | None = None
+) -> subprocess.Popen:
+    """Start ``contact-skills ARGS`` as a child process (this interpreter), its output appended to ``log``; ``env``:
+    variables added to this process's environment.
 
     One BLAS thread and unbuffered output, so several children share the cores and their logs are current.
     """
-    env = {**with_thread_limits(dict(os.environ)), "PYTHONUNBUFFERED": "1"}
+    env = {**with_thread_limits(dict(os.environ)), **(env or {}), "PYTHONUNBUFFERED": "1"}
     if cwd is not None:
         env["PYTHONPATH"] = str(cwd)
     with log.open("ab") as out:

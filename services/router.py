@@ -11,9 +11,13 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import tempfile
 import threading
+from dataclasses import replace
+from pathlib import Path
 
-from schemas.bus import DEFAULT_ENDPOINT, ENV_LISTEN, split_endpoints
+from schemas.bus import DEFAULT_ENDPOINT, DEFAULT_PREFIX, ENV_LISTEN, split_endpoints
+from schemas.bus_security import BusSecurity, BusUser, access_control, read_users
 
 log = logging.getLogger("contact_skills.router")
 
@@ -24,11 +28,20 @@ def listen_from_env() -> list[str]:
 
 
 class EmbeddedRouter:
-    """A Zenoh router session in this process, listening on ``listen`` from ``start()`` (or ``__enter__``)."""
+    """A Zenoh router session in this process, listening on ``listen`` from ``start()`` (or ``__enter__``).
 
-    def __init__(self, listen: list[str] | None = None) -> None:
+    ``security`` (`schemas.bus_security.BusSecurity`): with a ``users_file`` the router requires a login and applies
+    the access control of ``schemas.bus_security.access_control`` for ``prefix``; with ``tls_cert``/``tls_key`` it
+    serves ``tls/`` endpoints. None: an open router."""
+
+    def __init__(
+        self, listen: list[str] | None = None, security: BusSecurity | None = None, prefix: str = DEFAULT_PREFIX
+    ) -> None:
         self.listen = list(listen or [DEFAULT_ENDPOINT])
+        self.security = security or BusSecurity()
+        self.prefix = prefix
         self._session = None
+        self._dictionary: Path | None = None
 
     @property
     def running(self) -> bool:
@@ -39,9 +52,23 @@ class EmbeddedRouter:
         from services.bus import open_session
 
         if self._session is None:
-            self._session = open_session("router", listen=self.listen)
-            log.info("zenoh router listening on %s", ", ".join(self.listen))
+            security, access = self.security, None
+            if security.users_file:
+                users = read_users(security.users_file)
+                security = replace(security, users_file=str(self._zenoh_dictionary(users)))
+                access = access_control(self.prefix, users)
+            self._session = open_session("router", listen=self.listen, security=security, access_control=access)
+            guarded = f", login required ({len(access['subjects'])} subjects)" if access else ""
+            log.info("zenoh router listening on %s%s", ", ".join(self.listen), guarded)
         return self
+
+    def _zenoh_dictionary(self, users: list[BusUser]) -> Path:
+        """The users as Zenoh's ``user:password`` dictionary, in a file only this user can read (removed on close)."""
+        descriptor, name = tempfile.mkstemp(prefix="cskills-zenoh-users-", suffix=".txt")
+        with os.fdopen(descriptor, "w") as out:
+            out.writelines(f"{u.user}:{u.password}\n" for u in users)
+        self._dictionary = Path(name)
+        return self._dictionary
 
     def close(self) -> None:
         """Close the router session (idempotent); connected clients lose their connection."""
@@ -49,6 +76,9 @@ class EmbeddedRouter:
             session, self._session = self._session, None
             session.close()
             log.info("zenoh router stopped")
+        if self._dictionary is not None:
+            self._dictionary.unlink(missing_ok=True)
+            self._dictionary = None
 
     def __enter__(self) -> EmbeddedRouter:
         return self.start()
@@ -57,15 +87,15 @@ class EmbeddedRouter:
         self.close()
 
 
-def run_router(listen: list[str]) -> None:
-    """Run a router on ``listen`` until SIGINT or SIGTERM."""
+def run_router(listen: list[str], security: BusSecurity | None = None, prefix: str = DEFAULT_PREFIX) -> None:
+    """Run a router on ``listen`` until SIGINT or SIGTERM (``security``, ``prefix``: see :class:`EmbeddedRouter`)."""
     stop = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     try:
-        with EmbeddedRouter(listen):
+        with EmbeddedRouter(listen, security, prefix):
             while not stop.wait(0.5):
                 pass
     finally:

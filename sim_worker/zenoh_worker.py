@@ -60,6 +60,7 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
+from schemas.bus_security import BusSecurity
 from schemas.execution import ExecutionPhase
 from schemas.skill import Skill
 
@@ -89,6 +90,8 @@ class WorkerSettings:
     """Pause between attempts while the router is not reachable, s."""
     connect_timeout_s: float | None = None
     """Give up connecting after this long (None: keep trying until a signal arrives), s."""
+    security: BusSecurity = field(default_factory=BusSecurity)
+    """Login and TLS (``schemas.bus_security``); with a login the worker's id is its user name."""
 
     @classmethod
     def from_env(cls) -> WorkerSettings:
@@ -96,6 +99,7 @@ class WorkerSettings:
         return cls(
             endpoints=split_endpoints(os.environ.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
             prefix=os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX,
+            security=BusSecurity.from_env(),
         )
 
 
@@ -273,7 +277,10 @@ class Worker:
 
     def __init__(self, settings: WorkerSettings | None = None, worker_id: str | None = None) -> None:
         self.settings = settings or WorkerSettings()
-        self.worker_id = check_id(worker_id or default_worker_id(), "worker_id")
+        user = self.settings.security.user
+        if user is not None and worker_id is not None and worker_id != user:
+            raise ValueError(f"worker id {worker_id!r} differs from its bus user {user!r}: a worker's id is its user")
+        self.worker_id = check_id(worker_id or user or default_worker_id(), "worker_id")
         self.keys = KeyExpressions(self.settings.prefix)
         self.hostname = socket.gethostname()
         self.started_unix_s = time.time()
@@ -297,7 +304,9 @@ class Worker:
         """
         import zenoh
 
-        config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=self.settings.endpoints)))
+        config = zenoh.Config.from_json5(
+            json.dumps(session_config("client", connect=self.settings.endpoints, security=self.settings.security))
+        )
         deadline = None if self.settings.connect_timeout_s is None else time.time() + self.settings.connect_timeout_s
         warned = False
         while self._session is None:

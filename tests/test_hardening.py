@@ -185,6 +185,19 @@ def test_incoherent_inline_skills_are_422(bus_client, demo):
     assert c.post("/executions", json={"skill": skill}).status_code == 202
 
 
+def test_a_status_from_another_worker_than_the_one_running_it_is_ignored(bus_client, demo):
+    from schemas.bus import ExecutionStatus
+
+    c = bus_client
+    skill_id = c.post("/skills", json={"demonstration": demo}).json()["id"]
+    created = c.post("/executions", json={"skill_id": skill_id}).json()
+    assert created["worker_id"] == "w0"
+    c.bus.on_status(ExecutionStatus(execution_id=created["id"], worker_id="intruder", phase="done", message="forged"))
+    assert c.get(f"/executions/{created['id']}").json()["status"] == "running"
+    c.bus.on_status(ExecutionStatus(execution_id=created["id"], worker_id="w0", phase="aborted", error="stop"))
+    assert c.get(f"/executions/{created['id']}").json()["status"] == "aborted"
+
+
 @pytest.mark.parametrize("path", ["/demonstrations", "/skills", "/executions"])
 def test_huge_list_offsets_are_422_not_500(client, path):
     response = client.get(path, params={"offset": "9223372036854775808"})

@@ -1,0 +1,178 @@
+"""Who may do what on the Zenoh bus: authentication (user and password, TLS) and the router's access control.
+
+Without any of the settings below the bus is open, as it has always been on loopback (``contact-skills up``).
+To open the router beyond loopback, give it a users file and, across machines, a TLS certificate:
+
+- ``CONTACT_SKILLS_ZENOH_USERS`` (``router --users FILE``): the router's users, one ``role:user:password`` per line,
+  role ``api``, ``worker`` or ``observer``;
+- ``CONTACT_SKILLS_ZENOH_USER`` (``--zenoh-user``) and ``CONTACT_SKILLS_ZENOH_PASSWORD`` (environment only, never on a
+  command line): who an api, worker or watch process logs in as (a worker's id is its user name);
+- ``CONTACT_SKILLS_ZENOH_TLS_CERT`` and ``..._TLS_KEY`` (``router --tls-cert/--tls-key``): the router's certificate
+  and key (PEM), for endpoints ``tls/host:port``;
+- ``CONTACT_SKILLS_ZENOH_TLS_CA`` (``--tls-ca``): the CA certificate (PEM) the clients check the router's against.
+
+With a users file the router refuses every session that does not log in (a wrong password or none: the session is
+never opened) and applies :func:`access_control`, default deny:
+
+- ``api``: command executions (put ``P/exec/*/cmd``), query the workers (``info``, ``start``, ``record``, ``status``),
+  subscribe to statuses, telemetry and the workers' liveliness;
+- ``worker`` *W* (its user name is its worker id): declare only ITS queryables ``P/exec/W/{info,start,record}`` and
+  ITS liveliness token ``P/workers/W``, answer the status queryable, receive commands, publish statuses and
+  telemetry; it cannot command, and cannot pose as another worker;
+- ``observer``: read only: subscribe to statuses, telemetry and liveliness, query statuses and worker info.
+
+Statuses and telemetry are keyed by execution, not by worker: an authenticated worker could publish for an
+execution it does not run. The API therefore takes a status or telemetry batch only from the worker it handed the
+execution to (`services.bus_events`), by the ``worker_id`` the payload names; the bus does not sign payloads.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from schemas.bus import KeyExpressions, check_id
+
+ENV_USERS = "CONTACT_SKILLS_ZENOH_USERS"
+ENV_USER = "CONTACT_SKILLS_ZENOH_USER"
+ENV_PASSWORD = "CONTACT_SKILLS_ZENOH_PASSWORD"
+ENV_TLS_CA = "CONTACT_SKILLS_ZENOH_TLS_CA"
+ENV_TLS_CERT = "CONTACT_SKILLS_ZENOH_TLS_CERT"
+ENV_TLS_KEY = "CONTACT_SKILLS_ZENOH_TLS_KEY"
+
+Role = Literal["api", "worker", "observer"]
+ROLES: tuple[str, ...] = ("api", "worker", "observer")
+
+
+class BusSecurityError(ValueError):
+    """A users file or a security setting that cannot be used; the message says which and why."""
+
+
+@dataclass(frozen=True)
+class BusUser:
+    """One line of the router's users file."""
+
+    role: Role
+    user: str
+    password: str
+
+
+def read_users(path: str | Path) -> list[BusUser]:
+    """Parse a users file: one ``role:user:password`` per line (``#`` comments and blank lines ignored)."""
+    users: list[BusUser] = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.split(":", 2)
+        if len(parts) != 3 or parts[0] not in ROLES or not parts[1] or not parts[2]:
+            raise BusSecurityError(f"{path} line {number}: expected role:user:password with role one of {ROLES}")
+        role, user, password = parts
+        check_id(user, "user name")
+        users.append(BusUser(role, user, password))  # type: ignore[arg-type]
+    if not users:
+        raise BusSecurityError(f"{path}: no users")
+    return users
+
+
+@dataclass(frozen=True)
+class BusSecurity:
+    """What a session presents (``user``, ``password``, ``tls_ca``) or, for the router, requires (``users_file``,
+    ``tls_cert``, ``tls_key``). All None: an open bus."""
+
+    user: str | None = None
+    password: str | None = None
+    tls_ca: str | None = None
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    users_file: str | None = None
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None, **overrides: str | None) -> BusSecurity:
+        """The ``CONTACT_SKILLS_ZENOH_*`` variables of the table above, replaced by ``overrides`` not None."""
+        env = os.environ if env is None else env
+        names = {"user": ENV_USER, "password": ENV_PASSWORD, "tls_ca": ENV_TLS_CA, "tls_cert": ENV_TLS_CERT,
+                 "tls_key": ENV_TLS_KEY, "users_file": ENV_USERS}  # fmt: skip
+        values = {field: env.get(var) or None for field, var in names.items()}
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**values)
+
+    def transport(self, mode: str) -> dict[str, Any]:
+        """The ``transport`` part of the session configuration (empty for an open bus)."""
+        transport: dict[str, Any] = {}
+        if mode == "router":
+            if self.users_file:
+                transport["auth"] = {"usrpwd": {"dictionary_file": self.users_file}}
+            if bool(self.tls_cert) != bool(self.tls_key):
+                raise BusSecurityError("the router's TLS needs both a certificate and its key (tls_cert, tls_key)")
+            if self.tls_cert:
+                transport["link"] = {"tls": {"listen_certificate": self.tls_cert, "listen_private_key": self.tls_key}}
+            return transport
+        if bool(self.user) != bool(self.password):
+            raise BusSecurityError(f"bus login needs both {ENV_USER} and {ENV_PASSWORD}")
+        if self.user:
+            transport["auth"] = {"usrpwd": {"user": self.user, "password": self.password}}
+        if self.tls_ca:
+            transport["link"] = {"tls": {"root_ca_certificate": self.tls_ca}}
+        return transport
+
+
+def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
+    return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": keys}
+
+
+def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
+    """The router's ``access_control`` configuration for ``users`` (see the module docstring): default deny;
+    ``ingress`` rules say what a role may send or declare, ``egress`` rules what the router delivers to it."""
+    k = KeyExpressions(prefix)
+    queried = [k.info("*"), f"{k.prefix}/exec/*/start", f"{k.prefix}/exec/*/record", k.status("*")]
+    streams = [k.status("*"), k.telemetry("*")]
+    commands = [f"{k.prefix}/exec/*/cmd"]
+    everything = [f"{k.prefix}/**"]
+    rules = [
+        _rule("api-sends", "ingress", ["put"], commands),
+        _rule("api-asks", "ingress", ["query"], queried),
+        _rule("api-listens", "ingress", ["declare_subscriber"], streams),
+        _rule("api-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
+        _rule("api-receives", "egress", ["put"], streams),
+        _rule("api-answers", "egress", ["reply"], queried),
+        _rule("api-sees", "egress", ["liveliness_token", "declare_queryable", "declare_subscriber"], everything),
+        _rule("observer-listens", "ingress", ["declare_subscriber"], streams),
+        _rule("observer-asks", "ingress", ["query"], [k.info("*"), k.status("*")]),
+        _rule("observer-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
+        _rule("observer-receives", "egress", ["put"], streams),
+        _rule("observer-answers", "egress", ["reply"], [k.info("*"), k.status("*")]),
+        _rule("observer-sees", "egress", ["liveliness_token", "declare_queryable"], everything),
+    ]
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for role in ("api", "observer"):
+        names = sorted({u.user for u in users if u.role == role})
+        if names:
+            subjects.append({"id": role, "usernames": names})
+            policies.append({"subjects": [role], "rules": [r["id"] for r in rules if r["id"].startswith(role + "-")]})
+    for worker in sorted({u.user for u in users if u.role == "worker"}):
+        own = [k.info(worker), k.start(worker), k.record(worker)]
+        worker_rules = [
+            _rule(f"worker:{worker}-declares", "ingress", ["declare_queryable"], [*own, k.status("*")]),
+            _rule(f"worker:{worker}-lives", "ingress", ["liveliness_token"], [k.worker(worker)]),
+            _rule(f"worker:{worker}-publishes", "ingress", ["put"], streams),
+            _rule(f"worker:{worker}-replies", "ingress", ["reply"], [*own, k.status("*")]),
+            _rule(f"worker:{worker}-listens", "ingress", ["declare_subscriber"], commands),
+            # the API asks every worker's info at once (P/exec/*/info): the query arrives with that key
+            _rule(f"worker:{worker}-is-asked", "egress", ["query"], [*own, k.info("*"), k.status("*")]),
+            _rule(f"worker:{worker}-is-told", "egress", ["put"], commands),
+        ]
+        rules.extend(worker_rules)
+        subjects.append({"id": f"worker:{worker}", "usernames": [worker]})
+        policies.append({"subjects": [f"worker:{worker}"], "rules": [r["id"] for r in worker_rules]})
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
