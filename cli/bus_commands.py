@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 EXIT_ENDED_EARLY = 1
 """`watch`: the execution was aborted or failed."""
@@ -70,6 +71,20 @@ def cmd_router(args: argparse.Namespace) -> int:
     except (ConnectionError, BusSecurityError, OSError) as exc:
         print(f"contact-skills router: error: {exc}", file=sys.stderr)
         return 2
+    return 0
+
+
+def cmd_bus_keys(args: argparse.Namespace) -> int:
+    """``contact-skills bus-keys DIR``: a CA, the router's TLS certificate, a users file with random passwords and one
+    environment file per login (api, worker-1..N, observer), for a secured bus across machines."""
+    from services.bus_keys import generate_bus_keys
+
+    try:
+        written = generate_bus_keys(args.folder, args.host or [], args.workers, args.ca_path, args.endpoint)
+    except (OSError, ValueError) as exc:
+        print(f"contact-skills bus-keys: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"contact-skills bus-keys: wrote {', '.join(p.name for p in written)} to {args.folder}")
     return 0
 
 
@@ -287,6 +302,16 @@ def register(commands: argparse._SubParsersAction) -> None:
     router.add_argument("--prefix", help="key-expression prefix the access control covers (default cskills)")
     router.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     router.set_defaults(run=cmd_router)
+
+    keys = commands.add_parser(
+        "bus-keys", help="generate TLS certificates and logins for a secured bus", description=cmd_bus_keys.__doc__
+    )
+    keys.add_argument("folder", type=Path, metavar="DIR", help="folder to write into (created)")
+    keys.add_argument("--host", action="append", help="router host name or address the clients use (repeatable)")
+    keys.add_argument("--workers", type=int, default=2, help="worker logins worker-1..N (default 2)")
+    keys.add_argument("--ca-path", help="path of ca.pem on the clients, written into the .env files")
+    keys.add_argument("--endpoint", help="router endpoint written into the .env files, e.g. tls/router.lan:7447")
+    keys.set_defaults(run=cmd_bus_keys)
 
     connect_help = (
         "router endpoint to connect to, repeatable or comma-separated (env CONTACT_SKILLS_ZENOH_ENDPOINTS; "

@@ -56,6 +56,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
         from starlette.concurrency import run_in_threadpool
 
         await run_in_threadpool(reconcile, store, bus)
+        if settings.learn_warm_up:
+            learners.warm_up()
         if queue is not None:
             queue.start()
         yield

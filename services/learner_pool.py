@@ -34,6 +34,8 @@ log = logging.getLogger("contact_skills.learning")
 
 POLL_S = 0.1
 """How often a running job checks its budget and its client, s."""
+LEARNER_NICENESS = 10
+"""Learner processes run this much nicer than the API: on a busy machine /health and the bus answer first."""
 
 
 class LearningTimedOut(RuntimeError):  # noqa: N818 (the name is the interface)
@@ -63,11 +65,13 @@ class LearnOutcome:
 
 
 def _limit_process(memory_mb: int) -> None:
-    """In a learner process: one BLAS thread, and an address-space limit of ``memory_mb`` MiB (0: none)."""
+    """In a learner process: a lower CPU priority (the API's event loop and the sim workers come first), one BLAS
+    thread, and an address-space limit of ``memory_mb`` MiB (0: none)."""
     import resource
 
     from threadpoolctl import threadpool_limits
 
+    os.nice(LEARNER_NICENESS)
     os.environ.update(THREAD_LIMIT_ENV)
     threadpool_limits(1)
     if memory_mb > 0:
@@ -150,6 +154,7 @@ class LearnerPool:
         self._idle: list[_Slot] = []
         self._started = 0
         self._free: asyncio.Semaphore | None = None
+        self._warming: asyncio.Task | None = None
         self._context = multiprocessing.get_context("forkserver")
         self._context.set_forkserver_preload(["services.learner_pool", "skills.parameterize"])
         for name, value in THREAD_LIMIT_ENV.items():  # the forkserver inherits them (it starts on first use)
@@ -169,6 +174,16 @@ class LearnerPool:
         slot.process.join(5)
         slot.connection.close()
 
+    def warm_up(self) -> None:
+        """Start the learner processes in the background (call from the event loop, e.g. at startup), so the first
+        requests do not wait for them."""
+        if self._warming is None and not self._idle:
+            self._warming = asyncio.get_running_loop().create_task(self._warm())
+
+    async def _warm(self) -> None:
+        for _ in range(self.processes):
+            self._idle.append(await asyncio.to_thread(self._spawn))
+
     async def learn(
         self, demonstration_json: str, options_json: str, client_gone: Callable[[], Awaitable[bool]]
     ) -> LearnOutcome:
@@ -176,6 +191,8 @@ class LearnerPool:
         :class:`LearningCancelled` (``client_gone()`` became true while waiting or learning)."""
         if self._closed:
             raise LearningCancelled("the learner pool is shut down")
+        if self._warming is not None:
+            await self._warming
         if self._free is None:
             self._free = asyncio.Semaphore(self.processes)
         if self.stats.waiting >= self.max_waiting:
@@ -234,6 +251,8 @@ class LearnerPool:
     def close(self) -> None:
         """Stop every idle learner process (running jobs end with their requests)."""
         self._closed = True
+        if self._warming is not None and not self._warming.done():
+            self._warming.cancel()
         slots, self._idle = self._idle, []
         for slot in slots:
             with contextlib.suppress(OSError):

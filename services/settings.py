@@ -96,6 +96,8 @@ class ServiceSettings:
     learn_processes: int = field(default_factory=lambda: os.cpu_count() or 1)
     learn_timeout_s: float = 120.0
     learn_memory_mb: int = 4096
+    learn_warm_up: bool = True
+    """Start the learner processes when the API starts (tests that never learn turn it off)."""
     queue_max: int = 1000
 
     def __post_init__(self) -> None:

@@ -1,12 +1,17 @@
-"""Shared test constants and helpers: the real data the tests read lives inside the repository (``data/``); a live
-API served by uvicorn on a free loopback port."""
+"""Shared test constants and helpers: the real data the tests read lives inside the repository (``data/``); the API
+in-process (``client``: no bus; ``bus_client``: a fake bus the test drives, `FakeBus`) and served by uvicorn on a free
+loopback port (`LiveApi`)."""
 
 from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
+
+import pytest
 
 from cli.main import repository_data_directory
+from schemas.bus import RecordReply, RecordRequest, WorkerInfo
 from services.local_processes import free_port
 
 KULEUVEN_DATA = repository_data_directory() / "kuleuven_contour"
@@ -36,3 +41,72 @@ class LiveApi:
     def __exit__(self, *exc: object) -> None:
         self.server.should_exit = True
         self.thread.join(30)
+
+
+class FakeBus:
+    """The `BusClient` interface; the test drives the callbacks."""
+
+    def __init__(self, on_status, on_telemetry, on_worker_lost, workers: int = 1) -> None:
+        self.on_status, self.on_telemetry, self.on_worker_lost = on_status, on_telemetry, on_worker_lost
+        self.infos = [WorkerInfo(worker_id=f"w{k}", busy=False) for k in range(workers)]
+        self.started: list[tuple[str, object]] = []
+        self.commands: list[tuple[str, str]] = []
+        self.recorded: RecordReply | None = None
+
+    def workers(self) -> list[WorkerInfo]:
+        return list(self.infos)
+
+    def start_execution(self, execution_id, request, **options) -> str:
+        from services.bus import NoWorkerAvailable
+
+        if not self.infos:
+            raise NoWorkerAvailable("no worker")
+        assert request.skill is not None and request.skill_id is None
+        self.started.append((execution_id, request))
+        return self.infos[0].worker_id
+
+    def send_command(self, execution_id, command) -> None:
+        self.commands.append((execution_id, command))
+
+    def record_demonstration(self, request: RecordRequest, timeout_s: float = 120) -> RecordReply:
+        assert self.recorded is not None
+        return self.recorded
+
+    def close(self) -> None:
+        pass
+
+
+def loopback_client(app, **options):
+    """A test client addressing the loopback API by a loopback name (the Host check refuses others)."""
+    from fastapi.testclient import TestClient
+
+    return TestClient(app, base_url="http://127.0.0.1", **options)
+
+
+def api_settings(tmp_path: Path, **changes):
+    """Service settings on a database in ``tmp_path``."""
+    from services.settings import ServiceSettings
+
+    return ServiceSettings(db_path=tmp_path / "api.db", **changes)
+
+
+@pytest.fixture
+def client(tmp_path):
+    from services.app import create_app
+
+    with loopback_client(create_app(api_settings(tmp_path), bus=None)) as c:
+        yield c
+
+
+@pytest.fixture
+def bus_client(tmp_path):
+    from services.app import BusEvents, create_app
+    from services.store import Store
+
+    store = Store(tmp_path / "api.db")
+    events = BusEvents(store)
+    bus = FakeBus(events.on_status, events.on_telemetry, events.on_worker_lost)
+    with loopback_client(create_app(api_settings(tmp_path), bus=bus, store=store)) as c:
+        c.bus = bus
+        yield c
+    store.close()

@@ -7,15 +7,15 @@ from __future__ import annotations
 
 import json
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import KULEUVEN_DATA
-from fastapi.testclient import TestClient
+from conftest import KULEUVEN_DATA, FakeBus
+from conftest import api_settings as _settings
+from conftest import loopback_client as _client
 
 from schemas import Demonstration, ExecutionMetrics, TelemetryBatch
-from schemas.bus import ExecutionStatus, RecordReply, RecordRequest, WorkerInfo
+from schemas.bus import ExecutionStatus, RecordReply
 from services.app import BusEvents, create_app
 from services.settings import ServiceSettings, SettingsError
 from services.store import RESTART_REASON, Store
@@ -41,65 +41,6 @@ def _demo_json(rate_hz: float = 200.0, duration_s: float = 4.0, **changes) -> di
 @pytest.fixture(scope="module")
 def demo() -> dict:
     return _demo_json()
-
-
-class FakeBus:
-    """The `BusClient` interface; the test drives the callbacks."""
-
-    def __init__(self, on_status, on_telemetry, on_worker_lost, workers: int = 1) -> None:
-        self.on_status, self.on_telemetry, self.on_worker_lost = on_status, on_telemetry, on_worker_lost
-        self.infos = [WorkerInfo(worker_id=f"w{k}", busy=False) for k in range(workers)]
-        self.started: list[tuple[str, object]] = []
-        self.commands: list[tuple[str, str]] = []
-        self.recorded: RecordReply | None = None
-
-    def workers(self) -> list[WorkerInfo]:
-        return list(self.infos)
-
-    def start_execution(self, execution_id, request, **options) -> str:
-        from services.bus import NoWorkerAvailable
-
-        if not self.infos:
-            raise NoWorkerAvailable("no worker")
-        assert request.skill is not None and request.skill_id is None
-        self.started.append((execution_id, request))
-        return self.infos[0].worker_id
-
-    def send_command(self, execution_id, command) -> None:
-        self.commands.append((execution_id, command))
-
-    def record_demonstration(self, request: RecordRequest, timeout_s: float = 120) -> RecordReply:
-        assert self.recorded is not None
-        return self.recorded
-
-    def close(self) -> None:
-        pass
-
-
-def _client(app, **options) -> TestClient:
-    """A test client addressing the loopback API by a loopback name (the Host check refuses others)."""
-    return TestClient(app, base_url="http://127.0.0.1", **options)
-
-
-def _settings(tmp_path: Path, **changes) -> ServiceSettings:
-    return ServiceSettings(db_path=tmp_path / "api.db", **changes)
-
-
-@pytest.fixture
-def client(tmp_path):
-    with _client(create_app(_settings(tmp_path), bus=None)) as c:
-        yield c
-
-
-@pytest.fixture
-def bus_client(tmp_path):
-    store = Store(tmp_path / "api.db")
-    events = BusEvents(store)
-    bus = FakeBus(events.on_status, events.on_telemetry, events.on_worker_lost)
-    with _client(create_app(_settings(tmp_path), bus=bus, store=store)) as c:
-        c.bus = bus
-        yield c
-    store.close()
 
 
 def _locs(response) -> list[list]:

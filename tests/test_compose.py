@@ -144,3 +144,24 @@ def test_the_build_context_leaves_out_what_the_image_does_not_need():
     copied = {c.rstrip("/") for c in re.findall(r"^COPY\s+(?!--)(.+?)\s+\S+$", DOCKERFILE, re.MULTILINE)}
     copied = {name for group in copied for name in group.split()}
     assert not copied & set(ignored), copied & set(ignored)
+
+
+def test_the_secure_compose_file_runs_real_commands_with_generated_logins(tmp_path):
+    from services.bus_keys import generate_bus_keys
+    from services.settings import ServiceSettings
+
+    secure = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())["services"]
+    parser = build_parser()
+    router = parser.parse_args(_command(secure["router"]))
+    assert router.command == "router" and router.users == "/keys/users.txt" and router.tls_cert == "/keys/router.pem"
+    assert all(endpoint.startswith("tls/") for endpoint in router.listen)
+    generate_bus_keys(tmp_path, ["router"], 2, ca_path="/keys/ca.pem", endpoint="tls/router:7447")
+    for name, login in (("api", "api"), ("worker", "worker-1")):
+        assert parser.parse_args(_command(secure[name])).command == name
+        assert secure[name]["env_file"] == [f"./bus-keys/{login}.env"]
+        env = dict(line.split("=", 1) for line in (tmp_path / f"{login}.env").read_text().splitlines())
+        assert env["CONTACT_SKILLS_ZENOH_TLS_CA"] == "/keys/ca.pem"
+        assert env["CONTACT_SKILLS_ZENOH_ENDPOINTS"] == "tls/router:7447"
+        assert "./bus-keys/ca.pem:/keys/ca.pem:ro" in secure[name]["volumes"]
+    api_env = {k: ("t0ken" if "$" in v else v) for k, v in secure["api"]["environment"].items()}
+    assert ServiceSettings.from_env(api_env).token_reads and secure["api"]["environment"]["CONTACT_SKILLS_TOKEN"]

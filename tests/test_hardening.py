@@ -16,12 +16,13 @@ import time
 import httpx
 import pytest
 from conftest import LiveApi
-from test_api import FakeBus, _client, _demo_json, _locs, _names, _settings
+from conftest import api_settings as _settings
+from conftest import loopback_client as _client
+from test_api import _demo_json, _locs, _names
 
 from schemas import Demonstration
-from services.app import BusEvents, create_app
+from services.app import create_app
 from services.learner_pool import LearnerPool, LearningCancelled, LearningTimedOut
-from services.store import Store
 from skills.synthetic import plane_slide
 
 SLOW_OPTIONS = {"n_basis": 500, "max_basis": 1000, "basis_per_second": 200, "max_fit_samples": 100_000}
@@ -31,23 +32,6 @@ SLOW_OPTIONS = {"n_basis": 500, "max_basis": 1000, "basis_per_second": 200, "max
 @pytest.fixture(scope="module")
 def demo() -> dict:
     return _demo_json()
-
-
-@pytest.fixture
-def client(tmp_path):
-    with _client(create_app(_settings(tmp_path), bus=None)) as c:
-        yield c
-
-
-@pytest.fixture
-def bus_client(tmp_path):
-    store = Store(tmp_path / "api.db")
-    events = BusEvents(store)
-    bus = FakeBus(events.on_status, events.on_telemetry, events.on_worker_lost)
-    with _client(create_app(_settings(tmp_path), bus=bus, store=store)) as c:
-        c.bus = bus
-        yield c
-    store.close()
 
 
 def _slow_demonstration_json() -> str:

@@ -1,0 +1,210 @@
+"""The service under load (issue 13): concurrent learns against /health latency, and the execution queue.
+
+Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--executions 20]``; writes the
+``bench_service_load`` section of docs/BENCHMARKS.md.
+
+1. Learning under load: ``contact-skills up --workers 2`` (a real uvicorn API, its learner processes, temp SQLite);
+   a 10 s 1 kHz demonstration (``skills.synthetic.plane_slide(duration_s=10)``) is stored, then ``--learns``
+   ``POST /skills`` (``demonstration_id``) are sent at once from as many client threads, while another thread
+   asks ``GET /health`` every 50 ms. Reported: the learns' wall time and throughput, their client latency, and
+   /health's p50/p99/max during the whole burst. Target: /health p99 < 100 ms.
+2. Queue wait: ``contact-skills up --workers N`` (N = 1, 2): one scripted slide demonstration is recorded and
+   learned, then ``--executions`` executions (pace fast) are submitted at once from as many threads; the
+   executions list is polled every 0.1 s. Queue wait = first poll that shows a worker for it minus its
+   submission; makespan = first submission to last finish.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.bench_service import RECORD_OVERRIDES, SCENARIO, demonstration_body, running
+from benchmarks.report import machine_line, pin_blas_threads, write_section
+
+pin_blas_threads()
+
+import httpx  # noqa: E402
+import numpy as np  # noqa: E402
+
+from services.local_processes import free_port  # noqa: E402
+
+HEALTH_EVERY_S = 0.05
+HEALTH_TARGET_P99_S = 0.100
+POLL_S = 0.25
+FINAL = ("done", "aborted", "failed")
+
+
+def _up(workers: int, tmp: str) -> tuple[list[str], str]:
+    port, zenoh_port = free_port(), free_port()
+    argv = ["up", "--workers", str(workers), "--port", str(port), "--zenoh-port", str(zenoh_port),
+            "--db", f"{tmp}/load-{workers}.db", "--log-level", "warning"]  # fmt: skip
+    return argv, f"http://127.0.0.1:{port}"
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1000:.0f}" if seconds >= 0.1 else f"{seconds * 1000:.1f}"
+
+
+def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
+    with tempfile.TemporaryDirectory() as tmp:
+        argv, url = _up(2, tmp)
+        limits = httpx.Limits(max_connections=learns + 8)
+        with running(argv, url, workers=2), httpx.Client(base_url=url, timeout=600, limits=limits) as http:
+            demo_id = http.post("/demonstrations", json=demonstration_body()).json()["id"]
+            assert http.post("/skills", json={"demonstration_id": demo_id}).status_code == 201  # warm-up
+            single = time.perf_counter()
+            assert http.post("/skills", json={"demonstration_id": demo_id}).status_code == 201
+            single = time.perf_counter() - single
+            health: list[float] = []
+            stop = threading.Event()
+
+            def poll_health() -> None:
+                while not stop.is_set():
+                    started = time.perf_counter()
+                    http.get("/health", timeout=30).raise_for_status()
+                    health.append(time.perf_counter() - started)
+                    stop.wait(HEALTH_EVERY_S)
+
+            def learn(_: int) -> tuple[int, float]:
+                started = time.perf_counter()
+                response = http.post("/skills", json={"demonstration_id": demo_id})
+                return response.status_code, time.perf_counter() - started
+
+            poller = threading.Thread(target=poll_health)
+            poller.start()
+            started = time.perf_counter()
+            with ThreadPoolExecutor(learns) as pool:
+                results = list(pool.map(learn, range(learns)))
+            wall = time.perf_counter() - started
+            stop.set()
+            poller.join()
+            stats = http.get("/health").json()["learning"]
+    codes = [code for code, _ in results]
+    latency = np.array([t for _, t in results])
+    h = np.array(health)
+    p99 = float(np.percentile(h, 99))
+    rows = [
+        f"| {learns} at once | {codes.count(201)} / {learns} | {wall:.1f} | {learns / wall:.2f} | "
+        f"{np.median(latency):.2f} / {latency.max():.2f} | {len(h)} | {_ms(np.median(h))} / {_ms(p99)} / "
+        f"{_ms(h.max())} | {'MET' if p99 < HEALTH_TARGET_P99_S else 'NOT MET'} |",
+    ]
+    return rows, {"single": single, "wall": wall, "health_p99": p99, "processes": stats["processes"],
+                  "ok": codes.count(201), "learns": learns}  # fmt: skip
+
+
+def bench_queue(workers: int, executions: int) -> tuple[str, dict[str, float]]:
+    with tempfile.TemporaryDirectory() as tmp:
+        argv, url = _up(workers, tmp)
+        with running(argv, url, workers=workers), httpx.Client(base_url=url, timeout=120) as http:
+            record = {"scenario": SCENARIO, "seed": 0, "overrides": RECORD_OVERRIDES}
+            demo_id = http.post("/demonstrations/record", json=record).json()["id"]
+            skill_id = http.post("/skills", json={"demonstration_id": demo_id}).json()["id"]
+
+            def submit(_: int) -> tuple[float, dict]:
+                sent = time.perf_counter()
+                response = http.post("/executions", json={"skill_id": skill_id, "pace": "fast"})
+                return sent, {"code": response.status_code, **response.json()}
+
+            with ThreadPoolExecutor(executions) as pool:
+                submitted = list(pool.map(submit, range(executions)))
+            first = min(sent for sent, _ in submitted)
+            sent_at = {reply["id"]: sent for sent, reply in submitted if reply["code"] == 202}
+            queued = sum(reply.get("status") == "queued" for _, reply in submitted)
+            assigned: dict[str, float] = {}
+            ran_on: dict[str, str] = {}
+            finished: dict[str, str] = {}
+            last = first
+            deadline = time.monotonic() + 60 + 15 * executions
+            while len(finished) < len(sent_at) and time.monotonic() < deadline:
+                now = time.perf_counter()
+                for view in http.get("/executions", params={"limit": 1000}).json():
+                    if view["id"] not in sent_at:
+                        continue
+                    if view["worker_id"] is not None:
+                        assigned.setdefault(view["id"], now)
+                        ran_on[view["id"]] = view["worker_id"]
+                    if view["status"] in FINAL:
+                        finished.setdefault(view["id"], view["status"])
+                        last = now
+                time.sleep(POLL_S)
+    waits = np.array([assigned[e] - sent_at[e] for e in assigned])
+    makespan = last - first
+    done = sum(status == "done" for status in finished.values())
+    per_worker = " / ".join(str(n) for n in sorted(Counter(ran_on.values()).values(), reverse=True))
+    row = (
+        f"| {workers} | {executions} | {len(sent_at)} | {queued} | {np.median(waits):.1f} | {waits.max():.1f} | "
+        f"{makespan:.1f} | {60 * done / makespan:.1f} | {per_worker} | done {done} |"
+    )
+    return row, {"accepted": len(sent_at), "done": done, "wait_max": float(waits.max()), "makespan": makespan}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--learns", type=int, default=50)
+    parser.add_argument("--executions", type=int, default=20)
+    args = parser.parse_args()
+    learn_rows, learning = bench_learns(args.learns)
+    queue_rows, queues = [], {}
+    for workers in (1, 2):
+        row, numbers = bench_queue(workers, args.executions)
+        queue_rows.append(row)
+        queues[workers] = numbers
+        print(row, flush=True)
+    options = (
+        "" if (args.learns, args.executions) == (50, 20) else f" --learns {args.learns} --executions {args.executions}"
+    )
+    command = f"`.venv/bin/python benchmarks/bench_service_load.py{options}`"
+    sentences = [
+        f"{learning['ok']} of {learning['learns']} learns answered 201 in {learning['wall']:.1f} s on "
+        f"{learning['processes']} learner processes ({learning['learns'] / learning['wall']:.2f} learns/s; one alone "
+        f"took {learning['single']:.2f} s); /health p99 during the burst: {learning['health_p99'] * 1000:.0f} ms.",
+        *(
+            f"{workers} worker(s): {q['accepted']} of {args.executions} executions accepted (none refused for "
+            f"lack of a free worker), {q['done']} done, the longest queue wait {q['wait_max']:.1f} s, all finished "
+            f"{q['makespan']:.1f} s after the first submission."
+            for workers, q in queues.items()
+        ),
+    ]
+    body = "\n".join(
+        [
+            "## Service under load: concurrent learns, /health, the execution queue",
+            "",
+            f"Reproduce: {command} (real processes on loopback: `contact-skills up --workers N`, temp SQLite).",
+            machine_line(),
+            "",
+            f"Learning: a 10 s 1 kHz demonstration stored once, then `POST /skills` (`demonstration_id`) sent at once "
+            f"from {args.learns} client threads while `GET /health` is asked every {HEALTH_EVERY_S * 1000:.0f} ms. "
+            f"Target: /health p99 < {HEALTH_TARGET_P99_S * 1000:.0f} ms.",
+            "",
+            "| learns | 201 | wall s | learns/s | client latency median / max s | /health samples | "
+            "/health p50 / p99 / max ms | target |",
+            "| --- | --- | ---: | ---: | --- | ---: | --- | --- |",
+            *learn_rows,
+            "",
+            f"Queue: a `{SCENARIO}` demonstration recorded by a worker (overrides {RECORD_OVERRIDES}) and learned, "
+            f"then {args.executions} executions (pace fast) submitted at once; queue wait = first poll (every "
+            f"{POLL_S:g} s) showing a worker minus the submission.",
+            "",
+            "| workers | submitted | accepted (202) | queued on submission | queue wait median s | max s | "
+            "makespan s | executions/min | executions per worker | outcome |",
+            "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |",
+            *queue_rows,
+            "",
+            *sentences,
+        ]
+    )
+    print(body)
+    write_section("bench_service_load", body)
+
+
+if __name__ == "__main__":
+    main()
