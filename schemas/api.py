@@ -233,6 +233,11 @@ class ExecutionView(BaseModel):
     telemetry_key: str = Field(description="Zenoh key expression of its telemetry.")
     telemetry_batches: int = Field(description="Telemetry batches stored so far.")
     telemetry_samples: int = Field(description="Telemetry samples (control steps) stored so far.")
+    telemetry_missing_samples: int | None = Field(
+        None,
+        description="Once finished: control steps the worker ran whose telemetry was never stored (published while "
+        "the API was down), 0 when the stream is complete.",
+    )
     request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
     priority: int = Field(0, description="Its queue priority.")
     queue_position: int | None = Field(

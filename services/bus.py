@@ -189,6 +189,28 @@ class BusClient:
             infos[worker_id] = WorkerInfo(worker_id=worker_id, busy=True, activity="unknown")
         return [infos[w] for w in sorted(infos)]
 
+    def latest_statuses(self, timeout_s: float = INFO_TIMEOUT_S) -> dict[str, ExecutionStatus]:
+        """The latest status of every execution the connected workers ran recently (their status queryables keep
+        the last ``STATUS_CACHE``), by execution id: how runs ended while this client was not listening."""
+        import zenoh
+
+        latest: dict[str, ExecutionStatus] = {}
+        replies = self._session.get(
+            self.keys.status("*"), timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE
+        )
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                status = ExecutionStatus.model_validate_json(reply.ok.payload.to_bytes())
+            except ValueError:
+                log.warning("bad status reply on %s", reply.ok.key_expr)
+                continue
+            known = latest.get(status.execution_id)
+            if known is None or status.seq > known.seq:
+                latest[status.execution_id] = status
+        return latest
+
     def _candidates(self) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
         """(all workers, the free ones in the order to try: fewest executions run first, then round robin)."""
         everyone = self.workers()

@@ -47,6 +47,22 @@ FINAL_TELEMETRY_GRACE_S = 2.0
 """How long a final status waits for the last telemetry batches (another Zenoh key, no order between them), s."""
 
 
+def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -> bool:
+    """Apply a worker's status to its (active) execution: state, phase, worker, metrics, error (the abort reason
+    when it gives none). True if applied."""
+    error = status.error
+    if error is None and status.metrics is not None and status.metrics.abort_reason:
+        error = status.metrics.abort_reason
+    return store.update_execution(
+        status.execution_id,
+        status=state,
+        phase=status.phase,
+        worker_id=status.worker_id,
+        metrics=status.metrics.model_dump(mode="json") if status.metrics is not None else None,
+        error=error,
+    )
+
+
 class BusEvents:
     """The callbacks given to the `BusClient`: status, telemetry and lost workers go into the store.
 
@@ -82,17 +98,7 @@ class BusEvents:
         self._store_status(status, state)
 
     def _store_status(self, status: ExecutionStatus, state: ExecutionState) -> None:
-        error = status.error
-        if error is None and status.metrics is not None and status.metrics.abort_reason:
-            error = status.metrics.abort_reason
-        self.store.update_execution(
-            status.execution_id,
-            status=state,
-            phase=status.phase,
-            worker_id=status.worker_id,
-            metrics=status.metrics.model_dump(mode="json") if status.metrics is not None else None,
-            error=error,
-        )
+        store_status(self.store, status, state)
 
     def _telemetry_complete(self, status: ExecutionStatus) -> bool:
         if status.metrics is None:
@@ -121,8 +127,11 @@ class BusEvents:
 
 def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOVERY_S) -> list[str]:
     """Executions left starting/running by a previous API process: keep those a live worker reports running
-    (``WorkerInfo.execution_id``; their statuses keep arriving), put those still being handed over back in the
-    queue (``services.queue``), mark the rest failed (:data:`RESTART_REASON`). Returns the ids marked failed."""
+    (``WorkerInfo.execution_id``; their statuses keep arriving), store the final status of those that ended while
+    no API listened (the workers' status queryables keep it: a run that finished is ``done``, not failed; the
+    telemetry it published meanwhile is missing, and ``ExecutionView.telemetry_missing_samples`` says how much),
+    put those still being handed over back in the queue (``services.queue``), mark the rest failed
+    (:data:`RESTART_REASON`). Returns the ids marked failed."""
     active = store.active_executions()
     if not active:
         return []
@@ -137,9 +146,14 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
             if wanted <= seen or time.monotonic() >= deadline:
                 break
             time.sleep(0.1)
+    ended = {} if bus is None else bus.latest_statuses()
     marked = []
     for row in active:
         if row.id in running or (row.status is ExecutionState.starting and store.requeue(row.id)):
+            continue
+        status = ended.get(row.id)
+        if status is not None and status.final and store_status(store, status, FINAL_STATES[status.phase]):
+            log.warning("execution %s ended %s while no API listened", row.id, status.phase.value)
             continue
         if store.update_execution(
             row.id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=RESTART_REASON

@@ -65,6 +65,9 @@ class FakeBus:
         self.started.append((execution_id, request))
         return self.infos[0].worker_id
 
+    def latest_statuses(self) -> dict:
+        return {}
+
     def send_command(self, execution_id, command) -> None:
         self.commands.append((execution_id, command))
 

@@ -392,3 +392,43 @@ def test_sigterm_aborts_the_execution_and_exits_0(bus, skill):
     finally:
         bus_client.close()
         _stop(process)
+
+
+def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_reports_the_gap(bus, skill, tmp_path):
+    """The API's bus side (BusClient + BusEvents on a store) goes away mid-run; the run finishes on the real
+    worker; a new API process reconciles: the run is done with its metrics, and the missing telemetry is counted."""
+    from conftest import api_settings, loopback_client
+
+    from services.app import BusEvents, create_app
+    from services.bus_events import reconcile
+    from services.store import Store
+
+    endpoint, _ = bus
+    store = Store(tmp_path / "api.db")
+    events = BusEvents(store)
+    first = BusClient(BusSettings(endpoints=[endpoint]), events.on_status, events.on_telemetry, events.on_worker_lost)
+    try:
+        _wait(lambda: len(first.workers()) == 2 and not any(w.busy for w in first.workers()), what="two free workers")
+        row = store.add_execution({"skill": "inline"}, None)
+        worker = first.start_execution(row.id, _request(skill, pace="realtime"))
+        store.mark_started(row.id, worker)
+        _wait(lambda: store.telemetry_counts(row.id)[1] > 200, what="telemetry stored")
+    finally:
+        first.close()  # the API dies mid-run
+    recorder = Recorder()
+    second = BusClient(BusSettings(endpoints=[endpoint]), recorder.on_status, recorder.on_telemetry,
+                       recorder.on_worker_lost)  # fmt: skip
+    try:
+        _wait(lambda: not next(w for w in second.workers() if w.worker_id == worker).busy, 30, "the run to end")
+        assert store.execution(row.id).status.value == "running"
+        assert reconcile(store, second) == []  # nothing marked failed: the worker told how it ended
+    finally:
+        second.close()
+    ended = store.execution(row.id)
+    assert ended.status.value == "done" and ended.metrics is not None and ended.worker_id == worker
+    stored = store.telemetry_counts(row.id)[1]
+    assert 200 < stored < ended.metrics["steps"]
+    with loopback_client(create_app(api_settings(tmp_path, learn_warm_up=False), bus=None, store=store)) as c:
+        view = c.get(f"/executions/{row.id}").json()
+    assert view["telemetry_missing_samples"] == ended.metrics["steps"] - stored > 0
+    store.close()

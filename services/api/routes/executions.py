@@ -82,6 +82,7 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         telemetry_key=keys.telemetry(row.id),
         telemetry_batches=batches,
         telemetry_samples=samples,
+        telemetry_missing_samples=max(0, row.metrics["steps"] - samples) if row.metrics else None,
         request=row.request,
         priority=row.priority,
         queue_position=position,
