@@ -11,7 +11,7 @@ from enum import StrEnum
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from schemas.arrays import bounded_rows, finite_rows, strictly_increasing
 
@@ -37,6 +37,16 @@ QUATERNION_NORM_TOLERANCE = 0.01
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Quaternion = Annotated[list[float], Field(min_length=4, max_length=4)]
 Wrench = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+
+_PLAUSIBLE: dict[str, list[tuple[slice, float, str, str]]] = {
+    "positions": [(slice(0, 3), MAX_POSITION_M, "m", " (is the recording in millimetres? positions are in m)")],
+    "wrenches": [
+        (slice(0, 3), MAX_FORCE_N, "N", " (forces are in N)"),
+        (slice(3, 6), MAX_MOMENT_NM, "N·m", " (moments are in N·m)"),
+    ],
+}
+"""Per array field: the columns, their magnitude bound, unit and the hint of the error."""
 
 
 def _bounded_number(limit: float) -> dict[str, Any]:
@@ -174,22 +184,14 @@ class Demonstration(BaseModel):
             )
         return value
 
-    @field_validator("positions")
+    @field_validator("positions", "wrenches")
     @classmethod
-    def _positions_are_plausible(cls, value: list[list[float]]) -> list[list[float]]:
+    def _rows_are_plausible(cls, value: list[list[float]], info: ValidationInfo) -> list[list[float]]:
         array = np.asarray(value, dtype=float)
         finite_rows(array, "row")
-        bounded_rows(array, MAX_POSITION_M, "row", "m", " (is the recording in millimetres? positions are in m)")
-        return value
-
-    @field_validator("wrenches")
-    @classmethod
-    def _wrenches_are_plausible(cls, value: list[list[float]]) -> list[list[float]]:
-        array = np.asarray(value, dtype=float)
-        finite_rows(array, "row")
-        if array.ndim == 2 and array.shape[1] == 6:
-            bounded_rows(array[:, :3], MAX_FORCE_N, "row", "N", " (forces are in N)")
-            bounded_rows(array[:, 3:], MAX_MOMENT_NM, "row", "N·m", " (moments are in N·m)")
+        for columns, limit, unit, hint in _PLAUSIBLE[info.field_name]:
+            if array.ndim == 2 and array.shape[1] >= columns.stop:
+                bounded_rows(array[:, columns], limit, "row", unit, hint)
         return value
 
     @field_validator("orientations")

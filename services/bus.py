@@ -170,19 +170,7 @@ class BusClient:
     def workers(self, timeout_s: float = INFO_TIMEOUT_S) -> list[WorkerInfo]:
         """The connected workers, sorted by id: each one's own ``WorkerInfo`` (activity ``unknown`` and busy if a
         live worker did not answer its info query in time)."""
-        infos: dict[str, WorkerInfo] = {}
-        import zenoh
-
-        replies = self._session.get(self.keys.info("*"), timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE)
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            try:
-                info = WorkerInfo.model_validate_json(reply.ok.payload.to_bytes())
-            except ValueError:
-                log.warning("bad worker info on %s", reply.ok.key_expr)
-                continue
-            infos[info.worker_id] = info
+        infos = {info.worker_id: info for info in self._ask_all(self.keys.info("*"), WorkerInfo, timeout_s)}
         with self._lock:
             alive = set(self._alive)
         for worker_id in alive - set(infos):
@@ -192,24 +180,26 @@ class BusClient:
     def latest_statuses(self, timeout_s: float = INFO_TIMEOUT_S) -> dict[str, ExecutionStatus]:
         """The latest status of every execution the connected workers ran recently (their status queryables keep
         the last ``STATUS_CACHE``), by execution id: how runs ended while this client was not listening."""
-        import zenoh
-
         latest: dict[str, ExecutionStatus] = {}
-        replies = self._session.get(
-            self.keys.status("*"), timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE
-        )
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            try:
-                status = ExecutionStatus.model_validate_json(reply.ok.payload.to_bytes())
-            except ValueError:
-                log.warning("bad status reply on %s", reply.ok.key_expr)
-                continue
+        for status in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s):
             known = latest.get(status.execution_id)
             if known is None or status.seq > known.seq:
                 latest[status.execution_id] = status
         return latest
+
+    def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Any]:
+        """Every valid reply (as ``model``) of every queryable on ``key``; bad replies are logged and skipped."""
+        import zenoh
+
+        answers = []
+        for reply in self._session.get(key, timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE):
+            if reply.ok is None:
+                continue
+            try:
+                answers.append(model.model_validate_json(reply.ok.payload.to_bytes()))
+            except ValueError:
+                log.warning("bad %s on %s", model.__name__, reply.ok.key_expr)
+        return answers
 
     def _candidates(self) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
         """(all workers, the free ones in the order to try: fewest executions run first, then round robin)."""
