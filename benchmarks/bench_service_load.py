@@ -17,6 +17,7 @@ Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--execut
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import threading
@@ -152,7 +153,9 @@ def main() -> None:
     parser.add_argument("--learns", type=int, default=50)
     parser.add_argument("--executions", type=int, default=20)
     args = parser.parse_args()
+    load_before = os.getloadavg()[0]
     learn_rows, learning = bench_learns(args.learns)
+    load_learning = os.getloadavg()[0]
     queue_rows, queues = [], {}
     for workers in (1, 2):
         row, numbers = bench_queue(workers, args.executions)
@@ -174,6 +177,12 @@ def main() -> None:
             for workers, q in queues.items()
         ),
     ]
+    load_after = os.getloadavg()[0]
+    sentences.append(
+        f"Load average (1 min) before the run {load_before:.1f}, after the learns {load_learning:.1f}, at the end "
+        f"{load_after:.1f} on {os.cpu_count()} cores: other jobs share this machine, and every process here competes "
+        "with them for the same cores."
+    )
     body = "\n".join(
         [
             "## Service under load: concurrent learns, /health, the execution queue",
