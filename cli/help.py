@@ -32,8 +32,18 @@ EXAMPLES: dict[str, list[str]] = {
         "contact-skills export demo_3f2a9c01b2d4 -o scratch/demo.csv --t0 2 --t1 6",
         "contact-skills export scratch/slide_tilted.csv -o scratch/slide_tilted.mcap   # a local file, no API",
     ],
-    "router": ["contact-skills router --listen tcp/127.0.0.1:7447"],
-    "worker": ["contact-skills worker --connect tcp/127.0.0.1:7447 --id worker-a"],
+    "router": [
+        "contact-skills router --listen tcp/127.0.0.1:7447",
+        "contact-skills router --listen tls/0.0.0.0:7447 --users bus-keys/users.txt --tls-cert bus-keys/router.pem "
+        "--tls-key bus-keys/router.key",
+    ],
+    "bus-keys": [
+        "contact-skills bus-keys bus-keys --host sim-router.lan --workers 2 --endpoint tls/sim-router.lan:7447",
+    ],
+    "worker": [
+        "contact-skills worker --connect tcp/127.0.0.1:7447 --id worker-a",
+        "contact-skills worker --connect tls/sim-router.lan:7447 --zenoh-user worker-1 --tls-ca bus-keys/ca.pem",
+    ],
     "watch": [
         "contact-skills watch exec_0c1d2e3f4a5b",
         "contact-skills watch exec_0c1d2e3f4a5b --timeout 60 --url http://127.0.0.1:8000",

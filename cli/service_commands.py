@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import secrets
 import sys
 import threading
 from pathlib import Path
@@ -169,8 +170,9 @@ class _Child:
             return self.process.wait()
 
 
-def _not_ready(url: str, api: _Child, stop: threading.Event, timeout_s: float) -> str | None:
-    """None once THIS API (its pid) answers ``/health``; else why not (stopped, exited, another process, timeout)."""
+def _not_ready(url: str, api: _Child, instance: str, stop: threading.Event, timeout_s: float) -> str | None:
+    """None once THIS API (its ``instance``) answers ``/health``; else why not (stopped, exited, another process,
+    timeout)."""
     import json
     import time
     import urllib.request
@@ -181,10 +183,10 @@ def _not_ready(url: str, api: _Child, stop: threading.Event, timeout_s: float) -
             return f"the API exited ({_exit_text(api.exit_code())})"
         try:
             with urllib.request.urlopen(url + "/health", timeout=2) as response:
-                pid = json.loads(response.read()).get("pid")
-                if pid == api.process.pid:
+                answered = json.loads(response.read()).get("instance")
+                if answered == instance:
                     return None
-                return f"{url} is answered by another process (pid {pid}), not this API (pid {api.process.pid})"
+                return f"{url} is answered by another process, not this API (pid {api.process.pid})"
         except (OSError, ValueError):
             pass
         stop.wait(0.2)
@@ -245,7 +247,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     base = [sys.executable, "-m", "cli.main"]
     api_argv = [*base, "api", "--host", settings.host, "--port", str(settings.port), "--db", str(settings.db_path),
                 "--connect", listen, "--log-level", args.log_level]  # fmt: skip
-    api = _Child("api", api_argv, env, printer, preexec)
+    instance = secrets.token_hex(8)  # how `up` knows ITS API answers /health (which shows no pid without the token)
+    api = _Child("api", api_argv, {**env, "CONTACT_SKILLS_INSTANCE": instance}, printer, preexec)
     workers = [_Child(f"worker-{k + 1}", [*base, "worker"], env, printer, preexec) for k in range(settings.workers)]
     code = 0
     try:
@@ -257,7 +260,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             for worker in workers:
                 worker.start()
             url = f"http://{settings.host}:{settings.port}"
-            reason = _not_ready(url, api, stop, READY_TIMEOUT_S)
+            reason = _not_ready(url, api, instance, stop, READY_TIMEOUT_S)
             if reason is None:
                 printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}")
                 code = _supervise(api, workers, stop, printer)

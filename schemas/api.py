@@ -291,6 +291,7 @@ class Health(BaseModel):
     status: str = Field("ok", description="Always ok when the API answers.")
     version: str
     started_unix_s: float = Field(description="When this API process started, Unix s.")
+    instance: str = Field(description="A random name of this API process (set by `contact-skills up` for its API).")
     bus_connected: bool = Field(description="Whether the API has a Zenoh session (false: executions get 503).")
     zenoh_endpoints: list[str] = Field(description="The router endpoints the API connects to.")
     workers: list[WorkerSummary] = Field(description="The sim workers connected now.")

@@ -40,6 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
 from services.cdr import pose_stamped, wrench_stamped
 from services.csv_import import (
     DemonstrationImportError,
@@ -457,7 +458,11 @@ def demonstration_from_bag(
     )
     wrench_group = preprocess.stream_samples((np.asarray(bag.wrench.stamps_ns, dtype=np.int64) - t0) * 1e-9, wrenches)
     try:
-        resampled = preprocess.recording_from_groups(pose_group, wrench_group, rate)
+        resampled = preprocess.recording_from_groups(
+            pose_group, wrench_group, rate, max_samples=MAX_DEMONSTRATION_SAMPLES
+        )
+    except preprocess.TooManySamples as exc:  # bounded like the CSV import: the grid is never built
+        raise BagImportError(f"{'rate' if rate is not None else 'file'}: {exc}") from None
     except ValueError as exc:
         raise BagImportError(f"file: cannot align the pose and the wrench on one time base: {exc}") from None
     recording = RecordingSamples(

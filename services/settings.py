@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import os
+import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -52,6 +53,7 @@ ENV_VARS: dict[str, str] = {
     "learn_timeout_s": "CONTACT_SKILLS_LEARN_TIMEOUT_S",
     "learn_memory_mb": "CONTACT_SKILLS_LEARN_MEMORY_MB",
     "queue_max": "CONTACT_SKILLS_QUEUE_MAX",
+    "instance": "CONTACT_SKILLS_INSTANCE",
 }
 """Setting name -> the environment variable that sets it."""
 
@@ -99,6 +101,8 @@ class ServiceSettings:
     learn_warm_up: bool = True
     """Start the learner processes when the API starts (tests that never learn turn it off)."""
     queue_max: int = 1000
+    instance: str = field(default_factory=lambda: secrets.token_hex(8))
+    """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:

@@ -316,6 +316,7 @@ def resampled_recording(
         position_method,
         n_rows_out_of_order=int(np.count_nonzero(~in_order)),
         n_duplicate_stamps=int(np.count_nonzero(np.diff(t) == 0)),
+        max_samples=max_samples,
     )
 
 
@@ -348,10 +349,12 @@ def recording_from_groups(
     position_method: PositionMethod = "cubic",
     n_rows_out_of_order: int = 0,
     n_duplicate_stamps: int = 0,
+    max_samples: int | None = None,
 ) -> ResampledRecording:
     """Interpolate a pose group (values: position (m) then scalar-last quaternion) and a wrench group onto one
     uniform grid at ``rate_hz`` (default :func:`default_rate_hz`) over the span where both have measurements
-    (no extrapolation): positions by ``position_method``, orientations by slerp, wrenches linearly."""
+    (no extrapolation): positions by ``position_method``, orientations by slerp, wrenches linearly.
+    ``max_samples``: raise :class:`TooManySamples` before building a longer grid."""
     if rate_hz is None:
         if pose.t.size < 2 and wrench.t.size < 2:
             raise ValueError("cannot choose a resampling rate: no channel changes over time")

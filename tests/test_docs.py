@@ -15,7 +15,7 @@ from services.settings import ServiceSettings
 @pytest.fixture(scope="module")
 def client(tmp_path_factory):
     settings = ServiceSettings(db_path=tmp_path_factory.mktemp("docs") / "docs.db")
-    with TestClient(create_app(settings, bus=None)) as c:
+    with TestClient(create_app(settings, bus=None), base_url="http://127.0.0.1") as c:  # a loopback API's Host
         yield c
 
 

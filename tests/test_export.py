@@ -53,7 +53,8 @@ def stored(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def client(stored):
-    with TestClient(create_app(ServiceSettings(db_path=stored["path"]), bus=None, store=stored["store"])) as c:
+    app = create_app(ServiceSettings(db_path=stored["path"]), bus=None, store=stored["store"])
+    with TestClient(app, base_url="http://127.0.0.1") as c:  # a loopback API answers loopback names only
         yield c
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -29,8 +30,6 @@ from services.local_processes import free_port as _free_port  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
 FINAL = ("done", "aborted", "failed")
-TOKEN = "stack-token"
-"""The stack runs with a token: the tests read process ids from the health details it unlocks."""
 
 
 def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str, every_s: float = 0.2):
@@ -65,15 +64,16 @@ class Stack:
         self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
         self.log_path = tmp / "up.log"
         self.log = self.log_path.open("w")
-        env = {**os.environ, "PYTHONPATH": str(REPO), "CONTACT_SKILLS_TOKEN": TOKEN}
-        for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "CONTACT_SKILLS_TOKEN_READS"):
+        env = {**os.environ, "PYTHONPATH": str(REPO)}
+        for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "CONTACT_SKILLS_TOKEN",
+                     "CONTACT_SKILLS_TOKEN_READS"):  # fmt: skip
             env.pop(name, None)  # `up` sets the thread limits of its children itself
         argv = ["up", "--workers", "2", "--port", str(self.port), "--zenoh-port", str(self.zenoh_port),
                 "--db", str(tmp / "service.db")]  # fmt: skip
         self.process = subprocess.Popen(
             [sys.executable, "-m", "cli.main", *argv], cwd=tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT
         )
-        self.http = httpx.Client(base_url=self.url, timeout=60, headers={"Authorization": f"Bearer {TOKEN}"})
+        self.http = httpx.Client(base_url=self.url, timeout=60)
 
     def health(self) -> dict | None:
         if self.process.poll() is not None:
@@ -82,6 +82,14 @@ class Stack:
             return self.http.get("/health", timeout=5).json()
         except httpx.HTTPError:
             return None
+
+    def api_pid(self) -> int:
+        """The process id of the API `up` started last (from its log: /health shows none without a token)."""
+        return int(re.findall(r"started api \(pid (\d+)\)", self.log_path.read_text())[-1])
+
+    def pids(self) -> list[int]:
+        """The API's and the connected workers' process ids (a worker's id ends with its pid)."""
+        return [self.api_pid(), *(int(w["worker_id"].rsplit("-", 1)[1]) for w in self.health()["workers"])]
 
     def workers(self, n: int = 2, timeout_s: float = 90) -> list[dict]:
         def ready():
@@ -233,7 +241,7 @@ def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
 
 def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack, skill_id):
     stack.workers(2)
-    workers = {w["worker_id"]: w["pid"] for w in stack.health()["detail"]["workers"]}
+    workers = {w["worker_id"]: int(w["worker_id"].rsplit("-", 1)[1]) for w in stack.health()["workers"]}
     created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
     _wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
     os.kill(workers[created["worker_id"]], signal.SIGKILL)
@@ -252,9 +260,9 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
     before = {path: stack.http.get(path).json() for path in ("/demonstrations", "/skills", "/executions?limit=1000")}
     running = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
     _wait_for(lambda: stack.execution(running["id"])["telemetry_samples"] > 200, 30, "the execution to run")
-    api_pid = stack.health()["detail"]["pid"]
+    api_pid = stack.api_pid()
     os.kill(api_pid, signal.SIGKILL)  # `up` restarts it on the same database
-    _wait_for(lambda: (h := stack.health()) and h["detail"]["pid"] != api_pid, 60, "the API to restart")
+    _wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
 
     after = {path: stack.http.get(path).json() for path in before}
     assert after["/demonstrations"] == before["/demonstrations"]
@@ -312,9 +320,9 @@ def test_the_queue_survives_an_api_restart(stack, skill_id):
     busy = [stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202) for _ in range(2)]
     waiting = stack.post("/executions", {"skill_id": skill_id}, 202)
     assert waiting["status"] == "queued"
-    api_pid = stack.health()["detail"]["pid"]
+    api_pid = stack.api_pid()
     os.kill(api_pid, signal.SIGKILL)
-    _wait_for(lambda: (h := stack.health()) and h["detail"]["pid"] != api_pid, 60, "the API to restart")
+    _wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
     assert stack.execution(waiting["id"])["status"] in ("queued", "running")  # still there, in the database
     for execution in busy:
         stack.post(f"/executions/{execution['id']}/abort", {}, 202)
@@ -322,8 +330,7 @@ def test_the_queue_survives_an_api_restart(stack, skill_id):
 
 
 def test_up_limits_the_blas_threads_of_every_child(stack):
-    detail = stack.health()["detail"]
-    for pid in (detail["pid"], *(w["pid"] for w in detail["workers"])):
+    for pid in stack.pids():
         environ = dict(
             item.split("=", 1) for item in Path(f"/proc/{pid}/environ").read_text().split("\0") if "=" in item
         )
@@ -331,8 +338,7 @@ def test_up_limits_the_blas_threads_of_every_child(stack):
 
 
 def test_up_stops_cleanly_on_sigterm(stack):
-    detail = stack.health()["detail"]
-    pids = [detail["pid"], *(w["pid"] for w in detail["workers"])]
+    pids = stack.pids()
     assert stack.stop() == 0, stack.log_path.read_text()[-3000:]
     _wait_for(lambda: not any(_alive(pid) for pid in pids), 10, "every child to exit")
     log = stack.log_path.read_text()

@@ -40,6 +40,7 @@ def health(
     return Health(
         version=request.app.version,
         started_unix_s=request.app.state.started_unix_s,
+        instance=settings.instance,
         bus_connected=bus is not None,
         zenoh_endpoints=settings.zenoh_endpoints,
         workers=[WorkerSummary(**info.model_dump(include=set(WorkerSummary.model_fields))) for info in infos],
