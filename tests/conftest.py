@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cli.main import repository_data_directory
+from services.datasets import repository_data_directory
 
 KULEUVEN_DATA = repository_data_directory() / "kuleuven_contour"
 """The KU Leuven contour recordings vendored in the repository (``data/kuleuven_contour``, MIT licence)."""
