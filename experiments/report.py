@@ -38,6 +38,14 @@ def _impedance_stiffness() -> float:
     return float(ControllerGains().translational_stiffness_n_per_m[2])
 
 
+def _steady_delay_s() -> float:
+    """Where the steady contact the force errors cover starts after contact with the default gains, s."""
+    from schemas.execution import ControllerGains
+    from sim_worker.metrics import STEADY_CONTACT_DELAY_S
+
+    return max(STEADY_CONTACT_DELAY_S, ControllerGains().force_ramp_s)
+
+
 def _ours(outcomes: list[Outcome], case: Case) -> Outcome | None:
     return next((o for o in outcomes if o.case == case and o.controller == OURS), None)
 
@@ -502,7 +510,8 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
         "",
         "## How the rows are judged",
         "",
-        "Two force figures per row, over the steady contact (from 0.2 s after contact), in N and in % of the "
+        f"Two force figures per row, over the steady contact (from {_steady_delay_s():g} s after contact), in N "
+        "and in % of the "
         "learned force (slide: the constant; contour: the profile's peak): **true** = the force along the TRUE "
         "surface normal at the contact (the sum of the simulator's contact-point normal forces), what the work "
         "piece feels, whatever the learned compliant frame or the sensor say; **CF-z** = the measured force along "
