@@ -14,6 +14,7 @@ from pathlib import Path
 from experiments.cases import (
     BASELINE_FACTOR,
     CONTROLLERS,
+    FAIR_IMPEDANCE,
     FIGURE_NAMES,
     KULEUVEN_FORM,
     OURS,
@@ -66,12 +67,11 @@ def _against_ours(o: Outcome, outcomes: list[Outcome]) -> str:
 
 
 def _shifted_text(o: Outcome, outcomes: list[Outcome]) -> str:
-    """A baseline row with an unknown shift: its ratio to ours and where the guarded approach found the surface."""
-    if o.ratio is None:
-        return f"{o.final} ({o.case.label})"
+    """A baseline row with an unknown shift: its ratio to ours (or how it ended) and where the guarded approach
+    found the surface."""
     found = _found_text(o)
-    where = f", the guarded approach found the surface {found} from where it was taught" if found else ""
-    return f"{_against_ours(o, outcomes)} ({o.case.label}{where})"
+    where = f" (surface found {found} from where it was taught)" if found else ""
+    return (f"{_against_ours(o, outcomes)}" if o.ratio is not None else o.final) + where
 
 
 def explanations(outcomes: list[Outcome]) -> list[str]:
@@ -120,32 +120,41 @@ def explanations(outcomes: list[Outcome]) -> list[str]:
 
 
 def like_with_like(outcomes: list[Outcome]) -> list[str]:
-    """For each skill where ``impedance`` ran with an UNKNOWN shift: its ratios there beside those at the taught
-    geometry, and why only the latter compare the control laws (it keeps its reference at the taught surface)."""
+    """For each skill where the work piece moved WITHOUT telling the controller: ``impedance`` (its reference at
+    the taught surface) beside ``impedance_found_surface`` (re-based where the guarded approach found it) in the
+    same cases, and ``impedance`` at the taught geometry: the ratios that compare the control laws and those that
+    only measure the missing re-referencing."""
     notes = []
     for skill in dict.fromkeys(o.case.skill for o in outcomes):
-        rows = [o for o in outcomes if o.controller == "impedance" and o.case.skill == skill]
-        shifted = [o for o in rows if o.case.unknown_shift]
-        if not shifted:
+        rows = [o for o in outcomes if o.controller in ("impedance", FAIR_IMPEDANCE) and o.case.skill == skill]
+        shifted_cases = list(dict.fromkeys(o.case for o in rows if o.case.unknown_shift))
+        if not shifted_cases:
             continue
         taught = [o for o in rows if not o.case.unknown_shift]
-        text = f"**impedance, {shifted[0].case.spec.title}**: "
+        text = f"**{shifted_cases[0].spec.title}**: "
         if taught:
-            text += "at the taught geometry " + "; ".join(
+            text += "at the taught geometry, impedance " + "; ".join(
                 f"{_against_ours(o, outcomes)} ({o.case.label})" for o in taught
             )
-            text += "; "
-        text += "with an UNKNOWN shift " + "; ".join(_shifted_text(o, outcomes) for o in shifted) + ". "
-        text += (
-            "This baseline keeps its reference at the TAUGHT surface after the guarded approach found the moved "
-            "one, so the shifted ratios measure the missing re-referencing, not the force loop; "
-            + (
-                "like with like, the rows at the taught geometry compare the control laws."
-                if taught
-                else "no row at the taught geometry ran for this skill here."
-            )
+            text += ". "
+        text += "With an UNKNOWN shift: " + "; ".join(
+            f"{case.label}: "
+            + ", ".join(f"{o.controller} {_shifted_text(o, outcomes)}" for o in rows if o.case == case)
+            for case in shifted_cases
         )
-        notes.append(text)
+        fair = [o for o in rows if o.controller == FAIR_IMPEDANCE and o.case.unknown_shift]
+        text += (
+            ". `impedance` keeps its reference at the TAUGHT surface after the guarded approach found the moved "
+            f"one, so its shifted ratios measure the missing re-referencing; like with like, `{FAIR_IMPEDANCE}` "
+            "(re-based at the found surface) is the classical baseline there"
+        )
+        if fair and all(o.ratio is not None for o in fair):
+            text += (
+                f": ours is {_span([o.ratio for o in fair], 1, 'x')} better"
+                if min(o.ratio for o in fair) > 1.0
+                else f": it is {_span([o.ratio for o in fair], 1, 'x')} ours, not worse in every case"
+            )
+        notes.append(text + ".")
     return notes
 
 
@@ -489,8 +498,10 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
         "",
         f"Teacher seed {options.seed}. Controllers: `hybrid_cf` (ours, paper eq. 1-4: force control along the "
         "compliant frame's z), `impedance` (pure Cartesian impedance, the reference pushed f/k into the TAUGHT "
-        "surface; it keeps that reference when the guarded approach finds the surface elsewhere) and "
-        "`hybrid_world_z` (force control fixed to world z, as in earlier work).",
+        "surface; it keeps that reference when the guarded approach finds the surface elsewhere), "
+        "`hybrid_world_z` (force control fixed to world z, as in earlier work) and, where the work piece moved "
+        f"without telling the controller, `{FAIR_IMPEDANCE}` (the same impedance law re-based where the guarded "
+        "approach found the surface: the fair classical baseline there; no target).",
         "",
         "| skill (learned from) | case | known offset (moves skill and world) | unknown offset (world only) "
         "| work piece (as the worker reported) |",
