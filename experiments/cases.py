@@ -401,6 +401,8 @@ class DemoReport:
     results_path: Path | None = None
     figures: list[Path] = field(default_factory=list)
     service: str = ""
+    traces: dict[tuple[Case, str], Any] = field(default_factory=dict)
+    """Every execution's telemetry (``services.figures.Trace``) by (case, controller)."""
 
     @property
     def all_finished(self) -> bool:

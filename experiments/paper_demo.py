@@ -96,7 +96,7 @@ def run_demo(options: DemoOptions) -> DemoReport:
             live.close()
     started = time.perf_counter()
     verdicts = judge(jobs)
-    report = DemoReport(jobs, verdicts, skills, timings, service=description)
+    report = DemoReport(jobs, verdicts, skills, timings, service=description, traces=traces)
     report.figures = write_figures(options.out, skills, jobs, traces)
     timings["figures"] = time.perf_counter() - started
     timings["total"] = time.perf_counter() - t_total

@@ -119,7 +119,7 @@ def explanations(outcomes: list[Outcome]) -> list[str]:
     return notes
 
 
-def like_with_like(outcomes: list[Outcome]) -> list[str]:
+def like_with_like(outcomes: list[Outcome], traces: dict) -> list[str]:
     """For each skill where the work piece moved WITHOUT telling the controller: ``impedance`` (its reference at
     the taught surface) beside ``impedance_found_surface`` (re-based where the guarded approach found it) in the
     same cases, and ``impedance`` at the taught geometry: the ratios that compare the control laws and those that
@@ -154,8 +154,31 @@ def like_with_like(outcomes: list[Outcome]) -> list[str]:
                 if min(o.ratio for o in fair) > 1.0
                 else f": it is {_span([o.ratio for o in fair], 1, 'x')} ours, not worse in every case"
             )
+        drifts = [_drift_text(o, traces[(o.case, o.controller)]) for o in fair if (o.case, o.controller) in traces]
+        drifts = [d for d in drifts if d]
+        if drifts:
+            text += ". Where it is far worse, its CF-z force error " + "; ".join(drifts)
         notes.append(text + ".")
     return notes
+
+
+def _drift_text(o: Outcome, trace) -> str:
+    """For a baseline at least :data:`BASELINE_FACTOR` times ours: its mean CF-z force error over the first and
+    the last fifth of its contact phase (from its telemetry), and whether it grew along the stroke; '' otherwise."""
+    import numpy as np
+
+    contact = trace.mask("contact")
+    error = (trace.wrench_cf[:, 2] - trace.desired)[contact]
+    if o.ratio is None or o.ratio < BASELINE_FACTOR or error.size < 10:
+        return ""
+    fifth = error.size // 5
+    first, last = float(np.mean(error[:fifth])), float(np.mean(error[-fifth:]))
+    grew = abs(last) > 2.0 * abs(first)
+    return (
+        f"{'grows along the stroke: ' if grew else 'is '}{first:+.1f} N over the first fifth of the contact, "
+        f"{last:+.1f} N over the last ({o.case.label})"
+        + (", so its re-basing at touch-down does not carry along the path" if grew else "")
+    )
 
 
 def observations(outcomes: list[Outcome]) -> list[str]:
@@ -544,7 +567,7 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
     if notes:
         lines += ["", "### Why a target is missed", ""]
         lines += [f"- {note}" for note in notes]
-    fair = like_with_like(outcomes)
+    fair = like_with_like(outcomes, report.traces)
     if fair:
         lines += ["", "### The baselines, like with like", ""]
         lines += [f"- {note}" for note in fair]
