@@ -71,7 +71,10 @@ def _shifted_text(o: Outcome, outcomes: list[Outcome]) -> str:
     found the surface."""
     found = _found_text(o)
     where = f" (surface found {found} from where it was taught)" if found else ""
-    return (f"{_against_ours(o, outcomes)}" if o.ratio is not None else o.final) + where
+    if o.ratio is None:
+        return o.final + where
+    ended = f", then {o.final}" if o.final != "done" else ""
+    return f"{_against_ours(o, outcomes)}{ended}{where}"
 
 
 def explanations(outcomes: list[Outcome]) -> list[str]:

@@ -80,7 +80,11 @@ def test_the_published_tables_meet_the_targets_on_the_true_force(demo) -> None:
     by_case: dict[str, dict[str, dict[str, str]]] = {}
     for row in rows:
         by_case.setdefault(row["case"], {})[row["controller"]] = row
-        assert row["final"] == "done", row
+        # ours finishes; a baseline may also be stopped by a safety limit (the force limit)
+        assert row["final"] == "done" or (row["controller"] != OURS and row["final"].startswith("aborted (")), row
+        if row["true RMS (N)"] == "—":  # stopped before any steady contact: nothing to score
+            assert row["controller"] != OURS and row["final"].startswith("aborted ("), row
+            continue
         for column in ("true RMS (%)", "true max (%)", "CF-z RMS (%)", "touch-down (N)", "touch-down (x target)"):
             float(row[column])  # every case and controller reports the true figures and the touch-down
     groups = {f"{c.spec.title}: {c.label}": c.group for c in cases(quick=True)}
@@ -94,6 +98,9 @@ def test_the_published_tables_meet_the_targets_on_the_true_force(demo) -> None:
         if ("tilted" in case or "cylinder" in case) and "(unknown)" in case:  # shifted without telling anyone
             assert set(baselines) == {"impedance", "hybrid_world_z", FAIR_IMPEDANCE}, case
         for name, row in baselines.items():
+            if row["true RMS (N)"] == "—":
+                assert row["target"].startswith("MET (the baseline did not finish" if name != FAIR_IMPEDANCE else "—")
+                continue
             ratio = float(row["true RMS (N)"]) / float(ours["true RMS (N)"])  # like with like: true vs true
             if name == FAIR_IMPEDANCE:  # re-based at the found surface: no target, but still worse than ours
                 assert ratio > 1.2 and row["target"].startswith("— (no target; "), (case, row)
