@@ -73,8 +73,12 @@ def _shifted_text(o: Outcome, outcomes: list[Outcome]) -> str:
     where = f" (surface found {found} from where it was taught)" if found else ""
     if o.ratio is None:
         return o.final + where
-    ended = f", then {o.final}" if o.final != "done" else ""
-    return f"{_against_ours(o, outcomes)}{ended}{where}"
+    return f"{_against_ours(o, outcomes)}{_ended(o)}{where}"
+
+
+def _ended(o: Outcome) -> str:
+    """``, then aborted (...)`` for a scored row that did not end done, '' otherwise."""
+    return f", then {o.final}" if o.final != "done" else ""
 
 
 def explanations(outcomes: list[Outcome]) -> list[str]:
@@ -87,7 +91,7 @@ def explanations(outcomes: list[Outcome]) -> list[str]:
             grouped.setdefault(o.case.skill, []).append(o)
     for rows in grouped.values():
         spec = rows[0].case.spec
-        listed = "; ".join(f"{o.case.label}: {_against_ours(o, outcomes)}" for o in rows)
+        listed = "; ".join(f"{o.case.label}: {_against_ours(o, outcomes)}{_ended(o)}" for o in rows)
         reference = rows[0].metric("force_reference_n") or 0.0
         known = any(any(o.case.offset) for o in rows)
         where = "a KNOWN offset (the skill moves with the work piece)" if known else "the taught geometry"
@@ -137,7 +141,7 @@ def like_with_like(outcomes: list[Outcome], traces: dict) -> list[str]:
         text = f"**{shifted_cases[0].spec.title}**: "
         if taught:
             text += "at the taught geometry, impedance " + "; ".join(
-                f"{_against_ours(o, outcomes)} ({o.case.label})" for o in taught
+                f"{_against_ours(o, outcomes)}{_ended(o)} ({o.case.label})" for o in taught
             )
             text += ". "
         text += "With an UNKNOWN shift: " + "; ".join(
