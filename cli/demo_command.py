@@ -13,11 +13,12 @@ from pathlib import Path
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """``contact-skills demo``: record, learn and execute the paper's slide (Fig. 3) and contour (Fig. 4) trials
-    with our controller and both baselines through the service, then print the results table and write
-    RESULTS.md and the figures (to ./demo-output unless --out says; --out docs regenerates docs/RESULTS.md and
-    docs/figures). Starts the embedded stack (`contact-skills up`) if nothing answers at --url. Exits 1 when a case
-    did not finish or a target is MISSED (--report-only: only when a case did not finish)."""
+    """``contact-skills demo``: record, learn and execute the paper's slide (Fig. 3) and contour (Fig. 4) trials,
+    and upload, learn and execute the KU Leuven recordings on their rebuilt work pieces, with our controller and
+    both baselines through the service, then print the results table and write RESULTS.md and the figures (to
+    ./demo-output unless --out says; --out docs regenerates docs/RESULTS.md and docs/figures). Starts the embedded
+    stack (`contact-skills up`) if nothing answers at --url. Exits 1 when a case did not finish or a target is
+    MISSED (--report-only: only when a case did not finish)."""
     import time
 
     from experiments.paper_demo import DemoError, DemoOptions, run_demo, text_table
@@ -68,7 +69,8 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     demo = commands.add_parser(
         "demo",
-        help="reproduce the paper's experiments (slide Fig. 3, contour Fig. 4) with baselines through the service",
+        help="reproduce the paper's experiments (slide Fig. 3, contour Fig. 4) and run the KU Leuven recordings, "
+        "with baselines, through the service",
         description=cmd_demo.__doc__,
     )
     demo.add_argument(
@@ -77,7 +79,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="the service; if none answers there (loopback), the embedded stack is started on its port",
     )
     demo.add_argument("--workers", type=int, default=2, help="sim workers of the embedded stack (default 2)")
-    demo.add_argument("--quick", action="store_true", help="the reduced case set (about a minute; used by the test)")
+    demo.add_argument(
+        "--quick", action="store_true", help="the reduced case set (one KU Leuven trial, ours only; used by the test)"
+    )
     demo.add_argument(
         "--out",
         type=Path,

@@ -9,48 +9,15 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 
 from cli import bus_commands, demo_command, export_command, service_commands
 from cli.help import polish
+from services.datasets import DATA_ENV, KULEUVEN_IMPORT, data_directory, kuleuven_recordings
 
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
-
-DATA_ENV = "CONTACT_SKILLS_DATA"
-"""Environment variable: a data directory (holding ``kuleuven_contour/``) to use instead of the repository's."""
-
-
-def repository_root() -> Path:
-    """The repository holding this package (``cli/`` is at its top level)."""
-    return Path(__file__).resolve().parents[1]
-
-
-def repository_data_directory() -> Path:
-    """The data vendored in the repository: ``<repo>/data`` (``kuleuven_contour/``: the KU Leuven recordings)."""
-    return repository_root() / "data"
-
-
-def data_directory() -> Path:
-    """The data directory: ``$CONTACT_SKILLS_DATA`` if set, else :func:`repository_data_directory`."""
-    override = os.environ.get(DATA_ENV)
-    return Path(override) if override else repository_data_directory()
-
-
-def kuleuven_recordings() -> list[Path]:
-    """The KU Leuven contour recordings (``contour_*.csv``), sorted; empty if none are found."""
-    root = data_directory()
-    for folder in (root / "kuleuven_contour", root):
-        found = sorted(folder.glob("contour_*.csv"))
-        if found:
-            return found
-    return []
-
-
-KULEUVEN_IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
-"""Import options of the KU Leuven recordings (scalar-first quaternions, sensor reaction in the TCP frame)."""
 
 
 # --------------------------------------------------------------------------- errors

@@ -2,7 +2,8 @@
 against the RUNNING service, the way a user drives it, with both baselines, figures and a results page.
 
 - HTTP (httpx) for everything stored: ``POST /demonstrations/record`` (the scripted teacher records on a sim
-  worker), ``POST /skills`` (learn), ``POST /executions`` (run), ``GET /executions/{id}`` (metrics) and
+  worker), ``POST /demonstrations/csv`` (the KU Leuven recordings uploaded as a user would, with their import
+  options), ``POST /skills`` (learn), ``POST /executions`` (run), ``GET /executions/{id}`` (metrics) and
   ``GET /executions/{id}/telemetry`` (the recorded stream, for the figures).
 - Zenoh for live progress: one subscriber on ``P/exec/*/status`` shows the phase of every running execution.
 - If nothing answers ``GET /health`` at the URL (loopback), the embedded stack is started
@@ -22,10 +23,12 @@ import os
 import sys
 import time
 from collections import deque
+from pathlib import Path
 from typing import Any
 
 from experiments.cases import (
     FINAL,
+    KULEUVEN_FORM,
     SKILLS,
     Case,
     DemoOptions,
@@ -34,11 +37,11 @@ from experiments.cases import (
     Outcome,
     SkillSpec,
     cases,
-    fmt,
     judge,
 )
 from experiments.report import text_table, write_figures, write_results
 from experiments.stack import DemoError, LiveStatus, ServiceClient, say, service_session
+from services.datasets import DATA_ENV, data_directory, kuleuven_recordings
 
 __all__ = ["DemoError", "DemoOptions", "DemoReport", "run_demo", "text_table"]
 
@@ -58,6 +61,7 @@ def run_demo(options: DemoOptions) -> DemoReport:
     t_total = time.perf_counter()
     jobs = [Outcome(case, controller) for case in cases(options.quick) for controller in case.controllers]
     needed = list(dict.fromkeys(o.case.skill for o in jobs))
+    recordings = _recordings([SKILLS[k] for k in needed])
     with service_session(options, timings) as (client, health, endpoints, description):
         from schemas.bus import DEFAULT_PREFIX, ENV_PREFIX
 
@@ -71,9 +75,11 @@ def run_demo(options: DemoOptions) -> DemoReport:
             from concurrent.futures import ThreadPoolExecutor
 
             with ThreadPoolExecutor(max_workers=capacity) as pool:
-                futures = {k: pool.submit(_record_and_learn, client, SKILLS[k], options.seed) for k in needed}
+                futures = {
+                    k: pool.submit(_demonstrate_and_learn, client, SKILLS[k], options.seed, recordings) for k in needed
+                }
                 skills = {k: f.result() for k, f in futures.items()}
-            timings["record + learn"] = time.perf_counter() - started
+            timings["demonstrations + learning"] = time.perf_counter() - started
             say(f"demo: {len(jobs)} executions ({len(cases(options.quick))} cases) on {capacity} worker(s), pace fast")
             started = time.perf_counter()
             _run_executions(client, live, skills, jobs, capacity)
@@ -90,7 +96,7 @@ def run_demo(options: DemoOptions) -> DemoReport:
             live.close()
     started = time.perf_counter()
     verdicts = judge(jobs)
-    report = DemoReport(jobs, verdicts, skills, timings, service=description)
+    report = DemoReport(jobs, verdicts, skills, timings, service=description, traces=traces)
     report.figures = write_figures(options.out, skills, jobs, traces)
     timings["figures"] = time.perf_counter() - started
     timings["total"] = time.perf_counter() - t_total
@@ -101,15 +107,36 @@ def run_demo(options: DemoOptions) -> DemoReport:
 # --------------------------------------------------------------------------------------------------- steps
 
 
-def _record_and_learn(client: ServiceClient, spec: SkillSpec, seed: int) -> LearnedSkill:
+def _recordings(specs: list[SkillSpec]) -> dict[str, Path]:
+    """The KU Leuven files the real-data skills of ``specs`` are learned from, by stem (before anything starts)."""
+    found = {path.stem: path for path in kuleuven_recordings()}
+    missing = [f"{s.recording}.csv" for s in specs if s.recording is not None and s.recording not in found]
+    if missing:
+        raise DemoError(f"no KU Leuven recording {', '.join(missing)} under {data_directory()} (set {DATA_ENV})")
+    return {s.recording: found[s.recording] for s in specs if s.recording is not None}
+
+
+def _demonstration_created(client: ServiceClient, spec: SkillSpec, seed: int, recordings: dict[str, Path]) -> dict:
+    """The demonstration of ``spec``, stored by the service: recorded by the teacher on a sim worker, or the KU
+    Leuven file uploaded as CSV with its import options (the form fields of ``POST /demonstrations/csv``)."""
+    if spec.recording is None:
+        body = {"scenario": spec.scenario, "seed": seed}
+        return client.request(
+            "POST", "/demonstrations/record", 201, retry_busy_s=RECORD_TIMEOUT_S, json=body, timeout=RECORD_TIMEOUT_S
+        )
+    path = recordings[spec.recording]
+    files = {"file": (path.name, path.read_bytes(), "text/csv")}
+    return client.request("POST", "/demonstrations/csv", 201, files=files, data=KULEUVEN_FORM)
+
+
+def _demonstrate_and_learn(
+    client: ServiceClient, spec: SkillSpec, seed: int, recordings: dict[str, Path]
+) -> LearnedSkill:
     from schemas import Demonstration, Skill
 
     started = time.perf_counter()
-    body = {"scenario": spec.scenario, "seed": seed}
-    created = client.request(
-        "POST", "/demonstrations/record", 201, retry_busy_s=RECORD_TIMEOUT_S, json=body, timeout=RECORD_TIMEOUT_S
-    )
-    record_wall = time.perf_counter() - started
+    created = _demonstration_created(client, spec, seed, recordings)
+    demonstrate_wall = time.perf_counter() - started
     learned = client.request(
         "POST", "/skills", 201, json={"demonstration_id": created["id"], "skill_type": spec.skill_type}
     )
@@ -117,13 +144,14 @@ def _record_and_learn(client: ServiceClient, spec: SkillSpec, seed: int) -> Lear
     demonstration = Demonstration.model_validate(stored["demonstration"])
     skill = Skill.model_validate(learned["skill"])
     summary = created["summary"]
+    how = f"uploaded {spec.recording}.csv" if spec.real else f"recorded {spec.scenario} (seed {seed})"
     say(
-        f"demo: recorded {spec.scenario} (seed {seed}) -> {created['id']}: {summary['n_samples']} samples, "
-        f"{summary['duration_s']:.1f} s; learned {skill.skill_type.value} skill {learned['id']} with "
-        f"{len(skill.segments)} segments in {learned['learn_seconds']:.2f} s"
+        f"demo: {how} -> {created['id']}: {summary['n_samples']} samples, {summary['duration_s']:.1f} s; learned "
+        f"{skill.skill_type.value} skill {learned['id']} with {len(skill.segments)} segments in "
+        f"{learned['learn_seconds']:.2f} s"
     )
     return LearnedSkill(
-        spec, created["id"], learned["id"], demonstration, skill, record_wall, float(learned["learn_seconds"])
+        spec, created["id"], learned["id"], demonstration, skill, demonstrate_wall, float(learned["learn_seconds"])
     )
 
 
@@ -188,8 +216,8 @@ def _run_executions(
                     bar.update(1)
                     if not tty:
                         say(
-                            f"demo: {job.case.short} {job.controller}: {job.final}, force RMS "
-                            f"{fmt(job.metric('force_rms_error_pct'))} % ({job.wall_s:.1f} s)"
+                            f"demo: {job.case.short} {job.controller}: {job.final}, force RMS {job.rms_text()} "
+                            f"({job.wall_s:.1f} s)"
                         )
                 elif now - t0 > EXECUTION_TIMEOUT_S:
                     with contextlib.suppress(DemoError):

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from cli.main import repository_data_directory
 from schemas.bus import RecordReply, RecordRequest, WorkerInfo
+from services.datasets import repository_data_directory
 from services.local_processes import free_port
 
 KULEUVEN_DATA = repository_data_directory() / "kuleuven_contour"
