@@ -17,7 +17,7 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
