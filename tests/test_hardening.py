@@ -245,7 +245,7 @@ async def _never() -> bool:
 
 
 def test_the_pool_kills_a_job_past_its_budget_and_replaces_the_process():
-    pool = LearnerPool(processes=1, time_budget_s=1.0)
+    pool = LearnerPool(processes=1, time_budget_s=4.0)  # the quick learn must fit even on a loaded machine
     options = json.dumps(SLOW_OPTIONS)
     demonstration = _slow_demonstration_json()
 
@@ -254,7 +254,7 @@ def test_the_pool_kills_a_job_past_its_budget_and_replaces_the_process():
         assert quick.kind == "ok" and quick.skill_type == "slide"
         first_pid = pool.pids()[0]
         started = time.perf_counter()
-        with pytest.raises(LearningTimedOut, match="budget of 1 s"):
+        with pytest.raises(LearningTimedOut, match="budget of 4 s"):
             await pool.learn(demonstration, options, _never)
         elapsed = time.perf_counter() - started
         again = await pool.learn(_demo_as_json(), "{}", _never)
@@ -265,7 +265,7 @@ def test_the_pool_kills_a_job_past_its_budget_and_replaces_the_process():
         elapsed, restarted = asyncio.run(scenario())
     finally:
         pool.close()
-    assert elapsed < 5.0 and restarted == 1
+    assert elapsed < 10.0 and restarted == 1
 
 
 def _demo_as_json() -> str:
