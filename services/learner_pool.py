@@ -156,7 +156,7 @@ class LearnerPool:
         self._free: asyncio.Semaphore | None = None
         self._warming: asyncio.Task | None = None
         self._context = multiprocessing.get_context("forkserver")
-        self._context.set_forkserver_preload(["services.learner_pool", "skills.parameterize"])
+        self._context.set_forkserver_preload(["services.learner_pool", "services.api.limits", "skills.parameterize"])
         for name, value in THREAD_LIMIT_ENV.items():  # the forkserver inherits them (it starts on first use)
             os.environ.setdefault(name, value)
         self._closed = False
