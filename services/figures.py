@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import Demonstration, Segment, SegmentKind, Skill
+from skills.compliant_frames import compliant_frame_rotations
 from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
 
 _AXIS_COLORS = ("tab:red", "tab:green", "tab:blue")
@@ -24,20 +25,6 @@ _SEGMENT_COLORS = {SegmentKind.contact: "tab:orange", SegmentKind.free: "tab:gra
 def segment_mask(t: NDArray[np.float64], segment: Segment) -> NDArray[np.bool_]:
     """Return the samples of demonstration times ``t`` (s) inside ``segment`` (its first to last sample time)."""
     return (t >= segment.t_start - 1e-9) & (t <= segment.t_end + 1e-9)
-
-
-def compliant_frame_rotations(segment: Segment, t_since_start: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return world-from-CF rotation matrices ``(M, 3, 3)`` of a contact segment at times since its start (s).
-
-    One stored frame (slide) is constant; a series (contour) is slerped, clamped at its ends.
-    """
-    frames = segment.compliant_frames
-    if frames is None:
-        raise ValueError(f"segment {segment.index} ({segment.kind.value}) has no compliant frame")
-    q = np.asarray(frames.orientations, dtype=float)
-    if len(frames.t) == 1:
-        return np.broadcast_to(matrix_from_quaternion(q[0]), (len(t_since_start), 3, 3)).copy()
-    return matrix_from_quaternion(quaternions_slerp(t_since_start, frames.t, quaternions_sign_continuous(q)))
 
 
 def forces_in_compliant_frames(demonstration: Demonstration, skill: Skill) -> NDArray[np.float64]:

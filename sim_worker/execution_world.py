@@ -32,7 +32,7 @@ from sim_worker.teacher import scenario_world_config
 from sim_worker.work_piece import rebuilt_world_config
 from sim_worker.world_config import WorldConfig
 from skills.placement import placed_skill, tool_aligned_skill
-from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
+from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_normalized
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,8 @@ def execution_world(
             )
         return ExecutionWorld(_with(config, changes), skill, demonstration, source, None)
     if env.placement is not None:
-        R, A = (matrix_from_quaternion(_unit(q)) for q in (env.placement.rotation, env.placement.tool_alignment))
+        given = (env.placement.rotation, env.placement.tool_alignment)
+        R, A = (matrix_from_quaternion(quaternions_normalized(q)) for q in given)
         choice = PlacementChoice(R, np.asarray(env.placement.translation_m, float), "given", float("nan"), A)
     else:
         choice = choose_placement(skill, approach_clearance_m)
@@ -133,11 +134,6 @@ def execution_world(
         placement,
         choice.reason,
     )
-
-
-def _unit(q: list[float]) -> np.ndarray:
-    v = np.asarray(q, dtype=float)
-    return v / np.linalg.norm(v)
 
 
 def _with(config: WorldConfig, changes: dict[str, Any]) -> WorldConfig:

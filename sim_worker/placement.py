@@ -104,10 +104,6 @@ def _checked_poses(skill: Skill, clearance_m: float) -> tuple[NDArray[np.float64
     return np.vstack(positions), np.vstack(rotations), path
 
 
-def _joint_margin(world: SimWorld, q: NDArray[np.float64]) -> float:
-    return float(np.min(np.minimum(q - world.joint_lower, world.joint_upper - q)))
-
-
 def reach_report(
     world: SimWorld, positions: NDArray[np.float64], rotations: NDArray[np.float64], stop_at_first: bool = False
 ) -> tuple[int, float, str]:
@@ -138,12 +134,14 @@ def reach_report(
             if stop_at_first:
                 break
             continue
-        m = _joint_margin(world, q)
+        margins = np.minimum(q - world.joint_lower, world.joint_upper - q)
+        joint = int(np.argmin(margins))
+        m = float(margins[joint])
         margin = min(margin, m)
         if m < JOINT_MARGIN_RAD:
             failures += 1
             where = np.round(positions[k], 3).tolist()
-            joint = int(np.argmin(np.minimum(q - world.joint_lower, world.joint_upper - q))) + 1
+            joint += 1
             problem = problem or f"pose {k} at {where} m: joint {joint} within {m:.3f} rad of its limit"
             if stop_at_first:
                 break

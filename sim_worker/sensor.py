@@ -56,22 +56,19 @@ class WrenchSensor:
         self._delay_steps = round(config.wrench_delay_s / dt)
         self._cutoff_hz = config.wrench_filter_cutoff_hz
         self._alpha = 1.0 if self._cutoff_hz is None else dt / (dt + 1.0 / (2.0 * math.pi * self._cutoff_hz))
-        self._rng = np.random.default_rng(config.seed)
-        self._scale = np.concatenate([self._std, np.full(3, self._drift_step)])
-        self._block = np.zeros((0, 9))
-        self._next = 0
-        self.reset()
-
-    @property
-    def ideal(self) -> bool:
-        """True when the reading is the exact contact wrench (ideal source, nothing added)."""
-        return (
-            self.config.sensor_model == "ideal"
+        self.ideal = (
+            config.sensor_model == "ideal"
             and not self._noisy
             and self._drift_step == 0.0
             and self._delay_steps == 0
             and self._cutoff_hz is None
         )
+        """True when the reading is the exact contact wrench (ideal source, nothing added): read every step."""
+        self._rng = np.random.default_rng(config.seed)
+        self._scale = np.concatenate([self._std, np.full(3, self._drift_step)])
+        self._block = np.zeros((0, 9))
+        self._next = 0
+        self.reset()
 
     def reset(self) -> None:
         """Tare: zero bias, empty delay line, filter restarts from the next reading."""

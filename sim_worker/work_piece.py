@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from schemas.skill import Segment, SegmentKind, Skill
 from sim_worker.world_config import WorldConfig
+from skills.compliant_frames import compliant_frame_rotations
 from skills.dmp import QuaternionDMP
 from skills.placement import segment_positions
 from skills.quaternions import matrix_from_quaternion
@@ -54,16 +55,8 @@ def _contact_points(segment: Segment, tool_radius_m: float) -> tuple[NDArray[np.
     q = QuaternionDMP.from_parameters(segment.orientation_dmp).rollout(ROLLOUT_STEP_S).q
     n = min(len(p), len(q))
     p, z_tool = p[:n], matrix_from_quaternion(q[:n])[:, :, 2]
-    frames = segment.compliant_frames
-    assert frames is not None
-    z_frames = matrix_from_quaternion(np.asarray(frames.orientations, dtype=float))[:, :, 2]
-    ft = np.asarray(frames.t, dtype=float)
-    if ft.size == 1 or ft[-1] <= 0:
-        z_cf = np.broadcast_to(z_frames[0], (n, 3))
-    else:
-        fractions = np.linspace(0.0, 1.0, n) * ft[-1]
-        z_cf = np.stack([np.interp(fractions, ft, z_frames[:, i]) for i in range(3)], axis=1)
-        z_cf /= np.linalg.norm(z_cf, axis=1, keepdims=True)
+    fractions = np.linspace(0.0, 1.0, n)
+    z_cf = compliant_frame_rotations(segment, fractions * (segment.t_end - segment.t_start))[:, :, 2]
     return p - tool_radius_m * z_tool + tool_radius_m * z_cf, z_cf
 
 

@@ -19,7 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
+from schemas.skill import Segment
 from skills.frames import rotation_from_vectors
+from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
 
 PLANE_CONDITION_RATIO = 3.0
 """A plane fit is trusted when the 2nd singular value exceeds the 3rd by this factor (else the path is a line)."""
@@ -128,3 +130,17 @@ def contour_frames(
     motion = vt[0] if np.dot(vt[0], path[-1] - path[0]) >= 0 else -vt[0]
     reference = frame_from_z_and_x(mean_direction, motion)
     return rotation_from_vectors(mean_direction, z) @ reference
+
+
+def compliant_frame_rotations(segment: Segment, t_since_start: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return world-from-CF rotation matrices ``(M, 3, 3)`` of a contact segment at times since its start (s).
+
+    One stored frame (slide) is constant; a series (contour) is slerped, clamped at its ends.
+    """
+    frames = segment.compliant_frames
+    if frames is None:
+        raise ValueError(f"segment {segment.index} ({segment.kind.value}) has no compliant frame")
+    q = np.asarray(frames.orientations, dtype=float)
+    if len(frames.t) == 1:
+        return np.broadcast_to(matrix_from_quaternion(q[0]), (len(t_since_start), 3, 3)).copy()
+    return matrix_from_quaternion(quaternions_slerp(t_since_start, frames.t, quaternions_sign_continuous(q)))

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from schemas.skill import DMPParameters, Segment, SegmentKind, Skill
+from skills.compliant_frames import compliant_frame_rotations
 from skills.dmp import DMP, QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
@@ -140,15 +141,10 @@ class ToolPath:
 
 
 def _segment_cf_z(segment: Segment, fractions: NDArray[np.float64]) -> NDArray[np.float64]:
-    frames = segment.compliant_frames
-    if frames is None:
+    """The CF z (M, 3) at time ``fractions`` of a segment; NaN for a free segment."""
+    if segment.compliant_frames is None:
         return np.full((fractions.size, 3), np.nan)
-    z = matrix_from_quaternion(np.asarray(frames.orientations, dtype=float))[:, :, 2]
-    ft = np.asarray(frames.t, dtype=float)
-    if ft.size == 1 or ft[-1] <= 0:
-        return np.broadcast_to(z[0], (fractions.size, 3)).copy()
-    idx = np.clip(np.searchsorted(ft, fractions * ft[-1]), 0, ft.size - 1)
-    return z[idx]
+    return compliant_frame_rotations(segment, fractions * (segment.t_end - segment.t_start))[:, :, 2]
 
 
 def segment_positions(segment: Segment, dt: float) -> NDArray[np.float64]:
