@@ -55,8 +55,9 @@ log = logging.getLogger("contact_skills.bus")
 
 INFO_TIMEOUT_S = 2.0
 """How long ``workers()`` waits for the workers' info replies, s (they answer in about a millisecond)."""
-START_TIMEOUT_S = 10.0
-"""How long a start request waits for the chosen worker's reply, s."""
+START_TIMEOUT_S = 30.0
+"""How long a start request waits for the chosen worker's reply, s: the worker builds the execution's world and
+checks its reach (placement) before it accepts, 0.1-1.2 s on a quiet core, ten times that on a loaded one."""
 LOST_GRACE_S = 0.25
 """A worker's token gone, wait this long for its last statuses before reporting it lost, s (a token that comes
 back within it, e.g. after a router restart as short, cancels the report)."""

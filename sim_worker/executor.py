@@ -75,10 +75,15 @@ CONTACT_LOSS_TRAVEL_M = 0.01
 CONTACT_LOSS_RETRACT_M = 0.05
 """How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
 CONTACT_LOSS_RETRACT_S = 1.0
+CREASE_IMPACT_FRACTION = 0.1
+"""The impact at a crease, as a fraction of the press, that sets the speed to pass it (see ``_crease_speed``)."""
+CREASE_MIN_ANGLE_RAD = math.radians(3.0)
+"""Segments whose CF z differ by less are passed at full speed."""
 NORMAL_TRACKING_STEPS = 10
 """With ``follow_surface_normal``, the CF follows the estimated normal every this many steps."""
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
+
 
 class ContactLostError(Exception):
     """Raised inside the loop when the tool lost the surface in a contact phase (it is retracted, then aborted)."""
@@ -380,12 +385,29 @@ class _Execution:
         if s.touchdown_speed_m_s is not None:
             return float(s.touchdown_speed_m_s)
         z = self.geometry[segment.index].first_rotation[:, 2]
+        speed = TOUCHDOWN_IMPACT_FRACTION * first_force(segment) / self._contact_impedance(z)
+        return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
+
+    def _contact_impedance(self, z: NDArray[np.float64]) -> float:
+        """``sqrt(k m)`` (N·s/m) of a contact along the world direction ``z``: ``k`` the contact stiffness, ``m``
+        the arm's apparent mass along ``z`` in its pose now."""
         J, _, M = self.world.dynamics(True)
         mobility = J[:3] @ np.linalg.solve(M, J[:3].T)  # Λ^-1, translational block
         mass = 1.0 / max(float(z @ mobility @ z), 1e-9)
-        impedance = math.sqrt(self.world_config.contact_stiffness * mass)
-        speed = TOUCHDOWN_IMPACT_FRACTION * first_force(segment) / impedance
-        return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
+        return math.sqrt(self.world_config.contact_stiffness * mass)
+
+    def _crease_speed(self, before: Segment, after: Segment) -> float | None:
+        """The tangential speed (m/s) at which to pass the crease between two contact segments, or None when their
+        CF z differ by less than ``CREASE_MIN_ANGLE_RAD``: the next surface is met at ``v sin θ`` along its normal,
+        an impact of about ``v sin θ sqrt(k m)`` on top of the press, kept to ``CREASE_IMPACT_FRACTION`` of it."""
+        z_before = self.geometry[before.index].rotations[-1][:, 2]
+        z_after = self.geometry[after.index].first_rotation[:, 2]
+        sin_angle = float(np.linalg.norm(np.cross(z_before, z_after)))
+        if sin_angle < math.sin(CREASE_MIN_ANGLE_RAD):
+            return None
+        press = max(first_force(after), self.contact_threshold)
+        speed = CREASE_IMPACT_FRACTION * press / self._contact_impedance(z_after) / sin_angle
+        return max(speed, TOUCHDOWN_SPEED_MIN_M_S)
 
     def _normal_tracker(self, plan: PhasePlan) -> SurfaceNormalTracker | None:
         """A tracker of the surface normal for a slide contact phase of ``hybrid_cf`` when asked for, else None."""
@@ -490,7 +512,11 @@ class _Execution:
                 )
                 self.run_plan(ramp)
                 f_last = None
-            plan = planner.contact(segment, *tool_pose(), f_last)
+            previous = segments[i - 1] if i > 0 else None
+            crease_in = self._crease_speed(previous, segment) if f_last is not None and previous else None
+            next_contact = nxt is not None and nxt.kind is SegmentKind.contact
+            crease_out = self._crease_speed(segment, nxt) if next_contact else None
+            plan = planner.contact(segment, *tool_pose(), f_last, crease_in, crease_out)
             self.run_plan(plan)
             in_contact_run = True
             f_last = float(plan.force[-1])
@@ -507,6 +533,7 @@ class _Execution:
                     s.gains.force_release_s,
                     last_ref_q,
                     last_cf,
+                    at_end=True,
                 )
                 self.run_plan(release)
                 in_contact_run = False

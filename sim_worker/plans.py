@@ -27,6 +27,11 @@ from skills.quaternions import (
 
 MAX_CONTOUR_FRAMES = 2000
 """Most control frames precomputed per contour segment (the series is indexed at a coarser stride)."""
+CREASE_HOLD_DISTANCE_M = 0.006
+"""Path length on each side of a crease travelled at the crease speed, m (covers where the tool meets the next
+surface before the taught switch: ~3 mm for our 1 cm ball on a 20° crease, plus a margin)."""
+CREASE_DECELERATION_M_S2 = 0.08
+"""Tangential deceleration into (and acceleration out of) the crease speed, m/s²."""
 
 
 @dataclass
@@ -96,6 +101,25 @@ def smooth_ramp(a: float, b: float, n: int) -> NDArray[np.float64]:
     x = np.arange(1, n + 1) / n
     s = x * x * (3.0 - 2.0 * x)
     return a + (b - a) * s
+
+
+def crease_speed_caps(arc_m: NDArray[np.float64], crease_speed_m_s: float, towards_end: bool) -> NDArray[np.float64]:
+    """Speed limits (m/s) along a path of arc lengths ``arc_m`` (N,) m so that the tool passes the crease at its
+    start (``towards_end`` False) or end at ``crease_speed_m_s``: held for ``CREASE_HOLD_DISTANCE_M``, reached at
+    ``CREASE_DECELERATION_M_S2`` from farther away."""
+    distance = arc_m[-1] - arc_m if towards_end else arc_m - arc_m[0]
+    beyond = np.maximum(distance - CREASE_HOLD_DISTANCE_M, 0.0)
+    return np.sqrt(crease_speed_m_s**2 + 2.0 * CREASE_DECELERATION_M_S2 * beyond)
+
+
+def slowed_times(speed_m_s: NDArray[np.float64], cap_m_s: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+    """The plan times (s) to sample, one per control step of ``dt`` s, so that a path whose step-k speed is
+    ``speed_m_s[k]`` never runs faster than ``cap_m_s[k]``: time runs at the rate ``min(1, cap / speed)`` and the
+    plan lasts longer by what the slowing costs. Returns (M,) times in ``[0, (N - 1) dt]``, M >= N."""
+    rate = np.minimum(1.0, cap_m_s / np.maximum(speed_m_s, 1e-12))
+    t = np.arange(speed_m_s.size) * dt
+    t_new = np.concatenate([[0.0], np.cumsum(dt / rate[:-1])])  # when each original sample is reached, s
+    return np.interp(np.arange(int(t_new[-1] / dt) + 1) * dt, t_new, t)
 
 
 def first_force(segment: Segment) -> float:
@@ -188,15 +212,17 @@ class PhasePlanner:
             ),
         )
 
-    def surface_reference(self, segment: Segment, p: NDArray[np.float64]) -> NDArray[np.float64]:
+    def surface_reference(self, segment: Segment, p: NDArray[np.float64], at_end: bool = False) -> NDArray[np.float64]:
         """The reference point for tool position ``p`` in a contact segment: where the surface was FOUND (hybrid
         kinds, ``impedance_found_surface``) or where it was TAUGHT (``impedance``, which presses only through its
-        reference and is not told that the surface moved)."""
+        reference and is not told that the surface moved): ``p`` moved along CF z onto the taught surface at the
+        segment's start, or at its end (``at_end``: a contour's last frame)."""
         if self.kind is not ControllerKind.impedance:
             return p
         geo = self.geometry[segment.index]
-        z = geo.first_rotation[:, 2]
-        return p - z * float((p - geo.start_world) @ z)
+        z = geo.rotations[-1 if at_end else 0][:, 2]
+        on_surface = geo.origins[-1] if at_end else geo.start_world
+        return p - z * float((p - on_surface) @ z)
 
     def hold(
         self,
@@ -208,10 +234,12 @@ class PhasePlanner:
         duration: float,
         ref_q: NDArray,
         cf_rotation: NDArray[np.float64],
+        at_end: bool = False,
     ) -> PhasePlan:
-        """Hold the place at ``p`` in the frame ``cf_rotation`` while the desired force ramps ``f_from`` -> ``f_to``."""
+        """Hold the place at ``p`` in the frame ``cf_rotation`` while the desired force ramps ``f_from`` -> ``f_to``
+        (on the taught surface at the segment's start, or its end with ``at_end``, for ``impedance``)."""
         n = max(1, round(duration / self.dt))
-        ref = self.surface_reference(segment, p)
+        ref = self.surface_reference(segment, p, at_end)
         return PhasePlan(
             phase,
             segment.index,
@@ -222,8 +250,19 @@ class PhasePlanner:
             frame=self.controller.frame(cf_rotation, segment.selection),
         )
 
-    def contact(self, segment: Segment, p: NDArray, q: NDArray, f_previous: float | None) -> PhasePlan:
-        """A contact segment from the tool pose ``(p, q)``; ``f_previous`` (N) ramps in from the previous segment."""
+    def contact(
+        self,
+        segment: Segment,
+        p: NDArray,
+        q: NDArray,
+        f_previous: float | None,
+        crease_in_m_s: float | None = None,
+        crease_out_m_s: float | None = None,
+    ) -> PhasePlan:
+        """A contact segment from the tool pose ``(p, q)``; ``f_previous`` (N) ramps in from the previous segment.
+
+        ``crease_in_m_s`` / ``crease_out_m_s``: the segment starts / ends at a crease with another contact segment,
+        passed at this tangential speed (m/s; the plan is slowed there, see :func:`crease_speed_caps`)."""
         geo = self.geometry[segment.index]
         duration = segment.position_dmp.duration_s
         pos = DMP.from_parameters(segment.position_dmp)
@@ -238,8 +277,10 @@ class PhasePlanner:
             n = min(len(rp.t), len(rq.t))
             ref_p = o + rp.y[:n, :2] @ R[:, :2].T + z0 * R[:, 2]
             v = rp.yd[:n, :2] @ R[:, :2].T
-        else:
-            goal = np.asarray(segment.position_dmp.goal, dtype=float) + self.offset
+        else:  # the goal moves with the surface as found along the first CF z (not at all for ``impedance``)
+            z = geo.first_rotation[:, 2]
+            found = z * float((p_ref0 - geo.start_world) @ z)
+            goal = np.asarray(segment.position_dmp.goal, dtype=float) + self.offset + found
             rp = pos.rollout(self.dt, start=p_ref0, goal=goal, duration_s=duration)
             n = min(len(rp.t), len(rq.t))
             ref_p, v = rp.y[:n], rp.yd[:n]
@@ -250,18 +291,48 @@ class PhasePlanner:
                 force = np.concatenate([force, np.full(n - force.size, force[-1])])
         else:
             force = np.full(n, max(0.0, float(segment.force_constant_n or 0.0)))
+        ref_q, twist = rq.q[:n], np.hstack([v, rq.omega[:n]])
+        times = np.arange(n) * self.dt  # the plan time of each control step, s
+        if crease_in_m_s is not None or crease_out_m_s is not None:
+            times, ref_p, ref_q, twist, force = self._slowed(ref_p, ref_q, twist, force, crease_in_m_s, crease_out_m_s)
+            n = times.size
         if f_previous is not None:  # contact -> contact: ramp between the levels
             k = min(n, round(self.settings.gains.force_ramp_s / self.dt))
             if k > 0:
                 blend = smooth_ramp(0.0, 1.0, k)
                 force[:k] = f_previous + blend * (force[:k] - f_previous)
-        twist = np.hstack([v, rq.omega[:n]])
-        plan = PhasePlan(ExecutionPhase.contact, segment.index, ref_p, rq.q[:n], twist, force)
+        plan = PhasePlan(ExecutionPhase.contact, segment.index, ref_p, ref_q, twist, force)
         if geo.t.size == 1:
             plan.frame = self.controller.frame(geo.rotations[0], segment.selection)
         else:
             stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
-            fractions = np.arange(0, n, stride) / max(n - 1, 1)
+            fractions = times[::stride] / max(times[-1], self.dt)
             plan.series = self.controller.frames(geo.rotations_at(np.minimum(fractions, 1.0)), segment.selection)
             plan.stride = stride
         return plan
+
+    def _slowed(
+        self,
+        ref_p: NDArray[np.float64],
+        ref_q: NDArray[np.float64],
+        twist: NDArray[np.float64],
+        force: NDArray[np.float64],
+        crease_in_m_s: float | None,
+        crease_out_m_s: float | None,
+    ) -> tuple[NDArray[np.float64], ...]:
+        """A contact plan's references resampled so that it passes its creases at the given speeds (m/s): the
+        plan times of its control steps (s), positions, quaternions, twists (scaled by the slowing), forces."""
+        n, dt = ref_p.shape[0], self.dt
+        speed = np.linalg.norm(twist[:, :3], axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * dt
+        cap = np.full(n, np.inf)
+        if crease_in_m_s is not None:
+            cap = np.minimum(cap, crease_speed_caps(arc, crease_in_m_s, towards_end=False))
+        if crease_out_m_s is not None:
+            cap = np.minimum(cap, crease_speed_caps(arc, crease_out_m_s, towards_end=True))
+        t = np.arange(n) * dt
+        times = slowed_times(speed, cap, dt)
+        rate = np.interp(times, t, np.minimum(1.0, cap / np.maximum(speed, 1e-12)))
+        ref_p = np.column_stack([np.interp(times, t, ref_p[:, i]) for i in range(3)])
+        twist = np.column_stack([np.interp(times, t, twist[:, i]) for i in range(6)]) * rate[:, None]
+        return times, ref_p, quaternions_slerp(times, t, ref_q), twist, np.interp(times, t, force)

@@ -160,20 +160,15 @@ def client(bus):
 
 @pytest.fixture(scope="module")
 def recorded(client):
-    """A short slide_flat demonstration recorded BY A WORKER over the bus (and the time it took)."""
-    started = time.monotonic()
-    reply = client.record_demonstration(
-        RecordRequest(scenario="slide_flat", seed=0, overrides={"move_duration_s": 1.0})
-    )
-    return reply, time.monotonic() - started
+    """A short slide_flat demonstration recorded BY A WORKER over the bus."""
+    return client.record_demonstration(RecordRequest(scenario="slide_flat", seed=0, overrides={"move_duration_s": 1.0}))
 
 
 @pytest.fixture(scope="module")
 def skill(recorded):
     from skills.parameterize import learn_skill
 
-    reply, _ = recorded
-    return learn_skill(reply.demonstration, LearnOptions(skill_type="slide", min_segment_duration_s=0.5))
+    return learn_skill(recorded.demonstration, LearnOptions(skill_type="slide", min_segment_duration_s=0.5))
 
 
 def _request(skill, **settings) -> ExecutionRequest:
@@ -192,13 +187,13 @@ def test_workers_connect_and_are_listed(client):
 
 
 def test_record_demonstration_returns_a_valid_demonstration(client, recorded):
-    reply, wall = recorded
+    reply = recorded
     assert reply.ok, reply.error
     demo = Demonstration.model_validate_json(reply.demonstration.model_dump_json())
     assert demo.metadata.source == "teacher:slide_flat"
     assert np.allclose(np.diff(demo.t), 1e-3)
     assert reply.ground_truth["scenario"] == "slide_flat" and reply.ground_truth["target_force_n"] == 15.0
-    assert reply.worker_id in ("w-a", "w-b") and wall < 30
+    assert reply.worker_id in ("w-a", "w-b")
     bad = client.record_demonstration(RecordRequest(scenario="no_such_scenario"))
     assert bad.code == "error" and "unknown scenario" in bad.error
 
@@ -281,7 +276,12 @@ def test_pause_holds_the_reference_and_resume_continues(client, skill):
     _wait(moving, what="the free segment")
     client.send_command("ex-pause", "pause")
     paused = _wait(lambda: [s for s in recorder.statuses["ex-pause"] if s.paused], what="paused")[0]
-    time.sleep(0.3)
+
+    def held_steps() -> int:  # control steps run since the pause (the loop keeps running, at about real time)
+        with recorder.lock:
+            return sum(int(np.sum(np.asarray(b.t) > paused.t + 0.06)) for b in recorder.telemetry["ex-pause"])
+
+    _wait(lambda: held_steps() > 200, what="the loop running while paused")
     client.send_command("ex-pause", "resume")
     resumed = _wait(lambda: [s for s in recorder.statuses["ex-pause"] if s.message == "resumed"], what="resumed")[0]
 

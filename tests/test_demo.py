@@ -36,7 +36,7 @@ from services.local_processes import free_port as _free_port
 from services.local_processes import port_listening
 
 REPO = Path(__file__).resolve().parents[1]
-TIMEOUT_S = 300
+TIMEOUT_S = 900  # a hang guard: `demo --quick` takes ~1 min on a quiet machine, 5+ on a loaded one
 
 
 @pytest.fixture(scope="module")

@@ -50,6 +50,11 @@ def contour_cylinder():
     return _learn("contour_cylinder", "contour")
 
 
+@pytest.fixture(scope="module")
+def slide_two_planes():
+    return _learn("slide_two_planes", "slide")
+
+
 def _run(
     learned,
     controller: ControllerKind = ControllerKind.hybrid_cf,
@@ -332,3 +337,31 @@ def test_following_the_surface_normal_holds_on_an_unknown_tilt(slide_flat, tilt_
         assert metrics[follow].phase is ExecutionPhase.done and metrics[follow].contact_ratio >= 0.99
     assert metrics[True].true_force_rms_error_pct <= bound_pct
     assert metrics[False].true_force_rms_error_pct > 1.5 * bound_pct  # the fixed CF cannot
+
+
+def test_the_crease_between_two_planes_is_passed_within_10_percent_of_the_true_force(slide_two_planes) -> None:
+    """Table -> 20° ramp in one contact: the plan slows to the crease speed around the switch, so the ball meets
+    the ramp gently. Before, it was driven into the ramp at ~8 cm/s and the true normal force peaked 38 % high."""
+    result = _run(slide_two_planes)
+    m = result.metrics
+    _assert_clean(result)
+    assert m.phase is ExecutionPhase.done, m.abort_reason
+    assert m.true_force_max_error_pct < 10.0
+    assert m.true_force_rms_error_pct < 3.0
+    tel = result.telemetry
+    contact = np.array([p is ExecutionPhase.contact for p in tel.phases])
+    # it passed the crease: the true normal turned from the table's to the ramp's (20°), slowly there
+    normals = tel.contact_normal[contact]
+    tilt = np.degrees(np.arccos(np.clip(np.abs(normals[:, 2]), 0.0, 1.0)))
+    assert tilt[:100].max() < 1.0 and tilt[-100:].min() > 19.0
+    speed = np.linalg.norm(np.diff(tel.tool_position[contact], axis=0), axis=1) / 1e-3
+    meeting = np.flatnonzero(tilt > 1.0)[0]
+    assert speed[meeting - 50 : meeting + 50].max() < 0.03 < speed.max()
+
+
+def test_impedance_on_a_contour_releases_on_the_surface_where_the_contour_ends(contour_cylinder) -> None:
+    """The release after a contour holds the reference on the taught surface at the END of the contour (it held the
+    first frame's plane before and stepped into the cylinder: a force-limit abort)."""
+    result = _run(contour_cylinder, ControllerKind.impedance)
+    assert result.metrics.phase is ExecutionPhase.done, result.metrics.abort_reason
+    assert np.abs(result.telemetry.wrench_world[:, :3]).max() < 40.0
