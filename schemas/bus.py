@@ -6,12 +6,18 @@ Key expressions (``P`` is the prefix, default ``cskills``; ids are single key ch
 - ``P/exec/{worker_id}/info`` — queryable; reply ``WorkerInfo``.
 - ``P/exec/{worker_id}/start`` — queryable; query ``StartExecution``, reply ``StartReply`` (accepted, busy, error).
 - ``P/exec/{worker_id}/record`` — queryable; query ``RecordRequest``, reply ``RecordReply``.
+- ``P/exec/{worker_id}/replay`` — queryable; query ``TelemetryReplay``, replies ``TelemetryBatch`` (each with its
+  ``first_sample``) covering the samples asked that the worker still keeps (its last ``TELEMETRY_KEEP_EXECUTIONS``
+  executions), or an error reply saying it keeps none of them. Under the worker's own keys: only the worker that
+  ran an execution can answer for it (``schemas.bus_security``).
 - ``P/exec/{execution_id}/cmd`` — put/subscribe; ``ExecutionCommand`` (abort | pause | resume).
 - ``P/exec/{execution_id}/status`` — put/subscribe; ``ExecutionStatus`` on acceptance (pending), every phase or
   segment change, pause and resume, and a final one (done | aborted | failed) with the metrics. Workers also
   answer a query on it with the latest status of the executions they ran (for late joiners).
 - ``P/exec/{execution_id}/telemetry`` — put/subscribe; ``schemas.execution.TelemetryBatch``: every control step,
-  in batches of ``telemetry_batch`` rows, reliable and never dropped (congestion control BLOCK).
+  in batches of ``telemetry_batch`` rows, reliable (congestion control BLOCK), numbered: ``seq`` counts the batches,
+  ``first_sample`` places each in the stream, so a receiver that missed some (it was down, the router was) sees the
+  gap and asks ``P/exec/{worker_id}/replay`` for it.
 
 Every payload is the JSON of the pydantic model named (``Model.model_validate_json(sample.payload.to_bytes())``);
 queries carry theirs as the query payload. This module imports neither zenoh nor the simulator: it is the
@@ -143,6 +149,10 @@ class KeyExpressions:
     def record(self, worker_id: str) -> str:
         """A worker's record queryable."""
         return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/record"
+
+    def replay(self, worker_id: str) -> str:
+        """A worker's telemetry replay queryable."""
+        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/replay"
 
     # Executions.
     def cmd(self, execution_id: str) -> str:
@@ -335,6 +345,26 @@ class RecordReply(BaseModel):
     @property
     def ok(self) -> bool:
         return self.code == "ok" and self.demonstration is not None
+
+
+class TelemetryReplay(BaseModel):
+    """Query payload of ``P/exec/{worker_id}/replay``: send again the samples ``start`` to ``stop - 1`` of an
+    execution's telemetry stream (``TelemetryBatch.first_sample`` numbering)."""
+
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"execution_id": "ex_01", "start": 3000, "stop": 4710}]}
+    )
+
+    execution_id: str = Field(description="The execution whose telemetry is wanted.")
+    start: int = Field(ge=0, description="First sample wanted (a control step index, from 0).")
+    stop: int = Field(ge=0, description="One past the last sample wanted.")
+
+    @model_validator(mode="after")
+    def _range(self) -> TelemetryReplay:
+        check_id(self.execution_id, "execution_id")
+        if self.stop <= self.start:
+            raise ValueError(f"stop ({self.stop}) must be greater than start ({self.start})")
+        return self
 
 
 class ExecutionCommand(BaseModel):

@@ -14,12 +14,14 @@ To open the router beyond loopback, give it a users file and, across machines, a
 With a users file the router refuses every session that does not log in (a wrong password or none: the session is
 never opened) and applies :func:`access_control`, default deny:
 
-- ``api``: command executions (put ``P/exec/*/cmd``), query the workers (``info``, ``start``, ``record``, ``status``),
-  subscribe to statuses, telemetry and the workers' liveliness;
-- ``worker`` *W* (its user name is its worker id): declare only ITS queryables ``P/exec/W/{info,start,record}`` and
-  ITS liveliness token ``P/workers/W``, answer the status queryable, receive commands, publish statuses and
-  telemetry; it cannot command, and cannot pose as another worker;
-- ``observer``: read only: subscribe to statuses, telemetry and liveliness, query statuses and worker info.
+- ``api``: command executions (put ``P/exec/*/cmd``), query the workers (``info``, ``start``, ``record``, ``status``,
+  ``replay``), subscribe to statuses, telemetry and the workers' liveliness;
+- ``worker`` *W* (its user name is its worker id): declare only ITS queryables ``P/exec/W/{info,start,record,replay}``
+  (so only the worker that ran an execution can replay its telemetry) and ITS liveliness token ``P/workers/W``,
+  answer the status queryable, receive commands, publish statuses and telemetry; it cannot command, and cannot pose
+  as another worker;
+- ``observer``: read only: subscribe to statuses, telemetry and liveliness, query statuses, worker info and
+  telemetry replays.
 
 Statuses and telemetry are keyed by execution, not by worker: an authenticated worker could publish for an
 execution it does not run. The API therefore takes a status or telemetry batch only from the worker it handed the
@@ -128,7 +130,8 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
     """The router's ``access_control`` configuration for ``users`` (see the module docstring): default deny;
     ``ingress`` rules say what a role may send or declare, ``egress`` rules what the router delivers to it."""
     k = KeyExpressions(prefix)
-    queried = [k.info("*"), f"{k.prefix}/exec/*/start", f"{k.prefix}/exec/*/record", k.status("*")]
+    replays = f"{k.prefix}/exec/*/replay"
+    queried = [k.info("*"), f"{k.prefix}/exec/*/start", f"{k.prefix}/exec/*/record", k.status("*"), replays]
     streams = [k.status("*"), k.telemetry("*")]
     commands = [f"{k.prefix}/exec/*/cmd"]
     everything = [f"{k.prefix}/**"]
@@ -141,10 +144,10 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
         _rule("api-answers", "egress", ["reply"], queried),
         _rule("api-sees", "egress", ["liveliness_token", "declare_queryable", "declare_subscriber"], everything),
         _rule("observer-listens", "ingress", ["declare_subscriber"], streams),
-        _rule("observer-asks", "ingress", ["query"], [k.info("*"), k.status("*")]),
+        _rule("observer-asks", "ingress", ["query"], [k.info("*"), k.status("*"), replays]),
         _rule("observer-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
         _rule("observer-receives", "egress", ["put"], streams),
-        _rule("observer-answers", "egress", ["reply"], [k.info("*"), k.status("*")]),
+        _rule("observer-answers", "egress", ["reply"], [k.info("*"), k.status("*"), replays]),
         _rule("observer-sees", "egress", ["liveliness_token", "declare_queryable"], everything),
     ]
     subjects: list[dict[str, Any]] = []
@@ -155,7 +158,7 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
             subjects.append({"id": role, "usernames": names})
             policies.append({"subjects": [role], "rules": [r["id"] for r in rules if r["id"].startswith(role + "-")]})
     for worker in sorted({u.user for u in users if u.role == "worker"}):
-        own = [k.info(worker), k.start(worker), k.record(worker)]
+        own = [k.info(worker), k.start(worker), k.record(worker), k.replay(worker)]
         worker_rules = [
             _rule(f"worker:{worker}-declares", "ingress", ["declare_queryable"], [*own, k.status("*")]),
             _rule(f"worker:{worker}-lives", "ingress", ["liveliness_token"], [k.worker(worker)]),

@@ -457,6 +457,19 @@ class TelemetryBatch(BaseModel):
     wrench_world: list[Wrench] = Field(description="Measured wrenches applied by the tool, world, N, N·m.")
     wrench_cf: list[Wrench] = Field(description="The same wrenches in the CF, N, N·m.")
     desired_force_cf_z_n: list[float] = Field(description="Desired CF-z forces, N.")
+    seq: int | None = Field(
+        None,
+        ge=0,
+        description="Per-execution batch number on the bus, from 0, one more for every batch published (None for "
+        "a replayed batch and off the bus).",
+    )
+    first_sample: int | None = Field(
+        None,
+        ge=0,
+        description="Index in the execution's telemetry stream of row 0 (the stream's sample k is control step k, "
+        "from 0): a receiver that has stored samples 0 to n-1 and gets first_sample > n has missed samples n to "
+        "first_sample-1 (None off the bus).",
+    )
     sent_unix_s: float | None = Field(
         None,
         description="Worker's wall clock when the control loop handed the batch to the bus, just after recording "

@@ -4,15 +4,25 @@
 
 - subscribes to ``P/exec/*/status`` and ``P/exec/*/telemetry`` and hands every ``ExecutionStatus`` /
   ``TelemetryBatch`` to ``on_status`` / ``on_telemetry``,
-- watches the workers' liveliness tokens ``P/workers/*`` (with history, so workers already running are seen);
-  when a token goes (the worker process ended or died, even by SIGKILL: the router sees its connection close
-  and propagates the DELETE within milliseconds), it waits ``LOST_GRACE_S`` (0.25 s) for the worker's last
-  statuses, then calls ``on_status`` with a synthesized ``failed`` status for every execution this client
-  started on that worker that has not finished, then ``on_worker_lost(worker_id)``: about 0.26 s after the
-  process died.
+- watches the workers' liveliness tokens ``P/workers/*`` (with history, so workers already running are seen) and
+  its own link to the router (Zenoh transport events), and tells a worker that is gone from a router outage:
 
-THREADS: the three callbacks run on Zenoh's threads (``on_worker_lost`` and the synthesized statuses on a timer
-thread), concurrently with each other and with the caller's threads.
+  - a token goes while this client's link to the router stays up (the worker process ended or died, even by
+    SIGKILL: the router sees its connection close and propagates the DELETE within milliseconds): after
+    ``LOST_GRACE_S`` (0.25 s, for the worker's last statuses) the worker's info queryable is asked; if it does not
+    answer within ``WORKER_CHECK_S`` the worker is LOST: ``on_status`` gets a synthesized ``failed`` status for
+    every execution this client started (or adopted) on it that has not finished, then ``on_worker_lost``;
+  - tokens that go with this client's link (the router stopped or restarted, the network between us broke: every
+    token vanishes at once) are a router outage: nothing is failed. Once the link is back each such worker has
+    ``WORKER_RETURN_GRACE_S`` to show its token again, else it is lost as above;
+  - a worker whose token comes back after it went (either case) is asked what became of the executions it runs
+    for this client (its status queryable): the latest status of each is handed to ``on_status`` as if received
+    (a run that ended during the outage gets its true final status), or a ``failed`` one if the worker does not
+    know the execution (it restarted). Telemetry missed meanwhile is asked again by the receiver
+    (:meth:`BusClient.telemetry_replay`; ``services.bus_events`` does it).
+
+THREADS: the three callbacks run on Zenoh's threads (``on_worker_lost`` and the synthesized or caught-up statuses on
+timer threads), concurrently with each other and with the caller's threads.
 They must be thread-safe and quick (store, enqueue, notify; no blocking I/O, no calls back into the client that
 wait for the bus). An exception in a callback is logged and swallowed. Status and telemetry of one execution
 arrive in the order the worker published them; a status may arrive before ``start_execution`` returns.
@@ -24,6 +34,7 @@ import contextlib
 import itertools
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -43,6 +54,7 @@ from schemas.bus import (
     RecordRequest,
     StartExecution,
     StartReply,
+    TelemetryReplay,
     WorkerInfo,
     session_config,
     split_endpoints,
@@ -59,8 +71,19 @@ START_TIMEOUT_S = 30.0
 """How long a start request waits for the chosen worker's reply, s: the worker builds the execution's world and
 checks its reach (placement) before it accepts, 0.1-1.2 s on a quiet core, ten times that on a loaded one."""
 LOST_GRACE_S = 0.25
-"""A worker's token gone, wait this long for its last statuses before reporting it lost, s (a token that comes
-back within it, e.g. after a router restart as short, cancels the report)."""
+"""A worker's token gone, wait this long for its last statuses before checking whether it is lost, s (a token that
+comes back within it cancels the check)."""
+WORKER_CHECK_S = 0.5
+"""A worker whose token went while this client kept its router link is lost unless it answers its info query within
+this, s."""
+WORKER_RETURN_GRACE_S = 15.0
+"""After a router outage, how long a worker whose token went with this client's link has, once the link is back, to
+show its token again before it is lost, s (clients retry the router with a back-off: 4.4 s measured after a 2.6 s
+outage)."""
+OUTAGE_WINDOW_S = 1.0
+"""A token that went within this of this client losing (or regaining) its router link went with the link, s."""
+REPLAY_TIMEOUT_S = 10.0
+"""How long a telemetry replay waits for the worker's replies, s."""
 
 
 @dataclass
@@ -144,7 +167,10 @@ class BusClient:
         self._alive: set[str] = set()
         self._running: dict[str, str] = {}  # execution_id -> worker_id, started by this client, not finished
         self._rotation = itertools.count()
-        self._lost_timers: dict[str, threading.Timer] = {}
+        self._timers: dict[str, threading.Timer] = {}  # worker_id -> the check of a token that went
+        self._out_of_sight: set[str] = set()  # workers whose tokens went with the router link
+        self._link_up = True
+        self._link_changed = -math.inf  # time.monotonic() when the router link last went or came back
         self._closed = False
         self._session = open_session(
             settings.mode, connect=settings.endpoints, wait_s=settings.connect_timeout_s, security=settings.security
@@ -152,10 +178,12 @@ class BusClient:
         try:
             s, k = self._session, self.keys
             self._subscribers = [
+                s.info.declare_transport_events_listener(self._transport_event, history=False),
                 s.declare_subscriber(k.status("*"), self._status_sample),
                 s.declare_subscriber(k.telemetry("*"), self._telemetry_sample),
                 s.liveliness().declare_subscriber(k.workers, self._liveliness_sample, history=True),
             ]
+            self._link_up = bool(list(s.info.routers_zid()))
         except Exception:
             self._session.close()
             raise
@@ -187,6 +215,53 @@ class BusClient:
             if known is None or status.seq > known.seq:
                 latest[status.execution_id] = status
         return latest
+
+    def latest_status(
+        self, worker_id: str, execution_id: str, timeout_s: float = INFO_TIMEOUT_S
+    ) -> ExecutionStatus | None:
+        """The latest status of ``execution_id`` that ``worker_id`` reports (its status queryable), or None if it
+        does not know the execution (it never ran it, restarted, or forgot it among more recent ones)."""
+        statuses = [s for s in self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s)
+                    if s.worker_id == worker_id and s.execution_id == execution_id]  # fmt: skip
+        return max(statuses, key=lambda s: s.seq, default=None)
+
+    def telemetry_replay(
+        self, worker_id: str, execution_id: str, start: int, stop: int, timeout_s: float = REPLAY_TIMEOUT_S
+    ) -> list[TelemetryBatch]:
+        """The samples ``start`` to ``stop - 1`` of an execution's telemetry, asked again of the worker that ran it
+        (``P/exec/{worker_id}/replay``): the batches it still keeps of them (none if it is gone or dropped them)."""
+        ask = TelemetryReplay(execution_id=execution_id, start=start, stop=stop).model_dump_json()
+        import zenoh
+
+        batches = []
+        replies = self._session.get(self.keys.replay(worker_id), payload=ask, timeout=timeout_s,
+                                    consolidation=zenoh.ConsolidationMode.NONE)  # every reply has the same key
+        for reply in replies:
+            if reply.ok is None:
+                log.warning("replay of %s [%d, %d) from %s: %s", execution_id, start, stop, worker_id,
+                            reply.err.payload.to_string() if reply.err else "no reply")  # fmt: skip
+                continue
+            try:
+                batch = TelemetryBatch.model_validate_json(reply.ok.payload.to_bytes())
+            except ValueError:
+                log.warning("bad replayed telemetry from %s", worker_id)
+                continue
+            if batch.execution_id == execution_id and batch.first_sample is not None:
+                batches.append(batch)
+        return batches
+
+    def adopt(self, execution_id: str, worker_id: str) -> None:
+        """Watch an execution this client did not start (a previous API process did) as its own: it is failed if
+        its worker is lost, caught up on if the worker comes back from an outage."""
+        with self._lock:
+            self._running[execution_id] = worker_id
+
+    def deliver(self, status: ExecutionStatus) -> None:
+        """Hand ``status`` to ``on_status`` as if it had just been received (one the subscriber missed)."""
+        if status.final:
+            with self._lock:
+                self._running.pop(status.execution_id, None)
+        self._call(self._on_status, status)
 
     def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Any]:
         """Every valid reply (as ``model``) of every queryable on ``key``; bad replies are logged and skipped."""
@@ -317,10 +392,7 @@ class BusClient:
         except ValueError:
             log.warning("bad status on %s", sample.key_expr)
             return
-        if status.final:
-            with self._lock:
-                self._running.pop(status.execution_id, None)
-        self._call(self._on_status, status)
+        self.deliver(status)
 
     def _telemetry_sample(self, sample) -> None:
         try:
@@ -330,6 +402,21 @@ class BusClient:
             return
         self._call(self._on_telemetry, batch)
 
+    def _transport_event(self, event) -> None:
+        """This client's link to a router went or came back."""
+        import zenoh
+
+        if event.transport.whatami != zenoh.WhatAmI.ROUTER:
+            return
+        up = event.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            self._link_up, self._link_changed = up, time.monotonic()
+            waiting = sorted(self._out_of_sight - set(self._timers)) if up else []
+        log.warning("router link %s%s", "back" if up else "lost", f"; waiting for {', '.join(waiting)}" if waiting
+                    else "")  # fmt: skip
+        for worker_id in waiting:
+            self._schedule(worker_id, WORKER_RETURN_GRACE_S, self._overdue)
+
     def _liveliness_sample(self, sample) -> None:
         import zenoh
 
@@ -337,30 +424,85 @@ class BusClient:
             worker_id = self.keys.worker_id_of(str(sample.key_expr))
         except ValueError:
             return
+        came = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
-            pending = self._lost_timers.pop(worker_id, None)
-            if sample.kind == zenoh.SampleKind.PUT:
-                self._alive.add(worker_id)
-            else:
-                self._alive.discard(worker_id)
+            pending = self._timers.pop(worker_id, None)
+            returned = came and (pending is not None or worker_id in self._out_of_sight)
+            self._out_of_sight.discard(worker_id)
+            (self._alive.add if came else self._alive.discard)(worker_id)
         if pending is not None:
             pending.cancel()
-        if sample.kind == zenoh.SampleKind.PUT:
-            log.info("worker %s connected%s", worker_id, " again" if pending is not None else "")
+        if came:
+            log.info("worker %s connected%s", worker_id, " again" if returned else "")
+            if returned:
+                self._schedule(worker_id, 0.0, self._caught_up)
             return
         # The token goes on the control path, the worker's last statuses on the data path: give them
-        # LOST_GRACE_S to arrive before failing what is still running there.
-        timer = threading.Timer(LOST_GRACE_S, self._worker_lost, args=(worker_id,))
+        # LOST_GRACE_S to arrive before deciding what became of the worker.
+        self._schedule(worker_id, LOST_GRACE_S, self._token_gone, time.monotonic())
+
+    def _schedule(self, worker_id: str, delay_s: float, check: Callable[..., None], *args: Any) -> None:
+        """Run ``check(worker_id, *args)`` on a timer thread after ``delay_s``, unless the worker's token comes back
+        first (or another check replaces this one)."""
+
+        def run() -> None:
+            with self._lock:
+                if self._timers.get(worker_id) is not timer:
+                    return
+                del self._timers[worker_id]
+            check(worker_id, *args)
+
+        timer = threading.Timer(delay_s, run)
         timer.daemon = True
         with self._lock:
-            self._lost_timers[worker_id] = timer
+            if self._closed:
+                return
+            replaced = self._timers.pop(worker_id, None)
+            self._timers[worker_id] = timer
+        if replaced is not None:
+            replaced.cancel()
         timer.start()
+
+    def _token_gone(self, worker_id: str, gone_at: float) -> None:
+        """A worker's token went ``LOST_GRACE_S`` ago and has not come back: a router outage, or the worker lost."""
+        with self._lock:
+            with_link = not self._link_up or self._link_changed >= gone_at - OUTAGE_WINDOW_S
+            if with_link:
+                self._out_of_sight.add(worker_id)
+            link_up = self._link_up
+        if with_link:
+            log.warning("worker %s out of sight with the router link: its executions wait for it", worker_id)
+            if link_up:
+                self._schedule(worker_id, WORKER_RETURN_GRACE_S, self._overdue)
+            return
+        if self._ask_all(self.keys.info(worker_id), WorkerInfo, WORKER_CHECK_S):
+            log.warning("worker %s's token went but it answers: kept", worker_id)
+            return
+        self._worker_lost(worker_id)
+
+    def _overdue(self, worker_id: str) -> None:
+        """The router link is back and a worker out of sight since the outage did not return in time."""
+        with self._lock:
+            gone = worker_id in self._out_of_sight
+            self._out_of_sight.discard(worker_id)
+        if gone:
+            self._worker_lost(worker_id)
+
+    def _caught_up(self, worker_id: str) -> None:
+        """A worker is back after its token went: what became of the executions it runs for this client."""
+        with self._lock:
+            executions = [e for e, w in self._running.items() if w == worker_id]
+        for execution_id in executions:
+            status = self.latest_status(worker_id, execution_id)
+            if status is None:
+                error = f"worker {worker_id} came back without execution {execution_id} (it restarted)"
+                status = ExecutionStatus(execution_id=execution_id, worker_id=worker_id, phase=ExecutionPhase.failed,
+                                         message=error, error=error)  # fmt: skip
+            log.warning("worker %s back: execution %s is %s", worker_id, execution_id, status.phase.value)
+            self.deliver(status)
 
     def _worker_lost(self, worker_id: str) -> None:
         with self._lock:
-            if self._lost_timers.get(worker_id) is not threading.current_thread():
-                return  # cancelled: the worker came back, or the client closed
-            del self._lost_timers[worker_id]
             orphans = [e for e, w in self._running.items() if w == worker_id]
             for execution_id in orphans:
                 del self._running[execution_id]
@@ -391,7 +533,7 @@ class BusClient:
             return
         self._closed = True
         with self._lock:
-            timers, self._lost_timers = list(self._lost_timers.values()), {}
+            timers, self._timers = list(self._timers.values()), {}
         for timer in timers:
             timer.cancel()
         for subscriber in self._subscribers:

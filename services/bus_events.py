@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -43,8 +44,9 @@ def _guarded(fn: Callable[..., None]) -> Callable[..., None]:
     return call
 
 
-FINAL_TELEMETRY_GRACE_S = 2.0
-"""How long a final status waits for the last telemetry batches (another Zenoh key, no order between them), s."""
+FINAL_TELEMETRY_GRACE_S = 1.0
+"""How long a final status waits for the last telemetry batches (another Zenoh key, no order between them) before
+what is still missing is asked again of the worker, s."""
 
 
 def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -> bool:
@@ -66,19 +68,32 @@ def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -
 class BusEvents:
     """The callbacks given to the `BusClient`: status, telemetry and lost workers go into the store.
 
-    Status and telemetry travel on different keys, so the final status can overtake the last
-    telemetry batches. A final status is therefore stored once the telemetry it counts
-    (``metrics.steps``) is stored, or after :data:`FINAL_TELEMETRY_GRACE_S`: a client that sees
-    ``done`` can read the whole stream.
+    Nothing lost: every telemetry batch on the bus says where it starts in the execution's stream
+    (``TelemetryBatch.first_sample``). A batch that starts past the samples received so far (this process came up
+    mid-run, or the router was down) shows a gap, and a repair thread asks the worker that runs the execution for
+    the missing samples again (``BusClient.telemetry_replay``); the store keeps each sample once whichever way it
+    came (`services.store.Store.add_telemetry`).
+
+    Status and telemetry travel on different keys, so the final status can overtake the last telemetry batches. A
+    final status is therefore stored once the telemetry it counts (``metrics.steps``) is stored, or, after
+    :data:`FINAL_TELEMETRY_GRACE_S`, once what is still missing has been asked again: a client that sees ``done``
+    can read the whole stream, or ``ExecutionView.telemetry_missing_samples`` says how much of it is lost for good
+    (the worker is gone or no longer keeps it).
     """
 
-    def __init__(self, store: Store) -> None:
+    def __init__(self, store: Store, bus: BusClient | None = None) -> None:
         self.store = store
+        self.bus = bus
+        """The client whose callbacks these are (set by :func:`connect_bus`): where missing telemetry is asked."""
         self.on_status = _guarded(self._status)
         self.on_telemetry = _guarded(self._telemetry)
         self.on_worker_lost = _guarded(self._worker_lost)
         self._held: dict[str, ExecutionStatus] = {}
+        self._received: dict[str, int] = {}  # execution -> one past the last sample received live
         self._lock = threading.Lock()
+        self._repairs: queue.Queue[str] = queue.Queue()
+        self._repairing: set[str] = set()
+        self._repairer: threading.Thread | None = None
 
     def _status(self, status: ExecutionStatus) -> None:
         row = self.store.execution(status.execution_id)
@@ -91,14 +106,13 @@ class BusEvents:
             with self._lock:
                 self._held[status.execution_id] = status
             self.store.update_execution(status.execution_id, phase=status.phase, worker_id=status.worker_id)
-            timer = threading.Timer(FINAL_TELEMETRY_GRACE_S, self._release, args=(status.execution_id,))
+            timer = threading.Timer(FINAL_TELEMETRY_GRACE_S, self._repair, args=(status.execution_id,))
             timer.daemon = True
             timer.start()
             return
-        self._store_status(status, state)
-
-    def _store_status(self, status: ExecutionStatus, state: ExecutionState) -> None:
         store_status(self.store, status, state)
+        if status.final:
+            self._forget(status.execution_id)
 
     def _telemetry_complete(self, status: ExecutionStatus) -> bool:
         if status.metrics is None:
@@ -109,15 +123,77 @@ class BusEvents:
         with self._lock:
             status = self._held.pop(execution_id, None)
         if status is not None:
-            self._store_status(status, FINAL_STATES[status.phase])
+            store_status(self.store, status, FINAL_STATES[status.phase])
+            self._forget(execution_id)
+
+    def _forget(self, execution_id: str) -> None:
+        with self._lock:
+            self._received.pop(execution_id, None)
 
     def _telemetry(self, batch: TelemetryBatch) -> None:
-        if batch.execution_id and len(batch.t):
-            self.store.add_telemetry(batch.execution_id, batch)
+        execution_id = batch.execution_id
+        if not execution_id or not len(batch.t):
+            return
+        with self._lock:
+            received = self._received.get(execution_id)
+        if received is None:
+            received = self.store.telemetry_end(execution_id)
+        self.store.add_telemetry(execution_id, batch)
+        if batch.first_sample is not None:
+            if batch.first_sample > received:
+                log.warning("telemetry of %s: samples %d to %d missed; asking the worker again", execution_id,
+                            received, batch.first_sample - 1)  # fmt: skip
+                self._repair(execution_id)
             with self._lock:
-                held = self._held.get(batch.execution_id)
-            if held is not None and self._telemetry_complete(held):
-                self._release(batch.execution_id)
+                self._received[execution_id] = max(received, batch.first_sample + len(batch.t))
+        with self._lock:
+            held = self._held.get(execution_id)
+        if held is not None and self._telemetry_complete(held):
+            self._release(execution_id)
+
+    def _repair(self, execution_id: str) -> None:
+        """Have the repair thread fill the execution's telemetry gaps (then store its held final status)."""
+        if self.bus is None:
+            self._release(execution_id)
+            return
+        with self._lock:
+            if execution_id in self._repairing:
+                return
+            self._repairing.add(execution_id)
+            if self._repairer is None:
+                self._repairer = threading.Thread(target=self._repair_loop, name="telemetry-repair", daemon=True)
+                self._repairer.start()
+        self._repairs.put(execution_id)
+
+    def _repair_loop(self) -> None:
+        while True:
+            execution_id = self._repairs.get()
+            with self._lock:
+                self._repairing.discard(execution_id)
+            try:
+                self._fill(execution_id)
+            except Exception:
+                log.exception("repairing the telemetry of %s failed", execution_id)
+            self._release(execution_id)
+
+    def _fill(self, execution_id: str) -> None:
+        """Ask the worker that ran the execution for every sample missing from the store (up to the held final
+        status's count, else up to the last one stored)."""
+        row = self.store.execution(execution_id)
+        if row is None or row.worker_id is None or self.bus is None:
+            return
+        with self._lock:
+            held = self._held.get(execution_id)
+        total = held.metrics.steps if held is not None and held.metrics is not None else None
+        gaps = self.store.telemetry_gaps(execution_id, total)
+        filled = sum(
+            self.store.add_telemetry(execution_id, batch)
+            for start, stop in gaps
+            for batch in self.bus.telemetry_replay(row.worker_id, execution_id, start, stop)
+        )
+        missing = sum(stop - start for start, stop in gaps) - filled
+        log.log(logging.WARNING if missing else logging.INFO, "telemetry of %s: %d missing samples asked again of %s, "
+                "%d received, %d lost", execution_id, filled + missing, row.worker_id, filled, missing)  # fmt: skip
 
     def _worker_lost(self, worker_id: str) -> None:
         marked = self.store.fail_active(f"worker {worker_id} was lost while running (process gone)", worker_id)
@@ -127,11 +203,12 @@ class BusEvents:
 
 def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOVERY_S) -> list[str]:
     """Executions left starting/running by a previous API process: keep those a live worker reports running
-    (``WorkerInfo.execution_id``; their statuses keep arriving), store the final status of those that ended while
-    no API listened (the workers' status queryables keep it: a run that finished is ``done``, not failed; the
-    telemetry it published meanwhile is missing, and ``ExecutionView.telemetry_missing_samples`` says how much),
-    put those still being handed over back in the queue (``services.queue``), mark the rest failed
-    (:data:`RESTART_REASON`). Returns the ids marked failed."""
+    (``WorkerInfo.execution_id``; the bus client adopts them, their statuses keep arriving, and the telemetry
+    published while no API listened is asked again when the next batch shows the gap), hand the final status of
+    those that ended while no API listened to the bus callbacks as if received (the workers' status queryables
+    keep it: a run that finished is ``done``, not failed; it is stored once its missing telemetry has been asked
+    again, :class:`BusEvents`), put those still being handed over back in the queue (``services.queue``), mark the
+    rest failed (:data:`RESTART_REASON`). Returns the ids marked failed."""
     active = store.active_executions()
     if not active:
         return []
@@ -149,11 +226,15 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
     ended = {} if bus is None else bus.latest_statuses()
     marked = []
     for row in active:
+        if row.id in running and bus is not None and row.worker_id is not None:
+            bus.adopt(row.id, row.worker_id)
+            continue
         if row.id in running or (row.status is ExecutionState.starting and store.requeue(row.id)):
             continue
         status = ended.get(row.id)
-        if status is not None and status.final and store_status(store, status, FINAL_STATES[status.phase]):
+        if bus is not None and status is not None and status.final and status.worker_id == row.worker_id:
             log.warning("execution %s ended %s while no API listened", row.id, status.phase.value)
+            bus.deliver(status)
             continue
         if store.update_execution(
             row.id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=RESTART_REASON
@@ -176,4 +257,5 @@ def connect_bus(settings: ServiceSettings, store: Store) -> BusClient:
         prefix=settings.zenoh_prefix,
         connect_timeout_s=settings.connect_timeout_s,
     )
-    return BusClient(bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost)
+    events.bus = BusClient(bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost)
+    return events.bus

@@ -17,8 +17,12 @@ on that thread would fail with "database is locked".
 Schema: created on open and versioned with ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`);
 a database written by a newer version is refused rather than misread.
 
-Telemetry is append-only: one row per received batch, the batch's columns as a float64 matrix
-(:data:`TELEMETRY_LAYOUT`, phases as :data:`schemas.execution.PHASE_CODES`), zlib-compressed.
+Telemetry: rows of consecutive samples, each keyed by (execution, index of its first sample in the execution's
+stream, ``TelemetryBatch.first_sample``), the samples' columns as a float64 matrix (:data:`TELEMETRY_LAYOUT`, phases
+as :data:`schemas.execution.PHASE_CODES`), zlib-compressed. The stored ranges never overlap: a batch received twice
+(a replay of what the live stream already brought) stores only the samples not stored yet, so every sample is
+stored once, and reading in key order gives the samples in order (:meth:`Store.add_telemetry`,
+:meth:`Store.telemetry_gaps`).
 """
 
 from __future__ import annotations
@@ -42,8 +46,9 @@ from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration, DemonstrationSummary
 from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch
 
-SCHEMA_VERSION = 2
-"""Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns)."""
+SCHEMA_VERSION = 3
+"""Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
+by sample index)."""
 
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
@@ -91,6 +96,17 @@ CREATE INDEX executions_queue ON executions (status, priority DESC, created, id)
 """Version 2: an execution's queue priority, and what to send to a worker while it is queued (``dispatch``: JSON
 with the request with its skill inline, the world overrides and the demonstration id; cleared once started)."""
 
+_SCHEMA_V3 = """
+UPDATE telemetry SET seq = -1 - stream.first FROM (
+    SELECT execution_id, seq, COALESCE(SUM(rows) OVER (PARTITION BY execution_id ORDER BY seq
+        ROWS BETWEEN UNBOUNDED PRECEDING AND 1 PRECEDING), 0) AS first FROM telemetry
+) AS stream WHERE telemetry.execution_id = stream.execution_id AND telemetry.seq = stream.seq;
+UPDATE telemetry SET seq = -1 - seq
+"""
+"""Version 3: ``telemetry.seq`` is the index of the row's first sample in the execution's stream (it counted the
+received batches): the samples stored before it, in the order they were received (through negative values, so no
+two rows share a key on the way)."""
+
 TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
     "t": (0, 1),
     "phase": (1, 2),
@@ -105,6 +121,8 @@ TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
 }
 """Column range of each `TelemetryBatch` field in the stored float64 matrix (width :data:`TELEMETRY_WIDTH`)."""
 TELEMETRY_WIDTH = 30
+_TELEMETRY_END = "SELECT COALESCE(MAX(seq + rows), 0) FROM telemetry WHERE execution_id = ?"
+"""One past the last stored sample of an execution."""
 _PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
 
 
@@ -206,6 +224,20 @@ def telemetry_columns(matrix: np.ndarray) -> dict[str, list]:
     return columns
 
 
+def _uncovered(start: int, stop: int, covered: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The parts of ``[start, stop)`` outside the sorted, disjoint ranges ``covered``."""
+    parts = []
+    for a, b in covered:
+        if a > start:
+            parts.append((start, min(a, stop)))
+        start = max(start, b)
+        if start >= stop:
+            break
+    if start < stop:
+        parts.append((start, stop))
+    return [(a, b) for a, b in parts if b > a]
+
+
 class Store:
     """The service's database (see the module docstring); safe to share between threads."""
 
@@ -273,7 +305,7 @@ class Store:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2)[version:]:
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3)[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:
@@ -563,18 +595,44 @@ class Store:
 
     # ------------------------------------------------------------------ telemetry
 
-    def add_telemetry(self, execution_id: str, batch: TelemetryBatch) -> bool:
-        """Append a telemetry batch of a KNOWN execution; False (nothing stored) for an unknown one."""
+    def add_telemetry(self, execution_id: str, batch: TelemetryBatch) -> int:
+        """Store the samples of a telemetry batch of a KNOWN execution that are not stored yet; return how many were
+        new (0 for an unknown execution or a batch already stored). A batch without ``first_sample`` (not from the
+        bus) goes after the last sample stored."""
         matrix = telemetry_matrix(batch)
-        data = zlib.compress(matrix.astype("<f8").tobytes(), 1)
+        received = time.time()
         with self._transaction() as db:
-            cursor = db.execute(
-                "INSERT INTO telemetry (execution_id, seq, received, rows, data) "
-                "SELECT ?, (SELECT COALESCE(MAX(seq), -1) + 1 FROM telemetry WHERE execution_id = ?), ?, ?, ? "
-                "WHERE EXISTS (SELECT 1 FROM executions WHERE id = ?)",
-                (execution_id, execution_id, time.time(), matrix.shape[0], data, execution_id),
-            )
-            return cursor.rowcount > 0
+            if db.execute("SELECT 1 FROM executions WHERE id = ?", (execution_id,)).fetchone() is None:
+                return 0
+            first = batch.first_sample
+            if first is None:
+                first = int(db.execute(_TELEMETRY_END, (execution_id,)).fetchone()[0])
+            stop = first + matrix.shape[0]
+            stored = db.execute(
+                "SELECT seq, rows FROM telemetry WHERE execution_id = ? AND seq < ? AND seq + rows > ? ORDER BY seq",
+                (execution_id, stop, first),
+            ).fetchall()
+            new = 0
+            for start, end in _uncovered(first, stop, [(r["seq"], r["seq"] + r["rows"]) for r in stored]):
+                block = matrix[start - first : end - first]
+                db.execute(
+                    "INSERT INTO telemetry (execution_id, seq, received, rows, data) VALUES (?, ?, ?, ?, ?)",
+                    (execution_id, start, received, end - start, zlib.compress(block.astype("<f8").tobytes(), 1)),
+                )
+                new += end - start
+            return new
+
+    def telemetry_end(self, execution_id: str) -> int:
+        """One past the last stored sample index of an execution (0 with none)."""
+        r = self._one(_TELEMETRY_END, (execution_id,))
+        return int(r[0]) if r is not None else 0
+
+    def telemetry_gaps(self, execution_id: str, total: int | None = None) -> list[tuple[int, int]]:
+        """The sample ranges ``[start, stop)`` missing from an execution's stored telemetry, below ``total`` samples
+        (default: up to the last stored one)."""
+        rows = self._all("SELECT seq, rows FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,))
+        end = total if total is not None else max((r["seq"] + r["rows"] for r in rows), default=0)
+        return _uncovered(0, end, [(r["seq"], r["seq"] + r["rows"]) for r in rows])
 
     def telemetry_counts(self, execution_id: str) -> tuple[int, int]:
         """(batches, samples) stored for an execution."""
@@ -582,11 +640,7 @@ class Store:
         return (int(r[0]), int(r[1])) if r is not None else (0, 0)
 
     def telemetry(self, execution_id: str) -> np.ndarray:
-        """Every stored sample of an execution, in time order, as one (N, :data:`TELEMETRY_WIDTH`) matrix."""
+        """Every stored sample of an execution, in stream order, as one (N, :data:`TELEMETRY_WIDTH`) matrix."""
         rows = self._all("SELECT rows, data FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,))
         blocks = [np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, TELEMETRY_WIDTH) for n, data in rows]
-        if not blocks:
-            return np.empty((0, TELEMETRY_WIDTH))
-        matrix = np.concatenate(blocks)
-        order = np.argsort(matrix[:, 0], kind="stable")  # batches can arrive out of order
-        return matrix[order]
+        return np.concatenate(blocks) if blocks else np.empty((0, TELEMETRY_WIDTH))

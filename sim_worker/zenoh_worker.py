@@ -5,8 +5,10 @@ router if it is not up yet), declares
 
 - the liveliness token ``P/workers/{worker_id}`` (it disappears when the process dies, even by SIGKILL),
 - the queryables ``P/exec/{worker_id}/info`` (``WorkerInfo``), ``P/exec/{worker_id}/start`` (``StartExecution``
-  -> ``StartReply``), ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``) and
-  ``P/exec/*/status`` (the latest ``ExecutionStatus`` of the executions this worker ran, for late joiners),
+  -> ``StartReply``), ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
+  ``P/exec/{worker_id}/replay`` (``TelemetryReplay`` -> ``TelemetryBatch`` replies: the telemetry of its recent
+  executions, ``sim_worker.telemetry_archive``, for a receiver that missed batches) and ``P/exec/*/status`` (the
+  latest ``ExecutionStatus`` of the executions this worker ran, for late joiners and after a router outage),
 
 and serves until SIGINT/SIGTERM. One job at a time: a start or record request while busy gets a ``busy`` reply.
 
@@ -15,7 +17,8 @@ the request's ``scenario`` (else the scenario named by the skill's demonstration
 ``world_overrides``. While it runs the worker
 
 - publishes every control step on ``P/exec/{execution_id}/telemetry`` (``TelemetryBatch`` of
-  ``request.telemetry_batch`` rows, reliable, congestion control BLOCK: nothing is dropped),
+  ``request.telemetry_batch`` rows, reliable, congestion control BLOCK, numbered by ``seq`` and ``first_sample``)
+  and keeps them for replays (what a disconnected receiver or router outage lost is asked again),
 - publishes ``ExecutionStatus`` on ``P/exec/{execution_id}/status``: ``pending`` on acceptance, then on every phase
   or segment change, pause and resume, and a final one (done / aborted / failed) with the metrics,
 - listens on ``P/exec/{execution_id}/cmd``: ``abort`` is polled by the control loop after every step (the
@@ -55,6 +58,7 @@ from schemas.bus import (
     RecordRequest,
     StartExecution,
     StartReply,
+    TelemetryReplay,
     WorkerInfo,
     check_id,
     session_config,
@@ -63,15 +67,17 @@ from schemas.bus import (
 from schemas.bus_security import BusSecurity
 from schemas.execution import ExecutionPhase
 from schemas.skill import Skill
+from sim_worker.telemetry import Telemetry
+from sim_worker.telemetry_archive import TelemetryArchive
 
 log = logging.getLogger("contact_skills.worker")
 _PHASES = list(ExecutionPhase)
 
 STATUS_CACHE = 200
-
-MAX_COALESCED_ROWS = 1000
-"""Most control steps sent in one telemetry message when queued batches are merged to catch up."""
 """Latest statuses kept for the status queryable (executions of this worker)."""
+MAX_COALESCED_ROWS = 1000
+"""Most control steps sent in one telemetry message when queued batches are merged to catch up, and in one reply
+to a replay query."""
 PAUSED_SLEEP_S = 1e-3
 """While paused, each held control step sleeps this long (so a paused fast execution does not spin)."""
 FINAL_STATUS_HEAD_START_S = 0.1
@@ -186,7 +192,8 @@ class _Run:
     def on_sample(self, tel) -> None:
         """A batch of control steps from the loop: queue it and a status for each phase/segment change."""
         stamp = time.time()
-        self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp))
+        first = self.worker.archive.append(self.execution_id, tel)
+        self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp, first))
         codes, segments, t = tel.phase_codes, tel.segment_index, tel.t
         changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
         for k in (0, *changes.tolist()):
@@ -215,7 +222,7 @@ class _Run:
             }
             self.seq += 1
             status = ExecutionStatus(**values)
-            self.worker._publish_queue.put(("status", self.execution_id, status, None))
+            self.worker._publish_queue.put(("status", self.execution_id, status, None, None))
         return status
 
     def command(self, command: ExecutionCommand) -> None:
@@ -289,6 +296,7 @@ class Worker:
         self._run: _Run | None = None
         self._recording = False
         self._statuses: OrderedDict[str, ExecutionStatus] = OrderedDict()
+        self.archive = TelemetryArchive()
         self._publish_queue: queue.Queue = queue.Queue()
         self._publisher: threading.Thread | None = None
         self._session = None
@@ -329,6 +337,7 @@ class Worker:
             session.declare_queryable(keys.info(self.worker_id), self._on_info),
             session.declare_queryable(keys.start(self.worker_id), self._on_start),
             session.declare_queryable(keys.record(self.worker_id), self._on_record),
+            session.declare_queryable(keys.replay(self.worker_id), self._on_replay),
             session.declare_queryable(keys.status("*"), self._on_status_query),
         ]
         # The token last: whoever sees the worker can use it at once.
@@ -391,8 +400,6 @@ class Worker:
         """
         import zenoh
 
-        from sim_worker.telemetry import Telemetry
-
         block = zenoh.CongestionControl.BLOCK
         nothing = object()  # "no item held back" (None is the queue's stop sentinel)
         held: Any = nothing
@@ -400,7 +407,7 @@ class Worker:
             item, held = (self._publish_queue.get(), nothing) if held is nothing else (held, nothing)
             if item is None:
                 return
-            kind, execution_id, payload, stamp = item
+            kind, execution_id, payload, stamp, first = item
             try:
                 if kind == "telemetry":
                     parts = [payload.data]
@@ -415,7 +422,8 @@ class Worker:
                         parts.append(following[2].data)
                     telemetry = payload if len(parts) == 1 else Telemetry(np.concatenate(parts))
                     batch = telemetry.to_batch(execution_id)
-                    batch.sent_unix_s = stamp
+                    batch.sent_unix_s, batch.first_sample = stamp, first
+                    batch.seq = self.archive.next_batch(execution_id)
                     key, data = self.keys.telemetry(execution_id), batch.model_dump_json()
                 else:
                     payload.sent_unix_s = time.time()
@@ -450,6 +458,28 @@ class Worker:
                     query.reply(key, status.model_dump_json())
         except Exception:
             log.exception("status query failed")
+
+    def _on_replay(self, query) -> None:
+        """Send again the telemetry rows asked for, in messages of up to :data:`MAX_COALESCED_ROWS` rows; an error
+        reply if this worker keeps none of them."""
+        try:
+            try:
+                ask = TelemetryReplay.model_validate_json(query.payload.to_bytes() if query.payload else b"")
+            except ValueError as exc:
+                query.reply_err(_short_error(exc))
+                return
+            telemetry = self.archive.rows(ask.execution_id, ask.start, ask.stop)
+            if telemetry is None or not len(telemetry):
+                query.reply_err(f"worker {self.worker_id} keeps no telemetry of {ask.execution_id} from sample "
+                                f"{ask.start} to {ask.stop - 1}")  # fmt: skip
+                return
+            key = self.keys.replay(self.worker_id)
+            for first in range(0, len(telemetry), MAX_COALESCED_ROWS):
+                batch = Telemetry(telemetry.data[first : first + MAX_COALESCED_ROWS]).to_batch(ask.execution_id)
+                batch.first_sample = ask.start + first
+                query.reply(key, batch.model_dump_json())
+        except Exception:
+            log.exception("replay query failed")
 
     def _on_start(self, query) -> None:
         execution_id = "?"
@@ -519,6 +549,7 @@ class Worker:
         with self._lock:
             if self._run is run:
                 self._run = None
+        self.archive.finish(run.execution_id)
         status = run.status(abort_received_t=run.abort_received_t, paused=False, **final)
         log.info("%s %s after %.3f s simulated", run.execution_id, status.phase.value, status.t)
 
