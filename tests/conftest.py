@@ -52,6 +52,7 @@ class FakeBus:
         self.started: list[tuple[str, object]] = []
         self.commands: list[tuple[str, str]] = []
         self.recorded: RecordReply | None = None
+        self.replays: list[tuple[str, str, int, int]] = []
 
     def workers(self) -> list[WorkerInfo]:
         return list(self.infos)
@@ -67,6 +68,11 @@ class FakeBus:
 
     def latest_statuses(self) -> dict:
         return {}
+
+    def telemetry_replay(self, worker_id: str, execution_id: str, start: int, stop: int) -> list:
+        """A worker that keeps none of the telemetry asked for (it dropped it, or restarted)."""
+        self.replays.append((worker_id, execution_id, start, stop))
+        return []
 
     def send_command(self, execution_id, command) -> None:
         self.commands.append((execution_id, command))
@@ -108,7 +114,7 @@ def bus_client(tmp_path):
 
     store = Store(tmp_path / "api.db")
     events = BusEvents(store)
-    bus = FakeBus(events.on_status, events.on_telemetry, events.on_worker_lost)
+    bus = events.bus = FakeBus(events.on_status, events.on_telemetry, events.on_worker_lost)
     with loopback_client(create_app(api_settings(tmp_path), bus=bus, store=store)) as c:
         c.bus = bus
         yield c

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -337,6 +338,7 @@ def _batch(execution_id: str, t0: float, n: int = 10) -> TelemetryBatch:
         wrench_world=[[0.0, 0.0, -15.0, 0.0, 0.0, 0.0]] * n,
         wrench_cf=[[0.0, 0.0, 15.0, 0.0, 0.0, 0.0]] * n,
         desired_force_cf_z_n=[15.0] * n,
+        first_sample=round(t0 / 1e-3),
     )
 
 
@@ -358,7 +360,7 @@ def test_execution_lifecycle_with_a_fake_bus(bus_client, demo):
     assert bus.started[0][0] == exec_id and bus.started[0][1].scenario == "slide_flat"
     assert c.get(f"/executions/{exec_id}").json()["status"] == "running"
 
-    # status and telemetry arrive from "Zenoh threads"; batches out of order are sorted by time
+    # status and telemetry arrive from "Zenoh threads"; batches out of order are stored in stream order
     threads = [threading.Thread(target=bus.on_telemetry, args=(_batch(exec_id, t0),)) for t0 in (0.02, 0.0, 0.01)]
     for thread in threads:
         thread.start()
@@ -386,6 +388,23 @@ def test_execution_lifecycle_with_a_fake_bus(bus_client, demo):
     assert c.get(f"/executions/{exec_id}/telemetry?every=7").json()["n_samples"] == 5
     assert _names(c.get(f"/executions/{exec_id}/telemetry?every=0"), "every")
     bus.on_telemetry(_batch("exec_unknown", 0.0))  # not ours: not stored, no error
+
+
+def test_a_gap_no_worker_fills_is_reported_and_a_repeated_batch_is_counted_once(bus_client, demo):
+    c, bus = bus_client, bus_client.bus
+    skill_id = c.post("/skills", json={"demonstration": demo}).json()["id"]
+    exec_id = c.post("/executions", json={"skill_id": skill_id}).json()["id"]
+    for t0 in (0.0, 0.0, 0.02):  # samples 0-9 twice (a replay of what came live), 20-29; 10-19 never arrive
+        bus.on_telemetry(_batch(exec_id, t0))
+    metrics = ExecutionMetrics(controller="hybrid_cf", phase="done", real_time_factor=10.0, duration_s=0.03,
+                               steps=30, peak_force_n=15.0)  # fmt: skip
+    bus.on_status(ExecutionStatus(execution_id=exec_id, worker_id="w0", phase="done", metrics=metrics))
+    deadline = time.monotonic() + 10
+    while (view := c.get(f"/executions/{exec_id}").json())["status"] != "done":  # stored once the gap was asked
+        assert time.monotonic() < deadline, view
+        time.sleep(0.05)
+    assert view["telemetry_samples"] == 20 and view["telemetry_missing_samples"] == 10
+    assert ("w0", exec_id, 10, 20) in bus.replays  # the worker was asked for exactly the gap
 
 
 def test_worker_lost_and_api_restart_mark_running_executions_failed(tmp_path, demo):

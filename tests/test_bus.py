@@ -396,9 +396,10 @@ def test_sigterm_aborts_the_execution_and_exits_0(bus, skill):
         _stop(process)
 
 
-def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_reports_the_gap(bus, skill, tmp_path):
+def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_telemetry_back(bus, skill, tmp_path):
     """The API's bus side (BusClient + BusEvents on a store) goes away mid-run; the run finishes on the real
-    worker; a new API process reconciles: the run is done with its metrics, and the missing telemetry is counted."""
+    worker; a new bus side reconciles: the run is done with its metrics, and the telemetry published while no API
+    listened is asked again of the worker (``P/exec/{worker}/replay``): every sample stored once, in order."""
     from conftest import api_settings, loopback_client
 
     from services.app import BusEvents, create_app
@@ -417,20 +418,28 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_reports_th
         _wait(lambda: store.telemetry_counts(row.id)[1] > 200, what="telemetry stored")
     finally:
         first.close()  # the API dies mid-run
-    recorder = Recorder()
-    second = BusClient(BusSettings(endpoints=[endpoint]), recorder.on_status, recorder.on_telemetry,
-                       recorder.on_worker_lost)  # fmt: skip
+    recorder = Recorder()  # watches the worker, stores nothing
+    with BusClient(BusSettings(endpoints=[endpoint]), recorder.on_status, recorder.on_telemetry,
+                   recorder.on_worker_lost) as watcher:  # fmt: skip
+        _wait(lambda: not next(w for w in watcher.workers() if w.worker_id == worker).busy, 30, "the run to end")
+    events = BusEvents(store)
+    second = BusClient(BusSettings(endpoints=[endpoint]), events.on_status, events.on_telemetry,
+                       events.on_worker_lost)  # fmt: skip
+    events.bus = second
     try:
-        _wait(lambda: not next(w for w in second.workers() if w.worker_id == worker).busy, 30, "the run to end")
+        stored_before = store.telemetry_counts(row.id)[1]
         assert store.execution(row.id).status.value == "running"
         assert reconcile(store, second) == []  # nothing marked failed: the worker told how it ended
+        ended = _wait(lambda: (lambda r: r if r.status.value != "running" else None)(store.execution(row.id)), 15,
+                      "the final status stored")  # fmt: skip
     finally:
         second.close()
-    ended = store.execution(row.id)
     assert ended.status.value == "done" and ended.metrics is not None and ended.worker_id == worker
-    stored = store.telemetry_counts(row.id)[1]
-    assert 200 < stored < ended.metrics["steps"]
+    steps = ended.metrics["steps"]
+    assert store.telemetry_gaps(row.id, steps) == [] and store.telemetry_counts(row.id)[1] == steps > 200
+    np.testing.assert_allclose(store.telemetry(row.id)[:, 0], np.arange(steps) * DT, atol=1e-9)
     with loopback_client(create_app(api_settings(tmp_path, learn_warm_up=False), bus=None, store=store)) as c:
         view = c.get(f"/executions/{row.id}").json()
-    assert view["telemetry_missing_samples"] == ended.metrics["steps"] - stored > 0
+    assert view["telemetry_missing_samples"] == 0 and view["telemetry_samples"] == steps
+    assert stored_before < steps  # what the dead API missed came back from the worker
     store.close()
