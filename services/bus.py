@@ -67,6 +67,9 @@ log = logging.getLogger("contact_skills.bus")
 
 INFO_TIMEOUT_S = 2.0
 """How long ``workers()`` waits for the workers' info replies, s (they answer in about a millisecond)."""
+WORKERS_FRESH_S = 0.5
+"""``workers_seen()`` answers from the last info query younger than this, s; an older one is refreshed in the
+background."""
 START_TIMEOUT_S = 30.0
 """How long a start request waits for the chosen worker's reply, s: the worker builds the execution's world and
 checks its reach (placement) before it accepts, 0.1-1.2 s on a quiet core, ten times that on a loaded one."""
@@ -169,6 +172,8 @@ class BusClient:
         self._rotation = itertools.count()
         self._timers: dict[str, threading.Timer] = {}  # worker_id -> the check of a token that went
         self._out_of_sight: set[str] = set()  # workers whose tokens went with the router link
+        self._seen: tuple[float, dict[str, WorkerInfo]] | None = None  # (time.monotonic(), the last info replies)
+        self._refreshing = False
         self._link_up = True
         self._link_changed = -math.inf  # time.monotonic() when the router link last went or came back
         self._closed = False
@@ -201,10 +206,37 @@ class BusClient:
         live worker did not answer its info query in time)."""
         infos = {info.worker_id: info for info in self._ask_all(self.keys.info("*"), WorkerInfo, timeout_s)}
         with self._lock:
+            self._seen = (time.monotonic(), dict(infos))
             alive = set(self._alive)
         for worker_id in alive - set(infos):
             infos[worker_id] = WorkerInfo(worker_id=worker_id, busy=True, activity="unknown")
         return [infos[w] for w in sorted(infos)]
+
+    def workers_seen(self) -> list[WorkerInfo]:
+        """The connected workers without waiting on the bus (for ``GET /health``, which must answer at once on a
+        loaded machine, where a query waits for every worker process to be scheduled): the workers whose liveliness
+        tokens are present now, each with the info of the last query (at most about :data:`WORKERS_FRESH_S` old;
+        an older one is refreshed in the background; ``unknown`` for a worker that query did not see). The first
+        call waits for a query."""
+        with self._lock:
+            seen, alive = self._seen, set(self._alive)
+            refresh = seen is not None and time.monotonic() - seen[0] > WORKERS_FRESH_S and not self._refreshing
+            self._refreshing = self._refreshing or refresh
+        if seen is None:
+            return self.workers()
+        if refresh:
+            threading.Thread(target=self._refresh_seen, name="workers-refresh", daemon=True).start()
+        unknown = WorkerInfo(worker_id="?", busy=True, activity="unknown")
+        return [seen[1].get(w) or unknown.model_copy(update={"worker_id": w}) for w in sorted(alive)]
+
+    def _refresh_seen(self) -> None:
+        try:
+            self.workers()
+        except Exception:  # the session closed meanwhile
+            log.debug("refreshing the workers' info failed", exc_info=True)
+        finally:
+            with self._lock:
+                self._refreshing = False
 
     def latest_statuses(self, timeout_s: float = INFO_TIMEOUT_S) -> dict[str, ExecutionStatus]:
         """The latest status of every execution the connected workers ran recently (their status queryables keep

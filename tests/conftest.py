@@ -57,6 +57,8 @@ class FakeBus:
     def workers(self) -> list[WorkerInfo]:
         return list(self.infos)
 
+    workers_seen = workers
+
     def start_execution(self, execution_id, request, **options) -> str:
         from services.bus import NoWorkerAvailable
 

@@ -25,10 +25,11 @@ def health(
     """Liveness, the sim workers connected over Zenoh and the learner processes.
 
     Always 200 while the API answers (docker-compose's healthcheck uses it): the version, whether the Zenoh bus is
-    connected, each connected worker's state (idle, executing, recording), the executions running now, the learner
-    processes. The database path and the process ids and host names of the API and its workers only for a request
-    with the bearer token."""
-    infos = bus.workers() if bus is not None else []
+    connected, each connected worker's state (idle, executing, recording; as the bus showed it at most about half a
+    second ago: the answer never waits for the workers), the executions running now, the learner processes. The
+    database path and the process ids and host names of the API and its workers only for a request with the
+    bearer token."""
+    infos = bus.workers_seen() if bus is not None else []  # never waits on the bus (but the first time)
     detail = None
     if known:
         detail = HealthDetail(
