@@ -7,7 +7,8 @@ Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--execut
    a 10 s 1 kHz demonstration (``skills.synthetic.plane_slide(duration_s=10)``) is stored, then ``--learns``
    ``POST /skills`` (``demonstration_id``) are sent at once from as many client threads, while another thread
    asks ``GET /health`` every 50 ms. Reported: the learns' wall time and throughput, their client latency, and
-   /health's p50/p99/max during the whole burst. Target: /health p99 < 100 ms.
+   /health's p50/p99/max during the whole burst, beside the same figures over 15 s with no learning just before
+   (the machine is shared: what other jobs' load alone does to the API's latency). Target: /health p99 < 100 ms.
 2. Queue wait: ``contact-skills up --workers N`` (N = 1, 2): one scripted slide demonstration is recorded and
    learned, then ``--executions`` executions (pace fast) are submitted at once from as many threads; the
    executions list is polled every 0.1 s. Queue wait = first poll that shows a worker for it minus its
@@ -39,6 +40,8 @@ import numpy as np  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 HEALTH_EVERY_S = 0.05
+BASELINE_S = 15.0
+"""/health is first asked for this long with no learning: its latency on the machine as loaded by others."""
 HEALTH_TARGET_P99_S = 0.100
 POLL_S = 0.25
 FINAL = ("done", "aborted", "failed")
@@ -68,19 +71,27 @@ def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
             health: list[float] = []
             stop = threading.Event()
 
-            def poll_health() -> None:
+            def poll_health(into: list[float]) -> None:
                 while not stop.is_set():
                     started = time.perf_counter()
                     http.get("/health", timeout=30).raise_for_status()
-                    health.append(time.perf_counter() - started)
+                    into.append(time.perf_counter() - started)
                     stop.wait(HEALTH_EVERY_S)
+
+            idle: list[float] = []  # the same requests with no learning, on the machine as loaded now
+            idle_load = os.getloadavg()[0]
+            timer = threading.Timer(BASELINE_S, stop.set)
+            timer.start()
+            poll_health(idle)
+            stop.clear()
 
             def learn(_: int) -> tuple[int, float]:
                 started = time.perf_counter()
                 response = http.post("/skills", json={"demonstration_id": demo_id})
                 return response.status_code, time.perf_counter() - started
 
-            poller = threading.Thread(target=poll_health)
+            burst_load = os.getloadavg()[0]
+            poller = threading.Thread(target=poll_health, args=(health,))
             poller.start()
             started = time.perf_counter()
             with ThreadPoolExecutor(learns) as pool:
@@ -91,15 +102,17 @@ def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
             stats = http.get("/health").json()["learning"]
     codes = [code for code, _ in results]
     latency = np.array([t for _, t in results])
-    h = np.array(health)
-    p99 = float(np.percentile(h, 99))
+    h, i = np.array(health), np.array(idle)
+    p99, idle_p99 = float(np.percentile(h, 99)), float(np.percentile(i, 99))
     rows = [
+        f"| none ({BASELINE_S:g} s) | — | — | — | — | {idle_load:.1f} | {len(i)} | {_ms(np.median(i))} / "
+        f"{_ms(idle_p99)} / {_ms(i.max())} | {'MET' if idle_p99 < HEALTH_TARGET_P99_S else 'NOT MET'} |",
         f"| {learns} at once | {codes.count(201)} / {learns} | {wall:.1f} | {learns / wall:.2f} | "
-        f"{np.median(latency):.2f} / {latency.max():.2f} | {len(h)} | {_ms(np.median(h))} / {_ms(p99)} / "
-        f"{_ms(h.max())} | {'MET' if p99 < HEALTH_TARGET_P99_S else 'NOT MET'} |",
+        f"{np.median(latency):.2f} / {latency.max():.2f} | {burst_load:.1f} | {len(h)} | {_ms(np.median(h))} / "
+        f"{_ms(p99)} / {_ms(h.max())} | {'MET' if p99 < HEALTH_TARGET_P99_S else 'NOT MET'} |",
     ]
     return rows, {"single": single, "wall": wall, "health_p99": p99, "processes": stats["processes"],
-                  "ok": codes.count(201), "learns": learns}  # fmt: skip
+                  "ok": codes.count(201), "learns": learns, "idle_p99": idle_p99, "idle_load": idle_load}  # fmt: skip
 
 
 def bench_queue(workers: int, executions: int) -> tuple[str, dict[str, float]]:
@@ -169,7 +182,9 @@ def main() -> None:
     sentences = [
         f"{learning['ok']} of {learning['learns']} learns answered 201 in {learning['wall']:.1f} s on "
         f"{learning['processes']} learner processes ({learning['learns'] / learning['wall']:.2f} learns/s; one alone "
-        f"took {learning['single']:.2f} s); /health p99 during the burst: {learning['health_p99'] * 1000:.0f} ms.",
+        f"took {learning['single']:.2f} s); /health p99 during the burst: {learning['health_p99'] * 1000:.0f} ms, "
+        f"with no learning just before: {learning['idle_p99'] * 1000:.0f} ms (load average "
+        f"{learning['idle_load']:.1f}).",
         *(
             f"{workers} worker(s): {q['accepted']} of {args.executions} executions accepted (none refused for "
             f"lack of a free worker), {q['done']} done, the longest queue wait {q['wait_max']:.1f} s, all finished "
@@ -194,9 +209,9 @@ def main() -> None:
             f"from {args.learns} client threads while `GET /health` is asked every {HEALTH_EVERY_S * 1000:.0f} ms. "
             f"Target: /health p99 < {HEALTH_TARGET_P99_S * 1000:.0f} ms.",
             "",
-            "| learns | 201 | wall s | learns/s | client latency median / max s | /health samples | "
-            "/health p50 / p99 / max ms | target |",
-            "| --- | --- | ---: | ---: | --- | ---: | --- | --- |",
+            "| learns | 201 | wall s | learns/s | client latency median / max s | load (1 min) at start | "
+            "/health samples | /health p50 / p99 / max ms | target |",
+            "| --- | --- | ---: | ---: | --- | ---: | ---: | --- | --- |",
             *learn_rows,
             "",
             f"Queue: a `{SCENARIO}` demonstration recorded by a worker (overrides {RECORD_OVERRIDES}) and learned, "

@@ -301,3 +301,15 @@ def test_an_abandoned_learn_stops_and_health_answers_meanwhile(tmp_path):
             assert time.monotonic() < deadline, f"the abandoned learn kept computing: {learning}"
             time.sleep(0.2)
         assert learning["completed"] == 0 and learning["restarted"] == 1
+
+
+def test_a_learn_past_the_memory_budget_is_422_and_the_next_one_learns(tmp_path, demo):
+    """The learner's address space is capped (50 learns once took 1.4 GB): 64 MiB is less than a learner process
+    needs at all (~370 MiB for this learn), so the job fails inside its process, answered as a 422 naming the
+    budget, not a 500 and not the machine's memory; a learner with room learns the same demonstration."""
+    with _client(create_app(_settings(tmp_path, learn_processes=1, learn_memory_mb=64), bus=None)) as c:
+        response = c.post("/skills", json={"demonstration": demo})
+        assert response.status_code == 422, response.text
+        assert "memory budget of 64 MiB" in response.text and "CONTACT_SKILLS_LEARN_MEMORY_MB" in response.text
+    with _client(create_app(_settings(tmp_path, learn_processes=1, learn_memory_mb=1024), bus=None)) as c:
+        assert c.post("/skills", json={"demonstration": demo}).status_code == 201
