@@ -231,12 +231,15 @@ class ExecutionView(BaseModel):
     created: float
     updated: float
     telemetry_key: str = Field(description="Zenoh key expression of its telemetry.")
-    telemetry_batches: int = Field(description="Telemetry batches stored so far.")
+    telemetry_batches: int = Field(
+        description="Telemetry blocks stored so far (a batch received, or the part of a replayed one that was missing)."
+    )
     telemetry_samples: int = Field(description="Telemetry samples (control steps) stored so far.")
     telemetry_missing_samples: int | None = Field(
         None,
-        description="Once finished: control steps the worker ran whose telemetry was never stored (published while "
-        "the API was down), 0 when the stream is complete.",
+        description="Once finished: control steps the worker ran whose telemetry is not stored and could not be "
+        "fetched back from the worker (it was published while the API was down or cut off from the router, and the "
+        "worker is gone or no longer keeps it), 0 when the stream is complete.",
     )
     request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
     priority: int = Field(0, description="Its queue priority.")
