@@ -12,6 +12,8 @@ Key expressions (``P`` is the prefix, default ``cskills``; ids are single key ch
   answer a query on it with the latest status of the executions they ran (for late joiners).
 - ``P/exec/{execution_id}/telemetry`` — put/subscribe; ``schemas.execution.TelemetryBatch``: every control step,
   in batches of ``telemetry_batch`` rows, reliable and never dropped (congestion control BLOCK).
+- ``P/sweeps/{sweep_id}/progress`` — put/subscribe; ``schemas.sweep.SweepProgress`` (the API puts it whenever a
+  sweep's counts change).
 
 Every payload is the JSON of the pydantic model named (``Model.model_validate_json(sample.payload.to_bytes())``);
 queries carry theirs as the query payload. This module imports neither zenoh nor the simulator: it is the
@@ -156,6 +158,11 @@ class KeyExpressions:
     def telemetry(self, execution_id: str = "*") -> str:
         """Telemetry of an execution (``*``: of every execution)."""
         return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/telemetry"
+
+    # Sweeps.
+    def sweep_progress(self, sweep_id: str = "*") -> str:
+        """Live progress of a sweep (``*``: of every sweep)."""
+        return f"{self.prefix}/sweeps/{self._chunk(sweep_id, 'sweep_id')}/progress"
 
     # Parsing.
     def worker_id_of(self, key: str) -> str:
