@@ -226,8 +226,8 @@ class SweepRunner:
                 elif r.status in (ExecutionState.running, ExecutionState.paused) and r.execution_id:
                     self.bus.send_command(r.execution_id, "abort")
             row = self.store.sweep(sweep_id)
-        if row is not None:
-            self._publish(row)
+            if row is not None:
+                self._publish(row)
         return True
 
     # ------------------------------------------------------------------ the thread
@@ -247,10 +247,12 @@ class SweepRunner:
 
     def _run(self) -> None:
         while not self._stop.wait(self.poll_s):
-            for row in self.store.list_sweeps(limit=1000, status=SweepState.running.value):
+            for listed in self.store.list_sweeps(limit=1000, status=SweepState.running.value):
                 try:
                     with self._lock:
-                        self._advance(row)
+                        row = self.store.sweep(listed.id)  # read again under the lock: a cancel may have come
+                        if row is not None and row.status == SweepState.running.value:
+                            self._advance(row)
                 except Exception:  # keep the thread alive whatever one sweep does
                     log.exception("sweep %s could not advance", row.id)
 

@@ -307,3 +307,19 @@ def test_a_sweep_resumes_after_the_api_is_killed(stack, skill_id):
     trials = stack.http.get(f"/sweeps/{created['id']}/trials").json()
     assert view["status"] == "done" and view["counts"]["finished"] == 4 and view["counts"]["pending"] == 0
     assert all(t["status"] in ("done", "aborted") and t["metrics"]["steps"] > 0 for t in trials), trials
+
+
+def test_cancelling_a_sweep_stops_its_executions_and_submits_no_more(stack, skill_id):
+    stack.workers(2)
+    created = stack.post("/sweeps", {**SWEEP, "trials": 20, "seed": 5, "skill_id": skill_id}, 202)
+    _wait_for(lambda: stack.http.get(f"/sweeps/{created['id']}").json()["counts"]["running"] >= 1, 30, "a trial")
+    view = stack.post(f"/sweeps/{created['id']}/cancel", {}, 202)
+    assert view["status"] == "cancelled" and view["counts"]["pending"] > 0
+    submitted = {t["execution_id"] for t in stack.http.get(f"/sweeps/{created['id']}/trials").json()} - {None}
+    for execution_id in submitted:  # queued ones cancelled at once, running ones aborted over the bus
+        final = stack.finished(execution_id, timeout_s=30)
+        assert final["status"] in ("aborted", "done"), final
+    time.sleep(1.5)  # the runner would have submitted more by now
+    after = {t["execution_id"] for t in stack.http.get(f"/sweeps/{created['id']}/trials").json()} - {None}
+    assert after == submitted and stack.http.get(f"/sweeps/{created['id']}").json()["status"] == "cancelled"
+    assert stack.http.post(f"/sweeps/{created['id']}/cancel").status_code == 409
