@@ -79,8 +79,16 @@ def short_slide():
     from sim_worker.teacher import record_demonstration
     from skills.parameterize import learn_skill
 
-    recording = record_demonstration("slide_flat", seed=0, move_duration_s=2.0)
+    recording = record_demonstration(
+        "slide_flat", seed=0, move_duration_s=2.0, approach_duration_s=0.5, retreat_duration_s=0.5
+    )
     return learn_skill(recording.demonstration, LearnOptions(skill_type="slide"))
+
+
+@pytest.fixture(scope="module")
+def plain(short_slide):
+    """The short slide with the ideal sensor and nothing changed."""
+    return _metrics(short_slide, sensor="ideal")
 
 
 def _metrics(skill, **environment):
@@ -91,21 +99,20 @@ def _metrics(skill, **environment):
     return run_skill(execution_world(skill, settings.environment), settings).metrics
 
 
-def test_an_unknown_tilt_turns_the_real_surface_and_not_the_skill(short_slide):
+def test_an_unknown_tilt_turns_the_real_surface_and_not_the_skill(short_slide, plain):
     """The learned CF stays where it was taught; the TRUE surface normal (the simulator's geometry) is off by the
     tilt asked for, about x or y, through the contact (the tool still finds it within the approach)."""
     for tilt in ([6.0, 0.0], [0.0, -4.0]):
         metrics = _metrics(short_slide, unknown_tilt_deg=tilt, sensor="ideal")
         assert metrics.phase is ExecutionPhase.done and metrics.contact_ratio >= 0.99, metrics.abort_reason
         assert metrics.cf_normal_angle_deg == pytest.approx(max(abs(a) for a in tilt), abs=0.1)
-    assert _metrics(short_slide, sensor="ideal").cf_normal_angle_deg < 0.1
+    assert plain.cf_normal_angle_deg < 0.1
 
 
-def test_force_scale_and_an_untared_bias_change_the_true_force(short_slide):
+def test_force_scale_and_an_untared_bias_change_the_true_force(short_slide, plain):
     """The force scale multiplies the learned force (the % refer to the scaled one); an untared +1 N bias along
     world z reads as 1 N less pressing, so the controller presses 1 N harder: the TRUE error gains a 1 N mean
     (RMS² = mean² + variance: the squares differ by ~1 N² as the unbiased run's mean error is ~0)."""
-    plain = _metrics(short_slide, sensor="ideal")
     scaled = _metrics(short_slide, sensor="ideal", force_scale=1.4)
     assert scaled.force_reference_n == pytest.approx(1.4 * plain.force_reference_n, rel=1e-9)
     assert scaled.phase is ExecutionPhase.done and scaled.true_force_rms_error_pct < 10
