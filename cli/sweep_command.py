@@ -9,15 +9,22 @@ import shlex
 import sys
 from pathlib import Path
 
-from schemas.execution import ControllerKind
-from schemas.sweep import DEFAULT_RANGES, Sampler, SweepParameter
-
 SHOWN_CONTROLLERS = "hybrid_cf,impedance_found_surface,hybrid_world_z"
+CONTROLLERS = ("hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z")
+"""`schemas.execution.ControllerKind`, spelled out: `--help` imports no pydantic (tests/test_sweeps.py compares)."""
+PARAMETERS = (
+    "offset_x_m", "offset_y_m", "offset_z_m", "tilt_x_deg", "tilt_y_deg", "friction", "contact_stiffness_n_m",
+    "contact_damping_n_s_m", "sensor_bias_z_n", "sensor_noise_n", "force_scale",
+)  # fmt: skip
+"""`schemas.sweep.SweepParameter`, spelled out likewise."""
+SAMPLERS = ("lhs", "sobol")
+"""`schemas.sweep.Sampler`, spelled out likewise."""
 
 
 def _vary(items: list[str] | None) -> dict[str, dict]:
     """``NAME=LOW:HIGH[:log]`` options as the ``vary`` of a `SweepRequest` (none: :data:`DEFAULT_RANGES`)."""
     from cli.main import UserError
+    from schemas.sweep import DEFAULT_RANGES
 
     if not items:
         return {name.value: spread.model_dump() for name, spread in DEFAULT_RANGES.items()}
@@ -134,17 +141,17 @@ def register(commands: argparse._SubParsersAction) -> None:
     sweep.add_argument("--record-seed", type=int, default=0, help="seed of the teacher's recording (default 0)")
     sweep.add_argument("--trials", type=int, default=20, help="sampled trials (default 20); each runs per controller")
     sweep.add_argument("--seed", type=int, default=0, help="seed of the trial design and the sensor noise (default 0)")
-    sweep.add_argument("--sampler", choices=[s.value for s in Sampler], default="lhs", help="default lhs")
+    sweep.add_argument("--sampler", choices=SAMPLERS, default="lhs", help="default lhs")
     sweep.add_argument(
         "--controllers",
         default=SHOWN_CONTROLLERS,
-        help=f"comma separated, of {', '.join(c.value for c in ControllerKind)} (default {SHOWN_CONTROLLERS})",
+        help=f"comma separated, of {', '.join(CONTROLLERS)} (default {SHOWN_CONTROLLERS})",
     )
     sweep.add_argument(
         "--vary",
         action="append",
         metavar="NAME=LOW:HIGH[:log]",
-        help=f"a parameter and its range, repeatable; NAME of {', '.join(p.value for p in SweepParameter)} "
+        help=f"a parameter and its range, repeatable; NAME of {', '.join(PARAMETERS)} "
         "(default: all of them over a cell's usual range)",
     )
     sweep.add_argument("--threshold", type=float, default=10.0, help="success: true RMS error <= this %% (default 10)")

@@ -124,6 +124,15 @@ def test_force_scale_and_an_untared_bias_change_the_true_force(short_slide, plai
 # --------------------------------------------------------------------------------------------- bad input
 
 
+def test_the_cli_spells_out_the_schema_names():
+    from cli import sweep_command
+    from schemas.execution import ControllerKind
+
+    assert tuple(c.value for c in ControllerKind) == sweep_command.CONTROLLERS
+    assert tuple(p.value for p in SweepParameter) == sweep_command.PARAMETERS
+    assert tuple(s.value for s in Sampler) == sweep_command.SAMPLERS
+
+
 @pytest.mark.parametrize(
     ("change", "loc"),
     [
