@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import qmc, rankdata, spearmanr
 
 from schemas.execution import ControllerKind
 from schemas.sweep import (
@@ -36,10 +35,12 @@ def trial_parameters(
 ) -> list[dict[SweepParameter, float]]:
     """``trials`` parameter sets drawn over ``vary`` with ``sampler`` (seeded: the same arguments give the same
     sets, in the same order). Each range maps the unit cube linearly (log-uniformly with ``log``)."""
+    from scipy.stats import qmc  # here: scipy.stats costs the API's start a second or more
+
     names = sorted(vary, key=lambda p: list(SweepParameter).index(p))
     d = len(names)
     if sampler is Sampler.sobol:
-        engine: qmc.QMCEngine = qmc.Sobol(d, scramble=True, seed=seed)
+        engine = qmc.Sobol(d, scramble=True, seed=seed)
         with warnings.catch_warnings():  # N not a power of 2: still a valid, only less balanced, design
             warnings.simplefilter("ignore", UserWarning)
             unit = engine.random(trials)
@@ -167,6 +168,8 @@ def sensitivity(
     """For each varied parameter: the Spearman rank correlation with the true RMS error (a trial without one ranks
     worst: it failed harder than any that pressed) and the success rates of the trials below and above the
     parameter's median. ``parameters[k]`` belongs to ``outcomes[k]`` (finished trials of ``controller``)."""
+    from scipy.stats import rankdata, spearmanr
+
     if not outcomes:
         return []
     rms = np.asarray([np.inf if o.true_rms_pct is None else o.true_rms_pct for o in outcomes])
