@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from services import doc_sections
 from services.machine import machine_line
 
 __all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_threads", "run_benchmark", "write_section"]
@@ -41,16 +42,7 @@ def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
 
 def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:
     """Replace (or append) the section between the ``name`` markers in ``path``; keep everything else."""
-    start_mark, end_mark = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    section = f"{start_mark}\n{body.rstrip()}\n{end_mark}"
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    start, end = text.find(start_mark), text.find(end_mark)
-    if start != -1 and end > start:
-        text = text[:start] + section + text[end + len(end_mark) :]
-    else:
-        text = text.rstrip("\n") + "\n\n" + section + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
+    doc_sections.write_section(path, name, body, title="# Benchmarks\n")
 
 
 def run_benchmark(

@@ -61,6 +61,11 @@ EXAMPLES: dict[str, list[str]] = {
         "contact-skills demo --quick",
         "contact-skills demo --out docs --report-only",
     ],
+    "sweep": [
+        "contact-skills sweep slide_flat --trials 24 --figure scratch/sweep.png",
+        "contact-skills sweep --skill-id skill_0a1b2c3d4e5f --controllers hybrid_cf --vary offset_z_m=-0.03:0.03 "
+        "--vary contact_stiffness_n_m=1e4:1e6:log --trials 50 --json scratch/sweep.json",
+    ],
 }
 """Usage examples of every subcommand, shown at the end of its ``--help``."""
 

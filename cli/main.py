@@ -12,7 +12,7 @@ import math
 import sys
 from pathlib import Path
 
-from cli import bus_commands, demo_command, export_command, service_commands
+from cli import bus_commands, demo_command, export_command, service_commands, sweep_command
 from cli.help import polish
 from services.datasets import DATA_ENV, KULEUVEN_IMPORT, data_directory, kuleuven_recordings
 
@@ -535,6 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     service_commands.register(commands)
     demo_command.register(commands)
     export_command.register(commands)
+    sweep_command.register(commands)
     polish(parser)
     return parser
 

@@ -27,6 +27,7 @@ from experiments.cases import (
     counted,
     fmt,
 )
+from experiments.sweep import SWEEPS_SECTION
 from services.machine import machine_line
 
 # --------------------------------------------------------------------------------------------------- why
@@ -601,7 +602,11 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
 
 
 def write_results(options: DemoOptions, report: DemoReport) -> Path:
+    """Write RESULTS.md, keeping the generated sweeps section (``contact-skills sweep --results``) it may hold."""
+    from services.doc_sections import section_of
+
     options.out.mkdir(parents=True, exist_ok=True)
     path = options.out / "RESULTS.md"
-    path.write_text(results_markdown(options, report))
+    kept = section_of(path.read_text(), SWEEPS_SECTION) if path.exists() else None
+    path.write_text(results_markdown(options, report) + (f"\n{kept}\n" if kept else ""))
     return path

@@ -255,7 +255,7 @@ def service_session(
         if health is not None:
             description = f"the running service at {options.url}"
             endpoints = options.connect or list(health.get("zenoh_endpoints") or [])
-            say(f"demo: using {description} ({len(health.get('workers', []))} worker(s) connected)")
+            say(f"{_who(options)}: using {description} ({len(health.get('workers', []))} worker(s) connected)")
         else:
             parts = urlsplit(options.url)
             if parts.hostname not in ("127.0.0.1", "localhost"):
@@ -267,13 +267,13 @@ def service_session(
             db = options.db or Path(tmp.name) / "demo.db"
             stack = EmbeddedStack(port, options.workers, db, Path(tmp.name) / "up.log")
             say(
-                f"demo: no service at {options.url}: starting `contact-skills up --workers {options.workers} "
-                f"--port {port} --zenoh-port {stack.zenoh_port} --db {db}`"
+                f"{_who(options)}: no service at {options.url}: starting `contact-skills up "
+                f"--workers {options.workers} --port {port} --zenoh-port {stack.zenoh_port} --db {db}`"
             )
             stack.start()
             client.close()
             client = ServiceClient(stack.url)
-            health = _wait_ready(client, stack, options.workers)
+            health = _wait_ready(client, stack, options.workers, _who(options))
             description = f"the embedded stack (`contact-skills up --workers {options.workers}`, started by the demo)"
             endpoints = options.connect or [stack.endpoint]
         if not health.get("bus_connected", False):
@@ -286,18 +286,24 @@ def service_session(
         client.close()
         if stack is not None:
             code = stack.stop()
-            say(f"demo: embedded stack stopped (exit {code})")
+            say(f"{_who(options)}: embedded stack stopped (exit {code})")
         if tmp is not None:
             tmp.cleanup()
 
 
-def _wait_ready(client: ServiceClient, stack: EmbeddedStack, workers: int) -> dict:
+def _who(options: DemoOptions) -> str:
+    """The command the progress lines speak for (``demo``, ``sweep``), from ``options.command``."""
+    words = options.command.split()
+    return words[1] if len(words) > 1 else "demo"
+
+
+def _wait_ready(client: ServiceClient, stack: EmbeddedStack, workers: int, who: str) -> dict:
     deadline = time.monotonic() + READY_TIMEOUT_S
     while time.monotonic() < deadline:
         stack.check_alive()
         health = client.health(timeout_s=2.0)
         if health is not None and len(health.get("workers", [])) >= workers:
-            say(f"demo: service ready at {stack.url} with {len(health['workers'])} workers")
+            say(f"{who}: service ready at {stack.url} with {len(health['workers'])} workers")
             return health
         time.sleep(0.3)
     raise DemoError(f"the embedded stack was not ready in {READY_TIMEOUT_S:.0f} s; its log:\n{stack.log_tail()}")

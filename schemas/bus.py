@@ -18,6 +18,8 @@ Key expressions (``P`` is the prefix, default ``cskills``; ids are single key ch
   in batches of ``telemetry_batch`` rows, reliable (congestion control BLOCK), numbered: ``seq`` counts the batches,
   ``first_sample`` places each in the stream, so a receiver that missed some (it was down, the router was) sees the
   gap and asks ``P/exec/{worker_id}/replay`` for it.
+- ``P/sweeps/{sweep_id}/progress`` — put/subscribe; ``schemas.sweep.SweepProgress`` (the API puts it whenever a
+  sweep's counts change).
 
 Every payload is the JSON of the pydantic model named (``Model.model_validate_json(sample.payload.to_bytes())``);
 queries carry theirs as the query payload. This module imports neither zenoh nor the simulator: it is the
@@ -166,6 +168,11 @@ class KeyExpressions:
     def telemetry(self, execution_id: str = "*") -> str:
         """Telemetry of an execution (``*``: of every execution)."""
         return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/telemetry"
+
+    # Sweeps.
+    def sweep_progress(self, sweep_id: str = "*") -> str:
+        """Live progress of a sweep (``*``: of every sweep)."""
+        return f"{self.prefix}/sweeps/{self._chunk(sweep_id, 'sweep_id')}/progress"
 
     # Parsing.
     def worker_id_of(self, key: str) -> str:

@@ -14,14 +14,15 @@ To open the router beyond loopback, give it a users file and, across machines, a
 With a users file the router refuses every session that does not log in (a wrong password or none: the session is
 never opened) and applies :func:`access_control`, default deny:
 
-- ``api``: command executions (put ``P/exec/*/cmd``), query the workers (``info``, ``start``, ``record``, ``status``,
-  ``replay``), subscribe to statuses, telemetry and the workers' liveliness;
+- ``api``: command executions (put ``P/exec/*/cmd``), publish sweep progress (``P/sweeps/*/progress``), query the
+  workers (``info``, ``start``, ``record``, ``status``, ``replay``), subscribe to statuses, telemetry and the workers'
+  liveliness;
 - ``worker`` *W* (its user name is its worker id): declare only ITS queryables ``P/exec/W/{info,start,record,replay}``
   (so only the worker that ran an execution can replay its telemetry) and ITS liveliness token ``P/workers/W``,
   answer the status queryable, receive commands, publish statuses and telemetry; it cannot command, and cannot pose
   as another worker;
-- ``observer``: read only: subscribe to statuses, telemetry and liveliness, query statuses, worker info and
-  telemetry replays.
+- ``observer``: read only: subscribe to statuses, telemetry, sweep progress and liveliness, query statuses, worker
+  info and telemetry replays.
 
 Statuses and telemetry are keyed by execution, not by worker: an authenticated worker could publish for an
 execution it does not run. The API therefore takes a status or telemetry batch only from the worker it handed the
@@ -135,18 +136,19 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
     streams = [k.status("*"), k.telemetry("*")]
     commands = [f"{k.prefix}/exec/*/cmd"]
     everything = [f"{k.prefix}/**"]
+    progress = [k.sweep_progress("*")]
     rules = [
-        _rule("api-sends", "ingress", ["put"], commands),
+        _rule("api-sends", "ingress", ["put"], [*commands, *progress]),
         _rule("api-asks", "ingress", ["query"], queried),
         _rule("api-listens", "ingress", ["declare_subscriber"], streams),
         _rule("api-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
         _rule("api-receives", "egress", ["put"], streams),
         _rule("api-answers", "egress", ["reply"], queried),
         _rule("api-sees", "egress", ["liveliness_token", "declare_queryable", "declare_subscriber"], everything),
-        _rule("observer-listens", "ingress", ["declare_subscriber"], streams),
+        _rule("observer-listens", "ingress", ["declare_subscriber"], [*streams, *progress]),
         _rule("observer-asks", "ingress", ["query"], [k.info("*"), k.status("*"), replays]),
         _rule("observer-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
-        _rule("observer-receives", "egress", ["put"], streams),
+        _rule("observer-receives", "egress", ["put"], [*streams, *progress]),
         _rule("observer-answers", "egress", ["reply"], [k.info("*"), k.status("*"), replays]),
         _rule("observer-sees", "egress", ["liveliness_token", "declare_queryable"], everything),
     ]

@@ -30,6 +30,18 @@ RotStiffness3 = _triple(0.0, 1e4)
 MAX_OFFSET_M = 1.0
 """Largest work-piece offset per axis, m: further than that it is another work cell, not a moved piece."""
 Offset3 = _triple(-MAX_OFFSET_M, MAX_OFFSET_M)
+MAX_TILT_DEG = 30.0
+"""Largest unknown tilt of the work piece about each axis, deg."""
+Tilt2 = Annotated[
+    list[Annotated[float, Field(ge=-MAX_TILT_DEG, le=MAX_TILT_DEG)]], Field(min_length=2, max_length=2)
+]
+MAX_SENSOR_BIAS_N = 50.0
+"""Largest untared force bias of the sensor per axis, N (a 10 % offset of a large wrist sensor's range)."""
+Bias3 = _triple(-MAX_SENSOR_BIAS_N, MAX_SENSOR_BIAS_N)
+MAX_SENSOR_NOISE_N = 20.0
+"""Largest sensor force noise (standard deviation), N."""
+MAX_FORCE_SCALE = 5.0
+"""Largest factor on a skill's force profile."""
 MAX_PAUSE_TIMEOUT_S = 3600.0
 """Longest a paused execution may wait for resume before it is aborted, s."""
 
@@ -289,7 +301,39 @@ class EnvironmentChange(BaseModel):
     contact_stiffness_n_m: float | None = Field(
         None, ge=1e2, le=1e7, description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4)."
     )
+    contact_damping_n_s_m: float | None = Field(
+        None, ge=0.0, le=1e5, description="Contact damping of the tool pad, N·s/m (default: the world's, 300)."
+    )
     sensor: SensorChoice = Field(SensorChoice.wrist, description="The force/torque sensor the controller reads.")
+    sensor_bias_n: Bias3 = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="A constant force bias the tare did not remove (e.g. a thermal offset), added to every sensor "
+        "reading [fx, fy, fz], world frame, N (the controller is not told).",
+    )
+    sensor_noise_n: float | None = Field(
+        None,
+        ge=0.0,
+        le=MAX_SENSOR_NOISE_N,
+        description="White noise of each sensor force axis, standard deviation, N (default: the sensor's own, "
+        "0.06 N for the wrist sensor, 0 for the ideal one).",
+    )
+    noise_seed: int | None = Field(
+        None, ge=0, le=2**32 - 1, description="Seed of the sensor's noise and bias drift (default 0): same seed, "
+        "same noise.",
+    )
+    unknown_tilt_deg: Tilt2 = Field(
+        default_factory=lambda: [0.0, 0.0],
+        description="UNKNOWN rotation of the work piece about the world x then y axis through the skill's contact "
+        "centre (the mean of its compliant frame origins), deg: the real surface tilts, the skill (its frames, its "
+        "path) does not; like unknown_offset, the controller has to cope.",
+    )
+    force_scale: float = Field(
+        1.0,
+        gt=0.0,
+        le=MAX_FORCE_SCALE,
+        description="Factor on the skill's desired force profile (1 = as taught): the same task at another force "
+        "level; the errors are then in % of the scaled reference force.",
+    )
 
     offset: Offset3 = Field(
         default_factory=lambda: [0.0, 0.0, 0.0],

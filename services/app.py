@@ -4,13 +4,14 @@
 expressions) on ``app.state``, the body limit, the error handlers and the routers of ``services.api``:
 
 - ``services/api/routes/``: one APIRouter per resource (``health``, ``demonstrations``, ``skills``,
-  ``executions``). Route functions are thin: they validate (the pydantic models of ``schemas/``), call the
+  ``executions``, ``sweeps``). Route functions are thin: they validate (the pydantic models of ``schemas/``), call the
   store, the science (``skills.parameterize.learn_skill``, in a learner process) or the bus, and shape the reply;
 - ``services/api/deps.py``: the shared dependencies as ``Annotated`` types, resolved through the ``Request``;
 - ``services/api/errors.py``: every error answer (422 naming the field, 404, 409, 401, 503, 504, the logged 500);
 - ``services/api/browser_guard.py``: the CORS policy (none by default) and the Host check of a loopback API;
 - ``services/learner_pool.py``: learning in separate processes with a time and memory budget;
 - ``services/queue.py``: executions wait in the database for a free worker, in priority order;
+- ``services/sweeps.py``: robustness sweeps, their trials fanned out through the queue, resumed after a restart;
 - ``services/bus_events.py``: the bus callbacks (:class:`BusEvents`) that write status, metrics and telemetry
   into the same store from Zenoh threads, and :func:`connect_bus`.
 """
@@ -35,6 +36,7 @@ from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
 from services.settings import ServiceSettings, package_version
 from services.store import Store
+from services.sweeps import SweepRunner
 
 if TYPE_CHECKING:
     from services.bus import BusClient
@@ -50,6 +52,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     store = store if store is not None else Store(settings.db_path)
     learners = LearnerPool(settings.learn_processes, settings.learn_timeout_s, settings.learn_memory_mb)
     queue = ExecutionQueue(store, bus, settings.queue_max) if bus is not None else None
+    keys = KeyExpressions(settings.zenoh_prefix)
+    sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -60,7 +64,11 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
             learners.warm_up()
         if queue is not None:
             queue.start()
+        if sweeps is not None:
+            sweeps.start()
         yield
+        if sweeps is not None:
+            sweeps.close()
         if queue is not None:
             queue.close()
         learners.close()
@@ -79,9 +87,10 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     app.state.store = store
     app.state.bus = bus
     app.state.settings = settings
-    app.state.keys = KeyExpressions(settings.zenoh_prefix)
+    app.state.keys = keys
     app.state.learners = learners
     app.state.queue = queue
+    app.state.sweeps = sweeps
     app.state.started_unix_s = time.time()
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     if settings.cors_origins:

@@ -388,6 +388,12 @@ class BusClient:
             express=True,
         )
 
+    def publish(self, key: str, payload: str) -> None:
+        """Put ``payload`` (JSON) on ``key`` (reliable; e.g. a sweep's progress, ``KeyExpressions.sweep_progress``)."""
+        import zenoh
+
+        self._session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
     def record_demonstration(self, request: RecordRequest, timeout_s: float = 120) -> RecordReply:
         """Have a free worker record the teacher's demonstration of ``request.scenario``.
 

@@ -1,10 +1,10 @@
 """The execution queue: executions wait for a free sim worker, in the database, in priority order.
 
-``POST /executions`` (and later the sweeps of issue 14) call :meth:`ExecutionQueue.submit` with what to send to a
-worker (:class:`Dispatch`: the request with its skill inline, the world overrides, the demonstration's id), the
-request as it is shown back, and a priority. The execution is stored in status ``queued`` with its dispatch JSON
-(so the queue survives an API restart) and handed to a free worker at once when nothing waits before it; else
-the dispatcher thread hands it over as soon as one is free.
+``POST /executions`` and the sweeps (``services/sweeps.py``, at a lower priority) call :meth:`ExecutionQueue.submit`
+with what to send to a worker (:class:`Dispatch`: the request with its skill inline, the world overrides, the
+demonstration's id), the request as it is shown back, and a priority. The execution is stored in status ``queued``
+with its dispatch JSON (so the queue survives an API restart) and handed to a free worker at once when nothing waits
+before it; else the dispatcher thread hands it over as soon as one is free.
 
 Order: higher ``priority`` first, then submission order. Fairness across workers: each hand-over goes through
 `services.bus.BusClient.start_execution`, which tries the free workers with the fewest executions run first (round

@@ -1,4 +1,4 @@
-"""SQLite persistence of demonstrations, skills, executions and their telemetry (one file, stdlib ``sqlite3``).
+"""SQLite persistence of demonstrations, skills, executions, their telemetry and sweeps (one file, stdlib ``sqlite3``).
 
 Durability: the database runs in WAL mode with ``synchronous=NORMAL``. Every write is its own
 transaction and is committed before the method returns (so before the HTTP response is sent): a
@@ -46,9 +46,9 @@ from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration, DemonstrationSummary
 from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
-by sample index)."""
+by sample index; 4: sweeps)."""
 
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
@@ -106,6 +106,30 @@ UPDATE telemetry SET seq = -1 - seq
 """Version 3: ``telemetry.seq`` is the index of the row's first sample in the execution's stream (it counted the
 received batches): the samples stored before it, in the order they were received (through negative values, so no
 two rows share a key on the way)."""
+
+_SCHEMA_V4 = """
+CREATE TABLE sweeps (
+    id TEXT PRIMARY KEY,
+    created REAL NOT NULL,
+    updated REAL NOT NULL,
+    status TEXT NOT NULL,
+    request TEXT NOT NULL,
+    spec TEXT NOT NULL
+);
+CREATE TABLE sweep_trials (
+    sweep_id TEXT NOT NULL,
+    trial INTEGER NOT NULL,
+    controller TEXT NOT NULL,
+    parameters TEXT NOT NULL,
+    execution_id TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY (sweep_id, trial, controller)
+);
+CREATE INDEX sweeps_by_status ON sweeps (status)
+"""
+"""Version 4: robustness sweeps (``services/sweeps.py``): the request as shown and the spec (the execution request
+with the skill inline, JSON, stored once); one row per trial x controller with its drawn parameters and its latest
+execution (whose row holds the status and metrics)."""
 
 TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
     "t": (0, 1),
@@ -177,6 +201,34 @@ class ExecutionRow:
     created: float
     updated: float
     priority: int = 0
+
+
+@dataclass(frozen=True)
+class SweepRow:
+    id: str
+    created: float
+    updated: float
+    status: str
+    request: dict[str, Any]
+    """The request as shown back (an inline skill is not repeated)."""
+    spec: str
+    """JSON: what every trial's execution starts from (the request with the skill inline, the demonstration id)."""
+
+
+@dataclass(frozen=True)
+class SweepTrialRow:
+    trial: int
+    controller: str
+    parameters: dict[str, float]
+    execution_id: str | None
+    attempts: int
+    status: ExecutionState | None
+    metrics: dict[str, Any] | None
+    error: str | None
+
+
+def _sweep(row: sqlite3.Row) -> SweepRow:
+    return SweepRow(row["id"], row["created"], row["updated"], row["status"], json.loads(row["request"]), row["spec"])
 
 
 def _execution(row: sqlite3.Row) -> ExecutionRow:
@@ -305,7 +357,7 @@ class Store:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3)[version:]:
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4)[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:
@@ -592,6 +644,86 @@ class Store:
                 )
                 marked.append(r["id"])
         return marked
+
+    # ------------------------------------------------------------------ sweeps (services/sweeps.py)
+
+    def add_sweep(
+        self, request: dict[str, Any], spec: str, trials: list[tuple[int, str, dict[str, float]]], status: str
+    ) -> SweepRow:
+        """Store a new sweep in ``status`` with its trials (index, controller, drawn parameters) not yet submitted."""
+        now = time.time()
+        row = SweepRow(new_id("sweep"), now, now, status, request, spec)
+        with self._transaction() as db:
+            db.execute(
+                "INSERT INTO sweeps (id, created, updated, status, request, spec) VALUES (?, ?, ?, ?, ?, ?)",
+                (row.id, now, now, status, json.dumps(request), spec),
+            )
+            db.executemany(
+                "INSERT INTO sweep_trials (sweep_id, trial, controller, parameters) VALUES (?, ?, ?, ?)",
+                [(row.id, trial, controller, json.dumps(parameters)) for trial, controller, parameters in trials],
+            )
+        return row
+
+    def sweep(self, sweep_id: str) -> SweepRow | None:
+        r = self._one("SELECT * FROM sweeps WHERE id = ?", (sweep_id,))
+        return None if r is None else _sweep(r)
+
+    def list_sweeps(self, limit: int = 100, offset: int = 0, status: str | None = None) -> list[SweepRow]:
+        """Sweeps, newest first (only those in ``status`` when given)."""
+        where, parameters = ("WHERE status = ?", (status,)) if status is not None else ("", ())
+        rows = self._all(
+            f"SELECT * FROM sweeps {where} ORDER BY created DESC, id LIMIT ? OFFSET ?", (*parameters, limit, offset)
+        )
+        return [_sweep(r) for r in rows]
+
+    def set_sweep_status(self, sweep_id: str, status: str, only_from: str | None = None) -> bool:
+        """Set a sweep's status (only if it is ``only_from`` now, when given); True if changed."""
+        condition, extra = (" AND status = ?", (only_from,)) if only_from is not None else ("", ())
+        with self._transaction() as db:
+            cursor = db.execute(
+                f"UPDATE sweeps SET status = ?, updated = ? WHERE id = ?{condition}",
+                (status, time.time(), sweep_id, *extra),
+            )
+            return cursor.rowcount > 0
+
+    def sweep_trials(self, sweep_id: str) -> list[SweepTrialRow]:
+        """Every trial x controller of a sweep, in trial order, with its latest execution's status, metrics and
+        error (None before it was submitted)."""
+        rows = self._all(
+            "SELECT t.trial, t.controller, t.parameters, t.execution_id, t.attempts, e.status, e.metrics, e.error "
+            "FROM sweep_trials t LEFT JOIN executions e ON e.id = t.execution_id WHERE t.sweep_id = ? "
+            "ORDER BY t.trial, t.rowid",
+            (sweep_id,),
+        )
+        return [
+            SweepTrialRow(
+                trial=r["trial"],
+                controller=r["controller"],
+                parameters=json.loads(r["parameters"]),
+                execution_id=r["execution_id"],
+                attempts=r["attempts"],
+                status=ExecutionState(r["status"]) if r["status"] else None,
+                metrics=json.loads(r["metrics"]) if r["metrics"] else None,
+                error=r["error"],
+            )
+            for r in rows
+        ]
+
+    def delete_sweep(self, sweep_id: str) -> None:
+        """Forget a sweep none of whose executions was stored (its first submission failed)."""
+        with self._transaction() as db:
+            db.execute("DELETE FROM sweep_trials WHERE sweep_id = ?", (sweep_id,))
+            db.execute("DELETE FROM sweeps WHERE id = ?", (sweep_id,))
+
+    def assign_sweep_trial(self, sweep_id: str, trial: int, controller: str, execution_id: str) -> None:
+        """Record the execution submitted for a trial x controller (one more attempt)."""
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE sweep_trials SET execution_id = ?, attempts = attempts + 1 "
+                "WHERE sweep_id = ? AND trial = ? AND controller = ?",
+                (execution_id, sweep_id, trial, controller),
+            )
+            db.execute("UPDATE sweeps SET updated = ? WHERE id = ?", (time.time(), sweep_id))
 
     # ------------------------------------------------------------------ telemetry
 

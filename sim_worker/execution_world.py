@@ -11,9 +11,10 @@ In order of precedence:
    robot's reach (``sim_worker.placement``; the placement asked for, or one chosen), the skill and its work piece
    moved together ("rebuilt").
 
-The environment's friction and contact stiffness override the world's, and its sensor choice sets the sensor the
-controller reads (a realistic wrist sensor unless ``ideal`` is asked for). Frames: world, metres
-(docs/CONVENTIONS.md).
+The environment's friction, contact stiffness and damping override the world's, its sensor choice sets the sensor the
+controller reads (a realistic wrist sensor unless ``ideal`` is asked for; its noise, untared bias and noise seed
+override the sensor's), its force scale multiplies the skill's desired forces, and its unknown tilt turns the work
+piece (not the skill) about the placed skill's contact centre. Frames: world, metres (docs/CONVENTIONS.md).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.teacher import scenario_world_config
 from sim_worker.work_piece import rebuilt_world_config
 from sim_worker.world_config import WorldConfig
+from skills.perturbation import contact_centre, force_scaled_skill
 from skills.placement import placed_skill, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_normalized
 
@@ -84,13 +86,9 @@ def execution_world(
     """Resolve where ``skill`` runs (see the module). Raises ValueError (PlacementError included) with a message
     naming what to change."""
     env = environment or EnvironmentChange()
-    changes = dict(overrides or {})
-    if env.friction is not None:
-        changes["lateral_friction"] = env.friction
-    if env.contact_stiffness_n_m is not None:
-        changes["contact_stiffness"] = env.contact_stiffness_n_m
-    if env.sensor is SensorChoice.wrist:
-        changes = {**WRIST_SENSOR, **changes}
+    changes = {**(WRIST_SENSOR if env.sensor is SensorChoice.wrist else {}), **(overrides or {})}
+    changes.update(_environment_fields(env))
+    skill = force_scaled_skill(skill, env.force_scale)
     source = None
     if world is not None:
         config, source = world_config_from_file_dict(world), "given"
@@ -109,7 +107,7 @@ def execution_world(
                 f"environment.placement: a placement moves a rebuilt work piece; this skill runs in its {source} "
                 "world (ask for work_piece 'rebuilt' to place it)"
             )
-        return ExecutionWorld(_with(config, changes), skill, demonstration, source, None)
+        return ExecutionWorld(_with(config, _tilt_about(skill, env, changes)), skill, demonstration, source, None)
     if env.placement is not None:
         given = (env.placement.rotation, env.placement.tool_alignment)
         R, A = (matrix_from_quaternion(quaternions_normalized(q)) for q in given)
@@ -127,13 +125,36 @@ def execution_world(
         tool_alignment=choice.tool_alignment_quaternion,
     )
     return ExecutionWorld(
-        _with(config, changes),
+        _with(config, _tilt_about(placed, env, changes)),
         placed,
         _placed_demonstration(demonstration, choice),
         "rebuilt",
         placement,
         choice.reason,
     )
+
+
+def _environment_fields(env: EnvironmentChange) -> dict[str, Any]:
+    """The ``WorldConfig`` fields the environment sets (only those it gives: the world's own stay otherwise)."""
+    given = {
+        "lateral_friction": env.friction,
+        "contact_stiffness": env.contact_stiffness_n_m,
+        "contact_damping": env.contact_damping_n_s_m,
+        "wrench_noise_force_std_n": env.sensor_noise_n,
+        "seed": env.noise_seed,
+    }
+    fields = {name: value for name, value in given.items() if value is not None}
+    if any(env.sensor_bias_n):
+        fields["wrench_bias_n"] = tuple(env.sensor_bias_n)
+    return fields
+
+
+def _tilt_about(skill: Skill, env: EnvironmentChange, changes: dict[str, Any]) -> dict[str, Any]:
+    """``changes`` plus the unknown tilt of the work piece about the (placed) skill's contact centre."""
+    if not any(env.unknown_tilt_deg):
+        return changes
+    pivot = tuple(contact_centre(skill).tolist())
+    return {**changes, "work_piece_tilt_deg": tuple(env.unknown_tilt_deg), "work_piece_tilt_pivot_m": pivot}
 
 
 def _with(config: WorldConfig, changes: dict[str, Any]) -> WorldConfig:

@@ -132,11 +132,12 @@ def shifted_world_config(config: WorldConfig, offset: list[float] | NDArray[np.f
 
     The work piece is the rebuilt one (``work_pieces``) when the world has one, else the contour object(s)
     (cylinder, curved block) when it has any, else the table (with its ramp): the table centre and height move,
-    so the table top plane moves by ``offset``.
+    so the table top plane moves by ``offset``. The pivot of an unknown tilt moves with it.
     """
     d = np.asarray(offset, dtype=float)
     if not np.any(d):
         return config
+    config = config.replace(work_piece_tilt_pivot_m=tuple((np.asarray(config.work_piece_tilt_pivot_m) + d).tolist()))
     if config.work_pieces:
         moved = [{**piece, "vertices": (np.asarray(piece["vertices"]) + d).tolist()} for piece in config.work_pieces]
         return config.replace(work_pieces=moved)

@@ -300,6 +300,28 @@ class WorldGeometry:
         for k, piece in enumerate(c.work_pieces):
             name = str(piece.get("name", f"work_piece_{k}"))
             self.solids[name] = ConvexSolid(name, np.eye(3), np.zeros(3), np.asarray(piece["vertices"], dtype=float))
+        if any(c.work_piece_tilt_deg):
+            self._tilt_work_piece()
+
+    def work_piece_names(self) -> list[str]:
+        """The solids that make the work piece (what an offset or a tilt moves): the rebuilt pieces if any, else the
+        contour objects if any, else the table and its ramp (as ``sim_worker.executor.shifted_world_config``)."""
+        c = self.config
+        if c.work_pieces:
+            return [str(p.get("name", f"work_piece_{k}")) for k, p in enumerate(c.work_pieces)]
+        contour = [n for n in ("cylinder", "block") if n in self.solids]
+        return contour or [n for n in ("table", "ramp") if n in self.solids]
+
+    def _tilt_work_piece(self) -> None:
+        """Rotate the work piece's solids about world x then world y by ``work_piece_tilt_deg`` through
+        ``work_piece_tilt_pivot_m``: ``x' = R (x - pivot) + pivot``."""
+        tx, ty = (math.radians(a) for a in self.config.work_piece_tilt_deg)
+        R = matrix_from_axis_angle((0.0, 1.0, 0.0), ty) @ matrix_from_axis_angle((1.0, 0.0, 0.0), tx)
+        pivot = np.asarray(self.config.work_piece_tilt_pivot_m, dtype=float)
+        for name in self.work_piece_names():
+            solid = self.solids[name]
+            solid.R = R @ solid.R
+            solid.p = R @ (solid.p - pivot) + pivot
 
     @property
     def table_normal(self) -> NDArray[np.float64]:

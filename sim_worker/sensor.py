@@ -10,7 +10,8 @@ docs/CONVENTIONS.md). Its source (``WorldConfig.sensor_model``):
   tool's inertia is not, so accelerating the tool shows up (0.2 kg x a).
 
 Then, once per control step and in this order: a bias that drifts as a random walk
-(``wrench_bias_drift_n_per_sqrt_s``; the sensor is tared at the start), white noise (``wrench_noise_*``), a delay
+(``wrench_bias_drift_n_per_sqrt_s``; the sensor is tared at the start), white noise (``wrench_noise_*``), a constant
+force bias the tare did not remove (``wrench_bias_n``, world frame), a delay
 (``wrench_delay_s``, whole steps) and the driver's first-order low-pass (``wrench_filter_cutoff_hz``). With none
 of them and the ideal source the controller reads the exact wrench.
 
@@ -52,6 +53,8 @@ class WrenchSensor:
         dt = config.time_step_s
         self._std = np.array([config.wrench_noise_force_std_n] * 3 + [config.wrench_noise_torque_std_nm] * 3)
         self._noisy = bool(np.any(self._std > 0.0))
+        self._fixed_bias = np.concatenate([np.asarray(config.wrench_bias_n, dtype=float), np.zeros(3)])
+        self._biased = bool(np.any(self._fixed_bias != 0.0))
         self._drift_step = config.wrench_bias_drift_n_per_sqrt_s * math.sqrt(dt)
         self._delay_steps = round(config.wrench_delay_s / dt)
         self._cutoff_hz = config.wrench_filter_cutoff_hz
@@ -59,6 +62,7 @@ class WrenchSensor:
         self.ideal = (
             config.sensor_model == "ideal"
             and not self._noisy
+            and not self._biased
             and self._drift_step == 0.0
             and self._delay_steps == 0
             and self._cutoff_hz is None
@@ -92,6 +96,8 @@ class WrenchSensor:
             random = self._random()
             self._bias[:3] += random[6:]
             raw += random[:6] + self._bias
+        if self._biased:
+            raw += self._fixed_bias
         self._line.append(raw)
         delayed = self._line[0]
         if self._filtered is None:

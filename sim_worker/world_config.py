@@ -78,15 +78,21 @@ class WorldConfig:
     torque_limits_nm: tuple[float, ...] = TORQUE_LIMITS_NM
     # Wrench sensor model (sim_worker.sensor): "ideal" reads the exact contact wrench; "wrist" a force/torque
     # sensor between flange and tool (tool weight compensated from the tool model, its inertia not). Noise, bias
-    # drift, delay and the driver's low-pass apply to either (all off by default; executions turn on a realistic
-    # wrist sensor unless asked for the ideal one, see ``sim_worker.sensor.WRIST_SENSOR``).
+    # drift, a constant untared force bias (world frame), delay and the driver's low-pass apply to either (all off
+    # by default; executions turn on a realistic wrist sensor unless asked for the ideal one, see
+    # ``sim_worker.sensor.WRIST_SENSOR``).
     sensor_model: str = "ideal"
     wrench_noise_force_std_n: float = 0.0
     wrench_noise_torque_std_nm: float = 0.0
     wrench_bias_drift_n_per_sqrt_s: float = 0.0
     wrench_delay_s: float = 0.0
     wrench_filter_cutoff_hz: float | None = None
+    wrench_bias_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
     seed: int = 0
+    # An unknown tilt of the work piece (the parts ``sim_worker.executor.shifted_world_config`` moves): rotated
+    # about world x, then world y (deg), about the pivot (world, m; it moves with the work piece's offsets).
+    work_piece_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    work_piece_tilt_pivot_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples become lists)."""

@@ -105,7 +105,7 @@ def test_the_users_file_gives_each_role_its_rights(secure_bus):
     acl = access_control("cskills", read_users(keys / "users.txt"))
     assert acl["default_permission"] == "deny"
     by_id = {rule["id"]: rule for rule in acl["rules"]}
-    assert by_id["api-sends"]["key_exprs"] == ["cskills/exec/*/cmd"]
+    assert by_id["api-sends"]["key_exprs"] == ["cskills/exec/*/cmd", "cskills/sweeps/*/progress"]
     assert "cskills/exec/worker-1/start" in by_id["worker:worker-1-declares"]["key_exprs"]
     assert by_id["worker:worker-1-lives"]["key_exprs"] == ["cskills/workers/worker-1"]
     assert not any(rule["id"].startswith("observer") and "put" in rule["messages"] and rule["flows"] == ["ingress"]
@@ -158,6 +158,24 @@ def test_an_observer_reads_but_cannot_command_forge_or_pose_as_a_worker(secure_b
         assert impostor_queries == []
     finally:
         observer.close()
+
+
+def test_the_api_publishes_sweep_progress_an_observer_reads_and_cannot_forge(secure_bus, api):
+    endpoint, keys = secure_bus
+    reader = open_session("client", connect=[endpoint], security=_login(keys, "observer"))
+    forger = open_session("client", connect=[endpoint], security=_login(keys, "observer"))
+    seen: list[str] = []
+    try:
+        reader.declare_subscriber(KEYS.sweep_progress("*"), lambda sample: seen.append(sample.payload.to_string()))
+        time.sleep(0.5)
+        forger.put(KEYS.sweep_progress("sweep_forged"), '{"forged": true}')
+        api.publish(KEYS.sweep_progress("sweep_1"), '{"sweep_id": "sweep_1"}')
+        _wait(lambda: seen, what="the observer to read the progress")
+        time.sleep(0.5)
+        assert seen == ['{"sweep_id": "sweep_1"}']
+    finally:
+        reader.close()
+        forger.close()
 
 
 def test_a_worker_cannot_take_another_workers_queries_or_command(secure_bus, api, skill):

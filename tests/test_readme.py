@@ -94,3 +94,19 @@ def test_service_subcommands_the_readme_shows_exist() -> None:
     for name in sorted(shown):
         result = subprocess.run([*CLI, name, "--help"], cwd=REPO, capture_output=True, text=True, timeout=60)
         assert result.returncode == 0, (name, result.stderr)
+
+
+def test_the_readme_sweep_runs_as_written_with_fewer_trials(clone_dir: Path) -> None:
+    """The README's `contact-skills sweep` command in a fresh clone's layout: nothing serves its --url there, so it
+    starts the embedded stack itself, records and learns the scenario, runs the sweep with a progress bar and
+    writes the figure and the tables. Only --trials is cut to 2 (6 executions), to keep the suite short."""
+    [args] = [a for a in _contact_skills_commands() if a[0] == "sweep"]
+    args = [*args, "--url", "http://127.0.0.1:8799", "--json", "scratch/readme_sweep.json"]
+    args[args.index("--trials") + 1] = "2"
+    result = _run(args, clone_dir)
+    assert result.returncode == 0, f"contact-skills {' '.join(args)}\n{result.stdout}\n{result.stderr}"
+    assert "starting `contact-skills up" in result.stderr and "done, 6/6 executions" in result.stdout
+    for name in ("hybrid_cf", "impedance_found_surface", "hybrid_world_z"):
+        assert re.search(rf"^{name} +\d+% \(\d/2\)", result.stdout, flags=re.M), result.stdout
+    figure = clone_dir / args[args.index("--figure") + 1]
+    assert figure.stat().st_size > 20_000

@@ -16,12 +16,14 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from schemas.api import TelemetryFormat
 from schemas.bus import KeyExpressions
+from schemas.skill import Skill
 from services.api import errors
 from services.bus import BusClient
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
 from services.settings import ServiceSettings
 from services.store import Store
+from services.sweeps import SweepRunner
 
 
 def get_store(request: Request) -> Store:
@@ -48,12 +50,17 @@ def get_queue(request: Request) -> ExecutionQueue | None:
     return request.app.state.queue
 
 
+def get_sweeps(request: Request) -> SweepRunner | None:
+    return request.app.state.sweeps
+
+
 StoreDep = Annotated[Store, Depends(get_store)]
 SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 BusDep = Annotated[BusClient | None, Depends(get_bus)]
 KeysDep = Annotated[KeyExpressions, Depends(get_keys)]
 LearnersDep = Annotated[LearnerPool, Depends(get_learners)]
 QueueDep = Annotated[ExecutionQueue | None, Depends(get_queue)]
+SweepsDep = Annotated[SweepRunner | None, Depends(get_sweeps)]
 
 
 def need_bus(bus: BusClient | None) -> BusClient:
@@ -68,6 +75,28 @@ def need_queue(queue: ExecutionQueue | None) -> ExecutionQueue:
     if queue is None:
         raise errors.no_bus()
     return queue
+
+
+def need_sweeps(sweeps: SweepRunner | None) -> SweepRunner:
+    """The sweep runner, or a 503 when the API runs without a bus."""
+    if sweeps is None:
+        raise errors.no_bus()
+    return sweeps
+
+
+def skill_to_run(store: Store, skill_id: str | None, skill: Skill | None) -> tuple[Skill, str | None]:
+    """The skill a request runs, given by id (404 if unknown) or inline (422 naming each incoherence), and the id of
+    the demonstration it was learned from (for the path metric; None for an inline skill)."""
+    from services.api.limits import skill_problems
+
+    if skill is not None:
+        if problems := skill_problems(skill):
+            raise errors.incoherent_skill(problems)
+        return skill, None
+    stored = store.skill(skill_id or "")
+    if stored is None:
+        raise errors.not_found("skill", str(skill_id))
+    return Skill.model_validate_json(stored.skill_json), stored.demonstration_id
 
 
 BEARER = HTTPBearer(auto_error=False, description="Set CONTACT_SKILLS_TOKEN on the server to require it.")

@@ -84,6 +84,23 @@ def not_running(execution_id: str, status: str) -> HTTPException:
     return HTTPException(409, f"execution {execution_id} is {status}, not running: only abort applies (it cancels it)")
 
 
+def refused_by_worker(reason: str, environment_at: tuple[str, ...] = ("body",)) -> RequestValidationError:
+    """422 for a request a worker refused (an unknown scenario, a skill it cannot place in reach), on the field the
+    worker's message names; ``environment_at``: where the request's ``environment`` is."""
+    if reason.startswith("unknown scenario"):
+        loc: list[str | int] = ["body", "scenario"]
+    elif reason.startswith(("environment.", "the skill cannot be placed")):
+        field = reason.split(":", 1)[0] if reason.startswith("environment.") else "environment.placement"
+        loc = [*environment_at, *field.split(".")]
+    else:
+        loc = ["body"]
+    return unprocessable(loc, reason)
+
+
+def sweep_not_running(sweep_id: str, status: str) -> HTTPException:
+    return HTTPException(409, f"sweep {sweep_id} is {status}, not running: nothing to cancel")
+
+
 def unauthorized() -> HTTPException:
     return HTTPException(
         401, "missing or wrong bearer token (Authorization: Bearer <token>)", {"WWW-Authenticate": "Bearer"}

@@ -37,9 +37,9 @@ from services.api.deps import (
     WindowStart,
     need_bus,
     need_queue,
+    skill_to_run,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
-from services.api.limits import skill_problems
 from services.api.responses import download
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
@@ -54,16 +54,6 @@ COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
     409: {"model": ApiError},
     **errors.UNAVAILABLE,
 }
-
-
-def _refused_field(reason: str) -> list[str]:
-    """The request field a worker's refusal is about (the worker's messages name it or say what failed)."""
-    if reason.startswith("unknown scenario"):
-        return ["body", "scenario"]
-    if reason.startswith(("environment.", "the skill cannot be placed")):
-        field = reason.split(":", 1)[0] if reason.startswith("environment.") else "environment.placement"
-        return ["body", *field.split(".")]
-    return ["body"]
 
 
 def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionView:
@@ -113,20 +103,11 @@ def post_execution(request: ExecutionRequest, store: StoreDep, queue: QueueDep, 
     ``GET /executions/{id}`` or a Zenoh subscriber. When every worker is busy it is ``queued`` (with its
     ``queue_position``; ``priority`` orders the queue) and starts as soon as one is free. 503 when no worker is
     connected or the queue is full."""
-    from schemas.skill import Skill
     from services.bus import BusRequestError, NoWorkerAvailable
     from services.queue import Dispatch
     from services.store import QueueFull
 
-    skill, demonstration_id = request.skill, None
-    if skill is not None and (problems := skill_problems(skill)):
-        raise errors.incoherent_skill(problems)
-    if request.skill_id is not None:
-        stored_skill = store.skill(request.skill_id)
-        if stored_skill is None:
-            raise errors.not_found("skill", request.skill_id)
-        skill = Skill.model_validate_json(stored_skill.skill_json)
-        demonstration_id = stored_skill.demonstration_id  # the queue sends it along, for the path metric
+    skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)  # the queue sends the demo along
     executions = need_queue(queue)
     stored = request.model_dump(mode="json", exclude={"skill"})
     stored.update(inline_skill=request.skill is not None)
@@ -138,7 +119,7 @@ def post_execution(request: ExecutionRequest, store: StoreDep, queue: QueueDep, 
     except (NoWorkerAvailable, QueueFull) as exc:
         raise errors.unavailable(str(exc)) from None
     except BusRequestError as exc:  # the worker refused: an unknown scenario, a skill it cannot place in reach
-        raise errors.unprocessable(_refused_field(str(exc)), str(exc)) from None
+        raise errors.refused_by_worker(str(exc)) from None
     return ExecutionCreated(
         id=row.id,
         status=row.status,

@@ -1,0 +1,105 @@
+"""``/sweeps``: run a skill over N sampled variations of its cell with several controllers (``services.sweeps``),
+follow it, list, cancel, read every trial."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from schemas.sweep import SweepCreated, SweepRequest, SweepState, SweepView, TrialResult
+from services.api import errors
+from services.api.deps import (
+    READ_GUARD,
+    TOKEN_GUARD,
+    KeysDep,
+    Limit,
+    Offset,
+    StoreDep,
+    SweepsDep,
+    need_sweeps,
+    skill_to_run,
+)
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.store import Store, SweepRow
+from services.sweeps import sweep_view, trial_results
+
+router = APIRouter(tags=["sweeps"], dependencies=READ_GUARD, responses=READ_RESPONSES)
+
+
+def _found(store: Store, sweep_id: str) -> SweepRow:
+    row = store.sweep(sweep_id)
+    if row is None:
+        raise errors.not_found("sweep", sweep_id)
+    return row
+
+
+@router.post(
+    "/sweeps",
+    status_code=202,
+    response_model=SweepCreated,
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
+    dependencies=TOKEN_GUARD,
+)
+def post_sweep(request: SweepRequest, store: StoreDep, sweeps: SweepsDep, keys: KeysDep) -> SweepCreated:
+    """Run a skill over ``trials`` sampled variations (``vary``: unknown offset and tilt, friction, contact
+    stiffness and damping, sensor bias and noise, force scale) once per controller, each as an execution through
+    the queue at ``priority`` (below single executions), on every worker of the bus.
+
+    Replies 202 once the first executions are submitted; follow it with ``GET /sweeps/{id}`` or the Zenoh key
+    ``progress_key``. The same ``seed`` draws the same trials. 404 for an unknown skill, 422 for a bad request or
+    one a worker refuses (an unknown scenario), 503 when no worker is connected."""
+    from services.bus import BusRequestError, NoWorkerAvailable
+    from services.store import QueueFull
+
+    skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)
+    runner = need_sweeps(sweeps)
+    try:
+        row = runner.create(request, skill, request.skill_id, demonstration_id)
+    except (NoWorkerAvailable, QueueFull) as exc:
+        raise errors.unavailable(str(exc)) from None
+    except BusRequestError as exc:
+        raise errors.refused_by_worker(str(exc), environment_at=("body", "settings")) from None
+    return SweepCreated(
+        id=row.id,
+        status=SweepState(row.status),
+        executions=request.trials * len(request.controllers),
+        progress_key=keys.sweep_progress(row.id),
+    )
+
+
+@router.get("/sweeps", response_model=list[SweepView])
+def list_sweeps(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[SweepView]:
+    """Sweeps, newest first, with their results so far.
+
+    Each with its state, its counts (finished, succeeded, running, queued, reruns), its per-controller summary and
+    sensitivity ranking, as ``GET /sweeps/{id}``; ``limit`` and ``offset`` page through them."""
+    return [sweep_view(store, keys, row) for row in store.list_sweeps(limit, offset)]
+
+
+@router.get("/sweeps/{sweep_id}", response_model=SweepView, responses=ERROR_RESPONSES)
+def get_sweep(sweep_id: str, store: StoreDep, keys: KeysDep) -> SweepView:
+    """State and progress of a sweep, and its results so far: per controller the success rate and the quantiles
+    of the true normal-force errors and the touch-down peak, and the varied parameters ranked by how much they
+    drive the failures. 404 for an unknown id."""
+    return sweep_view(store, keys, _found(store, sweep_id))
+
+
+@router.get("/sweeps/{sweep_id}/trials", response_model=list[TrialResult], responses=ERROR_RESPONSES)
+def get_sweep_trials(sweep_id: str, store: StoreDep) -> list[TrialResult]:
+    """Every trial x controller: the parameters drawn, its execution, its metrics and whether it succeeded."""
+    return trial_results(store, _found(store, sweep_id))
+
+
+@router.post(
+    "/sweeps/{sweep_id}/cancel",
+    status_code=202,
+    response_model=SweepView,
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, 409: {"model": errors.ApiError}, **errors.UNAVAILABLE},
+    dependencies=TOKEN_GUARD,
+)
+def cancel_sweep(sweep_id: str, store: StoreDep, sweeps: SweepsDep, keys: KeysDep) -> SweepView:
+    """Cancel a running sweep: its queued executions are cancelled, its running ones aborted (their results stay).
+    409 when it is not running any more."""
+    row = _found(store, sweep_id)
+    if not need_sweeps(sweeps).cancel(sweep_id):
+        raise errors.sweep_not_running(sweep_id, row.status)
+    return sweep_view(store, keys, _found(store, sweep_id))

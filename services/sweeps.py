@@ -1,0 +1,321 @@
+"""Robustness sweeps on the service: trials fanned out as executions through the queue, followed, rerun after an
+infrastructure failure, summarized (``schemas/sweep.py`` is the contract, ``skills/sweeps.py`` the statistics).
+
+- :meth:`SweepRunner.create` draws the trials (``skills.sweeps.trial_parameters``), stores the sweep with one row
+  per trial x controller, and submits the first ones at once (so no worker is a 503 and a request a worker refuses
+  is a 422, with nothing stored);
+- the runner's thread (:meth:`SweepRunner.start`) keeps at most ``window`` executions of each sweep queued or
+  running (the queue then holds a few, however large the sweep; single executions, at a higher priority, go
+  first), submits the next ones as they finish, and puts the progress on ``P/sweeps/{id}/progress``
+  (`schemas.sweep.SweepProgress`) whenever the counts change. Every worker on the bus takes executions from the
+  queue: more workers, or workers on other machines joining the router, run a sweep faster with no change here;
+- an execution that failed for an infrastructure reason (its worker lost, the API restarted while it ran:
+  :func:`infrastructure_failure`) is submitted again, up to :data:`MAX_ATTEMPTS` times; one that ended physically
+  (done, or aborted by the force limit, a lost contact, ...) is the trial's result;
+- the state lives in SQLite (``sweeps``, ``sweep_trials``; the executions hold status and metrics), so after an
+  API restart the thread picks running sweeps up where they were.
+
+:func:`sweep_view` and :func:`trial_results` read a sweep back (no bus needed).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import threading
+from typing import TYPE_CHECKING, Any
+
+from schemas.api import ExecutionState
+from schemas.bus import KeyExpressions
+from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionRequest
+from schemas.skill import Skill
+from schemas.sweep import (
+    SweepCounts,
+    SweepParameter,
+    SweepProgress,
+    SweepRequest,
+    SweepState,
+    SweepView,
+    TrialResult,
+)
+from services.queue import Dispatch, ExecutionQueue
+from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRow
+from skills.sweeps import (
+    Outcome,
+    controller_summary,
+    sensitivity,
+    trial_environment,
+    trial_noise_seed,
+    trial_parameters,
+    trial_success,
+)
+
+if TYPE_CHECKING:
+    from services.bus import BusClient
+
+log = logging.getLogger("contact_skills.sweeps")
+
+WINDOW = 8
+"""Executions one sweep keeps queued or running at once (a few per worker: none idles between two trials)."""
+MAX_ATTEMPTS = 3
+"""Executions one trial x controller may take when they keep failing for an infrastructure reason."""
+POLL_S = 0.5
+"""How often the runner looks at the running sweeps, s."""
+_LOST = re.compile(r"^worker \S+ (was )?lost")
+"""The errors of the worker-lost path (`services.bus.BusClient`, `services.bus_events.BusEvents`)."""
+
+
+def infrastructure_failure(status: ExecutionState | None, error: str | None) -> bool:
+    """Whether an execution failed for a reason that says nothing about the trial: its worker was lost, or the API
+    restarted while it ran (not an abort by a safety limit, a lost contact or an internal error of the run)."""
+    if status is not ExecutionState.failed or error is None:
+        return False
+    return error == RESTART_REASON or bool(_LOST.match(error))
+
+
+def _needs_rerun(row: SweepTrialRow) -> bool:
+    return infrastructure_failure(row.status, row.error) and row.attempts < MAX_ATTEMPTS
+
+
+def _finished(row: SweepTrialRow) -> bool:
+    return row.status in TERMINAL and not _needs_rerun(row)
+
+
+def _outcome(row: SweepTrialRow) -> Outcome:
+    m = row.metrics or {}
+    return Outcome(
+        phase=m.get("phase") or (row.status.value if row.status else "failed"),
+        true_rms_pct=m.get("true_force_rms_error_pct"),
+        true_max_pct=m.get("true_force_max_error_pct"),
+        touchdown_ratio=m.get("touchdown_peak_ratio"),
+        contact_ratio=m.get("contact_ratio"),
+        abort_reason=m.get("abort_reason") or row.error,
+    )
+
+
+def _counts(rows: list[SweepTrialRow], rms_pct: float, contact_ratio: float) -> SweepCounts:
+    finished = [r for r in rows if _finished(r)]
+    return SweepCounts(
+        total=len(rows),
+        finished=len(finished),
+        succeeded=sum(trial_success(_outcome(r), rms_pct, contact_ratio) for r in finished),
+        running=sum(r.status in (ExecutionState.starting, ExecutionState.running, ExecutionState.paused) for r in rows),
+        queued=sum(r.status is ExecutionState.queued for r in rows),
+        pending=sum(r.execution_id is None or _needs_rerun(r) for r in rows),
+        reruns=sum(max(0, r.attempts - 1) for r in rows),
+    )
+
+
+def _thresholds(row: SweepRow) -> tuple[float, float]:
+    return float(row.request["success_rms_pct"]), float(row.request["success_contact_ratio"])
+
+
+def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
+    """Every trial x controller of the sweep with its execution's result (judged once finished)."""
+    rms_pct, contact_ratio = _thresholds(row)
+    results = []
+    for r in store.sweep_trials(row.id):
+        outcome, finished = _outcome(r), _finished(r)
+        results.append(
+            TrialResult(
+                trial=r.trial,
+                controller=ControllerKind(r.controller),
+                parameters={SweepParameter(k): v for k, v in r.parameters.items()},
+                execution_id=r.execution_id,
+                attempts=r.attempts,
+                status="pending" if r.status is None or _needs_rerun(r) else r.status.value,
+                success=trial_success(outcome, rms_pct, contact_ratio) if finished else None,
+                true_force_rms_error_pct=outcome.true_rms_pct,
+                true_force_max_error_pct=outcome.true_max_pct,
+                touchdown_peak_ratio=outcome.touchdown_ratio,
+                contact_ratio=outcome.contact_ratio,
+                abort_reason=outcome.abort_reason if finished and outcome.phase != "done" else None,
+                metrics=ExecutionMetrics.model_validate(r.metrics) if r.metrics else None,
+            )
+        )
+    return results
+
+
+def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
+    """The sweep's state, counts, per-controller summary and sensitivity ranking (from the finished trials)."""
+    rms_pct, contact_ratio = _thresholds(row)
+    rows = store.sweep_trials(row.id)
+    summaries, ranking = [], []
+    for controller in row.request["controllers"]:
+        kind = ControllerKind(controller)
+        mine = [r for r in rows if r.controller == controller]
+        done = [r for r in mine if _finished(r)]
+        outcomes = [_outcome(r) for r in done]
+        summaries.append(controller_summary(kind, len(mine), outcomes, rms_pct, contact_ratio))
+        parameters = [{SweepParameter(k): v for k, v in r.parameters.items()} for r in done]
+        ranking.extend(sensitivity(kind, parameters, outcomes, rms_pct, contact_ratio))
+    return SweepView(
+        id=row.id,
+        status=SweepState(row.status),
+        created=row.created,
+        updated=row.updated,
+        request=row.request,
+        counts=_counts(rows, rms_pct, contact_ratio),
+        controllers=summaries,
+        sensitivity=sorted(ranking, key=lambda s: -s.importance),
+        progress_key=keys.sweep_progress(row.id),
+    )
+
+
+class SweepRunner:
+    """Creates, advances and cancels sweeps over the execution queue (see the module docstring). ``start()`` the
+    thread, ``close()``; the routes call :meth:`create` and :meth:`cancel`."""
+
+    def __init__(
+        self,
+        store: Store,
+        queue: ExecutionQueue,
+        bus: BusClient,
+        keys: KeyExpressions,
+        window: int = WINDOW,
+        poll_s: float = POLL_S,
+    ) -> None:
+        self.store, self.queue, self.bus, self.keys = store, queue, bus, keys
+        self.window, self.poll_s = window, poll_s
+        self._lock = threading.Lock()  # one advance at a time: the route's first submissions and the thread
+        self._published: dict[str, SweepCounts] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ what the routes call
+
+    def create(
+        self, request: SweepRequest, skill: Skill, skill_id: str | None, demonstration_id: str | None
+    ) -> SweepRow:
+        """Store the sweep and submit its first executions. Raises what `ExecutionQueue.submit` raises for the
+        first one (no worker, queue full, refused as invalid), with nothing stored."""
+        drawn = trial_parameters(request.vary, request.trials, request.seed, request.sampler)
+        trials = [
+            (k, controller.value, {name.value: value for name, value in parameters.items()})
+            for k, parameters in enumerate(drawn)
+            for controller in request.controllers
+        ]
+        base = ExecutionRequest.model_validate(
+            {**request.settings.model_dump(mode="json"), "skill": skill.model_dump(mode="json"),
+             "scenario": request.scenario, "priority": request.priority}
+        )  # fmt: skip
+        execution = json.loads(base.model_dump_json())
+        spec = json.dumps({"execution": execution, "skill_id": skill_id, "demonstration_id": demonstration_id})
+        shown = request.model_dump(mode="json", exclude={"skill"})
+        shown.update(inline_skill=request.skill is not None)
+        with self._lock:
+            row = self.store.add_sweep(shown, spec, trials, SweepState.running.value)
+            try:
+                self._advance(row, first=True)
+            except Exception:
+                self.store.delete_sweep(row.id)
+                raise
+        return row
+
+    def cancel(self, sweep_id: str) -> bool:
+        """Stop a running sweep: its queued executions are cancelled, its running ones aborted; False if it was not
+        running."""
+        with self._lock:
+            running = SweepState.running.value
+            if not self.store.set_sweep_status(sweep_id, SweepState.cancelled.value, only_from=running):
+                return False
+            for r in self.store.sweep_trials(sweep_id):
+                if r.status is ExecutionState.queued and r.execution_id:
+                    self.queue.cancel(r.execution_id, "sweep cancelled")
+                elif r.status in (ExecutionState.running, ExecutionState.paused) and r.execution_id:
+                    self.bus.send_command(r.execution_id, "abort")
+            row = self.store.sweep(sweep_id)
+            if row is not None:
+                self._publish(row)
+        return True
+
+    # ------------------------------------------------------------------ the thread
+
+    def start(self) -> SweepRunner:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="sweeps", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the thread (running sweeps stay running in the database and resume on the next start)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(10)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            for listed in self.store.list_sweeps(limit=1000, status=SweepState.running.value):
+                try:
+                    with self._lock:
+                        row = self.store.sweep(listed.id)  # read again under the lock: a cancel may have come
+                        if row is not None and row.status == SweepState.running.value:
+                            self._advance(row)
+                except Exception:  # keep the thread alive whatever one sweep does
+                    log.exception("sweep %s could not advance", row.id)
+
+    def _advance(self, row: SweepRow, first: bool = False) -> None:
+        """Submit the trials that wait (new ones, and reruns after an infrastructure failure) while fewer than
+        ``window`` are in flight; mark the sweep done once every trial has a result; publish the progress.
+        ``first``: errors of the submission raise (the route answers them), else they wait for the next round."""
+        from services.bus import BusRequestError, NoWorkerAvailable
+        from services.store import QueueFull
+
+        rows = self.store.sweep_trials(row.id)
+        in_flight = sum(r.status is not None and r.status not in TERMINAL for r in rows)
+        waiting = [r for r in rows if r.execution_id is None or _needs_rerun(r)]
+        if not waiting and in_flight == 0:
+            self.store.set_sweep_status(row.id, SweepState.done.value, only_from=SweepState.running.value)
+            row = self.store.sweep(row.id) or row
+        spec = json.loads(row.spec) if waiting else {}
+        for r in waiting[: max(0, self.window - in_flight)]:
+            try:
+                self._submit(row, spec, r)
+            except (NoWorkerAvailable, QueueFull, BusRequestError):
+                if first:
+                    raise
+                log.warning("sweep %s: trial %d (%s) not submitted now", row.id, r.trial, r.controller, exc_info=True)
+                break
+            first = False
+        self._publish(row)
+
+    def _submit(self, row: SweepRow, spec: dict[str, Any], r: SweepTrialRow) -> None:
+        environment = trial_environment(
+            spec["execution"]["environment"], r.parameters, trial_noise_seed(int(row.request["seed"]), r.trial)
+        )
+        request = ExecutionRequest.model_validate(
+            {**spec["execution"], "environment": environment, "controller": r.controller}
+        )
+        shown = request.model_dump(mode="json", exclude={"skill"})
+        shown.update(
+            skill_id=spec["skill_id"], inline_skill=spec["skill_id"] is None, sweep={"id": row.id, "trial": r.trial}
+        )
+        if _needs_rerun(r):
+            log.warning("sweep %s: trial %d (%s) submitted again after: %s", row.id, r.trial, r.controller, r.error)
+        execution, _ = self.queue.submit(
+            Dispatch(request, {}, spec["demonstration_id"]), shown, spec["skill_id"], request.priority
+        )
+        self.store.assign_sweep_trial(row.id, r.trial, r.controller, execution.id)
+
+    def _publish(self, row: SweepRow) -> None:
+        """Put the sweep's progress on the bus if its counts (or status) changed since the last put."""
+        rms_pct, contact_ratio = _thresholds(row)
+        rows = self.store.sweep_trials(row.id)
+        counts = _counts(rows, rms_pct, contact_ratio)
+        key = f"{row.id}:{row.status}"
+        if self._published.get(key) == counts:
+            return
+        rates: dict[str, float | None] = {}
+        for controller in row.request["controllers"]:
+            done = [_outcome(r) for r in rows if r.controller == controller and _finished(r)]
+            ok = sum(trial_success(o, rms_pct, contact_ratio) for o in done)
+            rates[controller] = ok / len(done) if done else None
+        progress = SweepProgress(sweep_id=row.id, status=SweepState(row.status), counts=counts, success_rate=rates)
+        try:
+            self.bus.publish(self.keys.sweep_progress(row.id), progress.model_dump_json())
+        except Exception:  # the bus is down for a moment: the next change publishes again
+            log.warning("sweep %s: progress not published", row.id, exc_info=True)
+            return
+        self._published[key] = counts
