@@ -58,7 +58,7 @@ from sim_worker.plans import PhasePlan, PhasePlanner, first_force, smooth_ramp
 from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
-from skills.control import ControlFrame, HybridController
+from skills.control import REFERENCE_TWIST, ControlFrame, HybridController
 from skills.frames import rotation_from_vectors
 from skills.normal_tracking import SurfaceNormalTracker
 
@@ -230,7 +230,8 @@ class _Execution:
         """
         world = self.world
         sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_force
-        compute = self.controller.compute
+        robot_state = world.robot_state
+        control_step = self.controller.step
         perf = time.perf_counter
         dt = self.dt
         phase_code = float(PHASE_CODES[plan.phase])
@@ -245,11 +246,11 @@ class _Execution:
         single = plan.frame
         series, stride = plan.series, plan.stride
         ref_p, ref_q, force = plan.ref_p.tolist(), plan.ref_q.tolist(), plan.force.tolist()
-        ref_tw = plan.ref_twist
+        # One row per step in the law's reference layout (position, quaternion, twist, desired force).
+        references = np.concatenate((plan.ref_p, plan.ref_q, plan.ref_twist, plan.force[:, None]), axis=1)
         dynamic_null = self._dynamic_null
         q_lower, q_upper = world.joint_lower, world.joint_upper
         should_abort, should_pause = self.should_abort, self.should_pause
-        hold_twist = np.zeros(6)
         frame: ControlFrame | None = None
         tracker = self._normal_tracker(plan)
         p_tracked: list[float] | None = None
@@ -259,10 +260,11 @@ class _Execution:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
                 paused = should_pause is not None and should_pause()
                 t0 = perf()
-                q, qd, p, quat, w, touching = sense()
+                q, _, p, quat, w, touching = sense()
+                robot = robot_state()
                 t1 = perf()
                 update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
-                J, h, M = dynamics(update_null and dynamic_null)
+                M = dynamics(True).mass_matrix if update_null and dynamic_null else None
                 if update_null and ((q < q_lower).any() or (q > q_upper).any()):
                     raise ExecutionAbortError(self._joint_limit_reason(q))
                 t2 = perf()
@@ -282,23 +284,11 @@ class _Execution:
                     mx * r01 + my * r11 + mz * r21,
                     mx * r02 + my * r12 + mz * r22,
                 ]
-                out = compute(
-                    frame=frame,
-                    jacobian=J,
-                    q=q,
-                    qd=qd,
-                    bias_torques=h,
-                    tool_position=p,
-                    tool_quaternion=quat,
-                    reference_position=ref_p[k],
-                    reference_quaternion=ref_q[k],
-                    reference_twist=hold_twist if paused else ref_tw[k],
-                    wrench=w,
-                    desired_force=f_des,
-                    in_contact=w_cf[2] > min(0.5, 0.5 * f_des),
-                    mass_matrix=M,
-                    update_null_space=update_null,
-                )
+                reference = references[k]
+                if paused:
+                    reference = reference.copy()
+                    reference[REFERENCE_TWIST] = 0.0
+                out = control_step(frame, robot, reference, w, w_cf[2] > min(0.5, 0.5 * f_des), M, update_null)
                 t3 = perf()
                 # Record the step (state measured before it, reference and desired force of it).
                 fn_true, n_true = true_normal()
