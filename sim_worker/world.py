@@ -354,15 +354,14 @@ class SimWorld:
 
     # -- state ---------------------------------------------------------------------------------------------------
 
-    def _joints_raw(self) -> tuple[list[float], list[float], NDArray[np.float64], NDArray[np.float64]]:
-        cached = self._cache.get("joints")
-        if cached is None:
+    def _joints_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Joint positions and velocities (7,) each of this step: views of the arm state."""
+        if "joints" not in self._cache:
             states = pybullet.getJointStates(self.robot, self._joints, physicsClientId=self._cid)
-            q = [s[0] for s in states]
-            qd = [s[1] for s in states]
+            q, qd, _, _ = zip(*states, strict=True)  # transposed in C
             self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
-            cached = self._cache["joints"] = (q, qd, self._arm_q, self._arm_qd)
-        return cached
+            self._cache["joints"] = True
+        return self._arm_q, self._arm_qd
 
     def _arm_raw(self) -> NDArray[np.float64]:
         """This step's arm state (``skills.control.ROBOT_*`` layout): joints, tool pose, Jacobian, gravity/Coriolis."""
@@ -374,8 +373,8 @@ class SimWorld:
 
     def joint_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Joint positions (rad) and velocities (rad/s), shape (7,) each."""
-        cached = self._joints_raw()
-        return cached[2].copy(), cached[3].copy()
+        q, qd = self._joints_raw()
+        return q.copy(), qd.copy()
 
     def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) and tool quaternion (4,), views of this step's arm state."""
@@ -405,7 +404,7 @@ class SimWorld:
 
     def tool_twist(self) -> NDArray[np.float64]:
         """Tool point twist ``[v, ω]`` (6,) in world (m/s, rad/s)."""
-        return self._jacobian_raw() @ self._joints_raw()[3]
+        return self._jacobian_raw() @ self._joints_raw()[1]
 
     def _gravity_coriolis_raw(self) -> NDArray[np.float64]:
         self._arm_raw()
@@ -418,7 +417,7 @@ class SimWorld:
     def _mass_matrix_raw(self) -> NDArray[np.float64]:
         cached = self._cache.get("mass")
         if cached is None:
-            cached = self._cache["mass"] = arm_mass_matrix(self._model, self._joints_raw()[2])
+            cached = self._cache["mass"] = arm_mass_matrix(self._model, self._joints_raw()[0])
         return cached
 
     def mass_matrix(self) -> NDArray[np.float64]:
@@ -431,7 +430,7 @@ class SimWorld:
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
         returned as cached (read-only by contract, see :class:`Sensing`).
         """
-        _, _, q, qd = self._joints_raw()
+        q, qd = self._joints_raw()
         p, quat = self._pose_raw()
         return Sensing(q, qd, p, quat, self._measured_wrench(), self._contact_summary()[1])
 
@@ -453,7 +452,7 @@ class SimWorld:
 
     def read_state(self) -> RobotState:
         """Everything a controller reads in one call (one PyBullet query each, shared caches)."""
-        _, _, q_arr, qd_arr = self._joints_raw()
+        q_arr, qd_arr = self._joints_raw()
         p, quat = self._pose_raw()
         R = self._rotation_raw()
         J = self._jacobian_raw()

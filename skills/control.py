@@ -127,6 +127,7 @@ _SINGULAR_DAMPING = 1e-6
 _ZERO6 = np.zeros(6)
 _EYE7 = np.eye(7)
 _ZERO7 = np.zeros(7)
+_NO_MASS_MATRIX = np.zeros((0, 0))
 
 # Layout of the law's per-step input vector x (see the module docstring, "Cost") and of the gain matrix G.
 _X_POSE = slice(0, 6)  # e_p: pose error (m, rad)
@@ -320,11 +321,45 @@ def _law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no 
     return code
 
 
-def _regularized(A: NDArray[np.float64]) -> NDArray[np.float64]:
+@numba.njit(cache=True)
+def _regularized(A):  # pragma: no cover - compiled
     """Add ``_SINGULAR_DAMPING * trace(A) / n`` (relative Tikhonov term) to the diagonal of square ``A``, in place."""
-    diagonal = A.reshape(-1)[:: A.shape[0] + 1]  # a view
-    diagonal += _SINGULAR_DAMPING * float(diagonal.sum()) / A.shape[0]
+    n = A.shape[0]
+    trace = 0.0
+    for i in range(n):
+        trace += A[i, i]
+    term = _SINGULAR_DAMPING * trace / n
+    for i in range(n):
+        A[i, i] += term
     return A
+
+
+@numba.njit(cache=True)
+def _null_space_model(J, M, dynamic):  # pragma: no cover - compiled
+    """The null-space projector ``N^T`` (7, 7) and the apparent inertia ``Λ`` (6, 6; zeros without ``M``).
+
+    ``M`` (7, 7) the mass matrix, or an empty (0, 0) array: the static projector ``I - J^T (J J^T)^-1 J``; with it
+    and ``dynamic`` the dynamically consistent ``I - J^T Λ J M^-1``, ``Λ = (J M^-1 J^T)^-1``. Both inverses are
+    regularized (:func:`_regularized`).
+    """
+    Jt = np.ascontiguousarray(J.T)
+    lam = np.zeros((6, 6))
+    if M.shape[0] > 0:
+        JMinv = np.ascontiguousarray(np.linalg.solve(M, Jt).T)  # J M^-1 (M symmetric)
+        lam = np.linalg.inv(_regularized(JMinv @ Jt))
+        if dynamic:
+            return np.eye(7) - Jt @ (lam @ JMinv), lam
+    JJ = _regularized(J @ Jt)
+    return np.eye(7) - Jt @ np.linalg.solve(JJ, J), lam
+
+
+@numba.njit(cache=True)
+def _damping_matrix(K, inertia, damping_ratio):  # pragma: no cover - compiled
+    L = np.linalg.cholesky(inertia)
+    X = np.linalg.solve(L, np.ascontiguousarray(np.linalg.solve(L, 0.5 * (K + K.T)).T))  # L^-1 K L^-T (K symmetric)
+    w, V = np.linalg.eigh(0.5 * (X + X.T))
+    sqrt_x = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+    return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
 
 
 def world_z_down_rotation(cf_rotation: ArrayLike) -> NDArray[np.float64]:
@@ -470,12 +505,8 @@ def damping_matrix(stiffness: ArrayLike, inertia: ArrayLike, damping_ratio: floa
     In the coordinates that diagonalize both ``Λ`` and ``K`` every mode ``i`` gets the damping
     ``2 ζ sqrt(k_i m_i)``; for ``Λ = m I``, ``K = k I`` this is ``2 ζ sqrt(k m) I``.
     """
-    K = np.asarray(stiffness, dtype=float)
-    L = np.linalg.cholesky(np.asarray(inertia, dtype=float))
-    X = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (K + K.T)).T)  # L^-1 K L^-T (K symmetric)
-    w, V = np.linalg.eigh(0.5 * (X + X.T))
-    sqrt_x = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
-    return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
+    K = np.ascontiguousarray(stiffness, dtype=float)
+    return _damping_matrix(K, np.ascontiguousarray(inertia, dtype=float), float(damping_ratio))
 
 
 def _named_inputs(
@@ -786,25 +817,17 @@ class HybridController:
     ) -> None:
         """Rebuild the null-space projector and (damping ratio) the damping from the apparent inertia."""
         self._model_version += 1
-        J = jacobian
-        if mass_matrix is None:
-            JJ = _regularized(J @ J.T)
-            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
-            self._cache_null_space()
-            return
-        JMinv = np.linalg.solve(mass_matrix, J.T).T  # J M^-1 (M symmetric)
-        lam = np.linalg.inv(_regularized(JMinv @ J.T))
-        if self._dynamic_null:
-            self._projector = _EYE7 - J.T @ (lam @ JMinv)
-        else:
-            JJ = _regularized(J @ J.T)
-            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
+        J = np.ascontiguousarray(jacobian, dtype=float)
+        M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+        self._projector, lam = _null_space_model(J, M, self._dynamic_null)
         self._cache_null_space()
-        if self._adaptive_damping and (
-            self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0
+        if (
+            mass_matrix is not None
+            and self._adaptive_damping
+            and (self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0)
         ):
             stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
-            self.damping_matrix_a = damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
+            self.damping_matrix_a = _damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
 
     def _cache_null_space(self) -> None:
         """The joint-torque rows of G: ``N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇`` (plus ``g + c``, set once)."""
