@@ -41,6 +41,8 @@ _M_PARENT = 31  # parent body row
 _M_WIDTH = 32
 
 N_DOF = 7
+_WORK_PER_BODY = 45
+_NO_ACCELERATION = np.zeros(N_DOF)  # a compile-time constant of the compiled functions
 _P = ROBOT_POSITION.start
 _QUAT = ROBOT_QUAT.start
 _R = ROBOT_ROTATION.start
@@ -221,17 +223,23 @@ def _rnea(model, Rc, o, c, z, qd, qdd, gravity_on, tau, work):  # pragma: no cov
             m[parent, 2] += m[b, 2] + x2
 
 
+def workspace_size(model: NDArray[np.float64]) -> int:
+    """Floats of scratch space :func:`arm_state` needs for ``model`` (frames and the recursion's per-body values)."""
+    return (model.shape[0] - 1) * _WORK_PER_BODY
+
+
 @numba.njit(cache=True)
-def _workspace(model):  # pragma: no cover - compiled
+def _workspace(model, work):  # pragma: no cover - compiled
+    """Views of ``work`` (:func:`workspace_size` floats) as the frames and scratch arrays of :func:`_frames` and
+    :func:`_rnea` (no allocation: a call at 1 kHz)."""
     n = model.shape[0] - 1
-    return (
-        np.empty((n, 3, 3)),
-        np.empty((n, 3)),
-        np.empty((n, 3, 3)),
-        np.empty((n, 3)),
-        np.empty((n, 3)),
-        np.empty((n, 18)),
-    )
+    R = work[0 : 9 * n].reshape((n, 3, 3))
+    o = work[9 * n : 12 * n].reshape((n, 3))
+    Rc = work[12 * n : 21 * n].reshape((n, 3, 3))
+    c = work[21 * n : 24 * n].reshape((n, 3))
+    z = work[24 * n : 27 * n].reshape((n, 3))
+    scratch = work[27 * n : 45 * n].reshape((n, 18))
+    return R, o, Rc, c, z, scratch
 
 
 @numba.njit(cache=True)
@@ -261,9 +269,10 @@ def bullet_quaternion(R):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def arm_state(model, state, with_bias):  # pragma: no cover - compiled
-    """Fill ``state``'s outputs from its ``q``, ``q̇``: tool pose, rotation, Jacobian and (``with_bias``) ``g + c``."""
-    R, o, Rc, c, z, work = _workspace(model)
+def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
+    """Fill ``state``'s outputs from its ``q``, ``q̇``: tool pose, rotation, Jacobian and (``with_bias``) ``g + c``;
+    ``work`` scratch of :func:`workspace_size` floats."""
+    R, o, Rc, c, z, work = _workspace(model, work)
     _frames(model, state[0:N_DOF], R, o, Rc, c, z)
     tool = model.shape[0] - 2
     p0, p1, p2 = o[tool, 0], o[tool, 1], o[tool, 2]
@@ -280,13 +289,13 @@ def arm_state(model, state, with_bias):  # pragma: no cover - compiled
             state[_J + 21 + dof], state[_J + 28 + dof], state[_J + 35 + dof] = z[b, 0], z[b, 1], z[b, 2]
             dof += 1
     if with_bias:
-        _rnea(model, Rc, o, c, z, state[N_DOF : 2 * N_DOF], np.zeros(N_DOF), 1.0, state[_BIAS : _BIAS + N_DOF], work)
+        _rnea(model, Rc, o, c, z, state[N_DOF : 2 * N_DOF], _NO_ACCELERATION, 1.0, state[_BIAS : _BIAS + N_DOF], work)
 
 
 @numba.njit(cache=True)
 def arm_mass_matrix(model, q):  # pragma: no cover - compiled
     """Joint-space mass matrix (7, 7) at ``q``: column j is the inverse dynamics of ``q̈ = e_j`` without gravity."""
-    R, o, Rc, c, z, work = _workspace(model)
+    R, o, Rc, c, z, work = _workspace(model, np.empty(model.shape[0] * _WORK_PER_BODY))
     _frames(model, q, R, o, Rc, c, z)
     M = np.empty((N_DOF, N_DOF))
     zero = np.zeros(N_DOF)
@@ -309,7 +318,7 @@ def arm_inverse_dynamics(
 
 @numba.njit(cache=True)
 def _inverse_dynamics(model, q, qd, qdd):  # pragma: no cover - compiled
-    R, o, Rc, c, z, work = _workspace(model)
+    R, o, Rc, c, z, work = _workspace(model, np.empty(model.shape[0] * _WORK_PER_BODY))
     _frames(model, q, R, o, Rc, c, z)
     tau = np.empty(N_DOF)
     _rnea(model, Rc, o, c, z, qd, qdd, 1.0, tau, work)

@@ -110,6 +110,8 @@ class ExecutionResult:
     """Wall time to build the world, solve IK and precompute before the loop, s."""
     loop_wall_s: float
     """Wall time of the control loop, s."""
+    loop_cpu_s: float = 0.0
+    """CPU time of the control loop's thread, s (on a loaded machine the wall time also counts other processes')."""
     timings_us: dict[str, float] = field(default_factory=dict)
     """Mean per-step wall time of the loop's parts, µs (physics, sensing, dynamics, control, telemetry, ...)."""
 
@@ -567,6 +569,7 @@ def execute_skill(
     setup_s = time.perf_counter() - t_setup
     phase, reason = ExecutionPhase.done, None
     execution.wall_start = time.perf_counter()
+    cpu_start = time.thread_time()
     try:
         try:
             execution.run()
@@ -578,6 +581,7 @@ def execute_skill(
     except Exception as exc:  # a bug or an unreachable pose: report, do not crash the worker
         phase, reason = ExecutionPhase.failed, f"{type(exc).__name__}: {exc}"
     loop_wall_s = time.perf_counter() - execution.wall_start
+    loop_cpu_s = time.thread_time() - cpu_start
     execution._emit(final=True)
     execution.close()
     tel = Telemetry(execution.rows[: execution.n].copy())
@@ -602,6 +606,7 @@ def execute_skill(
         world_config=execution.world_config,
         setup_s=setup_s,
         loop_wall_s=loop_wall_s,
+        loop_cpu_s=loop_cpu_s,
         timings_us=timings,
     )
 

@@ -56,7 +56,7 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
-from sim_worker.arm_model import arm_mass_matrix, arm_model_from_pybullet, arm_state
+from sim_worker.arm_model import arm_mass_matrix, arm_model_from_pybullet, arm_state, workspace_size
 from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME, TOOL_LINK, robot_urdf
 from sim_worker.sensor import WrenchSensor
@@ -198,6 +198,7 @@ class SimWorld:
         # round-off, without their 2-5 µs round trips per step.
         self._model = arm_model_from_pybullet(self.robot, TOOL_LINK, c.gravity, cid)
         self._arm = np.zeros(ROBOT_STATE_SIZE)
+        self._arm_work = np.empty(workspace_size(self._model))
         """The arm state of the current step, overwritten in place by the next one (the raw accessors' views)."""
         self._arm_q, self._arm_qd = self._arm[ROBOT_Q], self._arm[ROBOT_QD]
         self._arm_position, self._arm_quat = self._arm[ROBOT_POSITION], self._arm[ROBOT_QUAT]
@@ -367,7 +368,7 @@ class SimWorld:
         """This step's arm state (``skills.control.ROBOT_*`` layout): joints, tool pose, Jacobian, gravity/Coriolis."""
         if "arm" not in self._cache:
             self._joints_raw()
-            arm_state(self._model, self._arm, True)
+            arm_state(self._model, self._arm, self._arm_work, True)
             self._cache["arm"] = True
         return self._arm
 
