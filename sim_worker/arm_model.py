@@ -90,7 +90,7 @@ def arm_model_from_pybullet(body: int, tool_link: int, gravity: tuple[float, flo
     return np.vstack([model, gravity_row])
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _cross(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
