@@ -223,12 +223,13 @@ class _Execution:
     def run_plan(self, plan: PhasePlan) -> str:
         """Run a phase; return "done" or "contact" (a guarded phase met the surface). Raises ExecutionAbortError.
 
-        One control step: sensing and the model queries (``SimWorld.sense`` / ``dynamics``: one PyBullet
-        query each, the world's cached arrays used without copies), the control law, one telemetry row,
-        the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
-        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the plan's references are
-        read as lists of floats, and the wrench in CF axes and the telemetry row are plain float
-        arithmetic, written into the row array in one assignment.
+        One control step: sensing (``SimWorld.sense``: the joint state and the contact points, two PyBullet
+        queries; tool pose, Jacobian and gravity/Coriolis from the arm's compiled model into the world's arm
+        state array, used without copies), the mass matrix on model-update steps, the control law (one compiled
+        call on the arm state and the plan's packed reference row, ``HybridController.step``), one telemetry
+        row, the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
+        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the wrench in CF axes and the
+        telemetry row are plain float arithmetic, written into the row array in one assignment.
         """
         world = self.world
         sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_force

@@ -71,19 +71,20 @@ Limits. Torques are clipped to the robot's limits; a clip lasting ``torque_satur
 aborts. A measured force above ``max_force_n`` aborts at once. Non-finite inputs never give a
 non-finite torque: the output is zero torques with an abort reason.
 
-Cost. The law runs at 1 kHz in Python, where a numpy call on a 6- or 7-vector costs ~0.3-1 µs
-of call overhead whatever it computes, so a step is evaluated as ONE matrix-vector product.
-Everything above is linear in the step's input vector ``x = [e_p, f_d, 1, ξ_r, F, ∫e_cf, ξ, q,
-q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix ``G`` (25 x 53) gives
-``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m + F_f) + (N^T τ_0 + g +
-c)``: five numpy calls per step (``J q̇``, building ``x``, ``G x``, ``J^T (.)``, one sum); the
-pose error, the force integral and the limit checks are plain float arithmetic. The rows of ``G``
+Cost. The law runs at 1 kHz, where a numpy call on a 6- or 7-vector costs ~0.3-1 µs of call
+overhead whatever it computes. Everything above is linear in the step's input vector ``x = [e_p,
+f_d, 1, ξ_r, F, ∫e_cf, ξ, q, q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix
+``G`` (25 x 53) gives ``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m +
+F_f) + (N^T τ_0 + g + c)``. One step is ONE compiled call (:func:`_law_step`, numba) on packed
+arrays (the robot state ``ROBOT_*``, the reference ``REFERENCE_*``, the law's state ``_L_*``):
+the pose error, the force integral, ``x``, ``G x``, ``τ`` and the limit checks. The rows of ``G``
 that depend on the control frame (``Ω``, the motion damping ``D_m`` and ``-(D_m + D_f)``, the
 feed-forward ``(1 + K_p) Ω~ F_d,1`` per N desired, ``-K_p Ω~``, ``K_i Adg``) are rebuilt when the
 frame or the damping matrix changes (a contour's frame series every few steps: the frame-only
 products come precomputed, vectorized, with the frames); the null-space rows (``N^T K_n q_0``,
 ``-K_n N^T``, ``-D_n N^T``) whenever the caller refreshes the model (``update_null_space``: the
-projector and the apparent inertia, the damping every :data:`DAMPING_UPDATE_EVERY`-th time).
+projector and the apparent inertia, the damping every :data:`DAMPING_UPDATE_EVERY`-th time; both
+compiled too).
 
 Baselines (``ControllerKind``), the same class with other settings:
 
