@@ -281,8 +281,9 @@ def main() -> None:
         f"Median over the rows {median_rtf:.1f} by wall time: {verdict}; {median_cpu_rtf:.1f} by CPU time: "
         f"{verdict_cpu}. PyBullet's own calls take {simulator:.0f} µs of the {total:.0f} µs step ({scenario}; "
         f"`stepSimulation` alone {share['stepSimulation']:.0f} µs): with no Python work at all the loop could not "
-        f"exceed {1e3 / simulator:.0f}x. The other ~{python_side:.0f} µs are the interpreter: the loop's glue, the "
-        "world's joint-state and contact-point tuples turned into arrays, the telemetry row and the phase plans.",
+        f"exceed {1e3 / simulator:.0f}x. The other ~{python_side:.0f} µs are the interpreter (the loop's glue, the "
+        "world's joint-state and contact-point tuples turned into arrays, the telemetry row, the phase plans) and, "
+        "on a loaded machine, time the loop waited for the CPU (compare the CPU column).",
         "- Per step the loop makes four PyBullet calls (`getJointStates`, `getContactPoints`, "
         "`setJointMotorControlArray`, `stepSimulation`); the tool pose, Jacobian, gravity/Coriolis torques and "
         "mass matrix come from the arm's compiled model (`sim_worker/arm_model.py`, equal to PyBullet's "

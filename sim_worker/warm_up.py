@@ -15,11 +15,10 @@ import numpy as np
 from schemas.skill import SELECTION_CONTACT
 from sim_worker.world import SimWorld
 from skills.control import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT, HybridController, damping_matrix, pose_error
-from skills.dmp import QuaternionDMP
 
 
 def warm_up() -> float:
-    """Run each compiled function once on a real world (arm model, control law, model update, DMP recursion);
+    """Run each compiled function once on a real world (arm model, control law, model update);
     return the seconds it took."""
     start = time.perf_counter()
     with SimWorld() as world:
@@ -33,10 +32,6 @@ def warm_up() -> float:
         controller.step(frame, robot, reference, np.zeros(6), True, None, True)
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])
     damping_matrix(np.eye(6), np.eye(6), 1.0)
-    t = np.linspace(0.0, 1.0, 101)
-    angles = 0.2 * t
-    quats = np.stack([np.zeros_like(t), np.zeros_like(t), np.sin(angles / 2), np.cos(angles / 2)], axis=1)
-    QuaternionDMP.fit(t, quats).rollout(0.01)
     return time.perf_counter() - start
 
 
