@@ -27,7 +27,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 COPY --from=build /wheels /wheels
 RUN pip install --no-cache-dir --no-index --find-links /wheels "contact-skills[service]" \
     && rm -rf /wheels \
-    && contact-skills --help > /dev/null
+    && contact-skills --help > /dev/null \
+    && python -m sim_worker.warm_up
 
 # The API's database goes to /data, where docker-compose mounts the named volume (no VOLUME here: it would give
 # every container, each worker too, an anonymous volume). The API listens on all interfaces INSIDE the container

@@ -13,10 +13,12 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
+	$(BIN)/python -m sim_worker.warm_up
 	$(BIN)/contact-skills up
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/python -m sim_worker.warm_up  # numba: compile once here, not in every test's worker
 	$(BIN)/pytest -q -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
 
 lint: $(STAMP)

@@ -58,7 +58,7 @@ from sim_worker.plans import PhasePlan, PhasePlanner, first_force, smooth_ramp
 from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
-from skills.control import ControlFrame, HybridController
+from skills.control import REFERENCE_TWIST, ControlFrame, HybridController
 from skills.frames import rotation_from_vectors
 from skills.normal_tracking import SurfaceNormalTracker
 
@@ -110,6 +110,8 @@ class ExecutionResult:
     """Wall time to build the world, solve IK and precompute before the loop, s."""
     loop_wall_s: float
     """Wall time of the control loop, s."""
+    loop_cpu_s: float = 0.0
+    """CPU time of the control loop's thread, s (on a loaded machine the wall time also counts other processes')."""
     timings_us: dict[str, float] = field(default_factory=dict)
     """Mean per-step wall time of the loop's parts, µs (physics, sensing, dynamics, control, telemetry, ...)."""
 
@@ -222,16 +224,18 @@ class _Execution:
     def run_plan(self, plan: PhasePlan) -> str:
         """Run a phase; return "done" or "contact" (a guarded phase met the surface). Raises ExecutionAbortError.
 
-        One control step: sensing and the model queries (``SimWorld.sense`` / ``dynamics``: one PyBullet
-        query each, the world's cached arrays used without copies), the control law, one telemetry row,
-        the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
-        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the plan's references are
-        read as lists of floats, and the wrench in CF axes and the telemetry row are plain float
-        arithmetic, written into the row array in one assignment.
+        One control step: sensing (``SimWorld.sense``: the joint state and the contact points, two PyBullet
+        queries; tool pose, Jacobian and gravity/Coriolis from the arm's compiled model into the world's arm
+        state array, used without copies), the mass matrix on model-update steps, the control law (one compiled
+        call on the arm state and the plan's packed reference row, ``HybridController.step``), one telemetry
+        row, the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
+        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the wrench in CF axes and the
+        telemetry row are plain float arithmetic, written into the row array in one assignment.
         """
         world = self.world
         sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_force
-        compute = self.controller.compute
+        robot_state = world.robot_state
+        control_step = self.controller.step
         perf = time.perf_counter
         dt = self.dt
         phase_code = float(PHASE_CODES[plan.phase])
@@ -246,11 +250,11 @@ class _Execution:
         single = plan.frame
         series, stride = plan.series, plan.stride
         ref_p, ref_q, force = plan.ref_p.tolist(), plan.ref_q.tolist(), plan.force.tolist()
-        ref_tw = plan.ref_twist
+        # One row per step in the law's reference layout (position, quaternion, twist, desired force).
+        references = np.concatenate((plan.ref_p, plan.ref_q, plan.ref_twist, plan.force[:, None]), axis=1)
         dynamic_null = self._dynamic_null
         q_lower, q_upper = world.joint_lower, world.joint_upper
         should_abort, should_pause = self.should_abort, self.should_pause
-        hold_twist = np.zeros(6)
         frame: ControlFrame | None = None
         tracker = self._normal_tracker(plan)
         p_tracked: list[float] | None = None
@@ -260,10 +264,11 @@ class _Execution:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
                 paused = should_pause is not None and should_pause()
                 t0 = perf()
-                q, qd, p, quat, w, touching = sense()
+                q, _, p, quat, w, touching = sense()
+                robot = robot_state()
                 t1 = perf()
                 update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
-                J, h, M = dynamics(update_null and dynamic_null)
+                M = dynamics(True).mass_matrix if update_null and dynamic_null else None
                 if update_null and ((q < q_lower).any() or (q > q_upper).any()):
                     raise ExecutionAbortError(self._joint_limit_reason(q))
                 t2 = perf()
@@ -283,23 +288,11 @@ class _Execution:
                     mx * r01 + my * r11 + mz * r21,
                     mx * r02 + my * r12 + mz * r22,
                 ]
-                out = compute(
-                    frame=frame,
-                    jacobian=J,
-                    q=q,
-                    qd=qd,
-                    bias_torques=h,
-                    tool_position=p,
-                    tool_quaternion=quat,
-                    reference_position=ref_p[k],
-                    reference_quaternion=ref_q[k],
-                    reference_twist=hold_twist if paused else ref_tw[k],
-                    wrench=w,
-                    desired_force=f_des,
-                    in_contact=w_cf[2] > min(0.5, 0.5 * f_des),
-                    mass_matrix=M,
-                    update_null_space=update_null,
-                )
+                reference = references[k]
+                if paused:
+                    reference = reference.copy()
+                    reference[REFERENCE_TWIST] = 0.0
+                out = control_step(frame, robot, reference, w, w_cf[2] > min(0.5, 0.5 * f_des), M, update_null)
                 t3 = perf()
                 # Record the step (state measured before it, reference and desired force of it).
                 fn_true, n_true = true_normal()
@@ -578,6 +571,7 @@ def execute_skill(
     setup_s = time.perf_counter() - t_setup
     phase, reason = ExecutionPhase.done, None
     execution.wall_start = time.perf_counter()
+    cpu_start = time.thread_time()
     try:
         try:
             execution.run()
@@ -589,6 +583,7 @@ def execute_skill(
     except Exception as exc:  # a bug or an unreachable pose: report, do not crash the worker
         phase, reason = ExecutionPhase.failed, f"{type(exc).__name__}: {exc}"
     loop_wall_s = time.perf_counter() - execution.wall_start
+    loop_cpu_s = time.thread_time() - cpu_start
     execution._emit(final=True)
     execution.close()
     tel = Telemetry(execution.rows[: execution.n].copy())
@@ -613,6 +608,7 @@ def execute_skill(
         world_config=execution.world_config,
         setup_s=setup_s,
         loop_wall_s=loop_wall_s,
+        loop_cpu_s=loop_cpu_s,
         timings_us=timings,
     )
 

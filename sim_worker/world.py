@@ -23,10 +23,10 @@ Torque control
     PyBullet in torque mode (the executor checks them).
 
 Measured PyBullet 3.2.7 facts this module relies on
-    - ``calculateJacobian``'s ``localPosition`` is relative to the URDF LINK frame (not the COM frame the docs
-      name): with ``[0, 0, 0]`` the Jacobian matches finite differences of the tool point to 1e-7.
-    - ``getLinkState``'s link-frame pose (entries 4, 5) is float32; the COM pose (0, 1) is double, so the tool
-      pose is computed from the COM frame and the known inertial offset (finite differences need it).
+    - The tool pose, Jacobian, gravity/Coriolis torques and mass matrix come from the arm's compiled model
+      (``sim_worker.arm_model``, read from this multibody), equal to ``getLinkState`` (the COM pose, double; its
+      link-frame pose is float32), ``calculateJacobian``, ``calculateInverseDynamics`` and ``calculateMassMatrix``
+      to round-off (``tests/test_world.py``), without a PyBullet round trip per query.
     - ``getContactPoints`` with the tool as body A: ``contactNormalOnB`` points from the environment to the
       tool, and ``lateralFriction1/2`` along ``lateralFrictionDir1/2`` are forces ON THE TOOL too; the
       applied wrench is minus their sum.
@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import operator
 import os
 import tempfile
 import time
@@ -55,10 +56,21 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
+from sim_worker.arm_model import arm_mass_matrix, arm_model_from_pybullet, arm_state, workspace_size
 from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME, TOOL_LINK, robot_urdf
 from sim_worker.sensor import WrenchSensor
 from sim_worker.world_config import WorldConfig
+from skills.control import (
+    ROBOT_BIAS,
+    ROBOT_JACOBIAN,
+    ROBOT_POSITION,
+    ROBOT_Q,
+    ROBOT_QD,
+    ROBOT_QUAT,
+    ROBOT_ROTATION,
+    ROBOT_STATE_SIZE,
+)
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import quaternion_from_matrix
 
@@ -84,7 +96,8 @@ class Sensing(NamedTuple):
     """One step's measurements for a control loop (:meth:`SimWorld.sense`).
 
     The world's cached arrays of the current step, NOT copies (a 1 kHz loop cannot afford the copies):
-    treat them as read-only; the next ``step()`` replaces them. ``q``, ``qd`` (7,) rad, rad/s;
+    treat them as read-only; the next ``step()`` overwrites them in place (copy what must outlive the step).
+    ``q``, ``qd`` (7,) rad, rad/s;
     ``position`` (3,) and ``quat`` (4,) ``[x, y, z, w]`` the tool pose; ``wrench`` (6,) as
     :meth:`SimWorld.contact_wrench`; ``in_contact`` as :meth:`SimWorld.in_contact`.
     """
@@ -180,18 +193,20 @@ class SimWorld:
         )
         self.torque_limits = np.asarray(c.torque_limits_nm, dtype=float)
         self._torque_limits_list = self.torque_limits.tolist()
-        # calculateJacobian's localPosition is measured (pybullet 3.2.7) relative to the URDF LINK frame, not the
-        # COM frame as documented; the tool point is that frame's origin. getLinkState's link-frame pose is float32,
-        # so the tool pose is computed in double precision from the COM frame and the inertial offset.
-        self._tool_point_in_link = [0.0, 0.0, 0.0]
-        dyn = pybullet.getDynamicsInfo(self.robot, TOOL_LINK, physicsClientId=cid)
-        R_inertial = np.asarray(pybullet.getMatrixFromQuaternion(dyn[4])).reshape(3, 3)
-        self._link_in_com_R = R_inertial.T  # link frame orientation in the COM frame
-        self._link_origin_in_com = tuple((-R_inertial.T @ np.asarray(dyn[3])).tolist())  # link origin, COM frame
-        self._identity_inertial = bool(np.allclose(R_inertial, np.eye(3)))
+        # The arm's kinematics and dynamics come from its compiled model (sim_worker.arm_model), read from this
+        # multibody: equal to calculateJacobian / calculateInverseDynamics / calculateMassMatrix / getLinkState to
+        # round-off, without their 2-5 µs round trips per step.
+        self._model = arm_model_from_pybullet(self.robot, TOOL_LINK, c.gravity, cid)
+        self._arm = np.zeros(ROBOT_STATE_SIZE)
+        self._arm_work = np.empty(workspace_size(self._model))
+        """The arm state of the current step, overwritten in place by the next one (the raw accessors' views)."""
+        self._arm_q, self._arm_qd = self._arm[ROBOT_Q], self._arm[ROBOT_QD]
+        self._arm_position, self._arm_quat = self._arm[ROBOT_POSITION], self._arm[ROBOT_QUAT]
+        self._arm_rotation = self._arm[ROBOT_ROTATION].reshape(3, 3)
+        self._arm_jacobian = self._arm[ROBOT_JACOBIAN].reshape(6, N_JOINTS)
+        self._arm_bias = self._arm[ROBOT_BIAS]
         self.bodies: dict[str, int] = {}
         self._build_environment()
-        self._zeros = [0.0] * N_JOINTS
         self.sensor = WrenchSensor(c)
         self._wrist = c.sensor_model == "wrist"
         if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
@@ -340,55 +355,36 @@ class SimWorld:
 
     # -- state ---------------------------------------------------------------------------------------------------
 
-    def _joints_raw(self) -> tuple[list[float], list[float], NDArray[np.float64], NDArray[np.float64]]:
-        cached = self._cache.get("joints")
-        if cached is None:
+    def _joints_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Joint positions and velocities (7,) each of this step: views of the arm state."""
+        if "joints" not in self._cache:
             states = pybullet.getJointStates(self.robot, self._joints, physicsClientId=self._cid)
-            q = [s[0] for s in states]
-            qd = [s[1] for s in states]
-            cached = self._cache["joints"] = (q, qd, np.array(q), np.array(qd))
-        return cached
+            q, qd, _, _ = zip(*states, strict=True)  # transposed in C
+            self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
+            self._cache["joints"] = True
+        return self._arm_q, self._arm_qd
+
+    def _arm_raw(self) -> NDArray[np.float64]:
+        """This step's arm state (``skills.control.ROBOT_*`` layout): joints, tool pose, Jacobian, gravity/Coriolis."""
+        if "arm" not in self._cache:
+            self._joints_raw()
+            arm_state(self._model, self._arm, self._arm_work, True)
+            self._cache["arm"] = True
+        return self._arm
 
     def joint_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Joint positions (rad) and velocities (rad/s), shape (7,) each."""
-        cached = self._joints_raw()
-        return cached[2].copy(), cached[3].copy()
-
-    def _com_frame(self) -> tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-        """The tool link's COM frame in double precision: position, quaternion, rotation matrix (9 floats, by rows)."""
-        cached = self._cache.get("com")
-        if cached is None:
-            state = pybullet.getLinkState(self.robot, TOOL_LINK, computeForwardKinematics=1, physicsClientId=self._cid)
-            cached = self._cache["com"] = (state[0], state[1], pybullet.getMatrixFromQuaternion(state[1]))
-        return cached
+        q, qd = self._joints_raw()
+        return q.copy(), qd.copy()
 
     def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Tool point position and tool quaternion: the link origin ``c + R_com o`` (plain floats: numpy costs more
-        than it computes on 3-vectors) and, for the usual identity inertial frame, the COM quaternion as is."""
-        cached = self._cache.get("pose")
-        if cached is None:
-            (cx, cy, cz), quat_com, r = self._com_frame()
-            ox, oy, oz = self._link_origin_in_com
-            p = np.array(
-                [
-                    cx + (r[0] * ox + r[1] * oy + r[2] * oz),
-                    cy + (r[3] * ox + r[4] * oy + r[5] * oz),
-                    cz + (r[6] * ox + r[7] * oy + r[8] * oz),
-                ]
-            )
-            if self._identity_inertial:
-                quat = np.array(quat_com)
-            else:
-                quat = np.asarray(_quat_from_matrix(self._rotation_raw()))
-            cached = self._cache["pose"] = (p, quat)
-        return cached
+        """Tool point position (3,) and tool quaternion (4,), views of this step's arm state."""
+        self._arm_raw()
+        return self._arm_position, self._arm_quat
 
     def _rotation_raw(self) -> NDArray[np.float64]:
-        cached = self._cache.get("rotation")
-        if cached is None:
-            R_com = np.array(self._com_frame()[2]).reshape(3, 3)
-            cached = self._cache["rotation"] = R_com if self._identity_inertial else R_com @ self._link_in_com_R
-        return cached
+        self._arm_raw()
+        return self._arm_rotation
 
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) and tool orientation quaternion ``[x, y, z, w]`` (4,) in world."""
@@ -400,20 +396,8 @@ class SimWorld:
         return self._rotation_raw().copy()
 
     def _jacobian_raw(self) -> NDArray[np.float64]:
-        cached = self._cache.get("jacobian")
-        if cached is None:
-            q = self._joints_raw()[0]
-            lin, ang = pybullet.calculateJacobian(
-                self.robot,
-                TOOL_LINK,
-                self._tool_point_in_link,
-                q,
-                self._zeros,
-                self._zeros,
-                physicsClientId=self._cid,
-            )
-            cached = self._cache["jacobian"] = np.array(lin + ang)
-        return cached
+        self._arm_raw()
+        return self._arm_jacobian
 
     def jacobian(self) -> NDArray[np.float64]:
         """Geometric Jacobian (6, 7) of the tool point in world: ``[v; ω] = J qd``."""
@@ -421,16 +405,11 @@ class SimWorld:
 
     def tool_twist(self) -> NDArray[np.float64]:
         """Tool point twist ``[v, ω]`` (6,) in world (m/s, rad/s)."""
-        return self._jacobian_raw() @ self._joints_raw()[3]
+        return self._jacobian_raw() @ self._joints_raw()[1]
 
     def _gravity_coriolis_raw(self) -> NDArray[np.float64]:
-        cached = self._cache.get("gc")
-        if cached is None:
-            q, qd, _, _ = self._joints_raw()
-            cached = self._cache["gc"] = np.array(
-                pybullet.calculateInverseDynamics(self.robot, q, qd, self._zeros, physicsClientId=self._cid)
-            )
-        return cached
+        self._arm_raw()
+        return self._arm_bias
 
     def gravity_coriolis_torques(self) -> NDArray[np.float64]:
         """Joint torques (7,) that cancel gravity and Coriolis/centrifugal terms (inverse dynamics, qdd = 0)."""
@@ -439,10 +418,7 @@ class SimWorld:
     def _mass_matrix_raw(self) -> NDArray[np.float64]:
         cached = self._cache.get("mass")
         if cached is None:
-            q = self._joints_raw()[0]
-            cached = self._cache["mass"] = np.array(
-                pybullet.calculateMassMatrix(self.robot, q, physicsClientId=self._cid)
-            )
+            cached = self._cache["mass"] = arm_mass_matrix(self._model, self._joints_raw()[0])
         return cached
 
     def mass_matrix(self) -> NDArray[np.float64]:
@@ -455,9 +431,14 @@ class SimWorld:
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
         returned as cached (read-only by contract, see :class:`Sensing`).
         """
-        _, _, q, qd = self._joints_raw()
+        q, qd = self._joints_raw()
         p, quat = self._pose_raw()
         return Sensing(q, qd, p, quat, self._measured_wrench(), self._contact_summary()[1])
+
+    def robot_state(self) -> NDArray[np.float64]:
+        """This step's arm state as the control law reads it (``skills.control.ROBOT_*`` layout: joints, tool pose,
+        Jacobian, gravity/Coriolis torques), the cached array itself: read-only by contract, as :meth:`sense`."""
+        return self._arm_raw()
 
     def dynamics(self, with_mass_matrix: bool = False) -> Dynamics:
         """Jacobian, gravity/Coriolis torques and (if asked) the mass matrix of this step, without copies.
@@ -472,7 +453,7 @@ class SimWorld:
 
     def read_state(self) -> RobotState:
         """Everything a controller reads in one call (one PyBullet query each, shared caches)."""
-        _, _, q_arr, qd_arr = self._joints_raw()
+        q_arr, qd_arr = self._joints_raw()
         p, quat = self._pose_raw()
         R = self._rotation_raw()
         J = self._jacobian_raw()
@@ -496,7 +477,7 @@ class SimWorld:
         """
         tau = np.asarray(torque, dtype=float)
         forces = tau.tolist()
-        clipped = any(abs(f) > limit for f, limit in zip(forces, self._torque_limits_list, strict=True))
+        clipped = any(map(operator.gt, map(abs, forces), self._torque_limits_list))  # C loops: ~4x a generator
         if clipped:
             limits = self.torque_limits
             forces = np.clip(tau, -limits, limits).tolist()
@@ -758,5 +739,3 @@ class SimWorld:
                 total += time.perf_counter() - t0
             result[name] = 1e6 * total / n
         return result
-
-

@@ -71,19 +71,20 @@ Limits. Torques are clipped to the robot's limits; a clip lasting ``torque_satur
 aborts. A measured force above ``max_force_n`` aborts at once. Non-finite inputs never give a
 non-finite torque: the output is zero torques with an abort reason.
 
-Cost. The law runs at 1 kHz in Python, where a numpy call on a 6- or 7-vector costs ~0.3-1 µs
-of call overhead whatever it computes, so a step is evaluated as ONE matrix-vector product.
-Everything above is linear in the step's input vector ``x = [e_p, f_d, 1, ξ_r, F, ∫e_cf, ξ, q,
-q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix ``G`` (25 x 53) gives
-``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m + F_f) + (N^T τ_0 + g +
-c)``: five numpy calls per step (``J q̇``, building ``x``, ``G x``, ``J^T (.)``, one sum); the
-pose error, the force integral and the limit checks are plain float arithmetic. The rows of ``G``
+Cost. The law runs at 1 kHz, where a numpy call on a 6- or 7-vector costs ~0.3-1 µs of call
+overhead whatever it computes. Everything above is linear in the step's input vector ``x = [e_p,
+f_d, 1, ξ_r, F, ∫e_cf, ξ, q, q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix
+``G`` (25 x 53) gives ``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m +
+F_f) + (N^T τ_0 + g + c)``. One step is ONE compiled call (:func:`_law_step`, numba) on packed
+arrays (the robot state ``ROBOT_*``, the reference ``REFERENCE_*``, the law's state ``_L_*``):
+the pose error, the force integral, ``x``, ``G x``, ``τ`` and the limit checks. The rows of ``G``
 that depend on the control frame (``Ω``, the motion damping ``D_m`` and ``-(D_m + D_f)``, the
 feed-forward ``(1 + K_p) Ω~ F_d,1`` per N desired, ``-K_p Ω~``, ``K_i Adg``) are rebuilt when the
 frame or the damping matrix changes (a contour's frame series every few steps: the frame-only
 products come precomputed, vectorized, with the frames); the null-space rows (``N^T K_n q_0``,
 ``-K_n N^T``, ``-D_n N^T``) whenever the caller refreshes the model (``update_null_space``: the
-projector and the apparent inertia, the damping every :data:`DAMPING_UPDATE_EVERY`-th time).
+projector and the apparent inertia, the damping every :data:`DAMPING_UPDATE_EVERY`-th time; both
+compiled too).
 
 Baselines (``ControllerKind``), the same class with other settings:
 
@@ -102,11 +103,10 @@ Baselines (``ControllerKind``), the same class with other settings:
 from __future__ import annotations
 
 import math
-import operator
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -128,6 +128,7 @@ _SINGULAR_DAMPING = 1e-6
 _ZERO6 = np.zeros(6)
 _EYE7 = np.eye(7)
 _ZERO7 = np.zeros(7)
+_NO_MASS_MATRIX = np.zeros((0, 0))
 
 # Layout of the law's per-step input vector x (see the module docstring, "Cost") and of the gain matrix G.
 _X_POSE = slice(0, 6)  # e_p: pose error (m, rad)
@@ -149,6 +150,47 @@ _G_WRENCH = slice(12, 18)  # rows giving F_m + F_f (their sum, so that τ needs 
 _G_JOINT = slice(18, 25)  # rows giving N^T τ_0 + g + c
 _G_ROWS = 25
 
+# Layout of the robot state one control step reads (one float array, so that the compiled step takes few arguments;
+# ``sim_worker.arm_model`` fills a world's in this layout): joints, tool pose, Jacobian, gravity/Coriolis torques.
+ROBOT_Q = slice(0, 7)  # q, rad
+ROBOT_QD = slice(7, 14)  # q̇, rad/s
+ROBOT_POSITION = slice(14, 17)  # tool point, world, m
+ROBOT_QUAT = slice(17, 21)  # tool orientation [x, y, z, w]
+ROBOT_ROTATION = slice(21, 30)  # tool orientation, 3 x 3 by rows (not read by the law)
+ROBOT_JACOBIAN = slice(30, 72)  # J (6 x 7 by rows), tool point, world axes
+ROBOT_BIAS = slice(72, 79)  # g + c, N·m
+ROBOT_STATE_SIZE = 79
+# Layout of one step's reference: position (3), quaternion (4), twist (6), desired CF-z force (N).
+REFERENCE_POSITION = slice(0, 3)
+REFERENCE_QUAT = slice(3, 7)
+REFERENCE_TWIST = slice(7, 13)
+REFERENCE_FORCE = 13
+REFERENCE_SIZE = 14
+# Layout of the law's own state and per-frame constants (``HybridController._law``), read by the compiled step.
+_L_INTEGRAL = slice(0, 6)  # ∫ S~ e_cf dt, CF coordinates
+_L_SATURATED = 6  # 1 when the previous torque command was clipped
+_L_SATURATED_FOR = 7  # how long the torques have been clipped, s
+_L_DT = 8
+_L_INTEGRAL_BOUND = 9  # |∫e| bound per axis (force_integral_limit_n / K_i)
+_L_IMPEDANCE_KZ = 10  # k_z for the impedance baseline's reference shift f_d / k_z along CF z; 0: no shift
+_L_MAX_FORCE_SQ = 11
+_L_SATURATION_ABORT = 12  # torque_saturation_abort_s - dt / 2
+_L_LIMITS = slice(13, 20)  # torque limits, N·m
+_L_CF_Z = slice(20, 23)  # the control frame's CF z axis
+_L_AXES = slice(23, 29)  # 1 on the CF force axes the integral runs on
+_L_ERROR_PER_N = slice(29, 35)  # S~ Adg^-1 F_d,1: CF force error per N desired
+_L_ADG_INV = slice(35, 71)  # Adg^-1 by rows: the measured wrench into CF coordinates
+_L_SIZE = 71
+# Layout of a step's output: τ (7), F_m (6), F_f (6), saturated (1/0), the most saturated joint.
+_O_TAU = slice(0, 7)
+_O_MOTION = slice(7, 13)
+_O_FORCE = slice(13, 19)
+_O_SATURATED = 19
+_O_JOINT = 20
+_O_SIZE = 21
+# Codes the compiled step returns.
+_OK, _NON_FINITE, _TORQUE_LIMIT, _FORCE_LIMIT = 0, 1, 2, 3
+
 
 def pose_error(
     position: ArrayLike, quaternion: ArrayLike, reference_position: ArrayLike, reference_quaternion: ArrayLike
@@ -158,25 +200,18 @@ def pose_error(
     The rotational part is the rotation vector (world axes) that turns the current orientation
     into the reference one, on the short branch. Quaternions scalar-last.
     """
-    return np.array(
-        _pose_error_values(
-            _floats(position), _floats(quaternion), _floats(reference_position), _floats(reference_quaternion)
-        )
-    )
+    e = np.empty(6)
+    p, q = np.asarray(position, dtype=float), np.asarray(quaternion, dtype=float)
+    pr, qr = np.asarray(reference_position, dtype=float), np.asarray(reference_quaternion, dtype=float)
+    _pose_error_into(p[0], p[1], p[2], q, pr[0], pr[1], pr[2], qr, e)
+    return e
 
 
-def _floats(values: ArrayLike) -> Sequence[float]:
-    """A small vector as a sequence of Python numbers (an array's ``tolist()``, a list or tuple as is): plain float
-    arithmetic beats numpy on 3-7 values."""
-    if isinstance(values, np.ndarray):
-        return values.tolist()
-    return values if isinstance(values, list | tuple) else np.asarray(values, dtype=float).tolist()
-
-
-def _pose_error_values(p: Sequence[float], q: Sequence[float], pr: Sequence[float], qr: Sequence[float]) -> list[float]:
-    """:func:`pose_error` on sequences of floats (position (3), quaternion xyzw (4), both references): 6 floats."""
-    qx, qy, qz, qw = q
-    rx, ry, rz, rw = qr
+@numba.njit(cache=True)
+def _pose_error_into(px, py, pz, q, rpx, rpy, rpz, qr, out):  # pragma: no cover - compiled
+    """:func:`pose_error` of the position (px, py, pz), quaternion ``q`` (4,) and their references, into ``out``."""
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    rx, ry, rz, rw = qr[0], qr[1], qr[2], qr[3]
     # e = q_r ⊗ conj(q)
     ew = rw * qw + rx * qx + ry * qy + rz * qz
     ex = -rw * qx + qw * rx - (ry * qz - rz * qy)
@@ -186,14 +221,146 @@ def _pose_error_values(p: Sequence[float], q: Sequence[float], pr: Sequence[floa
         ex, ey, ez, ew = -ex, -ey, -ez, -ew
     vn = math.sqrt(ex * ex + ey * ey + ez * ez)
     scale = 2.0 * math.atan2(vn, ew) / vn if vn > 1e-12 else 2.0
-    return [pr[0] - p[0], pr[1] - p[1], pr[2] - p[2], scale * ex, scale * ey, scale * ez]
+    out[0], out[1], out[2] = rpx - px, rpy - py, rpz - pz
+    out[3], out[4], out[5] = scale * ex, scale * ey, scale * ez
 
 
-def _regularized(A: NDArray[np.float64]) -> NDArray[np.float64]:
+@numba.njit(cache=True)
+def _law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no cover - compiled
+    """One step of the law (module docstring, "Cost"): τ, F_m, F_f into ``out``; returns a code (``_OK``, ...).
+
+    ``G`` the gain matrix, ``robot`` / ``reference`` / ``law`` / ``out`` in the ``ROBOT_*``, ``REFERENCE_*``,
+    ``_L_*``, ``_O_*`` layouts, ``wrench`` (6,) the measured wrench; updates the force integral and the saturation
+    state in ``law``.
+    """
+    f_d = reference[13]
+    rpx, rpy, rpz = reference[0], reference[1], reference[2]
+    kz = law[10]
+    if kz != 0.0 and f_d != 0.0:  # impedance: the reference presses f_d through the spring along CF z
+        shift = f_d / kz
+        rpx, rpy, rpz = rpx + law[20] * shift, rpy + law[21] * shift, rpz + law[22] * shift
+    x = np.empty(53)
+    _pose_error_into(robot[14], robot[15], robot[16], robot[17:21], rpx, rpy, rpz, reference[3:7], x)
+
+    # Force integral, CF coordinates, one force axis at a time: ∫ S~ (f_d S~ Adg^-1 F_d,1 - Adg^-1 F) dt.
+    if in_contact and law[6] == 0.0:
+        dt, limit = law[8], law[9]
+        for i in range(6):
+            if law[23 + i] != 0.0:
+                measured = law[35 + 6 * i] * wrench[0]
+                for j in range(1, 6):
+                    measured += law[35 + 6 * i + j] * wrench[j]
+                error = f_d * law[29 + i] - measured
+                law[i] = min(max(law[i] + error * dt, -limit), limit)
+
+    # x = [e_p, f_d, 1, ξ_r, F, ∫e_cf, J q̇, q, q̇, g + c]; y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c].
+    x[6] = f_d
+    x[7] = 1.0
+    for i in range(6):
+        x[8 + i] = reference[7 + i]
+        x[14 + i] = wrench[i]
+        x[20 + i] = law[i]
+        twist = 0.0
+        for j in range(7):
+            twist += robot[30 + 7 * i + j] * robot[7 + j]
+        x[26 + i] = twist
+    for j in range(7):
+        x[32 + j] = robot[j]
+        x[39 + j] = robot[7 + j]
+        x[46 + j] = robot[72 + j]
+    y = np.empty(25)
+    for r in range(18):  # the wrench rows read the task columns only, the joint rows the joint columns and the 1
+        acc = 0.0
+        for col in range(32):
+            acc += G[r, col] * x[col]
+        y[r] = acc
+    for r in range(18, 25):
+        acc = G[r, 7]
+        for col in range(32, 53):
+            acc += G[r, col] * x[col]
+        y[r] = acc
+    total = 0.0
+    for j in range(7):  # τ = J^T (F_m + F_f) + N^T τ_0 + g + c
+        acc = 0.0
+        for i in range(6):
+            acc += robot[30 + 7 * i + j] * y[12 + i]
+        out[j] = acc + y[18 + j]
+        total += out[j]
+    for i in range(12):
+        out[7 + i] = y[i]
+
+    # Limits and sanity.
+    fx, fy, fz, mx, my, mz = wrench[0], wrench[1], wrench[2], wrench[3], wrench[4], wrench[5]
+    force_sq = fx * fx + fy * fy + fz * fz
+    out[19] = 0.0
+    out[20] = 0.0
+    if not math.isfinite(total + force_sq + mx * mx + my * my + mz * mz):
+        law[6] = 0.0
+        for j in range(7):
+            out[j] = 0.0
+        return _NON_FINITE
+    saturated, joint, worst = False, 0, 1.0
+    for j in range(7):
+        limit = law[13 + j]
+        if abs(out[j]) > limit * worst:
+            saturated, joint, worst = True, j, abs(out[j]) / limit
+    code = _OK
+    if saturated:
+        for j in range(7):
+            limit = law[13 + j]
+            out[j] = min(max(out[j], -limit), limit)
+        law[7] += law[8]
+        if law[7] >= law[12]:
+            code = _TORQUE_LIMIT
+        out[19] = 1.0
+        out[20] = joint
+    else:
+        law[7] = 0.0
+    law[6] = 1.0 if saturated else 0.0
+    if force_sq > law[11]:
+        code = _FORCE_LIMIT
+    return code
+
+
+@numba.njit(cache=True)
+def _regularized(A):  # pragma: no cover - compiled
     """Add ``_SINGULAR_DAMPING * trace(A) / n`` (relative Tikhonov term) to the diagonal of square ``A``, in place."""
-    diagonal = A.reshape(-1)[:: A.shape[0] + 1]  # a view
-    diagonal += _SINGULAR_DAMPING * float(diagonal.sum()) / A.shape[0]
+    n = A.shape[0]
+    trace = 0.0
+    for i in range(n):
+        trace += A[i, i]
+    term = _SINGULAR_DAMPING * trace / n
+    for i in range(n):
+        A[i, i] += term
     return A
+
+
+@numba.njit(cache=True)
+def _null_space_model(J, M, dynamic):  # pragma: no cover - compiled
+    """The null-space projector ``N^T`` (7, 7) and the apparent inertia ``Λ`` (6, 6; zeros without ``M``).
+
+    ``M`` (7, 7) the mass matrix, or an empty (0, 0) array: the static projector ``I - J^T (J J^T)^-1 J``; with it
+    and ``dynamic`` the dynamically consistent ``I - J^T Λ J M^-1``, ``Λ = (J M^-1 J^T)^-1``. Both inverses are
+    regularized (:func:`_regularized`).
+    """
+    Jt = np.ascontiguousarray(J.T)
+    lam = np.zeros((6, 6))
+    if M.shape[0] > 0:
+        JMinv = np.ascontiguousarray(np.linalg.solve(M, Jt).T)  # J M^-1 (M symmetric)
+        lam = np.linalg.inv(_regularized(JMinv @ Jt))
+        if dynamic:
+            return np.eye(7) - Jt @ (lam @ JMinv), lam
+    JJ = _regularized(J @ Jt)
+    return np.eye(7) - Jt @ np.linalg.solve(JJ, J), lam
+
+
+@numba.njit(cache=True)
+def _damping_matrix(K, inertia, damping_ratio):  # pragma: no cover - compiled
+    L = np.linalg.cholesky(inertia)
+    X = np.linalg.solve(L, np.ascontiguousarray(np.linalg.solve(L, 0.5 * (K + K.T)).T))  # L^-1 K L^-T (K symmetric)
+    w, V = np.linalg.eigh(0.5 * (X + X.T))
+    sqrt_x = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+    return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
 
 
 def world_z_down_rotation(cf_rotation: ArrayLike) -> NDArray[np.float64]:
@@ -339,12 +506,31 @@ def damping_matrix(stiffness: ArrayLike, inertia: ArrayLike, damping_ratio: floa
     In the coordinates that diagonalize both ``Λ`` and ``K`` every mode ``i`` gets the damping
     ``2 ζ sqrt(k_i m_i)``; for ``Λ = m I``, ``K = k I`` this is ``2 ζ sqrt(k m) I``.
     """
-    K = np.asarray(stiffness, dtype=float)
-    L = np.linalg.cholesky(np.asarray(inertia, dtype=float))
-    X = np.linalg.solve(L, np.linalg.solve(L, 0.5 * (K + K.T)).T)  # L^-1 K L^-T (K symmetric)
-    w, V = np.linalg.eigh(0.5 * (X + X.T))
-    sqrt_x = (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
-    return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
+    K = np.ascontiguousarray(stiffness, dtype=float)
+    return _damping_matrix(K, np.ascontiguousarray(inertia, dtype=float), float(damping_ratio))
+
+
+def _named_inputs(
+    robot: NDArray[np.float64],
+    reference: NDArray[np.float64],
+    wrench: NDArray[np.float64],
+    mass_matrix: NDArray[np.float64] | None,
+) -> dict[str, object]:
+    """The packed inputs of a step by the names of :meth:`HybridController.compute`'s arguments (for error messages)."""
+    return {
+        "jacobian": robot[ROBOT_JACOBIAN],
+        "q": robot[ROBOT_Q],
+        "qd": robot[ROBOT_QD],
+        "bias_torques": robot[ROBOT_BIAS],
+        "tool_position": robot[ROBOT_POSITION],
+        "tool_quaternion": robot[ROBOT_QUAT],
+        "reference_position": reference[REFERENCE_POSITION],
+        "reference_quaternion": reference[REFERENCE_QUAT],
+        "reference_twist": reference[REFERENCE_TWIST],
+        "wrench": wrench,
+        "desired_force": reference[REFERENCE_FORCE],
+        "mass_matrix": mass_matrix,
+    }
 
 
 class HybridController:
@@ -373,7 +559,6 @@ class HybridController:
         self.dt = float(dt)
         limits = IIWA_TORQUE_LIMITS_NM if torque_limits is None else torque_limits
         self.torque_limits = np.asarray(limits, dtype=float)
-        self._limits = self.torque_limits.tolist()
         if self.torque_limits.shape != (7,) or np.any(self.torque_limits <= 0):
             raise ValueError(f"torque_limits must be 7 positive values (N·m), got {self.torque_limits}")
         if compliance_center not in ("tool", "cf_origin"):
@@ -396,9 +581,18 @@ class HybridController:
         self._kn = g.nullspace_stiffness_nm_per_rad
         self._dn = g.nullspace_damping_nms_per_rad
         self._integral_bound = g.force_integral_limit_n / self._ki if self._ki > 0.0 else 0.0
-        self._max_force_sq = g.max_force_n**2
         self.posture = np.zeros(7) if posture is None else np.asarray(posture, dtype=float).copy()
-        self.integral_cf = np.zeros(6)
+        self._law = np.zeros(_L_SIZE)
+        """The compiled step's state and constants (layout ``_L_*``)."""
+        law = self._law
+        law[_L_DT] = self.dt
+        law[_L_INTEGRAL_BOUND] = self._integral_bound
+        law[_L_IMPEDANCE_KZ] = 0.0 if self._force_loop else self._kz
+        law[_L_MAX_FORCE_SQ] = g.max_force_n**2
+        law[_L_SATURATION_ABORT] = g.torque_saturation_abort_s - 0.5 * self.dt
+        law[_L_LIMITS] = self.torque_limits
+        self.integral_cf = law[_L_INTEGRAL]
+        """The force integral ∫ S~ e_cf dt, CF coordinates (a view of the law's state)."""
         self._projector: NDArray[np.float64] | None = None
         self._model_version = 0
         self._gain = np.zeros((_G_ROWS, _X_SIZE))
@@ -407,10 +601,6 @@ class HybridController:
         self._gain_frame: ControlFrame | None = None
         self._gain_damping: NDArray[np.float64] | None = None
         """The damping matrix the frame rows of G were built with (rebuilt when it is replaced)."""
-        self._force_axes: list[tuple[int, float, list[float]]] = []
-        """Per integrated CF force axis i: (i, CF error per N desired, row i of Adg^-1), the integral's inputs."""
-        self._saturated_for_s = 0.0
-        self._saturated_last = False
 
     # ------------------------------------------------------------------ state
 
@@ -421,12 +611,12 @@ class HybridController:
         self.reset_integral()
         self._projector = None
         self.damping_matrix_a = None
-        self._saturated_for_s = 0.0
-        self._saturated_last = False
+        self._law[_L_SATURATED] = 0.0
+        self._law[_L_SATURATED_FOR] = 0.0
 
     def reset_integral(self) -> None:
         """Clear the force integral (e.g. at the start of a contact segment)."""
-        self.integral_cf = np.zeros(6)
+        self.integral_cf[:] = 0.0
 
     # ------------------------------------------------------------------ frames
 
@@ -550,11 +740,35 @@ class HybridController:
         few steps); the dynamic projector and the adaptive damping need ``mass_matrix`` (7, 7)
         then; without it the static projector and the nominal damping are used.
         """
-        g = self.gains
+        robot = np.empty(ROBOT_STATE_SIZE)
+        robot[ROBOT_Q], robot[ROBOT_QD] = q, qd
+        robot[ROBOT_POSITION], robot[ROBOT_QUAT] = tool_position, tool_quaternion
+        robot[ROBOT_ROTATION] = 0.0
+        robot[ROBOT_JACOBIAN], robot[ROBOT_BIAS] = np.asarray(jacobian, dtype=float).ravel(), bias_torques
+        reference = np.empty(REFERENCE_SIZE)
+        reference[REFERENCE_POSITION], reference[REFERENCE_QUAT] = reference_position, reference_quaternion
+        reference[REFERENCE_TWIST], reference[REFERENCE_FORCE] = reference_twist, desired_force
+        return self.step(frame, robot, reference, np.asarray(wrench, dtype=float), in_contact, mass_matrix,
+                         update_null_space)  # fmt: skip
+
+    def step(
+        self,
+        frame: ControlFrame,
+        robot: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        wrench: NDArray[np.float64],
+        in_contact: bool = True,
+        mass_matrix: NDArray[np.float64] | None = None,
+        update_null_space: bool = True,
+    ) -> ControlOutput:
+        """:meth:`compute` on packed arrays, for a control loop: ``robot`` (:data:`ROBOT_STATE_SIZE`,) in the
+        ``ROBOT_*`` layout (a simulated world's arm state as it is), ``reference`` (:data:`REFERENCE_SIZE`,) in the
+        ``REFERENCE_*`` layout, ``wrench`` (6,) float64; the rest as :meth:`compute`. The outputs are new arrays."""
         if update_null_space or self._projector is None:
+            jacobian = robot[ROBOT_JACOBIAN].reshape(6, 7)
             if not (np.isfinite(jacobian).all() and (mass_matrix is None or np.isfinite(mass_matrix).all())):
                 self._projector = None
-                reason = self._non_finite_reason(locals())
+                reason = self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
                 return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, reason)
             try:
                 self._update_model(jacobian, mass_matrix, frame)
@@ -563,58 +777,25 @@ class HybridController:
                 return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, f"singular robot model: {exc}")
         if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
             self._cache_frame(frame)
-        f_d = float(desired_force)
-        w = _floats(wrench)
-        ref_p = _floats(reference_position)
-        if not self._force_loop and f_d != 0.0:
-            shift = f_d / self._kz
-            ref_p = [r + z * shift for r, z in zip(ref_p, frame.cf_z.tolist(), strict=True)]
-        e_p = _pose_error_values(_floats(tool_position), _floats(tool_quaternion), ref_p, _floats(reference_quaternion))
-
-        # Force integral, CF coordinates, one force axis at a time: ∫ S~ (f_d S~ Adg^-1 F_d,1 - Adg^-1 F) dt.
-        if in_contact and not self._saturated_last and self._force_axes:
-            limit, dt, integral = self._integral_bound, self.dt, self.integral_cf
-            for i, error_per_n, row in self._force_axes:
-                error = f_d * error_per_n - sum(map(operator.mul, row, w))
-                integral[i] = min(max(float(integral[i]) + error * dt, -limit), limit)
-
-        # y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c], then τ = J^T (F_m + F_f) + N^T τ_0 + g + c, with
-        # F_m = Ω e_p + D_m ξ_r - (D_m + D_f) ξ and F_f = f_d (1 + K_p) Ω~ F_d,1 - K_p Ω~ F + K_i Adg ∫ e_cf dt.
-        x = np.concatenate(
-            (np.array([*e_p, f_d, 1.0]), reference_twist, wrench, self.integral_cf, jacobian @ qd, q, qd, bias_torques)
-        )
-        y = self._gain @ x
-        wrench_motion = y[_G_MOTION]
-        wrench_force = y[_G_FORCE]
-        tau = jacobian.T @ y[_G_WRENCH] + y[_G_JOINT]
-
-        # Limits and sanity.
-        values = tau.tolist()
-        fx, fy, fz, mx, my, mz = w
-        force_sq = fx * fx + fy * fy + fz * fz
-        if not math.isfinite(sum(values) + force_sq + mx * mx + my * my + mz * mz):
-            self._saturated_last = False
+        out = np.empty(_O_SIZE)
+        code = _law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
+        tau, wrench_motion, wrench_force = out[_O_TAU], out[_O_MOTION], out[_O_FORCE]
+        saturated = out[_O_SATURATED] > 0.0
+        if code == _OK:
+            return ControlOutput(tau, wrench_motion, wrench_force, saturated, None)
+        if code == _NON_FINITE:
             self._projector = None
-            return ControlOutput(_ZERO7.copy(), wrench_motion, wrench_force, False, self._non_finite_reason(locals()))
-        saturated, joint, worst = False, 0, 1.0
-        for i, (value, limit) in enumerate(zip(values, self._limits, strict=True)):
-            if abs(value) > limit * worst:
-                saturated, joint, worst = True, i, abs(value) / limit
-        reason = None
-        if saturated:
-            limits = self.torque_limits
-            tau = np.minimum(np.maximum(tau, -limits), limits)
-            self._saturated_for_s += self.dt
-            if self._saturated_for_s >= g.torque_saturation_abort_s - 0.5 * self.dt:
-                reason = (
-                    f"torque limit: joint {joint + 1} saturated at {limits[joint]:.0f} N·m "
-                    f"for {self._saturated_for_s:.3f} s"
-                )
+            reason = self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
+            return ControlOutput(tau, wrench_motion, wrench_force, False, reason)
+        if code == _TORQUE_LIMIT:
+            joint = int(out[_O_JOINT])
+            reason = (
+                f"torque limit: joint {joint + 1} saturated at {self.torque_limits[joint]:.0f} N·m "
+                f"for {self._law[_L_SATURATED_FOR]:.3f} s"
+            )
         else:
-            self._saturated_for_s = 0.0
-        self._saturated_last = saturated
-        if force_sq > self._max_force_sq:
-            reason = f"force limit: measured {math.sqrt(force_sq):.1f} N > max_force_n {g.max_force_n:.1f} N"
+            force = math.sqrt(float(wrench[:3] @ wrench[:3]))
+            reason = f"force limit: measured {force:.1f} N > max_force_n {self.gains.max_force_n:.1f} N"
         return ControlOutput(tau, wrench_motion, wrench_force, saturated, reason)
 
     def _cache_frame(self, frame: ControlFrame) -> None:
@@ -625,10 +806,11 @@ class HybridController:
         G[_G_MOTION, _X_REF_TWIST] = D_m
         G[_G_MOTION, _X_TWIST] = frame.task_gain[_G_MOTION, _X_TWIST] - D_m  # -(D_f + D_m)
         G[_G_WRENCH, _X_TASK] = G[_G_MOTION, _X_TASK] + G[_G_FORCE, _X_TASK]
-        self._force_axes = []
-        if self._ki > 0.0:
-            e1, rows = frame.force_error_direction.tolist(), frame.adg_inv.tolist()
-            self._force_axes = [(i, e1[i], rows[i]) for i, axis in enumerate(frame.force_axes.tolist()) if axis]
+        law = self._law
+        law[_L_CF_Z] = frame.cf_z
+        law[_L_AXES] = frame.force_axes if self._ki > 0.0 else 0.0
+        law[_L_ERROR_PER_N] = frame.force_error_direction
+        law[_L_ADG_INV] = frame.adg_inv.ravel()
         self._gain_frame, self._gain_damping = frame, self.damping_matrix_a
 
     def _update_model(
@@ -636,25 +818,17 @@ class HybridController:
     ) -> None:
         """Rebuild the null-space projector and (damping ratio) the damping from the apparent inertia."""
         self._model_version += 1
-        J = jacobian
-        if mass_matrix is None:
-            JJ = _regularized(J @ J.T)
-            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
-            self._cache_null_space()
-            return
-        JMinv = np.linalg.solve(mass_matrix, J.T).T  # J M^-1 (M symmetric)
-        lam = np.linalg.inv(_regularized(JMinv @ J.T))
-        if self._dynamic_null:
-            self._projector = _EYE7 - J.T @ (lam @ JMinv)
-        else:
-            JJ = _regularized(J @ J.T)
-            self._projector = _EYE7 - J.T @ np.linalg.solve(JJ, J)
+        J = np.ascontiguousarray(jacobian, dtype=float)
+        M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+        self._projector, lam = _null_space_model(J, M, self._dynamic_null)
         self._cache_null_space()
-        if self._adaptive_damping and (
-            self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0
+        if (
+            mass_matrix is not None
+            and self._adaptive_damping
+            and (self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0)
         ):
             stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
-            self.damping_matrix_a = damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
+            self.damping_matrix_a = _damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
 
     def _cache_null_space(self) -> None:
         """The joint-torque rows of G: ``N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇`` (plus ``g + c``, set once)."""

@@ -156,6 +156,33 @@ def test_mass_matrix_and_inverse_dynamics_agree(world):
     assert tau - world.gravity_coriolis_torques() == pytest.approx(M @ qdd, abs=1e-9)
 
 
+def test_the_compiled_arm_model_equals_pybullets_own_queries(world):
+    """The world's pose, Jacobian, gravity/Coriolis torques and mass matrix (sim_worker.arm_model) are PyBullet's
+    getLinkState, calculateJacobian, calculateInverseDynamics and calculateMassMatrix to round-off, at random joint
+    positions and velocities; the quaternion with PyBullet's sign."""
+    rng = np.random.default_rng(3)
+    cid, robot = world.client_id, world.robot
+    for _ in range(50):
+        q = rng.uniform(world.joint_lower, world.joint_upper)
+        qd = rng.normal(0.0, 1.5, 7)
+        world.set_joint_positions(q, qd)
+        com = pybullet.getLinkState(robot, TOOL_LINK, computeForwardKinematics=1, physicsClientId=cid)
+        lin, ang = pybullet.calculateJacobian(robot, TOOL_LINK, [0.0] * 3, q.tolist(), [0.0] * 7, [0.0] * 7,
+                                              physicsClientId=cid)  # fmt: skip
+        bias = pybullet.calculateInverseDynamics(robot, q.tolist(), qd.tolist(), [0.0] * 7, physicsClientId=cid)
+        mass = pybullet.calculateMassMatrix(robot, q.tolist(), physicsClientId=cid)
+        p, quat = world.tool_pose()
+        # the tool's inertial frame is its link frame shifted along z (robot_model): the COM pose gives the tool point
+        R = np.asarray(pybullet.getMatrixFromQuaternion(com[1])).reshape(3, 3)
+        np.testing.assert_allclose(p, np.asarray(com[0]) - R @ np.asarray(com[2]), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(quat, com[1], rtol=0, atol=1e-14)
+        np.testing.assert_allclose(world.tool_rotation(), R, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(world.jacobian(), np.array(lin + ang), rtol=0, atol=1e-14)
+        np.testing.assert_allclose(world.gravity_coriolis_torques(), bias, rtol=1e-13, atol=1e-12)
+        np.testing.assert_allclose(world.mass_matrix(), mass, rtol=1e-13, atol=1e-14)
+    world.reset()
+
+
 @pytest.mark.parametrize(
     ("position", "tilt_deg"),
     [((0.6, 0.0, 0.12), 0.0), ((0.5, 0.2, 0.25), 20.0), ((0.7, -0.15, 0.18), -35.0), ((0.45, 0.0, 0.4), 50.0)],

@@ -1,0 +1,39 @@
+"""Compile (or load from numba's on-disk cache) every compiled function of the control loop once.
+
+Run as ``python -m sim_worker.warm_up`` after installing or changing the code (``make test`` and the Docker image
+do): the first compile takes tens of seconds and holds the interpreter, so a worker or learner process that met it
+inside a request would miss its deadline; afterwards each new process loads the compiled code from the cache in
+well under a second.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from schemas.skill import SELECTION_CONTACT
+from sim_worker.world import SimWorld
+from skills.control import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT, HybridController, damping_matrix, pose_error
+
+
+def warm_up() -> float:
+    """Run each compiled function once on a real world (arm model, control law, model update);
+    return the seconds it took."""
+    start = time.perf_counter()
+    with SimWorld() as world:
+        robot = world.robot_state()
+        mass = world.mass_matrix()
+        controller = HybridController(posture=world.joint_state()[0], torque_limits=world.torque_limits)
+        frame = controller.frame(np.diag([1.0, -1.0, -1.0]), SELECTION_CONTACT)
+        reference = np.zeros(REFERENCE_SIZE)
+        reference[:7] = robot[ROBOT_POSITION.start : ROBOT_QUAT.stop]  # hold the current pose
+        controller.step(frame, robot, reference, np.zeros(6), True, mass, True)
+        controller.step(frame, robot, reference, np.zeros(6), True, None, True)
+    pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    damping_matrix(np.eye(6), np.eye(6), 1.0)
+    return time.perf_counter() - start
+
+
+if __name__ == "__main__":
+    print(f"compiled code ready in {warm_up():.1f} s")
