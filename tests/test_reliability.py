@@ -17,7 +17,6 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import httpx
@@ -25,6 +24,8 @@ import numpy as np
 import pytest
 
 zenoh = pytest.importorskip("zenoh")
+
+from waiting import wait_for  # noqa: E402
 
 from schemas.bus import ExecutionStatus, KeyExpressions, session_config  # noqa: E402
 from schemas.execution import TelemetryBatch  # noqa: E402
@@ -35,20 +36,6 @@ REPO = Path(__file__).resolve().parents[1]
 DT = 1e-3
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 3.0}}
 FINAL = ("done", "aborted", "failed")
-
-
-def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            value = predicate()
-        except httpx.HTTPError:
-            value = None
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.05)
 
 
 class Finals:
@@ -71,7 +58,7 @@ class Finals:
             with self.lock:
                 return self.finals.get(execution_id)
 
-        return _wait_for(seen, timeout_s, f"the worker's final status of {execution_id}")
+        return wait_for(seen, timeout_s, f"the worker's final status of {execution_id}")
 
     def close(self) -> None:
         self.subscriber.undeclare()
@@ -101,7 +88,7 @@ class Processes:
     def start_api(self) -> None:
         argv = ["api", "--port", str(self.port), "--db", str(self.db), "--connect", self.endpoint]
         self.api = spawn_cli(argv, self.tmp / "api.log", cwd=REPO, env={"CONTACT_SKILLS_LEARN_PROCESSES": "1"})
-        _wait_for(lambda: self._health_workers() >= 1, 90, "the API with its worker")
+        wait_for(lambda: self._health_workers() >= 1, 90, "the API with its worker")
 
     def _health_workers(self) -> int:
         assert self.api.poll() is None, (self.tmp / "api.log").read_text()[-3000:]
@@ -121,7 +108,7 @@ class Processes:
         return self.http.get(f"/executions/{execution_id}").json()
 
     def finished(self, execution_id: str, timeout_s: float = 90) -> dict:
-        return _wait_for(lambda: (lambda v: v if v["status"] in FINAL else None)(self.view(execution_id)), timeout_s,
+        return wait_for(lambda: (lambda v: v if v["status"] in FINAL else None)(self.view(execution_id)), timeout_s,
                          f"execution {execution_id} to finish")  # fmt: skip
 
     def close(self) -> None:
@@ -152,7 +139,7 @@ def stack(tmp_path_factory):
 def _start_run(stack: Processes) -> str:
     """A real-time execution, once the API has stored its first 300 samples."""
     execution_id = stack.post("/executions", {"skill_id": stack.skill_id, "pace": "realtime"}, 202)["id"]
-    _wait_for(lambda: stack.view(execution_id)["telemetry_samples"] >= 300, 60, "telemetry stored")
+    wait_for(lambda: stack.view(execution_id)["telemetry_samples"] >= 300, 60, "telemetry stored")
     return execution_id
 
 
@@ -206,11 +193,11 @@ def test_a_sigkilled_worker_is_still_reported_failed_at_once(stack):
     execution_id = _start_run(stack)
     killed = time.monotonic()
     stack.kill("worker")
-    view = _wait_for(lambda: (lambda v: v if v["status"] in FINAL else None)(stack.view(execution_id)), 10, "failed")
+    view = wait_for(lambda: (lambda v: v if v["status"] in FINAL else None)(stack.view(execution_id)), 10, "failed")
     assert view["status"] == "failed" and "lost" in view["error"], view
     assert time.monotonic() - killed < 2.0
     stack.start_worker()
-    _wait_for(lambda: stack._health_workers() >= 1, 60, "the worker back")
+    wait_for(lambda: stack._health_workers() >= 1, 60, "the worker back")
 
 
 def test_replayed_and_repeated_batches_store_every_sample_once(tmp_path):

@@ -16,7 +16,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -24,26 +24,14 @@ import pytest
 
 zenoh = pytest.importorskip("zenoh")
 
+from waiting import wait_for  # noqa: E402
+
 from schemas.bus import session_config  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
 FINAL = ("done", "aborted", "failed")
-
-
-def _wait_for(predicate: Callable[[], object], timeout_s: float, what: str, every_s: float = 0.2):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            value = predicate()
-        except httpx.HTTPError:
-            value = None
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(every_s)
 
 
 def _alive(pid: int) -> bool:
@@ -96,7 +84,7 @@ class Stack:
             health = self.health()
             return health["workers"] if health and len(health["workers"]) >= n else None
 
-        return _wait_for(ready, timeout_s, f"{n} workers")
+        return wait_for(ready, timeout_s, f"{n} workers")
 
     def post(self, path: str, body: dict, expect: int) -> dict:
         response = self.http.post(path, json=body)
@@ -109,7 +97,7 @@ class Stack:
         return response.json()
 
     def finished(self, execution_id: str, timeout_s: float = 60) -> dict:
-        return _wait_for(
+        return wait_for(
             lambda: (lambda v: v if v["status"] in FINAL else None)(self.execution(execution_id)),
             timeout_s,
             f"execution {execution_id} to finish",
@@ -243,7 +231,7 @@ def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack
     stack.workers(2)
     workers = {w["worker_id"]: int(w["worker_id"].rsplit("-", 1)[1]) for w in stack.health()["workers"]}
     created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
-    _wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
+    wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
     os.kill(workers[created["worker_id"]], signal.SIGKILL)
     view = stack.finished(created["id"], timeout_s=20)
     assert view["status"] == "failed" and created["worker_id"] in view["error"] and "lost" in view["error"]
@@ -259,10 +247,10 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
     stack.workers(2)
     before = {path: stack.http.get(path).json() for path in ("/demonstrations", "/skills", "/executions?limit=1000")}
     running = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
-    _wait_for(lambda: stack.execution(running["id"])["telemetry_samples"] > 200, 30, "the execution to run")
+    wait_for(lambda: stack.execution(running["id"])["telemetry_samples"] > 200, 30, "the execution to run")
     api_pid = stack.api_pid()
     os.kill(api_pid, signal.SIGKILL)  # `up` restarts it on the same database
-    _wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
+    wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
 
     after = {path: stack.http.get(path).json() for path in before}
     assert after["/demonstrations"] == before["/demonstrations"]
@@ -283,7 +271,7 @@ def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):
 
 
 def _started(stack: Stack, execution_id: str) -> dict:
-    return _wait_for(
+    return wait_for(
         lambda: (lambda v: v if v["worker_id"] is not None else None)(stack.execution(execution_id)), 30, "a worker"
     )
 
@@ -322,7 +310,7 @@ def test_the_queue_survives_an_api_restart(stack, skill_id):
     assert waiting["status"] == "queued"
     api_pid = stack.api_pid()
     os.kill(api_pid, signal.SIGKILL)
-    _wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
+    wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
     # still there, in the database (starting: the new API's dispatcher is offering it to the busy workers)
     assert stack.execution(waiting["id"])["status"] in ("queued", "starting", "running")
     for execution in busy:
@@ -341,6 +329,6 @@ def test_up_limits_the_blas_threads_of_every_child(stack):
 def test_up_stops_cleanly_on_sigterm(stack):
     pids = stack.pids()
     assert stack.stop() == 0, stack.log_path.read_text()[-3000:]
-    _wait_for(lambda: not any(_alive(pid) for pid in pids), 10, "every child to exit")
+    wait_for(lambda: not any(_alive(pid) for pid in pids), 10, "every child to exit")
     log = stack.log_path.read_text()
     assert "stopped (exit 0)" in log and "api | " in log and "worker-1 | " in log
