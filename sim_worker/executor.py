@@ -469,6 +469,7 @@ class _Execution:
         in_contact_run = False
         f_last: float | None = None
         found_early = False
+        crease_out: float | None = None
         planner, tool_pose = self.planner, self.world.tool_pose
         for i, segment in enumerate(segments):
             nxt = segments[i + 1] if i + 1 < len(segments) else None
@@ -506,8 +507,7 @@ class _Execution:
                 )
                 self.run_plan(ramp)
                 f_last = None
-            previous = segments[i - 1] if i > 0 else None
-            crease_in = self._crease_speed(previous, segment) if f_last is not None and previous else None
+            crease_in = crease_out if f_last is not None else None  # the crease the previous segment ended at
             next_contact = nxt is not None and nxt.kind is SegmentKind.contact
             crease_out = self._crease_speed(segment, nxt) if next_contact else None
             plan = planner.contact(segment, *tool_pose(), f_last, crease_in, crease_out)
