@@ -207,7 +207,8 @@ def test_execution_streams_every_sample_and_ends_done_with_metrics(bus, client, 
     readme = subprocess.Popen([sys.executable, str(snippet)], stdout=subprocess.PIPE, text=True)
     nobody = f"http://127.0.0.1:{_free_port()}"  # no API there (whatever serves :8000 on a shared machine)
     watch = spawn_cli(
-        ["watch", "ex-stream", "--connect", endpoint, "--timeout", "60", "--url", nobody], tmp_path / "watch.log",
+        ["watch", "ex-stream", "--connect", endpoint, "--timeout", "60", "--url", nobody],
+        tmp_path / "watch.log",
         cwd=REPO,
     )
     try:

@@ -16,7 +16,8 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from rosbag_files import storage_file, write_bag  # noqa: E402
-from test_service import RECORD, _wait_for, running_stack  # noqa: E402
+from test_service import RECORD, running_stack  # noqa: E402
+from waiting import wait_for  # noqa: E402
 
 from schemas import Demonstration  # noqa: E402
 from services.client import (  # noqa: E402
@@ -81,9 +82,9 @@ def test_record_learn_execute_live_and_telemetry(client, stack):
         streamed.append(batch)
         if not states and batch.t[-1] > 2.0:  # pause: the API reports it, then resume
             execution.pause()
-            states.append(_wait_for(lambda: execution.status().status.value == "paused" and "paused", 10, "paused"))
+            states.append(wait_for(lambda: execution.status().status.value == "paused" and "paused", 10, "paused"))
             execution.resume()
-            states.append(_wait_for(lambda: execution.status().status.value == "running" and "running", 10, "resumed"))
+            states.append(wait_for(lambda: execution.status().status.value == "running" and "running", 10, "resumed"))
     view = execution.wait(timeout_s=120)
     assert states == ["paused", "running"]
     assert view.status.value == "done" and view.metrics is not None and view.metrics.contact_ratio > 0.9

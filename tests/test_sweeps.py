@@ -167,7 +167,8 @@ def test_unknown_sweeps_and_skills_are_404_and_a_sweep_without_a_bus_is_503(clie
 
 zenoh = pytest.importorskip("zenoh")
 
-from test_service import _wait_for, running_stack  # noqa: E402
+from test_service import running_stack  # noqa: E402
+from waiting import wait_for  # noqa: E402
 
 from schemas.bus import session_config  # noqa: E402
 
@@ -237,7 +238,7 @@ def _finished_sweep(stack, sweep_id: str, timeout_s: float = 150) -> dict:
         view = stack.http.get(f"/sweeps/{sweep_id}").json()
         return view if view["status"] != "running" else None
 
-    return _wait_for(done, timeout_s, f"sweep {sweep_id}", every_s=0.5)
+    return wait_for(done, timeout_s, f"sweep {sweep_id}", every_s=0.5)
 
 
 def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill_id):
@@ -254,7 +255,7 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
                     return trial
             return None
 
-        killed = _wait_for(victim, 60, "a running trial", every_s=0.1)
+        killed = wait_for(victim, 60, "a running trial", every_s=0.1)
         killed_worker = stack.execution(killed["execution_id"])["worker_id"]
         os.kill(workers[killed_worker], signal.SIGKILL)
         view = _finished_sweep(stack, created["id"])
@@ -315,10 +316,10 @@ def test_a_sweep_resumes_after_the_api_is_killed(stack, skill_id):
     executions that outlived the API keep their results, and every trial ends with one."""
     stack.workers(2)
     created = stack.post("/sweeps", {**SWEEP, "trials": 4, "seed": 11, "skill_id": skill_id}, 202)
-    _wait_for(lambda: stack.http.get(f"/sweeps/{created['id']}").json()["counts"]["running"] >= 1, 30, "a trial")
+    wait_for(lambda: stack.http.get(f"/sweeps/{created['id']}").json()["counts"]["running"] >= 1, 30, "a trial")
     api_pid = stack.api_pid()
     os.kill(api_pid, signal.SIGKILL)
-    _wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
+    wait_for(lambda: stack.health() and stack.api_pid() != api_pid, 60, "the API to restart")
     view = _finished_sweep(stack, created["id"])
     trials = stack.http.get(f"/sweeps/{created['id']}/trials").json()
     assert view["status"] == "done" and view["counts"]["finished"] == 4 and view["counts"]["pending"] == 0
@@ -328,7 +329,7 @@ def test_a_sweep_resumes_after_the_api_is_killed(stack, skill_id):
 def test_cancelling_a_sweep_stops_its_executions_and_submits_no_more(stack, skill_id):
     stack.workers(2)
     created = stack.post("/sweeps", {**SWEEP, "trials": 20, "seed": 5, "skill_id": skill_id}, 202)
-    _wait_for(lambda: stack.http.get(f"/sweeps/{created['id']}").json()["counts"]["running"] >= 1, 30, "a trial")
+    wait_for(lambda: stack.http.get(f"/sweeps/{created['id']}").json()["counts"]["running"] >= 1, 30, "a trial")
     view = stack.post(f"/sweeps/{created['id']}/cancel", {}, 202)
     assert view["status"] == "cancelled" and view["counts"]["pending"] > 0
     submitted = {t["execution_id"] for t in stack.http.get(f"/sweeps/{created['id']}/trials").json()} - {None}
