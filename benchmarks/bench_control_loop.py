@@ -34,13 +34,15 @@ import argparse  # noqa: E402
 import os  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+import timeit  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pybullet  # noqa: E402
 
 from schemas import ControllerKind, ExecutionSettings, LearnOptions  # noqa: E402
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
-from sim_worker.executor import NULL_SPACE_UPDATE_STEPS, execute_skill  # noqa: E402
+from sim_worker.execution_world import execution_world  # noqa: E402
+from sim_worker.executor import NULL_SPACE_UPDATE_STEPS, execute_skill, run_skill  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
 from sim_worker.world import SimWorld  # noqa: E402
 from sim_worker.world_config import WorldConfig  # noqa: E402
@@ -51,17 +53,24 @@ SECTION = "bench_control_loop"
 COMMAND = ".venv/bin/python benchmarks/bench_control_loop.py"
 TARGET_RTF = 30.0
 RUNS = (
-    ("slide_flat", "slide", ControllerKind.hybrid_cf),
-    ("slide_tilted", "slide", ControllerKind.hybrid_cf),
-    ("slide_tilted", "slide", ControllerKind.impedance),
-    ("slide_tilted", "slide", ControllerKind.hybrid_world_z),
-    ("contour_cylinder", "contour", ControllerKind.hybrid_cf),
-    ("contour_cylinder", "contour", ControllerKind.impedance),
-    ("contour_cylinder", "contour", ControllerKind.hybrid_world_z),
+    ("slide_flat", "slide", ControllerKind.hybrid_cf, "ideal"),
+    ("slide_flat", "slide", ControllerKind.hybrid_cf, "wrist"),
+    ("slide_tilted", "slide", ControllerKind.hybrid_cf, "ideal"),
+    ("slide_tilted", "slide", ControllerKind.impedance, "ideal"),
+    ("slide_tilted", "slide", ControllerKind.hybrid_world_z, "ideal"),
+    ("contour_cylinder", "contour", ControllerKind.hybrid_cf, "ideal"),
+    ("contour_cylinder", "contour", ControllerKind.hybrid_cf, "wrist"),
+    ("contour_cylinder", "contour", ControllerKind.impedance, "ideal"),
+    ("contour_cylinder", "contour", ControllerKind.hybrid_world_z, "ideal"),
 )
+"""Scenario, skill type, controller, sensor: ``ideal`` executes in the recording's world (the exact contact wrench,
+the control law's own view), ``wrist`` as a worker runs a request by default (``execution_world``: the wrist sensor
+with its weight compensation, noise, drift, 2 ms delay and 200 Hz filter; the joint force/torque sensor of the tool
+joint makes PyBullet's step dearer too)."""
 PARTS = ("physics_step", "sensing", "dynamics", "control_law", "telemetry", "other", "total")
 PYBULLET_CALLS = (
     "stepSimulation",
+    "getJointState",
     "setJointMotorControlArray",
     "getJointStates",
     "getLinkState",
@@ -82,6 +91,26 @@ def pin_one_core() -> str:
         return f"pinned to CPU {cpus[-1]}"
     except (AttributeError, OSError):
         return "not pinned (no sched_setaffinity)"
+
+
+def machine_speed() -> dict[str, float]:
+    """µs of two fixed workloads, best of 5 (a shared or throttled machine drifts by 2x between days): CPython
+    ``sum(range(1000))`` and one PyBullet step of the arm in the flat-table world held by its gravity torques."""
+    python = min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6
+    with SimWorld(WorldConfig()) as world:
+        cid, tau = world.client_id, world.gravity_coriolis_torques()
+        world.step(tau)
+
+        def hold(n: int = 2000) -> float:
+            start = time.perf_counter()
+            for _ in range(n):
+                pybullet.stepSimulation(physicsClientId=cid)
+            return (time.perf_counter() - start) / n * 1e6
+
+        pybullet.setJointMotorControlArray(world.robot, list(range(7)), pybullet.TORQUE_CONTROL, forces=tau.tolist(),
+                                           physicsClientId=cid)  # fmt: skip
+        physics = min(hold() for _ in range(5))
+    return {"python": python, "physics": physics}
 
 
 def control_law_cost(repeats: int = 20000) -> dict[str, float]:
@@ -160,7 +189,7 @@ def main() -> None:
     load_before = os.getloadavg()
 
     learned = {}
-    for scenario, skill_type, _ in RUNS:
+    for scenario, skill_type, _, _ in RUNS:
         if scenario not in learned:
             recording = record_demonstration(scenario, seed=0)
             options = LearnOptions(skill_type=skill_type)
@@ -168,21 +197,25 @@ def main() -> None:
 
     rows = []
     breakdown = None
-    for scenario, _, controller in RUNS:
+    for scenario, _, controller, sensor in RUNS:
         recording, skill = learned[scenario]
         settings = ExecutionSettings(controller=controller, pace="fast")
-        results = [
-            execute_skill(skill, recording.world_config, settings, demonstration=recording.demonstration)
-            for _ in range(args.repeats)
-        ]
+        if sensor == "wrist":
+            world = execution_world(skill, scenario=scenario, demonstration=recording.demonstration)
+            results = [run_skill(world, settings) for _ in range(args.repeats)]
+        else:
+            results = [
+                execute_skill(skill, recording.world_config, settings, demonstration=recording.demonstration)
+                for _ in range(args.repeats)
+            ]
         rtfs = [r.metrics.real_time_factor for r in results]
         cpu_us = statistics.median(1e6 * r.loop_cpu_s / max(r.metrics.steps, 1) for r in results)
         best = results[int(np.argsort(rtfs)[len(rtfs) // 2])]
-        rows.append((scenario, controller, statistics.median(rtfs), min(rtfs), max(rtfs), cpu_us, best))
+        rows.append((scenario, controller, sensor, statistics.median(rtfs), min(rtfs), max(rtfs), cpu_us, best))
         if breakdown is None:
             breakdown = (scenario, controller, best.timings_us)
         m = best.metrics
-        print(f"{scenario:17s} {controller.value:15s} RTF {statistics.median(rtfs):5.1f} "
+        print(f"{scenario:17s} {controller.value:15s} {sensor:5s} RTF {statistics.median(rtfs):5.1f} "
               f"({min(rtfs):.1f}-{max(rtfs):.1f}), {best.timings_us['total']:.0f} µs/step wall, {cpu_us:.0f} µs/step "
               f"CPU, {m.phase.value}, f_z RMS {m.force_rms_error_pct or float('nan'):.2f} %", flush=True)  # fmt: skip
 
@@ -194,6 +227,7 @@ def main() -> None:
     with SimWorld(WorldConfig()) as world:
         world_costs = world.measure_costs(2000)
     law = control_law_cost()
+    calibration = machine_speed()
     load_after = os.getloadavg()
 
     lines = [
@@ -202,7 +236,9 @@ def main() -> None:
         f"Reproduce: `{COMMAND}` ({args.repeats} executions per row, median real-time factor; {pinned}).",
         "",
         "Each row executes a skill learned from the scripted teacher (seed 0) in PyBullet at 1 kHz with "
-        "`execute_skill(..., pace=fast)`: settle, free motion, guarded approach, contact, retreat. The "
+        "`execute_skill(..., pace=fast)` (sensor `ideal`: the recording's world, the exact contact wrench) or as a "
+        "worker runs a request by default (`wrist`: `execution_world` + `run_skill`, the wrist sensor model): "
+        "settle, free motion, guarded approach, contact, retreat. The "
         "loop time covers physics, sensing, dynamics queries, the control law, the telemetry record and "
         "the guarded-approach / abort checks, and the work between the phases (the start pose's IK, the phases' "
         "DMP rollouts and control frames); not the world construction before it. Real-time factor = simulated "
@@ -210,18 +246,19 @@ def main() -> None:
         "other processes on a loaded machine disturb less (SMT siblings and caches still do). Load average "
         f"(1, 5, 15 min) before the run {_load(load_before)}, after it {_load(load_after)}.",
         "",
-        "| scenario | controller | real-time factor (median, min-max) | µs / step | CPU µs / step (RTF) | "
+        "| scenario | controller | sensor | real-time factor (median, min-max) | µs / step | CPU µs / step (RTF) | "
         "f_z RMS error | f_z max error | contact ratio | path RMS (CF x-y) | peak force |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
-    for scenario, controller, rtf, lo, hi, cpu_us, result in rows:
+    for scenario, controller, sensor, rtf, lo, hi, cpu_us, result in rows:
         m = result.metrics
         rms = f"{m.force_rms_error_n:.3f} N ({m.force_rms_error_pct:.2f} %)" if m.force_rms_error_n else "–"
         worst = f"{m.force_max_error_n:.2f} N ({m.force_max_error_pct:.1f} %)" if m.force_max_error_n else "–"
         ratio = f"{100 * m.contact_ratio:.2f} %" if m.contact_ratio is not None else "–"
         path = f"{1e3 * m.path_rms_m:.2f} mm" if m.path_rms_m is not None else "–"
         lines.append(
-            f"| {scenario} | {controller.value} | {rtf:.1f} ({lo:.1f}-{hi:.1f}) | {result.timings_us['total']:.0f} | "
+            f"| {scenario} | {controller.value} | {sensor} | {rtf:.1f} ({lo:.1f}-{hi:.1f}) | "
+            f"{result.timings_us['total']:.0f} | "
             f"{cpu_us:.0f} ({1e3 / cpu_us:.1f}) | {rms} | {worst} | {ratio} | {path} | {m.peak_force_n:.1f} N |"
         )
     scenario, controller, timings = breakdown
@@ -234,14 +271,20 @@ def main() -> None:
         "| --- | ---: | ---: |",
     ]
     labels = {
-        "physics_step": "physics step (`SimWorld.step`: torque command + `stepSimulation`)",
+        "physics_step": (
+            "physics step (`SimWorld.step`: torque command + `stepSimulation`; with a non-ideal sensor also its "
+            "reading of the new state)"
+        ),
         "sensing": (
             "sensing (`SimWorld.sense`: joint state, contact wrench and flag; tool pose, Jacobian, gravity/Coriolis "
             "from the compiled arm model)"
         ),
         "dynamics": f"mass matrix every {NULL_SPACE_UPDATE_STEPS} steps (compiled arm model), joint-limit check",
-        "control_law": "control law (`HybridController.step`, compiled; incl. projector/damping updates; CF wrench)",
-        "telemetry": "telemetry record (one row of floats into the preallocated array, batch hand-off)",
+        "control_law": (
+            "control law and telemetry row (`HybridController.prepare`: projector/damping updates every "
+            f"{NULL_SPACE_UPDATE_STEPS} steps; then ONE compiled call: CF wrench, the law, the row)"
+        ),
+        "telemetry": "telemetry batch hand-off",
         "other": "other (timers, guarded-approach and abort checks; IK and DMP rollouts of the phase plans)",
         "total": "**total**",
     }
@@ -270,8 +313,8 @@ def main() -> None:
         lines.append(f"| world.{name} | {value:.1f} |")
     for name, value in law.items():
         lines.append(f"| control law: {name} | {value:.1f} |")
-    median_rtf = statistics.median(r[2] for r in rows)
-    median_cpu_rtf = statistics.median(1e3 / r[5] for r in rows)
+    median_rtf = statistics.median(r[3] for r in rows)
+    median_cpu_rtf = statistics.median(1e3 / r[6] for r in rows)
     verdict = "MET" if median_rtf >= TARGET_RTF else "NOT MET"
     verdict_cpu = "MET" if median_cpu_rtf >= TARGET_RTF else "NOT MET"
     python_side = total - simulator
@@ -285,13 +328,19 @@ def main() -> None:
         "world's joint-state and contact-point tuples turned into arrays, the telemetry row, the phase plans) and, "
         "on a loaded machine, time the loop waited for the CPU (compare the CPU column).",
         "- Per step the loop makes four PyBullet calls (`getJointStates`, `getContactPoints`, "
-        "`setJointMotorControlArray`, `stepSimulation`); the tool pose, Jacobian, gravity/Coriolis torques and "
+        "`setJointMotorControlArray`, `stepSimulation`; the wrist sensor adds `getJointState` of the tool joint); "
+        "the tool pose, Jacobian, gravity/Coriolis torques and "
         "mass matrix come from the arm's compiled model (`sim_worker/arm_model.py`, equal to PyBullet's "
         "`getLinkState` / `calculateJacobian` / `calculateInverseDynamics` / `calculateMassMatrix` to round-off, "
         "`tests/test_world.py`), written into one array the compiled control law reads as it is "
         "(`HybridController.step`; the model update every "
         f"{NULL_SPACE_UPDATE_STEPS} steps compiled too). Every remaining numpy or PyBullet call costs ~0.3-3 µs "
         "of call overhead whatever it computes, more right after `stepSimulation`, which evicts the caches.",
+        "",
+        f"- How fast this machine was during the run (to compare tables taken on other machines or days: the "
+        f"loop's µs scale with these): CPython `sum(range(1000))` {calibration['python']:.1f} µs, PyBullet "
+        f"`stepSimulation` of the arm standing free in the flat-table world {calibration['physics']:.1f} µs "
+        "(best of 5 runs each, pinned to the same CPU).",
         "",
         machine_line(f"pybullet {_pybullet_version()}"),
     ]

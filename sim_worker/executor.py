@@ -38,6 +38,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -55,10 +56,20 @@ from schemas.skill import Segment, SegmentKind, Skill
 from sim_worker.execution_world import ExecutionWorld
 from sim_worker.metrics import compute_metrics, reference_force
 from sim_worker.plans import PhasePlan, PhasePlanner, first_force, smooth_ramp
-from sim_worker.telemetry import TELEMETRY_WIDTH, Telemetry
+from sim_worker.telemetry import TELEMETRY_COLUMNS, TELEMETRY_WIDTH, Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
-from skills.control import REFERENCE_TWIST, ControlFrame, HybridController
+from skills.control import (
+    LAW_OK,
+    LAW_OUTPUT_SIZE,
+    LAW_TAU,
+    REFERENCE_FORCE,
+    REFERENCE_TWIST,
+    ROBOT_POSITION,
+    ControlFrame,
+    HybridController,
+    law_step,
+)
 from skills.frames import rotation_from_vectors
 from skills.normal_tracking import SurfaceNormalTracker
 
@@ -83,6 +94,54 @@ NORMAL_TRACKING_STEPS = 10
 """With ``follow_surface_normal``, the CF follows the estimated normal every this many steps."""
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
+
+
+# Telemetry columns (sim_worker.telemetry.TELEMETRY_COLUMNS) and arm state entries, as plain ints for the compiled step.
+_C_T, _C_PHASE, _C_SEGMENT = (TELEMETRY_COLUMNS[c].start for c in ("t", "phase", "segment_index"))
+_C_POSE = TELEMETRY_COLUMNS["tool_position"].start  # position then orientation
+_C_REFERENCE = TELEMETRY_COLUMNS["reference_position"].start  # position then orientation
+_C_WRENCH, _C_WRENCH_CF = TELEMETRY_COLUMNS["wrench_world"].start, TELEMETRY_COLUMNS["wrench_cf"].start
+_C_DESIRED, _C_CONTACT = TELEMETRY_COLUMNS["desired_force_cf_z_n"].start, TELEMETRY_COLUMNS["in_contact"].start
+_C_TRUE_NORMAL = TELEMETRY_COLUMNS["normal_force_true_n"].start  # force then the normal (3)
+_R_POSE = ROBOT_POSITION.start  # position then quaternion
+
+
+@numba.njit(cache=True)
+def _control_and_record(
+    G, law, robot, reference, wrench, cf_rotation, in_contact, normal, rows, n, t, phase, segment, run_law, out
+):  # pragma: no cover - compiled
+    """One control step after sensing, in one compiled call: the measured wrench in CF axes (``R^T f``, ``R^T m``,
+    ``cf_rotation`` (9,) by rows), the control law (:func:`skills.control.law_step` into ``out``, when ``run_law``;
+    its contact flag: the CF-z force above half the desired one, at most 0.5 N) and telemetry row ``n`` of ``rows``
+    (:data:`TELEMETRY_COLUMNS`: the state measured before the step, its reference and desired force, the true
+    normal force and direction ``normal`` (4,)). Returns the law's code (``LAW_OK`` when it did not run)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
+        cf_rotation[0], cf_rotation[1], cf_rotation[2], cf_rotation[3], cf_rotation[4], cf_rotation[5],
+        cf_rotation[6], cf_rotation[7], cf_rotation[8],
+    )  # fmt: skip
+    fx, fy, fz, mx, my, mz = wrench[0], wrench[1], wrench[2], wrench[3], wrench[4], wrench[5]
+    row = rows[n]
+    row[_C_T], row[_C_PHASE], row[_C_SEGMENT] = t, phase, segment
+    for i in range(7):  # tool pose (position, quaternion); reference pose, the same layout
+        row[_C_POSE + i] = robot[_R_POSE + i]
+        row[_C_REFERENCE + i] = reference[i]
+    for i in range(6):
+        row[_C_WRENCH + i] = wrench[i]
+    cf = _C_WRENCH_CF
+    row[cf] = fx * r00 + fy * r10 + fz * r20
+    row[cf + 1] = fx * r01 + fy * r11 + fz * r21
+    row[cf + 2] = fx * r02 + fy * r12 + fz * r22
+    row[cf + 3] = mx * r00 + my * r10 + mz * r20
+    row[cf + 4] = mx * r01 + my * r11 + mz * r21
+    row[cf + 5] = mx * r02 + my * r12 + mz * r22
+    f_des = reference[REFERENCE_FORCE]
+    row[_C_DESIRED] = f_des
+    row[_C_CONTACT] = 1.0 if in_contact else 0.0
+    for i in range(4):  # the true normal force and the normal
+        row[_C_TRUE_NORMAL + i] = normal[i]
+    if not run_law:
+        return LAW_OK
+    return law_step(G, robot, reference, wrench, law, row[cf + 2] > min(0.5, 0.5 * f_des), out)
 
 
 class ContactLostError(Exception):
@@ -233,9 +292,13 @@ class _Execution:
         telemetry row are plain float arithmetic, written into the row array in one assignment.
         """
         world = self.world
-        sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_force
+        sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_state
         robot_state = world.robot_state
-        control_step = self.controller.step
+        controller = self.controller
+        prepare = controller.prepare
+        gain, law = controller.law_arrays
+        out = np.zeros(LAW_OUTPUT_SIZE)
+        tau = out[LAW_TAU]
         perf = time.perf_counter
         dt = self.dt
         phase_code = float(PHASE_CODES[plan.phase])
@@ -249,22 +312,24 @@ class _Execution:
         stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
         single = plan.frame
         series, stride = plan.series, plan.stride
-        ref_p, ref_q, force = plan.ref_p.tolist(), plan.ref_q.tolist(), plan.force.tolist()
+        ref_p = plan.ref_p.tolist()
         # One row per step in the law's reference layout (position, quaternion, twist, desired force).
         references = np.concatenate((plan.ref_p, plan.ref_q, plan.ref_twist, plan.force[:, None]), axis=1)
         dynamic_null = self._dynamic_null
         q_lower, q_upper = world.joint_lower, world.joint_upper
         should_abort, should_pause = self.should_abort, self.should_pause
         frame: ControlFrame | None = None
+        cf_rotation = np.eye(3).ravel()
+        r02 = r12 = r22 = 0.0
         tracker = self._normal_tracker(plan)
         p_tracked: list[float] | None = None
         try:
-            k = 0
-            while k < plan.steps:
+            k, steps = 0, plan.steps
+            while k < steps:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
                 paused = should_pause is not None and should_pause()
                 t0 = perf()
-                q, _, p, quat, w, touching = sense()
+                q, _, p, _, w, touching = sense()
                 robot = robot_state()
                 t1 = perf()
                 update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
@@ -273,53 +338,35 @@ class _Execution:
                     raise ExecutionAbortError(self._joint_limit_reason(q))
                 t2 = perf()
                 current = single if single is not None else series[k // stride]
-                if current is not frame:  # a new control frame: its CF rotation as floats, for the CF wrench
+                if current is not frame:  # a new control frame: its CF rotation by rows, for the CF wrench
                     frame = current
                     self._cf_rotation = frame.cf_rotation
-                    r00, r01, r02, r10, r11, r12, r20, r21, r22 = frame.cf_rotation.ravel().tolist()
-                f_des = force[k]
-                wl = w.tolist()
-                fx, fy, fz, mx, my, mz = wl
-                w_cf = [  # the measured wrench in CF axes: R^T f, R^T m
-                    fx * r00 + fy * r10 + fz * r20,
-                    fx * r01 + fy * r11 + fz * r21,
-                    fx * r02 + fy * r12 + fz * r22,
-                    mx * r00 + my * r10 + mz * r20,
-                    mx * r01 + my * r11 + mz * r21,
-                    mx * r02 + my * r12 + mz * r22,
-                ]
+                    cf_rotation = np.ascontiguousarray(frame.cf_rotation).ravel()
+                    r02, r12, r22 = frame.cf_rotation[:, 2].tolist()
                 reference = references[k]
                 if paused:
                     reference = reference.copy()
                     reference[REFERENCE_TWIST] = 0.0
-                out = control_step(frame, robot, reference, w, w_cf[2] > min(0.5, 0.5 * f_des), M, update_null)
-                t3 = perf()
-                # Record the step (state measured before it, reference and desired force of it).
-                fn_true, n_true = true_normal()
+                # The law's Python part (model and gain updates), then one compiled call: CF wrench, law, telemetry
+                # row (the state measured before the step, its reference and desired force).
+                reason = prepare(frame, robot, reference, w, M, update_null)
                 if self.n >= self.capacity:
                     self._grow()
-                self.rows[self.n] = [
-                    self.step_count * dt,
-                    phase_code,
-                    seg,
-                    *p.tolist(),
-                    *quat.tolist(),
-                    *ref_p[k],
-                    *ref_q[k],
-                    *wl,
-                    *w_cf,
-                    f_des,
-                    1.0 if touching else 0.0,
-                    fn_true,
-                    *n_true,
-                ]
+                code = _control_and_record(
+                    gain, law, robot, reference, w, cf_rotation, touching, true_normal(), self.rows, self.n,
+                    self.step_count * dt, phase_code, seg, reason is None, out,
+                )  # fmt: skip
                 self.n += 1
+                t3 = perf()
                 if self.n - self.emitted >= batch:
                     self._emit()
                 t4 = perf()
-                if out.abort_reason is not None:
-                    raise ExecutionAbortError(out.abort_reason)
-                step(out.tau)
+                if reason is None and code != LAW_OK:
+                    reason = controller.abort_reason(code, out, robot, reference, w, M)
+                if reason is not None:
+                    raise ExecutionAbortError(reason)
+                fx, fy, fz = w[:3].tolist()  # this step's reading: the step below overwrites w
+                step(tau)
                 self.step_count += 1
                 t5 = perf()
                 ts += t1 - t0
@@ -336,7 +383,7 @@ class _Execution:
                     if p_tracked is not None:
                         span = NORMAL_TRACKING_STEPS * dt
                         velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
-                        z_new = tracker.update(w[:3], velocity)
+                        z_new = tracker.update([fx, fy, fz], velocity)
                         if z_new @ frame.cf_rotation[:, 2] < 1.0 - 1e-10:
                             turned = rotation_from_vectors(frame.cf_rotation[:, 2], z_new) @ frame.cf_rotation
                             single = self.controller.frame(turned, self._selection[plan.segment])

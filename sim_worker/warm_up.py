@@ -12,14 +12,28 @@ import time
 
 import numpy as np
 
+from schemas.execution import PHASE_CODES, ExecutionPhase
 from schemas.skill import SELECTION_CONTACT
+from sim_worker.executor import _control_and_record
+from sim_worker.sensor import WRIST_SENSOR, WrenchSensor
+from sim_worker.telemetry import TELEMETRY_WIDTH
 from sim_worker.world import SimWorld
-from skills.control import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT, HybridController, damping_matrix, pose_error
+from sim_worker.world_config import WorldConfig
+from skills.control import (
+    LAW_OUTPUT_SIZE,
+    REFERENCE_SIZE,
+    ROBOT_POSITION,
+    ROBOT_QUAT,
+    HybridController,
+    damping_matrix,
+    pose_error,
+)
+from skills.dmp import QuaternionDMP
 
 
 def warm_up() -> float:
-    """Run each compiled function once on a real world (arm model, control law, model update);
-    return the seconds it took."""
+    """Run each compiled function once on a real world (arm model, control law, model update, the loop's step, the
+    wrist sensor, the orientation DMP); return the seconds it took."""
     start = time.perf_counter()
     with SimWorld() as world:
         robot = world.robot_state()
@@ -30,6 +44,14 @@ def warm_up() -> float:
         reference[:7] = robot[ROBOT_POSITION.start : ROBOT_QUAT.stop]  # hold the current pose
         controller.step(frame, robot, reference, np.zeros(6), True, mass, True)
         controller.step(frame, robot, reference, np.zeros(6), True, None, True)
+        gain, law = controller.law_arrays
+        rows = np.zeros((1, TELEMETRY_WIDTH))
+        phase = float(PHASE_CODES[ExecutionPhase.contact])
+        _control_and_record(gain, law, robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0,
+                            0.0, phase, 0.0, True, np.zeros(LAW_OUTPUT_SIZE))  # fmt: skip
+    WrenchSensor(WorldConfig(**WRIST_SENSOR)).measure(np.zeros(6))
+    quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
+    QuaternionDMP.fit(np.arange(11) * 0.01, quaternions).rollout(0.01)
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])
     damping_matrix(np.eye(6), np.eye(6), 1.0)
     return time.perf_counter() - start

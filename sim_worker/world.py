@@ -200,6 +200,17 @@ class SimWorld:
         self._arm = np.zeros(ROBOT_STATE_SIZE)
         self._arm_work = np.empty(workspace_size(self._model))
         """The arm state of the current step, overwritten in place by the next one (the raw accessors' views)."""
+        self._applied = np.zeros(6)
+        """The exact wrench the tool applies this step (see :meth:`true_contact_wrench`), overwritten in place."""
+        self._measured = np.zeros(6)
+        """The sensor's reading this step (a non-ideal sensor's; the ideal one reads ``_applied``)."""
+        self._source = np.zeros(6)
+        """The wrist sensor's source wrench this step (see :meth:`wrist_wrench`)."""
+        self._mass = np.zeros((N_JOINTS, N_JOINTS))
+        self._points: tuple = ()
+        self._touching = False
+        self._true_normal = np.zeros(4)
+        """The force along the true surface normal (N) and that normal (3,), see :meth:`true_normal_force`."""
         self._arm_q, self._arm_qd = self._arm[ROBOT_Q], self._arm[ROBOT_QD]
         self._arm_position, self._arm_quat = self._arm[ROBOT_POSITION], self._arm[ROBOT_QUAT]
         self._arm_rotation = self._arm[ROBOT_ROTATION].reshape(3, 3)
@@ -218,8 +229,7 @@ class SimWorld:
         self.last_step_clipped = False
         self.clip_count = 0
         self.step_count = 0
-        self._version = 0
-        self._cache: dict[str, Any] = {}
+        self._invalidate()
         self.reset()
 
     # -- construction --------------------------------------------------------------------------------------------
@@ -334,8 +344,10 @@ class SimWorld:
             self.close()
 
     def _invalidate(self) -> None:
-        self._version += 1
-        self._cache.clear()
+        """The simulated state changed: every per-step quantity is read again when next asked for. Four flags, not
+        one, because reading contacts or the sensor has a cost (and the sensor a state) a kinematic query must not
+        pay (inverse kinematics teleports the arm hundreds of times)."""
+        self._arm_fresh = self._contact_fresh = self._measured_fresh = self._mass_fresh = False
 
     def reset(self, q: ArrayLike | None = None) -> None:
         """Set the joints to ``q`` (default ``Q_HOME``: tool pointing down above the table) at rest."""
@@ -357,19 +369,19 @@ class SimWorld:
 
     def _joints_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Joint positions and velocities (7,) each of this step: views of the arm state."""
-        if "joints" not in self._cache:
-            states = pybullet.getJointStates(self.robot, self._joints, physicsClientId=self._cid)
-            q, qd, _, _ = zip(*states, strict=True)  # transposed in C
-            self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
-            self._cache["joints"] = True
+        if not self._arm_fresh:
+            self._arm_raw()
         return self._arm_q, self._arm_qd
 
     def _arm_raw(self) -> NDArray[np.float64]:
-        """This step's arm state (``skills.control.ROBOT_*`` layout): joints, tool pose, Jacobian, gravity/Coriolis."""
-        if "arm" not in self._cache:
-            self._joints_raw()
+        """This step's arm state (``skills.control.ROBOT_*`` layout): joints (one PyBullet query), tool pose, Jacobian,
+        gravity/Coriolis (the compiled model)."""
+        if not self._arm_fresh:
+            states = pybullet.getJointStates(self.robot, self._joints, physicsClientId=self._cid)
+            q, qd, _, _ = zip(*states, strict=True)  # transposed in C
+            self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
             arm_state(self._model, self._arm, self._arm_work, True)
-            self._cache["arm"] = True
+            self._arm_fresh = True
         return self._arm
 
     def joint_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -379,11 +391,13 @@ class SimWorld:
 
     def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) and tool quaternion (4,), views of this step's arm state."""
-        self._arm_raw()
+        if not self._arm_fresh:
+            self._arm_raw()
         return self._arm_position, self._arm_quat
 
     def _rotation_raw(self) -> NDArray[np.float64]:
-        self._arm_raw()
+        if not self._arm_fresh:
+            self._arm_raw()
         return self._arm_rotation
 
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -396,7 +410,8 @@ class SimWorld:
         return self._rotation_raw().copy()
 
     def _jacobian_raw(self) -> NDArray[np.float64]:
-        self._arm_raw()
+        if not self._arm_fresh:
+            self._arm_raw()
         return self._arm_jacobian
 
     def jacobian(self) -> NDArray[np.float64]:
@@ -408,7 +423,8 @@ class SimWorld:
         return self._jacobian_raw() @ self._joints_raw()[1]
 
     def _gravity_coriolis_raw(self) -> NDArray[np.float64]:
-        self._arm_raw()
+        if not self._arm_fresh:
+            self._arm_raw()
         return self._arm_bias
 
     def gravity_coriolis_torques(self) -> NDArray[np.float64]:
@@ -416,10 +432,10 @@ class SimWorld:
         return self._gravity_coriolis_raw().copy()
 
     def _mass_matrix_raw(self) -> NDArray[np.float64]:
-        cached = self._cache.get("mass")
-        if cached is None:
-            cached = self._cache["mass"] = arm_mass_matrix(self._model, self._joints_raw()[0])
-        return cached
+        if not self._mass_fresh:
+            self._mass = arm_mass_matrix(self._model, self._joints_raw()[0])
+            self._mass_fresh = True
+        return self._mass
 
     def mass_matrix(self) -> NDArray[np.float64]:
         """Joint-space mass matrix (7, 7)."""
@@ -431,9 +447,12 @@ class SimWorld:
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
         returned as cached (read-only by contract, see :class:`Sensing`).
         """
-        q, qd = self._joints_raw()
-        p, quat = self._pose_raw()
-        return Sensing(q, qd, p, quat, self._measured_wrench(), self._contact_summary()[1])
+        if not self._arm_fresh:
+            self._arm_raw()
+        wrench = self._measured_wrench()
+        if not self._contact_fresh:
+            self._contact_summary()
+        return Sensing(self._arm_q, self._arm_qd, self._arm_position, self._arm_quat, wrench, self._touching)
 
     def robot_state(self) -> NDArray[np.float64]:
         """This step's arm state as the control law reads it (``skills.control.ROBOT_*`` layout: joints, tool pose,
@@ -475,12 +494,11 @@ class SimWorld:
 
         Sets ``last_step_clipped`` (and counts ``clip_count``) when any torque was clipped.
         """
-        tau = np.asarray(torque, dtype=float)
-        forces = tau.tolist()
+        forces = torque.tolist() if isinstance(torque, np.ndarray) else [float(v) for v in torque]
         clipped = any(map(operator.gt, map(abs, forces), self._torque_limits_list))  # C loops: ~4x a generator
         if clipped:
             limits = self.torque_limits
-            forces = np.clip(tau, -limits, limits).tolist()
+            forces = np.clip(forces, -limits, limits).tolist()
             self.clip_count += 1
         self.last_step_clipped = clipped
         pybullet.setJointMotorControlArray(
@@ -494,17 +512,16 @@ class SimWorld:
 
     # -- contact -------------------------------------------------------------------------------------------------
 
-    def _contact_points(self) -> list:
-        cached = self._cache.get("contacts")
-        if cached is None:
-            cached = self._cache["contacts"] = pybullet.getContactPoints(
-                bodyA=self.robot, linkIndexA=TOOL_LINK, physicsClientId=self._cid
-            )
-        return cached
+    def _contact_points(self) -> tuple:
+        if not self._contact_fresh:
+            self._contact_summary()
+        return self._points
 
     def in_contact(self) -> bool:
         """Whether the tool touches anything (a contact point at zero or negative distance, or carrying force)."""
-        return self._contact_summary()[1]
+        if not self._contact_fresh:
+            self._contact_summary()
+        return self._touching
 
     def contacts(self) -> list[dict[str, Any]]:
         """The tool's contact points: body name, position on the tool, normal force (N), distance (m)."""
@@ -529,43 +546,48 @@ class SimWorld:
         ``-normalForce * n_B + f1 * d1 + f2 * d2`` (sign verified by tests: pressing a table gives ``fz < 0``,
         sliding drags the table along the tool velocity). Moments about the tool point from the contact positions.
         """
-        return self._contact_summary()[0].copy()
+        if not self._contact_fresh:
+            self._contact_summary()
+        return self._applied.copy()
 
-    def _contact_summary(self) -> tuple[NDArray[np.float64], bool, float, tuple[float, float, float]]:
-        """The exact applied wrench (see :meth:`true_contact_wrench`), the contact flag, and the normal force with its
-        direction (see :meth:`true_normal_force`), in one pass over the contact points (cached until the next step)."""
-        cached = self._cache.get("contact")
-        if cached is None:
-            points = self._contact_points()
-            if not points:
-                cached = (np.zeros(6), False, 0.0, (0.0, 0.0, 0.0))
-            else:
-                px, py, pz = self._pose_raw()[0].tolist()
-                fx = fy = fz = mx = my = mz = 0.0
-                nx = ny = nz = 0.0
-                touching = False
-                for c in points:  # plain floats: ~1 µs per contact point instead of ~10 with numpy
-                    fn, f1, f2 = c[9], c[10], c[12]
-                    n, d1, d2, r = c[7], c[11], c[13], c[5]
-                    touching = touching or c[8] <= CONTACT_DISTANCE_M or fn > 0.0
-                    ax = -(fn * n[0] + f1 * d1[0] + f2 * d2[0])
-                    ay = -(fn * n[1] + f1 * d1[1] + f2 * d2[1])
-                    az = -(fn * n[2] + f1 * d1[2] + f2 * d2[2])
-                    rx, ry, rz = r[0] - px, r[1] - py, r[2] - pz
-                    fx += ax
-                    fy += ay
-                    fz += az
-                    mx += ry * az - rz * ay
-                    my += rz * ax - rx * az
-                    mz += rx * ay - ry * ax
-                    nx -= fn * n[0]
-                    ny -= fn * n[1]
-                    nz -= fn * n[2]
-                norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-                direction = (nx / norm, ny / norm, nz / norm) if norm > 0.0 else (0.0, 0.0, 0.0)
-                cached = (np.array([fx, fy, fz, mx, my, mz]), touching, norm, direction)
-            self._cache["contact"] = cached
-        return cached
+    def _contact_summary(self) -> None:
+        """Read the contact points (one PyBullet query) and sum them in one pass: the exact applied wrench
+        (``_applied``, see :meth:`true_contact_wrench`), the contact flag, the normal force and its direction (see
+        :meth:`true_normal_force`), kept until the next step."""
+        points = self._points = pybullet.getContactPoints(
+            bodyA=self.robot, linkIndexA=TOOL_LINK, physicsClientId=self._cid
+        )
+        self._contact_fresh = True
+        if not points:
+            self._applied[:] = 0.0
+            self._true_normal[:] = 0.0
+            self._touching = False
+        else:
+            px, py, pz = self._pose_raw()[0].tolist()
+            fx = fy = fz = mx = my = mz = 0.0
+            nx = ny = nz = 0.0
+            touching = False
+            for c in points:  # plain floats: ~1 µs per contact point instead of ~10 with numpy
+                fn, f1, f2 = c[9], c[10], c[12]
+                n, d1, d2, r = c[7], c[11], c[13], c[5]
+                touching = touching or c[8] <= CONTACT_DISTANCE_M or fn > 0.0
+                ax = -(fn * n[0] + f1 * d1[0] + f2 * d2[0])
+                ay = -(fn * n[1] + f1 * d1[1] + f2 * d2[1])
+                az = -(fn * n[2] + f1 * d1[2] + f2 * d2[2])
+                rx, ry, rz = r[0] - px, r[1] - py, r[2] - pz
+                fx += ax
+                fy += ay
+                fz += az
+                mx += ry * az - rz * ay
+                my += rz * ax - rx * az
+                mz += rx * ay - ry * ax
+                nx -= fn * n[0]
+                ny -= fn * n[1]
+                nz -= fn * n[2]
+            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            self._applied[:] = (fx, fy, fz, mx, my, mz)
+            self._touching = touching
+            self._true_normal[:] = (norm, nx / norm, ny / norm, nz / norm) if norm > 0.0 else (0.0, 0.0, 0.0, 0.0)
 
     def true_normal_force(self) -> tuple[float, tuple[float, float, float]]:
         """The exact force (N) the tool presses with along the TRUE surface normal, and that normal (unit, into the
@@ -576,8 +598,15 @@ class SimWorld:
         direction is the normal (on one surface its normal; in a corner, e.g. a ball pressing on both planes of a
         crease, the direction the two press along together). Friction is not part of it.
         """
-        _, _, force, direction = self._contact_summary()
-        return force, direction
+        force, nx, ny, nz = self.true_normal_state().tolist()
+        return force, (nx, ny, nz)
+
+    def true_normal_state(self) -> NDArray[np.float64]:
+        """:meth:`true_normal_force` as the array (4,) ``[force, nx, ny, nz]`` of this step, for a control loop's
+        telemetry (the array itself, read-only as :class:`Sensing`; ground truth, not a measurement)."""
+        if not self._contact_fresh:
+            self._contact_summary()
+        return self._true_normal
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The tool's applied contact force split into its normal part and its friction part (3,) each, world frame.
@@ -611,8 +640,14 @@ class SimWorld:
         equilibrium gives the applied wrench at the tool point, ``F + m g`` and ``M_c + c × (F + m g)``, minus
         the tool's inertial terms, which a real integration does not know either.
         """
+        return self._wrist_wrench_into(np.empty(6))
+
+    def _wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`wrist_wrench` written into ``out`` (6,); returns it."""
         fx, fy, fz, mx, my, mz = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
-        r = self._rotation_raw().ravel().tolist()  # world from tool, by rows
+        if not self._arm_fresh:
+            self._arm_raw()
+        r = self._arm[ROBOT_ROTATION].tolist()  # world from tool, by rows
         gx, gy, gz = self._tool_weight
         wx = r[0] * gx + r[3] * gy + r[6] * gz  # the weight in the tool frame: R^T m g
         wy = r[1] * gx + r[4] * gy + r[7] * gz
@@ -620,25 +655,32 @@ class SimWorld:
         fx, fy, fz = fx + wx, fy + wy, fz + wz
         cz = self._tool_com[2]  # the centre of mass lies on the tool axis: c = (0, 0, cz)
         mx, my = mx - cz * fy, my + cz * fx  # M_c + c x F
-        return np.array(
-            [
-                r[0] * fx + r[1] * fy + r[2] * fz,
-                r[3] * fx + r[4] * fy + r[5] * fz,
-                r[6] * fx + r[7] * fy + r[8] * fz,
-                r[0] * mx + r[1] * my + r[2] * mz,
-                r[3] * mx + r[4] * my + r[5] * mz,
-                r[6] * mx + r[7] * my + r[8] * mz,
-            ]
+        out[:] = (
+            r[0] * fx + r[1] * fy + r[2] * fz,
+            r[3] * fx + r[4] * fy + r[5] * fz,
+            r[6] * fx + r[7] * fy + r[8] * fz,
+            r[0] * mx + r[1] * my + r[2] * mz,
+            r[3] * mx + r[4] * my + r[5] * mz,
+            r[6] * mx + r[7] * my + r[8] * mz,
         )
+        return out
 
     def _measured_wrench(self) -> NDArray[np.float64]:
+        """This step's sensor reading (the array itself): the sensor samples once per simulated state."""
         if self.sensor.ideal:
-            return self._contact_summary()[0]
-        cached = self._cache.get("measured")
-        if cached is None:
-            source = self.wrist_wrench() if self._wrist else self._contact_summary()[0]
-            cached = self._cache["measured"] = self.sensor.measure(source)
-        return cached
+            if not self._contact_fresh:
+                self._contact_summary()
+            return self._applied
+        if not self._measured_fresh:
+            if self._wrist:
+                source = self._wrist_wrench_into(self._source)
+            else:
+                if not self._contact_fresh:
+                    self._contact_summary()
+                source = self._applied
+            self.sensor.measure_into(source, self._measured)
+            self._measured_fresh = True
+        return self._measured
 
     # -- kinematics ----------------------------------------------------------------------------------------------
 

@@ -75,7 +75,7 @@ Cost. The law runs at 1 kHz, where a numpy call on a 6- or 7-vector costs ~0.3-1
 overhead whatever it computes. Everything above is linear in the step's input vector ``x = [e_p,
 f_d, 1, ξ_r, F, ∫e_cf, ξ, q, q̇, g + c]`` (53 values, layout ``_X_*``), so a cached gain matrix
 ``G`` (25 x 53) gives ``y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c]`` and ``τ = J^T (F_m +
-F_f) + (N^T τ_0 + g + c)``. One step is ONE compiled call (:func:`_law_step`, numba) on packed
+F_f) + (N^T τ_0 + g + c)``. One step is ONE compiled call (:func:`law_step`, numba) on packed
 arrays (the robot state ``ROBOT_*``, the reference ``REFERENCE_*``, the law's state ``_L_*``):
 the pose error, the force integral, ``x``, ``G x``, ``τ`` and the limit checks. The rows of ``G``
 that depend on the control frame (``Ω``, the motion damping ``D_m`` and ``-(D_m + D_f)``, the
@@ -182,14 +182,14 @@ _L_ERROR_PER_N = slice(29, 35)  # S~ Adg^-1 F_d,1: CF force error per N desired
 _L_ADG_INV = slice(35, 71)  # Adg^-1 by rows: the measured wrench into CF coordinates
 _L_SIZE = 71
 # Layout of a step's output: τ (7), F_m (6), F_f (6), saturated (1/0), the most saturated joint.
-_O_TAU = slice(0, 7)
+LAW_TAU = slice(0, 7)
 _O_MOTION = slice(7, 13)
 _O_FORCE = slice(13, 19)
 _O_SATURATED = 19
 _O_JOINT = 20
-_O_SIZE = 21
+LAW_OUTPUT_SIZE = 21
 # Codes the compiled step returns.
-_OK, _NON_FINITE, _TORQUE_LIMIT, _FORCE_LIMIT = 0, 1, 2, 3
+LAW_OK, _NON_FINITE, _TORQUE_LIMIT, _FORCE_LIMIT = 0, 1, 2, 3
 
 
 def pose_error(
@@ -226,8 +226,8 @@ def _pose_error_into(px, py, pz, q, rpx, rpy, rpz, qr, out):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no cover - compiled
-    """One step of the law (module docstring, "Cost"): τ, F_m, F_f into ``out``; returns a code (``_OK``, ...).
+def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no cover - compiled
+    """One step of the law (module docstring, "Cost"): τ, F_m, F_f into ``out``; returns a code (``LAW_OK``, ...).
 
     ``G`` the gain matrix, ``robot`` / ``reference`` / ``law`` / ``out`` in the ``ROBOT_*``, ``REFERENCE_*``,
     ``_L_*``, ``_O_*`` layouts, ``wrench`` (6,) the measured wrench; updates the force integral and the saturation
@@ -304,7 +304,7 @@ def _law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no 
         limit = law[13 + j]
         if abs(out[j]) > limit * worst:
             saturated, joint, worst = True, j, abs(out[j]) / limit
-    code = _OK
+    code = LAW_OK
     if saturated:
         for j in range(7):
             limit = law[13 + j]
@@ -764,39 +764,71 @@ class HybridController:
         """:meth:`compute` on packed arrays, for a control loop: ``robot`` (:data:`ROBOT_STATE_SIZE`,) in the
         ``ROBOT_*`` layout (a simulated world's arm state as it is), ``reference`` (:data:`REFERENCE_SIZE`,) in the
         ``REFERENCE_*`` layout, ``wrench`` (6,) float64; the rest as :meth:`compute`. The outputs are new arrays."""
+        reason = self.prepare(frame, robot, reference, wrench, mass_matrix, update_null_space)
+        if reason is not None:
+            return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, reason)
+        out = np.empty(LAW_OUTPUT_SIZE)
+        code = law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
+        tau, wrench_motion, wrench_force = out[LAW_TAU], out[_O_MOTION], out[_O_FORCE]
+        if code == LAW_OK:
+            return ControlOutput(tau, wrench_motion, wrench_force, out[_O_SATURATED] > 0.0, None)
+        reason = self.abort_reason(code, out, robot, reference, wrench, mass_matrix)
+        return ControlOutput(tau, wrench_motion, wrench_force, code != _NON_FINITE and out[_O_SATURATED] > 0.0, reason)
+
+    def prepare(
+        self,
+        frame: ControlFrame,
+        robot: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        wrench: NDArray[np.float64],
+        mass_matrix: NDArray[np.float64] | None,
+        update_null_space: bool,
+    ) -> str | None:
+        """The part of :meth:`step` before the compiled law (:func:`law_step` on :attr:`law_arrays`): rebuild the
+        null-space model when asked (or when there is none), the gain rows when the frame or the damping changed.
+        Returns why the step must not run (a non-finite or singular model; zero torque then), else None. For a
+        loop that calls the compiled law itself together with its own per-step work."""
         if update_null_space or self._projector is None:
             jacobian = robot[ROBOT_JACOBIAN].reshape(6, 7)
             if not (np.isfinite(jacobian).all() and (mass_matrix is None or np.isfinite(mass_matrix).all())):
                 self._projector = None
-                reason = self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
-                return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, reason)
+                return self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
             try:
                 self._update_model(jacobian, mass_matrix, frame)
             except np.linalg.LinAlgError as exc:
                 self._projector = None
-                return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, f"singular robot model: {exc}")
+                return f"singular robot model: {exc}"
         if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
             self._cache_frame(frame)
-        out = np.empty(_O_SIZE)
-        code = _law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
-        tau, wrench_motion, wrench_force = out[_O_TAU], out[_O_MOTION], out[_O_FORCE]
-        saturated = out[_O_SATURATED] > 0.0
-        if code == _OK:
-            return ControlOutput(tau, wrench_motion, wrench_force, saturated, None)
+        return None
+
+    @property
+    def law_arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The compiled law's gain matrix and its state (integral, saturation timer, frame data), as
+        :func:`law_step` takes them; valid after :meth:`prepare`."""
+        return self._gain, self._law
+
+    def abort_reason(
+        self,
+        code: int,
+        out: NDArray[np.float64],
+        robot: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        wrench: NDArray[np.float64],
+        mass_matrix: NDArray[np.float64] | None,
+    ) -> str:
+        """Why :func:`law_step` returned ``code`` (not :data:`LAW_OK`) with output ``out``, in words."""
         if code == _NON_FINITE:
             self._projector = None
-            reason = self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
-            return ControlOutput(tau, wrench_motion, wrench_force, False, reason)
+            return self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
         if code == _TORQUE_LIMIT:
             joint = int(out[_O_JOINT])
-            reason = (
+            return (
                 f"torque limit: joint {joint + 1} saturated at {self.torque_limits[joint]:.0f} N·m "
                 f"for {self._law[_L_SATURATED_FOR]:.3f} s"
             )
-        else:
-            force = math.sqrt(float(wrench[:3] @ wrench[:3]))
-            reason = f"force limit: measured {force:.1f} N > max_force_n {self.gains.max_force_n:.1f} N"
-        return ControlOutput(tau, wrench_motion, wrench_force, saturated, reason)
+        force = math.sqrt(float(wrench[:3] @ wrench[:3]))
+        return f"force limit: measured {force:.1f} N > max_force_n {self.gains.max_force_n:.1f} N"
 
     def _cache_frame(self, frame: ControlFrame) -> None:
         """Build the rows of G that give the wrenches (until the frame or the damping matrix changes)."""

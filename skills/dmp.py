@@ -47,6 +47,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import lfilter
@@ -585,58 +586,20 @@ class QuaternionDMP(_DMPBase):
 
         Semi-implicit: ``eta_{k+1} = eta_k + dt/tau (alpha_z (beta_z 2 log(g * conj(q_k)) - eta_k) + f(x_k))``,
         ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k`` (renormalized). The forcing term is evaluated
-        for all steps at once; the nonlinear recursion is a loop over steps in plain floats.
+        for all steps at once; the nonlinear recursion is one compiled loop (:func:`_quaternion_recursion`).
         """
         tau = self.duration_s if duration_s is None else float(duration_s)
         t = _rollout_times(dt, tau)
         q0 = self.start if start is None else _unit_quaternions(start, "start").reshape(4)
         g = self.goal if goal is None else _unit_quaternions(goal, "goal").reshape(4)
         a = dt / tau
-        # a * (f_k) per step, and the constant gains, as plain Python floats.
-        drive = (a * self.forcing(self.phase(t[:-1], tau))).tolist()
+        # a * (f_k) per step, and the constant gains.
+        drive = np.ascontiguousarray(a * self.forcing(self.phase(t[:-1], tau)))
         k_goal = a * self.alpha_z * self.beta_z * 2.0
         damp = 1.0 - a * self.alpha_z
         half_a = 0.5 * a
-        gx, gy, gz, gw = (float(v) for v in g)
-        qx, qy, qz, qw = (float(v) for v in q0)
-        ex = ey = ez = 0.0
-        out_q = [(qx, qy, qz, qw)]
-        out_eta = [(0.0, 0.0, 0.0)]
-        append_q, append_eta = out_q.append, out_eta.append
-        atan2, sqrt, sin, cos = math.atan2, math.sqrt, math.sin, math.cos
-        for fx, fy, fz in drive:
-            # Goal error r = g * conj(q) on the short branch; log(r) = scale * r_vec = u theta/2.
-            rw = gw * qw + gx * qx + gy * qy + gz * qz
-            rx = qw * gx - gw * qx + gz * qy - gy * qz
-            ry = qw * gy - gw * qy + gx * qz - gz * qx
-            rz = qw * gz - gw * qz + gy * qx - gx * qy
-            vn = sqrt(rx * rx + ry * ry + rz * rz)
-            if vn > 1e-12:
-                scale = k_goal * atan2(vn, rw) / vn if rw >= 0.0 else -k_goal * atan2(vn, -rw) / vn
-            else:
-                scale = k_goal
-            ex = damp * ex + scale * rx + fx
-            ey = damp * ey + scale * ry + fy
-            ez = damp * ez + scale * rz + fz
-            # Step rotation d = exp(a/2 eta), applied on the left (world frame): q <- d * q.
-            hx, hy, hz = half_a * ex, half_a * ey, half_a * ez
-            hn = sqrt(hx * hx + hy * hy + hz * hz)
-            if hn > 1e-12:
-                sinc = sin(hn) / hn
-                dx, dy, dz, dw = hx * sinc, hy * sinc, hz * sinc, cos(hn)
-            else:
-                dx, dy, dz, dw = hx, hy, hz, 1.0
-            qx, qy, qz, qw = (
-                dw * qx + qw * dx + dy * qz - dz * qy,
-                dw * qy + qw * dy + dz * qx - dx * qz,
-                dw * qz + qw * dz + dx * qy - dy * qx,
-                dw * qw - dx * qx - dy * qy - dz * qz,
-            )
-            inv = 1.0 / sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-            qx, qy, qz, qw = qx * inv, qy * inv, qz * inv, qw * inv
-            append_q((qx, qy, qz, qw))
-            append_eta((ex, ey, ez))
-        return QuaternionDMPRollout(t=t, q=np.array(out_q), omega=np.array(out_eta) / tau)
+        q, eta = _quaternion_recursion(drive, g, q0, k_goal, damp, half_a)
+        return QuaternionDMPRollout(t=t, q=q, omega=eta / tau)
 
     def to_parameters(self) -> DMPParameters:
         """Return the wire form (kind quaternion, no amplitude scaling); :meth:`from_parameters` inverts it."""
@@ -661,3 +624,51 @@ class QuaternionDMP(_DMPBase):
             weights=p.weights,
             frame=p.frame,
         )
+
+
+@numba.njit(cache=True)
+def _quaternion_recursion(drive, g, q0, k_goal, damp, half_a):  # pragma: no cover - compiled
+    """The orientation DMP's recursion (:meth:`QuaternionDMP.rollout`): quaternions (N + 1, 4) and ``eta`` (N + 1, 3)
+    from ``q0`` for the per-step drives ``a f_k`` (N, 3). Compiled: the loop runs once per millisecond of motion
+    (a 10 s stroke: 10 000 iterations, ~40 ms in plain Python)."""
+    n = drive.shape[0]
+    out_q = np.empty((n + 1, 4))
+    out_eta = np.zeros((n + 1, 3))
+    gx, gy, gz, gw = g[0], g[1], g[2], g[3]
+    qx, qy, qz, qw = q0[0], q0[1], q0[2], q0[3]
+    out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3] = qx, qy, qz, qw
+    ex = ey = ez = 0.0
+    atan2, sqrt, sin, cos = math.atan2, math.sqrt, math.sin, math.cos
+    for k in range(n):
+        fx, fy, fz = drive[k, 0], drive[k, 1], drive[k, 2]
+        # Goal error r = g * conj(q) on the short branch; log(r) = scale * r_vec = u theta/2.
+        rw = gw * qw + gx * qx + gy * qy + gz * qz
+        rx = qw * gx - gw * qx + gz * qy - gy * qz
+        ry = qw * gy - gw * qy + gx * qz - gz * qx
+        rz = qw * gz - gw * qz + gy * qx - gx * qy
+        vn = sqrt(rx * rx + ry * ry + rz * rz)
+        scale = k_goal
+        if vn > 1e-12:
+            scale = k_goal * atan2(vn, rw) / vn if rw >= 0.0 else -k_goal * atan2(vn, -rw) / vn
+        ex = damp * ex + scale * rx + fx
+        ey = damp * ey + scale * ry + fy
+        ez = damp * ez + scale * rz + fz
+        # Step rotation d = exp(a/2 eta), applied on the left (world frame): q <- d * q.
+        hx, hy, hz = half_a * ex, half_a * ey, half_a * ez
+        hn = sqrt(hx * hx + hy * hy + hz * hz)
+        if hn > 1e-12:
+            sinc = sin(hn) / hn
+            dx, dy, dz, dw = hx * sinc, hy * sinc, hz * sinc, cos(hn)
+        else:
+            dx, dy, dz, dw = hx, hy, hz, 1.0
+        qx, qy, qz, qw = (
+            dw * qx + qw * dx + dy * qz - dz * qy,
+            dw * qy + qw * dy + dz * qx - dx * qz,
+            dw * qz + qw * dz + dx * qy - dy * qx,
+            dw * qw - dx * qx - dy * qy - dz * qz,
+        )
+        inv = 1.0 / sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        qx, qy, qz, qw = qx * inv, qy * inv, qz * inv, qw * inv
+        out_q[k + 1, 0], out_q[k + 1, 1], out_q[k + 1, 2], out_q[k + 1, 3] = qx, qy, qz, qw
+        out_eta[k + 1, 0], out_eta[k + 1, 1], out_eta[k + 1, 2] = ex, ey, ez
+    return out_q, out_eta

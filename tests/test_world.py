@@ -332,3 +332,28 @@ def test_the_sensor_model_delays_drifts_adds_noise_and_filters_as_configured() -
     response = np.array([filtered.measure(w) for w in steps])[:, 2]
     k63 = int(np.argmax(response > 10.0 * (1 - np.exp(-1)))) - 1000
     assert k63 == pytest.approx(1000 / (2 * np.pi * 20.0), abs=1.5)  # time constant 1 / (2 pi fc), in steps
+
+
+def test_the_sensor_composes_bias_delay_and_filter_in_the_documented_order() -> None:
+    """The compiled sensor against the model written out: reading = low-pass(delay(source + bias)), the delay line
+    filled with the first reading at the start, the filter starting from it."""
+    from sim_worker.sensor import WrenchSensor
+
+    config = WorldConfig().replace(
+        sensor_model="wrist", wrench_bias_n=(0.5, -0.2, 1.0), wrench_delay_s=0.003, wrench_filter_cutoff_hz=50.0,
+        wrench_noise_force_std_n=0.0, wrench_noise_torque_std_nm=0.0, wrench_bias_drift_n_per_sqrt_s=0.0,
+    )  # fmt: skip
+    source = np.random.default_rng(3).normal(0.0, 5.0, (300, 6))
+    sensor = WrenchSensor(config)
+    readings = np.array([sensor.measure(w) for w in source])
+    raw = source + np.array([0.5, -0.2, 1.0, 0.0, 0.0, 0.0])
+    delayed = raw[np.maximum(np.arange(300) - 3, 0)]
+    dt = config.time_step_s
+    alpha = dt / (dt + 1.0 / (2.0 * np.pi * 50.0))
+    expected = np.empty_like(delayed)
+    expected[0] = delayed[0]
+    for k in range(1, 300):
+        expected[k] = expected[k - 1] + alpha * (delayed[k] - expected[k - 1])
+    np.testing.assert_allclose(readings, expected, rtol=0, atol=1e-12)
+    sensor.reset()  # a tare empties the delay line and restarts the filter
+    np.testing.assert_allclose(sensor.measure(source[0]), raw[0], rtol=0, atol=1e-12)
