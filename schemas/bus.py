@@ -281,6 +281,12 @@ class StartExecution(BaseModel):
     demonstration: Demonstration | None = Field(
         None, description="The demonstration the skill was learned from, for the path metric (optional)."
     )
+    answer_by_unix_s: float | None = Field(
+        None,
+        description="When the caller stops waiting for the reply (wall clock, s since the epoch). A worker that "
+        "could only answer later refuses instead of starting: the caller has given up on it and may have started "
+        "the execution on another worker.",
+    )
 
     @model_validator(mode="after")
     def _inline(self) -> StartExecution:

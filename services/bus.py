@@ -266,8 +266,9 @@ class BusClient:
         import zenoh
 
         batches = []
-        replies = self._session.get(self.keys.replay(worker_id), payload=ask, timeout=timeout_s,
-                                    consolidation=zenoh.ConsolidationMode.NONE)  # every reply has the same key
+        replies = self._session.get(
+            self.keys.replay(worker_id), payload=ask, timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE
+        )  # every reply has the same key
         for reply in replies:
             if reply.ok is None:
                 log.warning("replay of %s [%d, %d) from %s: %s", execution_id, start, stop, worker_id,
@@ -356,11 +357,13 @@ class BusClient:
             world_overrides=world_overrides or {},
             demonstration=demonstration,
         )
-        payload = start.model_dump_json()
         everyone, free = self._candidates()
         refused: list[str] = []
         for worker in free:
-            reply = self._query_one(self.keys.start(worker.worker_id), payload, timeout_s)
+            # Each worker gets its own deadline: one that answers after it refuses, so a request given up on here
+            # (and offered to the next worker) never runs twice.
+            start.answer_by_unix_s = time.time() + timeout_s
+            reply = self._query_one(self.keys.start(worker.worker_id), start.model_dump_json(), timeout_s)
             if reply is None:
                 refused.append(f"{worker.worker_id} did not answer within {timeout_s:g} s")
                 continue

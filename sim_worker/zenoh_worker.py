@@ -84,6 +84,9 @@ FINAL_STATUS_HEAD_START_S = 0.1
 """At shutdown, pause between publishing the last status and undeclaring the liveliness token, s."""
 SHUTDOWN_JOIN_S = 10.0
 """How long shutdown waits for the aborted execution and the publisher to finish, s."""
+START_REPLY_MARGIN_S = 1.0
+"""A start request is refused when its reply could reach the caller less than this before the caller's deadline
+(``StartExecution.answer_by_unix_s``; the reply's transit, and clocks of other machines a little off), s."""
 
 
 @dataclass
@@ -497,6 +500,9 @@ class Worker:
                 world = world_for(start)
             except Exception as exc:
                 reply("error", _short_error(exc))
+                return
+            if start.answer_by_unix_s is not None and time.time() > start.answer_by_unix_s - START_REPLY_MARGIN_S:
+                reply("busy", "the start request expired before this worker could take it (the caller gave up)")
                 return
             with self._lock:
                 busy = self._busy_reason()

@@ -20,7 +20,7 @@ import pytest
 zenoh = pytest.importorskip("zenoh")
 
 from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
-from schemas.bus import ExecutionStatus, KeyExpressions, session_config  # noqa: E402
+from schemas.bus import ExecutionStatus, KeyExpressions, StartExecution, StartReply, session_config  # noqa: E402
 from schemas.demonstration import Demonstration  # noqa: E402
 from schemas.execution import ExecutionPhase, TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusRequestError, BusSettings, NoWorkerAvailable  # noqa: E402
@@ -444,3 +444,17 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
     assert view["telemetry_missing_samples"] == 0 and view["telemetry_samples"] == steps
     assert stored_before < steps  # what the dead API missed came back from the worker
     store.close()
+
+
+def test_a_start_request_the_caller_gave_up_on_is_refused_not_run(client, skill):
+    """A worker that could only answer a start after the caller's deadline refuses it (the caller may have started
+    the execution elsewhere meanwhile): no execution runs twice. Then the same worker takes a fresh request."""
+    late = StartExecution(execution_id="ex-late", request=_request(skill), answer_by_unix_s=time.time() - 1.0)
+    reply = client._query_one(client.keys.start("w-a"), late.model_dump_json(), 10.0)
+    answer = StartReply.model_validate_json(reply)
+    assert not answer.accepted and answer.code == "busy" and "expired" in answer.reason
+    fresh = StartExecution(execution_id="ex-fresh", request=_request(skill), answer_by_unix_s=time.time() + 10.0)
+    answer = StartReply.model_validate_json(client._query_one(client.keys.start("w-a"), fresh.model_dump_json(), 10.0))
+    assert answer.accepted
+    assert client.recorder.final("ex-fresh").phase is ExecutionPhase.done
+    assert not client.recorder.statuses.get("ex-late")  # the refused one never ran: not one status
