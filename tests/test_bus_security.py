@@ -5,7 +5,7 @@ router` serves a TLS endpoint with the users file, a sim worker logs in as ``wor
 An authenticated API and worker run an execution end to end. A session without a login, with a wrong password, or
 without the CA that signed the router's certificate is never opened. A read-only observer receives telemetry but its
 abort, its forged ``done`` status and its fake worker have no effect; another worker cannot take ``worker-1``'s
-queries nor command an execution.
+queries (start, replay) nor command an execution.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 zenoh = pytest.importorskip("zenoh")
@@ -184,6 +185,7 @@ def test_a_worker_cannot_take_another_workers_queries_or_command(secure_bus, api
     stolen: list[str] = []
     try:
         other.declare_queryable(KEYS.start("worker-1"), lambda query: stolen.append(str(query.key_expr)))
+        other.declare_queryable(KEYS.replay("worker-1"), lambda query: stolen.append(str(query.key_expr)))
         other.liveliness().declare_token(KEYS.worker("worker-3"))
         time.sleep(0.5)
         assert [w.worker_id for w in api.workers()] == ["worker-1"]
@@ -196,6 +198,11 @@ def test_a_worker_cannot_take_another_workers_queries_or_command(secure_bus, api
             assert not any(s.final for s in api.recorder.statuses["sec-other"])
         api.send_command("sec-other", "abort")
         assert api.recorder.final("sec-other").error == "aborted on request"
+        # A replay of the run is answered by worker-1 alone, with what it streamed: worker-2's queryable got nothing.
+        replayed = api.telemetry_replay("worker-1", "sec-other", 0, 100)
+        assert replayed and sum(len(b.t) for b in replayed) == 100
+        streamed = np.concatenate([b.t for b in sorted(api.recorder.telemetry["sec-other"], key=lambda b: b.seq)])
+        np.testing.assert_array_equal(np.concatenate([b.t for b in replayed]), streamed[:100])
         assert stolen == []
     finally:
         other.close()
