@@ -15,7 +15,7 @@ import numpy as np
 from schemas.execution import PHASE_CODES, ExecutionPhase
 from schemas.skill import SELECTION_CONTACT
 from sim_worker.executor import _control_and_record
-from sim_worker.sensor import WRIST_SENSOR, WrenchSensor
+from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.telemetry import TELEMETRY_WIDTH
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
@@ -35,7 +35,8 @@ def warm_up() -> float:
     """Run each compiled function once on a real world (arm model, control law, model update, the loop's step, the
     wrist sensor, the orientation DMP); return the seconds it took."""
     start = time.perf_counter()
-    with SimWorld() as world:
+    with SimWorld(WorldConfig(**WRIST_SENSOR)) as world:  # the wrist sensor's compiled parts too
+        world.contact_wrench()
         robot = world.robot_state()
         mass = world.mass_matrix()
         controller = HybridController(posture=world.joint_state()[0], torque_limits=world.torque_limits)
@@ -49,7 +50,6 @@ def warm_up() -> float:
         phase = float(PHASE_CODES[ExecutionPhase.contact])
         _control_and_record(gain, law, robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0,
                             0.0, phase, 0.0, True, np.zeros(LAW_OUTPUT_SIZE))  # fmt: skip
-    WrenchSensor(WorldConfig(**WRIST_SENSOR)).measure(np.zeros(6))
     quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
     QuaternionDMP.fit(np.arange(11) * 0.01, quaternions).rollout(0.01)
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])

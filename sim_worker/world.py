@@ -52,6 +52,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
@@ -135,6 +136,30 @@ def _hull_indices(vertices: NDArray[np.float64]) -> list[int]:
     inward = np.einsum("ij,ij->i", np.cross(b - a, c - a), hull.equations[:, :3]) < 0
     triangles[inward] = triangles[inward][:, ::-1]
     return triangles.ravel().tolist()
+
+
+_ROTATION = ROBOT_ROTATION.start
+
+
+@numba.njit(cache=True)
+def _wrist_wrench(reaction, arm, weight, com_z, out):  # pragma: no cover - compiled
+    """:meth:`SimWorld.wrist_wrench` from the tool joint's ``reaction`` (the flange's force on the tool, tool frame,
+    and its moment about the tool's centre of mass, which lies on the tool axis at ``com_z``), the tool orientation
+    in ``arm`` (``ROBOT_ROTATION``, world from tool by rows) and the tool's ``weight`` (world, N), into ``out``."""
+    fx, fy, fz, mx, my, mz = reaction
+    r = arm[_ROTATION : _ROTATION + 9]
+    gx, gy, gz = weight
+    wx = r[0] * gx + r[3] * gy + r[6] * gz  # the weight in the tool frame: R^T m g
+    wy = r[1] * gx + r[4] * gy + r[7] * gz
+    wz = r[2] * gx + r[5] * gy + r[8] * gz
+    fx, fy, fz = fx + wx, fy + wy, fz + wz
+    mx, my = mx - com_z * fy, my + com_z * fx  # M_c + c x F, c = (0, 0, com_z)
+    out[0] = r[0] * fx + r[1] * fy + r[2] * fz
+    out[1] = r[3] * fx + r[4] * fy + r[5] * fz
+    out[2] = r[6] * fx + r[7] * fy + r[8] * fz
+    out[3] = r[0] * mx + r[1] * my + r[2] * mz
+    out[4] = r[3] * mx + r[4] * my + r[5] * mz
+    out[5] = r[6] * mx + r[7] * my + r[8] * mz
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -644,25 +669,10 @@ class SimWorld:
 
     def _wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:
         """:meth:`wrist_wrench` written into ``out`` (6,); returns it."""
-        fx, fy, fz, mx, my, mz = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
+        reaction = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
         if not self._arm_fresh:
             self._arm_raw()
-        r = self._arm[ROBOT_ROTATION].tolist()  # world from tool, by rows
-        gx, gy, gz = self._tool_weight
-        wx = r[0] * gx + r[3] * gy + r[6] * gz  # the weight in the tool frame: R^T m g
-        wy = r[1] * gx + r[4] * gy + r[7] * gz
-        wz = r[2] * gx + r[5] * gy + r[8] * gz
-        fx, fy, fz = fx + wx, fy + wy, fz + wz
-        cz = self._tool_com[2]  # the centre of mass lies on the tool axis: c = (0, 0, cz)
-        mx, my = mx - cz * fy, my + cz * fx  # M_c + c x F
-        out[:] = (
-            r[0] * fx + r[1] * fy + r[2] * fz,
-            r[3] * fx + r[4] * fy + r[5] * fz,
-            r[6] * fx + r[7] * fy + r[8] * fz,
-            r[0] * mx + r[1] * my + r[2] * mz,
-            r[3] * mx + r[4] * my + r[5] * mz,
-            r[6] * mx + r[7] * my + r[8] * mz,
-        )
+        _wrist_wrench(reaction, self._arm, self._tool_weight, self._tool_com[2], out)
         return out
 
     def _measured_wrench(self) -> NDArray[np.float64]:
