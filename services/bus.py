@@ -19,9 +19,13 @@
     for this client (its status queryable): the latest status of each is handed to ``on_status`` as if received
     (a run that ended during the outage gets its true final status), or a ``failed`` one if the worker does not
     know the execution (it restarted). Telemetry missed meanwhile is asked again by the receiver
-    (:meth:`BusClient.telemetry_replay`; ``services.bus_events`` does it).
+    (:meth:`BusClient.telemetry_replay`; ``services.bus_events`` does it);
+  - a worker LOST as above whose token comes back within ``LOST_RUNS_KEPT_S`` (its own link to the router dropped;
+    the process lived and went on running) is asked the same about the executions that were failed for its loss:
+    the latest status of each it still knows goes to ``on_worker_back`` (the receiver withdraws the failure and
+    applies the worker's true status; a run still going is followed again as before).
 
-THREADS: the three callbacks run on Zenoh's threads (``on_worker_lost`` and the synthesized or caught-up statuses on
+THREADS: the callbacks run on Zenoh's threads (``on_worker_lost`` and the synthesized or caught-up statuses on
 timer threads), concurrently with each other and with the caller's threads.
 They must be thread-safe and quick (store, enqueue, notify; no blocking I/O, no calls back into the client that
 wait for the bus). An exception in a callback is logged and swallowed. Status and telemetry of one execution
@@ -85,6 +89,14 @@ show its token again before it is lost, s (clients retry the router with a back-
 outage)."""
 OUTAGE_WINDOW_S = 1.0
 """A token that went within this of this client losing (or regaining) its router link went with the link, s."""
+LOST_RUNS_KEPT_S = 600.0
+"""A lost worker that comes back within this is asked what became of the executions failed for its loss, s."""
+
+
+def lost_worker_reason(worker_id: str) -> str:
+    """The error of an execution failed because its worker was lost (the one the worker's return can withdraw)."""
+    return f"worker {worker_id} lost during the execution (process ended or connection lost)"
+
 REPLAY_TIMEOUT_S = 10.0
 """How long a telemetry replay waits for the worker's replies, s."""
 
@@ -160,12 +172,15 @@ class BusClient:
         on_status: Callable[[ExecutionStatus], None],
         on_telemetry: Callable[[TelemetryBatch], None],
         on_worker_lost: Callable[[str], None],
+        on_worker_back: Callable[[ExecutionStatus], None] | None = None,
     ) -> None:
         self.settings = settings
         self.keys = KeyExpressions(settings.prefix)
         self._on_status = on_status
         self._on_telemetry = on_telemetry
         self._on_worker_lost = on_worker_lost
+        self._on_worker_back = on_worker_back
+        self._lost_runs: dict[str, dict[str, float]] = {}  # worker_id -> {execution failed for its loss: when}
         self._lock = threading.Lock()
         self._alive: set[str] = set()
         self._running: dict[str, str] = {}  # execution_id -> worker_id, started by this client, not finished
@@ -468,7 +483,7 @@ class BusClient:
         came = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
             pending = self._timers.pop(worker_id, None)
-            returned = came and (pending is not None or worker_id in self._out_of_sight)
+            returned = came and (pending is not None or worker_id in self._out_of_sight or worker_id in self._lost_runs)
             self._out_of_sight.discard(worker_id)
             (self._alive.add if came else self._alive.discard)(worker_id)
         if pending is not None:
@@ -530,9 +545,12 @@ class BusClient:
             self._worker_lost(worker_id)
 
     def _caught_up(self, worker_id: str) -> None:
-        """A worker is back after its token went: what became of the executions it runs for this client."""
+        """A worker is back after its token went: what became of the executions it runs for this client, and of
+        those failed when it was lost (:meth:`_lost_and_back`)."""
         with self._lock:
             executions = [e for e, w in self._running.items() if w == worker_id]
+            lost = self._lost_runs.pop(worker_id, {})
+        self._lost_and_back(worker_id, lost)
         for execution_id in executions:
             status = self.latest_status(worker_id, execution_id)
             if status is None:
@@ -542,11 +560,35 @@ class BusClient:
             log.warning("worker %s back: execution %s is %s", worker_id, execution_id, status.phase.value)
             self.deliver(status)
 
+    def _lost_and_back(self, worker_id: str, lost: dict[str, float]) -> None:
+        """Executions failed when ``worker_id`` was lost (``lost``: id -> time.monotonic() of the failure), the worker
+        now back: the latest status of each it still knows goes to ``on_worker_back``; one still running is
+        followed again. Unknown to the worker (it restarted), or failed too long ago: the verdict stands."""
+        if self._on_worker_back is None:
+            return
+        for execution_id, failed_at in lost.items():
+            if time.monotonic() - failed_at > LOST_RUNS_KEPT_S:
+                continue
+            status = self.latest_status(worker_id, execution_id)
+            if status is None:
+                continue
+            if not status.final:
+                with self._lock:
+                    self._running[execution_id] = worker_id
+            log.warning("worker %s back: execution %s, failed for its loss, is %s", worker_id, execution_id,
+                        status.phase.value)  # fmt: skip
+            self._call(self._on_worker_back, status)
+
     def _worker_lost(self, worker_id: str) -> None:
         with self._lock:
             orphans = [e for e, w in self._running.items() if w == worker_id]
             for execution_id in orphans:
                 del self._running[execution_id]
+            now = time.monotonic()
+            runs = self._lost_runs.setdefault(worker_id, {})
+            runs.update(dict.fromkeys(orphans, now))
+            for execution_id in [e for e, when in runs.items() if now - when > LOST_RUNS_KEPT_S]:
+                del runs[execution_id]
         log.warning("worker %s lost (%d execution(s) running on it)", worker_id, len(orphans))
         for execution_id in orphans:
             status = ExecutionStatus(
@@ -554,7 +596,7 @@ class BusClient:
                 worker_id=worker_id,
                 phase=ExecutionPhase.failed,
                 message=f"worker {worker_id} lost",
-                error=f"worker {worker_id} lost during the execution (process ended or connection lost)",
+                error=lost_worker_reason(worker_id),
             )
             self._call(self._on_status, status)
         self._call(self._on_worker_lost, worker_id)

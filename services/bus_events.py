@@ -88,6 +88,7 @@ class BusEvents:
         self.on_status = _guarded(self._status)
         self.on_telemetry = _guarded(self._telemetry)
         self.on_worker_lost = _guarded(self._worker_lost)
+        self.on_worker_back = _guarded(self._worker_back)
         self._held: dict[str, ExecutionStatus] = {}
         self._received: dict[str, int] = {}  # execution -> one past the last sample received live
         self._lock = threading.Lock()
@@ -195,6 +196,16 @@ class BusEvents:
         log.log(logging.WARNING if missing else logging.INFO, "telemetry of %s: %d missing samples asked again of %s, "
                 "%d received, %d lost", execution_id, filled + missing, row.worker_id, filled, missing)  # fmt: skip
 
+    def _worker_back(self, status: ExecutionStatus) -> None:
+        """A worker failed as lost is back and knows the execution (its own link to the router had dropped): the
+        failure is withdrawn and its true status applied (the telemetry it sent meanwhile is asked again)."""
+        from services.bus import lost_worker_reason
+
+        if self.store.reopen_execution(status.execution_id, lost_worker_reason(status.worker_id)):
+            log.warning("execution %s: worker %s is back, its loss no longer fails the run", status.execution_id,
+                        status.worker_id)  # fmt: skip
+            self._status(status)
+
     def _worker_lost(self, worker_id: str) -> None:
         marked = self.store.fail_active(f"worker {worker_id} was lost while running (process gone)", worker_id)
         if marked:
@@ -257,5 +268,7 @@ def connect_bus(settings: ServiceSettings, store: Store) -> BusClient:
         prefix=settings.zenoh_prefix,
         connect_timeout_s=settings.connect_timeout_s,
     )
-    events.bus = BusClient(bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost)
+    events.bus = BusClient(
+        bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost, events.on_worker_back
+    )
     return events.bus

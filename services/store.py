@@ -625,6 +625,16 @@ class Store:
             )
             return cursor.rowcount > 0
 
+    def reopen_execution(self, execution_id: str, error: str) -> bool:
+        """failed with exactly ``error`` -> running again, the error cleared (what failed it turned out not to be the
+        run's fate: its worker came back). True if reopened."""
+        with self._transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, error = NULL, updated = ? WHERE id = ? AND status = ? AND error = ?",
+                (ExecutionState.running.value, time.time(), execution_id, ExecutionState.failed.value, error),
+            )
+            return cursor.rowcount > 0
+
     def fail_active(self, reason: str, worker_id: str | None = None, keep_workers: set[str] | None = None) -> list[str]:
         """Mark active executions failed with ``reason``: those on ``worker_id`` (or all, when None) except
         those on a worker in ``keep_workers``. Returns the ids marked."""

@@ -7,13 +7,16 @@ each once, in order, and the execution the worker's true verdict (``done``), wit
 
 Before this was built (the same tests on the old code): the API killed mid-run lost the samples published while it
 was down (1 710 of 12 540 in the issue) and said nothing; a run that finished while the API was down came back
-``failed``; a router outage of more than 0.25 s marked a running execution ``failed`` though the worker completed it.
+``failed``; a router outage of more than 0.25 s marked a running execution ``failed`` though the worker completed it;
+a worker whose own link to the router dropped for 2 s stayed ``failed`` although it finished the run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
+import socket
 import subprocess
 import threading
 import time
@@ -65,6 +68,59 @@ class Finals:
         self.session.close()
 
 
+class CuttableRelay:
+    """A TCP relay on 127.0.0.1 between one process and the router, that can be cut (its connections shut, new ones
+    refused) and restored: a network outage between one machine and the router, the processes themselves alive."""
+
+    def __init__(self, target_port: int) -> None:
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.target_port = target_port
+        self.lock = threading.Lock()
+        self.open = True
+        self.sockets: list[socket.socket] = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                return
+            with self.lock:
+                if not self.open:
+                    client.close()
+                    continue
+                upstream = socket.create_connection(("127.0.0.1", self.target_port))
+                self.sockets += [client, upstream]
+            for source, sink in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+
+    @staticmethod
+    def _pump(source: socket.socket, sink: socket.socket) -> None:
+        with contextlib.suppress(OSError):
+            while data := source.recv(65536):
+                sink.sendall(data)
+        for end in (source, sink):
+            with contextlib.suppress(OSError):
+                end.shutdown(socket.SHUT_RDWR)
+
+    def cut(self) -> None:
+        with self.lock:
+            self.open, cut, self.sockets = False, self.sockets, []
+        for end in cut:
+            with contextlib.suppress(OSError):
+                end.shutdown(socket.SHUT_RDWR)
+
+    def restore(self) -> None:
+        with self.lock:
+            self.open = True
+
+    def close(self) -> None:
+        self.cut()
+        self.server.close()
+
+
 class Processes:
     """A router, a worker and the API as child processes of the test, each restartable."""
 
@@ -81,9 +137,9 @@ class Processes:
         self.router = spawn_cli(["router", "--listen", self.endpoint], self.tmp / "router.log", cwd=REPO)
         wait_for_port(self.zenoh_port, 30)
 
-    def start_worker(self) -> None:
-        self.worker = spawn_cli(["worker", "--connect", self.endpoint, "--id", "w-reliable"], self.tmp / "worker.log",
-                                cwd=REPO)  # fmt: skip
+    def start_worker(self, endpoint: str | None = None, worker_id: str = "w-reliable") -> None:
+        self.worker = spawn_cli(["worker", "--connect", endpoint or self.endpoint, "--id", worker_id],
+                                self.tmp / f"{worker_id}.log", cwd=REPO)  # fmt: skip
 
     def start_api(self) -> None:
         argv = ["api", "--port", str(self.port), "--db", str(self.db), "--connect", self.endpoint]
@@ -230,3 +286,30 @@ def test_replayed_and_repeated_batches_store_every_sample_once(tmp_path):
         assert store.add_telemetry("exec_unknown", batch(0, 10)) == 0
     finally:
         store.close()
+
+
+def test_a_worker_whose_own_link_dropped_comes_back_and_its_run_is_done(stack):
+    """The worker's link to the router is cut for 2 s mid-run (the API keeps its own): the API cannot tell this from
+    a dead worker and fails the run at once, but when the worker comes back and says it finished, the failure is
+    withdrawn, its verdict applied and every sample it sent meanwhile fetched back."""
+    stack.kill("worker")
+    wait_for(lambda: stack._health_workers() == 0, 30, "the direct worker gone")
+    relay = CuttableRelay(stack.zenoh_port)
+    try:
+        stack.start_worker(f"tcp/127.0.0.1:{relay.port}", "w-relayed")
+        wait_for(lambda: stack._health_workers() >= 1, 60, "the relayed worker")
+        execution_id = _start_run(stack)
+        assert stack.view(execution_id)["worker_id"] == "w-relayed"
+        relay.cut()
+        failed = wait_for(lambda: (lambda v: v if v["status"] == "failed" else None)(stack.view(execution_id)), 10,
+                          "the run failed for its lost worker")  # fmt: skip
+        assert "lost" in failed["error"], failed
+        time.sleep(2.0)
+        relay.restore()
+        truth = stack.finals.final(execution_id, 90)  # the worker's own verdict, once it is back
+        _assert_every_sample_once_in_order(stack, execution_id, truth)
+        assert stack.view(execution_id)["error"] is None
+    finally:
+        stack.kill("worker")
+        relay.close()
+        stack.start_worker()
