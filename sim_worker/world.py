@@ -75,6 +75,8 @@ from skills.control import (
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import quaternion_from_matrix
 
+_RIGID = 1e18
+"""A body's own contact stiffness when only the tool's should count (Bullet's default for bodies without one)."""
 CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
 
@@ -203,11 +205,14 @@ class SimWorld:
             pybullet.changeDynamics(
                 self.robot, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0, physicsClientId=cid
             )
+        self._layers = {str(p.get("name", f"work_piece_{k}")): int(p.get("layers", 1)) for k, p in
+                        enumerate(c.work_pieces)}  # fmt: skip
+        self._most_layers = max(self._layers.values(), default=1)
         pybullet.changeDynamics(
             self.robot,
             TOOL_LINK,
             contactStiffness=c.contact_stiffness,
-            contactDamping=c.contact_damping,
+            contactDamping=c.contact_damping / self._most_layers,
             lateralFriction=c.lateral_friction,
             rollingFriction=0.0,
             spinningFriction=0.0,
@@ -271,6 +276,15 @@ class SimWorld:
         pybullet.changeDynamics(
             body, -1, lateralFriction=1.0, rollingFriction=0.0, spinningFriction=0.0, physicsClientId=self._cid
         )
+        if self._most_layers > 1:  # each contact's spring in series with the tool's, dampers added (Bullet's rules)
+            layers = self._layers.get(name, 1)
+            pybullet.changeDynamics(
+                body,
+                -1,
+                contactStiffness=self.config.contact_stiffness / (layers - 1) if layers > 1 else _RIGID,
+                contactDamping=self.config.contact_damping * (1.0 / layers - 1.0 / self._most_layers),
+                physicsClientId=self._cid,
+            )
         self.bodies[name] = body
 
     def _build_environment(self) -> None:

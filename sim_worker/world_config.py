@@ -27,7 +27,9 @@ class WorldConfig:
 
     ``work_pieces`` are further static convex solids, each ``{"name": str, "vertices": [[x, y, z], ...]}`` (the
     convex hull of the vertices, world frame, m): the work piece rebuilt from a skill (``sim_worker.work_piece``),
-    usually with ``table_enabled`` false.
+    usually with ``table_enabled`` false. An optional ``"layers": n`` says that each point of the part's top lies
+    in ``n`` parts (a rebuilt strip's pieces overlap by half: 2); the world then makes each such contact ``n``
+    times softer, so the surface keeps ``contact_stiffness`` and ``contact_damping`` where the parts overlap.
     """
 
     time_step_s: float = 1e-3

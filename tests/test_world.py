@@ -357,3 +357,37 @@ def test_the_sensor_composes_bias_delay_and_filter_in_the_documented_order() -> 
     np.testing.assert_allclose(readings, expected, rtol=0, atol=1e-12)
     sensor.reset()  # a tare empties the delay line and restarts the filter
     np.testing.assert_allclose(sensor.measure(source[0]), raw[0], rtol=0, atol=1e-12)
+
+
+def _stiffness_under(config: WorldConfig, x: float) -> float:
+    """The surface's stiffness (N/m) under the ball at world (x, 0): 10 N over how much deeper it sinks at 15 N than
+    at 5 N (a difference: the mesh's collision margin cancels)."""
+    heights = []
+    with SimWorld(config) as world:
+        _, q = world.tool_pose()
+        for force_n in (5.0, 15.0):
+            world.reset(world.inverse_kinematics([x, 0.0, 0.101], q))
+            push = np.array([0.0, 0.0, -force_n, 0.0, 0.0, 0.0])
+            for _ in range(1500):
+                world.step(world.gravity_coriolis_torques() + world.jacobian().T @ push)
+            assert world.true_contact_wrench()[2] == pytest.approx(-force_n, abs=0.02)
+            heights.append(world.tool_pose()[0][2])
+    return 10.0 / (heights[0] - heights[1])
+
+
+def test_layered_work_pieces_have_the_configured_stiffness_where_they_overlap() -> None:
+    """Two pieces covering the same spot (a rebuilt strip's pieces overlap by half, ``"layers": 2``) touch the ball
+    as two springs: each is made half as stiff, so the surface there is as stiff as one body. Without the layer
+    count the same overlap is twice as stiff (the seams of the old strips)."""
+
+    def slab(x0: float, x1: float) -> list[list[float]]:
+        return [[x, y, z] for x in (x0, x1) for y in (-0.1, 0.1) for z in (0.06, 0.10)]
+
+    config = WorldConfig(table_enabled=False)
+    k = config.contact_stiffness
+    one = config.replace(work_pieces=({"name": "a", "vertices": slab(0.45, 0.65)},))
+    assert _stiffness_under(one, 0.55) == pytest.approx(k, rel=0.03)
+    pieces = ({"name": "a", "vertices": slab(0.45, 0.60)}, {"name": "b", "vertices": slab(0.50, 0.65)})
+    layered = config.replace(work_pieces=tuple({**p, "layers": 2} for p in pieces))
+    assert _stiffness_under(layered, 0.55) == pytest.approx(k, rel=0.03)  # in the overlap: two half springs
+    assert _stiffness_under(config.replace(work_pieces=pieces), 0.55) == pytest.approx(2 * k, rel=0.03)
