@@ -95,21 +95,20 @@ def pin_one_core() -> str:
 
 def machine_speed() -> dict[str, float]:
     """µs of two fixed workloads, best of 5 (a shared or throttled machine drifts by 2x between days): CPython
-    ``sum(range(1000))`` and one PyBullet step of the arm in the flat-table world held by its gravity torques."""
+    ``sum(range(1000))`` and one PyBullet step of the arm at rest in the flat-table world, gravity off (nothing
+    moves, nothing touches: the same work every step)."""
     python = min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6
     with SimWorld(WorldConfig()) as world:
-        cid, tau = world.client_id, world.gravity_coriolis_torques()
-        world.step(tau)
+        cid = world.client_id
+        pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
 
-        def hold(n: int = 2000) -> float:
+        def steps(n: int = 2000) -> float:
             start = time.perf_counter()
             for _ in range(n):
                 pybullet.stepSimulation(physicsClientId=cid)
             return (time.perf_counter() - start) / n * 1e6
 
-        pybullet.setJointMotorControlArray(world.robot, list(range(7)), pybullet.TORQUE_CONTROL, forces=tau.tolist(),
-                                           physicsClientId=cid)  # fmt: skip
-        physics = min(hold() for _ in range(5))
+        physics = min(steps() for _ in range(5))
     return {"python": python, "physics": physics}
 
 
@@ -221,9 +220,10 @@ def main() -> None:
 
     scenario, controller, _ = breakdown
     recording, skill = learned[scenario]
-    share, share_total = pybullet_share(
-        skill, recording.world_config, ExecutionSettings(controller=controller, pace="fast")
-    )
+    settings = ExecutionSettings(controller=controller, pace="fast")
+    share, share_total = pybullet_share(skill, recording.world_config, settings)
+    wrist_world = execution_world(skill, scenario=scenario, demonstration=recording.demonstration)
+    wrist_share, wrist_total = pybullet_share(wrist_world.skill, wrist_world.config, settings)
     with SimWorld(WorldConfig()) as world:
         world_costs = world.measure_costs(2000)
     law = control_law_cost()
@@ -294,14 +294,16 @@ def main() -> None:
     lines += [
         "",
         f"PyBullet's own share of a step ({scenario}, {controller.value}; each PyBullet call of one more execution "
-        f"timed on its own, µs per control step; that execution took {share_total:.1f} µs per step):",
+        f"timed on its own, µs per control step; those executions took {share_total:.1f} µs per step with the "
+        f"ideal sensor, {wrist_total:.1f} with the wrist sensor):",
         "",
-        "| PyBullet call | µs / step |",
-        "| --- | ---: |",
+        "| PyBullet call | µs / step, ideal sensor | µs / step, wrist sensor |",
+        "| --- | ---: | ---: |",
     ]
-    for name, value in sorted(share.items(), key=lambda item: -item[1]):
-        lines.append(f"| `{name}` | {value:.1f} |")
-    lines.append(f"| **all PyBullet calls** | {simulator:.1f} |")
+    for name, value in sorted(share.items(), key=lambda item: -item[1] - wrist_share[item[0]]):
+        if value or wrist_share[name]:
+            lines.append(f"| `{name}` | {value:.1f} | {wrist_share[name]:.1f} |")
+    lines.append(f"| **all PyBullet calls** | {simulator:.1f} | {sum(wrist_share.values()):.1f} |")
     lines += [
         "",
         "Per-call costs for reference (µs, mean; `SimWorld.measure_costs` on a free arm, and the control law alone):",
@@ -339,7 +341,7 @@ def main() -> None:
         "",
         f"- How fast this machine was during the run (to compare tables taken on other machines or days: the "
         f"loop's µs scale with these): CPython `sum(range(1000))` {calibration['python']:.1f} µs, PyBullet "
-        f"`stepSimulation` of the arm standing free in the flat-table world {calibration['physics']:.1f} µs "
+        f"`stepSimulation` of the arm at rest, gravity off, in the flat-table world {calibration['physics']:.1f} µs "
         "(best of 5 runs each, pinned to the same CPU).",
         "",
         machine_line(f"pybullet {_pybullet_version()}"),
