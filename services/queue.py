@@ -9,8 +9,11 @@ before it; else the dispatcher thread hands it over as soon as one is free.
 Order: higher ``priority`` first, then submission order. Fairness across workers: each hand-over goes through
 `services.bus.BusClient.start_execution`, which tries the free workers with the fewest executions run first (round
 robin among equals), so every worker on the bus gets work. A queued execution can be cancelled
-(:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher polls the workers every ``poll_s`` while something
-is queued, and wakes at once on :meth:`ExecutionQueue.wake` (a submission).
+(:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher wakes at once on :meth:`ExecutionQueue.wake`: a
+submission, and an execution the store put in a terminal status (`services.store.Store.on_finish`: its final status
+arrived, its worker was lost), so a worker that finished gets the next queued execution without waiting for a poll;
+it also polls the workers every ``poll_s`` while something is queued (a worker freed without a status, e.g. one
+that finished recording).
 
 Status flow: queued -> starting (claimed by the dispatcher, atomically in SQLite) -> running (a worker accepted it),
 or back to queued (every worker busy after all), or failed (the worker refused it as invalid), or aborted
@@ -96,6 +99,7 @@ class ExecutionQueue:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        store.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
 
     # ------------------------------------------------------------------ what the service calls
 
@@ -133,7 +137,7 @@ class ExecutionQueue:
         return self.store.queue_position(execution_id)
 
     def wake(self) -> None:
-        """Look at the queue now (a submission, a worker freed)."""
+        """Look at the queue now (a submission, an execution finished)."""
         self._wake.set()
 
     # ------------------------------------------------------------------ the dispatcher

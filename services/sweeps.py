@@ -4,9 +4,13 @@ infrastructure failure, summarized (``schemas/sweep.py`` is the contract, ``skil
 - :meth:`SweepRunner.create` draws the trials (``skills.sweeps.trial_parameters``), stores the sweep with one row
   per trial x controller, and submits the first ones at once (so no worker is a 503 and a request a worker refuses
   is a 422, with nothing stored);
+- every trial's execution runs with the sweep's ``store_telemetry``: by default ``telemetry`` ``none`` (no stream
+  published, stored or kept: the metrics, computed in the worker, are the same either way);
 - the runner's thread (:meth:`SweepRunner.start`) keeps at most ``window`` executions of each sweep queued or
   running (the queue then holds a few, however large the sweep; single executions, at a higher priority, go
-  first), submits the next ones as they finish, and puts the progress on ``P/sweeps/{id}/progress``
+  first), submits the next ones as they finish (woken by the store when an execution ends,
+  `services.store.Store.on_finish`; a poll every ``poll_s`` as the safety net), and puts the progress on
+  ``P/sweeps/{id}/progress``
   (`schemas.sweep.SweepProgress`) whenever the counts change. Every worker on the bus takes executions from the
   queue: more workers, or workers on other machines joining the router, run a sweep faster with no change here;
 - an execution that failed for an infrastructure reason (its worker lost, the API restarted while it ran:
@@ -28,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
 from schemas.bus import KeyExpressions
-from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionRequest
+from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionRequest, TelemetryMode
 from schemas.skill import Skill
 from schemas.sweep import (
     SweepCounts,
@@ -61,7 +65,7 @@ WINDOW = 8
 MAX_ATTEMPTS = 3
 """Executions one trial x controller may take when they keep failing for an infrastructure reason."""
 POLL_S = 0.5
-"""How often the runner looks at the running sweeps, s."""
+"""How often the runner looks at the running sweeps when nothing woke it, s (an execution that ends wakes it)."""
 _LOST = re.compile(r"^worker \S+ (was )?lost")
 """The errors of the worker-lost path (`services.bus.BusClient`, `services.bus_events.BusEvents`)."""
 
@@ -181,7 +185,9 @@ class SweepRunner:
         self._lock = threading.Lock()  # one advance at a time: the route's first submissions and the thread
         self._published: dict[str, SweepCounts] = {}
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._thread: threading.Thread | None = None
+        store.on_finish(lambda _execution_id: self._wake.set())  # submit the successor now, not on the next poll
 
     # ------------------------------------------------------------------ what the routes call
 
@@ -196,9 +202,10 @@ class SweepRunner:
             for k, parameters in enumerate(drawn)
             for controller in request.controllers
         ]
+        telemetry = TelemetryMode.stream if request.store_telemetry else TelemetryMode.none
         base = ExecutionRequest.model_validate(
             {**request.settings.model_dump(mode="json"), "skill": skill.model_dump(mode="json"),
-             "scenario": request.scenario, "priority": request.priority}
+             "scenario": request.scenario, "priority": request.priority, "telemetry": telemetry}
         )  # fmt: skip
         execution = json.loads(base.model_dump_json())
         spec = json.dumps({"execution": execution, "skill_id": skill_id, "demonstration_id": demonstration_id})
@@ -241,12 +248,17 @@ class SweepRunner:
     def close(self) -> None:
         """Stop the thread (running sweeps stay running in the database and resume on the next start)."""
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(10)
             self._thread = None
 
     def _run(self) -> None:
-        while not self._stop.wait(self.poll_s):
+        while True:
+            self._wake.wait(self.poll_s)
+            self._wake.clear()  # before looking: an execution that ends meanwhile wakes the next round
+            if self._stop.is_set():
+                return
             for listed in self.store.list_sweeps(limit=1000, status=SweepState.running.value):
                 try:
                     with self._lock:
@@ -254,7 +266,7 @@ class SweepRunner:
                         if row is not None and row.status == SweepState.running.value:
                             self._advance(row)
                 except Exception:  # keep the thread alive whatever one sweep does
-                    log.exception("sweep %s could not advance", row.id)
+                    log.exception("sweep %s could not advance", listed.id)
 
     def _advance(self, row: SweepRow, first: bool = False) -> None:
         """Submit the trials that wait (new ones, and reruns after an infrastructure failure) while fewer than

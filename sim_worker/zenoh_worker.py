@@ -18,7 +18,8 @@ the request's ``scenario`` (else the scenario named by the skill's demonstration
 
 - publishes every control step on ``P/exec/{execution_id}/telemetry`` (``TelemetryBatch`` of
   ``request.telemetry_batch`` rows, reliable, congestion control BLOCK, numbered by ``seq`` and ``first_sample``)
-  and keeps them for replays (what a disconnected receiver or router outage lost is asked again),
+  and keeps them for replays (what a disconnected receiver or router outage lost is asked again); with
+  ``request.telemetry`` ``none`` it does neither (the metrics come from the loop's own rows all the same),
 - publishes ``ExecutionStatus`` on ``P/exec/{execution_id}/status``: ``pending`` on acceptance, then on every phase
   or segment change, pause and resume, and a final one (done / aborted / failed) with the metrics,
 - listens on ``P/exec/{execution_id}/cmd``: ``abort`` is polled by the control loop after every step (the
@@ -65,7 +66,7 @@ from schemas.bus import (
     split_endpoints,
 )
 from schemas.bus_security import BusSecurity
-from schemas.execution import ExecutionPhase
+from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.skill import Skill
 from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
@@ -158,6 +159,8 @@ class _Run:
         """The resolved ``ExecutionWorld``: world config, placed skill and demonstration."""
         self.skill: Skill = world.skill
         self.dt = float(world.config.time_step_s)
+        self.streams = self.request.telemetry is TelemetryMode.stream
+        """Whether its control steps are published and kept for replays (``ExecutionSettings.telemetry``)."""
         self.abort_requested = False
         self.abort_received_t: float | None = None
         self.abort_reason: str | None = None
@@ -193,10 +196,12 @@ class _Run:
         return False
 
     def on_sample(self, tel) -> None:
-        """A batch of control steps from the loop: queue it and a status for each phase/segment change."""
-        stamp = time.time()
-        first = self.worker.archive.append(self.execution_id, tel)
-        self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp, first))
+        """A batch of control steps from the loop: queue it (unless the request's telemetry is ``none``) and a status
+        for each phase/segment change."""
+        if self.streams:
+            stamp = time.time()
+            first = self.worker.archive.append(self.execution_id, tel)
+            self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp, first))
         codes, segments, t = tel.phase_codes, tel.segment_index, tel.t
         changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
         for k in (0, *changes.tolist()):
