@@ -325,9 +325,10 @@ class BusClient:
                 log.warning("bad %s on %s", model.__name__, reply.ok.key_expr)
         return answers
 
-    def _candidates(self) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
-        """(all workers, the free ones in the order to try: fewest executions run first, then round robin)."""
-        everyone = self.workers()
+    def _candidates(self, everyone: list[WorkerInfo] | None = None) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
+        """(all workers, the free ones in the order to try: fewest executions run first, then round robin);
+        ``everyone``: the workers' info just asked for (else asked now)."""
+        everyone = self.workers() if everyone is None else everyone
         free = [w for w in everyone if not w.busy]
         if free:
             shift = next(self._rotation) % len(free)
@@ -357,14 +358,16 @@ class BusClient:
         world_overrides: dict[str, Any] | None = None,
         demonstration: Demonstration | None = None,
         timeout_s: float = START_TIMEOUT_S,
+        workers: list[WorkerInfo] | None = None,
     ) -> str:
         """Start ``request`` (its skill INLINE) as ``execution_id`` on a free worker; return the worker's id.
 
         Free workers are tried in turn (fewest executions first, round robin among equals), so executions spread
         over the workers. ``world_overrides`` (WorldConfig fields) and ``demonstration`` (for the path metric)
-        are optional. Raises ``ValueError`` for an id that is not a key chunk or a request without an inline
-        skill, ``BusRequestError`` if the worker refuses the request as invalid, ``NoWorkerAvailable`` if no
-        worker takes it.
+        are optional; ``workers``: the result of a :meth:`workers` call the caller just made (not asked again).
+        Raises ``ValueError`` for an id that is not a key chunk or a request without an inline skill,
+        ``BusRequestError`` if the worker refuses the request as invalid, ``NoWorkerAvailable`` if no worker
+        takes it.
         """
         start = StartExecution(
             execution_id=execution_id,
@@ -372,7 +375,7 @@ class BusClient:
             world_overrides=world_overrides or {},
             demonstration=demonstration,
         )
-        everyone, free = self._candidates()
+        everyone, free = self._candidates(workers)
         refused: list[str] = []
         for worker in free:
             # Each worker gets its own deadline: one that answers after it refuses, so a request given up on here

@@ -31,6 +31,7 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
+from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.store import ExecutionRow, Store
 
@@ -45,6 +46,8 @@ IDLE_POLL_S = 2.0
 """How often the dispatcher looks at an empty queue (it is woken on every submission anyway), s."""
 DEFAULT_MAX_QUEUED = 1000
 """Most executions waiting at once (more get 503)."""
+DEMONSTRATIONS_KEPT = 8
+"""Demonstrations the queue keeps parsed, to send along with the executions of the skills learned from them."""
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,7 @@ class ExecutionQueue:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._demonstrations: dict[str, Demonstration | None] = {}  # by id, the oldest first (hold self._lock)
         store.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
 
     # ------------------------------------------------------------------ what the service calls
@@ -184,20 +188,32 @@ class ExecutionQueue:
                 )
         return True
 
+    def _demonstration(self, demonstration_id: str) -> Demonstration | None:
+        """The stored demonstration, read once: a sweep sends the same one with each of its trials (a 10 s
+        recording is ~2 MB of JSON, ~40 ms to read and parse), and a stored demonstration never changes."""
+        if demonstration_id not in self._demonstrations:
+            if len(self._demonstrations) >= DEMONSTRATIONS_KEPT:
+                self._demonstrations.pop(next(iter(self._demonstrations)))
+            self._demonstrations[demonstration_id] = self.store.demonstration(demonstration_id)
+        return self._demonstrations[demonstration_id]
+
     def _hand_over(self, execution_id: str, dispatch: Dispatch) -> tuple[Handover, str]:
         """Claim a queued execution and start it on a free worker (hold ``self._lock``)."""
         from services.bus import BusRequestError, NoWorkerAvailable
 
-        if all(worker.busy for worker in self.bus.workers()):  # checked first: a queued one stays queued meanwhile
+        workers = self.bus.workers()
+        if all(worker.busy for worker in workers):  # checked first: a queued one stays queued meanwhile
             return Handover.busy, "every worker busy"
         if not self.store.claim_queued(execution_id):
             return Handover.gone, "not queued"
-        demonstration = None
-        if dispatch.demonstration_id is not None:
-            demonstration = self.store.demonstration(dispatch.demonstration_id)
+        demonstration = None if dispatch.demonstration_id is None else self._demonstration(dispatch.demonstration_id)
         try:
             worker_id = self.bus.start_execution(
-                execution_id, dispatch.request, world_overrides=dispatch.world_overrides, demonstration=demonstration
+                execution_id,
+                dispatch.request,
+                world_overrides=dispatch.world_overrides,
+                demonstration=demonstration,
+                workers=workers,
             )
         except NoWorkerAvailable:
             self.store.requeue(execution_id)

@@ -142,6 +142,16 @@ def world_for(start: StartExecution):
     )
 
 
+def _load_execution_code() -> None:
+    """Import what an execution runs and load the compiled control loop (``sim_worker.warm_up``) before the worker
+    shows itself: its first execution would otherwise pay for it (~2 s on a quiet core), not just the ones after."""
+    import sim_worker.execution_world
+    import sim_worker.executor  # noqa: F401  (imported for its cost, used by _Run.run)
+    from sim_worker.warm_up import warm_up
+
+    warm_up()
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # One execution
 # ---------------------------------------------------------------------------------------------------------------
@@ -320,6 +330,7 @@ class Worker:
         """
         import zenoh
 
+        _load_execution_code()
         config = zenoh.Config.from_json5(
             json.dumps(session_config("client", connect=self.settings.endpoints, security=self.settings.security))
         )
