@@ -213,6 +213,7 @@ class ExecutionQueue:
                 dispatch.request,
                 world_overrides=dispatch.world_overrides,
                 demonstration=demonstration,
+                demonstration_id=dispatch.demonstration_id,
                 workers=workers,
             )
         except NoWorkerAvailable:

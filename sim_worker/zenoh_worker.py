@@ -5,7 +5,8 @@ router if it is not up yet), declares
 
 - the liveliness token ``P/workers/{worker_id}`` (it disappears when the process dies, even by SIGKILL),
 - the queryables ``P/exec/{worker_id}/info`` (``WorkerInfo``), ``P/exec/{worker_id}/start`` (``StartExecution``
-  -> ``StartReply``), ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
+  -> ``StartReply``; the demonstration a start sends is kept by its id for the next starts that name it),
+  ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
   ``P/exec/{worker_id}/replay`` (``TelemetryReplay`` -> ``TelemetryBatch`` replies: the telemetry of its recent
   executions, ``sim_worker.telemetry_archive``, for a receiver that missed batches) and ``P/exec/*/status`` (the
   latest ``ExecutionStatus`` of the executions this worker ran, for late joiners and after a router outage),
@@ -66,6 +67,7 @@ from schemas.bus import (
     split_endpoints,
 )
 from schemas.bus_security import BusSecurity
+from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.skill import Skill
 from sim_worker.telemetry import Telemetry
@@ -76,6 +78,8 @@ _PHASES = list(ExecutionPhase)
 
 STATUS_CACHE = 200
 """Latest statuses kept for the status queryable (executions of this worker)."""
+DEMONSTRATIONS_KEPT = 4
+"""Demonstrations kept for the starts that name them (``StartExecution.demonstration_id``): ~2 MB each for 10 s."""
 MAX_COALESCED_ROWS = 1000
 """Most control steps sent in one telemetry message when queued batches are merged to catch up, and in one reply
 to a replay query."""
@@ -314,6 +318,8 @@ class Worker:
         self._run: _Run | None = None
         self._recording = False
         self._statuses: OrderedDict[str, ExecutionStatus] = OrderedDict()
+        self._demonstrations: OrderedDict[str, Demonstration] = OrderedDict()
+        """The demonstrations starts sent, by their stored id, the most recently used last."""
         self.archive = TelemetryArchive()
         self._publish_queue: queue.Queue = queue.Queue()
         self._publisher: threading.Thread | None = None
@@ -511,8 +517,13 @@ class Worker:
         try:
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
-                start = StartExecution.model_validate_json(payload)
-                execution_id = start.execution_id
+                named = StartExecution.model_validate_json(payload)
+                execution_id = named.execution_id
+                start = self._with_demonstration(named)
+                if start is None:
+                    reply("need_demonstration", f"worker {self.worker_id} keeps no demonstration "
+                          f"{named.demonstration_id}")  # fmt: skip
+                    return
                 world = world_for(start)
             except Exception as exc:
                 reply("error", _short_error(exc))
@@ -546,6 +557,24 @@ class Worker:
                 reply("error", _short_error(exc))
             except Exception:
                 log.debug("could not reply", exc_info=True)
+
+    def _with_demonstration(self, start: StartExecution) -> StartExecution | None:
+        """``start`` with its demonstration: as sent (and kept under its ``demonstration_id`` for the starts that
+        follow), or this worker's copy of the one it names; None when it names one this worker does not keep."""
+        key = start.demonstration_id
+        if key is None:
+            return start
+        with self._lock:
+            if start.demonstration is not None:
+                self._demonstrations[key] = start.demonstration
+            kept = self._demonstrations.get(key)
+            if kept is not None:
+                self._demonstrations.move_to_end(key)
+            while len(self._demonstrations) > DEMONSTRATIONS_KEPT:
+                self._demonstrations.popitem(last=False)
+        if kept is None:
+            return None
+        return start if start.demonstration is not None else start.model_copy(update={"demonstration": kept})
 
     def _busy_reason(self) -> str | None:
         if self._run is not None:
