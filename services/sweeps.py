@@ -28,6 +28,7 @@ import json
 import logging
 import re
 import threading
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
@@ -275,25 +276,27 @@ class SweepRunner:
         from services.bus import BusRequestError, NoWorkerAvailable
         from services.store import QueueFull
 
-        rows = self.store.sweep_trials(row.id)
+        rows = self.store.sweep_trials(row.id)  # read once a round (~30 ms for 600 trials x controllers)
         in_flight = sum(r.status is not None and r.status not in TERMINAL for r in rows)
-        waiting = [r for r in rows if r.execution_id is None or _needs_rerun(r)]
+        waiting = [k for k, r in enumerate(rows) if r.execution_id is None or _needs_rerun(r)]
         if not waiting and in_flight == 0:
             self.store.set_sweep_status(row.id, SweepState.done.value, only_from=SweepState.running.value)
             row = self.store.sweep(row.id) or row
         spec = json.loads(row.spec) if waiting else {}
-        for r in waiting[: max(0, self.window - in_flight)]:
+        for k in waiting[: max(0, self.window - in_flight)]:
+            r = rows[k]
             try:
-                self._submit(row, spec, r)
+                rows[k] = self._submit(row, spec, r)
             except (NoWorkerAvailable, QueueFull, BusRequestError):
                 if first:
                     raise
                 log.warning("sweep %s: trial %d (%s) not submitted now", row.id, r.trial, r.controller, exc_info=True)
                 break
             first = False
-        self._publish(row)
+        self._publish(row, rows)
 
-    def _submit(self, row: SweepRow, spec: dict[str, Any], r: SweepTrialRow) -> None:
+    def _submit(self, row: SweepRow, spec: dict[str, Any], r: SweepTrialRow) -> SweepTrialRow:
+        """Submit the trial's execution; return its row as now stored."""
         environment = trial_environment(
             spec["execution"]["environment"], r.parameters, trial_noise_seed(int(row.request["seed"]), r.trial)
         )
@@ -310,11 +313,14 @@ class SweepRunner:
             Dispatch(request, {}, spec["demonstration_id"]), shown, spec["skill_id"], request.priority
         )
         self.store.assign_sweep_trial(row.id, r.trial, r.controller, execution.id)
+        return replace(r, execution_id=execution.id, attempts=r.attempts + 1, status=execution.status, metrics=None,
+                       error=execution.error)  # fmt: skip
 
-    def _publish(self, row: SweepRow) -> None:
-        """Put the sweep's progress on the bus if its counts (or status) changed since the last put."""
+    def _publish(self, row: SweepRow, rows: list[SweepTrialRow] | None = None) -> None:
+        """Put the sweep's progress on the bus if its counts (or status) changed since the last put (``rows``: its
+        trials as just read, else read now)."""
         rms_pct, contact_ratio = _thresholds(row)
-        rows = self.store.sweep_trials(row.id)
+        rows = self.store.sweep_trials(row.id) if rows is None else rows
         counts = _counts(rows, rms_pct, contact_ratio)
         key = f"{row.id}:{row.status}"
         if self._published.get(key) == counts:
