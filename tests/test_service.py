@@ -141,37 +141,49 @@ def skill_id(stack) -> str:
     return skill["id"]
 
 
-def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
-    received: dict[str, int] = {}
-    statuses: list[str] = []
-    lock = threading.Lock()
+class Watcher:
+    """An independent Zenoh session (not the API's) counting every execution's telemetry samples and keeping the
+    phases of its statuses, per execution."""
 
-    def on_telemetry(sample) -> None:
-        batch = json.loads(sample.payload.to_bytes())
-        with lock:
-            received[batch["execution_id"]] = received.get(batch["execution_id"], 0) + len(batch["t"])
-
-    def on_status(sample) -> None:
-        with lock:
-            statuses.append(json.loads(sample.payload.to_bytes())["phase"])
-
-    config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=[stack.endpoint])))
-    session = zenoh.open(config)
-    try:
-        subscribers = [
-            session.declare_subscriber("cskills/exec/*/telemetry", on_telemetry),
-            session.declare_subscriber("cskills/exec/*/status", on_status),
+    def __init__(self, endpoint: str) -> None:
+        self.samples: dict[str, int] = {}
+        self.phases: dict[str, list[str]] = {}
+        self._lock = threading.Lock()
+        self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+        self._subscribers = [
+            self.session.declare_subscriber("cskills/exec/*/telemetry", self._on_telemetry),
+            self.session.declare_subscriber("cskills/exec/*/status", self._on_status),
         ]
         time.sleep(0.5)  # the subscriptions reach the router
+
+    def _on_telemetry(self, sample) -> None:
+        batch = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.samples[batch["execution_id"]] = self.samples.get(batch["execution_id"], 0) + len(batch["t"])
+
+    def _on_status(self, sample) -> None:
+        status = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.phases.setdefault(status["execution_id"], []).append(status["phase"])
+
+    def close(self) -> None:
+        """After what is still in flight has arrived."""
+        time.sleep(0.5)
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self.session.close()
+
+
+def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
+    watcher = Watcher(stack.endpoint)
+    try:
         body = {"skill_id": skill_id, "environment": {"unknown_offset": [0.0, 0.0, 0.01]}, "pace": "fast"}
         created = stack.post("/executions", body, 202)
         assert created["telemetry_key"] == f"cskills/exec/{created['id']}/telemetry"
         view = stack.finished(created["id"])
-        time.sleep(0.5)  # the last batches reach the subscriber
-        for subscriber in subscribers:
-            subscriber.undeclare()
     finally:
-        session.close()
+        watcher.close()
+    received, statuses = watcher.samples, watcher.phases[created["id"]]
 
     assert view["status"] == "done", view
     metrics = view["metrics"]
@@ -192,40 +204,19 @@ def test_an_execution_without_telemetry_sends_none_and_ends_with_the_same_metric
     from schemas.bus import TelemetryReplay
 
     stack.workers(2)
-    samples: dict[str, int] = {}
-    phases: dict[str, list[str]] = {}
-    lock = threading.Lock()
-
-    def on_telemetry(sample) -> None:
-        batch = json.loads(sample.payload.to_bytes())
-        with lock:
-            samples[batch["execution_id"]] = samples.get(batch["execution_id"], 0) + len(batch["t"])
-
-    def on_status(sample) -> None:
-        status = json.loads(sample.payload.to_bytes())
-        with lock:
-            phases.setdefault(status["execution_id"], []).append(status["phase"])
-
-    session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[stack.endpoint]))))
+    watcher = Watcher(stack.endpoint)
     try:
-        subscribers = [
-            session.declare_subscriber("cskills/exec/*/telemetry", on_telemetry),
-            session.declare_subscriber("cskills/exec/*/status", on_status),
-        ]
-        time.sleep(0.5)  # the subscriptions reach the router
         body = {"skill_id": skill_id, "environment": {"unknown_offset": [0.0, 0.0, 0.01], "noise_seed": 4}}
         streamed = stack.post("/executions", body, 202)
         silent = stack.post("/executions", {**body, "telemetry": "none"}, 202)
         assert streamed["worker_id"] != silent["worker_id"]  # at once, on the two workers
         streamed, silent = stack.finished(streamed["id"]), stack.finished(silent["id"])
-        time.sleep(0.5)  # anything still in flight reaches the subscriber
         steps = silent["metrics"]["steps"]
         ask = TelemetryReplay(execution_id=silent["id"], start=0, stop=steps).model_dump_json()
-        replies = list(session.get(f"cskills/exec/{silent['worker_id']}/replay", payload=ask, timeout=10))
-        for subscriber in subscribers:
-            subscriber.undeclare()
+        replies = list(watcher.session.get(f"cskills/exec/{silent['worker_id']}/replay", payload=ask, timeout=10))
     finally:
-        session.close()
+        watcher.close()
+    samples, phases = watcher.samples, watcher.phases
 
     assert silent["status"] == streamed["status"] == "done", (silent, streamed)
     assert silent["request"]["telemetry"] == "none" and streamed["request"]["telemetry"] == "stream"
