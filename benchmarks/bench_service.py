@@ -47,9 +47,12 @@ LEARN_DEMO_S = 10.0
 
 
 @contextlib.contextmanager
-def running(argv: list[str], url: str, timeout_s: float = 90.0, workers: int = 0) -> Iterator[subprocess.Popen]:
-    """Start a `contact-skills` process, wait for /health (and ``workers`` workers), stop it with SIGTERM."""
-    log = tempfile.TemporaryFile()  # noqa: SIM115 (closed in finally, after the process)
+def running(
+    argv: list[str], url: str, timeout_s: float = 90.0, workers: int = 0, log_path: Path | None = None
+) -> Iterator[subprocess.Popen]:
+    """Start a `contact-skills` process, wait for /health (and ``workers`` workers), stop it with SIGTERM; its
+    output goes to ``log_path`` (kept) or a temporary file."""
+    log = tempfile.TemporaryFile() if log_path is None else log_path.open("w+b")  # noqa: SIM115 (closed in finally)
     process = subprocess.Popen([sys.executable, "-m", "cli.main", *argv], stdout=log, stderr=subprocess.STDOUT)
     try:
         deadline = time.monotonic() + timeout_s

@@ -1,24 +1,34 @@
-"""Sweep throughput: executions per minute of a robustness sweep with 1 and 2 sim workers, for a ~10 s skill.
+"""Sweep throughput: executions per minute of a robustness sweep with 1 and 2 sim workers, for a ~10 s skill, with
+the trials' telemetry off (the default) and streamed and stored (``store_telemetry``), and where each trial's time
+goes.
 
 Run: ``.venv/bin/python benchmarks/bench_sweeps.py [--trials-per-worker 10]``; writes the ``bench_sweeps`` section
-of docs/BENCHMARKS.md.
+of docs/BENCHMARKS.md. Run it when ``uptime`` shows a low load: it prints the 1-minute load average before and after
+every run.
 
-For N = 1, 2: ``contact-skills up --workers N`` (real processes on loopback, a temporary SQLite database); the
-teacher's ``slide_flat`` demonstration recorded by a worker with a stroke that makes an execution last about 10 s
-of simulated time, learned; then ``POST /sweeps`` with ``trials-per-worker x N`` trials of one controller
-(``hybrid_cf``) varying the unknown table height by ±5 mm and the friction 0.15-0.3 (every trial runs the whole
-skill), polled over REST until done. Executions per minute = executions / wall time from the submission to the
-sweep's end (the queue, the dispatcher and the bus included). The machine is shared: the 1-minute load average is
-read before and after each run and printed beside it.
+For N = 1, 2 and each telemetry choice: ``contact-skills up --workers N`` (real processes on loopback, a temporary
+SQLite database); the teacher's ``slide_flat`` demonstration recorded by a worker with a stroke that makes an
+execution last about 10 s of simulated time, learned; then ``POST /sweeps`` with ``trials-per-worker x N`` trials of
+one controller (``hybrid_cf``) varying the unknown table height by ±5 mm and the friction 0.15-0.3 (every trial
+runs the whole skill), polled over REST until done. Measured per run:
+
+- executions per minute = executions / wall time from the submission to the sweep's end (the queue, the
+  dispatcher and the bus included);
+- the control loop's wall time per execution (each execution's simulated time / its real-time factor, median);
+- worker-seconds per execution = wall time x N / executions, and what of it is not the loop (dispatch, world
+  set-up, metrics, and the sweep's start and tail while a worker waits for the last trial of the other);
+- CPU seconds per execution of the API process and of the workers (``/proc``), which the 2 cores share.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import tempfile
 import time
+from datetime import datetime
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -40,42 +50,176 @@ VARY = {"offset_z_m": {"low": -0.005, "high": 0.005}, "friction": {"low": 0.15, 
 TARGET_PER_MINUTE = 150.0
 """Issue 14's target for 2 workers on 2 cores."""
 POLL_S = 0.5
+"""How often the sweep's state is asked over REST (as the CLI's progress bar does), s."""
+TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 
-def bench_sweep(workers: int, trials: int) -> dict:
-    """One sweep of ``trials`` trials on ``contact-skills up --workers {workers}``: its rate and its executions."""
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of a process so far, s (0 once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / TICKS_PER_S
+
+
+def _children(pid: int) -> dict[str, list[int]]:
+    """The API's and the workers' process ids among the children of ``contact-skills up`` (its own process runs the
+    Zenoh router)."""
+    found: dict[str, list[int]] = {"api": [], "worker": []}
+    for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
+        argv = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
+        for role in found:
+            if role.encode() in argv:
+                found[role].append(int(child))
+    return found
+
+
+_WORKER_LINE = re.compile(
+    r"^\s*(worker-\d+) \| (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) contact_skills\.worker INFO "
+    r"exec_\w+ (accepted|done|aborted|failed)\b"
+)
+"""A worker's log line (``contact-skills up`` prefixes its name) of an execution accepted or ended."""
+
+
+def hand_over_gaps(log: str) -> list[float]:
+    """Per worker, the time from an execution's end (its final status queued for the bus) to the start of the
+    next one it accepted, s, from the workers' log lines in ``contact-skills up``'s output (log level info)."""
+    ended: dict[str, datetime] = {}
+    gaps = []
+    for line in log.splitlines():
+        found = _WORKER_LINE.match(line)
+        if found is None:
+            continue
+        worker, stamp, event = found.groups()
+        at = datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S,%f")
+        if event == "accepted" and worker in ended:
+            gaps.append((at - ended.pop(worker)).total_seconds())
+        elif event != "accepted":
+            ended[worker] = at
+    return gaps
+
+
+def bench_sweep(workers: int, trials: int, store_telemetry: bool) -> dict:
+    """One sweep of ``trials`` trials on ``contact-skills up --workers {workers}``: its rate, where its time went."""
     port, zenoh_port = free_port(), free_port()
     url = f"http://127.0.0.1:{port}"
     argv = ["up", "--workers", str(workers), "--port", str(port), "--zenoh-port", str(zenoh_port)]
     with tempfile.TemporaryDirectory() as tmp, running(
-        [*argv, "--db", f"{tmp}/bench.db", "--log-level", "warning"], url, timeout_s=120, workers=workers
-    ):  # fmt: skip
+        [*argv, "--db", f"{tmp}/bench.db", "--log-level", "info"], url, timeout_s=120, workers=workers,
+        log_path=Path(tmp) / "up.log",
+    ) as up:  # fmt: skip
         client = httpx.Client(base_url=url, timeout=180)
         demo = client.post("/demonstrations/record", json=RECORD)
         assert demo.status_code == 201, demo.text
         skill = client.post("/skills", json={"demonstration_id": demo.json()["id"], "skill_type": "slide"})
         assert skill.status_code == 201, skill.text
-        body = {"skill_id": skill.json()["id"], "controllers": ["hybrid_cf"], "vary": VARY, "trials": trials}
+        body = {"skill_id": skill.json()["id"], "controllers": ["hybrid_cf"], "vary": VARY, "trials": trials,
+                "store_telemetry": store_telemetry}  # fmt: skip
+        pids = _children(up.pid)
+        cpu_before = {role: sum(_cpu_s(p) for p in found) for role, found in pids.items()}
         load_before = os.getloadavg()[0]
         start = time.perf_counter()
         created = client.post("/sweeps", json=body)
+        submitted_s = time.perf_counter() - start
         assert created.status_code == 202, created.text
         sweep_id = created.json()["id"]
         while (view := client.get(f"/sweeps/{sweep_id}").json())["status"] == "running":
             time.sleep(POLL_S)
         wall = time.perf_counter() - start
+        cpu = {role: sum(_cpu_s(p) for p in found) - cpu_before[role] for role, found in pids.items()}
+        load_after = os.getloadavg()[0]
         trials_view = client.get(f"/sweeps/{sweep_id}/trials").json()
+        stored = [client.get(f"/executions/{t['execution_id']}").json()["telemetry_samples"] for t in trials_view]
+        gaps = hand_over_gaps((Path(tmp) / "up.log").read_text(errors="replace"))
     metrics = [t["metrics"] for t in trials_view if t["metrics"]]
+    executions = view["counts"]["finished"]
+    loop_s = float(np.median([m["duration_s"] / m["real_time_factor"] for m in metrics]))
+    per_execution_s = wall * workers / executions
     return {
         "workers": workers,
-        "executions": view["counts"]["finished"],
-        "per_minute": view["counts"]["finished"] / wall * 60.0,
+        "telemetry": "stream (store_telemetry)" if store_telemetry else "none (default)",
+        "executions": executions,
+        "done": sum(m["phase"] == "done" for m in metrics),
+        "per_minute": executions / wall * 60.0,
         "wall_s": wall,
+        "submitted_s": submitted_s,
         "simulated_s": float(np.median([m["duration_s"] for m in metrics])),
         "real_time_factor": float(np.median([m["real_time_factor"] for m in metrics])),
-        "done": sum(m["phase"] == "done" for m in metrics),
-        "load": (load_before, os.getloadavg()[0]),
+        "loop_s": loop_s,
+        "per_execution_s": per_execution_s,
+        "other_s": per_execution_s - loop_s,
+        "api_cpu_s": cpu["api"] / executions,
+        "worker_cpu_s": cpu["worker"] / executions,
+        "stored_samples": float(np.median(stored)),
+        "hand_over_s": float(np.median(gaps)) if gaps else float("nan"),
+        "load": (load_before, load_after),
     }
+
+
+def report(runs: list[dict], trials_per_worker: int) -> str:
+    """The section's Markdown: the table and the sentences computed from these runs."""
+    rows = [
+        f"| {r['workers']} | {r['telemetry']} | {r['executions']} ({r['done']} done) | {r['wall_s']:.1f} | "
+        f"{r['submitted_s']:.2f} | "
+        f"**{r['per_minute']:.1f}** | {r['simulated_s']:.1f} | {r['loop_s']:.2f} ({r['real_time_factor']:.1f}x) | "
+        f"{r['per_execution_s']:.2f} | {r['other_s']:.2f} | {r['api_cpu_s']:.2f} | {r['worker_cpu_s']:.2f} | "
+        f"{r['stored_samples']:.0f} | {r['hand_over_s']:.3f} | {r['load'][0]:.1f} → {r['load'][1]:.1f} |"
+        for r in runs
+    ]
+    rate = {(r["workers"], r["telemetry"].split()[0]): r for r in runs}
+    two, two_stream, one = rate[(2, "none")], rate[(2, "stream")], rate[(1, "none")]
+    cpu = {mode: two_run["api_cpu_s"] + two_run["worker_cpu_s"] for mode, two_run in (("none", two),
+           ("stream", two_stream))}  # fmt: skip
+    verdict = "met" if two["per_minute"] >= TARGET_PER_MINUTE else "not met"
+    return "\n".join(
+        [
+            "## Sweeps: executions per minute with 1 and 2 workers",
+            "",
+            "Reproduce: `.venv/bin/python benchmarks/bench_sweeps.py` (`contact-skills up --workers N` as real "
+            f"processes on loopback; a `POST /sweeps` of {trials_per_worker} trials per worker, controller "
+            f"hybrid_cf, varying {', '.join(VARY)}; the teacher's slide_flat with overrides {RECORD['overrides']}; "
+            "each run on a fresh stack, with the trials' telemetry off (the default) and with `store_telemetry`).",
+            "",
+            "| workers | telemetry | executions | wall s | of which POST /sweeps s | per minute | simulated s each "
+            "(median) | loop s each "
+            "(median, real-time factor) | worker-s per execution | of which not the loop | API CPU s per execution "
+            "| worker CPU s per execution | samples stored per execution (median) | hand-over s (median) | load "
+            "average (1 min) before → after |",
+            "| ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+            *rows,
+            "",
+            f"With 2 workers the default (no telemetry) ran {two['per_minute']:.1f} executions per minute, "
+            f"{two['per_minute'] / two_stream['per_minute']:.2f}x the {two_stream['per_minute']:.1f} of the same "
+            f"sweep storing its telemetry, and {two['per_minute'] / one['per_minute']:.2f}x the "
+            f"{one['per_minute']:.1f} of 1 worker. Streaming cost the API {two_stream['api_cpu_s']:.2f} CPU s per "
+            f"execution against {two['api_cpu_s']:.2f} without (decoding the JSON batches, writing every sample to "
+            f"SQLite), and the workers {two_stream['worker_cpu_s']:.2f} against {two['worker_cpu_s']:.2f} (encoding "
+            f"and publishing them): {cpu['stream']:.2f} CPU s per execution against {cpu['none']:.2f}, so 2 cores "
+            f"of our own would run at most {120.0 / cpu['stream']:.0f} against {120.0 / cpu['none']:.0f} per "
+            "minute (the CPU per execution depends far less on the other jobs than the rates do). Per execution a "
+            "worker spent "
+            f"{two['loop_s']:.2f} s in the control loop and {two['other_s']:.2f} s around it (the hand-over from "
+            f"its previous trial's end to the next start, {two['hand_over_s']:.3f} s, median from the workers' log; "
+            "the world's set-up, the metrics, and the sweep's start and tail: "
+            f"the reply to `POST /sweeps` took {two['submitted_s']:.2f} s, most of it the API process's first import "
+            f"of scipy.stats, once per process: {two['submitted_s'] * two['workers'] / two['executions']:.2f} s per "
+            "execution of this short sweep). The "
+            f"issue's target of {TARGET_PER_MINUTE:.0f} per minute with 2 workers on 2 cores is {verdict} in this "
+            f"run ({two['per_minute']:.1f}); with the 2 cores to itself the default would still be bounded by its "
+            f"CPU per execution ({120.0 / cpu['none']:.0f} per minute), most of it the control loop (its speed: "
+            "`bench_control_loop`).",
+            "",
+            "What a number is: the rate of this sweep, on this machine, at the load shown beside it (the machine is "
+            "shared with other jobs: a run at a higher load is slower, so compare rows only at a similar load; the "
+            "load average includes the run's own busy workers, about 1 per worker, and the run before). It "
+            "is not the rate on 2 cores of our own (the CPU bound above is), nor a rate for another skill (it scales "
+            "with 1 / the skill's "
+            "simulated time and with the loop's real-time factor, `bench_control_loop`).",
+            "",
+            machine_line(f"{os.cpu_count()} cores shared by the API, the router, the workers and other jobs"),
+        ]
+    )
 
 
 def main() -> None:
@@ -86,37 +230,11 @@ def main() -> None:
     os.chdir(Path(__file__).resolve().parents[1])
     runs = []
     for workers in (1, 2):
-        run = bench_sweep(workers, args.trials_per_worker * workers)
-        runs.append(run)
-        print(run, flush=True)
-    rows = [
-        f"| {r['workers']} | {r['executions']} ({r['done']} done) | {r['wall_s']:.0f} | {r['per_minute']:.1f} | "
-        f"{r['simulated_s']:.1f} | {r['real_time_factor']:.1f} | {r['load'][0]:.1f} → {r['load'][1]:.1f} |"
-        for r in runs
-    ]
-    one, two = runs
-    verdict = "met" if two["per_minute"] >= TARGET_PER_MINUTE else "not met"
-    body = "\n".join(
-        [
-            "## Sweeps: executions per minute with 1 and 2 workers",
-            "",
-            "Reproduce: `.venv/bin/python benchmarks/bench_sweeps.py` (`contact-skills up --workers N` as real "
-            f"processes on loopback; a `POST /sweeps` of {args.trials_per_worker} trials per worker, controller "
-            f"hybrid_cf, varying {', '.join(VARY)}; the teacher's slide_flat with overrides {RECORD['overrides']}).",
-            "",
-            "| workers | executions | wall s | per minute | simulated s each (median) | real-time factor (median) | "
-            "load average (1 min) before → after |",
-            "| ---: | --- | ---: | ---: | ---: | ---: | --- |",
-            *rows,
-            "",
-            f"2 workers ran {two['per_minute'] / one['per_minute']:.2f}x the executions per minute of 1; the issue's "
-            f"target of {TARGET_PER_MINUTE:.0f} per minute with 2 workers on 2 cores is {verdict} in this run "
-            f"({two['per_minute']:.1f}). The machine is shared with other jobs (the load average beside each run): "
-            "the rates are what this run measured, not the machine's ceiling.",
-            "",
-            machine_line(f"{os.cpu_count()} cores shared by the API, the router, the workers and other jobs"),
-        ]
-    )
+        for store_telemetry in (False, True):
+            run = bench_sweep(workers, args.trials_per_worker * workers, store_telemetry)
+            runs.append(run)
+            print({k: round(v, 3) if isinstance(v, float) else v for k, v in run.items()}, flush=True)
+    body = report(runs, args.trials_per_worker)
     print(body)
     if not args.no_write:
         write_section(SECTION, body)

@@ -77,6 +77,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "seed": args.seed,
             "sampler": args.sampler,
             "success_rms_pct": args.threshold,
+            "store_telemetry": args.store_telemetry,
         }
         SweepRequest.model_validate({**body, "skill_id": "checked-by-the-service"})  # bad options: exit 2 here
     except Exception as exc:
@@ -155,6 +156,11 @@ def register(commands: argparse._SubParsersAction) -> None:
         "(default: all of them over a cell's usual range)",
     )
     sweep.add_argument("--threshold", type=float, default=10.0, help="success: true RMS error <= this %% (default 10)")
+    sweep.add_argument(
+        "--store-telemetry",
+        action="store_true",
+        help="stream and store every trial's telemetry (default: none is sent; the metrics are the same)",
+    )
     sweep.add_argument("--figure", type=Path, help="write the figure (PNG) here")
     sweep.add_argument("--json", type=Path, help="write the sweep and every trial (JSON) here")
     sweep.add_argument("--results", type=Path, help="write/replace this sweep's subsection of a RESULTS.md")

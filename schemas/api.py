@@ -239,7 +239,8 @@ class ExecutionView(BaseModel):
         None,
         description="Once finished: control steps the worker ran whose telemetry is not stored and could not be "
         "fetched back from the worker (it was published while the API was down or cut off from the router, and the "
-        "worker is gone or no longer keeps it), 0 when the stream is complete.",
+        "worker is gone or no longer keeps it), 0 when the stream is complete; None while it runs and for an "
+        "execution run with telemetry 'none' (no stream was meant to be sent).",
     )
     request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
     priority: int = Field(0, description="Its queue priority.")

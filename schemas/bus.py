@@ -4,7 +4,8 @@ Key expressions (``P`` is the prefix, default ``cskills``; ids are single key ch
 
 - ``P/workers/{worker_id}`` — liveliness token, present while the worker process lives.
 - ``P/exec/{worker_id}/info`` — queryable; reply ``WorkerInfo``.
-- ``P/exec/{worker_id}/start`` — queryable; query ``StartExecution``, reply ``StartReply`` (accepted, busy, error).
+- ``P/exec/{worker_id}/start`` — queryable; query ``StartExecution``, reply ``StartReply`` (accepted, busy, error,
+  need_demonstration).
 - ``P/exec/{worker_id}/record`` — queryable; query ``RecordRequest``, reply ``RecordReply``.
 - ``P/exec/{worker_id}/replay`` — queryable; query ``TelemetryReplay``, replies ``TelemetryBatch`` (each with its
   ``first_sample``) covering the samples asked that the worker still keeps (its last ``TELEMETRY_KEEP_EXECUTIONS``
@@ -287,6 +288,14 @@ class StartExecution(BaseModel):
         "could only answer later refuses instead of starting: the caller has given up on it and may have started "
         "the execution on another worker.",
     )
+    demonstration_id: str | None = Field(
+        None,
+        max_length=64,
+        description="The stored id of that demonstration (stored demonstrations never change): a worker keeps the "
+        "last few it was sent under their ids, and a start that names one without sending it runs with its copy; "
+        "one it does not keep is answered ``need_demonstration`` (then sent again with it). A sweep's trials send "
+        "their ~2 MB demonstration once per worker instead of once per trial.",
+    )
 
     @model_validator(mode="after")
     def _inline(self) -> StartExecution:
@@ -302,7 +311,10 @@ class StartReply(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     accepted: bool
-    code: Literal["accepted", "busy", "error"] = Field(description="busy: the worker runs something else.")
+    code: Literal["accepted", "busy", "error", "need_demonstration"] = Field(
+        description="busy: the worker runs something else; need_demonstration: the start named a "
+        "``demonstration_id`` this worker does not keep (ask again with the demonstration)."
+    )
     worker_id: str
     execution_id: str
     reason: str | None = Field(None, description="Why not accepted.")

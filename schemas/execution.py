@@ -88,6 +88,16 @@ class Pace(StrEnum):
     fast = "fast"
 
 
+class TelemetryMode(StrEnum):
+    """Whether an execution's control steps leave the worker (the metrics are computed in the worker either way)."""
+
+    stream = "stream"
+    """Every control step published on the bus, stored by the API, kept by the worker for replays."""
+    none = "none"
+    """Nothing published, stored or kept: only the statuses and the final metrics (robustness sweeps, where the
+    35-column stream of ~10 000 steps per trial costs as much CPU as the physics)."""
+
+
 class ExecutionPhase(StrEnum):
     """Phase of an execution (reported in telemetry and status)."""
 
@@ -423,6 +433,13 @@ class ExecutionSettings(BaseModel):
         le=10000,
         description="Control steps per telemetry batch handed to subscribers (1 kHz / 10 = 100 batches/s: "
         "per-sample p99 latency ~10 ms on loopback; 50 would be ~50 ms, mostly waiting for the batch to fill).",
+    )
+    telemetry: TelemetryMode = Field(
+        TelemetryMode.stream,
+        description="stream: every control step is published on the bus, stored and served by "
+        "GET /executions/{id}/telemetry. none: no telemetry is published, stored or kept by the worker (that "
+        "endpoint answers 409 saying so); the statuses and the final metrics, computed in the worker from every "
+        "step, are the same as with stream. A sweep's trials run with none unless it asks for store_telemetry.",
     )
 
 

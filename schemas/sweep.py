@@ -173,7 +173,13 @@ class SweepRequest(BaseModel):
     settings: ExecutionSettings = Field(
         default_factory=ExecutionSettings,
         description="The execution settings every trial starts from (gains, pace, environment); the sweep sets the "
-        "varied fields of the environment and the controller.",
+        "varied fields of the environment, the controller and the telemetry (from store_telemetry).",
+    )
+    store_telemetry: bool = Field(
+        False,
+        description="Stream and store every trial's telemetry (each trial's execution with telemetry 'stream', its "
+        "GET /executions/{id}/telemetry served). Default false: telemetry 'none', nothing published, stored or "
+        "kept (cheaper: docs/BENCHMARKS.md, bench_sweeps); every metric and the success rates are the same.",
     )
     priority: int = Field(
         SWEEP_PRIORITY,
@@ -203,6 +209,16 @@ class SweepRequest(BaseModel):
         if (self.skill_id is None) == (self.skill is None):
             raise ValueError("give exactly one of skill_id (a stored skill) or skill (inline)")
         return self
+
+    @field_validator("settings")
+    @classmethod
+    def _telemetry_from_store_telemetry(cls, value: ExecutionSettings) -> ExecutionSettings:
+        if "telemetry" in value.model_fields_set:
+            raise ValueError(
+                "telemetry: a sweep sets its trials' telemetry from store_telemetry (true: stream, false: none); "
+                "give store_telemetry instead"
+            )
+        return value
 
 
 class SweepState(StrEnum):

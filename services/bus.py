@@ -325,9 +325,10 @@ class BusClient:
                 log.warning("bad %s on %s", model.__name__, reply.ok.key_expr)
         return answers
 
-    def _candidates(self) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
-        """(all workers, the free ones in the order to try: fewest executions run first, then round robin)."""
-        everyone = self.workers()
+    def _candidates(self, everyone: list[WorkerInfo] | None = None) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
+        """(all workers, the free ones in the order to try: fewest executions run first, then round robin);
+        ``everyone``: the workers' info just asked for (else asked now)."""
+        everyone = self.workers() if everyone is None else everyone
         free = [w for w in everyone if not w.busy]
         if free:
             shift = next(self._rotation) % len(free)
@@ -356,33 +357,39 @@ class BusClient:
         *,
         world_overrides: dict[str, Any] | None = None,
         demonstration: Demonstration | None = None,
+        demonstration_id: str | None = None,
         timeout_s: float = START_TIMEOUT_S,
+        workers: list[WorkerInfo] | None = None,
     ) -> str:
         """Start ``request`` (its skill INLINE) as ``execution_id`` on a free worker; return the worker's id.
 
         Free workers are tried in turn (fewest executions first, round robin among equals), so executions spread
         over the workers. ``world_overrides`` (WorldConfig fields) and ``demonstration`` (for the path metric)
-        are optional. Raises ``ValueError`` for an id that is not a key chunk or a request without an inline
-        skill, ``BusRequestError`` if the worker refuses the request as invalid, ``NoWorkerAvailable`` if no
-        worker takes it.
+        are optional. With ``demonstration_id`` (the stored id of ``demonstration``) each worker is first asked
+        to use its own copy, and sent the demonstration only when it keeps none (``need_demonstration``).
+        ``workers``: the result of a :meth:`workers` call the caller just made (not asked again).
+        Raises ``ValueError`` for an id that is not a key chunk or a request without an inline skill,
+        ``BusRequestError`` if the worker refuses the request as invalid, ``NoWorkerAvailable`` if no worker
+        takes it.
         """
+        named = demonstration_id if demonstration is not None else None
         start = StartExecution(
             execution_id=execution_id,
             request=request,
             world_overrides=world_overrides or {},
-            demonstration=demonstration,
+            demonstration=None if named else demonstration,
+            demonstration_id=named,
         )
-        everyone, free = self._candidates()
+        everyone, free = self._candidates(workers)
         refused: list[str] = []
         for worker in free:
-            # Each worker gets its own deadline: one that answers after it refuses, so a request given up on here
-            # (and offered to the next worker) never runs twice.
-            start.answer_by_unix_s = time.time() + timeout_s
-            reply = self._query_one(self.keys.start(worker.worker_id), start.model_dump_json(), timeout_s)
-            if reply is None:
+            key = self.keys.start(worker.worker_id)
+            answer = self._ask_start(key, start, timeout_s)
+            if answer is not None and answer.code == "need_demonstration":
+                answer = self._ask_start(key, start.model_copy(update={"demonstration": demonstration}), timeout_s)
+            if answer is None:
                 refused.append(f"{worker.worker_id} did not answer within {timeout_s:g} s")
                 continue
-            answer = StartReply.model_validate_json(reply)
             if answer.accepted:
                 with self._lock:
                     self._running[execution_id] = worker.worker_id
@@ -392,6 +399,14 @@ class BusClient:
                 raise BusRequestError(answer.reason or "refused")
             refused.append(f"{worker.worker_id} busy ({answer.reason})")
         raise self._why_none(everyone, refused, f"run execution {execution_id}")
+
+    def _ask_start(self, key: str, start: StartExecution, timeout_s: float) -> StartReply | None:
+        """One worker's reply to ``start`` (None if none came within ``timeout_s``). Each ask carries its own
+        deadline: a worker that could only answer after it refuses, so a request given up on here (and offered to
+        the next worker) never runs twice."""
+        start.answer_by_unix_s = time.time() + timeout_s
+        reply = self._query_one(key, start.model_dump_json(), timeout_s)
+        return None if reply is None else StartReply.model_validate_json(reply)
 
     def send_command(self, execution_id: str, command: Literal["abort", "pause", "resume"]) -> None:
         """Publish ``command`` to the execution (fire and forget; its status tells what happened)."""

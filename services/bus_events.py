@@ -78,7 +78,8 @@ class BusEvents:
     final status is therefore stored once the telemetry it counts (``metrics.steps``) is stored, or, after
     :data:`FINAL_TELEMETRY_GRACE_S`, once what is still missing has been asked again: a client that sees ``done``
     can read the whole stream, or ``ExecutionView.telemetry_missing_samples`` says how much of it is lost for good
-    (the worker is gone or no longer keeps it).
+    (the worker is gone or no longer keeps it). An execution run with ``telemetry`` ``none`` has no stream: its
+    final status is stored as it arrives.
     """
 
     def __init__(self, store: Store, bus: BusClient | None = None) -> None:
@@ -103,7 +104,8 @@ class BusEvents:
                         row.worker_id)  # fmt: skip
             return
         state = FINAL_STATES.get(status.phase, ExecutionState.paused if status.paused else ExecutionState.running)
-        if status.final and not self._telemetry_complete(status):
+        streamed = row is None or row.streams_telemetry  # telemetry 'none': no stream to wait for
+        if status.final and streamed and not self._telemetry_complete(status):
             with self._lock:
                 self._held[status.execution_id] = status
             self.store.update_execution(status.execution_id, phase=status.phase, worker_id=status.worker_id)

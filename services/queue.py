@@ -9,8 +9,11 @@ before it; else the dispatcher thread hands it over as soon as one is free.
 Order: higher ``priority`` first, then submission order. Fairness across workers: each hand-over goes through
 `services.bus.BusClient.start_execution`, which tries the free workers with the fewest executions run first (round
 robin among equals), so every worker on the bus gets work. A queued execution can be cancelled
-(:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher polls the workers every ``poll_s`` while something
-is queued, and wakes at once on :meth:`ExecutionQueue.wake` (a submission).
+(:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher wakes at once on :meth:`ExecutionQueue.wake`: a
+submission, and an execution the store put in a terminal status (`services.store.Store.on_finish`: its final status
+arrived, its worker was lost), so a worker that finished gets the next queued execution without waiting for a poll;
+it also polls the workers every ``poll_s`` while something is queued (a worker freed without a status, e.g. one
+that finished recording).
 
 Status flow: queued -> starting (claimed by the dispatcher, atomically in SQLite) -> running (a worker accepted it),
 or back to queued (every worker busy after all), or failed (the worker refused it as invalid), or aborted
@@ -28,6 +31,7 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
+from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.store import ExecutionRow, Store
 
@@ -42,6 +46,8 @@ IDLE_POLL_S = 2.0
 """How often the dispatcher looks at an empty queue (it is woken on every submission anyway), s."""
 DEFAULT_MAX_QUEUED = 1000
 """Most executions waiting at once (more get 503)."""
+DEMONSTRATIONS_KEPT = 8
+"""Demonstrations the queue keeps parsed, to send along with the executions of the skills learned from them."""
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,8 @@ class ExecutionQueue:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._demonstrations: dict[str, Demonstration | None] = {}  # by id, the oldest first (hold self._lock)
+        store.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
 
     # ------------------------------------------------------------------ what the service calls
 
@@ -133,7 +141,7 @@ class ExecutionQueue:
         return self.store.queue_position(execution_id)
 
     def wake(self) -> None:
-        """Look at the queue now (a submission, a worker freed)."""
+        """Look at the queue now (a submission, an execution finished)."""
         self._wake.set()
 
     # ------------------------------------------------------------------ the dispatcher
@@ -180,20 +188,33 @@ class ExecutionQueue:
                 )
         return True
 
+    def _demonstration(self, demonstration_id: str) -> Demonstration | None:
+        """The stored demonstration, read once: a sweep sends the same one with each of its trials (a 10 s
+        recording is ~2 MB of JSON, ~40 ms to read and parse), and a stored demonstration never changes."""
+        if demonstration_id not in self._demonstrations:
+            if len(self._demonstrations) >= DEMONSTRATIONS_KEPT:
+                self._demonstrations.pop(next(iter(self._demonstrations)))
+            self._demonstrations[demonstration_id] = self.store.demonstration(demonstration_id)
+        return self._demonstrations[demonstration_id]
+
     def _hand_over(self, execution_id: str, dispatch: Dispatch) -> tuple[Handover, str]:
         """Claim a queued execution and start it on a free worker (hold ``self._lock``)."""
         from services.bus import BusRequestError, NoWorkerAvailable
 
-        if all(worker.busy for worker in self.bus.workers()):  # checked first: a queued one stays queued meanwhile
+        workers = self.bus.workers()
+        if all(worker.busy for worker in workers):  # checked first: a queued one stays queued meanwhile
             return Handover.busy, "every worker busy"
         if not self.store.claim_queued(execution_id):
             return Handover.gone, "not queued"
-        demonstration = None
-        if dispatch.demonstration_id is not None:
-            demonstration = self.store.demonstration(dispatch.demonstration_id)
+        demonstration = None if dispatch.demonstration_id is None else self._demonstration(dispatch.demonstration_id)
         try:
             worker_id = self.bus.start_execution(
-                execution_id, dispatch.request, world_overrides=dispatch.world_overrides, demonstration=demonstration
+                execution_id,
+                dispatch.request,
+                world_overrides=dispatch.world_overrides,
+                demonstration=demonstration,
+                demonstration_id=dispatch.demonstration_id,
+                workers=workers,
             )
         except NoWorkerAvailable:
             self.store.requeue(execution_id)

@@ -29,12 +29,13 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import secrets
 import sqlite3
 import threading
 import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +45,7 @@ import numpy as np
 
 from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration, DemonstrationSummary
-from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch
+from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch, TelemetryMode
 
 SCHEMA_VERSION = 4
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
@@ -148,6 +149,7 @@ TELEMETRY_WIDTH = 30
 _TELEMETRY_END = "SELECT COALESCE(MAX(seq + rows), 0) FROM telemetry WHERE execution_id = ?"
 """One past the last stored sample of an execution."""
 _PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
+log = logging.getLogger("contact_skills.store")
 
 
 ACTIVE = (ExecutionState.starting, ExecutionState.running, ExecutionState.paused)
@@ -201,6 +203,12 @@ class ExecutionRow:
     created: float
     updated: float
     priority: int = 0
+
+    @property
+    def streams_telemetry(self) -> bool:
+        """Whether its worker publishes its telemetry (``ExecutionSettings.telemetry``; a request stored before
+        that setting existed streamed)."""
+        return self.request.get("telemetry", TelemetryMode.stream.value) == TelemetryMode.stream.value
 
 
 @dataclass(frozen=True)
@@ -301,7 +309,23 @@ class Store:
         self._connections: list[sqlite3.Connection] = []
         self._lock = threading.Lock()
         self._closed = False
+        self._finish_listeners: list[Callable[[str], None]] = []
         self._migrate()
+
+    def on_finish(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(execution_id)`` whenever this store puts an execution that ran (or was handed to a
+        worker) in a terminal status (:meth:`update_execution`, :meth:`fail_active`), after the commit, on the
+        writing thread (a bus callback): it must be quick, e.g. set an event (`services.queue`, `services.sweeps`
+        hand the next executions over at once instead of on their next poll)."""
+        self._finish_listeners.append(listener)
+
+    def _finished(self, execution_ids: list[str]) -> None:
+        for execution_id in execution_ids:
+            for listener in self._finish_listeners:
+                try:
+                    listener(execution_id)
+                except Exception:  # a listener never undoes a committed write
+                    log.exception("finish listener failed for %s", execution_id)
 
     # ------------------------------------------------------------------ connections
 
@@ -623,7 +647,10 @@ class Store:
                 f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND {_ACTIVE_IN}",
                 (*values, execution_id, *(s.value for s in ACTIVE)),
             )
-            return cursor.rowcount > 0
+            applied = cursor.rowcount > 0
+        if applied and status in TERMINAL:
+            self._finished([execution_id])
+        return applied
 
     def reopen_execution(self, execution_id: str, error: str) -> bool:
         """failed with exactly ``error`` -> running again, the error cleared (what failed it turned out not to be the
@@ -653,6 +680,7 @@ class Store:
                     (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
                 )
                 marked.append(r["id"])
+        self._finished(marked)
         return marked
 
     # ------------------------------------------------------------------ sweeps (services/sweeps.py)

@@ -5,7 +5,8 @@ router if it is not up yet), declares
 
 - the liveliness token ``P/workers/{worker_id}`` (it disappears when the process dies, even by SIGKILL),
 - the queryables ``P/exec/{worker_id}/info`` (``WorkerInfo``), ``P/exec/{worker_id}/start`` (``StartExecution``
-  -> ``StartReply``), ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
+  -> ``StartReply``; the demonstration a start sends is kept by its id for the next starts that name it),
+  ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
   ``P/exec/{worker_id}/replay`` (``TelemetryReplay`` -> ``TelemetryBatch`` replies: the telemetry of its recent
   executions, ``sim_worker.telemetry_archive``, for a receiver that missed batches) and ``P/exec/*/status`` (the
   latest ``ExecutionStatus`` of the executions this worker ran, for late joiners and after a router outage),
@@ -18,7 +19,8 @@ the request's ``scenario`` (else the scenario named by the skill's demonstration
 
 - publishes every control step on ``P/exec/{execution_id}/telemetry`` (``TelemetryBatch`` of
   ``request.telemetry_batch`` rows, reliable, congestion control BLOCK, numbered by ``seq`` and ``first_sample``)
-  and keeps them for replays (what a disconnected receiver or router outage lost is asked again),
+  and keeps them for replays (what a disconnected receiver or router outage lost is asked again); with
+  ``request.telemetry`` ``none`` it does neither (the metrics come from the loop's own rows all the same),
 - publishes ``ExecutionStatus`` on ``P/exec/{execution_id}/status``: ``pending`` on acceptance, then on every phase
   or segment change, pause and resume, and a final one (done / aborted / failed) with the metrics,
 - listens on ``P/exec/{execution_id}/cmd``: ``abort`` is polled by the control loop after every step (the
@@ -65,7 +67,8 @@ from schemas.bus import (
     split_endpoints,
 )
 from schemas.bus_security import BusSecurity
-from schemas.execution import ExecutionPhase
+from schemas.demonstration import Demonstration
+from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.skill import Skill
 from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
@@ -75,6 +78,8 @@ _PHASES = list(ExecutionPhase)
 
 STATUS_CACHE = 200
 """Latest statuses kept for the status queryable (executions of this worker)."""
+DEMONSTRATIONS_KEPT = 4
+"""Demonstrations kept for the starts that name them (``StartExecution.demonstration_id``): ~2 MB each for 10 s."""
 MAX_COALESCED_ROWS = 1000
 """Most control steps sent in one telemetry message when queued batches are merged to catch up, and in one reply
 to a replay query."""
@@ -141,6 +146,16 @@ def world_for(start: StartExecution):
     )
 
 
+def _load_execution_code() -> None:
+    """Import what an execution runs and load the compiled control loop (``sim_worker.warm_up``) before the worker
+    shows itself: its first execution would otherwise pay for it (~2 s on a quiet core), not just the ones after."""
+    import sim_worker.execution_world
+    import sim_worker.executor  # noqa: F401  (imported for its cost, used by _Run.run)
+    from sim_worker.warm_up import warm_up
+
+    warm_up()
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # One execution
 # ---------------------------------------------------------------------------------------------------------------
@@ -158,6 +173,8 @@ class _Run:
         """The resolved ``ExecutionWorld``: world config, placed skill and demonstration."""
         self.skill: Skill = world.skill
         self.dt = float(world.config.time_step_s)
+        self.streams = self.request.telemetry is TelemetryMode.stream
+        """Whether its control steps are published and kept for replays (``ExecutionSettings.telemetry``)."""
         self.abort_requested = False
         self.abort_received_t: float | None = None
         self.abort_reason: str | None = None
@@ -193,10 +210,12 @@ class _Run:
         return False
 
     def on_sample(self, tel) -> None:
-        """A batch of control steps from the loop: queue it and a status for each phase/segment change."""
-        stamp = time.time()
-        first = self.worker.archive.append(self.execution_id, tel)
-        self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp, first))
+        """A batch of control steps from the loop: queue it (unless the request's telemetry is ``none``) and a status
+        for each phase/segment change."""
+        if self.streams:
+            stamp = time.time()
+            first = self.worker.archive.append(self.execution_id, tel)
+            self.worker._publish_queue.put(("telemetry", self.execution_id, tel, stamp, first))
         codes, segments, t = tel.phase_codes, tel.segment_index, tel.t
         changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
         for k in (0, *changes.tolist()):
@@ -299,6 +318,8 @@ class Worker:
         self._run: _Run | None = None
         self._recording = False
         self._statuses: OrderedDict[str, ExecutionStatus] = OrderedDict()
+        self._demonstrations: OrderedDict[str, Demonstration] = OrderedDict()
+        """The demonstrations starts sent, by their stored id, the most recently used last."""
         self.archive = TelemetryArchive()
         self._publish_queue: queue.Queue = queue.Queue()
         self._publisher: threading.Thread | None = None
@@ -315,6 +336,7 @@ class Worker:
         """
         import zenoh
 
+        _load_execution_code()
         config = zenoh.Config.from_json5(
             json.dumps(session_config("client", connect=self.settings.endpoints, security=self.settings.security))
         )
@@ -495,8 +517,13 @@ class Worker:
         try:
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
-                start = StartExecution.model_validate_json(payload)
-                execution_id = start.execution_id
+                named = StartExecution.model_validate_json(payload)
+                execution_id = named.execution_id
+                start = self._with_demonstration(named)
+                if start is None:
+                    reply("need_demonstration", f"worker {self.worker_id} keeps no demonstration "
+                          f"{named.demonstration_id}")  # fmt: skip
+                    return
                 world = world_for(start)
             except Exception as exc:
                 reply("error", _short_error(exc))
@@ -530,6 +557,24 @@ class Worker:
                 reply("error", _short_error(exc))
             except Exception:
                 log.debug("could not reply", exc_info=True)
+
+    def _with_demonstration(self, start: StartExecution) -> StartExecution | None:
+        """``start`` with its demonstration: as sent (and kept under its ``demonstration_id`` for the starts that
+        follow), or this worker's copy of the one it names; None when it names one this worker does not keep."""
+        key = start.demonstration_id
+        if key is None:
+            return start
+        with self._lock:
+            if start.demonstration is not None:
+                self._demonstrations[key] = start.demonstration
+            kept = self._demonstrations.get(key)
+            if kept is not None:
+                self._demonstrations.move_to_end(key)
+            while len(self._demonstrations) > DEMONSTRATIONS_KEPT:
+                self._demonstrations.popitem(last=False)
+        if kept is None:
+            return None
+        return start if start.demonstration is not None else start.model_copy(update={"demonstration": kept})
 
     def _busy_reason(self) -> str | None:
         if self._run is not None:

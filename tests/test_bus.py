@@ -335,6 +335,43 @@ def test_two_workers_run_two_executions_at_once(client, skill):
     _wait(lambda: not any(w.busy for w in client.workers()), 10, "both workers free again")
 
 
+def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_it(bus, client, recorded, skill):
+    """The ~2 MB demonstration travels once per worker, not once per start: a start naming a demonstration the
+    worker does not keep is answered need_demonstration (and BusClient.start_execution then sends it); one naming a
+    demonstration it keeps runs on its copy: the path metric (against the demonstration) equals that of the run
+    that brought it, and differs from a run without one (against the nominal DMP path)."""
+    from schemas.bus import StartExecution, StartReply
+
+    endpoint, _ = bus
+    recorder, keys, demonstration = client.recorder, KeyExpressions("cskills"), recorded.demonstration
+    _wait(lambda: not any(w.busy for w in client.workers()), 30, "both workers free")
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+
+    def start_naming(worker_id: str, execution_id: str) -> StartReply:
+        start = StartExecution(execution_id=execution_id, request=_request(skill), demonstration_id="demo_kept")
+        [reply] = session.get(keys.start(worker_id), payload=start.model_dump_json(), timeout=WAIT_S)
+        return StartReply.model_validate_json(reply.ok.payload.to_bytes())
+
+    try:
+        for worker_id in ("w-a", "w-b"):
+            unknown = start_naming(worker_id, "ex-demo-unknown")
+            assert (unknown.accepted, unknown.code) == (False, "need_demonstration"), unknown
+        worker = client.start_execution(
+            "ex-demo-sent", _request(skill), demonstration=demonstration, demonstration_id="demo_kept"
+        )
+        sent = recorder.final("ex-demo-sent").metrics
+        _wait(lambda: not any(w.busy for w in client.workers()), 30, "the worker free again")
+        assert start_naming(worker, "ex-demo-kept").accepted
+        kept = recorder.final("ex-demo-kept").metrics
+    finally:
+        session.close()
+    client.start_execution("ex-demo-none", _request(skill))
+    without = recorder.final("ex-demo-none").metrics
+    assert sent.phase is kept.phase is without.phase is ExecutionPhase.done
+    assert kept.path_rms_m == sent.path_rms_m and without.path_rms_m != sent.path_rms_m
+    assert kept.steps == sent.steps and kept.true_force_rms_error_n == sent.true_force_rms_error_n
+
+
 def test_bad_requests_are_refused(client, skill):
     with pytest.raises(BusRequestError, match="unknown scenario"):
         client.start_execution("ex-bad", _request(skill, scenario="no_such_world"))

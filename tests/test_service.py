@@ -1,8 +1,9 @@
 """The service with REAL processes: `contact-skills up --workers 2` (embedded Zenoh router, the API, two sim
 workers) on free loopback ports with a temporary SQLite database.
 
-record -> learn -> execute, telemetry seen by an independent Zenoh subscriber, metrics stored and served; two
-executions at once on two workers; a worker killed mid-execution; the API killed (-9) and restarted by `up` with
+record -> learn -> execute, telemetry seen by an independent Zenoh subscriber, metrics stored and served; an
+execution with telemetry 'none' that sends nothing and ends with the same metrics; two executions at once on two
+workers; a worker killed mid-execution; the API killed (-9) and restarted by `up` with
 every stored object kept; `up` stopped by SIGTERM with every child gone and exit code 0.
 """
 
@@ -140,37 +141,49 @@ def skill_id(stack) -> str:
     return skill["id"]
 
 
-def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
-    received: dict[str, int] = {}
-    statuses: list[str] = []
-    lock = threading.Lock()
+class Watcher:
+    """An independent Zenoh session (not the API's) counting every execution's telemetry samples and keeping the
+    phases of its statuses, per execution."""
 
-    def on_telemetry(sample) -> None:
-        batch = json.loads(sample.payload.to_bytes())
-        with lock:
-            received[batch["execution_id"]] = received.get(batch["execution_id"], 0) + len(batch["t"])
-
-    def on_status(sample) -> None:
-        with lock:
-            statuses.append(json.loads(sample.payload.to_bytes())["phase"])
-
-    config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=[stack.endpoint])))
-    session = zenoh.open(config)
-    try:
-        subscribers = [
-            session.declare_subscriber("cskills/exec/*/telemetry", on_telemetry),
-            session.declare_subscriber("cskills/exec/*/status", on_status),
+    def __init__(self, endpoint: str) -> None:
+        self.samples: dict[str, int] = {}
+        self.phases: dict[str, list[str]] = {}
+        self._lock = threading.Lock()
+        self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+        self._subscribers = [
+            self.session.declare_subscriber("cskills/exec/*/telemetry", self._on_telemetry),
+            self.session.declare_subscriber("cskills/exec/*/status", self._on_status),
         ]
         time.sleep(0.5)  # the subscriptions reach the router
+
+    def _on_telemetry(self, sample) -> None:
+        batch = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.samples[batch["execution_id"]] = self.samples.get(batch["execution_id"], 0) + len(batch["t"])
+
+    def _on_status(self, sample) -> None:
+        status = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.phases.setdefault(status["execution_id"], []).append(status["phase"])
+
+    def close(self) -> None:
+        """After what is still in flight has arrived."""
+        time.sleep(0.5)
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self.session.close()
+
+
+def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
+    watcher = Watcher(stack.endpoint)
+    try:
         body = {"skill_id": skill_id, "environment": {"unknown_offset": [0.0, 0.0, 0.01]}, "pace": "fast"}
         created = stack.post("/executions", body, 202)
         assert created["telemetry_key"] == f"cskills/exec/{created['id']}/telemetry"
         view = stack.finished(created["id"])
-        time.sleep(0.5)  # the last batches reach the subscriber
-        for subscriber in subscribers:
-            subscriber.undeclare()
     finally:
-        session.close()
+        watcher.close()
+    received, statuses = watcher.samples, watcher.phases[created["id"]]
 
     assert view["status"] == "done", view
     metrics = view["metrics"]
@@ -181,6 +194,47 @@ def test_record_learn_execute_with_an_independent_subscriber(stack, skill_id):
     telemetry = stack.http.get(f"/executions/{created['id']}/telemetry", params={"every": 10}).json()
     assert telemetry["stored_samples"] == metrics["steps"] and telemetry["n_samples"] == -(-metrics["steps"] // 10)
     assert "contact" in telemetry["phase"] and len(telemetry["wrench_cf"][0]) == 6
+
+
+def test_an_execution_without_telemetry_sends_none_and_ends_with_the_same_metrics(stack, skill_id):
+    """telemetry 'none': not one sample on the bus (an independent subscriber), none stored, none kept by the worker
+    (its replay queryable has nothing), GET .../telemetry a 409 saying why, and no missing samples reported; the
+    statuses still follow the phases, and every metric equals that of the same request streamed on the other worker
+    (a deterministic simulation; all but the wall-clock real-time factor)."""
+    from schemas.bus import TelemetryReplay
+
+    stack.workers(2)
+    watcher = Watcher(stack.endpoint)
+    try:
+        body = {"skill_id": skill_id, "environment": {"unknown_offset": [0.0, 0.0, 0.01], "noise_seed": 4}}
+        streamed = stack.post("/executions", body, 202)
+        silent = stack.post("/executions", {**body, "telemetry": "none"}, 202)
+        assert streamed["worker_id"] != silent["worker_id"]  # at once, on the two workers
+        streamed, silent = stack.finished(streamed["id"]), stack.finished(silent["id"])
+        steps = silent["metrics"]["steps"]
+        ask = TelemetryReplay(execution_id=silent["id"], start=0, stop=steps).model_dump_json()
+        replies = list(watcher.session.get(f"cskills/exec/{silent['worker_id']}/replay", payload=ask, timeout=10))
+    finally:
+        watcher.close()
+    samples, phases = watcher.samples, watcher.phases
+
+    assert silent["status"] == streamed["status"] == "done", (silent, streamed)
+    assert silent["request"]["telemetry"] == "none" and streamed["request"]["telemetry"] == "stream"
+    wall_clock = "real_time_factor"
+    assert {k: v for k, v in silent["metrics"].items() if k != wall_clock} == {
+        k: v for k, v in streamed["metrics"].items() if k != wall_clock
+    }
+    assert samples.get(silent["id"], 0) == 0 and samples[streamed["id"]] == streamed["metrics"]["steps"]
+    stored = ("telemetry_samples", "telemetry_batches", "telemetry_missing_samples")
+    assert [silent[k] for k in stored] == [0, 0, None]
+    assert (streamed["telemetry_samples"], streamed["telemetry_missing_samples"]) == (steps, 0)
+    assert "contact" in phases[silent["id"]] and phases[silent["id"]][-1] == "done"
+    assert [r.ok for r in replies] == [None] and "keeps no telemetry" in replies[0].err.payload.to_string()
+    for params in ({}, {"format": "csv"}):
+        response = stack.http.get(f"/executions/{silent['id']}/telemetry", params=params)
+        assert response.status_code == 409, response.text
+        assert "telemetry 'none'" in response.json()["detail"] and silent["id"] in response.json()["detail"]
+    assert stack.http.get(f"/executions/{streamed['id']}/telemetry").json()["stored_samples"] == steps
 
 
 def test_two_executions_run_at_once_on_two_workers(stack, skill_id):

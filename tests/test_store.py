@@ -1,5 +1,6 @@
 """The SQLite store under failure: a read that fails half-way leaves no cursor (and so no read transaction) open,
-so later writes on the same thread never see "database is locked"."""
+so later writes on the same thread never see "database is locked". Its finish listeners hear of every execution
+that ends, once, after the write, and of nothing else."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import threading
 import pytest
 
 from schemas import Demonstration
+from schemas.api import ExecutionState
+from schemas.execution import ExecutionPhase
 from services.store import Store
 from skills.synthetic import plane_slide
 
@@ -80,4 +83,27 @@ def test_large_offsets_read_nothing(tmp_path, offset):
     store = Store(tmp_path / "s.db")
     store.add_demonstration(_demonstration())
     assert len(store.list_demonstrations(limit=10, offset=offset)) == (1 if offset == 0 else 0)
+    store.close()
+
+
+def test_finish_listeners_hear_each_execution_that_ends_once_and_after_the_write(tmp_path):
+    """What wakes the queue and the sweeps (`Store.on_finish`): a terminal status applied (a final status, a lost
+    worker's executions), not a running one, not a write to an execution already finished; a failing listener
+    undoes nothing."""
+    store = Store(tmp_path / "s.db")
+    heard: list[tuple[str, str]] = []
+    store.on_finish(lambda execution_id: heard.append((execution_id, store.execution(execution_id).status.value)))
+    store.on_finish(lambda execution_id: 1 / 0)
+    a, b, c = (store.add_execution({"n": k}, None) for k in range(3))
+    for row in (b, c):
+        store.mark_started(row.id, "worker-x")
+    store.mark_started(a.id, "worker-y")
+    assert store.update_execution(a.id, ExecutionState.running, ExecutionPhase.contact)
+    assert heard == []
+    assert store.update_execution(a.id, ExecutionState.done, ExecutionPhase.done, metrics={"steps": 3})
+    assert heard == [(a.id, "done")]  # the listener reads the committed status
+    assert not store.update_execution(a.id, ExecutionState.failed, ExecutionPhase.failed)  # finished stays finished
+    assert sorted(store.fail_active("worker worker-x was lost", "worker-x")) == sorted([b.id, c.id])
+    assert sorted(heard[1:]) == sorted([(b.id, "failed"), (c.id, "failed")])
+    assert store.execution(a.id).status is ExecutionState.done
     store.close()

@@ -3,7 +3,8 @@
 On the real stack (`contact-skills up --workers 2`: embedded Zenoh router, the API, two PyBullet workers as
 processes): a 12-trial sweep whose every trial's metrics are stored and whose success rate is the one the stored
 trials give; a worker SIGKILLed mid-sweep and its trial run again elsewhere (a physical abort is NOT run again); the
-live progress on Zenoh; the same seed giving the same parameters and the same metrics. In process: the sweep's
+live progress on Zenoh; the same seed giving the same parameters and the same metrics, with the trials' telemetry
+off (the default: none sent or stored) or streamed and stored (``store_telemetry``). In process: the sweep's
 knobs change the simulated cell as the ground truth says (an unknown tilt turns the real surface, not the skill;
 the force scale; an untared sensor bias), the trial design is reproducible and stratified, and the sensitivity
 ranking finds the parameter that drives the failures; bad input is a 422 naming the field.
@@ -21,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from schemas.execution import ExecutionPhase, ExecutionSettings
+from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.sweep import ParameterRange, Sampler, SweepParameter
 from skills.sweeps import Outcome, sensitivity, trial_parameters, trial_success
 
@@ -146,6 +147,7 @@ def test_the_cli_spells_out_the_schema_names():
         ({"sampler": "grid"}, ["body", "sampler"]),
         ({"success_rms_pct": -1}, ["body", "success_rms_pct"]),
         ({"priority": 5}, ["body", "priority"]),
+        ({"settings": {"telemetry": "stream"}}, ["body", "settings"]),
     ],
 )
 def test_bad_sweeps_are_422_naming_the_field(client, change, loc):
@@ -194,9 +196,8 @@ SWEEP = {
 }
 """A bias beyond about -1.5 N reads as contact in free space: those trials abort (lost contact), a physical
 result that is never run again; the threshold splits the rest."""
-COMPARED = ("phase", "true_force_rms_error_pct", "true_force_max_error_pct", "touchdown_peak_ratio", "contact_ratio",
-            "steps", "abort_reason")  # fmt: skip
-"""The metrics a deterministic simulation repeats exactly (not the wall-clock real-time factor)."""
+COMPARED = tuple(name for name in ExecutionMetrics.model_fields if name != "real_time_factor")
+"""The metrics a deterministic simulation repeats exactly: all but the wall-clock real-time factor."""
 
 
 @pytest.fixture(scope="module")
@@ -248,10 +249,10 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
         created = stack.post("/sweeps", {**SWEEP, "skill_id": skill_id}, 202)
         assert created["executions"] == TRIALS and created["progress_key"] == f"cskills/sweeps/{created['id']}/progress"
 
-        def victim():  # a trial's execution well under way
+        def victim():  # a trial's execution well under way (its statuses say it presses; no telemetry is sent)
             for trial in stack.http.get(f"/sweeps/{created['id']}/trials").json():
                 running = trial["status"] == "running" and trial["execution_id"]
-                if running and stack.execution(trial["execution_id"])["telemetry_samples"] > 1500:
+                if running and stack.execution(trial["execution_id"])["phase"] == "contact":
                     return trial
             return None
 
@@ -267,9 +268,13 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
     assert view["status"] == "done"
     trials = stack.http.get(f"/sweeps/{created['id']}/trials").json()
     assert len(trials) == TRIALS and all(t["status"] in ("done", "aborted") for t in trials), trials
-    for trial in trials:  # every trial's metrics stored, and the execution that ran it holds them
+    for trial in trials:  # every trial's metrics stored, and the execution that ran it holds them; no telemetry
         execution = stack.execution(trial["execution_id"])
         assert execution["metrics"] == trial["metrics"] and execution["request"]["sweep"]["trial"] == trial["trial"]
+        assert execution["request"]["telemetry"] == "none" and execution["telemetry_samples"] == 0
+        assert execution["telemetry_missing_samples"] is None
+    refused = stack.http.get(f"/executions/{trials[0]['execution_id']}/telemetry")
+    assert refused.status_code == 409 and "store_telemetry" in refused.json()["detail"], refused.text
     # The killed worker's trial ran again on another worker; its first execution is failed, naming the loss.
     again = next(t for t in trials if t["trial"] == killed["trial"])
     first = stack.execution(killed["execution_id"])
@@ -299,13 +304,20 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
     assert live and live[-1]["status"] == "done" and live[-1]["counts"]["finished"] == TRIALS
     assert [p["counts"]["finished"] for p in live] == sorted(p["counts"]["finished"] for p in live)
 
-    # The same seed: the same trials, the same physics (deterministic simulation), the killed one included.
-    repeat = stack.post("/sweeps", {**SWEEP, "skill_id": skill_id}, 202)
-    assert _finished_sweep(stack, repeat["id"])["status"] == "done"
+    # The same seed, now streaming and storing every trial's telemetry: the same trials, the same physics
+    # (deterministic simulation), the killed one included, so the same metrics and success rates either way.
+    repeat = stack.post("/sweeps", {**SWEEP, "skill_id": skill_id, "store_telemetry": True}, 202)
+    repeated_view = _finished_sweep(stack, repeat["id"])
+    assert repeated_view["status"] == "done" and repeated_view["counts"]["reruns"] == 0
     repeated = stack.http.get(f"/sweeps/{repeat['id']}/trials").json()
     assert [t["parameters"] for t in repeated] == [t["parameters"] for t in trials]
     for a, b in zip(trials, repeated, strict=True):
         assert {k: a["metrics"][k] for k in COMPARED} == {k: b["metrics"][k] for k in COMPARED}, (a, b)
+        assert (a["success"], a["status"]) == (b["success"], b["status"])
+        execution = stack.execution(b["execution_id"])
+        assert execution["request"]["telemetry"] == "stream" and execution["telemetry_missing_samples"] == 0
+        assert execution["telemetry_samples"] == b["metrics"]["steps"]
+    assert repeated_view["controllers"] == view["controllers"]  # success rate, quantiles, failures by cause
     listed = stack.http.get("/sweeps").json()
     assert [s["id"] for s in listed[:2]] == [repeat["id"], created["id"]]
     assert stack.http.post(f"/sweeps/{created['id']}/cancel").status_code == 409

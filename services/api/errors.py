@@ -4,10 +4,10 @@ becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodi
 - 422: any bad body or parameter — pydantic's errors, plus `LearningError` and `CsvImportError`
   with ``loc`` naming the field (``["body", "demonstration", "wrenches"]``, ``["body", "file"]``);
   error entries never echo large inputs back.
-- 404: unknown id. 409: a command to a finished execution. 401: missing/wrong bearer token on
-  POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``; on GET too with
-  ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed request
-  or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
+- 404: unknown id. 409: a command to a finished execution, the telemetry of one run without it. 401:
+  missing/wrong bearer token on POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``; on GET
+  too with ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed
+  request or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
 - 503: no Zenoh bus or no sim worker connected; 504: a recording timed out.
 - 500 only for a bug: logged with its traceback, answered with a short JSON body.
 """
@@ -78,6 +78,16 @@ def recording_timed_out(exc: TimeoutError) -> HTTPException:
 
 def already_finished(execution_id: str, status: str) -> HTTPException:
     return HTTPException(409, f"execution {execution_id} has already finished ({status})")
+
+
+def no_telemetry(execution_id: str, sweep: dict[str, Any] | None) -> HTTPException:
+    """409: the execution ran with ``telemetry`` ``none`` (``sweep``: the sweep and trial it ran for, if any)."""
+    origin = f" (trial {sweep['trial']} of sweep {sweep['id']}, which did not ask for store_telemetry)" if sweep else ""
+    return HTTPException(
+        409,
+        f"execution {execution_id} ran with telemetry 'none'{origin}: no telemetry was published or stored; its "
+        "metrics are in GET /executions/{id}. Run it with telemetry 'stream' to record the stream.",
+    )
 
 
 def not_running(execution_id: str, status: str) -> HTTPException:

@@ -72,7 +72,9 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         telemetry_key=keys.telemetry(row.id),
         telemetry_batches=batches,
         telemetry_samples=samples,
-        telemetry_missing_samples=max(0, row.metrics["steps"] - samples) if row.metrics else None,
+        telemetry_missing_samples=(
+            max(0, row.metrics["steps"] - samples) if row.metrics and row.streams_telemetry else None
+        ),
         request=row.request,
         priority=row.priority,
         queue_position=position,
@@ -218,7 +220,7 @@ def resume_execution(
 
 @router.get(
     "/executions/{execution_id}/telemetry",
-    responses={200: {"model": TelemetryView, **EXPORT_RESPONSES[200]}, **ERROR_RESPONSES},
+    responses={200: {"model": TelemetryView, **EXPORT_RESPONSES[200]}, **ERROR_RESPONSES, 409: {"model": ApiError}},
 )
 def get_telemetry(
     execution_id: str,
@@ -231,10 +233,13 @@ def get_telemetry(
     """The recorded telemetry stream (wrenches, poses, references, phases): JSON columns, CSV or MCAP.
 
     ``t0``/``t1`` (s of the execution's time) cut a window, ``every`` decimates; MCAP holds ROS 2 messages
-    (poses, wrenches in world and CF, desired force, phases, /tf) stamped from the execution's creation time."""
+    (poses, wrenches in world and CF, desired force, phases, /tf) stamped from the execution's creation time.
+    409 for an execution run with ``telemetry`` ``none`` (e.g. a sweep's trial): it never had a stream."""
     from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, execution_csv, execution_mcap, window_mask
 
     row = _found(store, execution_id)
+    if not row.streams_telemetry:
+        raise errors.no_telemetry(execution_id, row.request.get("sweep"))
     errors.check_window(t0, t1)
     matrix = store.telemetry(execution_id)
     picked = matrix[window_mask(matrix[:, 0], t0, t1)][::every]
