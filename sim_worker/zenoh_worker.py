@@ -629,10 +629,10 @@ class Worker:
                 self._recording = False
 
     def _record(self, query, request: RecordRequest) -> None:
-        from sim_worker.teacher import record_demonstration
-
         started = time.perf_counter()
-        try:
+        try:  # the import too: whatever fails, the query is answered and the worker is free again
+            from sim_worker.teacher import record_demonstration
+
             log.info("recording %s (seed %d, overrides %s)", request.scenario, request.seed, request.overrides)
             recording = record_demonstration(request.scenario, request.seed, **request.overrides)
             reply = RecordReply(
