@@ -297,8 +297,7 @@ class WorldGeometry:
                 base=c.block_base_height_m,
                 width=c.block_width_m,
             )
-        for k, piece in enumerate(c.work_pieces):
-            name = str(piece.get("name", f"work_piece_{k}"))
+        for name, piece in zip(self.work_piece_names() if c.work_pieces else [], c.work_pieces, strict=True):
             self.solids[name] = ConvexSolid(name, np.eye(3), np.zeros(3), np.asarray(piece["vertices"], dtype=float))
         if any(c.work_piece_tilt_deg):
             self._tilt_work_piece()

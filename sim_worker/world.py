@@ -205,8 +205,8 @@ class SimWorld:
             pybullet.changeDynamics(
                 self.robot, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0, physicsClientId=cid
             )
-        self._layers = {str(p.get("name", f"work_piece_{k}")): int(p.get("layers", 1)) for k, p in
-                        enumerate(c.work_pieces)}  # fmt: skip
+        names = self.geometry.work_piece_names() if c.work_pieces else []
+        self._layers = {name: int(p.get("layers", 1)) for name, p in zip(names, c.work_pieces, strict=True)}
         self._most_layers = max(self._layers.values(), default=1)
         pybullet.changeDynamics(
             self.robot,
@@ -408,8 +408,7 @@ class SimWorld:
 
     def _joints_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Joint positions and velocities (7,) each of this step: views of the arm state."""
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         return self._arm_q, self._arm_qd
 
     def _arm_raw(self) -> NDArray[np.float64]:
@@ -430,13 +429,11 @@ class SimWorld:
 
     def _pose_raw(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) and tool quaternion (4,), views of this step's arm state."""
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         return self._arm_position, self._arm_quat
 
     def _rotation_raw(self) -> NDArray[np.float64]:
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         return self._arm_rotation
 
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -449,8 +446,7 @@ class SimWorld:
         return self._rotation_raw().copy()
 
     def _jacobian_raw(self) -> NDArray[np.float64]:
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         return self._arm_jacobian
 
     def jacobian(self) -> NDArray[np.float64]:
@@ -462,8 +458,7 @@ class SimWorld:
         return self._jacobian_raw() @ self._joints_raw()[1]
 
     def _gravity_coriolis_raw(self) -> NDArray[np.float64]:
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         return self._arm_bias
 
     def gravity_coriolis_torques(self) -> NDArray[np.float64]:
@@ -486,11 +481,9 @@ class SimWorld:
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
         returned as cached (read-only by contract, see :class:`Sensing`).
         """
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         wrench = self._measured_wrench()
-        if not self._contact_fresh:
-            self._contact_summary()
+        self._contact_summary()
         return Sensing(self._arm_q, self._arm_qd, self._arm_position, self._arm_quat, wrench, self._touching)
 
     def robot_state(self) -> NDArray[np.float64]:
@@ -552,14 +545,12 @@ class SimWorld:
     # -- contact -------------------------------------------------------------------------------------------------
 
     def _contact_points(self) -> tuple:
-        if not self._contact_fresh:
-            self._contact_summary()
+        self._contact_summary()
         return self._points
 
     def in_contact(self) -> bool:
         """Whether the tool touches anything (a contact point at zero or negative distance, or carrying force)."""
-        if not self._contact_fresh:
-            self._contact_summary()
+        self._contact_summary()
         return self._touching
 
     def contacts(self) -> list[dict[str, Any]]:
@@ -585,14 +576,15 @@ class SimWorld:
         ``-normalForce * n_B + f1 * d1 + f2 * d2`` (sign verified by tests: pressing a table gives ``fz < 0``,
         sliding drags the table along the tool velocity). Moments about the tool point from the contact positions.
         """
-        if not self._contact_fresh:
-            self._contact_summary()
+        self._contact_summary()
         return self._applied.copy()
 
     def _contact_summary(self) -> None:
         """Read the contact points (one PyBullet query) and sum them in one pass: the exact applied wrench
         (``_applied``, see :meth:`true_contact_wrench`), the contact flag, the normal force and its direction (see
-        :meth:`true_normal_force`), kept until the next step."""
+        :meth:`true_normal_force`), kept until the next step (nothing to do when this step's are read)."""
+        if self._contact_fresh:
+            return
         points = self._points = pybullet.getContactPoints(
             bodyA=self.robot, linkIndexA=TOOL_LINK, physicsClientId=self._cid
         )
@@ -643,8 +635,7 @@ class SimWorld:
     def true_normal_state(self) -> NDArray[np.float64]:
         """:meth:`true_normal_force` as the array (4,) ``[force, nx, ny, nz]`` of this step, for a control loop's
         telemetry (the array itself, read-only as :class:`Sensing`; ground truth, not a measurement)."""
-        if not self._contact_fresh:
-            self._contact_summary()
+        self._contact_summary()
         return self._true_normal
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -684,23 +675,20 @@ class SimWorld:
     def _wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:
         """:meth:`wrist_wrench` written into ``out`` (6,); returns it."""
         reaction = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
-        if not self._arm_fresh:
-            self._arm_raw()
+        self._arm_raw()
         _wrist_wrench(reaction, self._arm, self._tool_weight, self._tool_com[2], out)
         return out
 
     def _measured_wrench(self) -> NDArray[np.float64]:
         """This step's sensor reading (the array itself): the sensor samples once per simulated state."""
         if self.sensor.ideal:
-            if not self._contact_fresh:
-                self._contact_summary()
+            self._contact_summary()
             return self._applied
         if not self._measured_fresh:
             if self._wrist:
                 source = self._wrist_wrench_into(self._source)
             else:
-                if not self._contact_fresh:
-                    self._contact_summary()
+                self._contact_summary()
                 source = self._applied
             self.sensor.measure_into(source, self._measured)
             self._measured_fresh = True
