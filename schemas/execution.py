@@ -317,8 +317,9 @@ class EnvironmentChange(BaseModel):
     sensor: SensorChoice = Field(SensorChoice.wrist, description="The force/torque sensor the controller reads.")
     sensor_bias_n: Bias3 = Field(
         default_factory=lambda: [0.0, 0.0, 0.0],
-        description="A constant force bias the tare did not remove (e.g. a thermal offset), added to every sensor "
-        "reading [fx, fy, fz], world frame, N (the controller is not told).",
+        description="A constant force offset of every sensor reading [fx, fy, fz], world frame, N (as a "
+        "misestimated tool weight; the controller is not told). The tare before contact (tare_sensor) removes it "
+        "in the tool orientation of the tare; what the tool turns away from it stays.",
     )
     sensor_noise_n: float | None = Field(
         None,
@@ -395,8 +396,8 @@ class ExecutionSettings(BaseModel):
         gt=0,
         le=0.2,
         description="Speed at which the tool meets the surface, m/s; default: from the first target force F and the "
-        "contact stiffness k so that the impact stays below the target (v = 0.8 F / sqrt(k m), m the arm's apparent "
-        "mass along CF z), within [0.5 mm/s, approach_speed_m_s].",
+        "contact stiffness k and damping c so that the impact stays below the target (v = 0.8 F / max(sqrt(k m), c), "
+        "m the arm's apparent mass along CF z), within [0.5 mm/s, approach_speed_m_s].",
     )
     approach_max_distance_m: float = Field(
         0.15, gt=0, le=0.5, description="Longest guarded approach before aborting with 'contact not found', m."
@@ -416,6 +417,15 @@ class ExecutionSettings(BaseModel):
         description="hybrid_cf on slide segments: turn the CF z towards the surface normal estimated online from the "
         "applied force without its friction part (within 40 deg of the learned one, 60 deg/s at most), for a "
         "surface tilted differently than taught. Off: the paper's fixed CF.",
+    )
+    tare_sensor: bool = Field(
+        True,
+        description="Tare the wrist force/torque sensor in free space before contact, as a real cell does: the tool "
+        "holds still for 0.2 s at the start pose and at the pre-contact point before each later guarded approach, "
+        "and the mean reading of the last 0.1 s (tool frame) is removed from every reading after it. Removes the "
+        "sensor's offset and drift so far; an offset fixed in the world (a misestimated tool weight) only in the "
+        "orientation of the tare. Off: the readings keep whatever offset the sensor has. The ideal sensor is never "
+        "tared.",
     )
     settle_s: float = Field(
         0.5, ge=0, le=10, description="Time to settle at the start pose before the first segment, s."

@@ -8,6 +8,9 @@ settle) and runs the segments at 1 kHz:
   (known-offset-shifted) goal, ``S = I``. A free segment followed by a contact segment ends
   ``approach_clearance_m`` before the taught contact point (back along CF z) and is guarded: a
   contact force along the next CF z ends it early.
+- **tare** (``tare_sensor``, a non-ideal sensor): at the end of the settle at the start pose, and in a 0.2 s still
+  hold at the pre-contact point before each later approach, the wrist sensor is tared with its mean reading
+  (tool frame), so a sensor offset does not read as a touch-down in free space.
 - **approach** (before a contact segment that follows a free one): the reference moves along
   +CF z at ``approach_speed_m_s`` (impedance, ``S = I``) until the measured CF-z force exceeds
   the contact threshold (abort "contact not found" after ``approach_max_distance_m``); then,
@@ -72,6 +75,7 @@ from skills.control import (
 )
 from skills.frames import rotation_from_vectors
 from skills.normal_tracking import SurfaceNormalTracker
+from skills.quaternions import matrix_from_quaternion
 
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
@@ -80,6 +84,11 @@ TOUCHDOWN_IMPACT_FRACTION = 0.8
 desired force ramps up, so the touch-down peak is then the target itself."""
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less)."""
+TARE_HOLD_S = 0.2
+"""With ``tare_sensor``, the tool holds still this long in free space (the start pose's settle, the pre-contact point
+before each later guarded approach) and the wrist sensor is tared with its mean reading over the last
+``TARE_AVERAGE_S``, s."""
+TARE_AVERAGE_S = 0.1
 CONTACT_LOSS_TRAVEL_M = 0.01
 """In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
 (an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
@@ -247,6 +256,8 @@ class _Execution:
             self.contact_threshold = float(gains.contact_force_threshold_n)
         else:
             self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
+        self.tares = settings.tare_sensor and not self.world.sensor.ideal
+        """Whether the sensor is tared in free space before the guarded approaches (an ideal sensor has no offset)."""
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.contact_threshold, self.dt)
         self.geometry = self.planner.geometry
         self._cf_rotation = np.eye(3)
@@ -415,13 +426,26 @@ class _Execution:
             raise ExecutionAbortError(plan.exhausted_reason)
         return "done"
 
+    def _tare_sensor(self) -> None:
+        """Tare the wrist sensor with its mean reading over the last ``TARE_AVERAGE_S`` of telemetry (the tool held
+        still in free space), taken in the TOOL frame where a sensor offset lives: the readings there carry the
+        previous tare removed, so it is added back."""
+        rows = self.rows[max(0, self.n - round(TARE_AVERAGE_S / self.dt)) : self.n]
+        rotations = matrix_from_quaternion(rows[:, _C_POSE + 3 : _C_POSE + 7])  # world from tool
+        wrench = rows[:, _C_WRENCH : _C_WRENCH + 6]
+        force = np.einsum("nji,nj->i", rotations, wrench[:, :3]) / len(rows)
+        moment = np.einsum("nji,nj->i", rotations, wrench[:, 3:]) / len(rows)
+        self.world.tare_sensor(self.world.sensor_tare + np.concatenate((force, moment)))
+
     def _touchdown_speed(self, segment: Segment) -> float:
         """The speed (m/s) at which the tool meets the surface: given, or ``TOUCHDOWN_IMPACT_FRACTION`` of the first
-        target force over the contact's impedance ``sqrt(k m)`` (``k`` the contact stiffness, ``m`` the arm's
-        apparent mass along CF z now), clipped to ``[TOUCHDOWN_SPEED_MIN_M_S, approach_speed_m_s]``.
+        target force over the contact's impedance ``max(sqrt(k m), c)`` (``k`` and ``c`` the contact stiffness and
+        damping, ``m`` the arm's apparent mass along CF z now), clipped to
+        ``[TOUCHDOWN_SPEED_MIN_M_S, approach_speed_m_s]``.
 
         A tool of apparent mass m meeting a spring k at speed v peaks at ``v sqrt(k m)`` above the press it is
-        commanded to (measured here: 2.2 kN·s/m on 1e6 N/m, 0.4 kN·s/m on 3e4 N/m)."""
+        commanded to (measured here: 2.2 kN·s/m on 1e6 N/m, 0.4 kN·s/m on 3e4 N/m); a damper c above
+        ``sqrt(k m)`` raises that to ``c v`` (see :meth:`_contact_impedance`)."""
         s = self.settings
         if s.touchdown_speed_m_s is not None:
             return float(s.touchdown_speed_m_s)
@@ -430,17 +454,25 @@ class _Execution:
         return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
 
     def _contact_impedance(self, z: NDArray[np.float64]) -> float:
-        """``sqrt(k m)`` (N·s/m) of a contact along the world direction ``z``: ``k`` the contact stiffness, ``m``
-        the arm's apparent mass along ``z`` in its pose now."""
+        """The touch-down peak per unit impact speed (N·s/m) of a contact along the world direction ``z``:
+        ``max(sqrt(k m), c)``, ``k`` and ``c`` the contact's stiffness and damping, ``m`` the arm's apparent mass along
+        ``z`` in its pose now.
+
+        A mass ``m`` meeting a spring ``k`` and a damper ``c`` side by side at speed ``v`` peaks at
+        ``v sqrt(k m) g(ζ)``, ``ζ = c / (2 sqrt(k m))``: ``g`` stays at or below 1 up to ``ζ = 1/2`` (the damper takes
+        off some of the spring's peak) and is ``2ζ`` above it (the damper's ``c v`` at the first instant is the peak;
+        worked out from the closed-form motion). The maximum of the two bounds both."""
         J, _, M = self.world.dynamics(True)
         mobility = J[:3] @ np.linalg.solve(M, J[:3].T)  # Λ^-1, translational block
         mass = 1.0 / max(float(z @ mobility @ z), 1e-9)
-        return math.sqrt(self.world_config.contact_stiffness * mass)
+        config = self.world_config
+        return max(math.sqrt(config.contact_stiffness * mass), config.contact_damping)
 
     def _crease_speed(self, before: Segment, after: Segment) -> float | None:
         """The tangential speed (m/s) at which to pass the crease between two contact segments, or None when their
         CF z differ by less than ``CREASE_MIN_ANGLE_RAD``: the next surface is met at ``v sin θ`` along its normal,
-        an impact of about ``v sin θ sqrt(k m)`` on top of the press, kept to ``CREASE_IMPACT_FRACTION`` of it."""
+        an impact of about ``v sin θ`` times :meth:`_contact_impedance` on top of the press, kept to
+        ``CREASE_IMPACT_FRACTION`` of it."""
         z_before = self.geometry[before.index].rotations[-1][:, 2]
         z_after = self.geometry[after.index].first_rotation[:, 2]
         sin_angle = float(np.linalg.norm(np.cross(z_before, z_after)))
@@ -501,17 +533,10 @@ class _Execution:
         self.world.reset(q_joints)
         self.controller.reset(posture=q_joints)
         self.wall_start = time.perf_counter()
-        n_settle = max(1, round(s.settle_s / self.dt))
-        settle = PhasePlan(
-            ExecutionPhase.settle,
-            -1,
-            np.broadcast_to(p_start, (n_settle, 3)),
-            np.broadcast_to(q_start_ref, (n_settle, 4)),
-            np.zeros((n_settle, 6)),
-            np.zeros(n_settle),
-            frame=self.planner.identity_frame,
-        )
-        self.run_plan(settle)
+        settle_s = max(s.settle_s, TARE_HOLD_S) if self.tares else s.settle_s
+        self.run_plan(self.planner.still(ExecutionPhase.settle, -1, p_start, q_start_ref, settle_s))
+        if self.tares:
+            self._tare_sensor()
         last_ref_q = q_start_ref
         in_contact_run = False
         f_last: float | None = None
@@ -536,6 +561,10 @@ class _Execution:
             if not in_contact_run:
                 self.controller.reset_integral()
                 if not found_early:
+                    if self.tares and i > 0:  # (the settle tared at the first segment's pre-contact point)
+                        hold = planner.still(ExecutionPhase.approach, segment.index, goal, last_ref_q, TARE_HOLD_S)
+                        self.run_plan(hold)
+                        self._tare_sensor()
                     speed = self._touchdown_speed(segment)
                     self.run_plan(planner.approach(segment, tool_pose()[0], last_ref_q, speed))
                 self._record_contact_offset(segment)

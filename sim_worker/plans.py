@@ -152,6 +152,21 @@ class PhasePlanner:
         self.geometry = {s.index: contact_geometry(s, offset) for s in skill.segments if s.kind is SegmentKind.contact}
         self.identity_frame = controller.frame(np.eye(3), SELECTION_FREE)
 
+    def still(self, phase: ExecutionPhase, segment_index: int, p: NDArray, q: NDArray, duration_s: float) -> PhasePlan:
+        """Hold the tool pose ``(p, q)`` (m, scalar-last quaternion, world) still in free space for ``duration_s``
+        (at least one step), motion control on every axis: the settle at the start pose, the tare before a guarded
+        approach."""
+        n = max(1, round(duration_s / self.dt))
+        return PhasePlan(
+            phase,
+            segment_index,
+            np.broadcast_to(p, (n, 3)),
+            np.broadcast_to(q, (n, 4)),
+            np.zeros((n, 6)),
+            np.zeros(n),
+            frame=self.identity_frame,
+        )
+
     def free(
         self, segment: Segment, p: NDArray, q: NDArray, goal: NDArray[np.float64], stop_axis: NDArray | None
     ) -> PhasePlan:

@@ -10,10 +10,11 @@ docs/CONVENTIONS.md). Its source (``WorldConfig.sensor_model``):
   tool's inertia is not, so accelerating the tool shows up (0.2 kg x a).
 
 Then, once per control step and in this order: a bias that drifts as a random walk
-(``wrench_bias_drift_n_per_sqrt_s``; the sensor is tared at the start), white noise (``wrench_noise_*``), a constant
-force bias the tare did not remove (``wrench_bias_n``, world frame), a delay
+(``wrench_bias_drift_n_per_sqrt_s``, zero at the start), white noise (``wrench_noise_*``), a constant force offset
+fixed in the world (``wrench_bias_n``, as a misestimated tool weight), a delay
 (``wrench_delay_s``, whole steps) and the driver's first-order low-pass (``wrench_filter_cutoff_hz``). With none
-of them and the ideal source the controller reads the exact wrench.
+of them and the ideal source the controller reads the exact wrench. A tare (``SimWorld.tare_sensor``, which the
+executor takes in free space before contact) removes an offset in the tool frame from the readings after it.
 
 :data:`WRIST_SENSOR` is what a real cell has (values of a small six-axis sensor at 1 kHz, e.g. the
 ATI Mini45 class: 0.06 N / 0.002 N·m noise, 2 ms of transport and driver delay, a 200 Hz driver filter, a
@@ -85,7 +86,8 @@ class WrenchSensor:
         self.reset()
 
     def reset(self) -> None:
-        """Tare: zero bias, empty delay line, filter restarts from the next reading."""
+        """Start afresh (a new run, ``SimWorld.reset``): zero drift, empty delay line, the filter restarts from the
+        next reading."""
         self._bias[:] = 0.0
         self._counters[:] = 0
 

@@ -164,6 +164,16 @@ def _wrist_wrench(reaction, arm, weight, com_z, out):  # pragma: no cover - comp
     out[5] = r[6] * mx + r[7] * my + r[8] * mz
 
 
+@numba.njit(cache=True)
+def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
+    """Subtract the sensor's ``tare`` (6,: force, moment, TOOL frame) turned into the world with the tool orientation
+    in ``arm`` (``ROBOT_ROTATION``, world from tool by rows) from ``wrench`` (6,, world), in place."""
+    r = arm[_ROTATION : _ROTATION + 9]
+    for i in range(3):
+        wrench[i] -= r[3 * i] * tare[0] + r[3 * i + 1] * tare[1] + r[3 * i + 2] * tare[2]
+        wrench[3 + i] -= r[3 * i] * tare[3] + r[3 * i + 1] * tare[4] + r[3 * i + 2] * tare[5]
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # The PyBullet world.
 # ---------------------------------------------------------------------------------------------------------------
@@ -236,6 +246,9 @@ class SimWorld:
         """The sensor's reading this step (a non-ideal sensor's; the ideal one reads ``_applied``)."""
         self._source = np.zeros(6)
         """The wrist sensor's source wrench this step (see :meth:`wrist_wrench`)."""
+        self._tare = np.zeros(6)
+        """The offset a tare removes from every reading (see :meth:`tare_sensor`), tool frame, N and N·m."""
+        self._tared = False
         self._mass = np.zeros((N_JOINTS, N_JOINTS))
         self._points: tuple = ()
         self._touching = False
@@ -392,6 +405,8 @@ class SimWorld:
         """Set the joints to ``q`` (default ``Q_HOME``: tool pointing down above the table) at rest."""
         self.set_joint_positions(Q_HOME if q is None else q)
         self.sensor.reset()
+        self._tare[:] = 0.0
+        self._tared = False
         self.last_step_clipped = False
         self.clip_count = 0
         self.step_count = 0
@@ -691,8 +706,31 @@ class SimWorld:
                 self._contact_summary()
                 source = self._applied
             self.sensor.measure_into(source, self._measured)
+            if self._tared:
+                _remove_tare(self._measured, self._arm_raw(), self._tare)
             self._measured_fresh = True
         return self._measured
+
+    @property
+    def sensor_tare(self) -> NDArray[np.float64]:
+        """The offset the last :meth:`tare_sensor` removes from every reading (6,), tool frame, N and N·m (a copy)."""
+        return self._tare.copy()
+
+    def tare_sensor(self, offset: ArrayLike) -> None:
+        """Tare the force/torque sensor, as a real driver's bias command does: from the next reading on, ``offset``
+        (6,: force N, moment N·m, in the TOOL frame: the sensor turns with the tool) is removed from every reading,
+        turned into the world with the tool's orientation at that reading. ``reset()`` clears it.
+
+        An offset that turns with the sensor (its own bias, its drift) is removed in any pose; one that is fixed in
+        the world (a misestimated tool weight, ``WorldConfig.wrench_bias_n``) only in the orientation of the tare.
+        The ideal sensor reads the exact wrench and is never tared (ValueError)."""
+        if self.sensor.ideal:
+            raise ValueError("the ideal sensor reads the exact contact wrench: there is nothing to tare")
+        tare = np.asarray(offset, dtype=float)
+        if tare.shape != (6,) or not np.all(np.isfinite(tare)):
+            raise ValueError(f"tare: expected 6 finite numbers (force N, moment N·m, tool frame), got {offset!r}")
+        self._tare[:] = tare
+        self._tared = bool(np.any(tare != 0.0))  # this step's reading stays as sampled: one reading per state
 
     # -- kinematics ----------------------------------------------------------------------------------------------
 

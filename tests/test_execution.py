@@ -292,15 +292,22 @@ def _flat_skill_pressing(target_n: float):
     return learn_skill(record_demonstration("slide_flat", seed=0, target_force_n=target_n).demonstration)
 
 
-@pytest.mark.parametrize(("target_n", "stiffness"), [(5.0, 3e4), (5.0, 1e6), (30.0, 1e6)])
-def test_touch_down_stays_within_20_percent_of_the_target_on_soft_and_stiff_surfaces(target_n, stiffness) -> None:
+@pytest.mark.parametrize(
+    ("target_n", "stiffness", "damping"), [(5.0, 3e4, 300.0), (5.0, 1e6, 300.0), (30.0, 1e6, 300.0), (5.0, 1e4, 1e3)]
+)
+def test_touch_down_stays_within_20_percent_of_the_target_on_soft_and_stiff_surfaces(
+    target_n, stiffness, damping
+) -> None:
     """The touch-down speed follows from the target and the contact stiffness (a 3 cm/s approach would peak at 13 N
-    for a 5 N skill on the pad and at 70 N on a 1e6 N/m surface); judged by the TRUE normal force."""
+    for a 5 N skill on the pad and at 70 N on a 1e6 N/m surface) and its damping where that dominates (a soft, heavily
+    damped pad: from the stiffness alone the damper's c·v gave 2-6x the target in the sweeps); judged by the TRUE
+    normal force."""
     from sim_worker.execution_world import execution_world
     from sim_worker.executor import run_skill
 
     skill = _flat_skill_pressing(target_n)
-    settings = ExecutionSettings(environment={"contact_stiffness_n_m": stiffness, "unknown_offset": [0, 0, -0.01]})
+    pad = {"contact_stiffness_n_m": stiffness, "contact_damping_n_s_m": damping}
+    settings = ExecutionSettings(environment={**pad, "unknown_offset": [0, 0, -0.01]})
     metrics = run_skill(execution_world(skill, settings.environment), settings).metrics
     assert metrics.phase is ExecutionPhase.done, metrics.abort_reason
     assert metrics.touchdown_peak_ratio <= 1.2, metrics.touchdown_peak_n

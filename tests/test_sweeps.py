@@ -92,11 +92,11 @@ def plain(short_slide):
     return _metrics(short_slide, sensor="ideal")
 
 
-def _metrics(skill, **environment):
+def _metrics(skill, tare_sensor: bool = True, **environment):
     from sim_worker.execution_world import execution_world
     from sim_worker.executor import run_skill
 
-    settings = ExecutionSettings(environment=environment)
+    settings = ExecutionSettings(environment=environment, tare_sensor=tare_sensor)
     return run_skill(execution_world(skill, settings.environment), settings).metrics
 
 
@@ -110,16 +110,34 @@ def test_an_unknown_tilt_turns_the_real_surface_and_not_the_skill(short_slide, p
     assert plain.cf_normal_angle_deg < 0.1
 
 
-def test_force_scale_and_an_untared_bias_change_the_true_force(short_slide, plain):
-    """The force scale multiplies the learned force (the % refer to the scaled one); an untared +1 N bias along
-    world z reads as 1 N less pressing, so the controller presses 1 N harder: the TRUE error gains a 1 N mean
-    (RMS² = mean² + variance: the squares differ by ~1 N² as the unbiased run's mean error is ~0)."""
+def test_force_scale_changes_the_true_force_and_the_tare_removes_a_bias_that_would(short_slide, plain):
+    """The force scale multiplies the learned force (the % refer to the scaled one). A +1 N bias along world z reads
+    as 1 N less pressing: left in (``tare_sensor`` off), the controller presses 1 N harder and the TRUE error gains a
+    1 N mean (RMS² = mean² + variance: the squares differ by ~1 N² as the unbiased run's mean error is ~0); the tare
+    in free space before contact (the default) removes it, and the true error is the unbiased run's."""
     scaled = _metrics(short_slide, sensor="ideal", force_scale=1.4)
     assert scaled.force_reference_n == pytest.approx(1.4 * plain.force_reference_n, rel=1e-9)
     assert scaled.phase is ExecutionPhase.done and scaled.true_force_rms_error_pct < 10
-    biased = _metrics(short_slide, sensor="ideal", sensor_bias_n=[0.0, 0.0, 1.0])
+    biased = _metrics(short_slide, tare_sensor=False, sensor="ideal", sensor_bias_n=[0.0, 0.0, 1.0])
     shift = math.sqrt(biased.true_force_rms_error_n**2 - plain.true_force_rms_error_n**2)
     assert shift == pytest.approx(1.0, abs=0.15)
+    tared = _metrics(short_slide, sensor="ideal", sensor_bias_n=[0.0, 0.0, 1.0])
+    assert tared.phase is ExecutionPhase.done
+    assert tared.true_force_rms_error_n == pytest.approx(plain.true_force_rms_error_n, abs=0.02)
+
+
+def test_a_bias_that_reads_as_a_touch_down_in_free_space_is_tared_away(short_slide):
+    """-1 N along world z reads as pressing with 1 N, the contact threshold of this 15 N skill. Without the tare the
+    guarded approach stops in the air (noise 0.3 N tips the reading over), the force loop then pushes into nothing
+    and the run aborts with "contact lost" (what 6 of 8 failed slide trials of the 200-trial sweep did); tared in
+    free space before contact, the run is the unbiased one's (TRUE normal force)."""
+    biased = {"sensor_bias_n": [0.0, 0.0, -1.0], "sensor_noise_n": 0.3}
+    untared = _metrics(short_slide, tare_sensor=False, **biased)
+    assert untared.phase is ExecutionPhase.aborted and "contact lost" in untared.abort_reason
+    tared = _metrics(short_slide, **biased)
+    unbiased = _metrics(short_slide, sensor_noise_n=0.3)
+    assert tared.phase is ExecutionPhase.done and tared.contact_ratio >= 0.99
+    assert tared.true_force_rms_error_pct == pytest.approx(unbiased.true_force_rms_error_pct, abs=0.1)
 
 
 # --------------------------------------------------------------------------------------------- bad input
@@ -192,10 +210,10 @@ SWEEP = {
     "trials": TRIALS,
     "seed": 3,
     "success_rms_pct": 8.0,
-    "settings": {"settle_s": 0.2},
+    "settings": {"settle_s": 0.2, "tare_sensor": False},
 }
-"""A bias beyond about -1.5 N reads as contact in free space: those trials abort (lost contact), a physical
-result that is never run again; the threshold splits the rest."""
+"""A cell that does not tare its sensor: a bias beyond about -1.5 N reads as contact in free space, and those trials
+abort (lost contact), a physical result that is never run again; the threshold splits the rest."""
 COMPARED = tuple(name for name in ExecutionMetrics.model_fields if name != "real_time_factor")
 """The metrics a deterministic simulation repeats exactly: all but the wall-clock real-time factor."""
 

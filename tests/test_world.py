@@ -355,8 +355,32 @@ def test_the_sensor_composes_bias_delay_and_filter_in_the_documented_order() -> 
     for k in range(1, 300):
         expected[k] = expected[k - 1] + alpha * (delayed[k] - expected[k - 1])
     np.testing.assert_allclose(readings, expected, rtol=0, atol=1e-12)
-    sensor.reset()  # a tare empties the delay line and restarts the filter
+    sensor.reset()  # a new run empties the delay line and restarts the filter
     np.testing.assert_allclose(sensor.measure(source[0]), raw[0], rtol=0, atol=1e-12)
+
+
+def test_a_tare_removes_an_offset_in_the_tool_frame_so_a_world_fixed_one_returns_as_the_tool_turns() -> None:
+    """``tare_sensor(offset)`` removes ``offset`` (tool frame) turned into the world at every reading. A bias fixed in
+    the world ``b`` (``wrench_bias_n``, the source the exact wrench: zero in free space), tared in the pose ``R_a``,
+    reads zero there and ``b - R_b R_aᵀ b`` in a turned pose ``R_b``; ``reset()`` clears the tare; the ideal sensor
+    refuses one."""
+    bias = np.array([0.3, -0.2, -0.8])
+    with SimWorld(WorldConfig(wrench_bias_n=tuple(bias))) as world:
+        np.testing.assert_allclose(world.contact_wrench(), np.r_[bias, 0, 0, 0], rtol=0, atol=1e-12)
+        R_a = world.tool_rotation()
+        world.tare_sensor(np.r_[R_a.T @ bias, 0, 0, 0])
+        np.testing.assert_allclose(world.contact_wrench(), np.r_[bias, 0, 0, 0], atol=1e-12)  # from the next reading
+        world.set_joint_positions(Q_HOME)
+        np.testing.assert_allclose(world.contact_wrench(), np.zeros(6), rtol=0, atol=1e-12)
+        turned = np.array(Q_HOME) + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.9])
+        world.set_joint_positions(turned)
+        R_b = world.tool_rotation()
+        assert np.linalg.norm(R_b - R_a) > 0.5
+        np.testing.assert_allclose(world.contact_wrench()[:3], bias - R_b @ R_a.T @ bias, rtol=0, atol=1e-12)
+        world.reset(turned)
+        np.testing.assert_allclose(world.contact_wrench(), np.r_[bias, 0, 0, 0], rtol=0, atol=1e-12)
+    with SimWorld(WorldConfig()) as world, pytest.raises(ValueError, match="nothing to tare"):
+        world.tare_sensor(np.zeros(6))
 
 
 def _stiffness_under(config: WorldConfig, x: float) -> float:
