@@ -396,8 +396,9 @@ class ExecutionSettings(BaseModel):
         gt=0,
         le=0.2,
         description="Speed at which the tool meets the surface, m/s; default: from the first target force F and the "
-        "contact stiffness k and damping c so that the impact stays below the target (v = 0.8 F / max(sqrt(k m), c), "
-        "m the arm's apparent mass along CF z), within [0.5 mm/s, approach_speed_m_s].",
+        "contact stiffness k and damping c so that the impact stays below the target (v = 0.8 max(F, F_c) / "
+        "max(sqrt(k m), c), m the arm's apparent mass along CF z, F_c the contact threshold, which the approach has "
+        "to pass anyway), within [0.5 mm/s, approach_speed_m_s].",
     )
     approach_max_distance_m: float = Field(
         0.15, gt=0, le=0.5, description="Longest guarded approach before aborting with 'contact not found', m."

@@ -439,8 +439,9 @@ class _Execution:
 
     def _touchdown_speed(self, segment: Segment) -> float:
         """The speed (m/s) at which the tool meets the surface: given, or ``TOUCHDOWN_IMPACT_FRACTION`` of the first
-        target force over the contact's impedance ``max(sqrt(k m), c)`` (``k`` and ``c`` the contact stiffness and
-        damping, ``m`` the arm's apparent mass along CF z now), clipped to
+        target force (at least the contact threshold: the approach runs on until the force passes it, so a softer
+        impact buys nothing but time) over the contact's impedance ``max(sqrt(k m), c)`` (``k`` and ``c`` the contact
+        stiffness and damping, ``m`` the arm's apparent mass along CF z now), clipped to
         ``[TOUCHDOWN_SPEED_MIN_M_S, approach_speed_m_s]``.
 
         A tool of apparent mass m meeting a spring k at speed v peaks at ``v sqrt(k m)`` above the press it is
@@ -450,7 +451,8 @@ class _Execution:
         if s.touchdown_speed_m_s is not None:
             return float(s.touchdown_speed_m_s)
         z = self.geometry[segment.index].first_rotation[:, 2]
-        speed = TOUCHDOWN_IMPACT_FRACTION * first_force(segment) / self._contact_impedance(z)
+        impact_n = TOUCHDOWN_IMPACT_FRACTION * max(first_force(segment), self.contact_threshold)
+        speed = impact_n / self._contact_impedance(z)
         return float(np.clip(speed, TOUCHDOWN_SPEED_MIN_M_S, s.approach_speed_m_s))
 
     def _contact_impedance(self, z: NDArray[np.float64]) -> float:

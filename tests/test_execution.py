@@ -314,6 +314,28 @@ def test_touch_down_stays_within_20_percent_of_the_target_on_soft_and_stiff_surf
     assert metrics.true_force_rms_error_pct < 5.0 and metrics.settle_time_s < 0.5
 
 
+@pytest.mark.parametrize(("stiffness", "damping"), [(1e6, 300.0), (1e4, 1e3)])
+def test_a_profile_starting_under_the_contact_threshold_still_touches_down_gently(
+    contour_cylinder, stiffness, damping
+) -> None:
+    """The contour's force profile starts at 0.9 N, under the contact threshold (10 % of its peak, 1.4 N) that the
+    approach has to pass anyway: the touch-down speed budgets that threshold's impact instead of 0.8 x 0.9 N (which
+    crawled at 0.5 mm/s on a stiff surface). The faster touch-down must not overshoot: the TRUE normal force peaks
+    within 20 % of the target on a stiff surface and on a soft, heavily damped pad."""
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    _, skill = contour_cylinder
+    first = next(segment for segment in skill.segments if segment.kind is SegmentKind.contact)
+    assert first.force_dmp is not None and first.force_dmp.start[0] < 1.0  # the case this test is about
+    environment = {"contact_stiffness_n_m": stiffness, "contact_damping_n_s_m": damping}
+    settings = ExecutionSettings(environment=environment)
+    metrics = run_skill(execution_world(skill, settings.environment), settings).metrics
+    assert metrics.phase is ExecutionPhase.done, metrics.abort_reason
+    assert metrics.touchdown_peak_ratio <= 1.2, metrics.touchdown_peak_n
+    assert metrics.contact_ratio >= 0.99
+
+
 def test_a_path_that_runs_off_the_table_stops_pressing_into_nothing(slide_flat) -> None:
     """The table moved 45 cm sideways without telling the controller: the stroke starts on it and runs off its edge.
     The tool may not chase the lost surface (it went 31 cm below the table top before): it stops within the travel
