@@ -264,7 +264,9 @@ class _Execution:
         self._selection = {s.index: s.selection for s in skill.segments}
         """The CF rotation of the control frame in use (world from CF)."""
         # Recording.
-        self.capacity = 4096
+        # Room for the segments and a few seconds of settle, approach and retreat, so the rows rarely grow.
+        planned_s = sum(segment.position_dmp.duration_s for segment in skill.segments) + 5.0
+        self.capacity = max(4096, round(planned_s / self.dt))
         self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
         self.n = 0
         self.emitted = 0
@@ -323,7 +325,7 @@ class _Execution:
         stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
         single = plan.frame
         series, stride = plan.series, plan.stride
-        ref_p = plan.ref_p.tolist()
+        ref_p = plan.ref_p
         # One row per step in the law's reference layout (position, quaternion, twist, desired force).
         references = np.concatenate((plan.ref_p, plan.ref_q, plan.ref_twist, plan.force[:, None]), axis=1)
         dynamic_null = self._dynamic_null
@@ -400,7 +402,7 @@ class _Execution:
                             single = self.controller.frame(turned, self._selection[plan.segment])
                     p_tracked = p_now
                 if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
-                    rx, ry, rz = ref_p[k]
+                    rx, ry, rz = ref_p[k].tolist()
                     px, py, pz = p.tolist()
                     beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
                     if beyond > loss_travel:

@@ -43,6 +43,7 @@ goal moves. With ``s = 1`` the demonstrated shape is kept and the spring still p
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -177,6 +178,22 @@ def _rollout_times(dt: float, duration_s: float) -> NDArray[np.float64]:
     return np.arange(n_steps + 1) * dt
 
 
+@functools.lru_cache(maxsize=8)
+def _rollout_features(
+    dt: float, duration_s: float, alpha_x: float, centers: bytes, widths: bytes
+) -> NDArray[np.float64]:
+    """The design matrix :func:`forcing_features` (M - 1, n_basis) at the phases of the rollout steps
+    ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s), for the basis given as float64 bytes.
+
+    Cached (read-only): a segment's position, orientation and force DMPs share their duration and basis, so a plan
+    that rolls out all three evaluates the Gaussians once instead of three times."""
+    t = _rollout_times(dt, duration_s)[:-1]
+    x = np.exp(-alpha_x * t / duration_s)
+    features = forcing_features(x, np.frombuffer(centers), np.frombuffer(widths))
+    features.flags.writeable = False
+    return features
+
+
 class _DMPBase:
     """Shared state of a discrete DMP: time constant, gains, basis and weights (n_basis, n_forcing)."""
 
@@ -230,6 +247,13 @@ class _DMPBase:
     def forcing(self, x: ArrayLike) -> NDArray[np.float64]:
         """Return the unscaled forcing term ``f(x)`` (N, D) at phases ``x`` (N,)."""
         return forcing_features(np.asarray(x, dtype=float), self.centers, self.widths) @ self.weights
+
+    def _rollout_forcing(self, dt: float, tau: float) -> NDArray[np.float64]:
+        """The unscaled forcing term (M - 1, D) at the rollout steps ``k dt`` of a movement of ``tau`` (s): the same
+        numbers as ``forcing(phase(t[:-1], tau))``, the basis evaluated once per (dt, tau, basis)."""
+        centers = np.ascontiguousarray(self.centers, dtype=np.float64).tobytes()
+        widths = np.ascontiguousarray(self.widths, dtype=np.float64).tobytes()
+        return _rollout_features(float(dt), float(tau), float(self.alpha_x), centers, widths) @ self.weights
 
     def _parameters(self, start: NDArray, goal: NDArray, scaling: list[bool]) -> DMPParameters:
         return DMPParameters(
@@ -390,7 +414,7 @@ class DMP(_DMPBase):
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"{name} contains NaN or inf")
         # Input u_k = alpha_z beta_z g + s f(x_k) of the steps k = 0 .. M-2.
-        u = self.alpha_z * self.beta_z * g + self.amplitude_factors(y0, g) * self.forcing(self.phase(t[:-1], tau))
+        u = self.alpha_z * self.beta_z * g + self.amplitude_factors(y0, g) * self._rollout_forcing(dt, tau)
         return t, y0, g, u, tau
 
     def rollout(
@@ -594,7 +618,7 @@ class QuaternionDMP(_DMPBase):
         g = self.goal if goal is None else _unit_quaternions(goal, "goal").reshape(4)
         a = dt / tau
         # a * (f_k) per step, and the constant gains.
-        drive = np.ascontiguousarray(a * self.forcing(self.phase(t[:-1], tau)))
+        drive = np.ascontiguousarray(a * self._rollout_forcing(dt, tau))
         k_goal = a * self.alpha_z * self.beta_z * 2.0
         damp = 1.0 - a * self.alpha_z
         half_a = 0.5 * a
