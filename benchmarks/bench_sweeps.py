@@ -40,6 +40,7 @@ pin_blas_threads()
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.bench_control_loop import machine_speed  # noqa: E402
 from benchmarks.bench_service import running  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
@@ -157,8 +158,9 @@ def bench_sweep(workers: int, trials: int, store_telemetry: bool) -> dict:
     }
 
 
-def report(runs: list[dict], trials_per_worker: int) -> str:
-    """The section's Markdown: the table and the sentences computed from these runs."""
+def report(runs: list[dict], trials_per_worker: int, speed: dict[str, float]) -> str:
+    """The section's Markdown: the table and the sentences computed from these runs; ``speed`` the machine's
+    (``bench_control_loop.machine_speed``), measured before them."""
     rows = [
         f"| {r['workers']} | {r['telemetry']} | {r['executions']} ({r['done']} done) | {r['wall_s']:.1f} | "
         f"{r['submitted_s']:.2f} | "
@@ -217,6 +219,10 @@ def report(runs: list[dict], trials_per_worker: int) -> str:
             "with 1 / the skill's "
             "simulated time and with the loop's real-time factor, `bench_control_loop`).",
             "",
+            "How fast this machine was before the runs (the rates scale with it; compare tables from other days by "
+            f"it): CPython `sum(range(1000))` {speed['python']:.1f} µs, a fixed PyBullet step "
+            f"{speed['physics']:.1f} µs (`bench_control_loop.machine_speed`, best of 5).",
+            "",
             machine_line(f"{os.cpu_count()} cores shared by the API, the router, the workers and other jobs"),
         ]
     )
@@ -228,13 +234,14 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/BENCHMARKS.md alone")
     args = parser.parse_args()
     os.chdir(Path(__file__).resolve().parents[1])
+    speed = machine_speed()
     runs = []
     for workers in (1, 2):
         for store_telemetry in (False, True):
             run = bench_sweep(workers, args.trials_per_worker * workers, store_telemetry)
             runs.append(run)
             print({k: round(v, 3) if isinstance(v, float) else v for k, v in run.items()}, flush=True)
-    body = report(runs, args.trials_per_worker)
+    body = report(runs, args.trials_per_worker, speed)
     print(body)
     if not args.no_write:
         write_section(SECTION, body)

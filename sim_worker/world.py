@@ -265,6 +265,10 @@ class SimWorld:
         self._wrist = c.sensor_model == "wrist"
         if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
             pybullet.enableJointForceTorqueSensor(self.robot, TOOL_LINK, True, physicsClientId=cid)
+        self._queried_joints = [*self._joints, TOOL_LINK] if self._wrist else self._joints
+        """The joints read each step: the arm's, and the tool joint's reaction with the wrist sensor (one query)."""
+        self._tool_reaction: tuple[float, ...] = (0.0,) * 6
+        """The tool joint's reaction of this step (wrist sensor), read with the arm's joints."""
         self._tool_com = (0.0, 0.0, -(0.5 * c.tool_shaft_length_m + c.tool_radius_m))
         """The tool's centre of mass in the tool frame (the tool model the weight is compensated with), m."""
         self._tool_weight = tuple(c.tool_mass_kg * g for g in c.gravity)
@@ -430,7 +434,10 @@ class SimWorld:
         """This step's arm state (``skills.control.ROBOT_*`` layout): joints (one PyBullet query), tool pose, Jacobian,
         gravity/Coriolis (the compiled model)."""
         if not self._arm_fresh:
-            states = pybullet.getJointStates(self.robot, self._joints, physicsClientId=self._cid)
+            states = pybullet.getJointStates(self.robot, self._queried_joints, physicsClientId=self._cid)
+            if self._wrist:
+                self._tool_reaction = states[N_JOINTS][2]
+                states = states[:N_JOINTS]
             q, qd, _, _ = zip(*states, strict=True)  # transposed in C
             self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
             arm_state(self._model, self._arm, self._arm_work, True)
@@ -689,9 +696,8 @@ class SimWorld:
 
     def _wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:
         """:meth:`wrist_wrench` written into ``out`` (6,); returns it."""
-        reaction = pybullet.getJointState(self.robot, TOOL_LINK, physicsClientId=self._cid)[2]
-        self._arm_raw()
-        _wrist_wrench(reaction, self._arm, self._tool_weight, self._tool_com[2], out)
+        self._arm_raw()  # reads the tool joint's reaction too
+        _wrist_wrench(self._tool_reaction, self._arm, self._tool_weight, self._tool_com[2], out)
         return out
 
     def _measured_wrench(self) -> NDArray[np.float64]:
