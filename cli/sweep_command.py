@@ -42,6 +42,20 @@ def _vary(items: list[str] | None) -> dict[str, dict]:
     return vary
 
 
+def _settings(path: Path) -> dict:
+    """The execution settings every trial starts from, read from a JSON object file (validated by the request)."""
+    from cli.main import UserError
+
+    try:
+        settings = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError([f"--settings {path}: not JSON ({exc.msg}, line {exc.lineno})"]) from None
+    if not isinstance(settings, dict):
+        raise UserError([f"--settings {path}: give a JSON object of execution settings, e.g. "
+                         '{"approach_slow_distance_m": 0.04}'])  # fmt: skip
+    return settings
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run SCENARIO's skill (the teacher's demonstration of it, recorded and learned through the service), or a
     stored skill (--skill-id), over --trials sampled variations of its cell (--vary; default: every parameter over
@@ -79,6 +93,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "success_rms_pct": args.threshold,
             "store_telemetry": args.store_telemetry,
         }
+        if args.settings is not None:
+            body["settings"] = _settings(args.settings)
         SweepRequest.model_validate({**body, "skill_id": "checked-by-the-service"})  # bad options: exit 2 here
     except Exception as exc:
         return _report_user_error("sweep", exc)
@@ -156,6 +172,13 @@ def register(commands: argparse._SubParsersAction) -> None:
         "(default: all of them over a cell's usual range)",
     )
     sweep.add_argument("--threshold", type=float, default=10.0, help="success: true RMS error <= this %% (default 10)")
+    sweep.add_argument(
+        "--settings",
+        type=Path,
+        metavar="FILE",
+        help="JSON object of the execution settings every trial starts from (POST /executions fields, e.g. "
+        '{"approach_slow_distance_m": 0.04}; the sweep sets the controller, the varied environment and telemetry)',
+    )
     sweep.add_argument(
         "--store-telemetry",
         action="store_true",

@@ -10,6 +10,7 @@ by the service tests; here their subcommands must at least exist.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -101,7 +102,10 @@ def test_the_readme_sweep_runs_as_written_with_fewer_trials(clone_dir: Path) -> 
     starts the embedded stack itself, records and learns the scenario, runs the sweep with a progress bar and
     writes the figure and the tables. Only --trials is cut to 2 (6 executions), to keep the suite short."""
     [args] = [a for a in _contact_skills_commands() if a[0] == "sweep"]
-    args = [*args, "--url", "http://127.0.0.1:8799", "--json", "scratch/readme_sweep.json"]
+    settings = clone_dir / "scratch" / "sweep_settings.json"  # the base settings reach every trial's request
+    settings.parent.mkdir(exist_ok=True)
+    settings.write_text('{"approach_slow_distance_m": 0.04}')
+    args = [*args, "--url", "http://127.0.0.1:8799", "--json", "scratch/readme_sweep.json", "--settings", str(settings)]
     args[args.index("--trials") + 1] = "2"
     result = _run(args, clone_dir)
     assert result.returncode == 0, f"contact-skills {' '.join(args)}\n{result.stdout}\n{result.stderr}"
@@ -110,3 +114,5 @@ def test_the_readme_sweep_runs_as_written_with_fewer_trials(clone_dir: Path) -> 
         assert re.search(rf"^{name} +\d+% \(\d/2\)", result.stdout, flags=re.M), result.stdout
     figure = clone_dir / args[args.index("--figure") + 1]
     assert figure.stat().st_size > 20_000
+    stored = json.loads((clone_dir / "scratch" / "readme_sweep.json").read_text())
+    assert stored["sweep"]["request"]["settings"]["approach_slow_distance_m"] == 0.04

@@ -153,6 +153,25 @@ def test_the_cli_spells_out_the_schema_names():
 
 
 @pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ('{"approach_slow_distance_m": -1}', "settings.approach_slow_distance_m: Input should be greater than"),
+        ('{"approach_slow": 0.04}', "settings.approach_slow: Extra inputs are not permitted"),
+        ("[0.04]", "give a JSON object of execution settings"),
+        ("{approach", "not JSON"),
+    ],
+)
+def test_bad_cli_sweep_settings_exit_2_naming_the_field(tmp_path, capsys, content, message):
+    """`contact-skills sweep --settings FILE` is checked before anything starts: exit 2, one line naming the field."""
+    from cli.main import main
+
+    settings = tmp_path / "settings.json"
+    settings.write_text(content)
+    assert main(["sweep", "slide_flat", "--settings", str(settings)]) == 2
+    assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
     ("change", "loc"),
     [
         ({"trials": 0}, ["body", "trials"]),
