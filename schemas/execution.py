@@ -44,6 +44,10 @@ MAX_FORCE_SCALE = 5.0
 """Largest factor on a skill's force profile."""
 MAX_PAUSE_TIMEOUT_S = 3600.0
 """Longest a paused execution may wait for resume before it is aborted, s."""
+NOMINAL_CONTACT_STIFFNESS_N_M = 3.0e4
+"""The tool pad's contact stiffness of a world that sets none (the simulated worlds' default), N/m."""
+NOMINAL_CONTACT_DAMPING_N_S_M = 300.0
+"""The tool pad's contact damping of a world that sets none, N·s/m."""
 
 
 class ControllerKind(StrEnum):
@@ -309,10 +313,18 @@ class EnvironmentChange(BaseModel):
         None, ge=0.0, le=2.0, description="Tool-surface friction coefficient (default: the world's, 0.2)."
     )
     contact_stiffness_n_m: float | None = Field(
-        None, ge=1e2, le=1e7, description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4)."
+        None,
+        ge=1e2,
+        le=1e7,
+        description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4). The controller side knows "
+        "it (the touch-down speed is planned for it) unless planned_contact_stiffness_n_m says otherwise.",
     )
     contact_damping_n_s_m: float | None = Field(
-        None, ge=0.0, le=1e5, description="Contact damping of the tool pad, N·s/m (default: the world's, 300)."
+        None,
+        ge=0.0,
+        le=1e5,
+        description="Contact damping of the tool pad, N·s/m (default: the world's, 300); known to the controller "
+        "side unless planned_contact_damping_n_s_m says otherwise.",
     )
     sensor: SensorChoice = Field(SensorChoice.wrist, description="The force/torque sensor the controller reads.")
     sensor_bias_n: Bias3 = Field(
@@ -399,6 +411,21 @@ class ExecutionSettings(BaseModel):
         "contact stiffness k and damping c so that the impact stays below the target (v = 0.8 max(F, F_c) / "
         "max(sqrt(k m), c), m the arm's apparent mass along CF z, F_c the contact threshold, which the approach has "
         "to pass anyway), within [0.5 mm/s, approach_speed_m_s].",
+    )
+    planned_contact_stiffness_n_m: float | None = Field(
+        None,
+        ge=1e2,
+        le=1e7,
+        description="The pad stiffness the touch-down and crease speeds are planned for, N/m: what the cell believes "
+        "(its nominal pad). Default: the simulated world's own, as if the cell knew its pad exactly. A sweep that "
+        "varies the pad plans for its base pad, so the variation stays unknown to the controller.",
+    )
+    planned_contact_damping_n_s_m: float | None = Field(
+        None,
+        ge=0.0,
+        le=1e5,
+        description="The pad damping the touch-down and crease speeds are planned for, N·s/m (as "
+        "planned_contact_stiffness_n_m).",
     )
     approach_max_distance_m: float = Field(
         0.15, gt=0, le=0.5, description="Longest guarded approach before aborting with 'contact not found', m."

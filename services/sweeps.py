@@ -49,6 +49,7 @@ from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrial
 from skills.sweeps import (
     Outcome,
     controller_summary,
+    planned_pad,
     sensitivity,
     trial_environment,
     trial_noise_seed,
@@ -300,8 +301,9 @@ class SweepRunner:
         environment = trial_environment(
             spec["execution"]["environment"], r.parameters, trial_noise_seed(int(row.request["seed"]), r.trial)
         )
+        base = spec["execution"]
         request = ExecutionRequest.model_validate(
-            {**spec["execution"], "environment": environment, "controller": r.controller}
+            {**base, **planned_pad(base, r.parameters), "environment": environment, "controller": r.controller}
         )
         shown = request.model_dump(mode="json", exclude={"skill"})
         shown.update(

@@ -459,8 +459,8 @@ class _Execution:
 
     def _contact_impedance(self, z: NDArray[np.float64]) -> float:
         """The touch-down peak per unit impact speed (N·s/m) of a contact along the world direction ``z``:
-        ``max(sqrt(k m), c)``, ``k`` and ``c`` the contact's stiffness and damping, ``m`` the arm's apparent mass along
-        ``z`` in its pose now.
+        ``max(sqrt(k m), c)``, ``k`` and ``c`` the contact's stiffness and damping as planned for (the settings'
+        ``planned_contact_*``, else the simulated world's), ``m`` the arm's apparent mass along ``z`` in its pose now.
 
         A mass ``m`` meeting a spring ``k`` and a damper ``c`` side by side at speed ``v`` peaks at
         ``v sqrt(k m) g(ζ)``, ``ζ = c / (2 sqrt(k m))``: ``g`` stays at or below 1 up to ``ζ = 1/2`` (the damper takes
@@ -469,8 +469,10 @@ class _Execution:
         J, _, M = self.world.dynamics(True)
         mobility = J[:3] @ np.linalg.solve(M, J[:3].T)  # Λ^-1, translational block
         mass = 1.0 / max(float(z @ mobility @ z), 1e-9)
-        config = self.world_config
-        return max(math.sqrt(config.contact_stiffness * mass), config.contact_damping)
+        s, config = self.settings, self.world_config
+        k = config.contact_stiffness if s.planned_contact_stiffness_n_m is None else s.planned_contact_stiffness_n_m
+        c = config.contact_damping if s.planned_contact_damping_n_s_m is None else s.planned_contact_damping_n_s_m
+        return max(math.sqrt(k * mass), c)
 
     def _crease_speed(self, before: Segment, after: Segment) -> float | None:
         """The tangential speed (m/s) at which to pass the crease between two contact segments, or None when their

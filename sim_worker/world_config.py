@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
 from sim_worker.robot_model import TORQUE_LIMITS_NM
 
 
@@ -69,8 +70,8 @@ class WorldConfig:
     # Work pieces: convex solids given by their vertices (rebuilt from a skill).
     work_pieces: tuple[dict[str, Any], ...] = ()
     # Contact model and tool.
-    contact_stiffness: float = 3.0e4
-    contact_damping: float = 300.0
+    contact_stiffness: float = NOMINAL_CONTACT_STIFFNESS_N_M
+    contact_damping: float = NOMINAL_CONTACT_DAMPING_N_S_M
     lateral_friction: float = 0.2
     tool_radius_m: float = 0.010
     tool_shaft_length_m: float = 0.070

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from schemas.execution import ControllerKind
+from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M, ControllerKind
 from schemas.sweep import (
     ControllerSummary,
     ParameterRange,
@@ -84,6 +84,24 @@ def trial_environment(base: Mapping, parameters: Mapping[SweepParameter, float],
         if name in parameters:
             env[field] = parameters[name]
     return env
+
+
+def planned_pad(base: Mapping, parameters: Mapping[SweepParameter, float]) -> dict[str, float]:
+    """The `ExecutionSettings` fields (a JSON dict) that keep a varied pad UNKNOWN to the controller: the touch-down
+    and crease speeds planned for the base pad (``base``: the sweep's execution settings; its environment's pad if
+    it sets one, else the worlds' nominal pad), not for the trial's. Settings that already plan for a pad keep it."""
+    env = base.get("environment") or {}
+    pad = (
+        (SweepParameter.contact_stiffness_n_m, "planned_contact_stiffness_n_m", "contact_stiffness_n_m",
+         NOMINAL_CONTACT_STIFFNESS_N_M),
+        (SweepParameter.contact_damping_n_s_m, "planned_contact_damping_n_s_m", "contact_damping_n_s_m",
+         NOMINAL_CONTACT_DAMPING_N_S_M),
+    )  # fmt: skip
+    return {
+        planned: float(env.get(field) if env.get(field) is not None else nominal)
+        for name, planned, field, nominal in pad
+        if name in parameters and base.get(planned) is None
+    }
 
 
 def trial_noise_seed(seed: int, trial: int) -> int:

@@ -314,6 +314,24 @@ def test_touch_down_stays_within_20_percent_of_the_target_on_soft_and_stiff_surf
     assert metrics.true_force_rms_error_pct < 5.0 and metrics.settle_time_s < 0.5
 
 
+def test_the_touch_down_is_planned_for_the_pad_the_cell_believes_in() -> None:
+    """A 5 N slide on a soft, heavily damped pad (1e4 N/m, 1000 N·s/m): planned for that pad it touches down within
+    20 % of the target; planned for the nominal pad (3e4 N/m, 300 N·s/m, what a sweep's cell believes) it comes in
+    too fast and the damper's c·v overshoots: the pad is unknown to the controller then, as in a real cell."""
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    skill = _flat_skill_pressing(5.0)
+    pad = {"contact_stiffness_n_m": 1e4, "contact_damping_n_s_m": 1e3, "unknown_offset": [0, 0, -0.01]}
+    peaks = {}
+    for planned in ({}, {"planned_contact_stiffness_n_m": 3e4, "planned_contact_damping_n_s_m": 300.0}):
+        settings = ExecutionSettings(environment=pad, **planned)
+        metrics = run_skill(execution_world(skill, settings.environment), settings).metrics
+        assert metrics.phase is ExecutionPhase.done, metrics.abort_reason
+        peaks[bool(planned)] = metrics.touchdown_peak_ratio
+    assert peaks[False] <= 1.2 and peaks[True] > 1.4, peaks
+
+
 @pytest.mark.parametrize(("stiffness", "damping"), [(1e6, 300.0), (1e4, 1e3)])
 def test_a_profile_starting_under_the_contact_threshold_still_touches_down_gently(
     contour_cylinder, stiffness, damping

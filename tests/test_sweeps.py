@@ -52,6 +52,23 @@ def test_the_design_is_reproducible_stratified_and_within_the_ranges():
     assert sorted(log_strata) == list(range(16))  # log-uniform: one per sixteenth of the decades
 
 
+def test_a_varied_pad_stays_unknown_to_the_touch_down_planning():
+    """A trial's pad is the simulated world's; the touch-down and crease speeds are planned for the sweep's base pad
+    (its environment's, else the nominal one), unless the sweep's settings already plan for one."""
+    from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
+    from skills.sweeps import planned_pad
+
+    P = SweepParameter
+    varied = {P.contact_stiffness_n_m: 9e4, P.contact_damping_n_s_m: 900.0, P.friction: 0.3}
+    assert planned_pad({"environment": {}}, varied) == {
+        "planned_contact_stiffness_n_m": NOMINAL_CONTACT_STIFFNESS_N_M,
+        "planned_contact_damping_n_s_m": NOMINAL_CONTACT_DAMPING_N_S_M,
+    }
+    base = {"environment": {"contact_stiffness_n_m": 5e4}, "planned_contact_damping_n_s_m": 100.0}
+    assert planned_pad(base, varied) == {"planned_contact_stiffness_n_m": 5e4}
+    assert planned_pad({"environment": {}}, {P.friction: 0.3}) == {}
+
+
 def test_sensitivity_ranks_the_parameter_that_drives_the_failures_first():
     rng = np.random.default_rng(0)
     parameters = [{P.friction: float(f), P.offset_z_m: float(z)} for f, z in rng.uniform(0, 1, (60, 2))]
