@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, write_section
+from benchmarks.report import machine_line, machine_speed, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -34,7 +34,6 @@ import argparse  # noqa: E402
 import os  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-import timeit  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pybullet  # noqa: E402
@@ -91,25 +90,6 @@ def pin_one_core() -> str:
         return f"pinned to CPU {cpus[-1]}"
     except (AttributeError, OSError):
         return "not pinned (no sched_setaffinity)"
-
-
-def machine_speed() -> dict[str, float]:
-    """µs of two fixed workloads, best of 5 (a shared or throttled machine drifts by 2x between days): CPython
-    ``sum(range(1000))`` and one PyBullet step of the arm at rest in the flat-table world, gravity off (nothing
-    moves, nothing touches: the same work every step)."""
-    python = min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6
-    with SimWorld(WorldConfig()) as world:
-        cid = world.client_id
-        pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
-
-        def steps(n: int = 2000) -> float:
-            start = time.perf_counter()
-            for _ in range(n):
-                pybullet.stepSimulation(physicsClientId=cid)
-            return (time.perf_counter() - start) / n * 1e6
-
-        physics = min(steps() for _ in range(5))
-    return {"python": python, "physics": physics}
 
 
 def control_law_cost(repeats: int = 20000) -> dict[str, float]:

@@ -33,14 +33,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, write_section
+from benchmarks.report import machine_line, machine_speed, pin_blas_threads, write_section
 
 pin_blas_threads()
 
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
-from benchmarks.bench_control_loop import machine_speed  # noqa: E402
 from benchmarks.bench_service import running  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
@@ -160,7 +159,7 @@ def bench_sweep(workers: int, trials: int, store_telemetry: bool) -> dict:
 
 def report(runs: list[dict], trials_per_worker: int, speed: dict[str, float]) -> str:
     """The section's Markdown: the table and the sentences computed from these runs; ``speed`` the machine's
-    (``bench_control_loop.machine_speed``), measured before them."""
+    (``report.machine_speed``), measured before them."""
     rows = [
         f"| {r['workers']} | {r['telemetry']} | {r['executions']} ({r['done']} done) | {r['wall_s']:.1f} | "
         f"{r['submitted_s']:.2f} | "
@@ -221,7 +220,7 @@ def report(runs: list[dict], trials_per_worker: int, speed: dict[str, float]) ->
             "",
             "How fast this machine was before the runs (the rates scale with it; compare tables from other days by "
             f"it): CPython `sum(range(1000))` {speed['python']:.1f} µs, a fixed PyBullet step "
-            f"{speed['physics']:.1f} µs (`bench_control_loop.machine_speed`, best of 5).",
+            f"{speed['physics']:.1f} µs (`benchmarks/report.py` machine_speed, best of 5).",
             "",
             machine_line(f"{os.cpu_count()} cores shared by the API, the router, the workers and other jobs"),
         ]

@@ -61,3 +61,29 @@ def run_benchmark(
     if not args.no_write:
         write_section(section, report)
     return 0
+
+
+def machine_speed() -> dict[str, float]:
+    """µs of two fixed workloads, best of 5 (a shared or throttled machine drifts by 2x between days): CPython
+    ``sum(range(1000))`` and one PyBullet step of the arm at rest in the flat-table world, gravity off (nothing
+    moves, nothing touches: the same work every step)."""
+    import timeit
+
+    import pybullet
+
+    from sim_worker.world import SimWorld
+    from sim_worker.world_config import WorldConfig
+
+    python = min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6
+    with SimWorld(WorldConfig()) as world:
+        cid = world.client_id
+        pybullet.setGravity(0.0, 0.0, 0.0, physicsClientId=cid)
+
+        def steps(n: int = 2000) -> float:
+            start = time.perf_counter()
+            for _ in range(n):
+                pybullet.stepSimulation(physicsClientId=cid)
+            return (time.perf_counter() - start) / n * 1e6
+
+        physics = min(steps() for _ in range(5))
+    return {"python": python, "physics": physics}

@@ -178,6 +178,12 @@ def _rollout_times(dt: float, duration_s: float) -> NDArray[np.float64]:
     return np.arange(n_steps + 1) * dt
 
 
+def canonical_phase(t: ArrayLike, alpha_x: float, duration_s: float) -> NDArray[np.float64]:
+    """Return the canonical phase ``x(t) = exp(-alpha_x t / tau)`` (dimensionless) at times ``t`` (s) of a movement
+    of ``tau = duration_s`` (s)."""
+    return np.exp(-alpha_x * np.asarray(t, dtype=float) / duration_s)
+
+
 @functools.lru_cache(maxsize=8)
 def _rollout_features(
     dt: float, duration_s: float, alpha_x: float, centers: bytes, widths: bytes
@@ -187,8 +193,7 @@ def _rollout_features(
 
     Cached (read-only): a segment's position, orientation and force DMPs share their duration and basis, so a plan
     that rolls out all three evaluates the Gaussians once instead of three times."""
-    t = _rollout_times(dt, duration_s)[:-1]
-    x = np.exp(-alpha_x * t / duration_s)
+    x = canonical_phase(_rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
     features = forcing_features(x, np.frombuffer(centers), np.frombuffer(widths))
     features.flags.writeable = False
     return features
@@ -241,8 +246,7 @@ class _DMPBase:
 
     def phase(self, t: ArrayLike, duration_s: float | None = None) -> NDArray[np.float64]:
         """Return the canonical phase ``x(t) = exp(-alpha_x t / tau)`` (dimensionless) at times ``t`` (s)."""
-        tau = self.duration_s if duration_s is None else float(duration_s)
-        return np.exp(-self.alpha_x * np.asarray(t, dtype=float) / tau)
+        return canonical_phase(t, self.alpha_x, self.duration_s if duration_s is None else float(duration_s))
 
     def forcing(self, x: ArrayLike) -> NDArray[np.float64]:
         """Return the unscaled forcing term ``f(x)`` (N, D) at phases ``x`` (N,)."""
