@@ -79,6 +79,10 @@ _RIGID = 1e18
 """A body's own contact stiffness when only the tool's should count (Bullet's default for bodies without one)."""
 CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
+_ARM_JOINTS = slice(ROBOT_Q.start, ROBOT_QD.stop)
+"""The joint positions and velocities in the arm state (one assignment per step)."""
+_JOINT_POSITION, _JOINT_VELOCITY = operator.itemgetter(0), operator.itemgetter(1)
+"""The position and velocity of one of ``getJointStates``' tuples."""
 
 
 @dataclass
@@ -240,7 +244,11 @@ class SimWorld:
         self._arm = np.zeros(ROBOT_STATE_SIZE)
         self._arm_work = np.empty(workspace_size(self._model))
         """The arm state of the current step, overwritten in place by the next one (the raw accessors' views)."""
-        self._applied = np.zeros(6)
+        self._contact_state = np.zeros(10)
+        """This step's contact summary, written in one assignment: the two views below."""
+        self._contact_zero = True
+        """Whether ``_contact_state`` holds zeros (no contact point), so that a free step need not write them."""
+        self._applied = self._contact_state[:6]
         """The exact wrench the tool applies this step (see :meth:`true_contact_wrench`), overwritten in place."""
         self._measured = np.zeros(6)
         """The sensor's reading this step (a non-ideal sensor's; the ideal one reads ``_applied``)."""
@@ -252,7 +260,7 @@ class SimWorld:
         self._mass = np.zeros((N_JOINTS, N_JOINTS))
         self._points: tuple = ()
         self._touching = False
-        self._true_normal = np.zeros(4)
+        self._true_normal = self._contact_state[6:]
         """The force along the true surface normal (N) and that normal (3,), see :meth:`true_normal_force`."""
         self._arm_q, self._arm_qd = self._arm[ROBOT_Q], self._arm[ROBOT_QD]
         self._arm_position, self._arm_quat = self._arm[ROBOT_POSITION], self._arm[ROBOT_QUAT]
@@ -438,8 +446,7 @@ class SimWorld:
             if self._wrist:
                 self._tool_reaction = states[N_JOINTS][2]
                 states = states[:N_JOINTS]
-            q, qd, _, _ = zip(*states, strict=True)  # transposed in C
-            self._arm[ROBOT_Q.start : ROBOT_QD.stop] = q + qd
+            self._arm[_ARM_JOINTS] = [*map(_JOINT_POSITION, states), *map(_JOINT_VELOCITY, states)]  # C loops
             arm_state(self._model, self._arm, self._arm_work, True)
             self._arm_fresh = True
         return self._arm
@@ -612,8 +619,9 @@ class SimWorld:
         )
         self._contact_fresh = True
         if not points:
-            self._applied[:] = 0.0
-            self._true_normal[:] = 0.0
+            if not self._contact_zero:
+                self._contact_state[:] = 0.0
+                self._contact_zero = True
             self._touching = False
         else:
             px, py, pz = self._pose_raw()[0].tolist()
@@ -638,9 +646,12 @@ class SimWorld:
                 ny -= fn * n[1]
                 nz -= fn * n[2]
             norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-            self._applied[:] = (fx, fy, fz, mx, my, mz)
+            if norm > 0.0:
+                self._contact_state[:] = (fx, fy, fz, mx, my, mz, norm, nx / norm, ny / norm, nz / norm)
+            else:
+                self._contact_state[:] = (fx, fy, fz, mx, my, mz, 0.0, 0.0, 0.0, 0.0)
+            self._contact_zero = False
             self._touching = touching
-            self._true_normal[:] = (norm, nx / norm, ny / norm, nz / norm) if norm > 0.0 else (0.0, 0.0, 0.0, 0.0)
 
     def true_normal_force(self) -> tuple[float, tuple[float, float, float]]:
         """The exact force (N) the tool presses with along the TRUE surface normal, and that normal (unit, into the
