@@ -305,8 +305,9 @@ class _Execution:
         telemetry row are plain float arithmetic, written into the row array in one assignment.
         """
         world = self.world
-        sense, dynamics, step, true_normal = world.sense, world.dynamics, world.step, world.true_normal_state
-        robot_state = world.robot_state
+        sense, dynamics, step = world.sense, world.dynamics, world.step
+        # The arm state and the true normal force: the world's arrays, the same every step, updated by sense().
+        robot, true_normal = world.robot_state(), world.true_normal_state()
         controller = self.controller
         prepare = controller.prepare
         gain, law = controller.law_arrays
@@ -319,7 +320,7 @@ class _Execution:
         loss_travel = CONTACT_LOSS_TRAVEL_M
         seg = float(plan.segment)
         ts = td = tc = tp = tt = 0.0
-        batch = self.settings.telemetry_batch
+        batch = self.settings.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
         realtime = self.settings.pace is Pace.realtime
         threshold = self.contact_threshold
         stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
@@ -346,7 +347,6 @@ class _Execution:
                 paused = should_pause is not None and should_pause()
                 t0 = perf()
                 q, _, p, _, w, touching = sense()
-                robot = robot_state()
                 t1 = perf()
                 update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
                 M = dynamics(True).mass_matrix if update_null and dynamic_null else None
@@ -377,7 +377,7 @@ class _Execution:
                 if self.n >= self.capacity:
                     self._grow()
                 code = _control_and_record(
-                    gain, law, robot, reference, w, cf_rotation, touching, true_normal(), self.rows, self.n,
+                    gain, law, robot, reference, w, cf_rotation, touching, true_normal, self.rows, self.n,
                     self.step_count * dt, phase_code, seg, reason is None, out,
                 )  # fmt: skip
                 self.n += 1

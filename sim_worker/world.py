@@ -273,6 +273,12 @@ class SimWorld:
         self._wrist = c.sensor_model == "wrist"
         if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
             pybullet.enableJointForceTorqueSensor(self.robot, TOOL_LINK, True, physicsClientId=cid)
+        wrench = self._applied if self.sensor.ideal else self._measured
+        self._sensing = tuple(
+            Sensing(self._arm_q, self._arm_qd, self._arm_position, self._arm_quat, wrench, touching)
+            for touching in (False, True)
+        )
+        """What :meth:`sense` returns, without and with contact: the same arrays every step, overwritten in place."""
         self._queried_joints = [*self._joints, TOOL_LINK] if self._wrist else self._joints
         """The joints read each step: the arm's, and the tool joint's reaction with the wrist sensor (one query)."""
         self._tool_reaction: tuple[float, ...] = (0.0,) * 6
@@ -508,16 +514,18 @@ class SimWorld:
         """Joint state, tool pose, measured wrench and contact flag of this step in one call, without copies.
 
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
-        returned as cached (read-only by contract, see :class:`Sensing`).
+        returned as cached (read-only by contract, see :class:`Sensing`): the same arrays every step, and with them
+        the arrays of :meth:`robot_state` and :meth:`true_normal_state`, brought up to date in place.
         """
         self._arm_raw()
-        wrench = self._measured_wrench()
+        self._measured_wrench()
         self._contact_summary()
-        return Sensing(self._arm_q, self._arm_qd, self._arm_position, self._arm_quat, wrench, self._touching)
+        return self._sensing[self._touching]
 
     def robot_state(self) -> NDArray[np.float64]:
         """This step's arm state as the control law reads it (``skills.control.ROBOT_*`` layout: joints, tool pose,
-        Jacobian, gravity/Coriolis torques), the cached array itself: read-only by contract, as :meth:`sense`."""
+        Jacobian, gravity/Coriolis torques), the cached array itself: read-only by contract, as :meth:`sense`, and
+        the same array every step (a loop may hold it: :meth:`sense` updates it)."""
         return self._arm_raw()
 
     def dynamics(self, with_mass_matrix: bool = False) -> Dynamics:
@@ -667,7 +675,8 @@ class SimWorld:
 
     def true_normal_state(self) -> NDArray[np.float64]:
         """:meth:`true_normal_force` as the array (4,) ``[force, nx, ny, nz]`` of this step, for a control loop's
-        telemetry (the array itself, read-only as :class:`Sensing`; ground truth, not a measurement)."""
+        telemetry (the array itself, read-only as :class:`Sensing` and, as :meth:`robot_state`, the same array every
+        step; ground truth, not a measurement)."""
         self._contact_summary()
         return self._true_normal
 
