@@ -290,3 +290,41 @@ def test_frame_series_equals_single_frames() -> None:
         np.testing.assert_allclose(series[k].omega, single.omega, atol=1e-12)
         np.testing.assert_allclose(series[k].ad_inv, single.ad_inv, atol=1e-12)
         np.testing.assert_allclose(series[k].force_direction, single.force_direction, atol=1e-12)
+        np.testing.assert_allclose(series[k].law_rows, single.law_rows, atol=1e-12)
+        np.testing.assert_allclose(series[k].task_gain, single.task_gain, atol=1e-12)
+        np.testing.assert_allclose(series[k].damping_left, single.damping_left, atol=1e-12)
+
+
+def test_law_rows_pack_the_frame_constants_in_the_law_layout() -> None:
+    """law_rows = [CF z, force axes (0 without a force integral), S~ Adg^-1 F_d,1, Adg^-1 by rows]."""
+    R = _cf()
+    frame = HybridController().frame(R, SELECTION_CONTACT)
+    np.testing.assert_array_equal(frame.law_rows[:3], R[:, 2])
+    np.testing.assert_array_equal(frame.law_rows[3:9], 1.0 - np.asarray(SELECTION_CONTACT, dtype=float))
+    np.testing.assert_array_equal(frame.law_rows[15:], frame.adg_inv.ravel())
+    unit_force = frame.force_direction  # the wrench of 1 N along CF z: its CF force error per N is S~ Adg^-1 of it
+    np.testing.assert_allclose(frame.law_rows[9:15], frame.force_axes * (frame.adg_inv @ unit_force), atol=1e-15)
+    without_integral = HybridController(gains=ControllerGains(force_ki=0.0)).frame(R, SELECTION_CONTACT)
+    np.testing.assert_array_equal(without_integral.law_rows[3:9], 0.0)
+
+
+@pytest.mark.parametrize("explicit_damping", [False, True])
+def test_a_new_frame_each_step_gives_the_torques_of_a_controller_that_saw_only_it(explicit_damping: bool) -> None:
+    """Switching frames every step (a contour) rewrites every frame-dependent gain: each step's torques equal those
+    of a new controller given only that frame, the same state and the same damping matrix (the force integral is
+    off: it carries the switching controller's history)."""
+    damping = {"translational_damping_ns_per_m": (60.0,) * 3, "rotational_damping_nms_per_rad": (1.0,) * 3}
+    gains = ControllerGains(force_ki=0.0, **(damping if explicit_damping else {}))
+    Rs = Rotation.random(4, random_state=5).as_matrix()
+    state = _state()
+    wrench = np.array([1.0, -2.0, 8.0, 0.1, 0.0, -0.1])
+    switching = HybridController(gains=gains)
+    series = switching.frames(Rs, SELECTION_CONTACT)
+    for k in range(len(series)):
+        got = _call(switching, series[k], state, wrench=wrench, desired_force=10.0)
+        alone = HybridController(gains=gains)
+        alone.damping_matrix_a = None if switching.damping_matrix_a is None else switching.damping_matrix_a.copy()
+        expected = _call(alone, alone.frame(Rs[k], SELECTION_CONTACT), state, wrench=wrench, desired_force=10.0)
+        np.testing.assert_allclose(got.tau, expected.tau, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got.wrench_motion, expected.wrench_motion, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got.wrench_force, expected.wrench_force, rtol=1e-9, atol=1e-9)
