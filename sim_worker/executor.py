@@ -333,7 +333,6 @@ class _Execution:
         q_lower, q_upper = world.joint_lower, world.joint_upper
         should_abort, should_pause = self.should_abort, self.should_pause
         frame: ControlFrame | None = None
-        prepared: ControlFrame | None = None  # the frame the controller last prepared
         current = single
         next_frame_step = 0  # the step at which the series' next frame is due (indexing it costs ~0.3 µs)
         cf_rotation = np.eye(3).ravel()
@@ -358,11 +357,12 @@ class _Execution:
                 elif k >= next_frame_step:
                     current = series[k // stride]
                     next_frame_step = (k // stride + 1) * stride
-                if current is not frame:  # a new control frame: its CF rotation by rows, for the CF wrench
+                new_frame = current is not frame
+                if new_frame:  # a new control frame: its CF rotation by rows, for the CF wrench
                     frame = current
                     self._cf_rotation = frame.cf_rotation
                     cf_rotation = np.ascontiguousarray(frame.cf_rotation).ravel()
-                    r02, r12, r22 = frame.cf_rotation[:, 2].tolist()
+                    r02, r12, r22 = frame.cf_z.tolist()
                 reference = references[k]
                 if paused:
                     reference = reference.copy()
@@ -370,10 +370,7 @@ class _Execution:
                 # The law's Python part (model and gain updates: only on a model step or a new frame, the damping
                 # changes with the model), then one compiled call: CF wrench, law, telemetry row (the state measured
                 # before the step, its reference and desired force).
-                reason = None
-                if update_null or frame is not prepared:
-                    reason = prepare(frame, robot, reference, w, M, update_null)
-                    prepared = frame
+                reason = prepare(frame, robot, reference, w, M, update_null) if update_null or new_frame else None
                 if self.n >= self.capacity:
                     self._grow()
                 code = _control_and_record(

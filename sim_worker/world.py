@@ -245,9 +245,7 @@ class SimWorld:
         self._arm_work = np.empty(workspace_size(self._model))
         """The arm state of the current step, overwritten in place by the next one (the raw accessors' views)."""
         self._contact_state = np.zeros(10)
-        """This step's contact summary, written in one assignment: the two views below."""
-        self._contact_zero = True
-        """Whether ``_contact_state`` holds zeros (no contact point), so that a free step need not write them."""
+        """The summary of ``_points``, written in one assignment (zeros without points): the two views below."""
         self._applied = self._contact_state[:6]
         """The exact wrench the tool applies this step (see :meth:`true_contact_wrench`), overwritten in place."""
         self._measured = np.zeros(6)
@@ -622,14 +620,14 @@ class SimWorld:
         :meth:`true_normal_force`), kept until the next step (nothing to do when this step's are read)."""
         if self._contact_fresh:
             return
+        previous = self._points
         points = self._points = pybullet.getContactPoints(
             bodyA=self.robot, linkIndexA=TOOL_LINK, physicsClientId=self._cid
         )
         self._contact_fresh = True
         if not points:
-            if not self._contact_zero:
+            if previous:  # the summary of no points is zeros: written once, when the contact ends
                 self._contact_state[:] = 0.0
-                self._contact_zero = True
             self._touching = False
         else:
             px, py, pz = self._pose_raw()[0].tolist()
@@ -658,7 +656,6 @@ class SimWorld:
                 self._contact_state[:] = (fx, fy, fz, mx, my, mz, norm, nx / norm, ny / norm, nz / norm)
             else:
                 self._contact_state[:] = (fx, fy, fz, mx, my, mz, 0.0, 0.0, 0.0, 0.0)
-            self._contact_zero = False
             self._touching = touching
 
     def true_normal_force(self) -> tuple[float, tuple[float, float, float]]:
