@@ -320,13 +320,15 @@ def test_a_forgotten_pause_times_out_and_frees_the_worker(client, skill):
 
 def test_two_workers_run_two_executions_at_once(client, skill):
     recorder = client.recorder
-    first = client.start_execution("ex-two-1", _request(skill))
-    second = client.start_execution("ex-two-2", _request(skill))
+    # Real-time pace: both must still run when the aborts arrive (at pace fast an 8.5 s skill ends in ~0.3 s, a race
+    # against the 200 streamed samples below).
+    first = client.start_execution("ex-two-1", _request(skill, pace="realtime"))
+    second = client.start_execution("ex-two-2", _request(skill, pace="realtime"))
     assert {first, second} == {"w-a", "w-b"}
     busy = client.workers()
     assert all(w.busy for w in busy) and {w.execution_id for w in busy} == {"ex-two-1", "ex-two-2"}
     with pytest.raises(NoWorkerAvailable, match=r"2 worker\(s\) connected, none free"):
-        client.start_execution("ex-two-3", _request(skill))
+        client.start_execution("ex-two-3", _request(skill, pace="realtime"))
     _wait(lambda: recorder.samples("ex-two-1") > 200 and recorder.samples("ex-two-2") > 200, what="both streaming")
     for execution_id in ("ex-two-1", "ex-two-2"):
         client.send_command(execution_id, "abort")

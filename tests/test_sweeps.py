@@ -303,15 +303,16 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
         created = stack.post("/sweeps", {**SWEEP, "skill_id": skill_id}, 202)
         assert created["executions"] == TRIALS and created["progress_key"] == f"cskills/sweeps/{created['id']}/progress"
 
-        def victim():  # a trial's execution well under way (its statuses say it presses; no telemetry is sent)
+        def victim():  # a trial's execution well under way (its statuses say it approaches or presses; no telemetry)
             for trial in stack.http.get(f"/sweeps/{created['id']}/trials").json():
-                running = trial["status"] == "running" and trial["execution_id"]
-                if running and stack.execution(trial["execution_id"])["phase"] == "contact":
-                    return trial
+                if trial["status"] == "running" and trial["execution_id"]:
+                    execution = stack.execution(trial["execution_id"])
+                    if execution["phase"] in ("approach", "contact"):
+                        return trial, execution["worker_id"]
             return None
 
-        killed = wait_for(victim, 60, "a running trial", every_s=0.1)
-        killed_worker = stack.execution(killed["execution_id"])["worker_id"]
+        # At pace fast a trial presses for ~0.1 s of wall time: the kill follows the sighting with no other request.
+        killed, killed_worker = wait_for(victim, 60, "a running trial", every_s=0.05)
         os.kill(workers[killed_worker], signal.SIGKILL)
         view = _finished_sweep(stack, created["id"])
         time.sleep(1.0)  # the last progress reaches the subscriber
