@@ -176,12 +176,26 @@ def _asked_the_api(args: argparse.Namespace) -> int | None:
     return 0 if view.status.value == "done" else EXIT_ENDED_EARLY
 
 
+def _await_the_api(args: argparse.Namespace, timeout_s: float = 10.0) -> None:
+    """After the bus's final status: wait until the API at ``--url`` has stored the end too (it finishes the
+    execution's telemetry first), so that a request right after ``watch`` sees it; at most ``timeout_s`` seconds,
+    and not at all when no API answers."""
+    from services.client import Client, ServiceError
+
+    try:
+        with Client(args.url, timeout_s=5.0) as client:
+            client.execution(args.execution_id).wait(timeout_s=timeout_s, poll_s=0.05)
+    except (ServiceError, TimeoutError):
+        pass
+
+
 def cmd_watch(args: argparse.Namespace) -> int:
     """``contact-skills watch``: live view of an execution from the bus; exits when it ends, printing its metrics.
 
     The API at --url is asked first: an id it does not know is an error at once, a finished execution's metrics are
     printed from it. Without an answer from the API, the bus alone is watched: no status within --wait seconds is
-    an error (an unknown id, or no worker runs it)."""
+    an error (an unknown id, or no worker runs it). After the end on the bus it waits (up to 10 s) for the API to
+    have stored it, so that the next request to the API sees the execution finished."""
     import threading
     import time
 
@@ -270,6 +284,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         print(("\r" + line + "\x1b[K") if tty else line)
         for text in _metrics_lines(status):
             print(text)
+        _await_the_api(args)
         return 0 if status.phase.value == "done" else EXIT_ENDED_EARLY
     except KeyboardInterrupt:
         print()
