@@ -10,6 +10,7 @@ WORKDIR /src
 COPY pyproject.toml README.md ./
 COPY schemas/ schemas/
 COPY skills/ skills/
+COPY corpus/ corpus/
 COPY services/ services/
 COPY sim_worker/ sim_worker/
 COPY experiments/ experiments/

@@ -52,10 +52,10 @@ from importlib.metadata import PackageNotFoundError, version  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from corpus.synthetic import minimum_jerk, reach_pose_trajectory  # noqa: E402
 from schemas.skill import LearnOptions  # noqa: E402
 from skills.dmp import BASIS_OVERLAP, DMP, QuaternionDMP  # noqa: E402
 from skills.quaternions import quaternion_angle_between, quaternions_from_wxyz  # noqa: E402
-from skills.synthetic import minimum_jerk, reach_pose_trajectory  # noqa: E402
 
 N_SAMPLES = 2000
 DURATION_S = 4.0

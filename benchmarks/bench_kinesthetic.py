@@ -1,6 +1,6 @@
 """Learning from kinesthetic recordings against their ground truth: type, strokes, boundaries, normals, forces.
 
-Every recording of `skills.kinesthetic` (flat, 35° tilted and gently curved surfaces; 1-4 strokes;
+Every recording of `corpus.kinesthetic` (flat, 35° tilted and gently curved surfaces; 1-4 strokes;
 friction 0.1/0.25/0.4; the hand pushing the arm with up to ~17 N in free space; a sensor offset
 of 0.7-2.3 N in the sensor frame) is written in the real file format, imported exactly as the
 README says and learned with ``skill_type=auto``. The table gives, per surface, the worst and
@@ -23,9 +23,9 @@ pin_blas_threads()
 
 import numpy as np  # noqa: E402
 
+from corpus import kinesthetic  # noqa: E402
 from schemas import SegmentKind  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
-from skills import kinesthetic  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 from skills.quaternions import matrix_from_quaternion  # noqa: E402
 
@@ -142,7 +142,7 @@ def build_report(seeds: int) -> str:
         [
             "## Learning from kinesthetic recordings (ground truth)",
             "",
-            f"Command: `{COMMAND}` ({seeds} seeds per surface; `skills.kinesthetic`, imported as the README says, "
+            f"Command: `{COMMAND}` ({seeds} seeds per surface; `corpus.kinesthetic`, imported as the README says, "
             "`skill_type=auto`).",
             "Normal error: slide, the largest angle of a segment's CF z to its stroke's plane; contour, the median "
             "per-frame angle of CF z to the true surface normal where the true force exceeds 30 % of the plateau. "

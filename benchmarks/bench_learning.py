@@ -5,7 +5,7 @@ Run from the repository root::
     .venv/bin/python benchmarks/bench_learning.py
 
 For 2 k, 10 k and 60 k samples (2 s, 10 s, 60 s at 1 kHz) of the analytic slide and contour
-demonstrations (`skills.synthetic`): median wall time of validating the `Demonstration` (the
+demonstrations (`corpus.synthetic`): median wall time of validating the `Demonstration` (the
 REST body) and of `learn_skill` (auto selection, so classification included), and the peak
 memory traced by tracemalloc during learning. Targets: 10 s parameterized in under 1 s, 60 s in
 under 5 s, memory under 1 GiB. Writes its section of docs/BENCHMARKS.md.
@@ -25,8 +25,8 @@ pin_blas_threads()
 import argparse  # noqa: E402
 import tracemalloc  # noqa: E402
 
+from corpus import synthetic  # noqa: E402
 from schemas import Demonstration  # noqa: E402
-from skills import synthetic  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 
 SECTION = "bench_learning"

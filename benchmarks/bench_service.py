@@ -4,7 +4,7 @@ Run: ``.venv/bin/python benchmarks/bench_service.py [--repeats 15] [--executions
 ``bench_service`` section of docs/BENCHMARKS.md.
 
 1. Learning latency: ``contact-skills api --no-bus`` (a real uvicorn process, temp SQLite), a 10 s 1 kHz
-   demonstration (``skills.synthetic.plane_slide(duration_s=10)``, 10 000 samples):
+   demonstration (``corpus.synthetic.plane_slide(duration_s=10)``, 10 000 samples):
    ``POST /skills`` with the demonstration inline, and with it stored (``demonstration_id``); p50 and p99 of
    the client-side wall time (request sent -> 201 parsed). Target: p50 < 1.5 s.
 2. Throughput: ``contact-skills up --workers N`` (N = 1, 2): one scripted slide demonstration is recorded and
@@ -43,7 +43,7 @@ POLL_S = 0.1
 SCENARIO = "slide_flat"
 RECORD_OVERRIDES = {"move_duration_s": 2.0}
 LEARN_DEMO_S = 10.0
-"""Duration of the synthetic demonstration learned through the API (``skills.synthetic.plane_slide``), s."""
+"""Duration of the synthetic demonstration learned through the API (``corpus.synthetic.plane_slide``), s."""
 
 
 @contextlib.contextmanager
@@ -79,7 +79,7 @@ def running(
 
 
 def demonstration_body() -> dict:
-    from skills.synthetic import plane_slide
+    from corpus.synthetic import plane_slide
 
     d = plane_slide(duration_s=LEARN_DEMO_S)
     return {
@@ -226,7 +226,7 @@ def main() -> None:
             "`contact-skills api`, `contact-skills up --workers N`, a temporary SQLite database).",
             "",
             f"Learning: `POST /skills` with a {duration:.0f} s, {rate:.0f} Hz demonstration "
-            f"(`skills.synthetic.plane_slide(duration_s={LEARN_DEMO_S:g})`, {n_samples} samples), skill_type auto; "
+            f"(`corpus.synthetic.plane_slide(duration_s={LEARN_DEMO_S:g})`, {n_samples} samples), skill_type auto; "
             "client wall "
             "time from sending the request to the parsed 201 (JSON parsing, validation, learning in the thread pool, "
             f"storing). {args.repeats} requests per variant after one warm-up (p99 of {args.repeats} samples "

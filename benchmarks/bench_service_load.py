@@ -4,7 +4,7 @@ Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--execut
 ``bench_service_load`` section of docs/BENCHMARKS.md.
 
 1. Learning under load: ``contact-skills up --workers 2`` (a real uvicorn API, its learner processes, temp SQLite);
-   a 10 s 1 kHz demonstration (``skills.synthetic.plane_slide(duration_s=10)``) is stored, then ``--learns``
+   a 10 s 1 kHz demonstration (``corpus.synthetic.plane_slide(duration_s=10)``) is stored, then ``--learns``
    ``POST /skills`` (``demonstration_id``) are sent at once from as many client threads, while another thread
    asks ``GET /health`` every 50 ms. Reported: the learns' wall time and throughput, their client latency, and
    /health's p50/p99/max during the whole burst, beside the same figures over 15 s with no learning just before

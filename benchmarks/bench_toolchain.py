@@ -1,6 +1,6 @@
 """ROS 2 bag import and MCAP/CSV/JSON export: time and size.
 
-Import: a 60 s demonstration (``skills.synthetic.plane_slide``) written as a ROS 2 bag by ``rosbags`` with a
+Import: a 60 s demonstration (``corpus.synthetic.plane_slide``) written as a ROS 2 bag by ``rosbags`` with a
 WrenchStamped and a PoseStamped topic at 1 kHz each (tests/rosbag_files.py: header stamps, messages logged out of
 order), in MCAP and in sqlite3 storage, imported by ``services.bag_import.demonstration_from_bag`` (read, align,
 tare, validate). Export: a real execution in PyBullet (``slide_flat``, teacher seed 0), its first 10 s of telemetry
@@ -31,8 +31,8 @@ EXPORT_SECONDS = 10.0
 def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
     from rosbag_files import write_bag
 
+    from corpus.synthetic import plane_slide
     from services.bag_import import demonstration_from_bag
-    from skills.synthetic import plane_slide
 
     demo = plane_slide(duration_s=BAG_SECONDS, rate_hz=1000.0)
     rows, seconds = [], {}

@@ -22,13 +22,13 @@ def run_kinesthetic_record(args: argparse.Namespace) -> int:
     """Record ``args.scenario`` (a kinesthetic scenario) with ``args.seed``, ``args.strokes``, ``args.friction``;
     write ``args.output`` (CSV), ``args.truth`` and ``args.world`` (JSON, optional); print the summary."""
     try:
+        from corpus.kinesthetic import recording_csv_text
         from sim_worker.kinesthetic_teacher import (
             LEARN_IMPORT_OPTIONS,
             SCENARIOS,
             kinesthetic_truth_dict,
             record_kinesthetic,
         )
-        from skills.kinesthetic import recording_csv_text
 
         problems = []
         if args.scenario not in SCENARIOS:

@@ -1,7 +1,7 @@
 """The kinesthetic teacher: the simulated KUKA iiwa does what a person guiding it by hand does, with ground truth.
 
 Where ``sim_worker/teacher.py`` records one clean stroke the way a careful script would, this module records
-what real kinesthetic wiping recordings look like (see ``skills/kinesthetic.py`` for the facts they carry):
+what real kinesthetic wiping recordings look like (see ``corpus/kinesthetic.py`` for the facts they carry):
 1-4 strokes per recording, each one coming down from 20-35 cm, touching the surface while still moving a few
 cm/s, ramping the normal force up over 0.5-1 s to a plateau of 15-32 N that swings ±20 % (0.1-0.5 Hz), wiping
 2.5-15 s at 0.05-0.15 m/s along a path that is not straight and may go back over itself, ramping down over
@@ -14,7 +14,7 @@ the gains are ``TeacherParams``'s), written here against ``SimWorld.sense()/dyna
 arithmetic so that a 4-stroke recording (~50 s simulated) takes a few seconds. The world's TRUE contact
 wrench (applied by the tool, at the tool point, world frame) and the tool pose are logged at 1 kHz; the
 operator's hand force (``operator_forces``) and a wrist sensor (``random_wrist_sensor``,
-``wrist_sensor_samples``) from ``skills/kinesthetic.py`` turn them into the 100 Hz recording a real sensor
+``wrist_sensor_samples``) from ``corpus/kinesthetic.py`` turn them into the 100 Hz recording a real sensor
 gives (sensor frame, measured ON the tool, constant offset, noise), exactly as ``kinesthetic_wipe`` does.
 
 Ground truth (``KinestheticTruth``) comes from the simulation, not from the plan: contact intervals from
@@ -40,12 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim_worker.geometry import CylinderSolid, WorldGeometry
-from sim_worker.robot_model import Q_HOME
-from sim_worker.teacher import R_TOOL_DOWN, TeacherParams
-from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
-from skills.kinesthetic import (
+from corpus.kinesthetic import (
     KinestheticDemo,
     KinestheticTruth,
     OperatorModel,
@@ -54,8 +49,13 @@ from skills.kinesthetic import (
     random_wrist_sensor,
     wrist_sensor_samples,
 )
+from corpus.synthetic import minimum_jerk
+from sim_worker.geometry import CylinderSolid, WorldGeometry
+from sim_worker.robot_model import Q_HOME
+from sim_worker.teacher import R_TOOL_DOWN, TeacherParams
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
 from skills.quaternions import quaternion_from_matrix, quaternions_sign_continuous
-from skills.synthetic import minimum_jerk
 
 SCENARIOS: dict[str, str] = {
     "wipe_flat": "Wipe the horizontal table by hand: 1-4 strokes at 15-32 N, lifted 20-35 cm between them.",
@@ -65,7 +65,7 @@ SCENARIOS: dict[str, str] = {
 }
 
 SURFACE_OF_SCENARIO: dict[str, str] = {"wipe_flat": "flat", "wipe_tilted": "tilted", "wipe_curved": "curved"}
-"""The ``KinestheticTruth.surface`` name of each scenario (the names ``skills.kinesthetic.SURFACES`` uses)."""
+"""The ``KinestheticTruth.surface`` name of each scenario (the names ``corpus.kinesthetic.SURFACES`` uses)."""
 
 SENSOR_RATE_HZ = 100.0
 """Rate of the recording (the wrist sensor's output), Hz."""
@@ -730,7 +730,7 @@ def record_kinesthetic(
     inward = -outward
     normal_force = np.einsum("ij,ij->i", wrenches[:, :3], inward)
 
-    # The hand and the sensor, as in skills.kinesthetic.kinesthetic_wipe (own stream: the plan is unchanged by it).
+    # The hand and the sensor, as in corpus.kinesthetic.kinesthetic_wipe (own stream: the plan is unchanged by it).
     sensor_rng = np.random.default_rng([seed, 2])
     hand = operator_forces(t, positions, OperatorModel(), sensor_rng)
     sensor = random_wrist_sensor(sensor_rng, SENSOR_RATE_HZ)

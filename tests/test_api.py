@@ -15,13 +15,13 @@ from conftest import KULEUVEN_DATA, FakeBus
 from conftest import api_settings as _settings
 from conftest import loopback_client as _client
 
+from corpus import kinesthetic
+from corpus.synthetic import plane_slide
 from schemas import Demonstration, ExecutionMetrics, TelemetryBatch
 from schemas.bus import ExecutionStatus, RecordReply
 from services.app import BusEvents, create_app
 from services.settings import ServiceSettings, SettingsError
 from services.store import RESTART_REASON, Store
-from skills import kinesthetic
-from skills.synthetic import plane_slide
 
 DATA = KULEUVEN_DATA
 

@@ -17,10 +17,10 @@ from rosbag_files import POSE_EVERY, STAMP_BASE_NS, storage_file, write_bag
 
 pytest.importorskip("rosbags")
 
+from corpus import synthetic
 from schemas import Skill, SkillType
 from schemas.skill import SegmentKind
 from services.bag_import import BagImportError, demonstration_from_bag
-from skills import synthetic
 from skills.quaternions import matrix_from_quaternion
 
 REPO = Path(__file__).resolve().parents[1]

@@ -15,11 +15,11 @@ import pytest
 from conftest import KULEUVEN_DATA
 
 from cli.main import DATA_ENV, kuleuven_recordings, main
+from corpus.synthetic import plane_slide
 from schemas import Demonstration, Skill
 from services.csv_import import demonstration_from_csv
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
 from skills.quaternions import matrix_from_quaternion
-from skills.synthetic import plane_slide
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = KULEUVEN_DATA

@@ -19,6 +19,7 @@ from rosbag_files import storage_file, write_bag  # noqa: E402
 from test_service import RECORD, running_stack  # noqa: E402
 from waiting import wait_for  # noqa: E402
 
+from corpus.synthetic import plane_slide  # noqa: E402
 from schemas import Demonstration  # noqa: E402
 from services.client import (  # noqa: E402
     Client,
@@ -28,7 +29,6 @@ from services.client import (  # noqa: E402
     UnavailableError,
 )
 from services.csv_import import demonstration_csv_text  # noqa: E402
-from skills.synthetic import plane_slide  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from corpus.synthetic import minimum_jerk, reach_pose_trajectory
 from schemas.skill import DMPParameters
 from skills.dmp import AMPLITUDE_SCALING_MIN_FRACTION, DMP, QuaternionDMP
 from skills.quaternions import (
@@ -14,14 +15,13 @@ from skills.quaternions import (
     quaternion_product,
     quaternions_slerp,
 )
-from skills.synthetic import minimum_jerk, reach_pose_trajectory
 
 N_SAMPLES = 2000
 DURATION_S = 4.0
 
 
 def _pose_trajectory() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The reach of :func:`skills.synthetic.reach_pose_trajectory` at this module's size."""
+    """The reach of :func:`corpus.synthetic.reach_pose_trajectory` at this module's size."""
     return reach_pose_trajectory(N_SAMPLES, DURATION_S)
 
 

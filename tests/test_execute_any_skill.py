@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import KULEUVEN_DATA
 
+from corpus import kinesthetic
 from schemas import EnvironmentChange, ExecutionSettings, Skill
 from services.csv_import import demonstration_from_csv
 from sim_worker.execution_world import execution_world
@@ -20,7 +21,6 @@ from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
 from sim_worker.placement import PlacementError
 from sim_worker.work_piece import rebuilt_work_pieces
-from skills import kinesthetic
 from skills.frames import matrix_from_axis_angle
 from skills.parameterize import learn_skill
 from skills.placement import placed_skill, skill_tool_path, tool_aligned_skill

@@ -20,10 +20,10 @@ from conftest import api_settings as _settings
 from conftest import loopback_client as _client
 from test_api import _demo_json, _locs, _names
 
+from corpus.synthetic import plane_slide
 from schemas import Demonstration
 from services.app import create_app
 from services.learner_pool import LearnerPool, LearningCancelled, LearningTimedOut
-from skills.synthetic import plane_slide
 
 SLOW_OPTIONS = {"n_basis": 500, "max_basis": 1000, "basis_per_second": 200, "max_fit_samples": 100_000}
 """Learning options at their bounds: a 20 s, 1 kHz demonstration then takes ~13 s on one core."""

@@ -12,6 +12,7 @@ import pytest
 from conftest import KULEUVEN_DATA
 from scipy.spatial.transform import Rotation
 
+from corpus import kinesthetic
 from schemas import Demonstration
 from services.csv_import import (
     ColumnMap,
@@ -20,7 +21,7 @@ from services.csv_import import (
     demonstration_from_csv,
     demonstration_from_json,
 )
-from skills import kinesthetic, preprocess
+from skills import preprocess
 from skills.quaternions import quaternion_angle_between
 
 DATA = KULEUVEN_DATA

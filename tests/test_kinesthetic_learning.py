@@ -1,4 +1,4 @@
-"""Learning from recordings like a real human's, against their ground truth (skills.kinesthetic).
+"""Learning from recordings like a real human's, against their ground truth (corpus.kinesthetic).
 
 Each recording: 1-4 wiping strokes with 20-35 cm lifts between them, a hand pushing the arm with
 up to ~17 N in free space, a sensor offset of 0.7-2.3 N in the sensor frame, the sensor's
@@ -13,10 +13,10 @@ from functools import cache
 import numpy as np
 import pytest
 
+from corpus import kinesthetic
 from schemas import Demonstration, LearnOptions, Skill, SkillTypeRequest
 from schemas.skill import SegmentKind
 from services.csv_import import demonstration_from_csv
-from skills import kinesthetic
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion
 

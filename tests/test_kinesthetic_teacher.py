@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from cli.main import main
+from corpus.kinesthetic import RECORDING_COLUMNS, KinestheticDemo, recording_csv_text
 from sim_worker.geometry import WorldGeometry
 from sim_worker.kinesthetic_teacher import (
     SCENARIOS,
@@ -22,7 +23,6 @@ from sim_worker.kinesthetic_teacher import (
     record_kinesthetic,
 )
 from sim_worker.world_config import WorldConfig
-from skills.kinesthetic import RECORDING_COLUMNS, KinestheticDemo, recording_csv_text
 from skills.quaternions import matrix_from_quaternion
 
 CASES = [

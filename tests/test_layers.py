@@ -1,10 +1,11 @@
 """The package layers, checked on the source (``ast``, nothing imported): every import, at module level or inside a
 function, points down the layers.
 
-    schemas  <-  skills  <-  services, sim_worker  <-  experiments  <-  cli
+    schemas  <-  skills  <-  corpus  <-  services, sim_worker  <-  experiments  <-  cli
 
 - ``schemas/`` (the contract) imports none of the project's other packages;
-- ``skills/`` (the science) imports only ``schemas``: no service, no simulator;
+- ``skills/`` (the science) imports only ``schemas``: no service, no simulator, and no test-data generator;
+- ``corpus/`` (demonstrations with known ground truth) imports only ``schemas`` and ``skills``;
 - nothing below ``cli/`` imports from ``cli`` (the console script is the top; a child process started as
   ``python -m cli.main`` is a command line, not an import);
 - ``services/`` and ``sim_worker/`` import nothing from ``experiments/`` (the runners sit on top of them), nor
@@ -20,8 +21,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN: dict[str, set[str]] = {
-    "schemas": {"skills", "services", "sim_worker", "experiments", "cli", "benchmarks"},
-    "skills": {"services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "schemas": {"skills", "corpus", "services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "skills": {"corpus", "services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "corpus": {"services", "sim_worker", "experiments", "cli", "benchmarks"},
     "services": {"sim_worker", "experiments", "cli", "benchmarks"},
     "sim_worker": {"services", "experiments", "cli", "benchmarks"},
     "experiments": {"cli", "benchmarks"},

@@ -5,9 +5,9 @@ from functools import cache
 import numpy as np
 import pytest
 
+from corpus import synthetic
 from schemas import Demonstration, LearnOptions, Skill, SkillType, SkillTypeRequest
 from schemas.skill import SELECTION_CONTACT, SELECTION_FREE, SegmentKind
-from skills import synthetic
 from skills.dmp import DMP
 from skills.parameterize import LearningError, learn_skill
 from skills.quaternions import matrix_from_quaternion

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from corpus import synthetic
 from schemas import Demonstration, LearnOptions
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
-from skills import synthetic
 
 
 def valid_body(n: int = 100) -> dict:

@@ -9,11 +9,11 @@ import threading
 
 import pytest
 
+from corpus.synthetic import plane_slide
 from schemas import Demonstration
 from schemas.api import ExecutionState
 from schemas.execution import ExecutionPhase
 from services.store import Store
-from skills.synthetic import plane_slide
 
 
 def _demonstration() -> Demonstration:

@@ -36,9 +36,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
+from corpus.synthetic import minimum_jerk
 from skills.frames import rotation_from_vectors
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
-from skills.synthetic import minimum_jerk
 
 SURFACES = ("flat", "tilted", "curved")
 """Surfaces a kinesthetic demonstration can be recorded on."""
