@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from corpus import kinesthetic  # noqa: E402
 from schemas import SegmentKind  # noqa: E402
+from schemas.import_options import CsvImportOptions  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 from skills.quaternions import matrix_from_quaternion  # noqa: E402
@@ -60,7 +61,7 @@ def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def run_case(surface: str, seed: int) -> Case:
     demo = kinesthetic.kinesthetic_wipe(surface, n_strokes=1 + seed % 4, friction=FRICTIONS[seed % 3], seed=seed)
-    imported = demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT)
+    imported = demonstration_from_csv(kinesthetic.recording_csv_text(demo), CsvImportOptions(**IMPORT))
     offset = np.asarray(imported.metadata.force_offset_removed or np.zeros(6))
     skill = learn_skill(imported)
     truth = demo.truth

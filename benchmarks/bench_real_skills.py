@@ -22,6 +22,7 @@ from benchmarks.report import ROOT, machine_line, pin_blas_threads, write_sectio
 pin_blas_threads()
 
 from schemas import ExecutionSettings  # noqa: E402
+from schemas.import_options import CsvImportOptions  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
 from sim_worker.execution_world import execution_world  # noqa: E402
 from sim_worker.executor import run_skill  # noqa: E402
@@ -36,7 +37,9 @@ IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "
 def _rows() -> list[dict]:
     rows = []
     for trial in TRIALS:
-        skill = learn_skill(demonstration_from_csv(ROOT / "data" / "kuleuven_contour" / f"{trial}.csv", **IMPORT))
+        skill = learn_skill(
+            demonstration_from_csv(ROOT / "data" / "kuleuven_contour" / f"{trial}.csv", CsvImportOptions(**IMPORT))
+        )
         for dz in (0.0, 0.02):
             settings = ExecutionSettings(environment={"unknown_offset": [0.0, 0.0, dz]})
             started = time.perf_counter()

@@ -32,6 +32,7 @@ def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
     from rosbag_files import write_bag
 
     from corpus.synthetic import plane_slide
+    from schemas.import_options import BagImportOptions
     from services.bag_import import demonstration_from_bag
 
     demo = plane_slide(duration_s=BAG_SECONDS, rate_hz=1000.0)
@@ -42,7 +43,8 @@ def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
                             storage=storage, wrench_frame="world", pose_every=1)  # fmt: skip
             size = sum(p.stat().st_size for p in bag.iterdir())
             elapsed, imported = median_time(
-                lambda bag=bag: demonstration_from_bag(bag, wrench_convention="measured-on-tool"), repeats
+                lambda bag=bag: demonstration_from_bag(bag, BagImportOptions(wrench_convention="measured-on-tool")),
+                repeats,
             )
             seconds[storage] = elapsed
             messages = sum(imported.metadata.extra["bag"]["messages"].values())

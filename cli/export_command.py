@@ -36,15 +36,11 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
     """A local demonstration file exported: its samples unchanged (no tare), in the window."""
     import json
 
+    from schemas.import_options import ImportOptions
     from services.csv_import import demonstration_from_file, samples_csv_text
     from services.telemetry_export import demonstration_mcap, window_mask
 
-    if source.is_dir() or source.suffix.lower() in (".mcap", ".db3"):
-        from services.bag_import import demonstration_from_bag
-
-        demonstration = demonstration_from_bag(source, tare=False)
-    else:
-        demonstration = demonstration_from_file(source, tare=False)
+    demonstration = demonstration_from_file(source, ImportOptions(tare=False))
     a = demonstration.arrays()
     keep = window_mask(a.t, t0, t1)
     what = f"demonstration {source} ({int(keep.sum())} of {a.t.size} samples)"

@@ -17,6 +17,7 @@ EXAMPLES: dict[str, list[str]] = {
         "--wrench-frame tool -o scratch/wipe.json",
         "contact-skills learn demo.mcap --wrench measured-on-tool --tool-frame tool -o scratch/skill.json",
         "contact-skills learn bag_dir/ --wrench-topic /ft/raw --tf world tool0 -o scratch/skill.json",
+        "contact-skills learn demo.bag --wrench measured-on-tool --tool-frame tool0 -o scratch/skill.json",
     ],
     "demo-learn": ["contact-skills demo-learn --out-dir scratch/kuleuven"],
     "record": [

@@ -14,7 +14,9 @@ from pathlib import Path
 
 from cli import bus_commands, demo_command, export_command, service_commands, sweep_command
 from cli.help import polish
+from cli.import_options import LazyArgumentsParser, add_import_arguments, import_demonstration
 from services.datasets import DATA_ENV, KULEUVEN_IMPORT, data_directory, kuleuven_recordings
+from services.demonstration_files import SUPPORTED_FILES
 
 EXIT_USAGE = 2
 """Exit code for bad input (as argparse uses for bad arguments)."""
@@ -35,7 +37,7 @@ def _user_problems(exc: BaseException) -> list[str] | None:
     """The printable problems of a user-fixable error, or None for a bug (which keeps its traceback)."""
     from pydantic import ValidationError
 
-    from services.csv_import import DemonstrationImportError, validation_problems
+    from services.importing import DemonstrationImportError, validation_problems
 
     if isinstance(exc, UserError | DemonstrationImportError):
         return exc.problems
@@ -43,7 +45,10 @@ def _user_problems(exc: BaseException) -> list[str] | None:
         return validation_problems(exc)
     if isinstance(exc, OSError):
         return [f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")]
-    if type(exc).__name__ == "LearningError":  # skills.parameterize: "field: reason" (not imported unless needed)
+    learning = sys.modules.get("skills.parameterize")  # loaded when it raised: not imported for the help
+    if learning is not None and isinstance(exc, learning.SkillCheckError):
+        return [f"--strict: the skill fails its check {c.name.value}: {c.message}" for c in exc.checks]
+    if learning is not None and isinstance(exc, learning.LearningError):
         return str(exc).splitlines()
     return None
 
@@ -60,11 +65,11 @@ def _report_user_error(command: str, exc: BaseException) -> int:
 # --------------------------------------------------------------------------- learn
 
 
-def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
+def _add_learn_arguments(parser: LazyArgumentsParser) -> None:
     parser.add_argument(
         "file",
         type=Path,
-        help="demonstration: a CSV recording, a JSON Demonstration, or a ROS 2 bag (a bag directory, .mcap or .db3)",
+        help=f"demonstration: {SUPPORTED_FILES}",
     )
     parser.add_argument(
         "--type",
@@ -74,109 +79,26 @@ def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
         help="the skill to learn; auto chooses slide or contour from the contact's geometry (default auto)",
     )
     parser.add_argument(
-        "--columns",
-        metavar="SPEC",
-        help="column names, e.g. t=time,px=tcp_x,qw=tcp_qw,fz=Fz; keys: t px py pz qx qy qz qw fx fy fz mx my mz "
-        "(unnamed keys are recognized from common header names)",
-    )
-    parser.add_argument(
-        "--quaternion-order",
-        choices=["xyzw", "wxyz"],
-        help="order of the quaternion columns in the file (default: from their names, e.g. qw or tcp_qw)",
-    )
-    parser.add_argument(
-        "--wrench",
-        dest="wrench_convention",
-        choices=["applied-by-tool", "measured-on-tool"],
-        default="applied-by-tool",
-        help="what the recorded wrench is: measured-on-tool (a sensor's reaction) is negated",
-    )
-    parser.add_argument(
-        "--wrench-frame",
-        choices=["world", "tool"],
-        help="frame of the recorded wrench (default: world for a CSV file; from the messages' frame_id for a bag)",
-    )
-    bag = parser.add_argument_group("ROS 2 bags (topics are chosen automatically when the bag holds one candidate)")
-    bag.add_argument("--wrench-topic", metavar="TOPIC", help="the geometry_msgs/msg/WrenchStamped topic")
-    bag.add_argument("--pose-topic", metavar="TOPIC", help="the geometry_msgs/msg/PoseStamped topic of the tool pose")
-    bag.add_argument(
-        "--tf", nargs=2, metavar=("PARENT", "CHILD"), help="the tool pose from /tf instead: world and tool frames"
-    )
-    bag.add_argument(
-        "--tool-frame", metavar="FRAME", help="the frame a PoseStamped is the pose of (a wrench in it is the tool's)"
-    )
-    parser.add_argument(
-        "--rate",
-        type=float,
-        metavar="HZ",
-        help="with a time column: the rate to resample to (default: the data's own); without one: the rate the "
-        "rows were sampled at (t = row / HZ from 0)",
-    )
-    parser.add_argument(
-        "--dt",
-        type=float,
-        metavar="SECONDS",
-        help="the same as --rate 1/SECONDS: the time step of a file without a time column (t = row * SECONDS)",
-    )
-    parser.add_argument(
-        "--no-tare", action="store_true", help="keep the sensor offset (else fitted over the free-space stretches)"
-    )
-    parser.add_argument(
-        "--tare-window",
-        type=float,
-        nargs=2,
-        metavar=("T0", "T1"),
-        help="take the sensor offset as the median of the file's wrench between T0 and T1 s (nothing touching)",
-    )
-    parser.add_argument(
-        "--force-offset",
-        type=float,
-        nargs="+",
-        metavar="F",
-        help="subtract this sensor offset: FX FY FZ (N) [MX MY MZ (N·m)], as the file reads it with nothing touching",
-    )
-    parser.add_argument(
         "--basis", type=int, default=50, metavar="N", help="fewest DMP basis functions per segment (long ones get more)"
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse a skill that fails any of its checks against the demonstration (exit 2 giving each); by default "
+        "it is written and the failed checks are printed as warnings",
     )
     parser.add_argument("-o", "--output", type=Path, required=True, help="skill JSON to write")
     parser.add_argument("--figure", type=Path, help="learning figure to write (PNG)")
+    add_import_arguments(parser)
 
 
-def _import_demonstration(args: argparse.Namespace):  # -> schemas.Demonstration
-    from services.csv_import import ColumnMap, demonstration_from_csv, demonstration_from_json
-
-    if args.file.suffix.lower() == ".json":
-        return demonstration_from_json(args.file)
-    if args.file.is_dir() or args.file.suffix.lower() in (".mcap", ".db3"):
-        from cli.bag_options import bag_demonstration
-
-        return bag_demonstration(args)
-    bag_only = [flag for flag, value in (("--wrench-topic", args.wrench_topic), ("--pose-topic", args.pose_topic),
-                                         ("--tf", args.tf), ("--tool-frame", args.tool_frame)) if value]  # fmt: skip
-    if bag_only:
-        raise UserError([f"{', '.join(bag_only)}: for ROS 2 bags only; {args.file} is read as CSV"])
-    return demonstration_from_csv(
-        args.file,
-        columns=ColumnMap.parse(args.columns) if args.columns else None,
-        quaternion_order=args.quaternion_order,
-        wrench_convention=args.wrench_convention,
-        wrench_frame=args.wrench_frame or "world",
-        rate_hz=args.rate,
-        dt_s=args.dt,
-        tare=not args.no_tare,
-        tare_window_s=tuple(args.tare_window) if args.tare_window else None,
-        force_offset=args.force_offset,
-    )
-
-
-def learn_and_report(demonstration, skill_type: str, n_basis: int, output: Path, figure: Path | None) -> None:
-    """Learn the skill from ``demonstration``, write it (and the figure), print the summary."""
+def learn_and_report(demonstration, options, output: Path, figure: Path | None) -> None:
+    """Learn the skill from ``demonstration`` with ``options`` (`schemas.LearnOptions`), write it (and the figure),
+    print the summary with its checks' warnings."""
     import time
 
-    from schemas import LearnOptions
     from skills.parameterize import learn_skill
 
-    options = LearnOptions(skill_type=skill_type, n_basis=n_basis)
     started = time.perf_counter()
     skill = learn_skill(demonstration, options)
     elapsed = time.perf_counter() - started
@@ -247,14 +169,20 @@ def summary_lines(demonstration, skill) -> list[str]:
         if q.force_rms_n is not None:
             errors += f", force {q.force_rms_n:.2f} N"
         lines.append(f"    DMP reproduction RMS: {errors}")
+    warnings = skill.warnings()
+    lines.append(f"checks against the demonstration: {len(skill.checks) - len(warnings)} of {len(skill.checks)} passed")
+    lines += [f"  WARNING: {warning}" for warning in warnings]
     return lines
 
 
 def cmd_learn(args: argparse.Namespace) -> int:
     """``contact-skills learn``: import a recording, learn the skill, write it, print the summary."""
     try:
-        demonstration = _import_demonstration(args)
-        learn_and_report(demonstration, args.skill_type, args.basis, args.output, args.figure)
+        demonstration = import_demonstration(args)
+        from schemas import LearnOptions
+
+        options = LearnOptions(skill_type=args.skill_type, n_basis=args.basis, strict=args.strict)
+        learn_and_report(demonstration, options, args.output, args.figure)
     except Exception as exc:
         return _report_user_error("learn", exc)
     return 0
@@ -266,12 +194,15 @@ def cmd_demo_learn(args: argparse.Namespace) -> int:
         recordings = kuleuven_recordings()
         if not recordings:
             raise UserError([f"no KU Leuven recordings (contour_*.csv) under {data_directory()}; set {DATA_ENV}"])
+        from schemas.import_options import CsvImportOptions
         from services.csv_import import demonstration_from_csv
 
         print(f"importing {recordings[0]}")
-        demonstration = demonstration_from_csv(recordings[0], **KULEUVEN_IMPORT)
+        demonstration = demonstration_from_csv(recordings[0], CsvImportOptions(**KULEUVEN_IMPORT))
         out = args.out_dir
-        learn_and_report(demonstration, "contour", 50, out / "skill.json", out / "learn.png")
+        from schemas import LearnOptions
+
+        learn_and_report(demonstration, LearnOptions(skill_type="contour"), out / "skill.json", out / "learn.png")
     except Exception as exc:
         return _report_user_error("demo-learn", exc)
     return 0
@@ -516,10 +447,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(prog="contact-skills", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"contact-skills {package_version()}")
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=LazyArgumentsParser)
     learn = commands.add_parser(
         "learn",
-        help="learn a skill from a recorded demonstration (CSV, JSON, ROS 2 bag)",
+        help="learn a skill from a recorded demonstration (CSV, JSON, ROS 1 or ROS 2 bag)",
         description=cmd_learn.__doc__,
     )
     _add_learn_arguments(learn)

@@ -37,6 +37,8 @@ from schemas.execution import (
 )
 from schemas.skill import (
     AutoSelection,
+    BoundaryReason,
+    CheckName,
     CompliantFrames,
     DMPParameters,
     LearnOptions,
@@ -45,12 +47,16 @@ from schemas.skill import (
     SegmentQuality,
     Skill,
     SkillAttributes,
+    SkillCheck,
     SkillType,
     SkillTypeRequest,
+    TypeEvidence,
 )
 
 __all__ = [
     "AutoSelection",
+    "BoundaryReason",
+    "CheckName",
     "CompliantFrames",
     "ControllerGains",
     "ControllerKind",
@@ -80,12 +86,14 @@ __all__ = [
     "SensorChoice",
     "Skill",
     "SkillAttributes",
+    "SkillCheck",
     "SkillType",
     "SkillTypeRequest",
     "StartExecution",
     "StartReply",
     "TelemetryBatch",
     "TelemetrySample",
+    "TypeEvidence",
     "WorkPieceSource",
     "WorkerInfo",
     "WrenchConvention",

@@ -11,7 +11,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from schemas.demonstration import Demonstration, DemonstrationSummary, WrenchConvention, WrenchFrame
+from schemas.demonstration import Demonstration, DemonstrationSummary
 from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.skill import LearnOptions, Skill
 
@@ -60,72 +60,11 @@ class DemonstrationCreated(BaseModel):
     source: str = Field(description="Where it came from: json, csv:<file>, teacher:<scenario>.")
     summary: DemonstrationSummary
     import_notes: list[str] = Field(
-        default_factory=list, description="What the importer did (resampling, frame, sign, tare); CSV only."
+        default_factory=list, description="What the importer did (resampling, frame, sign, tare); uploads only."
     )
     extra: dict[str, Any] = Field(
         default_factory=dict, description="Extra information (e.g. the teacher's ground truth for recordings)."
     )
-
-
-class BagImportForm(BaseModel):
-    """``POST /demonstrations/bag``: the form fields beside the file, as the options of ``contact-skills learn BAG``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    wrench_topic: str | None = Field(
-        None, description="The geometry_msgs/msg/WrenchStamped topic (default: the bag's only one)."
-    )
-    pose_topic: str | None = Field(
-        None, description="The geometry_msgs/msg/PoseStamped topic of the tool pose (default: the bag's only one)."
-    )
-    tf_parent: str | None = Field(None, description="The tool pose from /tf instead: the world frame (with tf_child).")
-    tf_child: str | None = Field(None, description="The tool pose from /tf instead: the tool frame (with tf_parent).")
-    tool_frame: str | None = Field(
-        None, description="The frame a PoseStamped is the pose of (a wrench in it is the tool's)."
-    )
-    wrench: WrenchConvention = Field(
-        WrenchConvention.applied_by_tool, description="measured-on-tool (a sensor's reaction) is negated."
-    )
-    wrench_frame: WrenchFrame | None = Field(
-        None, description="Overrides the wrench's frame_id: world or tool (default: from the messages and /tf_static)."
-    )
-    rate: float | None = Field(
-        None, gt=0, le=100_000, description="Rate of the time base, Hz (default: the faster topic's median rate)."
-    )
-    tare: bool = Field(True, description="Remove the sensor offset, fitted over the free-space stretches.")
-    tare_window: str | None = Field(
-        None, description="'T0,T1' (s from the first sample): offset = median wrench there."
-    )
-    force_offset: str | None = Field(
-        None, description="'FX,FY,FZ[,MX,MY,MZ]': subtract this offset as the bag reads it."
-    )
-    name: str | None = Field(None, description="Name (default: the file name).")
-
-    @model_validator(mode="before")
-    @classmethod
-    def _without_the_file(cls, data: Any) -> Any:
-        """The multipart form also carries ``file`` (the route's own parameter): not an unknown field."""
-        return {k: v for k, v in data.items() if k != "file"} if isinstance(data, dict) else data
-
-    @model_validator(mode="after")
-    def _tf_pair(self) -> BagImportForm:
-        if (self.tf_parent is None) != (self.tf_child is None):
-            raise ValueError("tf_parent and tf_child name the /tf pair together: give both or neither")
-        return self
-
-    def import_options(self) -> dict[str, Any]:
-        """The keyword arguments of `services.bag_import.demonstration_from_bag` but the two parsed ones."""
-        return {
-            "wrench_topic": self.wrench_topic,
-            "pose_topic": self.pose_topic,
-            "tf_frames": None if self.tf_parent is None else (self.tf_parent, self.tf_child),
-            "tool_frame": self.tool_frame,
-            "wrench_frame": self.wrench_frame,
-            "wrench_convention": self.wrench,
-            "rate_hz": self.rate,
-            "tare": self.tare,
-            "name": self.name,
-        }
 
 
 class DemonstrationInfo(BaseModel):
@@ -184,6 +123,11 @@ class StoredSkill(BaseModel):
     demonstration_id: str | None = Field(description="The stored demonstration it was learned from; None if inline.")
     created: float = Field(description="When it was stored, Unix s.")
     learn_seconds: float | None = Field(None, description="How long learning took, s (only in the POST reply).")
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="The messages of the skill's failed checks against its demonstration (`skill.checks`): where it "
+        "may be wrong. Empty when every check passed.",
+    )
     skill: Skill
 
 
@@ -196,6 +140,7 @@ class SkillInfo(BaseModel):
     skill_type: str = Field(description="slide or contour.")
     segments: int = Field(description="Number of segments.")
     confidence: float | None = Field(description="Confidence of the auto selection, if `auto` was asked.")
+    failed_checks: int = Field(0, description="How many of the skill's checks failed (its warnings).")
     demonstration_name: str | None = Field(description="Name of the demonstration it was learned from.")
 
 

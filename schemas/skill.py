@@ -25,6 +25,8 @@ MAX_FRAMES = 5000
 """Most compliant frames per segment (``LearnOptions.contour_frames_max`` at most)."""
 MAX_SEGMENTS = 500
 """Most segments a skill may have."""
+MAX_CHECKS = 8 * MAX_SEGMENTS
+"""Most checks a skill may carry (a few per segment)."""
 
 
 class SkillType(StrEnum):
@@ -40,6 +42,25 @@ class SkillTypeRequest(StrEnum):
     slide = "slide"
     contour = "contour"
     auto = "auto"
+
+
+class BoundaryReason(StrEnum):
+    """What decided where a segment starts or ends (docs/LEARNING.md)."""
+
+    force = "force"
+    """The force along the normal rose from (or fell to) the touch level."""
+    surface = "surface"
+    """The tool reached (or left) the surface it pressed on."""
+    crease = "crease"
+    """The surface normal jumps: another plane (slide)."""
+    stroke = "stroke"
+    """The press dips between two strokes that go another way or press on another surface, without a lift-off."""
+    turn = "turn"
+    """A path that goes round completed a full turn: one segment per pass."""
+    recording = "recording"
+    """The recording starts or ends there."""
+    contact = "contact"
+    """A free segment starts where a contact ended, or ends where one starts."""
 
 
 class SegmentKind(StrEnum):
@@ -146,15 +167,11 @@ class Segment(BaseModel):
     end_index: int = Field(ge=0, description="One past the last sample in this segment.")
     t_start: float = Field(description="Demonstration time of the first sample, s.")
     t_end: float = Field(description="Demonstration time of the last sample, s.")
-    start_reason: str | None = Field(
-        None,
-        description="What decided where this segment starts: 'force' (rose from the touch level), 'surface' "
-        "(the tool reached the surface), 'crease' (the surface normal jumps), 'recording' (the file starts), or "
-        "'contact' for a free segment that starts where a contact ended.",
-        examples=["force"],
+    start_reason: BoundaryReason | None = Field(
+        None, description="What decided where this segment starts (see BoundaryReason).", examples=["force"]
     )
-    end_reason: str | None = Field(
-        None, description="What decided where this segment ends (same words as start_reason).", examples=["surface"]
+    end_reason: BoundaryReason | None = Field(
+        None, description="What decided where this segment ends (see BoundaryReason).", examples=["surface"]
     )
     selection: list[float] = Field(
         min_length=6, max_length=6, description="Diagonal of S in CF, [x, y, z, rx, ry, rz]; 1 = motion, 0 = force."
@@ -186,18 +203,63 @@ class SkillAttributes(BaseModel):
     )
 
 
+class TypeEvidence(BaseModel):
+    """Log-odds for contour (positive) against slide (negative) of each measure `auto` weighs (docs/LEARNING.md)."""
+
+    turning: float = Field(description="From the turning of the friction-free normal along a stroke.")
+    tool_following: float = Field(description="From the tool's rotation following that turning (>= 0).")
+    planarity: float = Field(
+        description="From how far the contact leaves its best pressed plane (towards slide at most 1.5)."
+    )
+
+
 class AutoSelection(BaseModel):
     """The result of ``skill_type = auto``."""
 
     chosen: SkillType
     confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
+    mixed: bool = Field(
+        False,
+        description="The evidence is mixed (confidence below 0.75): contour was chosen, whose frames follow the "
+        "measured force at every sample (right on a plane as on a curve).",
+    )
     turning_within_planes_deg: float = Field(
         description="Largest turn of the friction-free normal within one slide segment, deg (planes: a few)."
+    )
+    tool_following: float | None = Field(
+        None, description="Largest share (0-1) of that turning the tool's own rotation followed (contours: 0.4-0.9)."
     )
     plane_rms_m: float | None = Field(
         None, description="Largest planarity residual of the contact within one slide segment, m (planes: < 4 mm)."
     )
+    evidence: TypeEvidence | None = Field(None, description="Each measure's log-odds for contour.")
     reason: str = Field(description="One sentence: why this type.")
+
+
+class CheckName(StrEnum):
+    """The checks a learned skill carries (docs/LEARNING.md, "Every skill checks itself")."""
+
+    force_along_cf = "force_along_cf"
+    cf_z_vs_force = "cf_z_vs_force"
+    plane_conditioning = "plane_conditioning"
+    plane_vs_force = "plane_vs_force"
+    stroke_strength = "stroke_strength"
+    force_outside_contact = "force_outside_contact"
+    type_evidence = "type_evidence"
+
+
+class SkillCheck(BaseModel):
+    """One check of a learned skill against what its demonstration measured: its value, its limit and the verdict."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: CheckName
+    segment: int | None = Field(None, description="The segment checked; None for the whole skill.")
+    passed: bool
+    value: float = Field(description="The measured value, in ``unit``.")
+    limit: float = Field(description="The limit the value is held to, in ``unit`` (see ``message``: at most / least).")
+    unit: str = Field(examples=["deg", "N", "ratio", "mm"])
+    message: str = Field(description="One sentence with the numbers; a warning when not passed.")
 
 
 class Skill(BaseModel):
@@ -209,6 +271,12 @@ class Skill(BaseModel):
     attributes: SkillAttributes
     segments: list[Segment] = Field(min_length=1, max_length=MAX_SEGMENTS)
     auto_selection: AutoSelection | None = Field(None, description="Present when skill_type 'auto' was asked for.")
+    checks: list[SkillCheck] = Field(
+        default_factory=list,
+        max_length=MAX_CHECKS,
+        description="The skill's checks against what its demonstration measured; a failed one is a warning (strict "
+        "learning refuses the skill).",
+    )
     demonstration: DemonstrationSummary
     sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
     taught_world: dict[str, Any] | None = Field(
@@ -217,6 +285,10 @@ class Skill(BaseModel):
         "metadata.extra['world']); executions run in it. None for real recordings: executions rebuild the work "
         "piece from the skill.",
     )
+
+    def warnings(self) -> list[str]:
+        """The messages of the checks that failed, in order (empty when every check passed)."""
+        return [check.message for check in self.checks if not check.passed]
 
 
 class LearnOptions(BaseModel):
@@ -251,4 +323,9 @@ class LearnOptions(BaseModel):
     min_segment_duration_s: float = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
     contour_frames_max: int = Field(
         500, ge=2, le=MAX_FRAMES, description="Most compliant frames stored per contour segment (decimated evenly)."
+    )
+    strict: bool = Field(
+        False,
+        description="Refuse a skill that fails any of its checks (422 giving each failed check) instead of returning "
+        "it with warnings.",
     )

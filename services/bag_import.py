@@ -1,8 +1,10 @@
-"""Importing ROS 2 bags (MCAP or sqlite3 storage, a bag directory or its storage file) with ``rosbags``: no ROS needed.
+"""Importing ROS bags with ``rosbags``, no ROS needed: ROS 2 (MCAP or sqlite3 storage, a bag directory or its storage
+file) and ROS 1 (a ``.bag`` file), told apart by their content.
 
 A demonstration in a bag is a ``geometry_msgs/msg/WrenchStamped`` topic and the tool pose, either a
-``geometry_msgs/msg/PoseStamped`` topic or a parent/child pair of ``/tf`` (with ``/tf_static``). Steps of
-:func:`demonstration_from_bag`, in order:
+``geometry_msgs/msg/PoseStamped`` topic or a parent/child pair of ``/tf`` (with ``/tf_static``); a ROS 1 bag's types
+(``geometry_msgs/WrenchStamped``, from the definitions the bag carries) read as the same ROS 2 names, and from there
+on both are one import. Steps of :func:`demonstration_from_bag`, in order:
 
 1. **Topics.** Chosen automatically when unambiguous (one WrenchStamped topic; one PoseStamped topic, else
    one moving ``/tf`` pair); otherwise the options name them (``wrench_topic``, ``pose_topic``,
@@ -19,35 +21,42 @@ A demonstration in a bag is a ``geometry_msgs/msg/WrenchStamped`` topic and the 
    averaged) and both are interpolated onto one uniform grid over the span they share
    (`skills.preprocess.recording_from_groups`: positions C1 cubic, orientations slerp, wrenches linear;
    default rate: the faster stream's median rate).
-5. The rest is the CSV importer's (`services.csv_import.demonstration_from_samples`): offset given or
+5. The rest is every importer's (`services.importing.demonstration_from_samples`): offset given or
    windowed, tool frame -> world, measured-on-tool -> applied-by-tool, tare over the free-space stretches,
    validation.
 
 Problems raise :class:`BagImportError`, each line starting with the option it is about (``wrench_topic:``,
-``pose_topic:``, ``tf:``, ``wrench_frame:``) or ``file:``.
+``pose_topic:``, ``tf:``, ``wrench_frame:``) or ``file:``; a file that is no bag gets the message every importer
+gives (`services.demonstration_files.unsupported_file`). The options are one
+`schemas.import_options.BagImportOptions`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchFrame
 from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
+from schemas.import_options import BagImportOptions
 from services.cdr import pose_stamped, wrench_stamped
-from services.csv_import import (
-    DemonstrationImportError,
-    RecordingSamples,
-    demonstration_from_samples,
-    sampling_rate_hz,
+from services.demonstration_files import (
+    BAGS,
+    HEAD_BYTES,
+    bag_storage_suffix,
+    other_kind,
+    path_kind,
+    unsupported_file,
 )
+from services.importing import DemonstrationImportError, RecordingSamples, demonstration_from_samples, sampling_rate_hz
 from skills import preprocess
 from skills.frames import wrench_adjoint_from_transform
 
@@ -55,18 +64,34 @@ WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 TF_TOPICS = ("/tf", "/tf_static")
-BAG_SUFFIXES = (".mcap", ".db3")
-"""Storage files a bag may be given as (a rosbag2 directory holds one of them and ``metadata.yaml``)."""
 
 
 class BagImportError(DemonstrationImportError):
-    """A ROS 2 bag could not be imported (unreadable, ambiguous or missing topics, frames that do not connect)."""
+    """A ROS bag could not be imported (unreadable, ambiguous or missing topics, frames that do not connect)."""
 
 
-def is_bag(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` is a ROS 2 bag: a directory with ``metadata.yaml``, or an ``.mcap``/``.db3`` storage file."""
-    path = Path(path)
-    return (path / "metadata.yaml").is_file() if path.is_dir() else path.suffix.lower() in BAG_SUFFIXES
+@contextlib.contextmanager
+def _readable_bag(path: Path, shown: str) -> Iterator[Path]:
+    """``path`` as ``rosbags`` reads it: a rosbag2 directory as it is; a storage file under the suffix its content
+    calls for (``rosbags`` tells MCAP, sqlite3 and ROS 1 apart by the suffix), linked under that name if it has
+    another. Raises :class:`BagImportError` for anything that is not a bag (``shown``: its name in the message)."""
+    try:
+        kind = path_kind(path)
+    except OSError as exc:
+        raise BagImportError(f"file: cannot read {shown!r}: {exc.strerror or exc}") from None
+    if kind is None:
+        raise BagImportError(unsupported_file(shown))
+    if kind not in BAGS:
+        raise BagImportError(other_kind(shown, kind, "a ROS bag"))
+    with contextlib.ExitStack() as stack:
+        if path.is_file():
+            with path.open("rb") as file:
+                suffix = bag_storage_suffix(file.read(HEAD_BYTES))
+            if path.suffix.lower() != suffix:
+                link = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cskills-bag-"))) / f"bag{suffix}"
+                link.symlink_to(path.resolve())
+                path = link
+        yield path
 
 
 # --------------------------------------------------------------------------- reading
@@ -139,6 +164,8 @@ def _quaternion(q) -> list[float]:
 
 @dataclass(frozen=True)
 class _BagContents:
+    ros: int
+    """1 or 2."""
     topics: dict[str, str]
     """Topic -> message type."""
     counts: dict[str, int]
@@ -178,16 +205,22 @@ def _listed(topics: dict[str, str]) -> str:
     return ", ".join(f"{name} [{kind}]" for name, kind in sorted(topics.items())) or "none"
 
 
-def _read_bag(path: Path, wrench_topic: str | None, pose_topic: str | None, use_tf: bool) -> _BagContents:
-    """Read the chosen topics (and ``/tf``, ``/tf_static``) of the bag at ``path`` in one pass."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
+def _read_bag(path: Path, shown: str, wrench_topic: str | None, pose_topic: str | None, use_tf: bool) -> _BagContents:
+    """Read the chosen topics (and ``/tf``, ``/tf_static``) of the bag at ``path`` in one pass (``shown``: the bag's
+    name in the messages)."""
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as exc:  # rosbags is in the service extra
+        raise BagImportError(
+            f"file: reading ROS bags needs the service extra (pip install -e '.[service]'): {exc}"
+        ) from None
 
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # rosbags raises its own error types for every unreadable bag
-        raise BagImportError(f"file: cannot read the bag {path.name!r}: {exc}") from None
+        raise BagImportError(f"file: cannot read the bag {shown!r}: {exc}") from None
     try:
         topics = {name: info.msgtype or "?" for name, info in reader.topics.items()}
         counts = {name: int(info.msgcount) for name, info in reader.topics.items()}
@@ -215,21 +248,21 @@ def _read_bag(path: Path, wrench_topic: str | None, pose_topic: str | None, use_
     except BagImportError:
         raise
     except Exception as exc:
-        raise BagImportError(f"file: cannot read the messages of {path.name!r}: {exc}") from None
+        raise BagImportError(f"file: cannot read the messages of {shown!r}: {exc}") from None
     finally:
         reader.close()
-    return _BagContents(topics, counts, wrench_name, wrench, pose_name, pose, transforms)
+    return _BagContents(2 if reader.is2 else 1, topics, counts, wrench_name, wrench, pose_name, pose, transforms)
 
 
 def _stream(reader, msgtype: str, log_times_ns: list[int], raws: list[bytes]) -> _Stream:
     """A WrenchStamped or PoseStamped topic: stamps (the bag's log time where a header stamp is zero), values
-    ([f, m] or [p, q]) and frames; decoded all at once when every message has the first one's layout
-    (`services.cdr`), else one by one."""
+    ([f, m] or [p, q]) and frames; a ROS 2 bag's CDR decoded all at once when every message has the first one's
+    layout (`services.cdr`), else (and a ROS 1 bag's) one by one."""
     if not raws:
         return _Stream()
     first = reader.deserialize(raws[0], msgtype)
     layout, field = (wrench_stamped, "wrench") if msgtype == WRENCH_TYPE else (pose_stamped, "pose")
-    decoded = layout(first.header.frame_id).decoded(raws)
+    decoded = layout(first.header.frame_id).decoded(raws) if reader.is2 else None
     if decoded is not None:
         stamps, values, frames = decoded["stamp"], decoded[field], {first.header.frame_id.lstrip("/")}
     else:
@@ -387,44 +420,32 @@ def _wrench_frame_choice(
 # --------------------------------------------------------------------------- import
 
 
-def demonstration_from_bag(
-    path: str | os.PathLike[str],
-    *,
-    wrench_topic: str | None = None,
-    pose_topic: str | None = None,
-    tf_frames: tuple[str, str] | None = None,
-    tool_frame: str | None = None,
-    wrench_frame: WrenchFrame | str | None = None,
-    wrench_convention: WrenchConvention | str = WrenchConvention.applied_by_tool,
-    rate_hz: float | None = None,
-    tare: bool = True,
-    tare_window_s: tuple[float, float] | None = None,
-    force_offset: Sequence[float] | None = None,
-    name: str | None = None,
-) -> Demonstration:
-    """Import a ROS 2 bag (a rosbag2 directory, or its ``.mcap``/``.db3`` storage file) as a `schemas.Demonstration`.
+def demonstration_from_bag(path: str | os.PathLike[str], options: BagImportOptions | None = None) -> Demonstration:
+    """Import a ROS bag as a `schemas.Demonstration`: ROS 2 (a rosbag2 directory, or its MCAP or sqlite3 storage
+    file) or ROS 1 (a ``.bag`` file), told apart by the content.
 
-    ``wrench_topic`` (a WrenchStamped topic), ``pose_topic`` (a PoseStamped topic) or ``tf_frames``
-    (``(parent, child)`` in ``/tf``): default, the only candidate. ``tool_frame``: the frame a PoseStamped
-    is the pose of (lets a wrench in that frame be recognised as the tool's). ``wrench_frame``: 'world' or
-    'tool' overrides what the wrench's header says. ``wrench_convention``, ``rate_hz`` (Hz, the uniform
-    rate of the result; default the faster stream's median rate), ``tare``, ``tare_window_s`` (s from the
-    first sample), ``force_offset`` (N, N·m, as the messages read it) and ``name`` as for
-    `services.csv_import.demonstration_from_csv`. See the module docstring for the steps.
-    Raises :class:`BagImportError` naming the option and the reason.
+    ``options`` (`schemas.import_options.BagImportOptions`, default all defaults): ``wrench_topic`` (a
+    WrenchStamped topic), ``pose_topic`` (a PoseStamped topic) or ``tf_parent``/``tf_child`` (a pair in
+    ``/tf``): default, the only candidate. ``tool_frame``: the frame a PoseStamped is the pose of (lets a wrench
+    in that frame be recognised as the tool's). ``wrench_frame``: 'world' or 'tool' overrides what the wrench's
+    header says. ``wrench_convention``, ``rate_hz`` (Hz, the uniform rate of the result; default the faster
+    stream's median rate), ``tare``, ``tare_window_s`` (s from the first sample), ``force_offset`` (N, N·m, as
+    the messages read it) and ``name`` as for `services.csv_import.demonstration_from_csv`. See the module
+    docstring for the steps. Raises :class:`BagImportError` naming the option and the reason.
     """
     path = Path(path)
     if not path.exists():
         raise BagImportError(f"file: {str(path)!r} does not exist")
-    try:
-        convention = WrenchConvention(wrench_convention)
-        frame = None if wrench_frame is None else WrenchFrame(wrench_frame)
-    except ValueError as exc:
-        raise BagImportError(str(exc)) from None
-    if pose_topic is not None and tf_frames is not None:
+    return _imported(path, path.name, options or BagImportOptions())
+
+
+def _imported(path: Path, shown: str, options: BagImportOptions) -> Demonstration:
+    """:func:`demonstration_from_bag` of the bag at ``path``, named ``shown`` in the messages and the metadata."""
+    if options.pose_topic is not None and options.tf_frames is not None:
         raise BagImportError("pose_topic: give either a pose topic or a /tf pair (--tf), not both")
-    rate = sampling_rate_hz(rate_hz, None)
-    bag = _read_bag(path, wrench_topic, pose_topic, use_tf=tf_frames is not None)
+    rate = sampling_rate_hz(options.rate_hz, None, BagImportError)
+    with _readable_bag(path, shown) as readable:
+        bag = _read_bag(readable, shown, options.wrench_topic, options.pose_topic, use_tf=options.tf_frames is not None)
     wrench_name = bag.wrench_topic
     notes = []
     if bag.pose is not None and bag.pose_topic is not None:
@@ -434,19 +455,19 @@ def demonstration_from_bag(
         values = _checked(np.asarray(bag.pose.values, dtype=float).reshape(-1, 7), pose_name)
         poses = _Poses(
             np.asarray(bag.pose.stamps_ns, dtype=np.int64), values[:, :3], values[:, 3:],
-            next(iter(bag.pose.frames)), tool_frame.lstrip("/") if tool_frame else None, pose_name,
+            next(iter(bag.pose.frames)), options.tool_frame.lstrip("/") if options.tool_frame else None, pose_name,
         )  # fmt: skip
         if bag.pose.log_time_used:
             notes.append(f"{pose_name}: {bag.pose.log_time_used} messages without a header stamp: bag time used")
     else:
-        poses = _tf_poses(bag.transforms, tf_frames)
+        poses = _tf_poses(bag.transforms, options.tf_frames)
     if len(bag.wrench.frames) != 1:
         raise BagImportError(
             f"wrench_topic: {wrench_name} changes its frame_id ({', '.join(sorted(bag.wrench.frames))})"
         )
     if bag.wrench.log_time_used:
         notes.append(f"{wrench_name}: {bag.wrench.log_time_used} messages without a header stamp: bag time used")
-    choice = _wrench_frame_choice(next(iter(bag.wrench.frames)), poses, bag.transforms, frame)
+    choice = _wrench_frame_choice(next(iter(bag.wrench.frames)), poses, bag.transforms, options.wrench_frame)
     wrenches = _checked(np.asarray(bag.wrench.values, dtype=float).reshape(-1, 6), wrench_name)
     if choice.adjoint is not None:
         wrenches = wrenches @ choice.adjoint.T
@@ -472,23 +493,23 @@ def demonstration_from_bag(
         wrenches=resampled.wrenches,
         rate_hz=resampled.rate_hz,
         notes=[
-            f"ROS 2 bag: wrench {wrench_name} ({len(bag.wrench.stamps_ns)} messages), pose {poses.source} "
+            f"ROS {bag.ros} bag: wrench {wrench_name} ({len(bag.wrench.stamps_ns)} messages), pose {poses.source} "
             f"({poses.stamps_ns.size} samples), header stamps, world frame '{poses.world}'",
             *resampled.notes,
         ],
     )
     return demonstration_from_samples(
         recording,
+        options,
         wrench_frame=choice.frame,
-        wrench_convention=convention,
-        tare=tare,
-        tare_window_s=tare_window_s,
-        force_offset=force_offset,
         metadata=DemonstrationMetadata(
-            name=name or path.stem, source=f"bag:{path.name}", quaternion_order_on_import=QuaternionOrder.xyzw
+            name=options.name or Path(shown).stem,
+            source=f"bag:{shown}",
+            quaternion_order_on_import=QuaternionOrder.xyzw,
         ),
         extra={
             "bag": {
+                "ros": bag.ros,
                 "wrench_topic": wrench_name,
                 "pose": poses.source,
                 "frames": {"world": poses.world, "tool": poses.tool, "wrench": next(iter(bag.wrench.frames))},
@@ -501,16 +522,11 @@ def demonstration_from_bag(
     )
 
 
-def demonstration_from_bag_upload(data: bytes, filename: str, **options: object) -> Demonstration:
-    """Import an uploaded bag storage file (``.mcap`` or ``.db3``, the file inside a rosbag2 directory) given as
-    bytes; ``options`` as :func:`demonstration_from_bag`."""
-    suffix = Path(filename).suffix.lower()
-    if suffix not in BAG_SUFFIXES:
-        raise BagImportError(
-            f"file: {filename!r} is not a bag storage file ({', '.join(BAG_SUFFIXES)}): upload the .mcap or .db3 file "
-            "of the bag directory"
-        )
+def demonstration_from_bag_upload(data: bytes, filename: str, options: BagImportOptions | None = None) -> Demonstration:
+    """Import an uploaded bag given as bytes: a ROS 2 bag's storage file (the ``.mcap`` or ``.db3`` inside a rosbag2
+    directory) or a ROS 1 ``.bag``, told apart by the content; ``filename`` names it in the metadata and the
+    messages (never on disk). ``options`` as for :func:`demonstration_from_bag`."""
     with tempfile.TemporaryDirectory(prefix="cskills-bag-") as folder:
-        path = Path(folder) / f"{Path(filename).stem or 'upload'}{suffix}"
+        path = Path(folder) / f"upload{bag_storage_suffix(data[:HEAD_BYTES]) or ''}"
         path.write_bytes(data)
-        return demonstration_from_bag(path, **options)  # type: ignore[arg-type]
+        return _imported(path, PurePosixPath(filename).name or "upload", options or BagImportOptions())

@@ -21,6 +21,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,12 +42,25 @@ from schemas.api import (
 )
 from schemas.demonstration import Demonstration
 from schemas.execution import TelemetryBatch
+from schemas.skill import SkillTypeRequest
+from services.demonstration_files import (
+    ROS2_STORAGE_SUFFIXES,
+    UPLOAD_PATHS,
+    DemonstrationFile,
+    path_kind,
+    unsupported_file,
+)
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 FINAL_STATUSES = ("done", "aborted", "failed")
 
 
 # --------------------------------------------------------------------------- errors
+
+
+class SkillCheckWarning(UserWarning):
+    """A learned skill failed one of its checks against its demonstration: it may be wrong there (the message says
+    where and by how much)."""
 
 
 class ServiceError(Exception):
@@ -245,24 +259,28 @@ class Client:
         return DemonstrationCreated.model_validate(self._request("POST", "/demonstrations/record", json=body).json())
 
     def upload(self, path: str | Path, **options: Any) -> DemonstrationCreated:
-        """Store a demonstration file: a JSON `Demonstration`, a CSV recording, or a ROS 2 bag (a bag directory,
-        its ``.mcap`` or ``.db3``). ``options`` are the form fields of ``POST /demonstrations/csv`` or ``/bag``
-        (e.g. ``wrench="measured-on-tool"``, ``wrench_topic="/ft"``, ``rate=100``)."""
+        """Store a demonstration file, sent to the route that takes what it holds (its content, not only its name):
+        a JSON `Demonstration`, a CSV recording, a ROS 2 bag (a bag directory, its ``.mcap`` or ``.db3``) or a ROS 1
+        ``.bag``. ``options`` are the form fields of ``POST /demonstrations/csv`` or ``/bag`` (the fields of
+        `schemas.import_options.CsvImportOptions` or `BagImportOptions` by their form names, e.g.
+        ``wrench="measured-on-tool"``, ``wrench_topic="/ft"``, ``rate=100``). Raises ``ValueError`` for a file no
+        importer reads, with the message the API and ``contact-skills learn`` give."""
         path = Path(path)
+        kind = path_kind(path)
+        if kind is None:
+            raise ValueError(unsupported_file(path.name))
         if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix in (".mcap", ".db3"))
+            found = sorted(p for p in path.iterdir() if p.suffix in ROS2_STORAGE_SUFFIXES)
             if len(found) != 1:
                 raise ValueError(f"{path}: a bag directory with one .mcap or .db3 file is expected, found {len(found)}")
             path = found[0]
-        suffix = path.suffix.lower()
-        if suffix == ".json":
-            reply = self._request("POST", "/demonstrations", content=path.read_bytes(),
+        if kind is DemonstrationFile.json:
+            reply = self._request("POST", UPLOAD_PATHS[kind], content=path.read_bytes(),
                                   headers={"content-type": "application/json"})  # fmt: skip
         else:
-            endpoint = "/demonstrations/bag" if suffix in (".mcap", ".db3") else "/demonstrations/csv"
             form = {k: _form_value(v) for k, v in options.items() if v is not None}
             with path.open("rb") as file:
-                reply = self._request("POST", endpoint, files={"file": (path.name, file)}, data=form)
+                reply = self._request("POST", UPLOAD_PATHS[kind], files={"file": (path.name, file)}, data=form)
         return DemonstrationCreated.model_validate(reply.json())
 
     def demonstration(self, demonstration_id: str) -> Demonstration:
@@ -277,15 +295,29 @@ class Client:
 
     # ------------------------------------------------------------------ skills
 
-    def learn(self, demonstration: str | Demonstration, skill_type: str = "auto", **options: Any) -> StoredSkill:
+    def learn(
+        self,
+        demonstration: str | Demonstration,
+        skill_type: SkillTypeRequest = SkillTypeRequest.auto,
+        *,
+        strict: bool = False,
+        **options: Any,
+    ) -> StoredSkill:
         """Learn a skill from a stored demonstration (its id) or an inline `Demonstration`; ``options`` are
-        `LearnOptions` fields."""
-        body: dict[str, Any] = {"skill_type": skill_type, **options}
+        `LearnOptions` fields.
+
+        The skill checks itself against the demonstration: each failed check is issued as a `SkillCheckWarning`
+        (Python's ``warnings``) and listed in the reply's ``warnings``. ``strict``: refuse such a skill instead
+        (`InvalidRequestError` giving each failed check)."""
+        body: dict[str, Any] = {"skill_type": SkillTypeRequest(skill_type).value, "strict": strict, **options}
         if isinstance(demonstration, Demonstration):
             body["demonstration"] = demonstration.model_dump(mode="json")
         else:
             body["demonstration_id"] = demonstration
-        return StoredSkill.model_validate(self._request("POST", "/skills", json=body).json())
+        stored = StoredSkill.model_validate(self._request("POST", "/skills", json=body).json())
+        for message in stored.warnings:
+            warnings.warn(SkillCheckWarning(f"skill {stored.id}: {message}"), stacklevel=2)
+        return stored
 
     def skill(self, skill_id: str) -> StoredSkill:
         return StoredSkill.model_validate(self._request("GET", f"/skills/{skill_id}").json())

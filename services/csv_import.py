@@ -12,15 +12,13 @@ frame. Steps of :func:`demonstration_from_csv`, in order:
    resample onto one uniform grid (`skills.preprocess.resampled_recording`); a file WITHOUT a
    time column is a fixed-rate recording: its rows are the samples, ``t = row * dt`` from 0,
    with the rate given (``rate_hz`` or ``dt_s``), nothing resampled;
-4. an offset the user gave (``force_offset``) or named by a quiet window (``tare_window_s``) is
-   subtracted from the file's own wrench columns;
-5. a TOOL-frame wrench is rotated into the world with the (interpolated) tool orientation;
-6. a ``measured-on-tool`` wrench is negated (``applied-by-tool``);
-7. otherwise ``tare``: contact is found from force and kinematics (`skills.contact`) and the
-   sensor offset is fitted in the sensor (tool) frame over every free-space stretch, with the
-   hand's push on the arm (`skills.tare`), and subtracted.
+4. the steps every importer shares (`services.importing.demonstration_from_samples`): an offset given or taken
+   over a quiet window, a TOOL-frame wrench rotated into the world, a ``measured-on-tool`` wrench negated, the
+   sensor offset fitted over every free-space stretch and subtracted, the result validated.
 
-Units are assumed SI already (s, m, N, N·m): nothing is rescaled.
+The options are one `schemas.import_options.CsvImportOptions`. Units are assumed SI already (s, m, N, N·m):
+nothing is rescaled. :func:`demonstration_from_file` imports any demonstration file by what it holds (CSV, JSON,
+a ROS 1 or ROS 2 bag).
 Every problem raises :class:`CsvImportError` (a ``ValueError``) whose message names the column,
 the line and the reason, one problem per line in ``problems``.
 """
@@ -30,32 +28,25 @@ from __future__ import annotations
 import csv
 import os
 import re
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 from pydantic import ValidationError
 
-from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
-from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES, MIN_DEMONSTRATION_SAMPLES
+from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchFrame
+from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
+from schemas.import_options import COLUMN_KEYS, BagImportOptions, CsvImportOptions, ImportOptions
+from services.demonstration_files import DemonstrationFile
+from services.importing import (
+    DemonstrationImportError,
+    RecordingSamples,
+    demonstration_file,
+    demonstration_from_samples,
+    sampling_rate_hz,
+    validation_problems,
+)
 from skills import preprocess
-from skills import tare as tare_module
-from skills.contact import analyse_contact
-
-MAX_PROBLEMS_LISTED = 10
-"""At most this many problems are listed in one error (the count of the rest is given)."""
-
-
-class DemonstrationImportError(ValueError):
-    """A demonstration file could not be imported; ``problems`` holds one human-readable line per problem."""
-
-    def __init__(self, problems: str | Iterable[str]) -> None:
-        self.problems = [problems] if isinstance(problems, str) else list(problems)
-        if len(self.problems) > MAX_PROBLEMS_LISTED:
-            more = len(self.problems) - MAX_PROBLEMS_LISTED
-            self.problems = [*self.problems[:MAX_PROBLEMS_LISTED], f"... and {more} more problems"]
-        super().__init__("\n".join(self.problems))
 
 
 class CsvImportError(DemonstrationImportError):
@@ -63,9 +54,6 @@ class CsvImportError(DemonstrationImportError):
 
 
 # --------------------------------------------------------------------------- column mapping
-
-COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
-"""Keys of a column spec: time (s); position (m); quaternion components; force (N); moment (N·m)."""
 
 _AXES = ("x", "y", "z")
 _WORLD_SUFFIXES = ("w", "world", "base")
@@ -405,59 +393,20 @@ def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, s
 
 # --------------------------------------------------------------------------- import
 
-MAX_RATE_HZ = 100_000.0
-"""Highest sampling or resampling rate accepted, Hz (a ``dt`` down to 10 µs)."""
-RATE_DT_AGREEMENT = 1e-6
-"""Relative tolerance within which a rate and a dt given together count as the same (``rate * dt == 1``)."""
-
-
-def sampling_rate_hz(rate_hz: float | None = None, dt_s: float | None = None) -> float | None:
-    """Return the rate (Hz) given as ``rate_hz`` or as a time step ``dt_s`` (s), or None if neither is given.
-
-    Both may be given if they agree (``rate_hz * dt_s`` = 1 within :data:`RATE_DT_AGREEMENT`).
-    Raises :class:`CsvImportError` for a value that is not a positive finite number, a rate above
-    :data:`MAX_RATE_HZ` (a dt below its inverse), or a rate and a dt that disagree.
-    """
-    problems = []
-    if rate_hz is not None and not (np.isfinite(rate_hz) and 0 < rate_hz <= MAX_RATE_HZ):
-        problems.append(f"rate: {rate_hz} Hz is not a rate in (0, {MAX_RATE_HZ:g}] Hz")
-    if dt_s is not None and not (np.isfinite(dt_s) and dt_s >= 1.0 / MAX_RATE_HZ):
-        problems.append(f"dt: {dt_s} s is not a positive time step of at least {1.0 / MAX_RATE_HZ:g} s")
-    if problems:
-        raise CsvImportError(problems)
-    if rate_hz is not None and dt_s is not None:
-        if abs(rate_hz * dt_s - 1.0) > RATE_DT_AGREEMENT:
-            raise CsvImportError(
-                f"rate and dt disagree: rate {rate_hz:g} Hz is a step of {1.0 / rate_hz:g} s, dt {dt_s:g} s "
-                f"is {1.0 / dt_s:g} Hz; give one of them"
-            )
-        return float(rate_hz)
-    if dt_s is not None:
-        return 1.0 / float(dt_s)
-    return None if rate_hz is None else float(rate_hz)
-
 
 def demonstration_from_csv(
-    path_or_text: str | os.PathLike[str] | bytes,
-    columns: ColumnMap | None = None,
-    quaternion_order: QuaternionOrder | str | None = None,
-    wrench_convention: WrenchConvention | str = WrenchConvention.applied_by_tool,
-    wrench_frame: WrenchFrame | str = WrenchFrame.world,
-    rate_hz: float | None = None,
-    tare: bool = True,
-    name: str | None = None,
-    dt_s: float | None = None,
-    tare_window_s: tuple[float, float] | None = None,
-    force_offset: Sequence[float] | None = None,
+    path_or_text: str | os.PathLike[str] | bytes, options: CsvImportOptions | None = None
 ) -> Demonstration:
     """Import a CSV recording (a path, or the CSV text itself) as a `schemas.Demonstration`.
 
+    ``options`` (`schemas.import_options.CsvImportOptions`, default all defaults):
     ``quaternion_order``: order of the quaternion columns in the file, 'xyzw' (scalar last) or
     'wxyz' (scalar first). Default None: named columns (qx.., tcp_qw.., or ``columns``) say
     which component each is, and an explicit order that contradicts them is an error; numbered
     columns (q0..q3) need the order given.
+    ``columns``: a column spec (``"t=time,px=tcp_x,..."``, :meth:`ColumnMap.parse`).
     ``wrench_convention``: 'applied-by-tool' (kept) or 'measured-on-tool' (negated).
-    ``wrench_frame``: 'world' (kept) or 'tool' (rotated into the world with the tool
+    ``wrench_frame``: 'world' (the default: kept) or 'tool' (rotated into the world with the tool
     orientation; the point stays the tool point).
     ``rate_hz`` (Hz) or ``dt_s`` (s, the same as ``rate_hz=1/dt_s``; both may be given if they
     agree): with a time column, the uniform rate to resample to (default: the fastest channel
@@ -479,17 +428,14 @@ def demonstration_from_csv(
     was found: method, free-space stretches, samples).
     Raises :class:`CsvImportError` naming the column/line/field and the reason.
     """
-    try:
-        requested_order = None if quaternion_order is None else QuaternionOrder(quaternion_order)
-        convention = WrenchConvention(wrench_convention)
-        frame = WrenchFrame(wrench_frame)
-    except ValueError as exc:
-        raise CsvImportError(str(exc)) from None
-    rate = sampling_rate_hz(rate_hz, dt_s)
+    options = options or CsvImportOptions()
+    frame, name, dt_s = options.wrench_frame or WrenchFrame.world, options.name, options.dt_s
+    columns = ColumnMap.parse(options.columns) if options.columns else None
+    rate = sampling_rate_hz(options.rate_hz, dt_s, CsvImportError)
     text, file_name = _text_and_name(path_or_text)
     file_name = file_name or (f"{name}.csv" if name else "inline.csv")
     table = _read_table(text)
-    resolved = resolved_columns(table.header, columns, frame, requested_order, time_optional=rate is not None)
+    resolved = resolved_columns(table.header, columns, frame, options.quaternion_order, time_optional=rate is not None)
     indices, order = resolved.indices, resolved.quaternion_order
     values = _numeric_columns(table, indices)
     if len(table.rows) < 2:
@@ -531,11 +477,8 @@ def demonstration_from_csv(
         )
     return demonstration_from_samples(
         recording,
+        options,
         wrench_frame=frame,
-        wrench_convention=convention,
-        tare=tare,
-        tare_window_s=tare_window_s,
-        force_offset=force_offset,
         metadata=DemonstrationMetadata(
             name=name or Path(file_name).stem, source=f"csv:{file_name}", quaternion_order_on_import=order
         ),
@@ -543,169 +486,6 @@ def demonstration_from_csv(
         notes=notes,
         error=CsvImportError,
     )
-
-
-def demonstration_from_samples(
-    recording: RecordingSamples,
-    *,
-    wrench_frame: WrenchFrame,
-    wrench_convention: WrenchConvention,
-    tare: bool,
-    tare_window_s: tuple[float, float] | None,
-    force_offset: Sequence[float] | None,
-    metadata: DemonstrationMetadata,
-    extra: dict[str, object] | None = None,
-    notes: Sequence[str] = (),
-    error: type[DemonstrationImportError] = DemonstrationImportError,
-) -> Demonstration:
-    """The shared last steps of every importer (CSV, ROS 2 bags): a recording on its time grid -> a validated
-    `schemas.Demonstration` in the project's conventions.
-
-    ``recording`` holds the file's wrench in ``wrench_frame`` and ``wrench_convention`` at the tool point
-    (N, N·m). In order: a given offset (``force_offset``) or a quiet window's median (``tare_window_s``,
-    s) is subtracted in the file's own frame and sign; a TOOL-frame wrench is rotated into the world with
-    the tool orientation; a ``measured-on-tool`` wrench is negated; otherwise with ``tare`` the sensor
-    offset is fitted in the tool frame over every free-space stretch and removed. ``metadata`` gives the
-    name, source and quaternion order; the conventions, rate, offset and ``extra`` (plus ``import_notes``:
-    ``recording.notes``, then ``notes``, then one line per step, and ``tare``) are filled in here.
-    Every problem raises ``error`` (naming the option or field and the reason).
-    """
-    frame, convention = wrench_frame, wrench_convention
-    notes = [*recording.notes, *notes]
-    wrenches = recording.wrenches
-    given = _given_offset(recording, tare_window_s, force_offset, error)
-    if given is not None:
-        wrenches = wrenches - given.offset
-    if frame == WrenchFrame.tool:
-        wrenches = preprocess.wrenches_tool_to_world(wrenches, recording.orientations)
-        notes.append("wrench given in the tool frame: rotated into the world with the interpolated tool orientation")
-    if convention == WrenchConvention.measured_on_tool:
-        wrenches = preprocess.wrenches_applied_by_tool(wrenches)
-        notes.append("wrench measured on the tool: negated to the wrench the tool applies")
-    notes.extend(_direction_hint(wrenches, convention))
-    offset, offset_frame, tare_report = None, None, {"method": "none"}
-    if given is not None:
-        offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
-        notes.append(given.note)
-    elif tare:
-        estimate = _free_space_offset(recording, wrenches)
-        if estimate is None:
-            notes.append(
-                f"no free-space part of at least {tare_module.MIN_FREE_S} s found: no sensor offset removed "
-                "(--tare-window or --force-offset set one)"
-            )
-        else:
-            wrenches = tare_module.wrenches_without_offset(recording.orientations, wrenches, estimate.wrench)
-            sign = -1.0 if convention == WrenchConvention.measured_on_tool else 1.0
-            offset, offset_frame = sign * estimate.wrench, "tool"
-            where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in estimate.stretches[:6])
-            more = f" and {len(estimate.stretches) - 6} more" if len(estimate.stretches) > 6 else ""
-            force = ", ".join(f"{v:+.2f}" for v in offset[:3])
-            notes.append(
-                f"sensor offset removed: [{force}] N in the sensor (tool) frame as the file reads it, fitted over "
-                f"{estimate.samples} free-space samples ({where}{more}) with the hand's push on the arm "
-                f"(damping {estimate.arm_damping_n_s_m:.1f} N·s/m, mass {estimate.arm_mass_kg:.1f} kg, "
-                f"friction {estimate.arm_friction_n:.1f} N)"
-            )
-            tare_report = {
-                "method": "free-space fit",
-                "stretches_s": [list(s) for s in estimate.stretches],
-                "samples": estimate.samples,
-                "arm_damping_n_s_m": estimate.arm_damping_n_s_m,
-                "arm_mass_kg": estimate.arm_mass_kg,
-                "arm_friction_n": estimate.arm_friction_n,
-            }
-    else:
-        notes.append("tare off: no sensor offset removed")
-    if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
-        remedy = "record longer" if recording.fixed_rate else "record longer, or pass a higher rate"
-        raise error(
-            f"too few samples: {recording.t.size} at {recording.rate_hz:g} Hz over {np.ptp(recording.t):.3g} s, "
-            f"at least {MIN_DEMONSTRATION_SAMPLES} are needed ({remedy})"
-        )
-    metadata = metadata.model_copy(
-        update={
-            "wrench_convention_on_import": convention,
-            "wrench_frame_on_import": frame,
-            "resampled_rate_hz": None if recording.fixed_rate else recording.rate_hz,
-            "force_offset_removed": None if offset is None else offset.tolist(),
-            "force_offset_frame": offset_frame,
-            "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
-        }
-    )
-    try:
-        return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
-    except ValidationError as exc:
-        raise error(validation_problems(exc)) from None
-
-
-@dataclass(frozen=True)
-class _GivenOffset:
-    """An offset the user gave (or a window they named), in the file's frame and sign: (6,) N, N·m."""
-
-    offset: np.ndarray
-    method: str
-    note: str
-
-
-def _given_offset(
-    recording: RecordingSamples,
-    tare_window_s: tuple[float, float] | None,
-    force_offset: Sequence[float] | None,
-    error: type[DemonstrationImportError],
-) -> _GivenOffset | None:
-    """Return the offset the options ask for (``--force-offset`` or ``--tare-window``), or None; else ``error``."""
-    if tare_window_s is not None and force_offset is not None:
-        raise error("tare: give either a tare window or a force offset, not both")
-    if force_offset is not None:
-        values = np.asarray(force_offset, dtype=float)
-        if values.shape not in ((3,), (6,)) or not np.all(np.isfinite(values)):
-            raise error(f"force offset: 3 forces (N) or 6 values with moments (N·m) are needed, got {values}")
-        offset = np.concatenate([values, np.zeros(6 - values.size)])
-        shown = ", ".join(f"{v:+.2f}" for v in offset[:3])
-        return _GivenOffset(offset, "given", f"sensor offset removed as given: [{shown}] N in the file's frame")
-    if tare_window_s is None:
-        return None
-    t0, t1 = (float(v) for v in tare_window_s)
-    inside = (recording.t >= t0) & (recording.t <= t1)
-    if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0) or inside.sum() < 2:
-        raise error(
-            f"tare window: {t0:g}-{t1:g} s holds {int(inside.sum())} samples; the recording runs "
-            f"{recording.t[0]:g}-{recording.t[-1]:g} s and the window needs at least 2 of them"
-        )
-    offset = np.median(recording.wrenches[inside], axis=0)
-    shown = ", ".join(f"{v:+.2f}" for v in offset[:3])
-    note = f"sensor offset removed: [{shown}] N, median of the file's wrench over the tare window {t0:g}-{t1:g} s"
-    return _GivenOffset(offset, "window", note)
-
-
-def _free_space_offset(recording: RecordingSamples, wrenches: np.ndarray) -> tare_module.SensorOffset | None:
-    """Estimate the sensor offset over the free-space stretches of an (untared) world-frame applied wrench."""
-    t = recording.t
-    if t.size < MIN_DEMONSTRATION_SAMPLES:
-        return None
-    contact = analyse_contact(t, recording.positions, wrenches[:, :3])
-    if not contact.intervals:
-        return None
-    free = tare_module.free_space_mask(contact.rate_hz, contact.in_contact)
-    return tare_module.sensor_offset_in_free_space(t, recording.positions, recording.orientations, wrenches, free)
-
-
-@dataclass(frozen=True)
-class RecordingSamples:
-    """A recording on its uniform time grid (what the steps after the time step need): ``t`` (N,) s, ``positions``
-    (N, 3) m, ``orientations`` (N, 4), ``wrenches`` (N, 6) N and N·m as the file holds them, ``rate_hz``, the
-    notes of the time step."""
-
-    t: np.ndarray
-    positions: np.ndarray
-    orientations: np.ndarray
-    """Unit, scalar-last, sign-continuous."""
-    wrenches: np.ndarray
-    rate_hz: float
-    notes: list[str]
-    fixed_rate: bool = False
-    """True: the rows were taken as samples at a given rate (no time column), not resampled."""
 
 
 def _fixed_rate_recording(
@@ -728,28 +508,6 @@ def _fixed_rate_recording(
     )
 
 
-UPWARD_FORCE_HINT = 0.5
-"""World z of the stronger half of the forces' mean direction above which the import notes ask to check the sign."""
-
-
-def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention) -> list[str]:
-    """A note when the applied force points mostly UP in the world: pressing on a table or a part points down.
-
-    Not an error (a wall or a ceiling is possible), but a reaction imported as applied-by-tool
-    looks exactly like this.
-    """
-    forces = wrenches[:, :3]
-    magnitude = np.linalg.norm(forces, axis=1)
-    strong = forces[magnitude >= np.median(magnitude)].mean(axis=0)
-    if np.linalg.norm(strong) == 0 or strong[2] / np.linalg.norm(strong) <= UPWARD_FORCE_HINT:
-        return []
-    flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
-    return [
-        f"check the wrench sign: the applied force points mostly UP in the world (mean direction z = "
-        f"{strong[2] / np.linalg.norm(strong):+.2f}); if the file holds the other convention pass --wrench {flip}"
-    ]
-
-
 def _check_quaternions(q: np.ndarray, table: _Table, indices: dict[str, int | None]) -> None:
     """Reject quaternions whose norm is far from 1 (wrong columns), naming the columns and the first line."""
     deviation = preprocess.quaternion_norm_deviations(q)
@@ -761,16 +519,6 @@ def _check_quaternions(q: np.ndarray, table: _Table, indices: dict[str, int | No
             f"quaternion ({names}), line {table.lines[k]}: norm {np.linalg.norm(q[k]):.4g} is not 1 "
             f"(tolerance {preprocess.MAX_QUATERNION_NORM_DEVIATION}); {bad.size} such rows: check the columns"
         )
-
-
-def validation_problems(exc: ValidationError) -> list[str]:
-    """One line per pydantic validation error: ``field.path: message``."""
-    problems = []
-    for error in exc.errors():
-        location = ".".join(str(part) for part in error["loc"]) or "demonstration"
-        message = error["msg"].removeprefix("Value error, ")
-        problems.append(f"{location}: {message}")
-    return problems
 
 
 def demonstration_from_json(path_or_text: str | os.PathLike[str] | bytes) -> Demonstration:
@@ -797,27 +545,31 @@ def demonstration_from_json(path_or_text: str | os.PathLike[str] | bytes) -> Dem
         raise DemonstrationImportError(validation_problems(exc)) from None
 
 
-def demonstration_from_file(path: str | os.PathLike[str], **csv_options: object) -> Demonstration:
-    """Import ``path`` by its suffix: ``.json`` via :func:`demonstration_from_json`, anything else as CSV."""
-    if Path(path).suffix.lower() == ".json":
+def demonstration_from_file(path: str | os.PathLike[str], options: ImportOptions | None = None) -> Demonstration:
+    """Import the file (or ROS 2 bag directory) at ``path`` by what it holds (its content, not only its name): a
+    JSON `Demonstration` (``options`` do not apply), a CSV recording or a ROS 1 or ROS 2 bag
+    (`services.bag_import.demonstration_from_bag`). ``options``: the shared `ImportOptions`, or those of the
+    file's kind. Raises :class:`DemonstrationImportError` (a file no importer reads: the one message every
+    interface gives, `services.demonstration_files.unsupported_file`)."""
+    kind = demonstration_file(path)
+    given = {} if options is None else options.model_dump(exclude_unset=True)
+    if kind is DemonstrationFile.json:
         return demonstration_from_json(path)
-    return demonstration_from_csv(path, **csv_options)  # type: ignore[arg-type]
+    if kind is DemonstrationFile.csv:
+        return demonstration_from_csv(path, CsvImportOptions(**given))
+    from services.bag_import import demonstration_from_bag  # rosbags: the service extra
+
+    return demonstration_from_bag(path, BagImportOptions(**given))
 
 
 __all__ = [
-    "COLUMN_KEYS",
     "ColumnMap",
     "CsvImportError",
-    "DemonstrationImportError",
-    "RecordingSamples",
     "ResolvedColumns",
     "demonstration_from_csv",
     "demonstration_from_file",
     "demonstration_from_json",
-    "demonstration_from_samples",
     "resolved_columns",
-    "sampling_rate_hz",
-    "validation_problems",
 ]
 
 

@@ -1,6 +1,6 @@
 """The data vendored in the repository (``data/``) and where it is found: the KU Leuven contour recordings
-(``data/kuleuven_contour``, MIT licence) with the options they are imported with. One definition for the CLI
-(``contact-skills demo-learn``), the demo (``experiments``) and the tests."""
+(``data/kuleuven_contour``, MIT licence) with the options they are imported with, and the CAD of their object. One
+definition for the CLI (``contact-skills demo-learn``), the demo (``experiments``) and the tests."""
 
 from __future__ import annotations
 
@@ -24,6 +24,23 @@ def data_directory() -> Path:
     """The data directory: ``$CONTACT_SKILLS_DATA`` if set, else :func:`repository_data_directory`."""
     override = os.environ.get(DATA_ENV)
     return Path(override) if override else repository_data_directory()
+
+
+KULEUVEN_OBJECT_STL = "contour.STL"
+"""The CAD model of the object the KU Leuven recordings follow (binary STL, mm, CAD frame), next to the recordings."""
+KULEUVEN_EDGE_MAT = "contour_edge.mat"
+"""The authors' extraction of the edge the tool followed (MATLAB v5, variable ``contour_edge``, (101, 3) mm, CAD
+frame), next to the recordings."""
+
+
+def kuleuven_file(name: str) -> Path:
+    """The file ``name`` of the KU Leuven data in :func:`data_directory` (its ``kuleuven_contour/`` or itself, as for
+    :func:`kuleuven_recordings`); raises ``FileNotFoundError`` naming both places."""
+    root = data_directory()
+    for folder in (root / "kuleuven_contour", root):
+        if (folder / name).is_file():
+            return folder / name
+    raise FileNotFoundError(f"no {name} in {root / 'kuleuven_contour'} or {root}; set {DATA_ENV}")
 
 
 def kuleuven_recordings() -> list[Path]:

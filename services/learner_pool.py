@@ -52,7 +52,9 @@ class LearnerPoolFull(RuntimeError):  # noqa: N818
 
 @dataclass(frozen=True)
 class LearnOutcome:
-    """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``), ``learning`` (a
+    """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``, ``reasons``: the
+    skill's warnings), ``checks``
+    (strict learning refused a skill: ``reasons``, one per failed check), ``learning`` (a
     `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
     ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
 
@@ -62,6 +64,7 @@ class LearnOutcome:
     seconds: float = 0.0
     field: str = ""
     reason: str = ""
+    reasons: tuple[str, ...] = ()
 
 
 def _limit_process(memory_mb: int) -> None:
@@ -88,7 +91,7 @@ def _learn(payload: bytes) -> LearnOutcome:
     from schemas.demonstration import Demonstration
     from schemas.skill import LearnOptions
     from services.api.limits import check_sampling
-    from skills.parameterize import LearningError, learn_skill
+    from skills.parameterize import LearningError, SkillCheckError, learn_skill
 
     demonstration_json, options_json = pickle.loads(payload)
     started = time.perf_counter()
@@ -97,7 +100,10 @@ def _learn(payload: bytes) -> LearnOutcome:
         check_sampling(demonstration)
         skill = learn_skill(demonstration, LearnOptions.model_validate_json(options_json))
         seconds = time.perf_counter() - started
-        return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds)
+        warnings = tuple(skill.warnings())
+        return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings)
+    except SkillCheckError as exc:
+        return LearnOutcome("checks", reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks))
     except LearningError as exc:
         return LearnOutcome("learning", field=exc.field, reason=exc.reason)
     except MemoryError:

@@ -188,6 +188,12 @@ class SkillRow:
     created: float
     skill_type: str
     skill_json: str
+    warnings: list[str]
+    """The messages of the skill's failed checks (``Skill.warnings()``)."""
+
+
+_FAILED_CHECKS = "FROM json_each(skill, '$.checks') WHERE json_extract(value, '$.passed') = 0"
+"""SQL: the failed checks of a stored skill (``skills.skill``), one row each (``value`` the check)."""
 
 
 @dataclass(frozen=True)
@@ -465,9 +471,11 @@ class Store:
 
     # ------------------------------------------------------------------ skills
 
-    def add_skill(self, skill_json: str, skill_type: str, demonstration_id: str | None) -> SkillRow:
-        """Store a skill given as JSON text; return its row."""
-        row = SkillRow(new_id("skill"), demonstration_id, time.time(), skill_type, skill_json)
+    def add_skill(
+        self, skill_json: str, skill_type: str, demonstration_id: str | None, warnings: list[str]
+    ) -> SkillRow:
+        """Store a skill given as JSON text (``warnings``: its failed checks' messages); return its row."""
+        row = SkillRow(new_id("skill"), demonstration_id, time.time(), skill_type, skill_json, warnings)
         with self._transaction() as db:
             db.execute(
                 "INSERT INTO skills (id, demonstration_id, created, skill_type, skill) VALUES (?, ?, ?, ?, ?)",
@@ -476,14 +484,20 @@ class Store:
         return row
 
     def skill(self, skill_id: str) -> SkillRow | None:
-        r = self._one("SELECT id, demonstration_id, created, skill_type, skill FROM skills WHERE id = ?", (skill_id,))
-        return None if r is None else SkillRow(r[0], r[1], r[2], r[3], r[4])
+        r = self._one(
+            "SELECT id, demonstration_id, created, skill_type, skill, "
+            f"(SELECT json_group_array(json_extract(value, '$.message')) {_FAILED_CHECKS}) FROM skills WHERE id = ?",
+            (skill_id,),
+        )
+        return None if r is None else SkillRow(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]))
 
     def list_skills(self, limit: int = 100, offset: int = 0) -> list[dict[str, Any]]:
-        """Skill summaries (no parameters): id, demonstration_id, created, skill_type, segments, confidence."""
+        """Skill summaries (no parameters): id, demonstration_id, created, skill_type, segments, confidence,
+        failed_checks."""
         rows = self._all(
             "SELECT id, demonstration_id, created, skill_type, json_array_length(skill, '$.segments') AS segments, "
             "json_extract(skill, '$.auto_selection.confidence') AS confidence, "
+            f"(SELECT count(*) {_FAILED_CHECKS}) AS failed_checks, "
             "json_extract(skill, '$.demonstration.name') AS demonstration_name "
             "FROM skills ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (limit, offset),

@@ -35,6 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import binary_closing, binary_opening, gaussian_filter1d
 
+from schemas.skill import BoundaryReason
+from skills.friction import FRICTION_CONE_MAX, friction_coefficient, friction_free
 from skills.surface import pressed_surface
 
 CORE_FORCE_FRACTION = 0.4
@@ -45,9 +47,6 @@ CORE_FORCE_MIN_N = 1.0
 
 CORE_MIN_SPEED_M_S = 0.005
 """A stroke core slides at least this fast, m/s (below it the friction direction is undefined)."""
-
-FRICTION_CONE_MAX = 0.7
-"""Largest ratio of the force along the motion to the force across it that counts as friction (mu up to 0.7)."""
 
 CORE_MIN_S = 0.15
 """Shortest run of sliding-press samples that makes a stroke core, s."""
@@ -88,15 +87,15 @@ SMOOTHING_S = 0.02
 class ContactInterval:
     """One contact ``[start, end)`` in samples, and what decided each boundary.
 
-    ``start_reason`` / ``end_reason``: ``"force"`` (the force along the normal rose from / fell
-    to the touch level), ``"surface"`` (the tool reached / left the surface it pressed on) or
-    ``"recording"`` (the recording starts / ends in contact).
+    ``start_reason`` / ``end_reason``: ``force`` (the force along the normal rose from / fell
+    to the touch level), ``surface`` (the tool reached / left the surface it pressed on) or
+    ``recording`` (the recording starts / ends in contact).
     """
 
     start: int
     end: int
-    start_reason: str
-    end_reason: str
+    start_reason: BoundaryReason
+    end_reason: BoundaryReason
 
 
 @dataclass(frozen=True)
@@ -133,31 +132,25 @@ def force_noise_std(forces: NDArray[np.float64]) -> float:
 def normal_directions(
     forces: NDArray[np.float64], velocities: NDArray[np.float64], in_contact: NDArray[np.bool_]
 ) -> NDArray[np.float64]:
-    """Return per-sample unit directions of the applied force with the friction part removed.
+    """Return per-sample unit directions of the applied force with the friction part removed (`skills.friction`).
 
-    Friction acts along the motion, so the component of the force along the velocity is
-    removed; what is left is the surface normal direction into the surface. Only where the tool
-    SLIDES in contact does that hold: where it rests or creeps (speed below ``NORMAL_MIN_SPEED_M_S``,
-    or half the median speed in contact for a slow wipe, at least ``CORE_MIN_SPEED_M_S``) static
-    friction or tremor can point it anywhere in the cone; where it moves along the force (touching down,
-    lifting off: the force is not within ``FRICTION_CONE_MAX`` of across the motion) the removed
-    component is not friction; where the force is below a third of the median contact force,
-    noise dominates. There the direction says nothing about the normal and is zero, as where not
-    in contact.
+    What is left is the surface normal direction into the surface, but only where the tool SLIDES
+    in contact: where it rests or creeps (speed below ``NORMAL_MIN_SPEED_M_S``, or half the median
+    speed in contact for a slow wipe, at least ``CORE_MIN_SPEED_M_S``) static friction or tremor
+    can point it anywhere in the cone; where it moves along the force (touching down, lifting off:
+    the removed part exceeds ``FRICTION_CONE_MAX`` of what is left) the removed component is not
+    friction; where the force is below a third of the median contact force, noise dominates. There
+    the direction says nothing about the normal and is zero, as where not in contact.
     """
-    speed = np.linalg.norm(velocities, axis=1, keepdims=True)
-    magnitude = np.linalg.norm(forces, axis=1, keepdims=True)
+    free = friction_free(forces, velocities, friction_coefficient(forces, velocities, in_contact))
+    speed = np.linalg.norm(velocities, axis=1)
+    magnitude = np.linalg.norm(forces, axis=1)
     typical = float(np.median(magnitude[in_contact])) if in_contact.any() else 0.0
-    v_hat = velocities / np.maximum(speed, 1e-12)
-    along = np.sum(forces * v_hat, axis=1, keepdims=True)
-    normal_part = forces - along * v_hat
-    norm = np.linalg.norm(normal_part, axis=1, keepdims=True)
     # A slow wipe (a few cm/s) still has its normals: the floor is lowered to half its median speed.
     wiping_speed = float(np.median(speed[in_contact])) if in_contact.any() else 0.0
     floor = float(np.clip(0.5 * wiping_speed, CORE_MIN_SPEED_M_S, NORMAL_MIN_SPEED_M_S))
-    sliding = (speed > floor) & (magnitude > typical / 3.0) & (np.abs(along) <= FRICTION_CONE_MAX * norm)
-    directions = np.where(norm > 1e-9, normal_part / np.maximum(norm, 1e-12), 0.0)
-    return directions * (in_contact[:, None] & sliding)
+    sliding = (speed > floor) & (magnitude > typical / 3.0) & (free.weights > 0.0)
+    return free.directions * (in_contact & sliding)[:, None]
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -175,11 +168,9 @@ def _stretch_normal(
     forces: NDArray[np.float64], velocities: NDArray[np.float64], rows: slice
 ) -> NDArray[np.float64]:
     """Return the surface normal (into the surface) over ``rows``: the mean friction-free force direction."""
-    f, v = forces[rows], velocities[rows]
-    speed = np.linalg.norm(v, axis=1, keepdims=True)
-    v_hat = np.where(speed > CORE_MIN_SPEED_M_S, v / np.maximum(speed, 1e-12), 0.0)
-    across = f - np.sum(f * v_hat, axis=1, keepdims=True) * v_hat
-    return _unit(across.mean(axis=0))
+    v = velocities[rows]
+    sliding = np.linalg.norm(v, axis=1, keepdims=True) > CORE_MIN_SPEED_M_S
+    return _unit(friction_free(forces[rows], v * sliding).forces.mean(axis=0))
 
 
 def analyse_contact(
@@ -224,7 +215,7 @@ def analyse_contact(
         cores_mask = cleaned(pressing)
     window = max(2, round(LOCAL_NORMAL_S * rate_hz))
 
-    intervals: list[tuple[int, int, str, str]] = []
+    intervals: list[tuple[int, int, BoundaryReason, BoundaryReason]] = []
     for c0, c1 in _runs(cores_mask):
         head = slice(c0, min(c1, c0 + window))
         tail = slice(max(c0, c1 - window), c1)
@@ -267,7 +258,7 @@ def _touch_down(
     edge: int,
     touch_n: float,
     backward: bool,
-) -> tuple[int, str]:
+) -> tuple[int, BoundaryReason]:
     """Return the first (``backward``: earliest) sample still in contact beyond a core's ``edge``, and why it ends.
 
     The local surface (normal, plane, pad compliance: `skills.surface`) comes from the core's
@@ -297,14 +288,14 @@ def _touch_down(
     if backward:
         outside = np.flatnonzero(~inside[:edge])
         if outside.size == 0:
-            return 0, "recording"
+            return 0, BoundaryReason.recording
         k = int(outside[-1])
-        return k + 1, "surface" if not on_surface[k] else "force"
+        return k + 1, BoundaryReason.force if on_surface[k] else BoundaryReason.surface
     outside = np.flatnonzero(~inside[edge + 1 :])
     if outside.size == 0:
-        return p.shape[0] - 1, "recording"
+        return p.shape[0] - 1, BoundaryReason.recording
     k = edge + 1 + int(outside[0])
-    return k - 1, "surface" if not on_surface[k] else "force"
+    return k - 1, BoundaryReason.force if on_surface[k] else BoundaryReason.surface
 
 
 def mask_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:

@@ -8,6 +8,8 @@ All in the world frame unless stated; slide positions are learned in their CF x-
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
@@ -24,17 +26,21 @@ from schemas.skill import (
     SegmentQuality,
     Skill,
     SkillAttributes,
+    SkillCheck,
     SkillType,
     SkillTypeRequest,
+    TypeEvidence,
 )
-from skills.compliant_frames import contour_frames, slide_frame
+from skills import skill_checks
+from skills.compliant_frames import PlaneFit, contour_frames, slide_frame, tool_velocities
 from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
 from skills.force_profile import cf_z_forces, constant_force
+from skills.friction import friction_free
 from skills.preprocess import resampled_recording
 from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
 from skills.segmentation import SegmentBounds, segment_demonstration
-from skills.selection import classify_skill
+from skills.selection import SkillClassification, classify_skill
 
 UNIFORM_TOLERANCE = 0.01
 """Largest relative deviation of a time step from the median step for a grid to count as uniform."""
@@ -124,39 +130,35 @@ def _decimated_indices(n: int, most: int) -> NDArray[np.int_]:
     return np.unique(np.linspace(0, n - 1, min(n, most)).round().astype(int))
 
 
-def _boundary_reasons(bounds: list[SegmentBounds], contact: ContactAnalysis) -> list[tuple[str, str]]:
-    """Return (start_reason, end_reason) per segment: what decided each of its boundaries."""
-    starts = {c.start: c.start_reason for c in contact.intervals}
-    ends = {c.end: c.end_reason for c in contact.intervals}
-    reasons = []
-    for k, b in enumerate(bounds):
-        first, last = k == 0, k == len(bounds) - 1
-        if b.contact:
-            start = starts.get(b.start, "recording" if first else "crease")
-            end = ends.get(b.end, "recording" if last else "crease")
-        else:
-            start = "recording" if first else "contact"
-            end = "recording" if last else "contact"
-        reasons.append((start, end))
-    return reasons
+@dataclass(frozen=True)
+class _Recording:
+    """The demonstration on its uniform grid (world, SI) and its contact analysis."""
+
+    t: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    quaternions: NDArray[np.float64]
+    forces: NDArray[np.float64]
+    velocities: NDArray[np.float64]
+    contact: ContactAnalysis
+
+
+@dataclass(frozen=True)
+class _Learned:
+    """A segment and what its checks compare: per sample CF z (M, 3) and the force learned along it (M,) N."""
+
+    segment: Segment
+    cf_z: NDArray[np.float64] | None = None
+    learned_force_n: NDArray[np.float64] | None = None
+    plane: PlaneFit | None = None
 
 
 def _segment(
-    index: int,
-    bounds: SegmentBounds,
-    reasons: tuple[str, str],
-    skill_type: SkillType,
-    t: NDArray,
-    positions: NDArray,
-    quaternions: NDArray,
-    forces: NDArray,
-    rate_hz: float,
-    options: LearnOptions,
-) -> Segment:
+    index: int, bounds: SegmentBounds, skill_type: SkillType, r: _Recording, options: LearnOptions
+) -> _Learned:
     """Parameterize one segment: frames, force profile, DMPs and their quality."""
     rows = slice(bounds.start, bounds.end)
-    t_seg = t[rows] - t[bounds.start]
-    p_seg, q_seg, f_seg = positions[rows], quaternions[rows], forces[rows]
+    t_seg = r.t[rows] - r.t[bounds.start]
+    p_seg, q_seg, f_seg = r.positions[rows], r.quaternions[rows], r.forces[rows]
     n_basis = _basis_count(float(t_seg[-1]), options)
     # DMPs are fitted on an evenly strided grid that ends on the last sample (the goal).
     stride = -(-len(t_seg) // options.max_fit_samples)
@@ -165,14 +167,14 @@ def _segment(
         "index": index,
         "start_index": bounds.start,
         "end_index": bounds.end,
-        "t_start": float(t[bounds.start]),
-        "t_end": float(t[bounds.end - 1]),
-        "start_reason": reasons[0],
-        "end_reason": reasons[1],
+        "t_start": float(r.t[bounds.start]),
+        "t_end": float(r.t[bounds.end - 1]),
+        "start_reason": bounds.start_reason,
+        "end_reason": bounds.end_reason,
     }
     if not bounds.contact:
         position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
-        return Segment(
+        free = Segment(
             kind=SegmentKind.free,
             selection=list(SELECTION_FREE),
             position_dmp=position_dmp.to_parameters(),
@@ -180,14 +182,16 @@ def _segment(
             quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms),
             **common,
         )
+        return _Learned(free)
 
+    rate_hz = r.contact.rate_hz
     if skill_type is SkillType.slide:
-        plane = slide_frame(p_seg, f_seg)
+        plane = slide_frame(p_seg, f_seg, r.contact.directions[rows])
         in_plane = ((p_seg - plane.origin) @ plane.rotation)[:, :2]
         position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], in_plane[fit], q_seg[fit], n_basis, "cf")
         f_z = cf_z_forces(f_seg, plane.rotation[:, 2])
         force = constant_force(f_z, rate_hz)
-        return Segment(
+        slide = Segment(
             kind=SegmentKind.contact,
             selection=list(SELECTION_CONTACT),
             compliant_frames=CompliantFrames(
@@ -208,15 +212,17 @@ def _segment(
             ),
             **common,
         )
+        cf_z = np.broadcast_to(plane.rotation[:, 2], p_seg.shape)
+        return _Learned(slide, cf_z, np.full(len(p_seg), force.value_n), plane)
 
-    rotations = contour_frames(positions, forces, rate_hz, rows)
+    rotations = contour_frames(r.positions, r.forces, rate_hz, rows)
     f_z = cf_z_forces(f_seg, rotations[:, :, 2])
     position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
     force_dmp = DMP.fit(t_seg[fit], _basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")
     f_rollout = force_dmp.rollout(stride / rate_hz).y[:, 0]
     n = min(len(f_rollout), len(f_z[fit]))
     keep = _decimated_indices(len(t_seg), options.contour_frames_max)
-    return Segment(
+    contour = Segment(
         kind=SegmentKind.contact,
         selection=list(SELECTION_CONTACT),
         compliant_frames=CompliantFrames(
@@ -232,13 +238,51 @@ def _segment(
         ),
         **common,
     )
+    learned_force = np.interp(t_seg, np.arange(len(f_rollout)) * stride / rate_hz, f_rollout)
+    return _Learned(contour, rotations[:, :, 2], learned_force)
+
+
+def _checks(
+    learned: list[_Learned], r: _Recording, classification: SkillClassification | None, skill_type: SkillType,
+    auto: bool,
+) -> list[SkillCheck]:
+    """Return the skill's checks against what the demonstration measured (`skills.skill_checks`)."""
+    checks, presses, free = [], {}, np.zeros(len(r.t), dtype=bool)
+    for item in learned:
+        segment = item.segment
+        rows = slice(segment.start_index, segment.end_index)
+        if segment.kind is SegmentKind.free:
+            free[rows] = True
+            continue
+        f, v = r.forces[rows], r.velocities[rows]
+        free_of_friction = friction_free(f, v)
+        checks.append(skill_checks.force_along_cf(segment.index, free_of_friction, item.learned_force_n))
+        checks.append(skill_checks.cf_z_vs_force(segment.index, free_of_friction, item.cf_z, skill_type))
+        if item.plane is not None:
+            checks.extend(skill_checks.plane_checks(segment.index, item.plane))
+        presses[segment.index] = float(np.percentile(np.linalg.norm(f, axis=1), 90))
+    checks.extend(skill_checks.stroke_strength(presses))
+    weakest = min(presses.values())
+    checks.append(skill_checks.force_outside_contact(r.forces, r.velocities, free, weakest, r.contact.rate_hz))
+    checks.append(skill_checks.type_evidence(classification, skill_type, auto))
+    return checks
+
+
+class SkillCheckError(LearningError):
+    """Strict learning refused the skill: ``checks`` are the ones it failed."""
+
+    def __init__(self, checks: list[SkillCheck]) -> None:
+        reasons = "; ".join(check.message for check in checks)
+        super().__init__("strict", f"the skill fails {len(checks)} of its checks: {reasons}")
+        self.checks = checks
 
 
 def learn_skill(demonstration: Demonstration, options: LearnOptions | None = None) -> Skill:
-    """Return the skill parameterized from one validated ``demonstration``.
+    """Return the skill parameterized from one validated ``demonstration``, with its checks.
 
     Raises `LearningError` (a ValueError naming the field) when the demonstration cannot give
-    a contact skill, e.g. it has no contact or no moving contact to classify.
+    a contact skill, e.g. it has no contact or no moving contact to classify; `SkillCheckError`
+    (a `LearningError`) when ``options.strict`` and the skill fails any of its checks.
     """
     options = options or LearnOptions()
     t, positions, quaternions, wrenches = _uniform_arrays(demonstration)
@@ -249,26 +293,37 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
             "wrenches",
             "the tool never touches anything (no force pressing on a surface), so there is no contact skill",
         )
-    slide_segments = segment_demonstration(positions, contact, True, options.min_segment_duration_s)
+    r = _Recording(t, positions, quaternions, forces, tool_velocities(positions, contact.rate_hz), contact)
+    slide_segments = segment_demonstration(positions, forces, contact, True, options.min_segment_duration_s)
     if not any(s.contact for s in slide_segments):
         raise LearningError(
             "wrenches",
             f"contact lasts less than the shortest segment ({options.min_segment_duration_s} s)",
         )
 
-    auto_selection = None
-    if options.skill_type is SkillTypeRequest.auto:
-        try:
-            verdict = classify_skill(positions, forces, contact.directions, slide_segments, contact.rate_hz)
-        except ValueError as exc:
+    auto = options.skill_type is SkillTypeRequest.auto
+    try:
+        classification = classify_skill(
+            positions, forces, contact.directions, quaternions, slide_segments, contact.rate_hz
+        )
+    except ValueError as exc:
+        if auto:
             raise LearningError("wrenches", str(exc)) from None
-        skill_type = SkillType.slide if verdict.is_slide else SkillType.contour
+        classification = None
+    auto_selection = None
+    if auto:
+        assert classification is not None
+        skill_type = SkillType.slide if classification.is_slide else SkillType.contour
+        odds = classification.log_odds
         auto_selection = AutoSelection(
             chosen=skill_type,
-            confidence=verdict.confidence,
-            turning_within_planes_deg=verdict.turning_within_planes_deg,
-            plane_rms_m=verdict.plane_rms_m,
-            reason=verdict.reason,
+            confidence=classification.confidence,
+            mixed=classification.mixed,
+            turning_within_planes_deg=classification.turning_within_planes_deg,
+            tool_following=classification.tool_following,
+            plane_rms_m=classification.plane_rms_m,
+            evidence=TypeEvidence(turning=odds[0], tool_following=odds[1], planarity=odds[2]),
+            reason=classification.reason,
         )
     else:
         skill_type = SkillType(options.skill_type.value)
@@ -276,21 +331,21 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     if skill_type is SkillType.slide:
         bounds = slide_segments
     else:
-        bounds = segment_demonstration(positions, contact, False, options.min_segment_duration_s)
-
-    reasons = _boundary_reasons(bounds, contact)
-    segments = [
-        _segment(k, b, r, skill_type, t, positions, quaternions, forces, contact.rate_hz, options)
-        for k, (b, r) in enumerate(zip(bounds, reasons, strict=True))
-    ]
+        bounds = segment_demonstration(positions, forces, contact, False, options.min_segment_duration_s)
+    learned = [_segment(k, b, skill_type, r, options) for k, b in enumerate(bounds)]
+    checks = _checks(learned, r, classification, skill_type, auto)
+    failed = [check for check in checks if not check.passed]
+    if options.strict and failed:
+        raise SkillCheckError(failed)
     return Skill(
         skill_type=skill_type,
         attributes=SkillAttributes(
             selection_matrix_cf=list(SELECTION_CONTACT),
             cf_constraint="plane" if skill_type is SkillType.slide else "force-direction",
         ),
-        segments=segments,
+        segments=[item.segment for item in learned],
         auto_selection=auto_selection,
+        checks=checks,
         demonstration=DemonstrationSummary.of(demonstration),
         sample_rate_hz=contact.rate_hz,
         taught_world=_taught_world(demonstration),

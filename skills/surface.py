@@ -53,15 +53,18 @@ def pressed_surface(
     press: NDArray[np.float64],
     normal: NDArray[np.float64],
     max_tilt_deg: float | None = None,
+    basis: NDArray[np.float64] | None = None,
 ) -> PressedSurface:
     """Fit the pressed-surface model to contact ``positions`` (M, 3) m pressing ``press`` (M,) N along unit ``normal``.
 
     Least squares; the compliance is clipped to ``[0, MAX_COMPLIANCE_M_N]`` and the plane refitted
     with it. ``max_tilt_deg`` bounds the plane's tilt from ``normal`` (a steeper plane could hold
     an arc drawn in a vertical plane, but nobody presses on it); a straight path leaves the
-    sideways tilt free, and least squares takes the smallest.
+    sideways tilt free, and least squares takes the smallest. ``basis`` (3, 2) orthonormal axes across
+    ``normal`` that the slopes refer to (default: any).
     """
-    basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
+    if basis is None:
+        basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
     depth = positions @ normal
     uv_origin = (positions @ basis).mean(axis=0)
     uv = positions @ basis - uv_origin

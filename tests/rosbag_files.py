@@ -1,7 +1,9 @@
-"""Real ROS 2 bags written with ``rosbags`` (no ROS) from a demonstration with known truth, as robots record them.
+"""Real ROS 2 and ROS 1 bags written with ``rosbags`` (no ROS) from a demonstration with known truth, as robots record
+them.
 
 The truth is a demonstration in the project's conventions (t, tool point position and orientation in the world,
-wrench applied by the tool at the tool point in the world). The bag holds what a robot would log instead:
+wrench applied by the tool at the tool point in the world). The bag holds what a robot would log instead, the same
+in a ROS 2 bag (MCAP or sqlite3 storage, CDR) and a ROS 1 bag (its own serialization, headers with a ``seq``):
 
 - ``/ft_sensor/wrench`` (WrenchStamped) at the truth's rate, the sensor's REACTION (``measured-on-tool``) in the
   frame asked for: ``world``, the ``tool`` frame, or ``ft_sensor``, a sensor fixed on the flange by ``/tf_static``
@@ -39,9 +41,16 @@ def tool_from_sensor() -> tuple[np.ndarray, np.ndarray]:
     return (r_tf * r_fs).as_matrix(), r_tf.apply(p_fs) + p_tf
 
 
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+STORAGES = ("mcap", "sqlite3", "ros1")
+"""What :func:`write_bag` writes: a ROS 2 bag directory (MCAP or sqlite3 storage) or a ROS 1 ``.bag``."""
+
+
 def _header(types, stamp_ns: int, frame: str):
     time = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    return types["std_msgs/msg/Header"](stamp=time, frame_id=frame)
+    header = types["std_msgs/msg/Header"]
+    seq = {"seq": 0} if "seq" in header.__dataclass_fields__ else {}  # ROS 1 headers count their messages
+    return header(stamp=time, frame_id=frame, **seq)
 
 
 def _vector3(types, v):
@@ -74,12 +83,14 @@ def write_bag(
     seed: int = 0,
 ) -> Path:
     """Write the truth (``t`` s, ``positions`` m, ``orientations`` [x, y, z, w], ``wrenches`` applied by the tool at
-    the tool point in the world) as a rosbag2 directory at ``path`` (``storage`` 'mcap' or 'sqlite3'); see the
-    module docstring for what it holds (``pose_every``: the pose at 1/pose_every of the wrench rate); returns it."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
+    the tool point in the world) as a bag at ``path``: a rosbag2 directory (``storage`` 'mcap' or 'sqlite3') or a
+    ROS 1 bag file (``storage`` 'ros1', ``path`` with the suffix ``.bag`` added if it has none); see the module
+    docstring for what it holds (``pose_every``: the pose at 1/pose_every of the wrench rate); returns the bag."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    typestore = get_typestore(Stores.ROS1_NOETIC if storage == "ros1" else Stores.ROS2_HUMBLE)
+    if storage == "ros1":  # the noetic store has no tf2_msgs: its definition, as a ROS 1 bag carries it
+        typestore.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_MESSAGE))
     types = typestore.types
     rng = np.random.default_rng(seed)
     stamps = STAMP_BASE_NS + np.round(np.asarray(t) * 1e9).astype(np.int64)
@@ -120,27 +131,38 @@ def write_bag(
         for j, k in enumerate(pose_rows):
             tf = _transform(types, int(stamps[k]), "base", "flange", r_bf[j], p_bf[j])
             messages.append(
-                (int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types["tf2_msgs/msg/TFMessage"]([tf]))
+                (int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types[TF_MESSAGE]([tf]))
             )
         static = [
             _transform(types, int(stamps[0]), "world", "base", r_wb, p_wb),
             _transform(types, int(stamps[0]), "flange", "tool", r_ft, p_ft),
             _transform(types, int(stamps[0]), "flange", "ft_sensor", *FLANGE_FROM_SENSOR),
         ]
-        messages.append((int(stamps[0]), "/tf_static", types["tf2_msgs/msg/TFMessage"](static)))
+        messages.append((int(stamps[0]), "/tf_static", types[TF_MESSAGE](static)))
     messages.sort(key=lambda item: item[0])
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=9, storage_plugin=plugin) as writer:
+    if storage == "ros1":
+        from rosbags.rosbag1 import Writer as Ros1Writer
+
+        path = path if path.suffix == ".bag" else path.with_name(path.name + ".bag")
+        writer, serialize = Ros1Writer(path), typestore.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer, serialize = Writer(path, version=9, storage_plugin=plugin), typestore.serialize_cdr
+    with writer:
         connections = {}
         for topic in sorted({topic for _, topic, _ in messages}):
             msgtype = next(m for _, name, m in messages if name == topic).__msgtype__
             connections[topic] = writer.add_connection(topic, msgtype, typestore=typestore)
         for log_time, topic, message in messages:
-            writer.write(connections[topic], log_time, typestore.serialize_cdr(message, message.__msgtype__))
+            writer.write(connections[topic], log_time, serialize(message, message.__msgtype__))
     return path
 
 
 def storage_file(bag: Path) -> Path:
-    """The storage file inside a rosbag2 directory (what an upload sends)."""
+    """The storage file inside a rosbag2 directory (what an upload sends); a ROS 1 bag is its own."""
+    if bag.is_file():
+        return bag
     [found] = [p for p in bag.iterdir() if p.suffix in (".mcap", ".db3")]
     return found

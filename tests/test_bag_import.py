@@ -1,13 +1,18 @@
-"""ROS 2 bags in (services/bag_import.py): real bags written by ``rosbags`` (tests/rosbag_files.py) from analytic
-demonstrations with known truth, imported and learned as ``contact-skills learn BAG`` and ``POST /demonstrations/bag``
-do: topics chosen, header stamps (not bag time), frames (world, tool, a sensor fixed by /tf_static, a /tf chain)
-and two asynchronous topics on one time base, checked sample by sample and on the learned normal and force."""
+"""ROS 2 and ROS 1 bags in (services/bag_import.py): real bags written by ``rosbags`` (tests/rosbag_files.py) from
+analytic demonstrations with known truth, imported and learned as ``contact-skills learn BAG`` and ``POST
+/demonstrations/bag`` do: topics chosen, header stamps (not bag time), frames (world, tool, a sensor fixed by
+/tf_static, a /tf chain) and two asynchronous topics on one time base, checked sample by sample and on the learned
+normal and force. Any other file gets one message on every interface; the import options are one model for the
+command line and the forms."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import subprocess
 import sys
+import zipfile
 from functools import cache
 from pathlib import Path
 
@@ -19,6 +24,7 @@ pytest.importorskip("rosbags")
 
 from corpus import synthetic
 from schemas import Skill, SkillType
+from schemas.import_options import BagImportOptions
 from schemas.skill import SegmentKind
 from services.bag_import import BagImportError, demonstration_from_bag
 from skills.quaternions import matrix_from_quaternion
@@ -26,6 +32,7 @@ from skills.quaternions import matrix_from_quaternion
 REPO = Path(__file__).resolve().parents[1]
 TILT_15 = (np.sin(np.radians(15.0)), 0.0, -np.cos(np.radians(15.0)))
 MEASURED = {"wrench_convention": "measured-on-tool"}
+TF_PAIR = {"tf_parent": "world", "tf_child": "tool"}
 
 
 @cache
@@ -47,20 +54,10 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-@pytest.mark.parametrize(
-    ("storage", "wrench_frame", "pose", "options"),
-    [
-        ("mcap", "tool", "pose_stamped", {"tool_frame": "tool"}),
-        ("mcap", "world", "pose_stamped", {}),
-        ("sqlite3", "ft_sensor", "tf", {"tf_frames": ("world", "tool")}),
-    ],
-)
-def test_bag_samples_are_the_truth_in_the_conventions(tmp_path, storage, wrench_frame, pose, options):
-    """Imported without tare, every sample is the truth: position and orientation in the world, the wrench the tool
-    applies at the tool point in the world, on one 1 kHz time base from 250 Hz poses stamped 1 ms off the wrench."""
-    truth = _slide()
-    bag = _bag(tmp_path, truth, "bag", storage=storage, wrench_frame=wrench_frame, pose=pose)
-    demo = demonstration_from_bag(bag, **MEASURED, **options, tare=False)
+def _assert_the_truth(demo, truth: synthetic.SyntheticDemo) -> None:
+    """Every sample of ``demo`` (imported without tare) is the truth: position and orientation in the world, the wrench
+    the tool applies at the tool point in the world, on one 1 kHz time base from 250 Hz poses stamped 1 ms off the
+    wrench (the shared span starts at the first pose, one wrench sample in)."""
     a = demo.arrays()
     rows = np.arange(1, 1 + a.t.size)  # the shared span starts at the first pose, one wrench sample in
     np.testing.assert_allclose(a.t, truth.t[rows] - truth.t[1], atol=1e-9)
@@ -70,11 +67,31 @@ def test_bag_samples_are_the_truth_in_the_conventions(tmp_path, storage, wrench_
     alignment = np.abs(np.sum(a.orientations * truth.orientations[rows], axis=1))
     assert np.all(alignment > 1 - 1e-9)
     np.testing.assert_allclose(a.wrenches, truth.wrenches[rows], atol=1e-5)
+    assert demo.metadata.wrench_convention_on_import == "measured-on-tool"
+    assert demo.metadata.extra["bag"]["start_stamp_ns"] == STAMP_BASE_NS + 1_000_000
+
+
+@pytest.mark.parametrize(
+    ("storage", "wrench_frame", "pose", "options"),
+    [
+        ("mcap", "tool", "pose_stamped", {"tool_frame": "tool"}),
+        ("mcap", "world", "pose_stamped", {}),
+        ("sqlite3", "ft_sensor", "tf", TF_PAIR),
+        ("ros1", "tool", "pose_stamped", {"tool_frame": "tool"}),
+        ("ros1", "ft_sensor", "tf", TF_PAIR),
+    ],
+)
+def test_bag_samples_are_the_truth_in_the_conventions(tmp_path, storage, wrench_frame, pose, options):
+    """ROS 2 (MCAP, sqlite3) and ROS 1 alike: imported without tare, every sample is the truth (`_assert_the_truth`)."""
+    truth = _slide()
+    bag = _bag(tmp_path, truth, "bag", storage=storage, wrench_frame=wrench_frame, pose=pose)
+    demo = demonstration_from_bag(bag, BagImportOptions(**MEASURED, **options, tare=False))
+    _assert_the_truth(demo, truth)
     frames = demo.metadata.extra["bag"]["frames"]
     assert frames["world"] == "world" and frames["wrench"] == wrench_frame
-    assert (
-        demo.metadata.source == "bag:bag" and demo.metadata.extra["bag"]["start_stamp_ns"] == STAMP_BASE_NS + 1_000_000
-    )
+    ros = 1 if storage == "ros1" else 2
+    assert demo.metadata.source == f"bag:{bag.name}" and demo.metadata.extra["bag"]["ros"] == ros
+    assert demo.metadata.extra["import_notes"][0].startswith(f"ROS {ros} bag: wrench /ft_sensor/wrench")
 
 
 def test_the_bag_is_logged_out_of_stamp_order(tmp_path):
@@ -124,7 +141,7 @@ def test_learn_a_contour_from_a_sqlite3_bag_with_tf_and_a_sensor_frame(tmp_path)
 
     truth = _contour()
     bag = _bag(tmp_path, truth, "contour", storage="sqlite3", wrench_frame="ft_sensor", pose="tf")
-    demo = demonstration_from_bag(bag, **MEASURED, tf_frames=("world", "tool"))
+    demo = demonstration_from_bag(bag, BagImportOptions(**MEASURED, **TF_PAIR))
     skill = learn_skill(demo)
     assert skill.skill_type is SkillType.contour
     contact = _contact(skill)
@@ -143,23 +160,25 @@ def test_ambiguous_topics_and_unknown_frames_name_the_option(tmp_path):
     truth = _slide()
     bag = _bag(tmp_path, truth, "two", second_wrench_topic=True)
     with pytest.raises(BagImportError) as caught:
-        demonstration_from_bag(bag, **MEASURED, tool_frame="tool")
+        demonstration_from_bag(bag, BagImportOptions(**MEASURED, tool_frame="tool"))
     assert caught.value.problems[0].startswith("wrench_topic: 2 geometry_msgs/msg/WrenchStamped topics")
     assert "/ft_sensor/wrench_filtered" in str(caught.value) and "--wrench-topic" in str(caught.value)
-    chosen = demonstration_from_bag(bag, **MEASURED, tool_frame="tool", wrench_topic="/ft_sensor/wrench_filtered")
+    chosen = demonstration_from_bag(
+        bag, BagImportOptions(**MEASURED, tool_frame="tool", wrench_topic="/ft_sensor/wrench_filtered")
+    )
     assert chosen.metadata.extra["bag"]["wrench_topic"] == "/ft_sensor/wrench_filtered"
 
     with pytest.raises(BagImportError, match=r"wrench_frame: the wrench's frame_id is 'tool'.*--wrench-frame"):
-        demonstration_from_bag(bag, **MEASURED, wrench_topic="/ft_sensor/wrench")  # no --tool-frame: tool unknown
+        demonstration_from_bag(bag, BagImportOptions(**MEASURED, wrench_topic="/ft_sensor/wrench"))  # tool unknown
     with pytest.raises(BagImportError, match="wrench_topic: no topic '/nope'"):
-        demonstration_from_bag(bag, wrench_topic="/nope")
+        demonstration_from_bag(bag, BagImportOptions(wrench_topic="/nope"))
     with pytest.raises(BagImportError, match="pose_topic: topic '/ft_sensor/wrench' holds"):
-        demonstration_from_bag(bag, wrench_topic="/ft_sensor/wrench", pose_topic="/ft_sensor/wrench")
+        demonstration_from_bag(bag, BagImportOptions(wrench_topic="/ft_sensor/wrench", pose_topic="/ft_sensor/wrench"))
     tf_bag = _bag(tmp_path, truth, "tf", pose="tf", wrench_frame="ft_sensor")
     with pytest.raises(BagImportError, match="tf: /tf does not connect 'world' to 'gripper'"):
-        demonstration_from_bag(tf_bag, tf_frames=("world", "gripper"))
+        demonstration_from_bag(tf_bag, BagImportOptions(tf_parent="world", tf_child="gripper"))
     broken = tmp_path / "broken.mcap"
-    broken.write_bytes(b"not a bag")
+    broken.write_bytes(b"\x89MCAP0\r\nnot a bag")  # an MCAP's magic, then nothing an MCAP holds
     with pytest.raises(BagImportError, match=r"file: cannot read the bag 'broken\.mcap'"):
         demonstration_from_bag(broken)
 
@@ -192,3 +211,130 @@ def test_upload_a_bag_to_the_api(tmp_path):
         assert half.status_code == 422 and "tf_child" in half.text
         unknown = client.post("/demonstrations/bag", files=files, data={"colour": "red"})
         assert unknown.status_code == 422 and unknown.json()["detail"][0]["loc"] == ["body", "colour"]
+
+
+# --------------------------------------------------------------------------- ROS 1, every file, one options model
+
+ROS1_FLAGS = ["--wrench", "measured-on-tool", "--tool-frame", "tool", "--no-tare", "--name", "ros1_demo"]
+ROS1_FORM = {"wrench": "measured-on-tool", "tool_frame": "tool", "tare": "false", "name": "ros1_demo"}
+"""The same options as ``contact-skills learn`` flags and as ``POST /demonstrations/bag`` form fields."""
+
+
+def _in_process(argv: list[str]) -> tuple[int, str, str]:
+    """``contact-skills ARGV`` run in this process: (exit code, stdout, stderr)."""
+    from cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def _api(tmp_path: Path):
+    from conftest import api_settings, loopback_client
+
+    from services.app import create_app
+
+    return loopback_client(create_app(api_settings(tmp_path), bus=None))
+
+
+def test_a_ros1_bag_imports_to_the_truth_through_the_cli_and_the_api(tmp_path):
+    """``contact-skills learn demo.bag`` and ``POST /demonstrations/bag`` with the same options import a ROS 1 bag (the
+    wrench in the tool frame, the sensor's reaction) to the truth, the same samples both ways; learn finds the plane."""
+    from cli.import_options import import_demonstration
+    from cli.main import build_parser
+
+    truth = _slide()
+    bag = _bag(tmp_path, truth, "demo", storage="ros1")
+    args = build_parser().parse_args(["learn", str(bag), *ROS1_FLAGS, "-o", str(tmp_path / "skill.json")])
+    from_cli = import_demonstration(args)
+    _assert_the_truth(from_cli, truth)
+    assert from_cli.metadata.name == "ros1_demo" and from_cli.metadata.extra["bag"]["ros"] == 1
+    with _api(tmp_path) as client:
+        created = client.post("/demonstrations/bag", files={"file": (bag.name, bag.read_bytes())}, data=ROS1_FORM)
+        assert created.status_code == 201, created.text
+        assert created.json()["import_notes"][0].startswith("ROS 1 bag: wrench /ft_sensor/wrench (8000 messages)")
+        stored = client.get(f"/demonstrations/{created.json()['id']}").json()["demonstration"]
+    assert stored == from_cli.model_dump(mode="json")
+
+    code, stdout, stderr = _in_process(["learn", str(bag), *ROS1_FLAGS, "-o", str(tmp_path / "skill.json")])
+    assert code == 0, stderr
+    assert "  import: ROS 1 bag: wrench /ft_sensor/wrench" in stdout
+    contact = _contact(Skill.model_validate_json((tmp_path / "skill.json").read_text()))
+    z = matrix_from_quaternion(contact.compliant_frames.orientations[0])[:, 2]
+    assert _angle_deg(z, truth.normals[0]) < 1.0
+    assert contact.force_constant_n == pytest.approx(truth.target_force_n, rel=0.02)
+    code, _, stderr = _in_process(["learn", str(bag), "--columns", "t=time", "--dt", "0.01", "-o", str(tmp_path / "x")])
+    assert code == 2 and stderr == (
+        f"contact-skills learn: error: --columns, --dt: not an option of this file: {bag} is a ROS 1 bag\n"
+    )
+
+
+def _zip_bytes() -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("demo.csv", "t,x\n0,1\n")
+    return buffer.getvalue()
+
+
+def test_any_other_file_gets_one_message_on_every_interface(tmp_path):
+    """A PNG, a zip, random bytes named .bag and text named .mcap: the command line, both upload routes and the client
+    say the same words, naming what IS read; a readable file sent to the other route is told where it goes."""
+    from services.client import Client
+    from services.demonstration_files import unsupported_file
+
+    others = {
+        "picture.png": b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)),
+        "archive.zip": _zip_bytes(),
+        "noise.bag": np.random.default_rng(0).bytes(4096),
+        "notes.mcap": b"t,x\n0,1\n",
+    }
+    with _api(tmp_path) as api, Client("http://127.0.0.1:9") as client:  # the client refuses before sending
+        for name, data in others.items():
+            path = tmp_path / name
+            path.write_bytes(data)
+            message = unsupported_file(name)
+            assert "CSV recording" in message and "ROS 2 bag" in message and "ROS 1 bag (.bag)" in message
+            code, _, stderr = _in_process(["learn", str(path), "-o", str(tmp_path / "s.json")])
+            assert code == 2 and stderr == f"contact-skills learn: error: {message}\n", name
+            for route in ("/demonstrations/csv", "/demonstrations/bag"):
+                answer = api.post(route, files={"file": (name, data)})
+                assert answer.status_code == 422, (name, route)
+                assert [(e["loc"], e["msg"]) for e in answer.json()["detail"]] == [(["body", "file"], message)]
+            with pytest.raises(ValueError) as caught:
+                client.upload(path)
+            assert str(caught.value) == message
+        bag = storage_file(_bag(tmp_path, _slide(), "wrong_route"))
+        answer = api.post("/demonstrations/csv", files={"file": (bag.name, bag.read_bytes())})
+        assert answer.json()["detail"][0]["msg"] == (
+            f"{bag.name!r} is a ROS 2 bag, not a CSV recording (POST /demonstrations/bag takes it)"
+        )
+
+
+def test_one_options_model_for_the_command_line_and_the_forms():
+    """Every field of the options models has a flag (all given here), and the flags give the model the form fields
+    give: enums, numbers, number lists ('0,0.5' in a form, two values on the command line), a switch, the /tf pair."""
+    from cli.import_options import options_from_args
+    from cli.main import build_parser
+    from schemas.import_options import CsvImportOptions
+
+    shared_flags = ["--wrench", "measured-on-tool", "--wrench-frame", "tool", "--rate", "250", "--no-tare",
+                    "--tare-window", "0", "0.5", "--force-offset", "1", "2", "3", "--name", "demo"]  # fmt: skip
+    shared_form = {"wrench": "measured-on-tool", "wrench_frame": "tool", "rate": "250", "tare": "false",
+                   "tare_window": "0,0.5", "force_offset": "1,2,3", "name": "demo", "file": "the upload"}  # fmt: skip
+    kinds = [
+        (BagImportOptions, ["--wrench-topic", "/ft", "--pose-topic", "/pose", "--tf", "world", "tool0",
+                            "--tool-frame", "tool0"],
+         {"wrench_topic": "/ft", "pose_topic": "/pose", "tf_parent": "world", "tf_child": "tool0",
+          "tool_frame": "tool0"}),
+        (CsvImportOptions, ["--columns", "t=time", "--quaternion-order", "wxyz", "--dt", "0.004"],
+         {"columns": "t=time", "quaternion_order": "wxyz", "dt": "0.004"}),
+    ]  # fmt: skip
+    parser = build_parser()
+    for model, flags, form in kinds:
+        args = parser.parse_args(["learn", "demo", *shared_flags, *flags, "-o", "skill.json"])
+        from_cli = options_from_args(args, model, "demo")
+        assert from_cli.model_fields_set == set(model.model_fields)
+        assert from_cli == model.model_validate(shared_form | form)
+        assert from_cli.tare_window_s == (0.0, 0.5) and from_cli.force_offset == (1.0, 2.0, 3.0)
+    assert from_cli.dt_s == 0.004 and BagImportOptions(**TF_PAIR).tf_frames == ("world", "tool")

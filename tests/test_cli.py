@@ -17,6 +17,7 @@ from conftest import KULEUVEN_DATA
 from cli.main import DATA_ENV, kuleuven_recordings, main
 from corpus.synthetic import plane_slide
 from schemas import Demonstration, Skill
+from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
 from skills.quaternions import matrix_from_quaternion
@@ -54,7 +55,7 @@ def learned(tmp_path_factory) -> dict[str, tuple[Demonstration, Skill, str]]:
         code, stdout, stderr = _run(["learn", str(path), "--type", "contour", *KULEUVEN_ARGS, "-o", str(out / name)])
         assert code == 0, stderr
         skill = Skill.model_validate_json((out / name).read_text())
-        demo = demonstration_from_csv(path, wrench_convention="measured-on-tool", wrench_frame="tool")
+        demo = demonstration_from_csv(path, CsvImportOptions(wrench_convention="measured-on-tool", wrench_frame="tool"))
         results[name] = (demo, skill, stdout)
     return results
 

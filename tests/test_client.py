@@ -56,9 +56,16 @@ def test_upload_every_kind_of_file_and_learn(client, tmp_path):
     from_csv = client.upload(tmp_path / "demo.csv", tare=False)
     from_bag = client.upload(bag, wrench="measured-on-tool", tare=False)  # the directory: its storage file is sent
     from_file = client.upload(storage_file(bag), wrench="measured-on-tool")
+    ros1 = write_bag(tmp_path / "demo", truth.t, truth.positions, truth.orientations, truth.wrenches,
+                     wrench_frame="world", storage="ros1")  # fmt: skip
+    from_ros1 = client.upload(ros1, wrench="measured-on-tool", tare=False)  # a ROS 1 bag: to the bag route too
     assert from_json.summary.n_samples == from_csv.summary.n_samples == truth.t.size
     assert from_bag.source == f"bag:{storage_file(bag).name}" and from_bag.summary.n_samples == truth.t.size - 3
     assert from_bag.summary.max_force_n == pytest.approx(from_csv.summary.max_force_n, rel=0.02)
+    assert from_ros1.source == "bag:demo.bag" and from_ros1.import_notes[0].startswith("ROS 1 bag: wrench")
+    ros1_samples, ros2_samples = (client.demonstration(d.id).arrays() for d in (from_ros1, from_bag))
+    np.testing.assert_allclose(ros1_samples.wrenches, truth.wrenches[1 : 1 + ros1_samples.t.size], atol=1e-9)
+    np.testing.assert_array_equal(ros1_samples.positions, ros2_samples.positions)
     assert any("sensor offset" in note for note in from_file.import_notes)
     stored = client.demonstration(from_json.id)
     np.testing.assert_allclose(stored.arrays().positions, truth.positions)

@@ -15,6 +15,7 @@ from conftest import KULEUVEN_DATA
 
 from corpus import kinesthetic
 from schemas import EnvironmentChange, ExecutionSettings, Skill
+from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
@@ -31,7 +32,7 @@ KINESTHETIC_IMPORT = {"rate_hz": 100.0, **KU_IMPORT}
 
 
 def ku_skill(trial: str) -> Skill:
-    return learn_skill(demonstration_from_csv(KULEUVEN_DATA / f"{trial}.csv", **KU_IMPORT))
+    return learn_skill(demonstration_from_csv(KULEUVEN_DATA / f"{trial}.csv", CsvImportOptions(**KU_IMPORT)))
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +44,7 @@ def kinesthetic_slides() -> dict[str, tuple]:
     for scenario in ("wipe_flat", "wipe_tilted"):
         demo = record_kinesthetic(scenario, seed=1)
         text = kinesthetic.recording_csv_text(demo)
-        learned[scenario] = (demo, learn_skill(demonstration_from_csv(text, **KINESTHETIC_IMPORT)))
+        learned[scenario] = (demo, learn_skill(demonstration_from_csv(text, CsvImportOptions(**KINESTHETIC_IMPORT))))
     return learned
 
 

@@ -136,6 +136,7 @@ def test_execution_csv_and_time_window(client, stored):
 
 
 def test_demonstration_mcap_is_a_bag_that_imports_to_the_same_samples(client, stored, tmp_path):
+    from schemas.import_options import BagImportOptions
     from services.bag_import import demonstration_from_bag
 
     demo_id = stored["demo"].id
@@ -147,7 +148,7 @@ def test_demonstration_mcap_is_a_bag_that_imports_to_the_same_samples(client, st
     assert len(topics["/wrench/world"]) == original.t.size
     path = tmp_path / "demo.mcap"
     path.write_bytes(response.content)
-    again = demonstration_from_bag(path, tare=False).arrays()
+    again = demonstration_from_bag(path, BagImportOptions(tare=False)).arrays()
     np.testing.assert_allclose(again.t, original.t - original.t[0], atol=1e-9)
     np.testing.assert_allclose(again.positions, original.positions, atol=1e-12)
     np.testing.assert_allclose(again.wrenches, original.wrenches, atol=1e-12)

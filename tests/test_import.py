@@ -10,17 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import KULEUVEN_DATA
+from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from corpus import kinesthetic
 from schemas import Demonstration
-from services.csv_import import (
-    ColumnMap,
-    CsvImportError,
-    DemonstrationImportError,
-    demonstration_from_csv,
-    demonstration_from_json,
-)
+from schemas.import_options import CsvImportOptions
+from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv, demonstration_from_json
+from services.importing import DemonstrationImportError
 from skills import preprocess
 from skills.quaternions import quaternion_angle_between
 
@@ -38,7 +35,7 @@ def real() -> dict[str, dict[str, Demonstration]]:
     assert DATA.is_dir(), f"the KU Leuven recordings are part of the repository: {DATA}"
     return {
         name: {
-            frame: demonstration_from_csv(DATA / f"{name}.csv", wrench_frame=frame, **KULEUVEN)
+            frame: demonstration_from_csv(DATA / f"{name}.csv", CsvImportOptions(wrench_frame=frame, **KULEUVEN))
             for frame in ("tool", "world")
         }
         for name in TRIALS
@@ -129,7 +126,7 @@ def test_real_metadata_records_the_conversions(real, name):
 
 
 def test_real_reaction_imported_as_applied_gets_a_sign_hint(real):
-    wrong = demonstration_from_csv(DATA / "contour_a_1.csv", wrench_frame="tool")
+    wrong = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="tool"))
     assert any("check the wrench sign" in note for note in wrong.metadata.extra["import_notes"])
     right = real["contour_a_1"]["tool"].metadata.extra["import_notes"]
     assert not any("check the wrench sign" in note for note in right)
@@ -184,7 +181,7 @@ def test_irregular_duplicated_and_out_of_order_time_stamps_resample_to_the_truth
     late[:, 0] -= 0.02  # three rows stamped 20 ms too early: out of order where they sit
     table = np.insert(table, [401, 801, 1201], late, axis=0)
 
-    demo = demonstration_from_csv(_csv(HEADER, table), rate_hz=100.0)
+    demo = demonstration_from_csv(_csv(HEADER, table), CsvImportOptions(rate_hz=100.0))
     a = demo.arrays()
     np.testing.assert_allclose(np.diff(a.t), 0.01, rtol=1e-9)
     positions, q, wrenches = _truth(a.t)
@@ -221,7 +218,7 @@ def test_a_real_hold_stays_constant():
     t = np.arange(0.0, 2.0, 0.002)
     moving = np.clip(t - 0.5, 0.0, None)
     p, q, w = _truth(moving)
-    demo = demonstration_from_csv(_csv(HEADER, np.column_stack([t, p, q, w])), tare=False)
+    demo = demonstration_from_csv(_csv(HEADER, np.column_stack([t, p, q, w])), CsvImportOptions(tare=False))
     a = demo.arrays()
     still = a.t <= 0.5
     assert np.abs(a.positions[still] - p[0]).max() < 1e-9
@@ -235,7 +232,7 @@ def test_scalar_first_and_sign_flips():
     wxyz = np.column_stack([flipped[:, 3], flipped[:, :3]])
     numbered = ["t", "px", "py", "pz", "q0", "q1", "q2", "q3", "fx", "fy", "fz", "mx", "my", "mz"]
     text = _csv(numbered, np.column_stack([t, p, wxyz, w]))
-    demo = demonstration_from_csv(text, quaternion_order="wxyz")
+    demo = demonstration_from_csv(text, CsvImportOptions(quaternion_order="wxyz"))
     a = demo.arrays()
     assert demo.metadata.quaternion_order_on_import == "wxyz"
     assert np.all(np.sum(a.orientations[1:] * a.orientations[:-1], axis=1) > 0)
@@ -245,7 +242,7 @@ def test_scalar_first_and_sign_flips():
     named_text = _csv(named, np.column_stack([t, p, wxyz, w]))
     assert demonstration_from_csv(named_text).orientations == demo.orientations
     with pytest.raises(CsvImportError, match="named in wxyz order"):
-        demonstration_from_csv(named_text, quaternion_order="xyzw")
+        demonstration_from_csv(named_text, CsvImportOptions(quaternion_order="xyzw"))
     with pytest.raises(CsvImportError, match="q0, q1, q2, q3 are numbered"):
         demonstration_from_csv(text)
 
@@ -256,7 +253,7 @@ def test_measured_on_tool_in_the_tool_frame_is_converted_to_applied_in_world():
     R = Rotation.from_quat(q)
     w_tool_measured = -np.hstack([R.inv().apply(w_world[:, :3]), R.inv().apply(w_world[:, 3:])])
     text = _csv(HEADER, np.column_stack([t, p, q, w_tool_measured]))
-    demo = demonstration_from_csv(text, wrench_convention="measured-on-tool", wrench_frame="tool")
+    demo = demonstration_from_csv(text, CsvImportOptions(wrench_convention="measured-on-tool", wrench_frame="tool"))
     np.testing.assert_allclose(demo.arrays().wrenches, _truth(demo.arrays().t)[2], atol=1e-6)
 
 
@@ -278,7 +275,7 @@ REAL_FORMAT = {
 def test_sensor_offset_is_fitted_in_the_sensor_frame_over_every_free_stretch(seed):
     """A wrist sensor's offset turns with the tool; the hand pushes the arm in free space."""
     truth, text = _kinesthetic(seed)
-    demo = demonstration_from_csv(text, **REAL_FORMAT)
+    demo = demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT))
     meta = demo.metadata
     assert meta.force_offset_frame == "tool"
     error = np.linalg.norm(np.asarray(meta.force_offset_removed[:3]) - truth.truth.sensor_offset[:3])
@@ -287,27 +284,29 @@ def test_sensor_offset_is_fitted_in_the_sensor_frame_over_every_free_stretch(see
     assert len(meta.extra["tare"]["stretches_s"]) == 4
     assert meta.extra["tare"]["arm_damping_n_s_m"] > 5.0  # the hand's push explained by the arm's motion
     assert "sensor offset removed" in " ".join(meta.extra["import_notes"])
-    untared = demonstration_from_csv(text, **REAL_FORMAT, tare=False)
+    untared = demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, tare=False))
     assert untared.metadata.force_offset_removed is None
 
 
 def test_given_offset_and_tare_window_act_on_the_file_columns():
     truth, text = _kinesthetic(0)
     offset = truth.truth.sensor_offset
-    given = demonstration_from_csv(text, **REAL_FORMAT, force_offset=offset[:3].tolist())
+    given = demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, force_offset=offset[:3].tolist()))
     assert given.metadata.force_offset_removed[:3] == pytest.approx(offset[:3].tolist())
     assert given.metadata.force_offset_frame == "tool"
     rows = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1)
-    window = demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(0.0, 0.8))
+    window = demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, tare_window_s=(0.0, 0.8)))
     expected = np.median(rows[: round(0.8 * 100) + 1, 7:13], axis=0)
     np.testing.assert_allclose(window.metadata.force_offset_removed, expected, atol=1e-9)
     assert "tare window 0-0.8 s" in " ".join(window.metadata.extra["import_notes"])
     with pytest.raises(CsvImportError, match="either a tare window or a force offset"):
-        demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(0.0, 0.8), force_offset=[1.0, 2.0, 3.0])
+        demonstration_from_csv(
+            text, CsvImportOptions(**REAL_FORMAT, tare_window_s=(0.0, 0.8), force_offset=[1.0, 2.0, 3.0])
+        )
     with pytest.raises(CsvImportError, match="tare window: 50-60 s holds 0 samples"):
-        demonstration_from_csv(text, **REAL_FORMAT, tare_window_s=(50.0, 60.0))
+        demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, tare_window_s=(50.0, 60.0)))
     with pytest.raises(CsvImportError, match="force offset: 3 forces"):
-        demonstration_from_csv(text, **REAL_FORMAT, force_offset=[1.0, 2.0])
+        demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, force_offset=[1.0, 2.0]))
 
 
 def test_no_free_space_no_offset(real):
@@ -324,8 +323,9 @@ def test_column_spec_and_common_names():
     header = ["Time [s]", "X (m)", "Y (m)", "Z (m)", "quat_x", "quat_y", "quat_z", "quat_w", "Force_X", "Force_Y",
               "Force_Z", "my_torque_a", "my_torque_b", "my_torque_c"]  # fmt: skip
     text = _csv(header, np.column_stack([t, p, q, w]))
-    spec = ColumnMap.parse("mx=my_torque_a, my=my_torque_b, mz=my_torque_c")
-    demo = demonstration_from_csv(text, columns=spec)
+    spec = "mx=my_torque_a, my=my_torque_b, mz=my_torque_c"
+    assert ColumnMap.parse(spec) == ColumnMap(mx="my_torque_a", my="my_torque_b", mz="my_torque_c")
+    demo = demonstration_from_csv(text, CsvImportOptions(columns=spec))
     assert demo.metadata.extra["columns"]["t"] == "Time [s]" and demo.metadata.extra["columns"]["mz"] == "my_torque_c"
     np.testing.assert_allclose(demo.arrays().wrenches[:, 3:], _truth(demo.arrays().t)[2][:, 3:], atol=1e-6)
     without_moments = demonstration_from_csv(_csv(header[:11], np.column_stack([t, p, q, w[:, :3]])))
@@ -393,11 +393,11 @@ def test_bad_options_and_specs():
         ColumnMap.parse("t")
     text = _csv(HEADER, _good_rows())
     with pytest.raises(CsvImportError, match="column 'Force_Z' given for fz is not in the header"):
-        demonstration_from_csv(text, columns=ColumnMap(fz="Force_Z"))
+        demonstration_from_csv(text, CsvImportOptions(columns="fz=Force_Z"))
     with pytest.raises(CsvImportError, match="rate"):
-        demonstration_from_csv(text, rate_hz=0.0)
-    with pytest.raises(CsvImportError, match=r"reaction"):
-        demonstration_from_csv(text, wrench_convention="reaction")
+        demonstration_from_csv(text, CsvImportOptions(rate_hz=0.0))
+    with pytest.raises(ValidationError, match=r"reaction"):
+        CsvImportOptions(wrench_convention="reaction")
     with pytest.raises(CsvImportError, match=r"cannot read"):
         demonstration_from_csv(Path("/nonexistent/demo.csv"))
 
@@ -406,7 +406,7 @@ def test_tool_frame_columns_hint_the_option():
     header = [h if h[0] not in "fm" else f"{h}_tcp" for h in HEADER]
     with pytest.raises(CsvImportError, match="the file has a tool-frame wrench: pass wrench_frame='tool'"):
         demonstration_from_csv(_csv(header, _good_rows()))
-    assert demonstration_from_csv(_csv(header, _good_rows()), wrench_frame="tool").n_samples > 50
+    assert demonstration_from_csv(_csv(header, _good_rows()), CsvImportOptions(wrench_frame="tool")).n_samples > 50
 
 
 def test_json_round_trip_and_field_errors(tmp_path):
@@ -439,9 +439,9 @@ def _no_time_rows(n: int = 300, dt: float = 0.01) -> tuple[np.ndarray, np.ndarra
 def test_file_without_time_column_takes_rows_as_samples_at_the_given_rate():
     t, rows = _no_time_rows()
     text = _csv(NO_TIME_HEADER, rows)
-    by_rate = demonstration_from_csv(text, rate_hz=100.0, tare=False)
-    by_dt = demonstration_from_csv(text, dt_s=0.01, tare=False)
-    both = demonstration_from_csv(text, rate_hz=100.0, dt_s=0.01, tare=False)
+    by_rate = demonstration_from_csv(text, CsvImportOptions(rate_hz=100.0, tare=False))
+    by_dt = demonstration_from_csv(text, CsvImportOptions(dt_s=0.01, tare=False))
+    both = demonstration_from_csv(text, CsvImportOptions(rate_hz=100.0, dt_s=0.01, tare=False))
     assert by_rate.t == by_dt.t == both.t
     np.testing.assert_allclose(by_rate.t, t, rtol=0, atol=1e-12)  # t = row * dt from 0
     a = by_dt.arrays()
@@ -479,13 +479,13 @@ def test_file_without_time_column_needs_rate_or_dt():
 def test_bad_rate_or_dt_is_refused(options, expected):
     _, rows = _no_time_rows()
     with pytest.raises(CsvImportError) as raised:
-        demonstration_from_csv(_csv(NO_TIME_HEADER, rows), **options)
+        demonstration_from_csv(_csv(NO_TIME_HEADER, rows), CsvImportOptions(**options))
     assert expected in str(raised.value), str(raised.value)
 
 
 def test_with_a_time_column_dt_is_the_resampling_step():
     text = _csv(HEADER, _good_rows())  # 200 Hz time stamps
-    by_dt = demonstration_from_csv(text, dt_s=0.01)
-    by_rate = demonstration_from_csv(text, rate_hz=100.0)
+    by_dt = demonstration_from_csv(text, CsvImportOptions(dt_s=0.01))
+    by_rate = demonstration_from_csv(text, CsvImportOptions(rate_hz=100.0))
     assert by_dt.t == by_rate.t and by_dt.metadata.resampled_rate_hz == pytest.approx(100.0)
     assert not any("no time column" in note for note in by_dt.metadata.extra["import_notes"])

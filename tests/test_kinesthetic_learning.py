@@ -15,6 +15,7 @@ import pytest
 
 from corpus import kinesthetic
 from schemas import Demonstration, LearnOptions, Skill, SkillTypeRequest
+from schemas.import_options import CsvImportOptions
 from schemas.skill import SegmentKind
 from services.csv_import import demonstration_from_csv
 from skills.parameterize import learn_skill
@@ -28,7 +29,7 @@ IMPORT = {"rate_hz": 100.0, "quaternion_order": "wxyz", "wrench_convention": "me
 @cache
 def recording(surface: str, seed: int) -> tuple[kinesthetic.KinestheticDemo, Demonstration]:
     demo = kinesthetic.kinesthetic_wipe(surface, n_strokes=1 + seed % 4, friction=FRICTIONS[seed % 3], seed=seed)
-    return demo, demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT)
+    return demo, demonstration_from_csv(kinesthetic.recording_csv_text(demo), CsvImportOptions(**IMPORT))
 
 
 @cache
@@ -121,7 +122,7 @@ def test_a_hand_wiped_plane_that_leaves_its_plane_by_mm_is_still_a_slide() -> No
 def test_a_soft_pad_that_sinks_15_mm_keeps_touch_down_and_lift_off(seed: int) -> None:
     """A sponge (2 kN/m) sinks ~15 mm under the press: as it relaxes the tool rises ON the surface, not off it."""
     demo = kinesthetic.kinesthetic_wipe("flat", n_strokes=2, friction=0.3, seed=seed, pad_stiffness_n_m=2000.0)
-    skill = learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT))
+    skill = learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), CsvImportOptions(**IMPORT)))
     assert skill.skill_type.value == "slide" and skill.auto_selection.confidence >= 0.8
     segments = contacts(skill)
     assert len(segments) == len(demo.truth.strokes)
@@ -138,7 +139,7 @@ def simulated(scenario: str) -> tuple[kinesthetic.KinestheticDemo, Skill]:
     from sim_worker.kinesthetic_teacher import record_kinesthetic
 
     demo = record_kinesthetic(scenario, seed=1)  # 2 strokes, real PyBullet contact, friction and arm
-    return demo, learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), **IMPORT))
+    return demo, learn_skill(demonstration_from_csv(kinesthetic.recording_csv_text(demo), CsvImportOptions(**IMPORT)))
 
 
 @pytest.mark.parametrize("scenario", ["wipe_flat", "wipe_tilted", "wipe_curved"])

@@ -26,7 +26,8 @@ from fastapi.responses import JSONResponse
 from schemas.api import ApiError
 
 if TYPE_CHECKING:
-    from services.csv_import import CsvImportError, DemonstrationImportError
+    from services.csv_import import CsvImportError
+    from services.importing import DemonstrationImportError
     from services.learner_pool import LearnOutcome
 
 log = logging.getLogger("contact_skills.api")
@@ -117,12 +118,6 @@ def unauthorized() -> HTTPException:
     )
 
 
-def bad_numbers(field: str, text: str, count: tuple[int, ...]) -> RequestValidationError:
-    """422 naming the form ``field`` that should hold ``count`` comma-separated numbers."""
-    wanted = " or ".join(str(n) for n in count)
-    return unprocessable(["body", field], f"{wanted} comma-separated numbers are needed, got {text!r}")
-
-
 def incoherent_skill(problems: list[tuple[list[str | int], str]]) -> RequestValidationError:
     """422 with one entry per incoherence of an inline skill (``services.api.limits.skill_problems``)."""
     return RequestValidationError(
@@ -158,7 +153,13 @@ def learning_outcome_failed(
 ) -> RequestValidationError:
     """422 for a learner process's answer other than ok: the science refused the demonstration (naming the field),
     failed on it without naming one (in our words; the library's text goes to the log), or ran out of the memory
-    budget. A bug in the learner is a logged 500."""
+    budget; strict learning that refused a skill is a 422 on ``strict`` with one entry per failed check. A bug in
+    the learner is a logged 500."""
+    if outcome.kind == "checks":
+        return RequestValidationError(
+            [{"loc": ("body", "strict"), "msg": f"the skill fails its check {reason}", "type": "skill_check"}
+             for reason in outcome.reasons]
+        )  # fmt: skip
     if outcome.kind == "learning":
         if demonstration_id is None:
             return unprocessable([*loc, outcome.field], outcome.reason, "learning_error")

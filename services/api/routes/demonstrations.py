@@ -1,4 +1,5 @@
-"""``/demonstrations``: store one (JSON, a CSV upload, or recorded by a sim worker's scripted teacher), list, get."""
+"""``/demonstrations``: store one (JSON, a CSV or ROS bag upload, or recorded by a sim worker's scripted teacher), list,
+get."""
 
 from __future__ import annotations
 
@@ -9,14 +10,14 @@ from fastapi import APIRouter, File, Form, Response, UploadFile
 
 from schemas.api import (
     ApiError,
-    BagImportForm,
     DemonstrationCreated,
     DemonstrationInfo,
     StoredDemonstration,
     TelemetryFormat,
 )
 from schemas.bus import RecordRequest
-from schemas.demonstration import Demonstration, QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas.demonstration import Demonstration
+from schemas.import_options import BagImportOptions, CsvImportOptions
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
@@ -32,8 +33,15 @@ from services.api.deps import (
     need_bus,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
-from services.api.limits import MAX_RATE_HZ
 from services.api.responses import download, raw_json
+from services.demonstration_files import (
+    BAGS,
+    HEAD_BYTES,
+    DemonstrationFile,
+    file_kind,
+    other_kind,
+    unsupported_file,
+)
 from services.store import DemonstrationRow
 
 RECORD_TIMEOUT_S = 120.0
@@ -53,17 +61,17 @@ def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict 
     )
 
 
-def _numbers(text: str | None, field: str, count: tuple[int, ...]) -> tuple[float, ...] | None:
-    """Parse a comma-separated form field of numbers; a 422 naming ``field`` when it is not ``count`` numbers."""
-    if text is None or not text.strip():
-        return None
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) not in count:
-        raise errors.bad_numbers(field, text, count)
-    return values
+def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str) -> tuple[bytes, str]:
+    """The uploaded bytes and the file's name; a 422 on ``file`` when its content is none of ``accepted``: the one
+    message for a file no importer reads, or which route takes the kind it is (``wanted``: what this one takes)."""
+    data = file.file.read()
+    name = (file.filename or "upload").rsplit("/", 1)[-1]
+    kind = file_kind(name, data[:HEAD_BYTES])
+    if kind is None:
+        raise errors.unprocessable(["body", "file"], unsupported_file(name), "unsupported_file")
+    if kind not in accepted:
+        raise errors.unprocessable(["body", "file"], other_kind(name, kind, wanted), "unsupported_file")
+    return data, name
 
 
 @router.post(
@@ -91,69 +99,19 @@ def post_demonstration(demonstration: Demonstration, store: StoreDep) -> Demonst
 def post_demonstration_csv(
     store: StoreDep,
     file: Annotated[UploadFile, File(description="The CSV recording (header row + samples, SI units).")],
-    columns: Annotated[
-        str | None, Form(description="Column names, e.g. t=time,px=tcp_x,qw=tcp_qw,fz=Fz (as --columns).")
-    ] = None,
-    quaternion_order: Annotated[
-        QuaternionOrder | None, Form(description="Order of the quaternion columns (default: from their names).")
-    ] = None,
-    wrench: Annotated[
-        WrenchConvention, Form(description="measured-on-tool (a sensor's reaction) is negated.")
-    ] = WrenchConvention.applied_by_tool,
-    wrench_frame: Annotated[WrenchFrame, Form(description="Frame of the recorded wrench.")] = WrenchFrame.world,
-    rate: Annotated[
-        float | None,
-        Form(
-            gt=0,
-            le=MAX_RATE_HZ,
-            description="With a time column: the resampling rate, Hz (default: the data's own). Without one: "
-            "the rate the rows were sampled at (t = row / rate from 0); rate or dt is then required.",
-        ),
-    ] = None,
-    dt: Annotated[
-        float | None,
-        Form(
-            ge=1.0 / MAX_RATE_HZ,
-            description="Time step, s: the same as rate = 1/dt (e.g. the fixed step of a file without a time "
-            "column); may be given with rate only if they agree.",
-        ),
-    ] = None,
-    tare: Annotated[
-        bool,
-        Form(description="Remove the sensor offset, fitted in the sensor frame over the free-space stretches."),
-    ] = True,
-    tare_window: Annotated[
-        str | None,
-        Form(description="'T0,T1' (s): the offset is the median of the file's wrench there (as --tare-window)."),
-    ] = None,
-    force_offset: Annotated[
-        str | None,
-        Form(description="'FX,FY,FZ[,MX,MY,MZ]': subtract this offset as the file reads it (as --force-offset)."),
-    ] = None,
-    name: Annotated[str | None, Form(description="Name (default: the file name).")] = None,
+    options: Annotated[CsvImportOptions, Form()],
 ) -> DemonstrationCreated:
     """Import a CSV recording with the options of ``contact-skills learn`` (multipart form) and store it.
 
     Columns are found by their names (or ``columns``), quaternions reordered, event-driven logs resampled, the
     wrench turned into the one the tool applies in the world, the sensor offset removed; ``import_notes`` says what
     was done. A problem is a 422 naming the form field and, for the file, the column and line."""
-    from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv
+    from services.csv_import import CsvImportError, demonstration_from_csv
 
-    data = file.file.read()
-    stem = (file.filename or "upload.csv").rsplit("/", 1)[-1].removesuffix(".csv")
+    data, name = _upload(file, frozenset({DemonstrationFile.csv}), "a CSV recording")
     try:
         demonstration = demonstration_from_csv(
-            data,
-            columns=ColumnMap.parse(columns) if columns else None,
-            quaternion_order=quaternion_order,
-            wrench_convention=wrench,
-            wrench_frame=wrench_frame,
-            rate_hz=rate,
-            dt_s=dt,
-            tare=tare,
-            tare_window_s=_numbers(tare_window, "tare_window", count=(2,)),
-            force_offset=_numbers(force_offset, "force_offset", count=(3, 6)),
-            name=name or stem,
+            data, options.model_copy(update={"name": options.name or name.removesuffix(".csv")})
         )
     except CsvImportError as exc:
         raise errors.csv_import_failed(exc) from None
@@ -173,24 +131,20 @@ def post_demonstration_csv(
 def post_demonstration_bag(
     store: StoreDep,
     file: Annotated[
-        UploadFile, File(description="The bag's storage file: the .mcap or .db3 inside a ROS 2 bag directory.")
+        UploadFile,
+        File(description="A ROS 2 bag's storage file (the .mcap or .db3 inside its directory) or a ROS 1 .bag."),
     ],
-    options: Annotated[BagImportForm, Form()],
+    options: Annotated[BagImportOptions, Form()],
 ) -> DemonstrationCreated:
-    """Import a ROS 2 bag (a WrenchStamped topic and the tool pose as a PoseStamped topic or /tf) and store it.
+    """Import a ROS 1 or ROS 2 bag (a WrenchStamped topic and the tool pose as a PoseStamped topic or /tf) and store it.
 
     Topics are chosen automatically when the bag holds one candidate, else named by the form fields; header stamps
     and frames are honoured, the asynchronous topics aligned on one time base (as ``contact-skills learn BAG``)."""
     from services.bag_import import BagImportError, demonstration_from_bag_upload
 
+    data, name = _upload(file, BAGS, "a ROS bag")
     try:
-        demonstration = demonstration_from_bag_upload(
-            file.file.read(),
-            file.filename or "upload.mcap",
-            **options.import_options(),
-            tare_window_s=_numbers(options.tare_window, "tare_window", count=(2,)),
-            force_offset=_numbers(options.force_offset, "force_offset", count=(3, 6)),
-        )
+        demonstration = demonstration_from_bag_upload(data, name, options)
     except BagImportError as exc:
         raise errors.import_failed(exc) from None
     row = store.add_demonstration(demonstration)

@@ -28,7 +28,9 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
 
     Learns in a separate process within the service's time and memory budget (422 past either); a request
     whose client goes away is cancelled. A demonstration that cannot give the skill is a 422 naming the field;
-    503 when too many learning requests are waiting."""
+    503 when too many learning requests are waiting. The skill checks itself against the demonstration: the
+    reply's ``warnings`` are its failed checks; with ``strict: true`` such a skill is refused instead (422, one
+    entry per failed check)."""
     if request.demonstration is not None:
         demonstration_json = await asyncio.to_thread(request.demonstration.model_dump_json)
         loc, stored_id = ["body", "demonstration"], None
@@ -50,9 +52,11 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
         return Response(status_code=499)  # nobody reads it: the client is gone
     if outcome.kind != "ok":
         raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
-    row = await asyncio.to_thread(store.add_skill, outcome.skill_json, outcome.skill_type, stored_id)
+    warnings = list(outcome.reasons)
+    row = await asyncio.to_thread(store.add_skill, outcome.skill_json, outcome.skill_type, stored_id, warnings)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
-    return raw_json({**parts, "learn_seconds": round(outcome.seconds, 4)}, {"skill": outcome.skill_json}, 201)
+    parts |= {"learn_seconds": round(outcome.seconds, 4), "warnings": row.warnings}
+    return raw_json(parts, {"skill": outcome.skill_json}, 201)
 
 
 @router.get("/skills", response_model=list[SkillInfo])
@@ -74,7 +78,7 @@ def get_skill(skill_id: str, store: StoreDep) -> Response:
     if row is None:
         raise errors.not_found("skill", skill_id)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created, "learn_seconds": None}
-    return raw_json(parts, {"skill": row.skill_json})
+    return raw_json({**parts, "warnings": row.warnings}, {"skill": row.skill_json})
 
 
 @router.delete(

@@ -1,0 +1,225 @@
+"""A learned skill checks itself against what its demonstration MEASURED, so that it is never confidently wrong.
+
+Each check has a value, a limit and a verdict (`schemas.skill.SkillCheck`); a failed check is a
+warning on every interface, and strict learning refuses the skill. The checks (docs/LEARNING.md):
+
+- ``force_along_cf`` (per contact segment) — the force the skill will press with along its CF z,
+  against the force the tool really pressed with (the friction-free force's magnitude), over the
+  segment's plateau (`skills.force_profile.plateau_mask`): their ratio within
+  ``FORCE_RATIO_LIMITS``. A CF z 90° off learns ~0 N where 10 N were pressed: this check catches it.
+- ``cf_z_vs_force`` (per contact segment) — the angle between CF z and the friction-free force
+  direction: a slide's against the segment's mean (a hand leans: ``PLANE_FORCE_TOLERANCE_DEG``), a
+  contour's per sample, its 95th percentile (``CONTOUR_FORCE_ANGLE_LIMIT_DEG``).
+- ``plane_conditioning`` (slide contact segments) — the path's width across its main direction:
+  a plane that wide decides CF z; a narrower path (a straight stroke) leaves it to the force, which
+  needs sliding samples. It fails only when neither holds.
+- ``plane_vs_force`` (slide contact segments) — the angle between the plane the path spans and the
+  friction-free force: beyond ``PLANE_FORCE_TOLERANCE_DEG`` the path was drawn on something else.
+- ``stroke_strength`` (per contact segment) — its press against the strongest segment's: below
+  ``skills.segmentation.BRUSH_FRACTION`` it may be a brush rather than a stroke (brief ones are
+  already free).
+- ``force_outside_contact`` (skill) — the largest press held in a free segment without moving
+  along it (a stroke the contact analysis missed), against the weakest contact segment's press.
+- ``type_evidence`` (skill) — the probability of the chosen type from `skills.selection`'s
+  evidence: at least ``MIXED_CONFIDENCE`` for `auto`; a forced type fails only where the evidence
+  is clearly against it.
+
+Inputs are world-frame arrays (SI) of the uniformly sampled demonstration: forces (N, 3) N applied
+by the tool, velocities (N, 3) m/s, CF z axes (N, 3) unit, and a segment's friction-free forces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas.skill import CheckName, SkillCheck, SkillType
+from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
+from skills.contact import mask_runs
+from skills.force_profile import plateau_mask
+from skills.friction import FrictionFree, unit_rows
+from skills.segmentation import BRUSH_FRACTION
+from skills.selection import MIXED_CONFIDENCE, SkillClassification
+
+FORCE_RATIO_LIMITS = (0.9, 1.1)
+"""The learned force along CF z may be this fraction of the pressed force (0.9 = cos 26°; the plateau's swings)."""
+
+CONTOUR_FORCE_ANGLE_LIMIT_DEG = 8.0
+"""Largest 95th percentile of a contour CF z's angle to the per-sample friction-free force, deg (noise, tremor)."""
+
+TRUSTED_WEIGHT = 0.5
+"""Samples whose friction-free direction has at least this weight (`skills.friction`) are compared with CF z."""
+
+HELD_PRESS_S = 0.2
+"""A press outside contact counts when held this long, s."""
+
+HELD_PRESS_SPEED_M_S = 0.02
+"""...while the tool moves along the force slower than this, m/s (a hand pushing the arm moves it)."""
+
+OUTSIDE_PRESS_FRACTION = 0.5
+"""A press held outside contact above this fraction of the weakest contact segment's is a missed stroke."""
+
+AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
+"""A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
+
+
+def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return the angles (deg) between rows of unit vectors ``a`` and ``b`` (or (3,) broadcast)."""
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+
+
+def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.float64]) -> SkillCheck:
+    """Check the learned force (N,) N along CF z against the friction-free press (`skills.friction`) of one contact
+    segment."""
+    press = np.linalg.norm(free.forces, axis=1)
+    plateau = plateau_mask(press)
+    measured, learned = float(np.median(press[plateau])), float(np.median(learned_force_n[plateau]))
+    ratio = learned / max(measured, 1e-9)
+    low, high = FORCE_RATIO_LIMITS
+    passed = low <= ratio <= high
+    verdict = "" if passed else f" (allowed {100 * low:.0f}-{100 * high:.0f} %): CF z is not along the press"
+    return SkillCheck(
+        name=CheckName.force_along_cf, segment=index, passed=passed, value=ratio, limit=low if ratio < 1 else high,
+        unit="ratio",
+        message=f"segment {index} presses {learned:.2f} N along its CF z where the tool pressed {measured:.2f} N "
+        f"({100 * ratio:.0f} %){verdict}",
+    )
+
+
+def cf_z_vs_force(index: int, free: FrictionFree, cf_z: NDArray[np.float64], skill_type: SkillType) -> SkillCheck:
+    """Check CF z (M, 3) against the friction-free force (`skills.friction`) of one contact segment (see the module
+    docstring)."""
+    press = np.linalg.norm(free.forces, axis=1)
+    trusted = (free.weights >= TRUSTED_WEIGHT) & plateau_mask(press)
+    if trusted.sum() < 2:
+        trusted = plateau_mask(press)
+    if skill_type is SkillType.slide:
+        mean_direction = unit_rows(free.forces[trusted].mean(axis=0))
+        value, limit = float(_angles_deg(cf_z[0], mean_direction)), PLANE_FORCE_TOLERANCE_DEG
+        what = "the mean friction-free force"
+    else:
+        value = float(np.percentile(_angles_deg(cf_z[trusted], free.directions[trusted]), 95))
+        limit, what = CONTOUR_FORCE_ANGLE_LIMIT_DEG, "the friction-free force (95th percentile over the samples)"
+    passed = value <= limit
+    return SkillCheck(
+        name=CheckName.cf_z_vs_force, segment=index, passed=passed, value=value, limit=limit, unit="deg",
+        message=f"segment {index}: CF z is {value:.1f} deg from {what}"
+        + ("" if passed else f", more than the {limit:.0f} deg a hand's lean or noise explains"),
+    )
+
+
+def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
+    """Return the ``plane_conditioning`` and ``plane_vs_force`` checks of one slide contact segment."""
+    width_mm = 1000.0 * plane.across_width_m
+    if plane.across_width_m >= plane.equal_width_m:
+        conditioning = f"the path spans {width_mm:.1f} mm across its main direction: the plane decides CF z's tilt"
+        conditioned = True
+    elif plane.force_samples > 0:
+        conditioning = (
+            f"the path is a line ({width_mm:.2f} mm across its main direction): the friction-free force of "
+            f"{plane.force_samples} sliding samples decides CF z's tilt about it"
+        )
+        conditioned = True
+    else:
+        conditioning = (
+            f"the path is a line ({width_mm:.2f} mm across its main direction) and the tool never slid: CF z is the "
+            "mean force's direction, which nothing confirms"
+        )
+        conditioned = False
+    checks = [
+        SkillCheck(
+            name=CheckName.plane_conditioning, segment=index, passed=conditioned, value=width_mm,
+            limit=1000.0 * plane.equal_width_m, unit="mm", message=f"segment {index}: {conditioning}",
+        )
+    ]
+    angle = plane.plane_force_angle_deg
+    passed = angle is None or angle <= PLANE_FORCE_TOLERANCE_DEG
+    if angle is None:
+        message = f"segment {index}: the path spans no plane to compare with the force"
+    elif passed:
+        message = f"segment {index}: the path's plane is {angle:.1f} deg from the friction-free force"
+    else:
+        message = (
+            f"segment {index}: the path lies in a plane {angle:.0f} deg from the force pressing on it (more than "
+            f"{PLANE_FORCE_TOLERANCE_DEG:.0f} deg): it was drawn on something else, e.g. a curved edge; CF z follows "
+            "the force"
+        )
+    checks.append(
+        SkillCheck(
+            name=CheckName.plane_vs_force, segment=index, passed=passed, value=0.0 if angle is None else angle,
+            limit=PLANE_FORCE_TOLERANCE_DEG, unit="deg", message=message,
+        )
+    )
+    return checks
+
+
+def stroke_strength(presses_n: dict[int, float]) -> list[SkillCheck]:
+    """Check each contact segment's press (90th percentile, N, by segment index) against the strongest one's."""
+    strongest = max(presses_n.values())
+    checks = []
+    for index, press in presses_n.items():
+        share = press / max(strongest, 1e-9)
+        passed = share >= BRUSH_FRACTION
+        checks.append(
+            SkillCheck(
+                name=CheckName.stroke_strength, segment=index, passed=passed, value=share, limit=BRUSH_FRACTION,
+                unit="ratio",
+                message=f"segment {index} presses {press:.1f} N, {100 * share:.0f} % of the strongest "
+                f"({strongest:.1f} N)" + ("" if passed else ": a brush, not a stroke?"),
+            )
+        )
+    return checks
+
+
+def force_outside_contact(
+    forces: NDArray[np.float64], velocities: NDArray[np.float64], free: NDArray[np.bool_], weakest_press_n: float,
+    rate_hz: float,
+) -> SkillCheck:
+    """Check the largest press held in free segments (``free`` (N,) mask) against the weakest contact's press (N)."""
+    magnitude = np.linalg.norm(forces, axis=1)
+    along_force = np.abs(np.sum(velocities * unit_rows(forces), axis=1))
+    held = free & (along_force < HELD_PRESS_SPEED_M_S)
+    longest = max(1, round(HELD_PRESS_S * rate_hz))
+    worst = 0.0
+    for a, b in mask_runs(held):
+        if b - a >= longest:
+            # The press sustained over the run: its level exceeded for HELD_PRESS_S at least.
+            sustained = np.sort(magnitude[a:b])[-longest]
+            worst = max(worst, float(sustained))
+    share = worst / max(weakest_press_n, 1e-9)
+    passed = share <= OUTSIDE_PRESS_FRACTION
+    return SkillCheck(
+        name=CheckName.force_outside_contact, segment=None, passed=passed, value=share, limit=OUTSIDE_PRESS_FRACTION,
+        unit="ratio",
+        message=f"free segments hold at most {worst:.1f} N for {HELD_PRESS_S:.1f} s without moving along it, "
+        f"{100 * share:.0f} % of the weakest contact's press"
+        + ("" if passed else ": a stroke the contact analysis missed?"),
+    )
+
+
+def type_evidence(classification: SkillClassification | None, chosen: SkillType, auto: bool) -> SkillCheck:
+    """Check the chosen type against `skills.selection`'s evidence (None: it could not be measured)."""
+    if classification is None:
+        return SkillCheck(
+            name=CheckName.type_evidence, segment=None, passed=True, value=0.5,
+            limit=AGAINST_EVIDENCE, unit="probability",
+            message=f"{chosen.value} was asked for; the tool never slid long enough to weigh slide against contour",
+        )
+    p_contour = float(1.0 / (1.0 + np.exp(-classification.log_odds.sum())))
+    p_chosen = p_contour if chosen is SkillType.contour else 1.0 - p_contour
+    limit = MIXED_CONFIDENCE if auto else AGAINST_EVIDENCE
+    passed = p_chosen >= limit
+    evidence_says = "contour" if p_contour >= 0.5 else "slide"
+    if auto:
+        message = f"auto chose {chosen.value} at {100 * p_chosen:.0f} %: {classification.reason}"
+    elif passed:
+        message = f"{chosen.value} was asked for; the evidence gives it {100 * p_chosen:.0f} %"
+    else:
+        message = (
+            f"{chosen.value} was asked for, but the evidence says {evidence_says} ({100 * (1 - p_chosen):.0f} %): "
+            f"{classification.reason}"
+        )
+    return SkillCheck(
+        name=CheckName.type_evidence, segment=None, passed=passed, value=p_chosen, limit=limit, unit="probability",
+        message=message,
+    )
