@@ -17,8 +17,9 @@ import numpy as np
 import scipy.io
 from numpy.typing import ArrayLike, NDArray
 
-from schemas import Demonstration
+from schemas import Demonstration, Skill
 from schemas.import_options import CsvImportOptions
+from schemas.skill import SegmentKind
 from services.csv_import import demonstration_from_csv
 from services.datasets import KULEUVEN_EDGE_MAT, KULEUVEN_IMPORT, KULEUVEN_OBJECT_STL, kuleuven_file
 from skills.registration import (
@@ -26,6 +27,7 @@ from skills.registration import (
     NormalCone,
     Registration,
     TriangleMesh,
+    angle_outside_cone,
     bisector_angles_of_placements,
     crease_along_edge,
     edge_registrations,
@@ -142,3 +144,46 @@ def kuleuven_ground_truth(recording: Path) -> KuleuvenGroundTruth:
         registration=registration,
         cone=normal_cones_at(positions, contour.crease, registration),
     )
+
+
+@dataclass(frozen=True)
+class SkillAgainstObject:
+    """A skill learned from a KU Leuven recording, judged against the object's CAD at every sample of its contact
+    segments (angles in rad): ``outside_cone`` the CF z's angle outside the normal cone of the crease (0 inside);
+    ``from_bisector`` its angle to the cone's bisector; ``from_friction_free`` its angle to the friction-free force
+    the learner sees (`skills.friction.blended_friction_free` about the CF z, smoothed over
+    `skills.skill_checks.CHECK_SMOOTHING_S`); ``since_touch_down_s`` (s) each sample's time since its segment's start.
+    """
+
+    outside_cone: NDArray[np.float64]
+    from_bisector: NDArray[np.float64]
+    from_friction_free: NDArray[np.float64]
+    since_touch_down_s: NDArray[np.float64]
+
+
+def skill_against_object(skill: Skill, truth: KuleuvenGroundTruth) -> SkillAgainstObject:
+    """Judge the compliant frames of ``skill`` (learned from ``truth.demonstration``) against the object's normal
+    cones, sample by sample of its contact segments (the skill's own resampled grid)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from skills.compliant_frames import compliant_frame_rotations, tool_velocities
+    from skills.friction import blended_friction_free, friction_coefficient, unit_rows
+    from skills.parameterize import uniform_arrays
+    from skills.skill_checks import CHECK_SMOOTHING_S
+
+    t, positions, _, wrenches = uniform_arrays(truth.demonstration)
+    velocities = tool_velocities(positions, skill.sample_rate_hz)
+    parts: list[list[NDArray[np.float64]]] = [[], [], [], []]
+    for segment in (s for s in skill.segments if s.kind is SegmentKind.contact):
+        rows = slice(segment.start_index, segment.end_index)
+        since = t[rows] - t[segment.start_index]
+        z = compliant_frame_rotations(segment, since)[:, :, 2]
+        cone = truth.cones_at(positions[rows])
+        forces, v = wrenches[rows, :3], velocities[rows]
+        free = blended_friction_free(forces, v, friction_coefficient(forces, v), normals=z).forces
+        smoothed = unit_rows(gaussian_filter1d(free, CHECK_SMOOTHING_S * skill.sample_rate_hz, axis=0, mode="nearest"))
+        parts[0].append(angle_outside_cone(z, cone.inward_a, cone.inward_b))
+        parts[1].append(np.arccos(np.clip(np.sum(z * cone.bisectors, axis=1), -1.0, 1.0)))
+        parts[2].append(np.arccos(np.clip(np.sum(z * smoothed, axis=1), -1.0, 1.0)))
+        parts[3].append(since)
+    return SkillAgainstObject(*(np.concatenate(p) for p in parts))

@@ -36,7 +36,7 @@ from skills.compliant_frames import PlaneFit, contour_frames, slide_frame, tool_
 from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
 from skills.force_profile import cf_z_forces, constant_force
-from skills.friction import friction_free
+from skills.friction import blended_friction_free, friction_coefficient
 from skills.preprocess import resampled_recording
 from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
 from skills.segmentation import SegmentBounds, segment_demonstration
@@ -64,8 +64,10 @@ class LearningError(ValueError):
         self.reason = reason
 
 
-def _uniform_arrays(demonstration: Demonstration) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Return (t, positions, quaternions, wrenches) on a uniform grid, quaternions sign-continuous."""
+def uniform_arrays(demonstration: Demonstration) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Return (t, positions, quaternions, wrenches) of ``demonstration`` on the uniform grid the learner works on
+    (s, m, scalar-last sign-continuous quaternions, N and N·m applied, world): the grid a skill's sample indices
+    refer to."""
     a = demonstration.arrays()
     steps = np.diff(a.t)
     median_step = float(np.median(steps))
@@ -255,9 +257,11 @@ def _checks(
             free[rows] = True
             continue
         f, v = r.forces[rows], r.velocities[rows]
-        free_of_friction = friction_free(f, v)
+        free_of_friction = blended_friction_free(f, v, friction_coefficient(f, v), normals=item.cf_z)
         checks.append(skill_checks.force_along_cf(segment.index, free_of_friction, item.learned_force_n))
-        checks.append(skill_checks.cf_z_vs_force(segment.index, free_of_friction, item.cf_z, skill_type))
+        checks.append(
+            skill_checks.cf_z_vs_force(segment.index, free_of_friction, item.cf_z, skill_type, r.contact.rate_hz)
+        )
         if item.plane is not None:
             checks.extend(skill_checks.plane_checks(segment.index, item.plane))
         presses[segment.index] = float(np.percentile(np.linalg.norm(f, axis=1), 90))
@@ -285,7 +289,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     (a `LearningError`) when ``options.strict`` and the skill fails any of its checks.
     """
     options = options or LearnOptions()
-    t, positions, quaternions, wrenches = _uniform_arrays(demonstration)
+    t, positions, quaternions, wrenches = uniform_arrays(demonstration)
     forces = wrenches[:, :3]
     contact = analyse_contact(t, positions, forces, options.contact_force_threshold_n)
     if not contact.intervals:

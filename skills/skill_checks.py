@@ -9,7 +9,7 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   ``FORCE_RATIO_LIMITS``. A CF z 90° off learns ~0 N where 10 N were pressed: this check catches it.
 - ``cf_z_vs_force`` (per contact segment) — the angle between CF z and the friction-free force
   direction: a slide's against the segment's mean (a hand leans: ``PLANE_FORCE_TOLERANCE_DEG``), a
-  contour's per sample, its 95th percentile (``CONTOUR_FORCE_ANGLE_LIMIT_DEG``).
+  contour's per sample over ``CHECK_SMOOTHING_S``, its 95th percentile (``CONTOUR_FORCE_ANGLE_LIMIT_DEG``).
 - ``plane_conditioning`` (slide contact segments) — the path's width across its main direction:
   a plane that wide decides CF z; a narrower path (a straight stroke) leaves it to the force, which
   needs sliding samples. It fails only when neither holds.
@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import gaussian_filter1d
 
 from schemas.skill import CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
@@ -44,8 +45,11 @@ from skills.selection import MIXED_CONFIDENCE, SkillClassification
 FORCE_RATIO_LIMITS = (0.9, 1.1)
 """The learned force along CF z may be this fraction of the pressed force (0.9 = cos 26°; the plateau's swings)."""
 
-CONTOUR_FORCE_ANGLE_LIMIT_DEG = 8.0
-"""Largest 95th percentile of a contour CF z's angle to the per-sample friction-free force, deg (noise, tremor)."""
+CONTOUR_FORCE_ANGLE_LIMIT_DEG = 5.0
+"""Largest 95th percentile of a contour CF z's angle to the friction-free force, deg (its noise and tremor)."""
+
+CHECK_SMOOTHING_S = 0.05
+"""The friction-free force a contour CF z is compared with is smoothed over this (s): sensor noise, not the CF."""
 
 TRUSTED_WEIGHT = 0.5
 """Samples whose friction-free direction has at least this weight (`skills.friction`) are compared with CF z."""
@@ -86,9 +90,11 @@ def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.f
     )
 
 
-def cf_z_vs_force(index: int, free: FrictionFree, cf_z: NDArray[np.float64], skill_type: SkillType) -> SkillCheck:
-    """Check CF z (M, 3) against the friction-free force (`skills.friction`) of one contact segment (see the module
-    docstring)."""
+def cf_z_vs_force(
+    index: int, free: FrictionFree, cf_z: NDArray[np.float64], skill_type: SkillType, rate_hz: float
+) -> SkillCheck:
+    """Check CF z (M, 3) against the friction-free force (`skills.friction`) of one contact segment sampled at
+    ``rate_hz`` (see the module docstring)."""
     press = np.linalg.norm(free.forces, axis=1)
     trusted = (free.weights >= TRUSTED_WEIGHT) & plateau_mask(press)
     if trusted.sum() < 2:
@@ -98,8 +104,10 @@ def cf_z_vs_force(index: int, free: FrictionFree, cf_z: NDArray[np.float64], ski
         value, limit = float(_angles_deg(cf_z[0], mean_direction)), PLANE_FORCE_TOLERANCE_DEG
         what = "the mean friction-free force"
     else:
-        value = float(np.percentile(_angles_deg(cf_z[trusted], free.directions[trusted]), 95))
-        limit, what = CONTOUR_FORCE_ANGLE_LIMIT_DEG, "the friction-free force (95th percentile over the samples)"
+        smoothed = unit_rows(gaussian_filter1d(free.forces, CHECK_SMOOTHING_S * rate_hz, axis=0, mode="nearest"))
+        value = float(np.percentile(_angles_deg(cf_z[trusted], smoothed[trusted]), 95))
+        limit = CONTOUR_FORCE_ANGLE_LIMIT_DEG
+        what = f"the friction-free force over {1000 * CHECK_SMOOTHING_S:.0f} ms (95th percentile over the samples)"
     passed = value <= limit
     return SkillCheck(
         name=CheckName.cf_z_vs_force, segment=index, passed=passed, value=value, limit=limit, unit="deg",

@@ -182,3 +182,78 @@ def test_strict_learning_refuses_a_skill_that_fails_its_checks_and_says_which() 
         learn_skill(demonstration, LearnOptions(strict=True))
     assert refused.value.field == "strict" and [c.name for c in refused.value.checks] == [CheckName.type_evidence]
     assert "mixed evidence" in refused.value.reason
+
+
+# --------------------------------------------------------------------------- the real contours against their CAD
+
+
+@pytest.mark.parametrize("trial", ["contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2"])
+def test_real_contour_frames_stay_in_the_cone_of_the_true_object_touch_down_included(trial: str) -> None:
+    """The KU Leuven object's CAD registered to each trial: the contour's CF z lies inside the normal cone of the
+    crease at every sample and follows the friction-free force closely from the first sample on (the person leans
+    5-12° toward one face, which the cone allows), where removing friction along a settling tool's velocity once
+    swung it 23-41° off."""
+    from services.datasets import kuleuven_file
+    from services.kuleuven_object import kuleuven_ground_truth, skill_against_object
+
+    truth = kuleuven_ground_truth(kuleuven_file(f"{trial}.csv"))
+    skill = learn_skill(truth.demonstration)
+    assert skill.skill_type is SkillType.contour and skill.auto_selection.confidence >= 0.8, skill.auto_selection
+    assert failed(skill) == []
+    judged = skill_against_object(skill, truth)
+    names = ("outside_cone", "from_bisector", "from_friction_free")
+    degrees = {name: np.degrees(getattr(judged, name)) for name in names}
+    assert degrees["outside_cone"].max() < 0.5
+    assert 3.0 < np.median(degrees["from_bisector"]) < 10.0
+    touch_down = judged.since_touch_down_s < 0.3
+    assert np.percentile(degrees["from_friction_free"], 95) < 2.5 and degrees["from_friction_free"].max() < 3.5
+    assert degrees["from_friction_free"][touch_down].max() < 3.5
+
+
+# --------------------------------------------------------------------------- every interface says so
+
+
+def mixed_demonstration() -> Demonstration:
+    """A 24° arc of 30 cm radius drawn with the tool held still: the evidence for the type is mixed."""
+    from corpus import synthetic
+
+    demo = synthetic.cylinder_contour(radius_m=0.3, arc_deg=30.0, seed=2)
+    held_still = np.tile(demo.orientations[0], (demo.t.size, 1))
+    return Demonstration.from_arrays(demo.t, demo.positions, held_still, demo.wrenches)
+
+
+def test_the_cli_prints_the_warnings_and_strict_exits_2_giving_each_failed_check(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cli.main import main
+
+    recording = tmp_path / "arc.json"
+    recording.write_text(mixed_demonstration().model_dump_json())
+    assert main(["learn", str(recording), "-o", str(tmp_path / "skill.json")]) == 0
+    out = capsys.readouterr().out
+    assert "checks against the demonstration: " in out and "WARNING: auto chose contour" in out
+    assert main(["learn", str(recording), "--strict", "-o", str(tmp_path / "strict.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--strict: the skill fails its check type_evidence: auto chose contour" in err
+    assert not (tmp_path / "strict.json").exists()
+
+
+def test_the_api_and_the_client_return_the_warnings_and_strict_refuses_with_a_422(tmp_path: Path) -> None:
+    from conftest import LiveApi, api_settings
+
+    from services.app import create_app
+    from services.client import Client, InvalidRequestError, SkillCheckWarning
+
+    demonstration = mixed_demonstration()
+    with LiveApi(create_app(api_settings(tmp_path), bus=None)) as api, Client(api.url) as client:
+        with pytest.warns(SkillCheckWarning, match="auto chose contour"):
+            stored = client.learn(demonstration)
+        assert stored.warnings == stored.skill.warnings() and stored.warnings[0].startswith("auto chose contour")
+        assert client.skill(stored.id).warnings == stored.warnings
+        assert [info.failed_checks for info in client.skills()] == [len(stored.warnings)]
+        with pytest.raises(InvalidRequestError) as refused:
+            client.learn(demonstration, strict=True)
+        assert refused.value.status == 422
+        [(where, why)] = refused.value.problems
+        assert where.endswith("strict") and why.startswith("the skill fails its check type_evidence: auto chose")
+        assert len(client.skills()) == 1  # nothing stored
