@@ -113,6 +113,12 @@ class DemonstrationMetadata(BaseModel):
         description="Sensor offset (N, N·m) subtracted on import, as the file reads it (its sign convention) with "
         "nothing touching the tool, in the frame named by force_offset_frame.",
     )
+    force_offset_uncertainty_n: float | None = Field(
+        None,
+        ge=0,
+        description="95 % uncertainty (two standard errors, N) of the force offset fitted over the free-space "
+        "stretches (what a hand's slow wander may have left in it); None when no offset was fitted.",
+    )
     force_offset_frame: Literal["tool", "world"] | None = Field(
         None,
         description="Frame of force_offset_removed: 'tool' (the sensor frame: estimated over the free-space "

@@ -116,7 +116,7 @@ def demonstration_from_samples(
         wrenches = preprocess.wrenches_applied_by_tool(wrenches)
         notes.append("wrench measured on the tool: negated to the wrench the tool applies")
     notes.extend(_direction_hint(wrenches, convention))
-    offset, offset_frame, tare_report = None, None, {"method": "none"}
+    offset, offset_frame, uncertainty, tare_report = None, None, None, {"method": "none"}
     if given is not None:
         offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
         notes.append(given.note)
@@ -130,12 +130,13 @@ def demonstration_from_samples(
         else:
             wrenches = tare_module.wrenches_without_offset(recording.orientations, wrenches, estimate.wrench)
             sign = -1.0 if convention == WrenchConvention.measured_on_tool else 1.0
-            offset, offset_frame = sign * estimate.wrench, "tool"
+            offset, offset_frame, uncertainty = sign * estimate.wrench, "tool", estimate.uncertainty_n
             where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in estimate.stretches[:6])
             more = f" and {len(estimate.stretches) - 6} more" if len(estimate.stretches) > 6 else ""
             force = ", ".join(f"{v:+.2f}" for v in offset[:3])
             notes.append(
-                f"sensor offset removed: [{force}] N in the sensor (tool) frame as the file reads it, fitted over "
+                f"sensor offset removed: [{force}] N (±{estimate.uncertainty_n:.2f} N) in the sensor (tool) frame as "
+                "the file reads it, fitted over "
                 f"{estimate.samples} free-space samples ({where}{more}) with the hand's push on the arm "
                 f"(damping {estimate.arm_damping_n_s_m:.1f} N·s/m, mass {estimate.arm_mass_kg:.1f} kg, "
                 f"friction {estimate.arm_friction_n:.1f} N)"
@@ -144,6 +145,7 @@ def demonstration_from_samples(
                 "method": "free-space fit",
                 "stretches_s": [list(s) for s in estimate.stretches],
                 "samples": estimate.samples,
+                "uncertainty_n": estimate.uncertainty_n,
                 "arm_damping_n_s_m": estimate.arm_damping_n_s_m,
                 "arm_mass_kg": estimate.arm_mass_kg,
                 "arm_friction_n": estimate.arm_friction_n,
@@ -163,6 +165,7 @@ def demonstration_from_samples(
             "resampled_rate_hz": None if recording.fixed_rate else recording.rate_hz,
             "force_offset_removed": None if offset is None else offset.tolist(),
             "force_offset_frame": offset_frame,
+            "force_offset_uncertainty_n": uncertainty,
             "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
         }
     )

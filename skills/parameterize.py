@@ -246,9 +246,10 @@ def _segment(
 
 def _checks(
     learned: list[_Learned], r: _Recording, classification: SkillClassification | None, skill_type: SkillType,
-    auto: bool,
+    auto: bool, offset_uncertainty_n: float | None,
 ) -> list[SkillCheck]:
-    """Return the skill's checks against what the demonstration measured (`skills.skill_checks`)."""
+    """Return the skill's checks against what the demonstration measured (`skills.skill_checks`); the import's
+    sensor-offset uncertainty (N) is checked where it fitted one."""
     checks, presses, free = [], {}, np.zeros(len(r.t), dtype=bool)
     for item in learned:
         segment = item.segment
@@ -268,6 +269,8 @@ def _checks(
     checks.extend(skill_checks.stroke_strength(presses))
     weakest = min(presses.values())
     checks.append(skill_checks.force_outside_contact(r.forces, r.velocities, free, weakest, r.contact.rate_hz))
+    if offset_uncertainty_n is not None:
+        checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))
     return checks
 
@@ -337,7 +340,8 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     else:
         bounds = segment_demonstration(positions, forces, contact, False, options.min_segment_duration_s)
     learned = [_segment(k, b, skill_type, r, options) for k, b in enumerate(bounds)]
-    checks = _checks(learned, r, classification, skill_type, auto)
+    uncertainty = demonstration.metadata.force_offset_uncertainty_n
+    checks = _checks(learned, r, classification, skill_type, auto, uncertainty)
     failed = [check for check in checks if not check.passed]
     if options.strict and failed:
         raise SkillCheckError(failed)

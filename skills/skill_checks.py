@@ -20,6 +20,9 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   already free).
 - ``force_outside_contact`` (skill) — the largest press held in a free segment without moving
   along it (a stroke the contact analysis missed), against the weakest contact segment's press.
+- ``sensor_offset`` (skill, where the import fitted the offset) — its uncertainty (the hand's slow
+  wander it cannot tell apart, `skills.tare`) against the weakest contact's press: beyond
+  ``OFFSET_SHARE_LIMIT`` forces, and a straight stroke's tilt, are uncertain by more than the tolerance.
 - ``type_evidence`` (skill) — the probability of the chosen type from `skills.selection`'s
   evidence: at least ``MIXED_CONFIDENCE`` for `auto`; a forced type fails only where the evidence
   is clearly against it.
@@ -62,6 +65,9 @@ HELD_PRESS_SPEED_M_S = 0.02
 
 OUTSIDE_PRESS_FRACTION = 0.5
 """A press held outside contact above this fraction of the weakest contact segment's is a missed stroke."""
+
+OFFSET_SHARE_LIMIT = 0.05
+"""The sensor offset's uncertainty may be at most this fraction of the weakest contact's press (the force tolerance)."""
 
 AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
 """A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
@@ -202,6 +208,27 @@ def force_outside_contact(
         message=f"free segments hold at most {worst:.1f} N for {HELD_PRESS_S:.1f} s without moving along it, "
         f"{100 * share:.0f} % of the weakest contact's press"
         + ("" if passed else ": a stroke the contact analysis missed?"),
+    )
+
+
+def sensor_offset(uncertainty_n: float, weakest_press_n: float) -> SkillCheck:
+    """Check the import's sensor-offset uncertainty (N, `skills.tare`) against the weakest contact's press (N)."""
+    share = uncertainty_n / max(weakest_press_n, 1e-9)
+    passed = share <= OFFSET_SHARE_LIMIT
+    tilt = float(np.degrees(np.arctan(share)))
+    message = (
+        f"the sensor offset removed on import is known to ±{uncertainty_n:.2f} N, {100 * share:.1f} % of the weakest "
+        f"contact's press"
+    )
+    if not passed:
+        message += (
+            f": learned forces may be off by as much, and the tilt of a straight stroke's CF z (which only the "
+            f"force decides) by {tilt:.1f} deg; a longer free-space rest before and after the strokes (or "
+            "--tare-window) pins the offset down"
+        )
+    return SkillCheck(
+        name=CheckName.sensor_offset, segment=None, passed=passed, value=share, limit=OFFSET_SHARE_LIMIT,
+        unit="ratio", message=message,
     )
 
 

@@ -35,6 +35,9 @@ FREE_MARGIN_S = 0.3
 MIN_FREE_S = 0.5
 """Least free-space time (s), summed over the stretches, to estimate an offset from."""
 
+UNCERTAINTY_BLOCK_S = 1.0
+"""Free space is cut into blocks this long (s) to see how much of the slow wander the offset may have taken in."""
+
 HUBER_SCALE_N = 1.0
 """Residuals above this (N) get Huber weights (less pull on the fit)."""
 
@@ -47,13 +50,15 @@ class SensorOffset:
     """A sensor offset in the tool (sensor) frame, applied-by-tool convention, and where it came from.
 
     ``wrench`` (6,) N and N·m; ``stretches`` the free-space ``(t_start, t_end)`` used, s;
-    ``samples`` how many samples; ``arm_damping_n_s_m``, ``arm_mass_kg``, ``arm_friction_n`` the
+    ``samples`` how many samples; ``uncertainty_n`` the force offset's 95 % uncertainty (two standard
+    errors, N, see `sensor_offset_in_free_space`); ``arm_damping_n_s_m``, ``arm_mass_kg``, ``arm_friction_n`` the
     hand's push explained by the arm's motion (0 without a hand).
     """
 
     wrench: NDArray[np.float64]
     stretches: list[tuple[float, float]]
     samples: int
+    uncertainty_n: float
     arm_damping_n_s_m: float = 0.0
     arm_mass_kg: float = 0.0
     arm_friction_n: float = 0.0
@@ -81,6 +86,11 @@ def sensor_offset_in_free_space(
 
     ``t`` (N,) s uniform; ``positions`` (N, 3) m; ``orientations`` (N, 4) world-from-tool
     scalar-last; ``wrenches`` (N, 6) applied by the tool, world frame, NOT yet tared.
+
+    Its uncertainty: what the model leaves is mostly a hand's slow wander, which averages out only
+    over time, not over samples. So the residuals are averaged over blocks of ``UNCERTAINTY_BLOCK_S``
+    of free space, and the standard error is their RMS over the root of the number of blocks less one
+    (a single short stretch says little about a slow wander); the uncertainty is two of them.
     """
     dt = float(t[1] - t[0])
     if free.sum() * dt < MIN_FREE_S:
@@ -110,10 +120,15 @@ def sensor_offset_in_free_space(
         weights = np.minimum(1.0, HUBER_SCALE_N / np.maximum(residual, 1e-12))
     moments = np.median(_in_tool(R[rows], wrenches[rows, 3:]), axis=0)
     stretches = [(float(t[a]), float(t[b - 1])) for a, b in mask_runs(free)]
+    left = (target - design @ solution).reshape(-1, 3)
+    blocks = np.array_split(left, max(1, round(rows.size * dt / UNCERTAINTY_BLOCK_S)))
+    block_means = np.array([block.mean(axis=0) for block in blocks])
+    spread = float(np.sqrt(np.mean(np.sum(block_means**2, axis=1))))
     return SensorOffset(
         wrench=np.concatenate([solution[:3], moments]),
         stretches=stretches,
         samples=int(rows.size),
+        uncertainty_n=2.0 * spread / np.sqrt(max(len(blocks) - 1, 1)),
         arm_damping_n_s_m=float(solution[3]),
         arm_mass_kg=float(solution[4]),
         arm_friction_n=float(solution[5]),
