@@ -4,8 +4,9 @@ force lies against it.
 For each recording (``data/kuleuven_contour``, imported as its README says): the object's crease registered to the
 contact path (`services.kuleuven_object.kuleuven_ground_truth`), the normal cone of the crease at every sample, and
 the applied force, with and without its friction part (:func:`friction_free_forces`: its component along the
-smoothed velocity removed), measured against the cone across the crease (`skills.registration.angle_outside_cone`,
-`angles_about_crease`). Writes its section of docs/LEARNING.md.
+smoothed velocity removed: the textbook way), measured against the cone across the crease
+(`skills.registration.angle_outside_cone`, `angles_about_crease`); and the skill learned from it, its CF z judged
+against the cone at every sample. Writes its section of docs/LEARNING.md.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ import numpy as np  # noqa: E402
 from scipy.ndimage import gaussian_filter1d  # noqa: E402
 
 from services.datasets import kuleuven_recordings  # noqa: E402
-from services.kuleuven_object import kuleuven_ground_truth, kuleuven_object  # noqa: E402
+from services.kuleuven_object import kuleuven_ground_truth, kuleuven_object, skill_against_object  # noqa: E402
+from skills.parameterize import learn_skill  # noqa: E402
 from skills.registration import angle_outside_cone, angles_about_crease, closest_points_on_polyline  # noqa: E402
 
 SECTION = "kuleuven-truth"
@@ -69,7 +71,11 @@ def trial_measures(recording: Path) -> dict:
     twin = min(others, key=lambda k: truth.candidates[k].rms_distance_m) if others else None
     edge = closest_points_on_polyline(truth.registration.to_cad(positions), truth.kuleuven_object.edge).distances
     bisectors = cone.bisectors
+    skill = learn_skill(truth.demonstration)
+    judged = skill_against_object(skill, truth)
     return {
+        "skill": skill,
+        "judged": judged,
         "trial": recording.stem,
         "samples": len(t),
         "duration": float(t[-1] - t[0]),
@@ -135,6 +141,20 @@ def build_report() -> str:
             f"{_deg(r['applied_outside'].max())} | {_range(r['lean'])} | {_range(r['applied_lean'])} | "
             f"{_spread(np.abs(r['lean']))} |"
         )
+    learned = [
+        "| trial | learned (auto, confidence) | failed checks | CF z outside the cone °: max | CF z from the "
+        "bisector °: median | CF z from the friction-free force °: 95 % / max | the same in the first 0.3 s: max |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        skill, judged = r["skill"], r["judged"]
+        first = judged.since_touch_down_s < 0.3
+        learned.append(
+            f"| {r['trial']} | {skill.skill_type.value} ({skill.auto_selection.confidence:.2f}) | "
+            f"{len(skill.warnings())} | {_deg(judged.outside_cone.max())} | {_deg(np.median(judged.from_bisector))} | "
+            f"{_deg(np.percentile(judged.from_friction_free, 95))} / {_deg(judged.from_friction_free.max())} | "
+            f"{_deg(judged.from_friction_free[first].max())} |"
+        )
     where = []
     for r in rows:
         runs = ", ".join(
@@ -167,6 +187,13 @@ def build_report() -> str:
             "",
             "Placements compared (the rotation between two trials' registrations, and how far the crease moved at "
             "most): " + "; ".join(placements) + ".",
+            "",
+            "The skills learned from them (`skill_type=auto`), judged against the object at every sample of their "
+            "contact segments (`services.kuleuven_object.skill_against_object`): the CF z against the cone, its "
+            "bisector (the person's lean) and the friction-free force the learner sees (`skills.friction`, about "
+            "the CF z, smoothed over 50 ms), touch-down included.",
+            "",
+            *learned,
         ]
     )
 

@@ -21,10 +21,6 @@ from skills.frames import rotation_from_vectors
 
 DIP_FRACTION = 0.3
 """A force dip below this fraction of the plateaus on both sides, with no lift-off, is a stroke boundary."""
-REVERSAL_DEG = 135.0
-"""A heading change of at least this much (deg) at a speed minimum is a reversal: a stroke boundary."""
-REVERSAL_SPAN_S = 0.15
-"""Half width of a reversal's window around the speed minimum, s (also the reach of the heading comparison)."""
 WINDING_WINDOW_S = 0.1
 """Half width of a winding cut's window around the moment the winding crosses a multiple of 360 deg, s."""
 WINDING_MIN_REMAINDER_TURNS = 0.25
@@ -130,29 +126,6 @@ def _heading_basis(normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], ND
     return e1, np.cross(normal, e1)
 
 
-def reversal_windows(t: NDArray, path: NDArray, normal: NDArray) -> list[tuple[float, float]]:
-    """Windows (s) ±`REVERSAL_SPAN_S` around each reversal of ``path`` (a speed minimum where the heading across
-    ``normal``, compared `REVERSAL_SPAN_S` before and after, turns by at least `REVERSAL_DEG`)."""
-    dt = float(t[1] - t[0])
-    velocity = np.gradient(path, dt, axis=0)
-    e1, e2 = _heading_basis(normal)
-    planar = np.stack([velocity @ e1, velocity @ e2], axis=1)
-    speed = np.linalg.norm(planar, axis=1)
-    reach = round(REVERSAL_SPAN_S / dt)
-    k = np.arange(reach, len(t) - reach)
-    minimum = (speed[k] <= speed[k - 1]) & (speed[k] <= speed[k + 1])
-    before, after = planar[k - reach], planar[k + reach]
-    cos = np.sum(before * after, axis=1) / np.maximum(
-        np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1), 1e-12
-    )
-    turning = k[minimum & (cos <= np.cos(np.radians(REVERSAL_DEG)))]
-    if turning.size == 0:
-        return []
-    # Neighbouring candidates are one reversal: keep the slowest sample of each run.
-    runs = np.split(turning, np.flatnonzero(np.diff(turning) > reach) + 1)
-    return [(t[i] - REVERSAL_SPAN_S, t[i] + REVERSAL_SPAN_S) for i in (run[np.argmin(speed[run])] for run in runs)]
-
-
 def winding_windows(t: NDArray, path: NDArray, normal: NDArray) -> list[tuple[float, float]]:
     """Windows (s) ±`WINDING_WINDOW_S` around each full turn of the heading of ``path`` across ``normal``,
     counted from the first sample, where at least `WINDING_MIN_REMAINDER_TURNS` of winding remain after it.
@@ -200,8 +173,9 @@ def merged(windows: list[tuple[float, float]]) -> list[tuple[float, float]]:
 def truth_segments(case: Assembled, slide: bool) -> list[TruthSegment]:
     """The contact segments a learner should produce from ``case`` (the segment rules, docs in corpus/families.py).
 
-    Per stroke contact (touch-down to lift-off): boundaries at force dips (`dip_windows`), reversals
-    (`reversal_windows`) and full turns of winding (`winding_windows`), windows that overlap joined. The
+    Per stroke contact (touch-down to lift-off): boundaries at force dips (`dip_windows`; every dip in the corpus
+    lies between strokes that go another way or press another surface) and full turns of winding
+    (`winding_windows`), windows that overlap joined. The
     heading is taken on the noise-free path across the contact's mean normal. ``slide``: each segment carries
     the mean inward normal over its plateau (a plane's normal).
     """
@@ -212,9 +186,7 @@ def truth_segments(case: Assembled, slide: bool) -> list[TruthSegment]:
         mean_normal = case.normals[rows].mean(axis=0)
         mean_normal /= np.linalg.norm(mean_normal)
         boundaries = merged(
-            dip_windows(t, case.normal_force[rows], case.plateau_id[rows])
-            + reversal_windows(t, path, mean_normal)
-            + winding_windows(t, path, mean_normal)
+            dip_windows(t, case.normal_force[rows], case.plateau_id[rows]) + winding_windows(t, path, mean_normal)
         )
         starts = [(t[0], t[0]), *boundaries]
         ends = [*boundaries, (t[-1], t[-1])]

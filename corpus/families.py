@@ -9,7 +9,7 @@ Every family is a function of a seed and a few parameters returning a `corpus.ca
   its line less than the pad sinks), ``straight-soft`` (the same on a soft pad: 5 mm), ``l-shape`` (two 12 cm
   legs at 90 deg, slowing at the corner), ``zigzag`` (4-6 legs at ±30-40 deg over 20 cm), ``circle`` (one pass,
   1.05 turns, radius 4-6 cm), ``spiral`` (2 -> 7 cm over 2.5 turns), ``multi-pass-circle`` (3 turns of radius
-  5 cm), ``back-and-forth`` (3 passes along 15 cm, no lift-off).
+  5 cm), ``back-and-forth`` (3 passes along 15 cm at a steady press, no lift-off: one stroke).
 - **Contours** (contour): ``cylinder`` (`cylinder_case`, the path across the axis, the normal turning 60-100 deg),
   ``sphere`` (`sphere_case`, an S over the cap, the normal turning 50-90 deg), ``planar-edge``
   (`planar_edge_case`: a convex crease traced along a horizontal curve 70 mm deep over 50 cm, the pressed normal
@@ -29,7 +29,8 @@ Segment rules (`corpus.case.truth_segments`), what a learner should produce:
 - a contact (touch-down to lift-off) is one stroke, unless it contains a stroke boundary below;
 - a force dip between two pressing stretches below 30 % of their plateau, with no lift-off, is a boundary; its
   window is the dip's span (from falling below 30 % of the lower plateau to rising above it again);
-- a reversal of the travel direction (heading change >= 135 deg at a speed minimum) is a boundary, window ±0.15 s;
+- a reversal of the travel direction is a boundary only across such a dip (the reversal strokes): a back-and-forth
+  wipe at a steady press is one stroke, nothing lies between its passes;
 - a path going round is cut at each full turn of its heading (across the contact's mean normal, counted from
   the touch-down) that leaves at least a quarter turn after it, window ±0.1 s: a 1.05-turn circle is one
   segment, 3 turns give 3, the 2.5-turn spiral 3, the 3.6-turn rim 4;

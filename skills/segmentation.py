@@ -6,9 +6,9 @@ What decides what (docs/LEARNING.md has the figure of a real recording):
   contacts is free.
 - **Strokes as a person sees them**: a contact is cut where the press dips between two pressing
   stretches (below ``DIP_FRACTION`` of the weaker) that go another way (``DIRECTION_CHANGE_DEG``)
-  or press on another surface (``NORMAL_SPLIT_DEG``) — two strokes without a clean lift-off —, a
-  back-and-forth wipe is cut where it turns sharply back after a full pass, and a path going round
-  is cut after each full turn of its heading (one segment per pass). A brief light contact (under
+  or press on another surface (``NORMAL_SPLIT_DEG``) — two strokes without a clean lift-off (a
+  back-and-forth wipe at a steady press is one stroke: nothing lies between its passes) — and a
+  path going round is cut after each full turn of its heading (one segment per pass). A brief light contact (under
   ``BRUSH_MAX_S``, pressing less than ``BRUSH_FRACTION`` of the strongest stroke) is a brush, not a
   stroke: it is free.
 - **Where a stroke changes surface** (slide only: a second plane, a crease) is found by the
@@ -36,7 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import distance_transform_edt, gaussian_filter1d, uniform_filter1d
-from scipy.signal import find_peaks
 from sklearn.cluster import AgglomerativeClustering
 from sklearn.neighbors import kneighbors_graph
 
@@ -78,12 +77,6 @@ BRUSH_FRACTION = 0.5
 
 BRUSH_MAX_S = 1.5
 """A light contact segment shorter than this (s) is a brush (the hand sliding the tool to the start): free."""
-
-REVERSAL_LEG_FRACTION = 0.5
-"""A turn back cuts a stroke when the path runs at least this fraction of the stroke's extent before and after it."""
-
-REVERSAL_DEG = 135.0
-"""...and its direction over ``JUMP_DISTANCE_M`` before and after the turn differs by at least this much, deg."""
 
 WINDING_SMOOTHING_S = 0.1
 """Standard deviation of the Gaussian smoothing of positions before the heading's winding is measured, s."""
@@ -236,32 +229,6 @@ def _turn_cuts(positions: NDArray[np.float64], normal: NDArray[np.float64], star
     return [start + int(np.argmax(winding >= 360.0 * k)) for k in range(1, turns + 1)]
 
 
-def _reversal_cuts(positions: NDArray[np.float64], arc_length: NDArray[np.float64], start: int, end: int) -> list[int]:
-    """Return the samples (absolute) where a stroke ``[start, end)`` goes back over itself: a back-and-forth wipe.
-
-    A reversal is an extremum of the position along the stroke's main direction that stands out by at
-    least ``REVERSAL_LEG_FRACTION`` of the stroke's extent on both sides (a pass, not a short wipe back
-    within a stroke), where the path's direction over ``JUMP_DISTANCE_M`` before and after it differs by
-    at least ``REVERSAL_DEG`` (a sharp turn back, not a circle's smooth one).
-    """
-    path = positions[start:end]
-    # On at most CLUSTERING_SAMPLES block means: the extrema of legs this long do not need every sample.
-    stride = max(1, -(-len(path) // CLUSTERING_SAMPLES))
-    along = _block_means(path, stride) @ np.linalg.svd(path - path.mean(axis=0), full_matrices=False)[2][0]
-    prominence = REVERSAL_LEG_FRACTION * float(np.ptp(along))
-    if prominence <= 0.0:
-        return []
-    extrema = np.sort(np.concatenate([find_peaks(sign * along, prominence=prominence)[0] for sign in (1.0, -1.0)]))
-    cuts = []
-    for k in extrema:
-        here = start + min(int(k) * stride + stride // 2, len(path) - 1)
-        back = int(np.searchsorted(arc_length, arc_length[here] - JUMP_DISTANCE_M))
-        ahead = min(int(np.searchsorted(arc_length, arc_length[here] + JUMP_DISTANCE_M)), end - 1)
-        if _angle_deg(positions[here] - positions[back], positions[ahead] - positions[here]) >= REVERSAL_DEG:
-            cuts.append(here)
-    return cuts
-
-
 def _stroke_cuts(
     positions: NDArray[np.float64],
     press: NDArray[np.float64],
@@ -324,8 +291,7 @@ def segment_demonstration(
             edges.append((cursor, False, BoundaryReason.recording if cursor == 0 else BoundaryReason.contact))
         edges.append((interval.start, True, interval.start_reason))
         stroke_cuts = _stroke_cuts(positions, press, contact.directions, arc_length, interval.start, interval.end)
-        reversals = _reversal_cuts(positions, arc_length, interval.start, interval.end)
-        strokes = [interval.start, *sorted({*stroke_cuts, *reversals}), interval.end]
+        strokes = [interval.start, *stroke_cuts, interval.end]
         for a, b in itertools.pairwise(strokes):
             if a > interval.start:
                 edges.append((a, True, BoundaryReason.stroke))

@@ -33,7 +33,7 @@ EXPECTED_SEGMENTS = {
     "circle": 1,
     "spiral": 3,
     "multi-pass-circle": 3,
-    "back-and-forth": 3,
+    "back-and-forth": 1,
     "cylinder": 1,
     "sphere": 1,
     "planar-edge": 1,
@@ -181,15 +181,13 @@ def test_the_twisted_planar_edge_lies_in_a_plane_while_its_normal_turns_about_th
 
 
 def test_boundaries_follow_the_rules() -> None:
-    # Winding cuts lie a full turn apart and in the plateau; reversals where the path turns back.
+    # Winding cuts lie a full turn apart and in the plateau; a back-and-forth wipe at a steady press is one stroke.
     for case in by_family("multi-pass-circle") + by_family("spiral") + by_family("rim"):
         cuts = [s.end_window for s in case.segments[:-1]]
         assert all(hi - lo == pytest.approx(0.2) for lo, hi in cuts)
     for case in by_family("back-and-forth"):
-        for lo, hi in (s.end_window for s in case.segments[:-1]):
-            assert hi - lo == pytest.approx(0.3)
-            before, at, after = case.positions[np.searchsorted(case.t, [lo - 0.3, 0.5 * (lo + hi), hi + 0.3])]
-            assert angle_deg(at - before, after - at) > 170.0
+        turns = np.flatnonzero(np.diff(np.sign(np.gradient(case.positions @ (case.positions[-1] - case.positions[0])))))
+        assert len(case.segments) == 1 and turns.size >= 2  # it does go back and forth
     # Dips: the window is where the force is under 30 % of the plateaus; no lift-off in it.
     for case in by_family("merged-strokes") + by_family("reversal-strokes"):
         first, second = case.segments
