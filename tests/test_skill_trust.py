@@ -78,6 +78,13 @@ def test_a_straight_stroke_from_a_bag_learns_its_normal_and_force(
     assert failed(skill) == []
     [conditioning] = [c for c in skill.checks if c.name is CheckName.plane_conditioning]
     assert "the path is a line" in conditioning.message
+    # Executed (the work piece rebuilt from it, the realistic wrist sensor): it presses the plane, not the air.
+    from schemas import ExecutionSettings
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    metrics = run_skill(execution_world(skill), ExecutionSettings()).metrics
+    assert metrics.contact_ratio > 0.95 and metrics.true_force_rms_error_pct < 3.0, metrics
 
 
 def test_a_contour_traced_as_a_planar_curve_is_a_contour() -> None:
