@@ -24,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import ROOT, machine_line, pin_blas_threads, write_section
+from benchmarks.report import LEARNING_MD, machine_line, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -37,7 +37,6 @@ from services.csv_import import demonstration_from_csv  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 
 SECTION = "corpus"
-LEARNING_MD = ROOT / "docs" / "LEARNING.md"
 COMMAND = ".venv/bin/python benchmarks/bench_corpus.py --seeds 0 1 2"
 TOLERANCES = {"slide": 3.0, "contour": 5.0}
 """Normal error tolerance per type, deg (slides: the worst segment; contours: time-weighted mean)."""

@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import ROOT, pin_blas_threads, write_section
+from benchmarks.report import LEARNING_MD, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -30,7 +30,6 @@ from skills.parameterize import learn_skill  # noqa: E402
 from skills.registration import angle_outside_cone, angles_about_crease, closest_points_on_polyline  # noqa: E402
 
 SECTION = "kuleuven-truth"
-LEARNING_MD = ROOT / "docs" / "LEARNING.md"
 COMMAND = ".venv/bin/python benchmarks/bench_kuleuven_truth.py"
 VELOCITY_SMOOTHING_S = 0.02
 """Standard deviation (s) of the Gaussian smoothing of the positions the velocity is taken from (the learner's)."""

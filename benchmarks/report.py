@@ -19,6 +19,8 @@ __all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_thr
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS_MD = ROOT / "docs" / "BENCHMARKS.md"
+LEARNING_MD = ROOT / "docs" / "LEARNING.md"
+"""The learning page: the corpus and KU Leuven benchmarks write their sections there."""
 
 
 def pin_blas_threads() -> None:
