@@ -151,8 +151,9 @@ class SkillAgainstObject:
     """A skill learned from a KU Leuven recording, judged against the object's CAD at every sample of its contact
     segments (angles in rad): ``outside_cone`` the CF z's angle outside the normal cone of the crease (0 inside);
     ``from_bisector`` its angle to the cone's bisector; ``from_friction_free`` its angle to the friction-free force
-    the learner sees (`skills.friction.blended_friction_free` about the CF z, smoothed over
-    `skills.skill_checks.CHECK_SMOOTHING_S`); ``since_touch_down_s`` (s) each sample's time since its segment's start.
+    the learner sees (`skills.friction.blended_friction_free` about the CF z, smoothed as
+    `skills.skill_checks.reference_directions`); ``since_touch_down_s`` (s) each sample's time since its segment's
+    start.
     """
 
     outside_cone: NDArray[np.float64]
@@ -164,12 +165,10 @@ class SkillAgainstObject:
 def skill_against_object(skill: Skill, truth: KuleuvenGroundTruth) -> SkillAgainstObject:
     """Judge the compliant frames of ``skill`` (learned from ``truth.demonstration``) against the object's normal
     cones, sample by sample of its contact segments (the skill's own resampled grid)."""
-    from scipy.ndimage import gaussian_filter1d
-
     from skills.compliant_frames import compliant_frame_rotations, tool_velocities
-    from skills.friction import blended_friction_free, friction_coefficient, unit_rows
+    from skills.friction import blended_friction_free, friction_coefficient
     from skills.parameterize import uniform_arrays
-    from skills.skill_checks import CHECK_SMOOTHING_S
+    from skills.skill_checks import reference_directions
 
     t, positions, _, wrenches = uniform_arrays(truth.demonstration)
     velocities = tool_velocities(positions, skill.sample_rate_hz)
@@ -180,8 +179,8 @@ def skill_against_object(skill: Skill, truth: KuleuvenGroundTruth) -> SkillAgain
         z = compliant_frame_rotations(segment, since)[:, :, 2]
         cone = truth.cones_at(positions[rows])
         forces, v = wrenches[rows, :3], velocities[rows]
-        free = blended_friction_free(forces, v, friction_coefficient(forces, v), normals=z).forces
-        smoothed = unit_rows(gaussian_filter1d(free, CHECK_SMOOTHING_S * skill.sample_rate_hz, axis=0, mode="nearest"))
+        free = blended_friction_free(forces, v, friction_coefficient(forces, v), normals=z)
+        smoothed = reference_directions(free, skill.sample_rate_hz)
         parts[0].append(angle_outside_cone(z, cone.inward_a, cone.inward_b))
         parts[1].append(np.arccos(np.clip(np.sum(z * cone.bisectors, axis=1), -1.0, 1.0)))
         parts[2].append(np.arccos(np.clip(np.sum(z * smoothed, axis=1), -1.0, 1.0)))

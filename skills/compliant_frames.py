@@ -75,7 +75,7 @@ class PlaneFit:
     the path's RMS depth along CF z about the centroid; ``force_normal`` (3,) the mean friction-free
     force direction; ``across_width_m`` the RMS extent of the path across its main direction;
     ``equal_width_m`` the width at which the path's plane and the force are equally sure of that
-    tilt; ``geometry_weight`` (0-1) the share of the path's geometry in the tilt about that direction;
+    tilt;
     ``plane_force_angle_deg`` the angle between the plane the path spans and the force (None: the
     path is too narrow to span one); ``source`` what decided CF z; ``force_samples`` how many sliding
     samples gave the force normal (0: the mean force stood in for it).
@@ -87,7 +87,6 @@ class PlaneFit:
     force_normal: NDArray[np.float64]
     across_width_m: float
     equal_width_m: float
-    geometry_weight: float
     plane_force_angle_deg: float | None
     source: NormalSource
     force_samples: int
@@ -174,7 +173,6 @@ def slide_frame(
         force_normal=force_normal,
         across_width_m=float(widths[1]),
         equal_width_m=float(equal_width),
-        geometry_weight=float(weights[1]),
         plane_force_angle_deg=plane_force_angle if spans_plane else None,
         source=source,
         force_samples=force_samples,
@@ -233,11 +231,12 @@ def weighted_smoothing(
 
 
 def contour_normals(
-    positions: NDArray[np.float64], forces: NDArray[np.float64], rate_hz: float, segment: slice
+    forces: NDArray[np.float64], velocities: NDArray[np.float64], rate_hz: float, segment: slice
 ) -> NDArray[np.float64]:
     """Return the unit surface normals (M, 3) into the surface along the contour contact ``segment``.
 
-    ``positions`` (N, 3) m and ``forces`` (N, 3) N are the whole demonstration. Two passes of the
+    ``forces`` (N, 3) N and ``velocities`` (N, 3) m/s (`tool_velocities`) are the whole
+    demonstration. Two passes of the
     friction-free force (`skills.friction`) smoothed over ``CONTOUR_FORCE_SMOOTHING_S``, counting
     each sample by how far its direction can be trusted (`weighted_smoothing`): the first turns the
     force back by the segment's friction angle, which needs no normal speed, so a tool settling onto
@@ -247,7 +246,6 @@ def contour_normals(
     """
     rows = np.zeros(len(forces), dtype=bool)
     rows[segment] = True
-    velocities = tool_velocities(positions, rate_hz)
     sigma = CONTOUR_FORCE_SMOOTHING_S * rate_hz
     mu = friction_coefficient(forces, velocities, rows)
     turned_back = friction_free(forces, velocities, mu)
@@ -257,15 +255,23 @@ def contour_normals(
 
 
 def contour_frames(
-    positions: NDArray[np.float64], forces: NDArray[np.float64], rate_hz: float, segment: slice
+    positions: NDArray[np.float64],
+    forces: NDArray[np.float64],
+    rate_hz: float,
+    segment: slice,
+    velocities: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Return per-sample world-from-CF rotations (M, 3, 3) of the contour contact ``segment``.
 
-    z_k is the surface normal of `contour_normals`. The reference frame has z along the segment's
+    ``positions`` (N, 3) m, ``forces`` (N, 3) N and ``velocities`` (N, 3) m/s (default:
+    `tool_velocities` of the positions) are the whole demonstration. z_k is the surface normal of
+    `contour_normals`. The reference frame has z along the segment's
     mean normal and x along the dominant motion; each sample's frame is that reference turned by
     the Möller-Hughes minimal rotation from the mean normal to z_k.
     """
-    z = contour_normals(positions, forces, rate_hz, segment)
+    if velocities is None:
+        velocities = tool_velocities(positions, rate_hz)
+    z = contour_normals(forces, velocities, rate_hz, segment)
     mean_direction = z.mean(axis=0)
     mean_direction /= np.linalg.norm(mean_direction)
     path = positions[segment]

@@ -66,8 +66,15 @@ def friction_coefficient(
     Over the samples of ``mask`` (default all) that slide faster than ``FAST_SLIDING_M_S`` and lean less than
     ``FRICTION_CONE_MAX`` (more is a push, not friction); 0 when there are none.
     """
-    ratios = _removal_ratios(forces, velocities)
-    fast = (np.linalg.norm(velocities, axis=1) > FAST_SLIDING_M_S) & (ratios <= FRICTION_CONE_MAX)
+    return _median_fast_lean(_removal_ratios(forces, velocities), np.linalg.norm(velocities, axis=1), mask)
+
+
+def _median_fast_lean(
+    ratios: NDArray[np.float64], speed: NDArray[np.float64], mask: NDArray[np.bool_] | None
+) -> float:
+    """The median of the leans ``ratios`` (N,) where the tool moves faster than ``FAST_SLIDING_M_S`` (``speed`` (N,)
+    m/s) within ``mask``, leaning less than ``FRICTION_CONE_MAX``; 0 when there are none."""
+    fast = (speed > FAST_SLIDING_M_S) & (ratios <= FRICTION_CONE_MAX)
     if mask is not None:
         fast &= mask
     return float(np.median(ratios[fast])) if fast.any() else 0.0
@@ -77,12 +84,11 @@ def friction_coefficient(
 class FrictionFree:
     """The applied forces without their friction part, and how far each sample's direction can be trusted.
 
-    ``forces`` (N, 3) N; ``weights`` (N,) 0 to 1 (see `friction_free`); ``friction_coefficient`` the mu used.
+    ``forces`` (N, 3) N; ``weights`` (N,) 0 to 1 (see `friction_free`).
     """
 
     forces: NDArray[np.float64]
     weights: NDArray[np.float64]
-    friction_coefficient: float
 
     @property
     def directions(self) -> NDArray[np.float64]:
@@ -108,11 +114,7 @@ def blended_friction_free(
     removed = forces - np.sum(forces * direction, axis=1, keepdims=True) * direction
     elevation = np.abs(np.sum(direction * unit_rows(normals), axis=1, keepdims=True))
     settling = np.clip(elevation / SETTLING_SINE, 0.0, 1.0)
-    return FrictionFree(
-        forces=(1.0 - settling) * removed + settling * turned.forces,
-        weights=turned.weights,
-        friction_coefficient=friction,
-    )
+    return FrictionFree(forces=(1.0 - settling) * removed + settling * turned.forces, weights=turned.weights)
 
 
 def friction_free(
@@ -127,14 +129,13 @@ def friction_free(
     ``FRICTION_CONE_MAX`` (a push that moves the tool: a hand in free space) while moving faster
     than ``FAST_SLIDING_M_S`` (slower, a settling tool leans that much along its press).
     """
-    mu = friction_coefficient(forces, velocities) if friction is None else friction
+    ratios, speed = _removal_ratios(forces, velocities), np.linalg.norm(velocities, axis=1)
+    mu = _median_fast_lean(ratios, speed, None) if friction is None else friction
     magnitude = np.linalg.norm(forces, axis=1, keepdims=True)
     along_force = unit_rows(forces)
     # The direction across the force, in the plane of force and velocity, pointing to the motion.
     towards_motion = unit_rows(velocities - np.sum(velocities * along_force, axis=1, keepdims=True) * along_force)
-    speed = np.linalg.norm(velocities, axis=1)
     angle = (np.arctan(mu) * np.tanh(speed / FRICTION_SPEED_M_S))[:, None]
     free = magnitude * np.cos(angle) * unit_rows(np.cos(angle) * along_force - np.sin(angle) * towards_motion)
-    pushed = (_removal_ratios(forces, velocities) > FRICTION_CONE_MAX) & (speed > FAST_SLIDING_M_S)
-    weights = np.where(pushed, 0.0, np.tanh(speed / FRICTION_SPEED_M_S) ** 2)
-    return FrictionFree(forces=free, weights=weights, friction_coefficient=mu)
+    pushed = (ratios > FRICTION_CONE_MAX) & (speed > FAST_SLIDING_M_S)
+    return FrictionFree(forces=free, weights=np.where(pushed, 0.0, np.tanh(speed / FRICTION_SPEED_M_S) ** 2))

@@ -217,7 +217,7 @@ def _segment(
         cf_z = np.broadcast_to(plane.rotation[:, 2], p_seg.shape)
         return _Learned(slide, cf_z, np.full(len(p_seg), force.value_n), plane)
 
-    rotations = contour_frames(r.positions, r.forces, rate_hz, rows)
+    rotations = contour_frames(r.positions, r.forces, rate_hz, rows, r.velocities)
     f_z = cf_z_forces(f_seg, rotations[:, :, 2])
     position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
     force_dmp = DMP.fit(t_seg[fit], _basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")

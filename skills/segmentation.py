@@ -169,27 +169,29 @@ def _is_crease(
 def _planes_of_stroke(
     positions: NDArray[np.float64],
     directions: NDArray[np.float64],
+    arc_length: NDArray[np.float64],
     start: int,
     end: int,
     min_samples: int,
 ) -> list[int]:
-    """Return the cuts (sample indices) between the planes of one slide stroke ``[start, end)``."""
-    extent = float(np.max(np.ptp(positions[start:end], axis=0))) or 1.0
+    """Return the cuts (sample indices) between the planes of one slide stroke ``[start, end)``.
+
+    ``arc_length`` (N,) m is the distance travelled along the whole path; only the stroke's own rows are read.
+    """
+    path = positions[start:end]
+    extent = float(np.max(np.ptp(path, axis=0))) or 1.0
     # Features: the normal (one unit = the split angle) weighs most; position keeps parts compact.
     # Where the tool rests the normal is unknown: it rests on the plane it last (or next) slid on.
-    normals = directions.copy()
+    normals = directions[start:end].copy()
     unknown = np.linalg.norm(normals, axis=1) < 0.5
     if unknown.any() and not unknown.all():
         nearest = distance_transform_edt(unknown, return_distances=False, return_indices=True)[0]
         normals = normals[nearest]
-    features = np.hstack(
-        [normals / np.sin(np.radians(NORMAL_SPLIT_DEG)), 0.5 * (positions - positions[start]) / extent]
-    )
-    arc_length = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))))
+    features = np.hstack([normals / np.sin(np.radians(NORMAL_SPLIT_DEG)), 0.5 * (path - path[0]) / extent])
     pending, cuts = [(start, end)], []
     while pending and len(cuts) < MAX_PLANES_PER_STROKE - 1:
         a, b = pending.pop()
-        cut = _ward_cut(features[a:b], min_samples)
+        cut = _ward_cut(features[a - start : b - start], min_samples)
         if cut is None or not _is_crease(directions, arc_length, a, a + cut, b):
             continue
         cuts.append(a + cut)
@@ -301,7 +303,7 @@ def segment_demonstration(
                 turns = _turn_cuts(positions, normal, a, b, contact.rate_hz)
                 edges.extend((cut, True, BoundaryReason.turn) for cut in turns)
             if split_on_normal:
-                cuts = _planes_of_stroke(positions, contact.directions, a, b, min_samples)
+                cuts = _planes_of_stroke(positions, contact.directions, arc_length, a, b, min_samples)
                 edges.extend((cut, True, BoundaryReason.crease) for cut in cuts)
         edges.sort(key=lambda edge: edge[0])
         cursor = interval.end

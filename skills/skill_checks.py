@@ -78,6 +78,12 @@ def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.fl
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
 
 
+def reference_directions(free: FrictionFree, rate_hz: float) -> NDArray[np.float64]:
+    """Return the unit directions (M, 3) a contour's CF z is held to: the friction-free forces of a segment sampled
+    at ``rate_hz``, smoothed over ``CHECK_SMOOTHING_S`` (their noise, not the CF's)."""
+    return unit_rows(gaussian_filter1d(free.forces, CHECK_SMOOTHING_S * rate_hz, axis=0, mode="nearest"))
+
+
 def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.float64]) -> SkillCheck:
     """Check the learned force (N,) N along CF z against the friction-free press (`skills.friction`) of one contact
     segment."""
@@ -110,8 +116,8 @@ def cf_z_vs_force(
         value, limit = float(_angles_deg(cf_z[0], mean_direction)), PLANE_FORCE_TOLERANCE_DEG
         what = "the mean friction-free force"
     else:
-        smoothed = unit_rows(gaussian_filter1d(free.forces, CHECK_SMOOTHING_S * rate_hz, axis=0, mode="nearest"))
-        value = float(np.percentile(_angles_deg(cf_z[trusted], smoothed[trusted]), 95))
+        reference = reference_directions(free, rate_hz)
+        value = float(np.percentile(_angles_deg(cf_z[trusted], reference[trusted]), 95))
         limit = CONTOUR_FORCE_ANGLE_LIMIT_DEG
         what = f"the friction-free force over {1000 * CHECK_SMOOTHING_S:.0f} ms (95th percentile over the samples)"
     passed = value <= limit
