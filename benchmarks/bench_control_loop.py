@@ -262,8 +262,9 @@ def main() -> None:
         ),
         "dynamics": f"mass matrix every {NULL_SPACE_UPDATE_STEPS} steps (compiled arm model), joint-limit check",
         "control_law": (
-            "control law and telemetry row (`HybridController.prepare`: projector/damping updates every "
-            f"{NULL_SPACE_UPDATE_STEPS} steps; then ONE compiled call: CF wrench, the law, the row)"
+            "telemetry row and control law (one compiled call: the row with the CF wrench; then "
+            f"`HybridController.step_into`: projector/damping updates every {NULL_SPACE_UPDATE_STEPS} steps, and one "
+            "compiled call of the law)"
         ),
         "telemetry": "telemetry batch hand-off",
         "other": "other (timers, guarded-approach and abort checks; IK and DMP rollouts of the phase plans)",

@@ -15,7 +15,6 @@ apart. Writes its section of docs/LEARNING.md.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -24,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import LEARNING_MD, machine_line, pin_blas_threads, write_section
+from benchmarks.report import LEARNING_MD, machine_line, pin_blas_threads, report_main
 
 pin_blas_threads()
 
@@ -173,15 +172,16 @@ def build_report(seeds: list[int]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="corpus seeds (default 0 1 2)")
-    parser.add_argument("--no-write", action="store_true", help="only print the tables")
-    args = parser.parse_args(argv)
-    report = build_report(args.seeds)
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report, LEARNING_MD)
-    return 0
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        path=LEARNING_MD,
+        options=[
+            ("--seeds", {"type": int, "nargs": "+", "default": [0, 1, 2], "help": "corpus seeds (default 0 1 2)"})
+        ],
+    )
 
 
 if __name__ == "__main__":

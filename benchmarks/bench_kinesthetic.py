@@ -9,7 +9,6 @@ the median case over the seeds; the sentences below it are computed from the sam
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 from dataclasses import dataclass
@@ -17,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, write_section
+from benchmarks.report import machine_line, pin_blas_threads, report_main
 
 pin_blas_threads()
 
@@ -160,15 +159,13 @@ def build_report(seeds: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=10, help="recordings per surface")
-    parser.add_argument("--no-write", action="store_true", help="only print the table")
-    args = parser.parse_args(argv)
-    report = build_report(args.seeds)
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report)
-    return 0
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        options=[("--seeds", {"type": int, "default": 10, "help": "recordings per surface"})],
+    )
 
 
 if __name__ == "__main__":

@@ -11,13 +11,12 @@ against the cone at every sample. Writes its section of docs/LEARNING.md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import LEARNING_MD, pin_blas_threads, write_section
+from benchmarks.report import LEARNING_MD, pin_blas_threads, report_main
 
 pin_blas_threads()
 
@@ -198,14 +197,7 @@ def build_report() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--no-write", action="store_true", help="only print the report")
-    args = parser.parse_args(argv)
-    report = build_report()
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report, LEARNING_MD)
-    return 0
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, path=LEARNING_MD)
 
 
 if __name__ == "__main__":

@@ -18,11 +18,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section
+from benchmarks.report import machine_line, median_time, pin_blas_threads, report_main
 
 pin_blas_threads()
 
-import argparse  # noqa: E402
 import tracemalloc  # noqa: E402
 
 from corpus import synthetic  # noqa: E402
@@ -93,15 +92,13 @@ def build_report(repeats: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5, help="timing repeats (median reported)")
-    parser.add_argument("--no-write", action="store_true", help="only print the table")
-    args = parser.parse_args(argv)
-    report = build_report(args.repeats)
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report)
-    return 0
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        options=[("--repeats", {"type": int, "default": 5, "help": "timing repeats (median reported)"})],
+    )
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ judged on it, so these figures say how well the skill runs on the surface it lea
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -17,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import ROOT, machine_line, pin_blas_threads, write_section
+from benchmarks.report import ROOT, machine_line, pin_blas_threads, report_main
 
 pin_blas_threads()
 
@@ -110,14 +109,7 @@ def build_report() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--no-write", action="store_true", help="only print the table")
-    args = parser.parse_args(argv)
-    report = build_report()
-    print(report)
-    if not args.no_write:
-        write_section(SECTION, report)
-    return 0
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv)
 
 
 if __name__ == "__main__":

@@ -128,6 +128,20 @@ def bench_learning(repeats: int) -> tuple[list[str], dict[str, float]]:
     return rows, numbers
 
 
+def child_commands(pid: int) -> dict[int, list[str]]:
+    """The direct children of process ``pid``: their pids and command lines (from /proc)."""
+    children = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            if parent == pid:
+                argv = (stat.parent / "cmdline").read_bytes().decode().split("\0")
+                children[int(stat.parent.name)] = [a for a in argv if a]
+        except (OSError, ValueError, IndexError):  # the process ended meanwhile
+            continue
+    return children
+
+
 def cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process so far, s (Linux /proc; 0 elsewhere)."""
     try:
@@ -154,8 +168,13 @@ def bench_executions(workers: int, executions: int) -> tuple[float, list[dict], 
         skill = client.post("/skills", json={"demonstration_id": demo.json()["id"]})
         assert skill.status_code == 201, skill.text
         request = {"skill_id": skill.json()["id"], "pace": "fast"}
-        health = client.get("/health").json()
-        pids = {"workers": [w["pid"] for w in health["workers"]], "API": [health["pid"]], "router (up)": [up.pid]}
+        children = child_commands(up.pid)  # /health shows no pids (it is open): the processes `up` started
+        pids = {
+            "workers": [pid for pid, argv in children.items() if "worker" in argv],
+            "API": [pid for pid, argv in children.items() if "api" in argv],
+            "router (up)": [up.pid],
+        }
+        assert len(pids["workers"]) == workers and len(pids["API"]) == 1, children
         cpu_before = {name: sum(map(cpu_seconds, p)) for name, p in pids.items()}
         running_ids: list[str] = []
         finished: list[dict] = []

@@ -73,7 +73,7 @@ def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
         store.add_telemetry(execution.id, result.telemetry.to_batch(execution.id))
         samples = int((store.telemetry(execution.id)[:, 0] <= EXPORT_SECONDS).sum())
         app = create_app(ServiceSettings(db_path=Path(folder) / "bench.db"), bus=None, store=store)
-        with TestClient(app) as client:
+        with TestClient(app, base_url="http://127.0.0.1") as client:  # a loopback API answers loopback names only
             for fmt in ("mcap", "csv", "json"):
                 params = {"format": fmt, "t1": EXPORT_SECONDS}
                 url = f"/executions/{execution.id}/telemetry"

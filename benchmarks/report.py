@@ -9,8 +9,9 @@ from __future__ import annotations
 import os
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from services import doc_sections
 from services.machine import machine_line
@@ -28,8 +29,10 @@ def pin_blas_threads() -> None:
 
     Call before numpy is imported.
     """
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+    from services.local_processes import THREAD_LIMIT_ENV  # (imports no numpy)
+
+    for var, value in THREAD_LIMIT_ENV.items():
+        os.environ.setdefault(var, value)
 
 
 def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
@@ -40,6 +43,32 @@ def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
         result = fn()
         times.append(time.perf_counter() - start)
     return statistics.median(times), result
+
+
+def report_main(
+    description: str,
+    section: str,
+    build: Callable[..., str],
+    argv: list[str] | None = None,
+    path: Path = BENCHMARKS_MD,
+    options: Sequence[tuple[str, dict[str, Any]]] = (),
+) -> int:
+    """The command line of a benchmark that builds one report section: its ``options`` (a flag and its
+    ``argparse`` keywords; their values go to ``build`` by name) and ``--no-write``. Prints the report ``build``
+    returns and writes it into ``path`` between the ``section`` markers. Returns the exit code."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=description)
+    for flag, keywords in options:
+        parser.add_argument(flag, **keywords)
+    parser.add_argument("--no-write", action="store_true", help=f"only print the report; leave {path.name} alone")
+    arguments = vars(parser.parse_args(argv))
+    write = not arguments.pop("no_write")
+    report = build(**arguments)
+    print(report)
+    if write:
+        write_section(section, report, path)
+    return 0
 
 
 def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:

@@ -16,6 +16,9 @@ EXIT_ENDED_EARLY = 1
 """`watch`: the execution was aborted or failed."""
 EXIT_TIMEOUT = 3
 """`watch`: nothing final arrived within --timeout."""
+EXIT_VERDICT_FAILED = 4
+"""`watch`, `simulate`: the execution ran every segment, but its verdict failed (the force, contact or touch-down
+outside the tolerances)."""
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 DEFAULT_API_URL = "http://127.0.0.1:8000"
 LOG_LEVEL_HELP = "how much the process logs to stderr (default info)"
@@ -144,12 +147,25 @@ def _metrics_lines(status) -> list[str]:
     if m.contact_ratio is not None:
         lines.append(f"  contact ratio {m.contact_ratio:.3f}")
     lines.append(f"  peak force {m.peak_force_n:.1f} N")
+    if m.verdict is not None:
+        lines += [f"  {line}" for line in m.verdict.lines()]
     return lines
+
+
+def exit_code(done: bool, metrics) -> int:
+    """0 when an execution ran every segment (``done``) and passed its verdict (``metrics``, may be None); else why
+    not (``EXIT_*``)."""
+    from schemas.execution import Verdict
+
+    if not done:
+        return EXIT_ENDED_EARLY
+    failed = metrics is not None and metrics.verdict is not None and metrics.verdict.verdict is Verdict.failed
+    return EXIT_VERDICT_FAILED if failed else 0
 
 
 def _asked_the_api(args: argparse.Namespace) -> int | None:
     """Ask the API at ``--url`` about the execution first: exit 2 for an id it does not know, the stored metrics for
-    a finished one (exit 0 done, 1 ended early); None to follow it on the bus (running, or no API answers there)."""
+    a finished one (exit as :func:`exit_code`); None to follow it on the bus (running, or no API answers there)."""
     from schemas.bus import ExecutionStatus
     from services.client import Client, NotFoundError, ServiceError
 
@@ -173,7 +189,7 @@ def _asked_the_api(args: argparse.Namespace) -> int | None:
     )
     for text in _metrics_lines(status):
         print(text)
-    return 0 if view.status.value == "done" else EXIT_ENDED_EARLY
+    return exit_code(view.status.value == "done", view.metrics)
 
 
 def _await_the_api(args: argparse.Namespace, timeout_s: float = 10.0) -> None:
@@ -285,7 +301,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         for text in _metrics_lines(status):
             print(text)
         _await_the_api(args)
-        return 0 if status.phase.value == "done" else EXIT_ENDED_EARLY
+        return exit_code(status.phase.value == "done", status.metrics)
     except KeyboardInterrupt:
         print()
         return 130

@@ -97,10 +97,13 @@ def learn_and_report(demonstration, options, output: Path, figure: Path | None) 
     print the summary with its checks' warnings."""
     import time
 
+    from threadpoolctl import threadpool_limits
+
     from skills.parameterize import learn_skill
 
     started = time.perf_counter()
-    skill = learn_skill(demonstration, options)
+    with threadpool_limits(1):  # one BLAS thread: a busy core makes a multi-threaded BLAS several times slower
+        skill = learn_skill(demonstration, options)
     elapsed = time.perf_counter() - started
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(skill.model_dump_json(indent=1))
@@ -127,6 +130,7 @@ def summary_lines(demonstration, skill) -> list[str]:
     from services.figures import compliant_frame_axes
 
     d = DemonstrationSummary.of(demonstration)
+    arrays = demonstration.arrays()  # once: each segment reads its own rows of them
     meta = demonstration.metadata
     lines = [f"demonstration {d.name or '(unnamed)'}: {d.n_samples} samples, {d.duration_s:.2f} s, "
              f"{d.mean_rate_hz:.0f} Hz, max |f| {d.max_force_n:.1f} N (source {meta.source})"]  # fmt: skip
@@ -144,7 +148,7 @@ def summary_lines(demonstration, skill) -> list[str]:
             f"  (starts: {s.start_reason}, ends: {s.end_reason})"
         )
         if s.kind == SegmentKind.contact and s.compliant_frames is not None:
-            axes = compliant_frame_axes(demonstration, s)
+            axes = compliant_frame_axes(arrays, s)
             if len(s.compliant_frames.t) == 1:
                 lines.append(f"    CF normal (z) in world {_vector(axes.mean_world)}")
             else:
@@ -223,9 +227,11 @@ def _add_simulate_parser(commands) -> None:
     world.add_argument("--scenario", help="run in this teacher scenario's world instead of the skill's own")
     world.add_argument("--world", type=Path,
                        help="run in this world: a WorldConfig JSON or the file `record --truth` writes")  # fmt: skip
-    sim.add_argument("--work-piece", choices=["auto", "taught", "rebuilt"], default="auto",
-                     help="taught: the world a simulator recording carries; rebuilt: surfaces rebuilt from "
-                          "the skill (planes under slides, strips along contours); auto: taught if known")  # fmt: skip
+    sim.add_argument("--work-piece", choices=["auto", "taught", "measured", "rebuilt"], default="auto",
+                     help="taught: the world a simulator recording carries; measured: surfaces fitted to what the "
+                          "--demonstration measured; rebuilt: surfaces rebuilt from the skill (planes under slides, "
+                          "strips along contours); auto: taught if known, else measured if --demonstration is "
+                          "given")  # fmt: skip
     sim.add_argument("--placement", type=float, nargs="+", metavar="V",
                      help="where the skill and its rebuilt work piece go in the robot's world: X Y Z (m), "
                           "X Y Z YAW_DEG, or X Y Z QX QY QZ QW (default: chosen to be in reach)")  # fmt: skip
@@ -246,7 +252,9 @@ def _add_simulate_parser(commands) -> None:
         default="fast",
         help="fast: as fast as it runs; realtime: simulated time follows the clock (default fast)",
     )
-    sim.add_argument("--demonstration", type=Path, help="demonstration JSON: the path the path error refers to")
+    sim.add_argument("--demonstration", type=Path,
+                     help="demonstration JSON the skill was learned from: the path the path error refers to, and "
+                          "the surface the work piece is measured from")  # fmt: skip
     sim.add_argument("--figure", type=Path, help="force-tracking figure to write (PNG)")
     sim.add_argument("--scene", type=Path, help="3-D figure of the work piece, learned and executed paths (PNG)")
     sim.add_argument("--json", type=Path, help="metrics JSON to write")
@@ -268,16 +276,18 @@ def _placement_of(values: list[float] | None) -> dict | None:
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    """``contact-skills simulate``: run a skill in simulation, print the metrics (exit 1 if it aborted).
+    """``contact-skills simulate``: run a skill in simulation, print the metrics and the verdict (exit 1 if it aborted,
+    4 if its verdict failed).
 
     Any skill runs with no other argument: a skill recorded in the simulator runs in the world it carries; any
-    other (a real recording) runs on a work piece rebuilt from what it learned, placed in the robot's reach.
+    other (a real recording) runs on a work piece measured from its --demonstration (else rebuilt from what it
+    learned), placed in the robot's reach.
     """
     try:
         import json
 
         from schemas import Demonstration, ExecutionSettings, Skill
-        from sim_worker.execution_world import execution_world
+        from sim_worker.execution_world import execution_worlds
         from sim_worker.executor import run_skill
 
         skill = Skill.model_validate_json(args.skill.read_text())
@@ -299,7 +309,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         )
         world_file = json.loads(args.world.read_text()) if args.world is not None else None
         try:
-            world = execution_world(
+            worlds = execution_worlds(
                 skill,
                 settings.environment,
                 scenario=args.scenario,
@@ -309,10 +319,27 @@ def _run_simulate(args: argparse.Namespace) -> int:
             )
         except ValueError as exc:  # unknown scenario or world field, a skill out of reach: the message says why
             raise UserError([str(exc)]) from None
-        print(_world_line(world))
-        result = run_skill(world, settings)
+        if len(worlds) > 1:
+            print(f"no placement reaches all {len(worlds)} strokes: each stroke runs on its own, placed on its own")
+        codes, metrics = [], []
+        for k, world in enumerate(worlds):
+            print(("" if len(worlds) == 1 else f"stroke {k + 1} of {len(worlds)}: ") + _world_line(world))
+            result = run_skill(world, settings)
+            metrics.append(result.metrics)
+            codes.append(bus_commands.exit_code(result.metrics.phase.value == "done", result.metrics))
+            _print_execution(result)
+            suffix = "" if len(worlds) == 1 else f"_stroke{k + 1}"
+            _write_execution_figures(args, world, result, suffix)
     except Exception as exc:
         return _report_user_error("simulate", exc)
+    if args.json is not None:
+        documents = [m.model_dump(mode="json") for m in metrics]
+        args.json.write_text(json.dumps(documents[0] if len(documents) == 1 else documents, indent=1))
+    return next((code for code in codes if code), 0)
+
+
+def _print_execution(result) -> None:
+    """The metrics and the verdict of one execution, as ``simulate`` prints them."""
     m = result.metrics
     print(f"controller {m.controller.value}: {m.phase.value}" + (f" ({m.abort_reason})" if m.abort_reason else ""))
     if m.true_force_rms_error_n is not None:
@@ -327,7 +354,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         settle = f", settled within 5 % after {m.settle_time_s:.2f} s" if m.settle_time_s is not None else ""
         print(f"  touch-down peak {m.touchdown_peak_n:.2f} N ({m.touchdown_peak_ratio or 0:.2f} x the target){settle}")
     if m.cf_normal_angle_deg is not None:
-        print(f"  learned CF z vs true surface normal: mean {m.cf_normal_angle_deg:.2f} deg, "
+        print(f"  CF z (as the controller used it) vs true surface normal: mean {m.cf_normal_angle_deg:.2f} deg, "
               f"max {m.cf_normal_angle_max_deg:.2f} deg")  # fmt: skip
     if m.path_rms_m is not None:
         print(f"  path RMS (CF x-y) {m.path_rms_m * 1e3:.2f} mm; contact ratio {m.contact_ratio * 100:.2f} %")
@@ -335,22 +362,27 @@ def _run_simulate(args: argparse.Namespace) -> int:
         print(f"  guarded approach: surface found {found * 1e3:+.1f} mm along CF z from where it was taught")
     print(f"  peak force {m.peak_force_n:.2f} N; {m.duration_s:.2f} s simulated in {result.loop_wall_s:.2f} s "
           f"(real-time factor {m.real_time_factor:.1f})")  # fmt: skip
-    if args.json is not None:
-        args.json.write_text(m.model_dump_json(indent=1))
+    for line in m.verdict.lines():
+        print(line)
+
+
+def _write_execution_figures(args: argparse.Namespace, world, result, suffix: str) -> None:
+    """``--figure`` and ``--scene`` of one execution (``suffix`` added to their names: a stroke's)."""
     if args.figure is not None:
         from services.figures import write_execution_figure
 
-        args.figure.parent.mkdir(parents=True, exist_ok=True)
-        write_execution_figure(result, args.figure)
-        print(f"figure written to {args.figure}")
+        figure = args.figure.with_name(args.figure.stem + suffix + args.figure.suffix)
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        write_execution_figure(result, figure)
+        print(f"figure written to {figure}")
     if args.scene is not None:
         from services.figures import write_scene_figure
 
-        args.scene.parent.mkdir(parents=True, exist_ok=True)
+        scene = args.scene.with_name(args.scene.stem + suffix + args.scene.suffix)
+        scene.parent.mkdir(parents=True, exist_ok=True)
         pieces = [piece["vertices"] for piece in result.world_config.work_pieces]
-        write_scene_figure(world.skill, result.telemetry, pieces, args.scene, title=_world_line(world))
-        print(f"scene figure written to {args.scene}")
-    return 0 if m.phase.value == "done" else 1
+        write_scene_figure(world.skill, result.telemetry, pieces, scene, title=_world_line(world))
+        print(f"scene figure written to {scene}")
 
 
 def _world_line(world) -> str:
@@ -359,7 +391,8 @@ def _world_line(world) -> str:
         return f"work piece: {world.source} world"
     t = ", ".join(f"{v:+.3f}" for v in world.placement.translation_m)
     q = ", ".join(f"{v:+.3f}" for v in world.placement.rotation)
-    return (f"work piece: rebuilt from the skill ({len(world.config.work_pieces)} parts); placement "
+    origin = "measured from the demonstration" if world.source == "measured" else "rebuilt from the skill"
+    return (f"work piece: {origin} ({len(world.config.work_pieces)} parts); placement "
             f"({world.placement_reason}): translation [{t}] m, rotation [{q}] (xyzw)")  # fmt: skip
 
 

@@ -14,7 +14,8 @@ CONTROLLERS = ("hybrid_cf", "impedance", "impedance_found_surface", "hybrid_worl
 """`schemas.execution.ControllerKind`, spelled out: `--help` imports no pydantic (tests/test_sweeps.py compares)."""
 PARAMETERS = (
     "offset_x_m", "offset_y_m", "offset_z_m", "tilt_x_deg", "tilt_y_deg", "friction", "contact_stiffness_n_m",
-    "contact_damping_n_s_m", "sensor_bias_z_n", "sensor_noise_n", "force_scale",
+    "contact_damping_n_s_m", "sensor_bias_x_n", "sensor_bias_y_n", "sensor_bias_z_n", "sensor_offset_x_n",
+    "sensor_offset_y_n", "sensor_offset_z_n", "sensor_noise_n", "force_scale", "cylinder_radius_m", "cylinder_yaw_deg",
 )  # fmt: skip
 """`schemas.sweep.SweepParameter`, spelled out likewise."""
 SAMPLERS = ("lhs", "sobol")
@@ -42,10 +43,14 @@ def _vary(items: list[str] | None) -> dict[str, dict]:
     return vary
 
 
-def _settings(path: Path) -> dict:
-    """The execution settings every trial starts from, read from a JSON object file (validated by the request)."""
+def _settings(path: Path | None) -> dict:
+    """The execution settings every trial starts from, read from a JSON object file (validated by the request); none:
+    the fields :data:`schemas.sweep.DEFAULT_SETTINGS` sets."""
     from cli.main import UserError
+    from schemas.sweep import DEFAULT_SETTINGS
 
+    if path is None:
+        return DEFAULT_SETTINGS.model_dump(mode="json", exclude_unset=True)
     try:
         settings = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -59,10 +64,11 @@ def _settings(path: Path) -> dict:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run SCENARIO's skill (the teacher's demonstration of it, recorded and learned through the service), or a
     stored skill (--skill-id), over --trials sampled variations of its cell (--vary; default: every parameter over
-    a cell's usual range), once per controller, on every sim worker of the service at --url (started here with
-    --workers if none answers). Prints per controller the success rate (done, in contact >= 99 %, TRUE normal RMS
-    error <= --threshold %), the error quantiles and the parameters that drive the failures. Exit 0 when the sweep
-    finished, 1 when it did not, 2 for bad options."""
+    what a real cell sees, the cylinder's radius and yaw too for a skill taught on a cylinder), once per controller,
+    on every sim worker of the service at --url (started here with --workers if none answers). Prints per controller
+    the success rate (the executions' verdicts: finished, in contact >= 99 %, TRUE normal RMS error <= --threshold %,
+    max error and touch-down within the default tolerances), the failures by verdict check, the error quantiles and
+    the parameters that drive the failures. Exit 0 when the sweep finished, 1 when it did not, 2 for bad options."""
     from cli.main import UserError, _report_user_error
     from experiments.cases import DemoOptions
     from experiments.stack import DemoError
@@ -71,6 +77,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         SUMMARY_HEADER,
         SWEEPS_SECTION,
         SweepOptions,
+        failure_lines,
         merged_sweeps_section,
         run_sweep,
         sensitivity_rows,
@@ -92,14 +99,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "sampler": args.sampler,
             "success_rms_pct": args.threshold,
             "store_telemetry": args.store_telemetry,
+            "settings": _settings(args.settings),
         }
-        if args.settings is not None:
-            body["settings"] = _settings(args.settings)
         SweepRequest.model_validate({**body, "skill_id": "checked-by-the-service"})  # bad options: exit 2 here
     except Exception as exc:
         return _report_user_error("sweep", exc)
     service = DemoOptions(url=args.url, workers=args.workers, db=args.db, command=shlex.join(shown))
-    options = SweepOptions(body, args.scenario, args.skill_id, args.record_seed, service)
+    options = SweepOptions(body, args.scenario, args.skill_id, args.record_seed, service, world_ranges=not args.vary)
     try:
         outcome = run_sweep(options)
     except DemoError as exc:
@@ -114,6 +120,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f"sweep {view.id} of {outcome.skill_label}: {view.status.value}, {counts.finished}/{counts.total} "
           f"executions in {outcome.wall_s:.0f} s ({counts.reruns} rerun after an infrastructure failure)")  # fmt: skip
     print(text_table(SUMMARY_HEADER, summary_rows(view)))
+    print()
+    print("\n".join(failure_lines(view, outcome.trials)))
     print()
     print(text_table(SENSITIVITY_HEADER, sensitivity_rows(view)))
     if args.figure is not None:
@@ -168,8 +176,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--vary",
         action="append",
         metavar="NAME=LOW:HIGH[:log]",
-        help=f"a parameter and its range, repeatable; NAME of {', '.join(PARAMETERS)} "
-        "(default: all of them over a cell's usual range)",
+        help=f"a parameter and its range, repeatable; NAME of {', '.join(PARAMETERS)} (default: all of them over what "
+        "a real cell sees, schemas.sweep.DEFAULT_RANGES; the cylinder's only for a skill taught on a cylinder)",
     )
     sweep.add_argument("--threshold", type=float, default=10.0, help="success: true RMS error <= this %% (default 10)")
     sweep.add_argument(
@@ -177,7 +185,9 @@ def register(commands: argparse._SubParsersAction) -> None:
         type=Path,
         metavar="FILE",
         help="JSON object of the execution settings every trial starts from (POST /executions fields, e.g. "
-        '{"approach_slow_distance_m": 0.04}; the sweep sets the controller, the varied environment and telemetry)',
+        '{"approach_slow_distance_m": 0.04}; the sweep sets the controller, the varied environment, telemetry and '
+        "its success tolerances; default: schemas.sweep.DEFAULT_SETTINGS, follow_surface_normal and an approach "
+        "that expects the surface within the default offsets)",
     )
     sweep.add_argument(
         "--store-telemetry",

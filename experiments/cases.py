@@ -43,7 +43,7 @@ REAL_RMS_PCT = 10.0
 MIN_CONTACT_RATIO = 0.99
 """Ours: share of the contact phase in contact, at least (the teacher's skills)."""
 REAL_MIN_CONTACT_RATIO = 0.95
-"""Ours: share of the contact phase in contact, at least (real recordings on their rebuilt work piece)."""
+"""Ours: share of the contact phase in contact, at least (real recordings on the work piece measured from them)."""
 BASELINE_FACTOR = 3.0
 """Each baseline's force RMS error at least this many times ours, on the tilted plane and on the contour."""
 
@@ -140,7 +140,10 @@ class Case:
 
 
 def _real_case(trial: str, controllers: tuple[str, ...] = CONTROLLERS) -> Case:
-    return Case(f"ku_{trial}", "rebuilt work piece, placed in reach", f"KU {trial[8:]}", controllers=controllers)
+    return Case(
+        f"ku_{trial}", "work piece measured from the recording, placed in reach", f"KU {trial[8:]}",
+        controllers=controllers,
+    )  # fmt: skip
 
 
 def cases(quick: bool = False) -> list[Case]:
@@ -243,7 +246,8 @@ class Outcome:
     metrics: dict[str, Any] | None = None
     error: str | None = None
     wall_s: float = 0.0
-    verdict: str = ""
+    target_text: str = ""
+    """How the row fares against its target, in words (MET / MISSED, why)."""
     met: bool | None = None
     """True/False when a target applies to this row, None when none does."""
     ratio: float | None = None
@@ -267,6 +271,17 @@ class Outcome:
         text = f"{FIGURE_NAMES[self.judged_figure()]} {fmt(self.rms())} %"
         if self.judged_figure() == "true_force":
             text += f" (CF-z {fmt(self.metric('force_rms_error_pct'))} %)"
+        return text
+
+    @property
+    def execution_verdict(self) -> str:
+        """The execution's own verdict against its tolerances: ``pass`` or ``FAIL: <reasons>``, and its warnings."""
+        verdict = (self.metrics or {}).get("verdict")
+        if not verdict:
+            return "—"
+        text = "pass" if verdict["verdict"] == "pass" else "FAIL: " + "; ".join(verdict["reasons"])
+        if verdict.get("warnings"):
+            text += " (warning: " + "; ".join(verdict["warnings"]) + ")"
         return text
 
     @property
@@ -297,7 +312,7 @@ def _judge_ours(o: Outcome) -> None:
     if contact is None or contact < target.min_contact:
         problems.append(f"contact {fmt(contact, 100)} % < {100 * target.min_contact:g} %")
     o.met = not problems
-    o.verdict = (
+    o.target_text = (
         f"MET ({name} ≤ {target.rms_pct:g} %, contact ≥ {100 * target.min_contact:g} %)"
         if o.met
         else ("MISSED: " + "; ".join(problems))
@@ -322,14 +337,14 @@ def judge(outcomes: list[Outcome]) -> list[TargetVerdict]:
             continue
         o.ratio = _baseline_ratio(o, ours.get(o.case))
         if not o.case.baseline_target or o.controller not in CONTROLLERS:
-            o.met, o.verdict = None, "— (no target" + (f"; {o.ratio:.1f}x ours)" if o.ratio is not None else ")")
+            o.met, o.target_text = None, "— (no target" + (f"; {o.ratio:.1f}x ours)" if o.ratio is not None else ")")
         elif o.status == "aborted" and o.metric("force_rms_error_n") is None:  # a safety limit, no steady contact
-            o.met, o.verdict = True, f"MET (the baseline did not finish: {o.final})"
+            o.met, o.target_text = True, f"MET (the baseline did not finish: {o.final})"
         elif o.ratio is None:
-            o.met, o.verdict = False, "MISSED: no force error to compare"
+            o.met, o.target_text = False, "MISSED: no force error to compare"
         else:
             o.met = o.ratio >= BASELINE_FACTOR
-            o.verdict = f"{'MET' if o.met else 'MISSED'}: {o.ratio:.1f}x ours (target ≥ {BASELINE_FACTOR:g}x)"
+            o.target_text = f"{'MET' if o.met else 'MISSED'}: {o.ratio:.1f}x ours (target ≥ {BASELINE_FACTOR:g}x)"
     verdicts = []
     for group, target in TARGETS.items():
         rows = [o for o in outcomes if o.controller == OURS and o.case.group == group]
@@ -351,7 +366,7 @@ def judge(outcomes: list[Outcome]) -> list[TargetVerdict]:
             rows = [o for o in outcomes if o.controller == controller and o.case.skill == skill]
             if not rows:
                 continue
-            parts = [f"{o.case.label}: {f'{o.ratio:.1f}x' if o.ratio is not None else o.verdict}" for o in rows]
+            parts = [f"{o.case.label}: {f'{o.ratio:.1f}x' if o.ratio is not None else o.target_text}" for o in rows]
             verdicts.append(
                 TargetVerdict(
                     f"{controller} ≥ {BASELINE_FACTOR:g}x ours in force RMS error {where}",

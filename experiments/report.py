@@ -117,7 +117,7 @@ def explanations(outcomes: list[Outcome]) -> list[str]:
             continue
         mine = _ours(outcomes, o.case)
         notes.append(
-            f"**{o.controller}, {o.case.spec.title}, {o.case.label}: {o.verdict}** — measured force RMS "
+            f"**{o.controller}, {o.case.spec.title}, {o.case.label}: {o.target_text}** — measured force RMS "
             f"{o.rms_text()}"
             + (f" (ours {mine.rms_text()})" if mine is not None and mine is not o else "")
             + f", max true {fmt(o.metric('true_force_max_error_pct'))} % / CF-z "
@@ -240,6 +240,7 @@ TABLE_HEADER = (
     "path RMS (mm)",
     "RTF",
     "final",
+    "verdict",
     "target",
 )
 """Columns of the results tables (``docs/RESULTS.md`` and the console)."""
@@ -250,7 +251,10 @@ def table_rows(outcomes: list[Outcome], compact: bool = False) -> list[tuple[str
     for the console)."""
     rows = []
     for o in outcomes:
-        final = o.final if not compact or len(o.final) <= 40 else o.final[:39] + "…)"
+        final, verdict = o.final, o.execution_verdict
+        if compact:  # the console: the first 40 characters
+            final = final if len(final) <= 40 else final[:39] + "…)"
+            verdict = verdict if len(verdict) <= 40 else verdict[:39] + "…"
         rows.append(
             (
                 f"{o.case.skill}: {o.case.label}" if compact else f"{o.case.spec.title}: {o.case.label}",
@@ -267,7 +271,8 @@ def table_rows(outcomes: list[Outcome], compact: bool = False) -> list[tuple[str
                 fmt(o.metric("path_rms_m"), 1e3),
                 fmt(o.metric("real_time_factor"), digits=1),
                 final,
-                o.verdict,
+                verdict,
+                o.target_text,
             )
         )
     return rows
@@ -346,7 +351,7 @@ def _placed(learned: LearnedSkill, placement):
     from schemas.execution import EnvironmentChange, WorkPieceSource
     from sim_worker.execution_world import execution_world
 
-    environment = EnvironmentChange(work_piece=WorkPieceSource.rebuilt, placement=placement)
+    environment = EnvironmentChange(work_piece=WorkPieceSource.measured, placement=placement)
     world = execution_world(learned.skill, environment, demonstration=learned.demonstration)
     return world.demonstration, world.skill
 
@@ -398,8 +403,8 @@ def write_figures(out: Path, skills: dict[str, LearnedSkill], outcomes: list[Out
                 skill,
                 runs,
                 paths,
-                title=f"{spec.title} ({spec.figure}): demonstration and reproductions on the rebuilt work piece, "
-                "placed in reach",
+                title=f"{spec.title} ({spec.figure}): demonstration and reproductions on the work piece measured "
+                "from it, placed in reach",
                 view=contour_view,
             )
             written.append(paths)
@@ -429,8 +434,8 @@ def write_figures(out: Path, skills: dict[str, LearnedSkill], outcomes: list[Out
             _force_trials(real_cases, outcomes, traces),
             forces,
             ours=OURS,
-            title="KU Leuven recordings (real data): CF-z force per trial on the rebuilt work piece, desired vs "
-            "measured",
+            title="KU Leuven recordings (real data): CF-z force per trial on the work piece measured from it, "
+            "desired vs measured",
         )
         written.append(forces)
     return written
@@ -474,16 +479,17 @@ def real_data_summary(report: DemoReport) -> list[str]:
         + ") and learned with `skill_type` auto (chosen: "
         f"{', '.join(chosen)}"
         + (f", confidence {_span(confidences, unit='')}" if confidences else "")
-        + "). A real recording carries no world: the worker rebuilds the work piece from what the skill learned "
-        "and places skill and work piece together in the robot's reach (the placement is in the cases table)."
+        + "). A real recording carries no world: the worker builds the work piece from what the recording measured "
+        "(its contact points and friction-free force normals, not what the skill learned) and places skill and work "
+        "piece together in the robot's reach (the placement is in the cases table)."
     )
     if ours:
         text += (
             f" Ours: true normal force RMS error {_span(_values(ours, 'true_force_rms_error_pct'))} of the "
             f"profile's peak (CF-z, the controller's view: {_span(_values(ours, 'force_rms_error_pct'))}), contact "
             f"{_span(_values(ours, 'contact_ratio', 100))}, touch-down peak "
-            f"{_span(_values(ours, 'touchdown_peak_ratio'), unit='x')} the first target, learned CF z a mean "
-            f"{_span(_values(ours, 'cf_normal_angle_deg'), 1, '°')} from the rebuilt surface's normal."
+            f"{_span(_values(ours, 'touchdown_peak_ratio'), unit='x')} the first target, CF z a mean "
+            f"{_span(_values(ours, 'cf_normal_angle_deg'), 1, '°')} from the measured surface's normal."
         )
     for controller in CONTROLLERS[1:]:
         theirs = [o for o in rows if o.controller == controller and o.ratio is not None]
@@ -588,6 +594,10 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
     if real:
         lines += ["", "## Results: real recordings (KU Leuven)", "", *real_data_summary(report), ""]
         lines.append(markdown_table(real))
+        if not options.quick:  # the true object's 1000 bodies run at ~0.5x real time: the full report only
+            from experiments.kuleuven_cad import cad_result_lines
+
+            lines += ["", *cad_result_lines()]
     lines += ["", "## Figures", ""]
     for key, learned in report.skills.items():
         if learned.spec.real:
@@ -595,7 +605,7 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
         lines += [f"### {learned.spec.title} ({learned.spec.figure})", ""]
         lines += [f"![{kind}](figures/demo_{key}_{kind}.png)\n" for kind in ("paths", "learned", "forces")]
     if real:
-        lines += ["### Real recordings (KU Leuven), on their rebuilt work pieces", ""]
+        lines += ["### Real recordings (KU Leuven), on the work pieces measured from them", ""]
         lines += ["![forces](figures/demo_kuleuven_forces.png)", ""]
         lines += [f"![paths](figures/demo_{key}_paths.png)\n" for key, s in report.skills.items() if s.spec.real]
     return "\n".join(lines)

@@ -12,7 +12,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Demonstration, DemonstrationSummary
-from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
+from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch, Verdict
 from schemas.skill import LearnOptions, Skill
 
 
@@ -74,7 +74,15 @@ class DemonstrationInfo(BaseModel):
     created: float
     name: str
     source: str
-    summary: DemonstrationSummary
+    summary: DemonstrationSummary | None = Field(
+        description="Samples, duration, rate, largest force; None for a demonstration that cannot be read back."
+    )
+    problem: str | None = Field(
+        None,
+        description="Why the stored demonstration cannot be read back (stored by an earlier version under looser "
+        "rules, e.g. time stamps 5e-324 s apart); its GET and telemetry answer 409: delete it "
+        "(DELETE /demonstrations/{id}). None when it can.",
+    )
 
 
 class StoredDemonstration(BaseModel):
@@ -172,6 +180,11 @@ class ExecutionView(BaseModel):
     status: ExecutionState
     phase: ExecutionPhase = Field(description="Last reported execution phase.")
     metrics: ExecutionMetrics | None = Field(None, description="What it achieved; present once it has finished.")
+    verdict: Verdict | None = Field(
+        None,
+        description="Once finished: pass or fail against its tolerances (the reasons and warnings are in "
+        "metrics.verdict).",
+    )
     error: str | None = Field(None, description="Why it failed or aborted, if it did.")
     created: float
     updated: float
@@ -195,11 +208,18 @@ class ExecutionView(BaseModel):
 
 
 class TelemetryView(TelemetryBatch):
-    """``GET /executions/{id}/telemetry``: the recorded stream as columns (row k of every list is one sample)."""
+    """``GET /executions/{id}/telemetry``: a page of the recorded stream as columns (row k of every list is one
+    sample); ``next_cursor`` names the next page (also in the ``X-Next-Cursor`` header)."""
 
     model_config = ConfigDict(extra="forbid")
 
     every: int = Field(1, description="Decimation: every N-th stored sample is returned.")
+    cursor: int = Field(0, description="The stream index this page started from (the request's cursor).")
+    next_cursor: int | None = Field(
+        None,
+        description="Where the next page starts: pass it as cursor (with the same t0, t1 and every) to go on; None "
+        "when this page holds the rest of the window.",
+    )
     n_samples: int = Field(description="Samples returned (rows of each column).")
     stored_samples: int = Field(description="Samples stored for the execution.")
     status: ExecutionState = Field(description="Execution status when read (the stream grows while running).")

@@ -15,8 +15,9 @@ def finite_rows(array: np.ndarray, what: str) -> None:
         raise ValueError(f"{what} {row} is not finite (NaN or inf); {int(bad.sum())} non-finite values in all")
 
 
-def strictly_increasing(t: np.ndarray) -> None:
-    """Raise ValueError naming the first sample where time stamps ``t`` (s) do not increase."""
+def strictly_increasing(t: np.ndarray, min_step: float) -> None:
+    """Raise ValueError naming the first sample where time stamps ``t`` (s) do not increase, or increase by less than
+    ``min_step`` (s: a rate above ``1 / min_step`` Hz is no recording, and a step of 5e-324 s an infinite rate)."""
     steps = np.diff(t)
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
@@ -24,6 +25,13 @@ def strictly_increasing(t: np.ndarray) -> None:
         raise ValueError(
             f"time stamps must be strictly increasing: sample {k} has t={t[k]:.6g} s after "
             f"t={t[k - 1]:.6g} s ({bad.size} such steps; the CSV importer resamples irregular data)"
+        )
+    small = np.flatnonzero(steps < min_step)
+    if small.size:
+        k = int(small[0]) + 1
+        raise ValueError(
+            f"time stamps must step by at least {min_step:g} s (a rate of at most {1 / min_step:g} Hz): sample {k} "
+            f"is {steps[k - 1]:.3g} s after sample {k - 1} ({small.size} such steps; are the time stamps in seconds?)"
         )
 
 

@@ -24,6 +24,9 @@ MAX_DURATION_S = 3600.0
 """Longest time span of a demonstration, s (one hour: a skill is taught in seconds to minutes)."""
 MAX_TIME_S = 1e10
 """Largest time stamp magnitude, s (Unix time stamps fit; 1e300 does not)."""
+MIN_TIME_STEP_S = 1e-6
+"""Smallest step between two time stamps, s: a 1 MHz rate, far above any force/torque sensor's (a few kHz), and a
+finite one (a step of 5e-324 s is an infinite rate, a summary no JSON can hold)."""
 MAX_POSITION_M = 10.0
 """Largest tool position coordinate, m: no robot's workspace reaches further from its world origin."""
 MAX_FORCE_N = 10_000.0
@@ -132,7 +135,7 @@ class Demonstration(BaseModel):
 
     Positions are the tool point in the world frame (m); orientations the tool frame in the
     world (unit quaternion, scalar-last); wrenches are applied by the tool, at the tool point,
-    world frame (N, N·m). Time stamps are seconds, strictly increasing.
+    world frame (N, N·m). Time stamps are seconds, strictly increasing by at least ``MIN_TIME_STEP_S``.
     """
 
     model_config = ConfigDict(
@@ -152,8 +155,8 @@ class Demonstration(BaseModel):
 
     t: list[float] = Field(
         max_length=MAX_DEMONSTRATION_SAMPLES,
-        description=f"Time stamps, s, strictly increasing; {MIN_DEMONSTRATION_SAMPLES}-{MAX_DEMONSTRATION_SAMPLES} "
-        f"samples spanning at most {MAX_DURATION_S:g} s.",
+        description=f"Time stamps, s, strictly increasing by at least {MIN_TIME_STEP_S:g} s; "
+        f"{MIN_DEMONSTRATION_SAMPLES}-{MAX_DEMONSTRATION_SAMPLES} samples spanning at most {MAX_DURATION_S:g} s.",
         json_schema_extra={"minItems": MIN_DEMONSTRATION_SAMPLES, "items": _bounded_number(MAX_TIME_S)},
     )
     positions: list[Vector3] = Field(
@@ -183,7 +186,7 @@ class Demonstration(BaseModel):
             raise ValueError(f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}")
         finite_rows(array[:, None], "time stamp")
         bounded_rows(array[:, None], MAX_TIME_S, "time stamp", "s")
-        strictly_increasing(array)
+        strictly_increasing(array, MIN_TIME_STEP_S)
         if array[-1] - array[0] > MAX_DURATION_S:
             raise ValueError(
                 f"spans {array[-1] - array[0]:.6g} s, more than {MAX_DURATION_S:g} s: are the time stamps in seconds?"

@@ -32,9 +32,7 @@ MAX_OFFSET_M = 1.0
 Offset3 = _triple(-MAX_OFFSET_M, MAX_OFFSET_M)
 MAX_TILT_DEG = 30.0
 """Largest unknown tilt of the work piece about each axis, deg."""
-Tilt2 = Annotated[
-    list[Annotated[float, Field(ge=-MAX_TILT_DEG, le=MAX_TILT_DEG)]], Field(min_length=2, max_length=2)
-]
+Tilt2 = Annotated[list[Annotated[float, Field(ge=-MAX_TILT_DEG, le=MAX_TILT_DEG)]], Field(min_length=2, max_length=2)]
 MAX_SENSOR_BIAS_N = 50.0
 """Largest untared force bias of the sensor per axis, N (a 10 % offset of a large wrist sensor's range)."""
 Bias3 = _triple(-MAX_SENSOR_BIAS_N, MAX_SENSOR_BIAS_N)
@@ -127,6 +125,96 @@ class ExecutionPhase(StrEnum):
 
 PHASE_CODES: dict[ExecutionPhase, int] = {phase: code for code, phase in enumerate(ExecutionPhase)}
 """Small-integer code of each phase, used in the columnar telemetry arrays."""
+
+
+class SurfaceWindowAction(StrEnum):
+    """What a guarded approach does when it finds the surface outside the window it was taught to expect."""
+
+    report = "report"
+    """Go on (the force is still measured); the verdict carries a warning naming the distance."""
+    abort = "abort"
+    """Stop there: retract and abort with the distance in the reason (the part is not where the skill expects it)."""
+
+
+class Verdict(StrEnum):
+    """Whether an execution did what its skill asked, within the tolerances (:class:`ExecutionTolerances`)."""
+
+    passed = "pass"
+    failed = "fail"
+
+
+class VerdictCheckName(StrEnum):
+    """The checks of a verdict (:class:`VerdictCheck`)."""
+
+    finished = "finished"
+    """The execution ran every segment (not aborted, not failed)."""
+    true_force_rms = "true_force_rms"
+    true_force_max = "true_force_max"
+    contact_ratio = "contact_ratio"
+    touchdown = "touchdown"
+    surface_found = "surface_found"
+    """Every guarded approach found the surface within the expected window of where it was taught (outside it: a
+    warning, or an abort with ``surface_outside_window: abort``)."""
+
+
+class ExecutionTolerances(BaseModel):
+    """What an execution must achieve to pass its verdict (errors of the TRUE normal force, over the steady contact
+    including crease passages and segment switches)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    true_force_rms_pct: float = Field(
+        10.0, gt=0, le=1000, description="Largest RMS error of the true normal force, % of the reference force."
+    )
+    true_force_max_pct: float = Field(
+        50.0, gt=0, le=1000, description="Largest error of the true normal force at a steady step, % of the reference."
+    )
+    contact_ratio: float = Field(
+        0.97, ge=0, le=1, description="Smallest share of the contact phase spent touching the surface."
+    )
+    touchdown_ratio: float = Field(
+        1.5, gt=0, le=100, description="Largest touch-down peak over the first desired force (1 = no overshoot)."
+    )
+    surface_window_m: float | None = Field(
+        None,
+        gt=0,
+        le=0.5,
+        description="How far from where it was taught a guarded approach may find the surface, m (along CF z, "
+        "either way); default: the approach's slow zone, approach_slow_distance_m (at least 5 mm): beyond it the "
+        "tool met the surface faster than the touch-down speed, or met another surface.",
+    )
+
+
+class VerdictCheck(BaseModel):
+    """One check of a verdict: the measured value against its limit."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: VerdictCheckName
+    passed: bool
+    warning_only: bool = Field(False, description="A failure is a warning and does not fail the verdict.")
+    value: float | None = Field(None, description="The measured value (unit of the limit; None: not measured).")
+    limit: float | None = Field(None, description="The tolerance it is held to.")
+    message: str = Field(description="What was measured against what, in words.")
+
+
+class ExecutionVerdict(BaseModel):
+    """Pass or fail, and why: every check of the execution against its tolerances."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    verdict: Verdict
+    reasons: list[str] = Field(default_factory=list, description="The failed checks' messages (empty on pass).")
+    warnings: list[str] = Field(
+        default_factory=list, description="What held the execution to less than it expected, without failing it."
+    )
+    checks: list[VerdictCheck] = Field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """The verdict in words: ``verdict: pass (5 checks)`` or ``verdict: FAIL``, then one line per reason and
+        warning."""
+        head = f"verdict: pass ({len(self.checks)} checks)" if self.verdict is Verdict.passed else "verdict: FAIL"
+        return [head, *(f"  - {reason}" for reason in self.reasons), *(f"  WARNING: {w}" for w in self.warnings)]
 
 
 class ControllerGains(BaseModel):
@@ -275,11 +363,15 @@ class WorkPieceSource(StrEnum):
     """Which work piece an execution runs on."""
 
     auto = "auto"
-    """The taught world when the skill carries one (a simulator recording), else the rebuilt work piece."""
+    """The taught world when the skill carries one (a simulator recording), else the work piece measured from the
+    demonstration when it is given, else the one rebuilt from the skill."""
     taught = "taught"
     """The world the demonstration was recorded in (the skill must carry it)."""
     rebuilt = "rebuilt"
     """Surfaces rebuilt from what the skill learned: a plane under each slide segment, a strip along each contour."""
+    measured = "measured"
+    """Surfaces fitted to what the demonstration measured (its contact points and friction-free force directions),
+    one smooth surface per pass, whatever type the skill learned (needs the demonstration)."""
 
 
 class SensorChoice(StrEnum):
@@ -301,7 +393,9 @@ class EnvironmentChange(BaseModel):
     )
 
     work_piece: WorkPieceSource = Field(
-        WorkPieceSource.auto, description="Taught world or work piece rebuilt from the skill (auto: taught if known)."
+        WorkPieceSource.auto,
+        description="Taught world, work piece measured from the demonstration, or rebuilt from the skill (auto: taught "
+        "if known, else measured if the demonstration is given).",
     )
     placement: Placement | None = Field(
         None,
@@ -333,6 +427,12 @@ class EnvironmentChange(BaseModel):
         "misestimated tool weight; the controller is not told). The tare before contact (tare_sensor) removes it "
         "in the tool orientation of the tare; what the tool turns away from it stays.",
     )
+    sensor_offset_tool_n: Bias3 = Field(
+        default_factory=lambda: [0.0, 0.0, 0.0],
+        description="The sensor's own force offset [fx, fy, fz] in the TOOL (sensor) frame, N: the zero its strain "
+        "gauges drift to between tares (several N on real sensors). It turns with the tool, so the tare before "
+        "contact removes it in every pose; the controller is not told.",
+    )
     sensor_noise_n: float | None = Field(
         None,
         ge=0.0,
@@ -341,8 +441,10 @@ class EnvironmentChange(BaseModel):
         "0.06 N for the wrist sensor, 0 for the ideal one).",
     )
     noise_seed: int | None = Field(
-        None, ge=0, le=2**32 - 1, description="Seed of the sensor's noise and bias drift (default 0): same seed, "
-        "same noise.",
+        None,
+        ge=0,
+        le=2**32 - 1,
+        description="Seed of the sensor's noise and bias drift (default 0): same seed, same noise.",
     )
     unknown_tilt_deg: Tilt2 = Field(
         default_factory=lambda: [0.0, 0.0],
@@ -457,6 +559,14 @@ class ExecutionSettings(BaseModel):
     )
     settle_s: float = Field(
         0.5, ge=0, le=10, description="Time to settle at the start pose before the first segment, s."
+    )
+    tolerances: ExecutionTolerances = Field(
+        default_factory=ExecutionTolerances, description="What the execution must achieve to pass its verdict."
+    )
+    surface_outside_window: SurfaceWindowAction = Field(
+        SurfaceWindowAction.report,
+        description="A guarded approach that finds the surface farther from where it was taught than the "
+        "tolerances' surface window: report (go on; the verdict warns) or abort.",
     )
     pause_timeout_s: float = Field(
         300.0,
@@ -577,6 +687,36 @@ class TelemetryBatch(BaseModel):
     )
 
 
+TELEMETRY_COLUMNS: dict[str, slice] = {
+    "t": slice(0, 1),
+    "phase": slice(1, 2),
+    "segment_index": slice(2, 3),
+    "tool_position": slice(3, 6),
+    "tool_orientation": slice(6, 10),
+    "reference_position": slice(10, 13),
+    "reference_orientation": slice(13, 17),
+    "wrench_world": slice(17, 23),
+    "wrench_cf": slice(23, 29),
+    "desired_force_cf_z_n": slice(29, 30),
+    "in_contact": slice(30, 31),
+    "normal_force_true_n": slice(31, 32),
+    "contact_normal": slice(32, 35),
+}
+"""Columns of one recorded control step (the worker's float row): t (s), phase code (``PHASE_CODES``), segment (-1
+settling), tool and reference pose (world, m, xyzw), measured wrench applied by the tool (world; CF axes), desired
+CF-z force (N), in contact (1/0, the simulator's contact points), the exact force along the true surface normal (N)
+and that normal (into the surface; zeros without contact), from the simulator's contact points, not the sensor."""
+TELEMETRY_WIDTH = max(columns.stop for columns in TELEMETRY_COLUMNS.values())
+STREAMED_TELEMETRY_COLUMNS: dict[str, slice] = {
+    name: columns for name, columns in TELEMETRY_COLUMNS.items() if name in TelemetryBatch.model_fields
+}
+"""The columns a :class:`TelemetryBatch` carries (published, stored): the first ones of a row, at the same offsets
+(the truth the simulator knows stays in the worker)."""
+STREAMED_TELEMETRY_WIDTH = max(columns.stop for columns in STREAMED_TELEMETRY_COLUMNS.values())
+if sum(c.stop - c.start for c in STREAMED_TELEMETRY_COLUMNS.values()) != STREAMED_TELEMETRY_WIDTH:  # a prefix
+    raise AssertionError("the streamed telemetry columns must lead the row")
+
+
 class ExecutionMetrics(BaseModel):
     """What an execution achieved (sim_worker/metrics.py); None where a measure does not apply."""
 
@@ -643,7 +783,9 @@ class ExecutionMetrics(BaseModel):
     steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
     abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")
     work_piece: str | None = Field(
-        None, description="What the skill ran on: 'taught', 'scenario', 'given' (a world file) or 'rebuilt'."
+        None,
+        description="What the skill ran on: 'taught', 'scenario', 'given' (a world file), 'measured' (from the "
+        "demonstration) or 'rebuilt' (from the skill).",
     )
     placement: Placement | None = Field(None, description="The placement applied to the skill and work piece.")
     true_force_rms_error_n: float | None = Field(
@@ -670,8 +812,27 @@ class ExecutionMetrics(BaseModel):
         "force (of the reference), s.",
     )
     cf_normal_angle_deg: float | None = Field(
-        None, description="Mean angle between the learned CF z and the true surface normal over the contact phase, deg."
+        None,
+        description="Mean angle between the CF z the controller used (the learned one, or the one it turned to with "
+        "follow_surface_normal) and the true surface normal, over the contact-phase steps that touched, deg.",
     )
     cf_normal_angle_max_deg: float | None = Field(
-        None, description="Largest angle between the learned CF z and the true surface normal in contact, deg."
+        None, description="Largest angle between the CF z the controller used and the true surface normal, deg."
+    )
+    transition_true_force_max_error_n: float | None = Field(
+        None,
+        description="Largest |true normal force - desired| within 0.25 s of a switch between two contact segments "
+        "(a crease passage, a slide-to-contour switch), N; None without such a switch. Part of the steady window.",
+    )
+    transition_true_force_max_error_pct: float | None = Field(None, description="The same in % of the reference.")
+    contact_threshold_n: float | None = Field(
+        None,
+        description="The force along CF z (tared) at which the last guarded approach took the surface as found, N: "
+        "the skill's base threshold, raised when the noise measured while taring needs it.",
+    )
+    contact_persistence_steps: int | None = Field(
+        None, description="How many consecutive control steps' mean reading had to pass that threshold."
+    )
+    verdict: ExecutionVerdict | None = Field(
+        None, description="Pass or fail against the tolerances, with reasons (None only for stored older runs)."
     )

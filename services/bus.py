@@ -97,6 +97,7 @@ def lost_worker_reason(worker_id: str) -> str:
     """The error of an execution failed because its worker was lost (the one the worker's return can withdraw)."""
     return f"worker {worker_id} lost during the execution (process ended or connection lost)"
 
+
 REPLAY_TIMEOUT_S = 10.0
 """How long a telemetry replay waits for the worker's replies, s."""
 

@@ -147,6 +147,11 @@ class Telemetry:
         arrays["segment_index"] = arrays["segment_index"].astype(int)
         return cls(**arrays)
 
+    @classmethod
+    def joined(cls, parts: Sequence[Telemetry]) -> Telemetry:
+        """The samples of ``parts`` (pages of one stream, in order) as one."""
+        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
+
     def __len__(self) -> int:
         return int(self.t.size)
 
@@ -359,11 +364,25 @@ class Client:
     def telemetry(
         self, execution_id: str, every: int = 1, t0: float | None = None, t1: float | None = None
     ) -> Telemetry:
-        """An execution's stored telemetry as numpy arrays."""
-        params = _given({"every": every, "t0": t0, "t1": t1})
-        return Telemetry.from_columns(
-            self._request("GET", f"/executions/{execution_id}/telemetry", params=params).json()
+        """An execution's stored telemetry as numpy arrays: the whole window, however many pages the service sends
+        it in (:meth:`telemetry_pages`)."""
+        return Telemetry.joined(
+            [Telemetry.from_columns(page) for page in self.telemetry_pages(execution_id, every, t0, t1)]
         )
+
+    def telemetry_pages(
+        self, execution_id: str, every: int = 1, t0: float | None = None, t1: float | None = None
+    ) -> Iterator[dict[str, Any]]:
+        """The JSON pages of ``GET /executions/{id}/telemetry`` (each at most the service's cap of samples), from the
+        first to the last: each next one asked for from the previous one's ``next_cursor``."""
+        params, cursor = _given({"every": every, "t0": t0, "t1": t1}), 0
+        while True:
+            page = self._request("GET", f"/executions/{execution_id}/telemetry", params={**params, "cursor": cursor})
+            body = page.json()
+            yield body
+            if body.get("next_cursor") is None:
+                return
+            cursor = body["next_cursor"]
 
     def export(
         self,
@@ -373,18 +392,31 @@ class Client:
         t1: float | None = None,
         every: int | None = None,
     ) -> bytes:
-        """A demonstration (``demo_...``) or an execution (``exec_...``) as MCAP, CSV or JSON bytes."""
-        kind = (
-            "demonstrations"
-            if record_id.startswith("demo_")
-            else "executions"
-            if record_id.startswith("exec_")
-            else None
-        )
-        if kind is None:
+        """A demonstration (``demo_...``) or an execution (``exec_...``) as MCAP, CSV or JSON bytes.
+
+        An execution's file is written here from every page of its telemetry (the service sends at most its cap of
+        samples per request), exactly as the service writes one page."""
+        if record_id.startswith("demo_"):
+            params = _given({"format": format, "t0": t0, "t1": t1})
+            return self._request("GET", f"/demonstrations/{record_id}/telemetry", params=params).content
+        if not record_id.startswith("exec_"):
             raise ValueError(f"{record_id!r} is not a demonstration (demo_...) or an execution (exec_...) id")
-        params = _given({"format": format, "t0": t0, "t1": t1, "every": every if kind == "executions" else None})
-        return self._request("GET", f"/{kind}/{record_id}/telemetry", params=params).content
+        from schemas.api import TelemetryFormat, TelemetryView
+        from services.store import telemetry_matrix
+        from services.telemetry_export import execution_csv, execution_json_chunks, execution_mcap
+
+        kind = TelemetryFormat(format)
+        pages = [TelemetryView.model_validate(page) for page in self.telemetry_pages(record_id, every or 1, t0, t1)]
+        matrix = np.concatenate([telemetry_matrix(page) for page in pages])
+        if kind is TelemetryFormat.mcap:
+            return execution_mcap(matrix, Execution(self, record_id).status().created, record_id).data
+        if kind is TelemetryFormat.csv:
+            return execution_csv(matrix).encode()
+        last = pages[-1]
+        head = {"execution_id": record_id, "every": last.every, "cursor": 0, "next_cursor": None,
+                "n_samples": int(matrix.shape[0]), "stored_samples": last.stored_samples,
+                "status": last.status.value}  # fmt: skip
+        return "".join(execution_json_chunks(head, matrix)).encode()
 
     def _command(self, execution_id: str, command: str) -> CommandAccepted:
         return CommandAccepted.model_validate(self._request("POST", f"/executions/{execution_id}/{command}").json())

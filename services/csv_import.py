@@ -53,6 +53,14 @@ class CsvImportError(DemonstrationImportError):
     """A CSV recording could not be imported (missing column, non-numeric value, NaN, too few rows, ...)."""
 
 
+MAX_CSV_ROWS = 5 * MAX_DEMONSTRATION_SAMPLES
+"""The most data rows a CSV file may have: a file resampled to a fifth of its rate still fits the sample limit.
+Counted before anything is parsed (parsing a too-long file in full cost 12.8 s and 2.3 GB before it was refused)."""
+MAX_CSV_BYTES = 400 * MAX_CSV_ROWS
+"""The largest CSV file read, bytes (400 bytes per row is twice a 19-column row written at full double precision):
+checked from the file's size before it is read."""
+
+
 # --------------------------------------------------------------------------- column mapping
 
 _AXES = ("x", "y", "z")
@@ -384,6 +392,12 @@ def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, s
         return path_or_text, None
     path = Path(path_or_text)
     try:
+        size = path.stat().st_size
+        if size > MAX_CSV_BYTES:
+            raise CsvImportError(
+                f"{str(path)!r}: {size / 1e6:.0f} MB, larger than the {MAX_CSV_BYTES / 1e6:.0f} MB a recording of at "
+                f"most {MAX_CSV_ROWS} rows can have; cut it into shorter recordings"
+            )
         return path.read_text(encoding="utf-8-sig"), path.name
     except OSError as exc:
         raise CsvImportError(f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
@@ -434,6 +448,12 @@ def demonstration_from_csv(
     rate = sampling_rate_hz(options.rate_hz, dt_s, CsvImportError)
     text, file_name = _text_and_name(path_or_text)
     file_name = file_name or (f"{name}.csv" if name else "inline.csv")
+    lines = text.count("\n")  # one pass in C: refuse a too-long file before parsing it
+    if lines > MAX_CSV_ROWS + 1:
+        raise CsvImportError(
+            f"too many rows: {lines} lines, at most {MAX_CSV_ROWS} data rows (a resampled recording may have at most "
+            f"{MAX_DEMONSTRATION_SAMPLES} samples); cut it into shorter recordings"
+        )
     table = _read_table(text)
     resolved = resolved_columns(table.header, columns, frame, options.quaternion_order, time_optional=rate is not None)
     indices, order = resolved.indices, resolved.quaternion_order

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas import Demonstration, Segment, SegmentKind, Skill
+from schemas.demonstration import DemonstrationArrays
 from skills.compliant_frames import compliant_frame_rotations
 from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
 
@@ -76,15 +77,21 @@ class CompliantFrameAxes:
         return float(np.degrees(np.sqrt(np.mean(np.arccos(cos) ** 2))))
 
 
-def compliant_frame_axes(demonstration: Demonstration, segment: Segment) -> CompliantFrameAxes:
-    """Return the CF z axes of a contact ``segment`` in the world and in the tool frame (see the class)."""
+def compliant_frame_axes(demonstration: Demonstration | DemonstrationArrays, segment: Segment) -> CompliantFrameAxes:
+    """Return the CF z axes of a contact ``segment`` in the world and in the tool frame (see the class).
+
+    Reads only the segment's own samples: a caller going over every segment of a long recording passes its
+    ``arrays()`` once (converting them costs as much as the rest)."""
     frames = segment.compliant_frames
     if frames is None:
         raise ValueError(f"segment {segment.index} ({segment.kind.value}) has no compliant frame")
-    a = demonstration.arrays()
+    a = demonstration.arrays() if isinstance(demonstration, Demonstration) else demonstration
     t = segment.t_start + np.asarray(frames.t, dtype=float)
     z_world = matrix_from_quaternion(np.asarray(frames.orientations, dtype=float))[..., :, 2].reshape(-1, 3)
-    R_tool = matrix_from_quaternion(quaternions_slerp(t, a.t, quaternions_sign_continuous(a.orientations)))
+    first, last = np.searchsorted(a.t, [t[0], t[-1]])  # the samples around the segment's frames
+    window = slice(max(first - 1, 0), min(last + 1, a.t.size))
+    orientations = quaternions_sign_continuous(a.orientations[window])
+    R_tool = matrix_from_quaternion(quaternions_slerp(t, a.t[window], orientations))
     z_tool = np.einsum("nji,nj->ni", R_tool.reshape(-1, 3, 3), np.broadcast_to(z_world, (t.size, 3)))
     return CompliantFrameAxes(t=t, z_world=np.broadcast_to(z_world, (t.size, 3)).copy(), z_tool=z_tool)
 

@@ -125,6 +125,19 @@ class KuleuvenGroundTruth:
         samples of the path)."""
         return normal_cones_at(positions, self.kuleuven_object.crease, self.registration)
 
+    def placed_registration(self, rotation: ArrayLike, translation: ArrayLike) -> Registration:
+        """The object where a placement ``x_robot = R x_world + t`` (``rotation`` (3, 3), ``translation`` (3,) m: the
+        placement that puts the recording's skill in the robot's reach, docs/CONVENTIONS.md) puts it: robot's world
+        from CAD, ``(R R_reg, R t_reg + t)``; the path distances stay the registration's."""
+        R = np.asarray(rotation, dtype=float)
+        reg = self.registration
+        return Registration(
+            rotation=R @ reg.rotation,
+            translation_m=R @ reg.translation_m + np.asarray(translation, dtype=float),
+            rms_distance_m=reg.rms_distance_m,
+            max_distance_m=reg.max_distance_m,
+        )
+
 
 def kuleuven_ground_truth(recording: Path) -> KuleuvenGroundTruth:
     """The ground truth of one KU Leuven recording (a ``contour_*.csv``): import it as the README says, register the

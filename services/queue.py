@@ -140,6 +140,12 @@ class ExecutionQueue:
         """0 for the next one to start, None for one not queued."""
         return self.store.queue_position(execution_id)
 
+    def forget_demonstration(self, demonstration_id: str) -> None:
+        """Drop the parsed copy of a demonstration that was deleted: the executions handed over from now on run
+        without it."""
+        with self._lock:
+            self._demonstrations.pop(demonstration_id, None)
+
     def wake(self) -> None:
         """Look at the queue now (a submission, an execution finished)."""
         self._wake.set()

@@ -17,6 +17,12 @@
 | learn_timeout_s | ``CONTACT_SKILLS_LEARN_TIMEOUT_S`` | ``120`` (time budget of one learning job, s) |
 | queue_max | ``CONTACT_SKILLS_QUEUE_MAX`` | ``1000`` (executions waiting for a worker at most; more get 503) |
 | learn_memory_mb | ``CONTACT_SKILLS_LEARN_MEMORY_MB`` | ``4096`` (address space of a learner process, MiB; 0: none) |
+| job_max_simulated_s | ``CONTACT_SKILLS_JOB_MAX_SIMULATED_S`` | ``1800`` (longest simulated time of one job, s) |
+| job_max_steps | ``CONTACT_SKILLS_JOB_MAX_STEPS`` | ``2000000`` (most control steps of one job) |
+| telemetry_page_samples | ``CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES`` | ``20000`` (samples per telemetry response) |
+
+A job is one execution or recording; its budget (``schemas.job_budget``) is read from the same variables by the sim
+workers, which hold every job they are sent to it too.
 """
 
 from __future__ import annotations
@@ -26,7 +32,10 @@ import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from schemas.job_budget import JobBudget
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8000
@@ -35,6 +44,9 @@ DEFAULT_MAX_BODY_MB = 64.0
 DEFAULT_WORKERS = 1
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_ZENOH_PREFIX = "cskills"
+DEFAULT_TELEMETRY_PAGE_SAMPLES = 20_000
+"""Most samples one ``GET /executions/{id}/telemetry`` returns (20 s at 1 kHz; ~11 MB of JSON, ~15 MB of the API's
+memory while it streams): a longer run is read page by page (``cursor``)."""
 
 ENV_PREFIX = "CONTACT_SKILLS_"
 ENV_VARS: dict[str, str] = {
@@ -53,6 +65,9 @@ ENV_VARS: dict[str, str] = {
     "learn_timeout_s": "CONTACT_SKILLS_LEARN_TIMEOUT_S",
     "learn_memory_mb": "CONTACT_SKILLS_LEARN_MEMORY_MB",
     "queue_max": "CONTACT_SKILLS_QUEUE_MAX",
+    "job_max_simulated_s": "CONTACT_SKILLS_JOB_MAX_SIMULATED_S",
+    "job_max_steps": "CONTACT_SKILLS_JOB_MAX_STEPS",
+    "telemetry_page_samples": "CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES",
     "instance": "CONTACT_SKILLS_INSTANCE",
 }
 """Setting name -> the environment variable that sets it."""
@@ -101,6 +116,9 @@ class ServiceSettings:
     learn_warm_up: bool = True
     """Start the learner processes when the API starts (tests that never learn turn it off)."""
     queue_max: int = 1000
+    job_max_simulated_s: float = field(default_factory=lambda: _default_budget().max_simulated_s)
+    job_max_steps: int = field(default_factory=lambda: _default_budget().max_steps)
+    telemetry_page_samples: int = DEFAULT_TELEMETRY_PAGE_SAMPLES
     instance: str = field(default_factory=lambda: secrets.token_hex(8))
     """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
 
@@ -121,6 +139,12 @@ class ServiceSettings:
             raise SettingsError(f"queue_max: {self.queue_max} must be >= 1")
         if self.learn_memory_mb < 0:
             raise SettingsError(f"learn_memory_mb: {self.learn_memory_mb} must be >= 0 (0: no limit)")
+        if not self.job_max_simulated_s > 0 or self.job_max_steps < 1:
+            raise SettingsError(
+                f"job budget: {self.job_max_simulated_s} s and {self.job_max_steps} steps must be > 0 s and >= 1 step"
+            )
+        if self.telemetry_page_samples < 1:
+            raise SettingsError(f"telemetry_page_samples: {self.telemetry_page_samples} must be >= 1")
         if self.token_reads and not self.token:
             raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")
         cors = self.cors_origins.split(",") if isinstance(self.cors_origins, str) else self.cors_origins
@@ -128,6 +152,13 @@ class ServiceSettings:
         object.__setattr__(self, "db_path", Path(self.db_path))
         object.__setattr__(self, "zenoh_endpoints", _endpoints(self.zenoh_endpoints))
         object.__setattr__(self, "token", self.token or None)
+
+    @property
+    def job_budget(self) -> JobBudget:
+        """The most one execution or recording may imply (``schemas.job_budget``)."""
+        from schemas.job_budget import JobBudget
+
+        return JobBudget(max_simulated_s=self.job_max_simulated_s, max_steps=self.job_max_steps)
 
     @property
     def max_body_bytes(self) -> int:
@@ -163,6 +194,13 @@ class ServiceSettings:
     def replace(self, **changes: Any) -> ServiceSettings:
         """A copy with ``changes`` (None values ignored)."""
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+def _default_budget() -> JobBudget:
+    """The job budget's defaults (imported when settings are made: ``--help`` loads no pydantic)."""
+    from schemas.job_budget import JobBudget
+
+    return JobBudget()
 
 
 def package_version() -> str:

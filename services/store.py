@@ -42,10 +42,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration, DemonstrationSummary
-from schemas.execution import PHASE_CODES, ExecutionPhase, TelemetryBatch, TelemetryMode
+from schemas.execution import (
+    PHASE_CODES,
+    STREAMED_TELEMETRY_COLUMNS,
+    STREAMED_TELEMETRY_WIDTH,
+    ExecutionPhase,
+    TelemetryBatch,
+    TelemetryMode,
+)
 
 SCHEMA_VERSION = 4
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
@@ -133,19 +141,12 @@ with the skill inline, JSON, stored once); one row per trial x controller with i
 execution (whose row holds the status and metrics)."""
 
 TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
-    "t": (0, 1),
-    "phase": (1, 2),
-    "segment_index": (2, 3),
-    "tool_position": (3, 6),
-    "tool_orientation": (6, 10),
-    "reference_position": (10, 13),
-    "reference_orientation": (13, 17),
-    "wrench_world": (17, 23),
-    "wrench_cf": (23, 29),
-    "desired_force_cf_z_n": (29, 30),
+    name: (columns.start, columns.stop) for name, columns in STREAMED_TELEMETRY_COLUMNS.items()
 }
-"""Column range of each `TelemetryBatch` field in the stored float64 matrix (width :data:`TELEMETRY_WIDTH`)."""
-TELEMETRY_WIDTH = 30
+"""Column range of each `TelemetryBatch` field in the stored float64 matrix (width
+:data:`schemas.execution.STREAMED_TELEMETRY_WIDTH`): the worker's row layout, its streamed columns."""
+TELEMETRY_READ_SAMPLES = 8192
+"""Telemetry samples read per query by :meth:`Store.telemetry_blocks` (~2 MB; more when one block holds more)."""
 _TELEMETRY_END = "SELECT COALESCE(MAX(seq + rows), 0) FROM telemetry WHERE execution_id = ?"
 """One past the last stored sample of an execution."""
 _PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
@@ -177,8 +178,11 @@ class DemonstrationRow:
     id: str
     created: float
     name: str
-    summary: DemonstrationSummary
+    summary: DemonstrationSummary | None
+    """None for a row stored by an earlier version that cannot be read back (``problem`` says why)."""
     source: str
+    problem: str | None = None
+    """Why the stored demonstration cannot be read back (None: it can)."""
 
 
 @dataclass(frozen=True)
@@ -241,6 +245,22 @@ class SweepTrialRow:
     error: str | None
 
 
+def _demonstration_row(r: sqlite3.Row) -> DemonstrationRow:
+    """A demonstrations row (id, created, name, summary, source); a summary that does not validate (stored by an
+    earlier version: a step of 5e-324 s gave an infinite rate, stored as null) leaves it None with the problem."""
+    try:
+        summary, problem = DemonstrationSummary.model_validate_json(r["summary"]), None
+    except ValidationError as exc:
+        summary, problem = None, f"its stored summary does not validate: {first_problem(exc)}"
+    return DemonstrationRow(r["id"], r["created"], r["name"], summary, r["source"] or "", problem)
+
+
+def first_problem(exc: ValidationError) -> str:
+    """The first problem of a validation error, as ``field: message``."""
+    first = exc.errors()[0]
+    return f"{'.'.join(str(part) for part in first['loc']) or 'body'}: {first['msg']}"
+
+
 def _sweep(row: sqlite3.Row) -> SweepRow:
     return SweepRow(row["id"], row["created"], row["updated"], row["status"], json.loads(row["request"]), row["spec"])
 
@@ -262,9 +282,9 @@ def _execution(row: sqlite3.Row) -> ExecutionRow:
 
 
 def telemetry_matrix(batch: TelemetryBatch) -> np.ndarray:
-    """The columns of ``batch`` as one (rows, :data:`TELEMETRY_WIDTH`) float64 matrix."""
+    """The columns of ``batch`` as one (rows, :data:`STREAMED_TELEMETRY_WIDTH`) float64 matrix."""
     n = len(batch.t)
-    matrix = np.empty((n, TELEMETRY_WIDTH))
+    matrix = np.empty((n, STREAMED_TELEMETRY_WIDTH))
     for name, (a, b) in TELEMETRY_LAYOUT.items():
         values = getattr(batch, name)
         if name == "phase":
@@ -274,20 +294,16 @@ def telemetry_matrix(batch: TelemetryBatch) -> np.ndarray:
     return matrix
 
 
-def telemetry_columns(matrix: np.ndarray) -> dict[str, list]:
-    """The inverse of :func:`telemetry_matrix`: `TelemetryBatch` field -> list (phases as names)."""
-    columns: dict[str, list] = {}
-    for name, (a, b) in TELEMETRY_LAYOUT.items():
-        block = matrix[:, a:b]
-        if name == "phase":
-            columns[name] = [_PHASES_BY_CODE.get(int(code), ExecutionPhase.failed).value for code in block[:, 0]]
-        elif name == "segment_index":
-            columns[name] = block[:, 0].astype(int).tolist()
-        elif b - a == 1:
-            columns[name] = block[:, 0].tolist()
-        else:
-            columns[name] = block.tolist()
-    return columns
+def telemetry_column(matrix: np.ndarray, name: str) -> list:
+    """The inverse of :func:`telemetry_matrix` for one `TelemetryBatch` field of the stored ``matrix`` rows: a list
+    (phases as names)."""
+    a, b = TELEMETRY_LAYOUT[name]
+    block = matrix[:, a:b]
+    if name == "phase":
+        return [_PHASES_BY_CODE.get(int(code), ExecutionPhase.failed).value for code in block[:, 0]]
+    if name == "segment_index":
+        return block[:, 0].astype(int).tolist()
+    return block[:, 0].tolist() if b - a == 1 else block.tolist()
 
 
 def _uncovered(start: int, stop: int, covered: list[tuple[int, int]]) -> list[tuple[int, int]]:
@@ -430,21 +446,13 @@ class Store:
         return row
 
     def list_demonstrations(self, limit: int = 100, offset: int = 0) -> list[DemonstrationRow]:
+        """Demonstration rows, newest first; one that cannot be read back is listed with its ``problem``."""
         rows = self._all(
             "SELECT id, created, name, summary, json_extract(body, '$.metadata.source') AS source "
             "FROM demonstrations ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (limit, offset),
         )
-        return [
-            DemonstrationRow(
-                id=r["id"],
-                created=r["created"],
-                name=r["name"],
-                summary=DemonstrationSummary.model_validate_json(r["summary"]),
-                source=r["source"] or "",
-            )
-            for r in rows
-        ]
+        return [_demonstration_row(r) for r in rows]
 
     def demonstration_json(self, demonstration_id: str) -> tuple[DemonstrationRow, str] | None:
         """The row and the stored body (JSON text of a `Demonstration`), or None."""
@@ -453,21 +461,24 @@ class Store:
             "FROM demonstrations WHERE id = ?",
             (demonstration_id,),
         )
-        if r is None:
-            return None
-        row = DemonstrationRow(
-            id=r["id"],
-            created=r["created"],
-            name=r["name"],
-            summary=DemonstrationSummary.model_validate_json(r["summary"]),
-            source=r["source"] or "",
-        )
-        return row, r["body"]
+        return None if r is None else (_demonstration_row(r), r["body"])
 
     def demonstration(self, demonstration_id: str) -> Demonstration | None:
-        """The stored demonstration (validated again), or None."""
+        """The stored demonstration (validated again), or None: none stored, or one stored by an earlier version
+        that no longer validates (logged)."""
         found = self.demonstration_json(demonstration_id)
-        return None if found is None else Demonstration.model_validate_json(found[1])
+        if found is None:
+            return None
+        try:
+            return Demonstration.model_validate_json(found[1])
+        except ValidationError as exc:
+            log.warning("stored demonstration %s cannot be read back: %s", demonstration_id, first_problem(exc))
+            return None
+
+    def delete_demonstration(self, demonstration_id: str) -> bool:
+        """Delete a demonstration; False if there was none. Skills learned from it keep their parameters."""
+        with self._transaction() as db:
+            return db.execute("DELETE FROM demonstrations WHERE id = ?", (demonstration_id,)).rowcount > 0
 
     # ------------------------------------------------------------------ skills
 
@@ -619,11 +630,17 @@ class Store:
             )  # fmt: skip
             return cursor.rowcount > 0
 
-    def delete_execution(self, execution_id: str) -> None:
-        """Forget an execution that never started (no worker took it)."""
+    def delete_execution(self, execution_id: str, statuses: tuple[ExecutionState, ...] | None = None) -> bool:
+        """Delete an execution and its telemetry, only if it is in one of ``statuses`` when given (one that never
+        started: any status); True if deleted."""
+        condition = f" AND status IN ({', '.join('?' * len(statuses))})" if statuses else ""
         with self._transaction() as db:
-            db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
-            db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
+            cursor = db.execute(
+                f"DELETE FROM executions WHERE id = ?{condition}", (execution_id, *(s.value for s in statuses or ()))
+            )
+            if cursor.rowcount:
+                db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+            return cursor.rowcount > 0
 
     def mark_started(self, execution_id: str, worker_id: str) -> None:
         """A worker accepted the execution: record it; starting -> running (a status that came first stays); its
@@ -824,7 +841,25 @@ class Store:
         return (int(r[0]), int(r[1])) if r is not None else (0, 0)
 
     def telemetry(self, execution_id: str) -> np.ndarray:
-        """Every stored sample of an execution, in stream order, as one (N, :data:`TELEMETRY_WIDTH`) matrix."""
-        rows = self._all("SELECT rows, data FROM telemetry WHERE execution_id = ? ORDER BY seq", (execution_id,))
-        blocks = [np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, TELEMETRY_WIDTH) for n, data in rows]
-        return np.concatenate(blocks) if blocks else np.empty((0, TELEMETRY_WIDTH))
+        """Every stored sample of an execution, in stream order, as one (N, ``STREAMED_TELEMETRY_WIDTH``) matrix
+        (a whole run in memory: the API reads it page by page, :meth:`telemetry_blocks`)."""
+        blocks = [block for _, block in self.telemetry_blocks(execution_id)]
+        return np.concatenate(blocks) if blocks else np.empty((0, STREAMED_TELEMETRY_WIDTH))
+
+    def telemetry_blocks(self, execution_id: str, start: int = 0) -> Iterator[tuple[int, np.ndarray]]:
+        """The stored telemetry of an execution from sample ``start`` on, in stream order, as (stream index of its
+        first sample, (n, ``STREAMED_TELEMETRY_WIDTH``) matrix) blocks: the first block may begin before ``start``.
+        Read about :data:`TELEMETRY_READ_SAMPLES` samples per query, so memory stays bounded, a reader that stops
+        early has read little, and no cursor stays open while the caller works."""
+        while index := self._all(
+            "SELECT seq, rows FROM telemetry WHERE execution_id = ? AND seq + rows > ? ORDER BY seq LIMIT ?",
+            (execution_id, start, TELEMETRY_READ_SAMPLES),
+        ):
+            upto = np.cumsum([r["rows"] for r in index])
+            last = index[max(1, int(np.searchsorted(upto, TELEMETRY_READ_SAMPLES, side="right"))) - 1]
+            for first, n, data in self._all(
+                "SELECT seq, rows, data FROM telemetry WHERE execution_id = ? AND seq BETWEEN ? AND ? ORDER BY seq",
+                (execution_id, index[0]["seq"], last["seq"]),
+            ):
+                yield first, np.frombuffer(zlib.decompress(data), dtype="<f8").reshape(n, STREAMED_TELEMETRY_WIDTH)
+            start = last["seq"] + last["rows"]

@@ -11,6 +11,7 @@ import os
 import numpy as np
 
 from schemas.sweep import SweepView, TrialResult
+from skills.sweeps import equal_count_bins
 
 _COLORS = {
     "hybrid_cf": "tab:blue",
@@ -24,8 +25,7 @@ BINS = 4
 
 def _success_by_bin(values: np.ndarray, success: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bin centres (mean value per bin) and success rates over :data:`BINS` equal-count bins of ``values``."""
-    order = np.argsort(values)
-    groups = [g for g in np.array_split(order, min(BINS, values.size)) if g.size]
+    groups = equal_count_bins(values, BINS)
     return np.array([values[g].mean() for g in groups]), np.array([success[g].mean() for g in groups])
 
 

@@ -5,7 +5,11 @@ infrastructure failure, summarized (``schemas/sweep.py`` is the contract, ``skil
   per trial x controller, and submits the first ones at once (so no worker is a 503 and a request a worker refuses
   is a 422, with nothing stored);
 - every trial's execution runs with the sweep's ``store_telemetry``: by default ``telemetry`` ``none`` (no stream
-  published, stored or kept: the metrics, computed in the worker, are the same either way);
+  published, stored or kept: the metrics, computed in the worker, are the same either way), with the sweep's
+  success criteria as its tolerances (``skills.sweeps.trial_tolerances``) and, when the sweep varies the cylinder
+  of the skill's taught world, that cylinder changed by world overrides (``skills.sweeps.trial_world_overrides``);
+- a trial is judged by its execution's verdict (``skills.sweeps.outcome``; a trial stored before verdicts by the
+  old rule), its failure causes are the verdict's failed checks;
 - the runner's thread (:meth:`SweepRunner.start`) keeps at most ``window`` executions of each sweep queued or
   running (the queue then holds a few, however large the sweep; single executions, at a higher priority, go
   first), submits the next ones as they finish (woken by the store when an execution ends,
@@ -36,6 +40,7 @@ from schemas.bus import KeyExpressions
 from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionRequest, TelemetryMode
 from schemas.skill import Skill
 from schemas.sweep import (
+    SWEEP_TOLERANCES,
     SweepCounts,
     SweepParameter,
     SweepProgress,
@@ -49,12 +54,14 @@ from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrial
 from skills.sweeps import (
     Outcome,
     controller_summary,
+    outcome,
     planned_pad,
     sensitivity,
     trial_environment,
     trial_noise_seed,
     trial_parameters,
-    trial_success,
+    trial_tolerances,
+    trial_world_overrides,
 )
 
 if TYPE_CHECKING:
@@ -88,24 +95,17 @@ def _finished(row: SweepTrialRow) -> bool:
     return row.status in TERMINAL and not _needs_rerun(row)
 
 
-def _outcome(row: SweepTrialRow) -> Outcome:
-    m = row.metrics or {}
-    return Outcome(
-        phase=m.get("phase") or (row.status.value if row.status else "failed"),
-        true_rms_pct=m.get("true_force_rms_error_pct"),
-        true_max_pct=m.get("true_force_max_error_pct"),
-        touchdown_ratio=m.get("touchdown_peak_ratio"),
-        contact_ratio=m.get("contact_ratio"),
-        abort_reason=m.get("abort_reason") or row.error,
-    )
+def _outcome(row: SweepTrialRow, criteria: dict[str, float]) -> Outcome:
+    """The judged outcome of a finished trial (``criteria``: the sweep's request, for a trial without a verdict)."""
+    return outcome(row.metrics, row.status.value if row.status else "failed", row.error, criteria)
 
 
-def _counts(rows: list[SweepTrialRow], rms_pct: float, contact_ratio: float) -> SweepCounts:
+def _counts(rows: list[SweepTrialRow], criteria: dict[str, float]) -> SweepCounts:
     finished = [r for r in rows if _finished(r)]
     return SweepCounts(
         total=len(rows),
         finished=len(finished),
-        succeeded=sum(trial_success(_outcome(r), rms_pct, contact_ratio) for r in finished),
+        succeeded=sum(_outcome(r, criteria).success for r in finished),
         running=sum(r.status in (ExecutionState.starting, ExecutionState.running, ExecutionState.paused) for r in rows),
         queued=sum(r.status is ExecutionState.queued for r in rows),
         pending=sum(r.execution_id is None or _needs_rerun(r) for r in rows),
@@ -113,16 +113,18 @@ def _counts(rows: list[SweepTrialRow], rms_pct: float, contact_ratio: float) -> 
     )
 
 
-def _thresholds(row: SweepRow) -> tuple[float, float]:
-    return float(row.request["success_rms_pct"]), float(row.request["success_contact_ratio"])
+def _criteria(row: SweepRow) -> dict[str, float]:
+    """The sweep's success criteria: ``success_rms_pct`` and ``success_contact_ratio`` of its request."""
+    return {field: float(row.request[field]) for field in SWEEP_TOLERANCES}
 
 
 def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
-    """Every trial x controller of the sweep with its execution's result (judged once finished)."""
-    rms_pct, contact_ratio = _thresholds(row)
+    """Every trial x controller of the sweep with its execution's result (judged once finished: its verdict)."""
+    criteria = _criteria(row)
     results = []
     for r in store.sweep_trials(row.id):
-        outcome, finished = _outcome(r), _finished(r)
+        finished = _finished(r)
+        judged = _outcome(r, criteria)
         results.append(
             TrialResult(
                 trial=r.trial,
@@ -131,12 +133,15 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
                 execution_id=r.execution_id,
                 attempts=r.attempts,
                 status="pending" if r.status is None or _needs_rerun(r) else r.status.value,
-                success=trial_success(outcome, rms_pct, contact_ratio) if finished else None,
-                true_force_rms_error_pct=outcome.true_rms_pct,
-                true_force_max_error_pct=outcome.true_max_pct,
-                touchdown_peak_ratio=outcome.touchdown_ratio,
-                contact_ratio=outcome.contact_ratio,
-                abort_reason=outcome.abort_reason if finished and outcome.phase != "done" else None,
+                success=judged.success if finished else None,
+                verdict=judged.verdict if finished else None,
+                reasons=list(judged.reasons) if finished else [],
+                causes=list(judged.causes) if finished else [],
+                true_force_rms_error_pct=judged.true_rms_pct,
+                true_force_max_error_pct=judged.true_max_pct,
+                touchdown_peak_ratio=judged.touchdown_ratio,
+                contact_ratio=judged.contact_ratio,
+                abort_reason=judged.abort_reason if finished and judged.phase != "done" else None,
                 metrics=ExecutionMetrics.model_validate(r.metrics) if r.metrics else None,
             )
         )
@@ -145,24 +150,24 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
 
 def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
     """The sweep's state, counts, per-controller summary and sensitivity ranking (from the finished trials)."""
-    rms_pct, contact_ratio = _thresholds(row)
+    criteria = _criteria(row)
     rows = store.sweep_trials(row.id)
     summaries, ranking = [], []
     for controller in row.request["controllers"]:
         kind = ControllerKind(controller)
         mine = [r for r in rows if r.controller == controller]
         done = [r for r in mine if _finished(r)]
-        outcomes = [_outcome(r) for r in done]
-        summaries.append(controller_summary(kind, len(mine), outcomes, rms_pct, contact_ratio))
+        outcomes = [_outcome(r, criteria) for r in done]
+        summaries.append(controller_summary(kind, len(mine), outcomes))
         parameters = [{SweepParameter(k): v for k, v in r.parameters.items()} for r in done]
-        ranking.extend(sensitivity(kind, parameters, outcomes, rms_pct, contact_ratio))
+        ranking.extend(sensitivity(kind, parameters, outcomes))
     return SweepView(
         id=row.id,
         status=SweepState(row.status),
         created=row.created,
         updated=row.updated,
         request=row.request,
-        counts=_counts(rows, rms_pct, contact_ratio),
+        counts=_counts(rows, criteria),
         controllers=summaries,
         sensitivity=sorted(ranking, key=lambda s: -s.importance),
         progress_key=keys.sweep_progress(row.id),
@@ -302,17 +307,23 @@ class SweepRunner:
             spec["execution"]["environment"], r.parameters, trial_noise_seed(int(row.request["seed"]), r.trial)
         )
         base = spec["execution"]
+        tolerances = trial_tolerances(base.get("tolerances") or {}, row.request)
         request = ExecutionRequest.model_validate(
-            {**base, **planned_pad(base, r.parameters), "environment": environment, "controller": r.controller}
-        )
+            {**base, **planned_pad(base, r.parameters), "environment": environment, "controller": r.controller,
+             "tolerances": tolerances}
+        )  # fmt: skip
+        # The skill's taught world is the trials' when they vary its cylinder (POST /sweeps refuses them otherwise).
+        overrides = trial_world_overrides(base["skill"].get("taught_world"), r.parameters)
         shown = request.model_dump(mode="json", exclude={"skill"})
         shown.update(
             skill_id=spec["skill_id"], inline_skill=spec["skill_id"] is None, sweep={"id": row.id, "trial": r.trial}
         )
+        if overrides:
+            shown.update(world_overrides=overrides)
         if _needs_rerun(r):
             log.warning("sweep %s: trial %d (%s) submitted again after: %s", row.id, r.trial, r.controller, r.error)
         execution, _ = self.queue.submit(
-            Dispatch(request, {}, spec["demonstration_id"]), shown, spec["skill_id"], request.priority
+            Dispatch(request, overrides, spec["demonstration_id"]), shown, spec["skill_id"], request.priority
         )
         self.store.assign_sweep_trial(row.id, r.trial, r.controller, execution.id)
         return replace(r, execution_id=execution.id, attempts=r.attempts + 1, status=execution.status, metrics=None,
@@ -321,16 +332,16 @@ class SweepRunner:
     def _publish(self, row: SweepRow, rows: list[SweepTrialRow] | None = None) -> None:
         """Put the sweep's progress on the bus if its counts (or status) changed since the last put (``rows``: its
         trials as just read, else read now)."""
-        rms_pct, contact_ratio = _thresholds(row)
+        criteria = _criteria(row)
         rows = self.store.sweep_trials(row.id) if rows is None else rows
-        counts = _counts(rows, rms_pct, contact_ratio)
+        counts = _counts(rows, criteria)
         key = f"{row.id}:{row.status}"
         if self._published.get(key) == counts:
             return
         rates: dict[str, float | None] = {}
         for controller in row.request["controllers"]:
-            done = [_outcome(r) for r in rows if r.controller == controller and _finished(r)]
-            ok = sum(trial_success(o, rms_pct, contact_ratio) for o in done)
+            done = [_outcome(r, criteria) for r in rows if r.controller == controller and _finished(r)]
+            ok = sum(o.success for o in done)
             rates[controller] = ok / len(done) if done else None
         progress = SweepProgress(sweep_id=row.id, status=SweepState(row.status), counts=counts, success_rate=rates)
         try:

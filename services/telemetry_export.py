@@ -19,21 +19,27 @@ zstd chunks, written with the ``mcap`` library). Every message is stamped ``star
 A demonstration's MCAP is also a bag ``contact-skills learn`` reads back (the wrench is in ``world``, the pose
 frame). CSV: one row per sample, the columns named in :data:`EXECUTION_CSV_COLUMNS` (an execution) or the
 importer's own columns (a demonstration: `services.csv_import.demonstration_csv_text`).
+
+An execution's telemetry is read a page at a time (:func:`telemetry_page`: at most a fixed number of samples from a
+cursor on, in a time window, decimated), and its JSON and CSV are produced in chunks of rows
+(:func:`execution_json_chunks`, :func:`execution_csv_chunks`), so a reply is streamed, never built whole.
 """
 
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
+import json
+import re
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from schemas.demonstration import Demonstration
-from schemas.execution import PHASE_CODES
+from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
 from services.cdr import pose_stamped, tf_message, wrench_stamped
-from services.store import TELEMETRY_LAYOUT, telemetry_columns
+from services.store import TELEMETRY_LAYOUT, telemetry_column
 
 PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
 MCAP_MEDIA_TYPE = "application/octet-stream"
@@ -44,6 +50,9 @@ CONVENTIONS = (
     "tool point; /wrench/cf the same in the compliant frame (force z into the surface); stamps = start + t"
 )
 """Stored in the file's metadata record ``contact_skills``."""
+CHUNK_ROWS = 2000
+"""Rows per chunk of a streamed JSON or CSV reply (~1 MB of text)."""
+_NON_FINITE = re.compile(r"-?Infinity|NaN")
 
 
 def _expanded(name: str, width: int) -> list[str]:
@@ -69,17 +78,75 @@ def window_mask(t: np.ndarray, t0: float | None, t1: float | None) -> np.ndarray
     return mask
 
 
+# --------------------------------------------------------------------------- pages
+
+
+@dataclass(frozen=True)
+class TelemetryPage:
+    """One page of an execution's stored telemetry."""
+
+    rows: np.ndarray
+    """The samples picked, rows of the store's matrix (:data:`services.store.TELEMETRY_LAYOUT`)."""
+    next_cursor: int | None
+    """The stream index of the next page's first sample (None: this page is the last)."""
+
+
+def telemetry_page(
+    blocks: Iterable[tuple[int, np.ndarray]], cursor: int, every: int, t0: float | None, t1: float | None, limit: int
+) -> TelemetryPage:
+    """At most ``limit`` samples of ``blocks`` (``Store.telemetry_blocks``: (stream index of the first row, rows))
+    from stream index ``cursor`` on: those with ``t0 <= t <= t1`` (s), every ``every``-th of them from the first.
+    The next page, from its ``next_cursor``, goes on where this one stopped as if there were one page."""
+    picked: list[np.ndarray] = []
+    taken, skip = 0, 0
+    for first, block in blocks:
+        index = first + np.arange(block.shape[0])
+        windowed = np.flatnonzero((index >= cursor) & window_mask(block[:, 0], t0, t1))
+        picks = windowed[skip::every]
+        skip += every * picks.size - windowed.size  # windowed samples still to pass before the next pick
+        if picks.size > limit - taken:
+            picked.append(block[picks[: limit - taken]])
+            return TelemetryPage(np.concatenate(picked), int(first + picks[limit - taken]))
+        picked.append(block[picks])
+        taken += picks.size
+        if t1 is not None and block.shape[0] and block[-1, 0] > t1:
+            break  # time increases along the stream: nothing further is in the window
+    rows = np.concatenate(picked) if picked else np.empty((0, STREAMED_TELEMETRY_WIDTH))
+    return TelemetryPage(rows, None)
+
+
+def execution_json_chunks(head: dict[str, Any], matrix: np.ndarray) -> Iterator[str]:
+    """A JSON object of ``head``'s members then the columns of ``matrix`` (the store's rows; `TelemetryBatch`
+    fields, phases as names), in chunks of :data:`CHUNK_ROWS` rows (a non-finite value, never expected, as null)."""
+    yield "{" + ",".join(f"{json.dumps(key)}:{json.dumps(value)}" for key, value in head.items())
+    for name in TELEMETRY_LAYOUT:
+        yield f",{json.dumps(name)}:["
+        for a in range(0, matrix.shape[0], CHUNK_ROWS):
+            text = json.dumps(telemetry_column(matrix[a : a + CHUNK_ROWS], name))[1:-1]
+            yield ("," if a else "") + _NON_FINITE.sub("null", text)
+        yield "]"
+    yield "}"
+
+
 # --------------------------------------------------------------------------- CSV
 
 
 def execution_csv(matrix: np.ndarray) -> str:
     """An execution's telemetry (rows of the store's matrix, :data:`services.store.TELEMETRY_LAYOUT`) as CSV text."""
-    columns = telemetry_columns(matrix)
-    lines = [",".join(EXECUTION_CSV_COLUMNS)]
-    numbers = np.delete(matrix, TELEMETRY_LAYOUT["phase"][0], axis=1)  # t, segment_index, the vectors
-    for phase, row in zip(columns["phase"], numbers, strict=True):
-        lines.append(",".join([repr(float(row[0])), phase, str(int(row[1])), *(repr(float(v)) for v in row[2:])]))
-    return "\n".join(lines) + "\n"
+    return "".join(execution_csv_chunks(matrix))
+
+
+def execution_csv_chunks(matrix: np.ndarray) -> Iterator[str]:
+    """:func:`execution_csv` in chunks: the header row, then :data:`CHUNK_ROWS` rows at a time."""
+    yield ",".join(EXECUTION_CSV_COLUMNS) + "\n"
+    for a in range(0, matrix.shape[0], CHUNK_ROWS):
+        chunk = matrix[a : a + CHUNK_ROWS]
+        numbers = np.delete(chunk, TELEMETRY_LAYOUT["phase"][0], axis=1)  # t, segment_index, the vectors
+        lines = [
+            ",".join([repr(float(row[0])), phase, str(int(row[1])), *(repr(float(v)) for v in row[2:])])
+            for phase, row in zip(telemetry_column(chunk, "phase"), numbers, strict=True)
+        ]
+        yield "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- MCAP

@@ -7,14 +7,21 @@ In order of precedence:
 2. ``scenario`` given: that teacher scenario's world ("scenario");
 3. the skill carries the world its demonstration was recorded in (``Skill.taught_world``, simulator
    recordings) and the work piece asked for is ``auto`` or ``taught``: that world ("taught");
-4. otherwise the work piece is rebuilt from the skill (``sim_worker.work_piece``) and the skill is placed in the
-   robot's reach (``sim_worker.placement``; the placement asked for, or one chosen), the skill and its work piece
-   moved together ("rebuilt").
+4. otherwise the skill is placed in the robot's reach (``sim_worker.placement``; the placement asked for, or one
+   chosen), and its work piece, moved with it, is MEASURED from the demonstration when that is given and the work
+   piece asked for is ``auto`` or ``measured`` ("measured"), else rebuilt from what the skill learned ("rebuilt";
+   ``sim_worker.work_piece``). A skill learned as the wrong type is then tested on the surface its demonstration
+   touched, not on one that agrees with its mistake.
+
+A long demonstration whose strokes no single placement reaches (its transfers between them carry the tool farther
+than the arm) runs one stroke at a time (``execution_worlds``): each stroke its own skill (``skills.strokes``), placed
+on its own, on its own part of the work piece.
 
 The environment's friction, contact stiffness and damping override the world's, its sensor choice sets the sensor the
-controller reads (a realistic wrist sensor unless ``ideal`` is asked for; its noise, untared bias and noise seed
-override the sensor's), its force scale multiplies the skill's desired forces, and its unknown tilt turns the work
-piece (not the skill) about the placed skill's contact centre. Frames: world, metres (docs/CONVENTIONS.md).
+controller reads (a realistic wrist sensor unless ``ideal`` is asked for, in the fields a given world file does not
+set to something of its own; the environment's noise, untared bias and noise seed override the sensor's), its force
+scale multiplies the skill's desired forces, and its unknown tilt turns the work piece (not the skill) about the placed
+skill's contact centre. Frames: world, metres (docs/CONVENTIONS.md).
 """
 
 from __future__ import annotations
@@ -30,11 +37,12 @@ from schemas.skill import Skill
 from sim_worker.placement import PlacementChoice, PlacementError, choose_placement
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.teacher import scenario_world_config
-from sim_worker.work_piece import rebuilt_world_config
+from sim_worker.work_piece import measured_world_config, rebuilt_world_config
 from sim_worker.world_config import WorldConfig
 from skills.perturbation import contact_centre, force_scaled_skill
 from skills.placement import placed_skill, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_normalized
+from skills.strokes import stroke_skills
 
 
 @dataclass(frozen=True)
@@ -45,9 +53,9 @@ class ExecutionWorld:
     skill: Skill
     demonstration: Demonstration | None
     source: str
-    """'given', 'scenario', 'taught' or 'rebuilt'."""
+    """'given', 'scenario', 'taught', 'measured' or 'rebuilt'."""
     placement: Placement | None
-    """The placement applied (rebuilt work pieces only)."""
+    """The placement applied (measured and rebuilt work pieces only)."""
     placement_reason: str = ""
 
 
@@ -63,14 +71,26 @@ def world_config_from_file_dict(data: dict[str, Any]) -> WorldConfig:
         raise ValueError(f"world: {exc}") from None
 
 
+def _sensor_fields_set(world: dict[str, Any]) -> set[str]:
+    """The sensor fields a world dict (or ground-truth dict) sets to something else than the default world's: a file
+    written whole (``record --truth``) carries every field, its defaults are not a choice."""
+    given = world["world_config"] if isinstance(world.get("world_config"), dict) else world
+    default = WorldConfig().to_dict()
+    return {name for name in WRIST_SENSOR if name in given and given[name] != default[name]}
+
+
 def _placed_demonstration(demonstration: Demonstration | None, choice: PlacementChoice) -> Demonstration | None:
+    """The demonstration moved as its skill: positions, tool orientations (tool alignment included) and the
+    world-frame wrenches (forces and moments turn with the placement)."""
     if demonstration is None or choice.is_identity:
         return demonstration
     a = demonstration.arrays()
     positions = a.positions @ choice.rotation.T + choice.translation
     rotations = choice.rotation @ matrix_from_quaternion(a.orientations) @ choice.tool_alignment
     orientations = quaternion_from_matrix(rotations)
-    return demonstration.model_copy(update={"positions": positions.tolist(), "orientations": orientations.tolist()})
+    wrenches = np.hstack([a.wrenches[:, :3] @ choice.rotation.T, a.wrenches[:, 3:] @ choice.rotation.T])
+    update = {"positions": positions.tolist(), "orientations": orientations.tolist(), "wrenches": wrenches.tolist()}
+    return demonstration.model_copy(update=update)
 
 
 def execution_world(
@@ -86,7 +106,10 @@ def execution_world(
     """Resolve where ``skill`` runs (see the module). Raises ValueError (PlacementError included) with a message
     naming what to change."""
     env = environment or EnvironmentChange()
-    changes = {**(WRIST_SENSOR if env.sensor is SensorChoice.wrist else {}), **(overrides or {})}
+    sensor = dict(WRIST_SENSOR) if env.sensor is SensorChoice.wrist else {}
+    if world is not None:  # a world file's own sensor is honoured: the wrist sensor fills the fields it leaves out
+        sensor = {name: value for name, value in sensor.items() if name not in _sensor_fields_set(world)}
+    changes = {**sensor, **(overrides or {})}
     changes.update(_environment_fields(env))
     skill = force_scaled_skill(skill, env.force_scale)
     source = None
@@ -94,12 +117,17 @@ def execution_world(
         config, source = world_config_from_file_dict(world), "given"
     elif scenario is not None:
         config, source = scenario_world_config(scenario), "scenario"
-    elif skill.taught_world is not None and env.work_piece is not WorkPieceSource.rebuilt:
+    elif skill.taught_world is not None and env.work_piece in (WorkPieceSource.auto, WorkPieceSource.taught):
         config, source = world_config_from_file_dict(skill.taught_world), "taught"
     elif env.work_piece is WorkPieceSource.taught:
         raise ValueError(
             "environment.work_piece: the skill carries no taught world (it was not recorded in the simulator); "
-            "use 'auto' or 'rebuilt'"
+            "use 'auto', 'measured' or 'rebuilt'"
+        )
+    elif env.work_piece is WorkPieceSource.measured and demonstration is None:
+        raise ValueError(
+            "environment.work_piece: 'measured' needs the demonstration the skill was learned from; give it, or use "
+            "'rebuilt'"
         )
     if source is not None:
         if env.placement is not None:
@@ -115,8 +143,13 @@ def execution_world(
     else:
         choice = choose_placement(skill, approach_clearance_m)
     placed = placed_skill(tool_aligned_skill(skill, choice.tool_alignment), choice.rotation, choice.translation)
+    placed_demonstration = _placed_demonstration(demonstration, choice)
+    measured = placed_demonstration is not None and env.work_piece is not WorkPieceSource.rebuilt
     try:
-        config = rebuilt_world_config(placed)
+        if placed_demonstration is not None and measured:
+            config, source = measured_world_config(placed, placed_demonstration), "measured"
+        else:
+            config, source = rebuilt_world_config(placed), "rebuilt"
     except ValueError as exc:
         raise PlacementError(str(exc)) from None
     placement = Placement(
@@ -125,13 +158,39 @@ def execution_world(
         tool_alignment=choice.tool_alignment_quaternion,
     )
     return ExecutionWorld(
-        _with(config, _tilt_about(placed, env, changes)),
-        placed,
-        _placed_demonstration(demonstration, choice),
-        "rebuilt",
-        placement,
-        choice.reason,
+        _with(config, _tilt_about(placed, env, changes)), placed, placed_demonstration, source, placement, choice.reason
     )
+
+
+def execution_worlds(
+    skill: Skill,
+    environment: EnvironmentChange | None = None,
+    *,
+    scenario: str | None = None,
+    world: dict[str, Any] | None = None,
+    overrides: dict[str, Any] | None = None,
+    demonstration: Demonstration | None = None,
+    approach_clearance_m: float = 0.06,
+) -> list[ExecutionWorld]:
+    """Where ``skill`` runs, as :func:`execution_world`, in ONE world when a placement reaches the whole skill; else,
+    for a skill of several strokes on a measured or rebuilt work piece without a placement given, one world per
+    stroke (``skills.strokes.stroke_skills``), each stroke placed on its own on its own part of the work piece, to run
+    one after the other. Raises ValueError (PlacementError included) naming what to change, as
+    :func:`execution_world` does, when even a stroke cannot be placed."""
+    arguments = {
+        "scenario": scenario,
+        "world": world,
+        "overrides": overrides,
+        "demonstration": demonstration,
+        "approach_clearance_m": approach_clearance_m,
+    }
+    try:
+        return [execution_world(skill, environment, **arguments)]
+    except PlacementError:
+        strokes = stroke_skills(skill)
+        if len(strokes) < 2 or (environment is not None and environment.placement is not None):
+            raise
+    return [execution_world(stroke, environment, **arguments) for stroke in strokes]
 
 
 def _environment_fields(env: EnvironmentChange) -> dict[str, Any]:
@@ -146,6 +205,8 @@ def _environment_fields(env: EnvironmentChange) -> dict[str, Any]:
     fields = {name: value for name, value in given.items() if value is not None}
     if any(env.sensor_bias_n):
         fields["wrench_bias_n"] = tuple(env.sensor_bias_n)
+    if any(env.sensor_offset_tool_n):
+        fields["wrench_offset_tool_n"] = tuple(env.sensor_offset_tool_n)
     return fields
 
 

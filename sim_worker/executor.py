@@ -28,7 +28,7 @@ The reference CF-z coordinate of a slide path is where the surface was FOUND (hy
 only matters for ``hybrid_world_z``, whose motion axes are world x-y) or where it was TAUGHT
 (``impedance``, which presses only through its reference).
 
-Every control step is recorded as one row of a float array (see :data:`TELEMETRY_COLUMNS`) and
+Every control step is recorded as one row of a float array (see :data:`schemas.execution.TELEMETRY_COLUMNS`) and
 handed to ``on_sample`` in batches of ``telemetry_batch`` rows (a :class:`Telemetry` view).
 Aborts (force limit, torque limit, joint limit, contact not found, non-finite values, ``should_abort()``)
 stop the loop cleanly and are reported in the metrics; nothing is ever NaN.
@@ -40,6 +40,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numba
 import numpy as np
@@ -48,22 +49,31 @@ from numpy.typing import NDArray
 from schemas.demonstration import Demonstration
 from schemas.execution import (
     PHASE_CODES,
+    TELEMETRY_COLUMNS,
+    TELEMETRY_WIDTH,
     ControllerKind,
     ExecutionMetrics,
     ExecutionPhase,
     ExecutionSettings,
     NullSpaceProjection,
     Pace,
+    SurfaceWindowAction,
 )
 from schemas.skill import Segment, SegmentKind, Skill
+from sim_worker.contact_detection import (
+    IDEAL_WINDOW_STEPS,
+    WINDOW_STEPS,
+    ContactGuard,
+    contact_guard_from_readings,
+    turned_offset_bound_n,
+)
 from sim_worker.execution_world import ExecutionWorld
-from sim_worker.metrics import compute_metrics, reference_force
+from sim_worker.metrics import ExecutionLog, compute_metrics, reference_force
 from sim_worker.plans import PhasePlan, PhasePlanner, first_force, smooth_ramp
-from sim_worker.telemetry import TELEMETRY_COLUMNS, TELEMETRY_WIDTH, Telemetry
+from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
 from skills.control import (
-    LAW_OK,
     LAW_OUTPUT_SIZE,
     LAW_TAU,
     REFERENCE_FORCE,
@@ -71,9 +81,9 @@ from skills.control import (
     ROBOT_POSITION,
     ControlFrame,
     HybridController,
-    law_step,
 )
 from skills.frames import rotation_from_vectors
+from skills.job_estimate import SURFACE_WINDOW_MIN_M, TARE_HOLD_S, TOUCHDOWN_SPEED_MIN_M_S
 from skills.normal_tracking import SurfaceNormalTracker
 from skills.quaternions import matrix_from_quaternion
 
@@ -82,13 +92,11 @@ NULL_SPACE_UPDATE_STEPS = 20
 TOUCHDOWN_IMPACT_FRACTION = 0.8
 """The touch-down speed keeps the impact below this fraction of the first target force: the impact comes before the
 desired force ramps up, so the touch-down peak is then the target itself."""
-TOUCHDOWN_SPEED_MIN_M_S = 0.0005
-"""The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less)."""
-TARE_HOLD_S = 0.2
-"""With ``tare_sensor``, the tool holds still this long in free space (the start pose's settle, the pre-contact point
-before each later guarded approach) and the wrist sensor is tared with its mean reading over the last
-``TARE_AVERAGE_S``, s."""
 TARE_AVERAGE_S = 0.1
+"""The tare is the mean reading over the last this long of the still hold (``TARE_HOLD_S``), s."""
+NOISE_WINDOW_S = 0.15
+"""The sensor's noise along the next approach is measured over the last this long of a still hold, s (its first
+moments still carry the deceleration the tool's inertia shows)."""
 CONTACT_LOSS_TRAVEL_M = 0.01
 """In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
 (an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
@@ -105,7 +113,7 @@ REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
 
 
-# Telemetry columns (sim_worker.telemetry.TELEMETRY_COLUMNS) and arm state entries, as plain ints for the compiled step.
+# Telemetry columns (schemas.execution.TELEMETRY_COLUMNS) and arm state entries, as plain ints for the compiled step.
 _C_T, _C_PHASE, _C_SEGMENT = (TELEMETRY_COLUMNS[c].start for c in ("t", "phase", "segment_index"))
 _C_POSE = TELEMETRY_COLUMNS["tool_position"].start  # position then orientation
 _C_REFERENCE = TELEMETRY_COLUMNS["reference_position"].start  # position then orientation
@@ -116,14 +124,13 @@ _R_POSE = ROBOT_POSITION.start  # position then quaternion
 
 
 @numba.njit(cache=True)
-def _control_and_record(
-    G, law, robot, reference, wrench, cf_rotation, in_contact, normal, rows, n, t, phase, segment, run_law, out
+def _record_row(
+    robot, reference, wrench, cf_rotation, in_contact, normal, rows, n, t, phase, segment
 ):  # pragma: no cover - compiled
-    """One control step after sensing, in one compiled call: the measured wrench in CF axes (``R^T f``, ``R^T m``,
-    ``cf_rotation`` (9,) by rows), the control law (:func:`skills.control.law_step` into ``out``, when ``run_law``;
-    its contact flag: the CF-z force above half the desired one, at most 0.5 N) and telemetry row ``n`` of ``rows``
-    (:data:`TELEMETRY_COLUMNS`: the state measured before the step, its reference and desired force, the true
-    normal force and direction ``normal`` (4,)). Returns the law's code (``LAW_OK`` when it did not run)."""
+    """Telemetry row ``n`` of ``rows`` for one control step, in one compiled call (:data:`TELEMETRY_COLUMNS`: the
+    state measured before the step, its reference and desired force, the measured wrench in world and CF axes
+    (``R^T f``, ``R^T m``, ``cf_rotation`` (9,) by rows), the true normal force and direction ``normal`` (4,)).
+    Returns the control law's contact flag: the CF-z force above half the desired one, at most 0.5 N."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
         cf_rotation[0], cf_rotation[1], cf_rotation[2], cf_rotation[3], cf_rotation[4], cf_rotation[5],
         cf_rotation[6], cf_rotation[7], cf_rotation[8],
@@ -148,9 +155,16 @@ def _control_and_record(
     row[_C_CONTACT] = 1.0 if in_contact else 0.0
     for i in range(4):  # the true normal force and the normal
         row[_C_TRUE_NORMAL + i] = normal[i]
-    if not run_law:
-        return LAW_OK
-    return law_step(G, robot, reference, wrench, law, row[cf + 2] > min(0.5, 0.5 * f_des), out)
+    return row[cf + 2] > min(0.5, 0.5 * f_des)
+
+
+class PlanEnd(Enum):
+    """How a phase plan ended (:meth:`_Execution.run_plan`)."""
+
+    done = "done"
+    """It ran to its last step."""
+    contact = "contact"
+    """A guarded phase met a surface (:class:`ContactGuard`)."""
 
 
 class ContactLostError(Exception):
@@ -258,7 +272,18 @@ class _Execution:
             self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
         self.tares = settings.tare_sensor and not self.world.sensor.ideal
         """Whether the sensor is tared in free space before the guarded approaches (an ideal sensor has no offset)."""
-        self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.contact_threshold, self.dt)
+        window = IDEAL_WINDOW_STEPS if self.world.sensor.ideal else WINDOW_STEPS[0]
+        self.guard = ContactGuard(self.contact_threshold, window)
+        """When a guarded approach has met the surface; set from the noise measured in each still hold."""
+        self.tare_rotation = np.eye(3)
+        """The tool's orientation (world from tool) at the last tare."""
+        self.found_force: float | None = None
+        """The windowed reading along the stop axis when the last guarded phase met a surface, N."""
+        self.touched = False
+        """Whether the tool has touched anything (the simulator's contact) since the last guarded approach began."""
+        self.frame_log: list[tuple[int, float, float, float]] = []
+        """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
+        self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         self._cf_rotation = np.eye(3)
         self._selection = {s.index: s.selection for s in skill.segments}
@@ -293,8 +318,9 @@ class _Execution:
             self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
             self.emitted = self.n
 
-    def run_plan(self, plan: PhasePlan) -> str:
-        """Run a phase; return "done" or "contact" (a guarded phase met the surface). Raises ExecutionAbortError.
+    def run_plan(self, plan: PhasePlan, guard: ContactGuard | None = None) -> PlanEnd:
+        """Run a phase; return how it ended (a guarded phase ends on contact: ``guard``, default ``self.guard``, on
+        the readings along the plan's stop axis). Raises ExecutionAbortError.
 
         One control step: sensing (``SimWorld.sense``: the joint state and the contact points, two PyBullet
         queries; tool pose, Jacobian and gravity/Coriolis from the arm's compiled model into the world's arm
@@ -309,8 +335,7 @@ class _Execution:
         # The arm state and the true normal force: the world's arrays, the same every step, updated by sense().
         robot, true_normal = world.robot_state(), world.true_normal_state()
         controller = self.controller
-        prepare = controller.prepare
-        gain, law = controller.law_arrays
+        step_into = controller.step_into
         out = np.zeros(LAW_OUTPUT_SIZE)
         tau = out[LAW_TAU]
         perf = time.perf_counter
@@ -322,8 +347,15 @@ class _Execution:
         ts = td = tc = tp = tt = 0.0
         batch = self.settings.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
         realtime = self.settings.pace is Pace.realtime
-        threshold = self.contact_threshold
+        guard = guard or self.guard
+        window = guard.window_steps
+        window_threshold = guard.threshold_n * window  # on the sum of the last `window` readings
+        window_readings, window_sum, window_slot = [0.0] * window, 0.0, 0
+        touched = self.touched
+        frame_log = self.frame_log
         stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
+        if stop_axis is not None:
+            self.found_force = None
         single = plan.frame
         series, stride = plan.series, plan.stride
         ref_p = plan.ref_p
@@ -363,27 +395,26 @@ class _Execution:
                     self._cf_rotation = frame.cf_rotation
                     cf_rotation = np.ascontiguousarray(frame.cf_rotation).ravel()
                     r02, r12, r22 = frame.cf_z.tolist()
+                    frame_log.append((self.n, r02, r12, r22))
                 reference = references[k]
                 if paused:
                     reference = reference.copy()
                     reference[REFERENCE_TWIST] = 0.0
-                # The law's Python part (model and gain updates: only on a model step or a new frame, the damping
-                # changes with the model), then one compiled call: CF wrench, law, telemetry row (the state measured
-                # before the step, its reference and desired force).
-                reason = prepare(frame, robot, reference, w, M, update_null) if update_null or new_frame else None
+                # One compiled call records the telemetry row (the state measured before the step, its reference and
+                # desired force, the CF wrench), one runs the law (its model and gain updates on a model step or a
+                # new frame).
                 if self.n >= self.capacity:
                     self._grow()
-                code = _control_and_record(
-                    gain, law, robot, reference, w, cf_rotation, touching, true_normal, self.rows, self.n,
-                    self.step_count * dt, phase_code, seg, reason is None, out,
+                pressing = _record_row(
+                    robot, reference, w, cf_rotation, touching, true_normal, self.rows, self.n, self.step_count * dt,
+                    phase_code, seg,
                 )  # fmt: skip
                 self.n += 1
+                reason = step_into(frame, robot, reference, w, pressing, M, update_null, out)
                 t3 = perf()
                 if self.n - self.emitted >= batch:
                     self._emit()
                 t4 = perf()
-                if reason is None and code != LAW_OK:
-                    reason = controller.abort_reason(code, out, robot, reference, w, M)
                 if reason is not None:
                     raise ExecutionAbortError(reason)
                 if stop_axis is not None or tracker is not None:
@@ -398,8 +429,16 @@ class _Execution:
                 tp += t5 - t4
                 if should_abort is not None and should_abort():  # every step: stops within one control cycle
                     raise ExecutionAbortError("aborted on request")
-                if stop_axis is not None and fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2] > threshold:
-                    return "contact"
+                if touching:
+                    touched = True
+                if stop_axis is not None:  # the mean of the last `window` readings along the axis over the threshold
+                    along = fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2]
+                    window_sum += along - window_readings[window_slot]
+                    window_readings[window_slot] = along
+                    window_slot = (window_slot + 1) % window
+                    if window_sum > window_threshold:
+                        self.found_force = window_sum / window
+                        return PlanEnd.contact
                 if tracker is not None and k % NORMAL_TRACKING_STEPS == 0:
                     p_now = p.tolist()
                     if p_tracked is not None:
@@ -415,11 +454,7 @@ class _Execution:
                     px, py, pz = p.tolist()
                     beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
                     if beyond > loss_travel:
-                        raise ContactLostError(
-                            f"contact lost in segment {plan.segment} at t = {self.step_count * dt:.3f} s: no contact "
-                            f"{beyond * 1e3:.0f} mm beyond the surface along CF z (an edge or a hole?); the tool "
-                            f"stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
-                        )
+                        raise ContactLostError(self._loss_reason(plan.segment, beyond, touched))
                 if realtime and self.step_count % REALTIME_CHECK_STEPS == 0:
                     lag = self.step_count * dt - (perf() - self.wall_start)
                     if lag > 0:
@@ -427,6 +462,7 @@ class _Execution:
                 if not paused:
                     k += 1
         finally:
+            self.touched = touched
             timing = self.timing
             timing[0] += ts
             timing[1] += td
@@ -434,19 +470,64 @@ class _Execution:
             timing[3] += tp
             timing[4] += tt
         if plan.exhausted_reason is not None:
-            raise ExecutionAbortError(plan.exhausted_reason)
-        return "done"
+            guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
+            raise ExecutionAbortError(plan.exhausted_reason + guarded)
+        return PlanEnd.done
+
+    def _loss_reason(self, segment: int, beyond_m: float, touched: bool) -> str:
+        """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,
+        or, when the tool never touched anything since its guarded approach began, never made (the approach took a
+        reading for the surface)."""
+        t = f"t = {self.step_count * self.dt:.3f} s"
+        retracted = f"the tool stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
+        if not touched:
+            found = "" if self.found_force is None else f" (it read {self.found_force:.2f} N)"
+            return (
+                f"no contact made in segment {segment} at {t}: the guarded approach stopped on a reading of the "
+                f"sensor above {self.guard.describe()}{found} without touching anything (a sensor offset or noise "
+                f"the tare did not remove?), and the tool found nothing {beyond_m * 1e3:.0f} mm beyond; {retracted}"
+            )
+        return (
+            f"contact lost in segment {segment} at {t}: no contact {beyond_m * 1e3:.0f} mm beyond the surface along "
+            f"CF z (an edge or a hole?); {retracted}"
+        )
+
+    def _after_still_hold(self, axis: NDArray[np.float64] | None) -> None:
+        """At the end of a still hold in free space: tare the sensor (``self.tares``) and set the contact guard of the
+        next guarded approach along ``axis`` (world, unit; None: no approach follows) from the noise its readings
+        showed over the last ``NOISE_WINDOW_S`` (a non-ideal sensor; the ideal one keeps the base threshold)."""
+        if self.tares:
+            self._tare_sensor()
+        if axis is not None and not self.world.sensor.ideal:
+            rows = self.rows[max(0, self.n - round(NOISE_WINDOW_S / self.dt)) : self.n]
+            readings = rows[:, _C_WRENCH : _C_WRENCH + 3] @ axis
+            self.guard = contact_guard_from_readings(readings, self.contact_threshold)
 
     def _tare_sensor(self) -> None:
         """Tare the wrist sensor with its mean reading over the last ``TARE_AVERAGE_S`` of telemetry (the tool held
         still in free space), taken in the TOOL frame where a sensor offset lives: the readings there carry the
-        previous tare removed, so it is added back."""
+        previous tare removed, so it is added back. The current reading is tared too (``SimWorld.tare_sensor``)."""
         rows = self.rows[max(0, self.n - round(TARE_AVERAGE_S / self.dt)) : self.n]
         rotations = matrix_from_quaternion(rows[:, _C_POSE + 3 : _C_POSE + 7])  # world from tool
         wrench = rows[:, _C_WRENCH : _C_WRENCH + 6]
         force = np.einsum("nji,nj->i", rotations, wrench[:, :3]) / len(rows)
         moment = np.einsum("nji,nj->i", rotations, wrench[:, 3:]) / len(rows)
         self.world.tare_sensor(self.world.sensor_tare + np.concatenate((force, moment)))
+        self.tare_rotation = rotations[-1]
+
+    def _free_guard(self, plan: PhasePlan) -> ContactGuard:
+        """The guard of a free segment that may meet the next surface early: the approach's, raised by what a tared
+        offset fixed in the world can read once the plan has turned the tool away from the tare's orientation."""
+        if not self.tares:
+            return self.guard
+        rotations = matrix_from_quaternion(plan.ref_q)
+        return self.guard.raised_by(turned_offset_bound_n(self.world.sensor_tare[:3], self.tare_rotation, rotations))
+
+    def surface_window_m(self) -> float:
+        """How far from where it was taught a guarded approach may find the surface, m (either way along CF z)."""
+        s = self.settings
+        window = s.tolerances.surface_window_m
+        return window if window is not None else max(s.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
 
     def _touchdown_speed(self, segment: Segment) -> float:
         """The speed (m/s) at which the tool meets the surface: given, or ``TOUCHDOWN_IMPACT_FRACTION`` of the first
@@ -528,10 +609,22 @@ class _Execution:
         return f"joint limit: joint {j + 1} at {q[j]:.3f} rad outside [{lower[j]:.3f}, {upper[j]:.3f}] rad"
 
     def _record_contact_offset(self, segment: Segment) -> None:
+        """Record where the surface was found along CF z from where it was taught; outside the expected window,
+        go on (the verdict's surface check fails) or abort (``surface_outside_window``)."""
         geo = self.geometry[segment.index]
         z = geo.first_rotation[:, 2]
         p, _ = self.world.tool_pose()
-        self.contact_offsets.append(float((p - geo.start_world) @ z))
+        offset = float((p - geo.start_world) @ z)
+        self.contact_offsets.append(offset)
+        window = self.surface_window_m()
+        if abs(offset) > window and self.settings.surface_outside_window is SurfaceWindowAction.abort:
+            where = "before" if offset < 0 else "beyond"
+            self.retract()
+            raise ExecutionAbortError(
+                f"surface outside its window in segment {segment.index}: found {abs(offset) * 1e3:.0f} mm {where} "
+                f"where it was taught, outside the expected ±{window * 1e3:.0f} mm (another surface, or the part "
+                "moved?)"
+            )
 
     def run(self) -> None:
         s = self.settings
@@ -550,8 +643,8 @@ class _Execution:
         self.wall_start = time.perf_counter()
         settle_s = max(s.settle_s, TARE_HOLD_S) if self.tares else s.settle_s
         self.run_plan(self.planner.still(ExecutionPhase.settle, -1, p_start, q_start_ref, settle_s))
-        if self.tares:
-            self._tare_sensor()
+        first_contact = next((seg.index for seg in segments if seg.kind is SegmentKind.contact), None)
+        self._after_still_hold(None if first_contact is None else self.geometry[first_contact].first_rotation[:, 2])
         last_ref_q = q_start_ref
         in_contact_run = False
         f_last: float | None = None
@@ -566,10 +659,12 @@ class _Execution:
                     z = geo.first_rotation[:, 2]
                     goal = geo.start_world - s.approach_clearance_m * z
                     plan = planner.free(segment, *tool_pose(), goal, stop_axis=z)
+                    self.touched = False
+                    found_early = self.run_plan(plan, self._free_guard(plan)) is PlanEnd.contact
                 else:
                     goal = np.asarray(segment.position_dmp.goal, float) + self.offset
                     plan = planner.free(segment, *tool_pose(), goal, None)
-                found_early = self.run_plan(plan) == "contact"
+                    found_early = self.run_plan(plan) is PlanEnd.contact
                 last_ref_q = plan.ref_q[-1]
                 continue
             # Contact segment.
@@ -579,12 +674,13 @@ class _Execution:
                     if self.tares and i > 0:  # (the settle tared at the first segment's pre-contact point)
                         hold = planner.still(ExecutionPhase.approach, segment.index, goal, last_ref_q, TARE_HOLD_S)
                         self.run_plan(hold)
-                        self._tare_sensor()
+                        self._after_still_hold(self.geometry[segment.index].first_rotation[:, 2])
                     speed = self._touchdown_speed(segment)
+                    self.touched = False
                     self.run_plan(planner.approach(segment, tool_pose()[0], last_ref_q, speed))
                 self._record_contact_offset(segment)
                 first_cf = self.geometry[segment.index].first_rotation
-                f_found = float(self.world.contact_wrench()[:3] @ first_cf[:, 2])
+                f_found = self.found_force if self.found_force is not None else 0.0
                 f_first = first_force(segment)
                 ramp = planner.hold(  # from the target, never from an impact above it
                     segment,
@@ -690,9 +786,13 @@ def execute_skill(
         "total": float(total),
     }
     timings["other"] = max(0.0, total - sum(v for k, v in timings.items() if k != "total"))
-    metrics = compute_metrics(
-        skill, tel, settings, phase, reason, loop_wall_s, execution.contact_offsets, demonstration, execution.dt
+    log = ExecutionLog(
+        contact_offsets_m=execution.contact_offsets,
+        frame_log=execution.frame_log,
+        contact_guard=execution.guard if execution.geometry else None,  # (a skill without contact guards nothing)
+        surface_window_m=execution.surface_window_m(),
     )
+    metrics = compute_metrics(skill, tel, settings, phase, reason, loop_wall_s, log, demonstration, execution.dt)
     return ExecutionResult(
         metrics=metrics,
         telemetry=tel,

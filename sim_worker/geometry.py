@@ -365,4 +365,3 @@ class WorldGeometry:
         """Signed distance (m) of points to the union of all solids (negative inside)."""
         d = self.query(points).distance
         return float(d[0]) if np.asarray(points).ndim == 1 else d
-

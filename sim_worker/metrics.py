@@ -1,20 +1,46 @@
 """What an execution achieved, computed from its telemetry: force errors over the steady contact, contact ratio,
-path error, touch-down (``schemas.execution.ExecutionMetrics``). World frame, SI units; forces in N along CF z."""
+path error, touch-down, and the verdict against the tolerances (``schemas.execution.ExecutionMetrics``). World
+frame, SI units; forces in N along CF z.
+
+Every peak is seen: the steady window of a contact run starts once, after its touch-down and force ramp, and spans
+its crease passages and segment switches (each also scored on its own, the transition figure); a touch-down is
+counted in whatever phase the tool first meets a surface, free segments included; the CF angle is that of the frame
+the controller used at each row.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration
-from schemas.execution import PHASE_CODES, ControllerKind, ExecutionMetrics, ExecutionPhase, ExecutionSettings
-from schemas.skill import Segment, Skill
+from schemas.execution import (
+    PHASE_CODES,
+    ControllerKind,
+    ExecutionMetrics,
+    ExecutionPhase,
+    ExecutionSettings,
+    ExecutionTolerances,
+    ExecutionVerdict,
+    Verdict,
+    VerdictCheck,
+    VerdictCheckName,
+)
+from schemas.skill import Segment, SegmentKind, Skill
+from sim_worker.contact_detection import ContactGuard
 from sim_worker.plans import contact_geometry
 from sim_worker.telemetry import Telemetry
 from skills.dmp import DMP
 
 STEADY_CONTACT_DELAY_S = 0.2
-"""The steady contact phase starts this long after contact (and after each force ramp), s."""
+"""The steady contact phase starts this long after a contact run starts (and after its force ramp), s."""
+TRANSITION_WINDOW_S = 0.25
+"""A switch between contact segments is scored on its own over this long on each side, s."""
+TOUCHDOWN_DEBOUNCE_S = 0.02
+"""A touch counts as a new touch-down only after this long out of contact (a bouncing or chattering contact is one
+touch-down), s."""
 SETTLED_BAND = 0.05
 """Settled: the true normal force within this fraction of the reference force of the desired one ..."""
 SETTLED_HOLD_S = 0.1
@@ -31,20 +57,30 @@ def reference_force(skill: Skill, dt: float = 1e-3) -> float:
     return max(values) if values else 0.0
 
 
+def _run_starts(mask: NDArray[np.bool_]) -> NDArray[np.int_]:
+    """Indices where runs of True in ``mask`` start."""
+    return np.flatnonzero(mask & ~np.r_[False, mask[:-1]])
+
+
 def _steady_mask(tel: Telemetry, ramp_s: float) -> NDArray[np.bool_]:
-    """Contact-phase rows at least max(0.2 s, the force ramp) after the start of their contact segment."""
+    """Contact-phase rows at least max(0.2 s, the force ramp) after the start of their contact RUN (consecutive
+    contact-phase rows: contact segments that follow each other directly are one run, their switch inside it)."""
     contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
-    mask = np.zeros(len(tel), dtype=bool)
     if not contact.any():
-        return mask
-    seg = tel.segment_index
-    t = tel.t
-    delay = max(STEADY_CONTACT_DELAY_S, ramp_s)
-    for s in np.unique(seg[contact]):
-        rows = contact & (seg == s)
-        t0 = t[rows][0]
-        mask |= rows & (t >= t0 + delay - 1e-9)
-    return mask
+        return contact
+    run = np.cumsum(np.isin(np.arange(len(tel)), _run_starts(contact)))  # run number of each row (1-based)
+    started = tel.t[_run_starts(contact)][run - 1]
+    return contact & (tel.t >= started + max(STEADY_CONTACT_DELAY_S, ramp_s) - 1e-9)
+
+
+def _transition_mask(tel: Telemetry, steady: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Steady rows within ``TRANSITION_WINDOW_S`` of a switch between two contact segments inside a contact run."""
+    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
+    switches = np.flatnonzero(contact[1:] & contact[:-1] & (np.diff(tel.segment_index) != 0)) + 1
+    near = np.zeros(len(tel), dtype=bool)
+    for k in switches:
+        near |= np.abs(tel.t - tel.t[k]) <= TRANSITION_WINDOW_S
+    return near & steady
 
 
 def _demonstrated_path(
@@ -111,46 +147,52 @@ def _errors(error: NDArray[np.float64], reference: float, prefix: str) -> dict[s
     return fields
 
 
-def _learned_cf_z(skill: Skill, tel: Telemetry, contact: NDArray[np.bool_], offset: NDArray) -> NDArray[np.float64]:
-    """The learned CF z the controller used at each contact-phase row (N, 3); NaN elsewhere. Contour frames by the
-    row's time fraction of its segment, as the executor indexes them."""
-    z = np.full((len(tel), 3), np.nan)
-    segments = {s.index: s for s in skill.segments}
-    for index in np.unique(tel.segment_index[contact]):
-        rows = np.flatnonzero(contact & (tel.segment_index == index))
-        geo = contact_geometry(segments[int(index)], offset)
-        fractions = np.arange(rows.size) / max(rows.size - 1, 1)
-        z[rows] = geo.rotations_at(fractions)[:, :, 2]
+def used_cf_z(frame_log: list[tuple[int, float, float, float]], rows: int) -> NDArray[np.float64]:
+    """The CF z the controller used at each of ``rows`` telemetry rows (rows, 3), world, from the executor's log of
+    (first row, CF z) of every control frame it took; NaN before the first."""
+    z = np.full((rows, 3), np.nan)
+    if not frame_log:
+        return z
+    log = np.asarray(frame_log, dtype=float)
+    starts = log[:, 0].astype(int)
+    which = np.searchsorted(starts, np.arange(rows), side="right") - 1
+    valid = which >= 0
+    z[valid] = log[which[valid], 1:]
     return z
 
 
 def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt: float) -> dict[str, float]:
-    """Touch-down peak (N, and over the first desired force) and the longest settle time (s) over the contact runs.
+    """Touch-down peak (N, and over the first desired force) and the longest settle time (s) over the touch-downs.
 
-    A run starts at the first row in contact after a free stretch and ends where its steady contact starts; its
-    settle time is from the first touch until the true normal force stays within ``SETTLED_BAND`` of the reference
-    of the desired force for ``SETTLED_HOLD_S``."""
+    A touch-down starts at the first row touching a surface (true normal force > 0) after ``TOUCHDOWN_DEBOUNCE_S``
+    out of contact, in ANY phase (a surface met early, in a free segment, too), outside the steady contact; it ends
+    where its steady contact starts, or where the tool leaves the surface (a touch that bounced off). Its ratio is
+    over the desired force where the next steady contact starts (without one, the reference force). Its settle time
+    is from the first touch until the true normal force stays within ``SETTLED_BAND`` of the reference of the desired
+    force for ``SETTLED_HOLD_S``."""
+    if len(tel) == 0:  # failed before its first step
+        return {}
     touching = tel.normal_force_true > 0.0
-    approach_or_contact = np.isin(
-        tel.phase_codes, [PHASE_CODES[ExecutionPhase.approach], PHASE_CODES[ExecutionPhase.contact]]
-    )
-    starts = np.flatnonzero(touching & approach_or_contact & ~np.r_[False, touching[:-1]])
-    steady_starts = np.flatnonzero(steady & ~np.r_[False, steady[:-1]])
+    debounce = max(1, round(TOUCHDOWN_DEBOUNCE_S / dt))
+    free_before = np.convolve(~touching, np.ones(debounce), mode="full")[: len(tel)] >= debounce  # up to this row
+    starts = np.flatnonzero(touching & ~steady & np.r_[True, free_before[:-1]])
+    steady_starts = _run_starts(steady)
+    leaves = np.flatnonzero(free_before) - (debounce - 1)  # where a stretch out of contact of `debounce` rows starts
     error = np.abs(tel.normal_force_true - tel.desired_force)
     hold = max(1, round(SETTLED_HOLD_S / dt))
     peaks, ratios, settles = [], [], []
     for begin in starts:
         later = steady_starts[steady_starts > begin]
-        if later.size == 0:
-            continue
-        end = int(later[0])
-        if np.any(~touching[begin:end] & ~approach_or_contact[begin:end]):
-            continue  # lifted off in between: not one touch-down
-        peak = float(tel.normal_force_true[begin:end].max())
-        peaks.append(peak)
-        target = float(tel.desired_force[end])
+        left = leaves[leaves > begin]
+        lift = int(left[0]) if left.size else len(tel)
+        steady_start = int(later[0]) if later.size else len(tel)
+        peaks.append(float(tel.normal_force_true[begin : min(steady_start, lift)].max()))
+        # Against the press that followed (a touch that bounced off too), else the reference force.
+        target = float(tel.desired_force[steady_start]) if steady_start < len(tel) else reference
         if target > 0:
-            ratios.append(peak / target)
+            ratios.append(peaks[-1] / target)
+        if steady_start > lift or steady_start >= len(tel):
+            continue  # left the surface before any steady contact: it did not settle
         outside = error[begin:] > SETTLED_BAND * max(reference, 1e-9)
         settled_for = np.convolve(~outside, np.ones(hold), mode="valid") >= hold  # the next `hold` rows are inside
         if settled_for.any():
@@ -165,6 +207,71 @@ def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt:
     return result
 
 
+@dataclass
+class ExecutionLog:
+    """What the executor knows beyond the telemetry rows: where each guarded approach found the surface, the
+    control frames it took and the contact guard of its last approach."""
+
+    contact_offsets_m: list[float] = field(default_factory=list)
+    """Per guarded approach: the surface found along +CF z from where it was taught, m."""
+    frame_log: list[tuple[int, float, float, float]] = field(default_factory=list)
+    """(first telemetry row, CF z) of every control frame the controller took."""
+    contact_guard: ContactGuard | None = None
+    surface_window_m: float = 0.02
+    """How far from where it was taught a surface may be found, m."""
+
+
+def _bounded_check(name: VerdictCheckName, value: float | None, limit: float, what: str, upper: bool) -> VerdictCheck:
+    """``value`` held to ``limit`` (at most, or at least with ``upper`` False); None: not measured, failed."""
+    if value is None:
+        return VerdictCheck(name=name, passed=False, limit=limit, message=f"{what}: not measured")
+    passed = value <= limit if upper else value >= limit
+    relation = ("≤" if passed else ">") if upper else ("≥" if passed else "<")
+    message = f"{what} {value:.3g} {relation} {limit:.3g}"
+    return VerdictCheck(name=name, passed=passed, value=value, limit=limit, message=message)
+
+
+def execution_verdict(
+    metrics: ExecutionMetrics, tolerances: ExecutionTolerances, log: ExecutionLog, contact_expected: bool
+) -> ExecutionVerdict:
+    """Pass or fail: ``metrics`` against ``tolerances``; a surface found outside its window is a warning. A skill with
+    a contact segment that ran to its end without a measured steady contact fails (nothing was pressed); an aborted
+    run fails on that alone (its other checks are listed where they were measured)."""
+    finished = metrics.phase is ExecutionPhase.done
+    reason = "ran every segment" if finished else f"{metrics.phase.value}: {metrics.abort_reason}"
+    checks = [VerdictCheck(name=VerdictCheckName.finished, passed=finished, message=reason)]
+    t, m, name = tolerances, metrics, VerdictCheckName
+    bounds = [  # name, value, limit, what, upper bound
+        (name.true_force_rms, m.true_force_rms_error_pct, t.true_force_rms_pct, "true force RMS error %", True),
+        (name.true_force_max, m.true_force_max_error_pct, t.true_force_max_pct, "true force max error %", True),
+        (name.contact_ratio, m.contact_ratio, t.contact_ratio, "contact ratio", False),
+        (name.touchdown, m.touchdown_peak_ratio, t.touchdown_ratio, "touch-down peak / target", True),
+    ]
+    for check, value, limit, what, upper in bounds:
+        due = contact_expected and finished and check is not name.touchdown  # a run that pressed must measure it
+        if value is not None or due:
+            checks.append(_bounded_check(check, value, limit, what, upper))
+    if log.contact_offsets_m:
+        worst = max(log.contact_offsets_m, key=abs)
+        inside = abs(worst) <= log.surface_window_m
+        window = f"{'within' if inside else 'outside'} ±{log.surface_window_m * 1e3:.0f} mm"
+        message = f"surface found {worst * 1e3:+.1f} mm from where it was taught ({window})"
+        checks.append(
+            VerdictCheck(
+                name=name.surface_found,
+                passed=inside,
+                warning_only=True,
+                value=worst,
+                limit=log.surface_window_m,
+                message=message,
+            )
+        )
+    failed = [c.message for c in checks if not c.passed and not c.warning_only]
+    warnings = [c.message for c in checks if not c.passed and c.warning_only]
+    verdict = Verdict.failed if failed else Verdict.passed
+    return ExecutionVerdict(verdict=verdict, reasons=failed, warnings=warnings, checks=checks)
+
+
 def compute_metrics(
     skill: Skill,
     tel: Telemetry,
@@ -172,11 +279,12 @@ def compute_metrics(
     phase: ExecutionPhase,
     abort_reason: str | None,
     loop_wall_s: float,
-    contact_offsets: list[float],
+    log: ExecutionLog,
     demonstration: Demonstration | None = None,
     dt: float = 1e-3,
 ) -> ExecutionMetrics:
-    """The measures of one execution (see ``schemas.execution.ExecutionMetrics``) from its recorded telemetry."""
+    """The measures of one execution (see ``schemas.execution.ExecutionMetrics``) from its recorded telemetry and the
+    executor's ``log``, with its verdict against ``settings.tolerances``."""
     reference = reference_force(skill, dt)
     contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
     steady = _steady_mask(tel, settings.gains.force_ramp_s)
@@ -186,19 +294,28 @@ def compute_metrics(
         desired = tel.desired_force[steady]
         metrics |= _errors(tel.wrench_cf[steady, 2] - desired, reference, "force")
         metrics |= _errors(tel.normal_force_true[steady] - desired, reference, "true_force")
+        transition = _transition_mask(tel, steady)
+        if transition.any():
+            worst = _errors(tel.normal_force_true[transition] - tel.desired_force[transition], reference, "t")
+            metrics["transition_true_force_max_error_n"] = worst["t_max_error_n"]
+            if "t_max_error_pct" in worst:
+                metrics["transition_true_force_max_error_pct"] = worst["t_max_error_pct"]
     if contact.any():
         metrics["contact_ratio"] = float(np.mean(tel.in_contact[contact]))
         metrics["path_rms_m"] = _path_rms(skill, tel, offset, demonstration, dt)
         touching = contact & (tel.normal_force_true > 0.0)
         if touching.any():
-            cf_z = _learned_cf_z(skill, tel, contact, offset)[touching]
+            cf_z = used_cf_z(log.frame_log, len(tel))[touching]
             cosine = np.clip(np.sum(cf_z * tel.contact_normal[touching], axis=1), -1.0, 1.0)
             angles = np.degrees(np.arccos(cosine))
             metrics |= {"cf_normal_angle_deg": float(angles.mean()), "cf_normal_angle_max_deg": float(angles.max())}
     metrics |= _touchdowns(tel, steady, reference, dt)
+    if log.contact_guard is not None:
+        metrics["contact_threshold_n"] = log.contact_guard.threshold_n
+        metrics["contact_persistence_steps"] = log.contact_guard.window_steps
     duration = float(len(tel) * dt)
     forces = np.linalg.norm(tel.wrench_world[:, :3], axis=1) if len(tel) else np.zeros(1)
-    return ExecutionMetrics(
+    result = ExecutionMetrics(
         controller=ControllerKind(settings.controller),
         phase=phase,
         force_reference_n=reference if reference > 0 else None,
@@ -206,8 +323,11 @@ def compute_metrics(
         duration_s=duration,
         steps=len(tel),
         peak_force_n=float(forces.max()),
-        contact_found_offsets_m=contact_offsets,
+        contact_found_offsets_m=log.contact_offsets_m,
         steady_contact_s=float(steady.sum() * dt),
         abort_reason=abort_reason,
         **metrics,
     )
+    contact_expected = any(s.kind is SegmentKind.contact for s in skill.segments)
+    result.verdict = execution_verdict(result, settings.tolerances, log, contact_expected)
+    return result

@@ -2,9 +2,11 @@
 
 A recording lives in its own frame (another robot's base, a tracker's world, metres). A placement ``(R, t)``
 maps it into the robot's world, ``x_world = R x_skill + t`` (``skills.placement``). The skill's tool poses
-(every ``REACH_CHECK_STEP_S`` of every segment, plus the pre-contact points the guarded approach starts from)
-are solved one after the other by inverse kinematics, each from the previous solution; a placement is
-reachable when every pose converges with every joint at least ``JOINT_MARGIN_RAD`` inside its limits.
+(every ``REACH_CHECK_STEP_S`` of every segment, plus the pre-contact points the guarded approach starts from, in
+the order the executor visits them) are solved one after the other by inverse kinematics: the first, the start pose,
+from the home posture as the executor solves it (``sim_worker.executor``), each later one from the previous
+solution; a placement is reachable when every pose converges with every joint at least ``JOINT_MARGIN_RAD`` inside
+its limits.
 
 The choice: the skill as it is when that is reachable (a skill recorded on this robot), else the first
 reachable candidate, with the tool frame first aligned when the recording's tool pressed more than
@@ -92,16 +94,15 @@ class PlacementChoice:
 
 
 def _checked_poses(skill: Skill, clearance_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64], ToolPath]:
-    """Positions (N, 3) and rotations (N, 3, 3) to reach, in the skill's frame: the path and pre-contact points."""
+    """Positions (N, 3) and rotations (N, 3, 3) to reach, in the skill's frame, in the order the executor visits
+    them: the path, each touch-down preceded by the pre-contact point its guarded approach starts from (back along
+    CF z, in the orientation there). The first is the executor's start pose."""
     path = skill_tool_path(skill, REACH_CHECK_STEP_S)
-    positions, rotations = [path.positions], [matrix_from_quaternion(path.quaternions)]
-    previous_contact = False
-    for k in range(len(path.segment)):
-        if path.contact[k] and not previous_contact:  # the guarded approach starts back along CF z
-            positions.insert(0, path.positions[k] - clearance_m * path.cf_z[k][None, :])
-            rotations.insert(0, rotations[-1][k][None])
-        previous_contact = bool(path.contact[k])
-    return np.vstack(positions), np.vstack(rotations), path
+    rotations = matrix_from_quaternion(path.quaternions)
+    touch_downs = np.flatnonzero(path.contact & ~np.r_[False, path.contact[:-1]])
+    before = path.positions[touch_downs] - clearance_m * path.cf_z[touch_downs]
+    positions = np.insert(path.positions, touch_downs, before, axis=0)
+    return positions, np.insert(rotations, touch_downs, rotations[touch_downs], axis=0), path
 
 
 def reach_report(
@@ -109,6 +110,8 @@ def reach_report(
 ) -> tuple[int, float, str]:
     """Solve the poses (world frame) in order; return (unreachable count, smallest joint margin rad, first problem).
 
+    The first pose is solved from the home posture only, with the solver's own iteration budget: the executor
+    starts there that way (a start pose that only another seed reaches would fail the execution at once).
     ``stop_at_first``: return at the first unreachable pose (to reject a candidate placement quickly).
     """
     far = np.linalg.norm(positions - SHOULDER_M, axis=1) > MAX_REACH_M
@@ -121,9 +124,9 @@ def reach_report(
         quat = quaternion_from_matrix(rotations[k])
         seeds = [q_seed] if q_seed is not None else [np.asarray(seed, dtype=float) for seed in IK_SEEDS]
         q, error = None, ""
-        for seed in seeds:
+        for seed in seeds[:1] if k == 0 else seeds:
             try:
-                q = world.inverse_kinematics(positions[k], quat, seed, max_iterations=150)
+                q = world.inverse_kinematics(positions[k], quat, seed, max_iterations=300 if k == 0 else 150)
                 break
             except ValueError as exc:
                 error = str(exc)

@@ -140,14 +140,12 @@ class PhasePlanner:
         settings: ExecutionSettings,
         controller: HybridController,
         offset: NDArray[np.float64],
-        contact_threshold_n: float,
         dt: float,
     ) -> None:
         self.settings = settings
         self.controller = controller
         self.kind = ControllerKind(settings.controller)
         self.offset = offset
-        self.contact_threshold_n = contact_threshold_n
         self.dt = dt
         self.geometry = {s.index: contact_geometry(s, offset) for s in skill.segments if s.kind is SegmentKind.contact}
         self.identity_frame = controller.frame(np.eye(3), SELECTION_FREE)
@@ -222,8 +220,8 @@ class PhasePlanner:
             frame=frame,
             stop_axis=z,
             exhausted_reason=(
-                f"contact not found: no contact force above {self.contact_threshold_n:.1f} N within "
-                f"{s.approach_max_distance_m:.3f} m of guarded approach along CF z (segment {segment.index})"
+                f"contact not found: nothing met within {s.approach_max_distance_m:.3f} m of guarded approach along "
+                f"CF z (segment {segment.index})"
             ),
         )
 

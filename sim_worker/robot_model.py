@@ -27,9 +27,6 @@ N_JOINTS = 7
 TOOL_LINK = 7
 """Link index of the tool (fixed joint on link 7); its frame origin is the tool point."""
 
-TORQUE_LIMITS_NM = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
-"""Joint torque limits of the KUKA LBR iiwa 14 R820 (N·m), joints 1-7."""
-
 FLANGE_OFFSET_M = 0.045
 """Distance of the iiwa flange from the link-7 frame along its z axis (the link-7 mesh ends there)."""
 

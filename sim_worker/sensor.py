@@ -13,8 +13,10 @@ Then, once per control step and in this order: a bias that drifts as a random wa
 (``wrench_bias_drift_n_per_sqrt_s``, zero at the start), white noise (``wrench_noise_*``), a constant force offset
 fixed in the world (``wrench_bias_n``, as a misestimated tool weight), a delay
 (``wrench_delay_s``, whole steps) and the driver's first-order low-pass (``wrench_filter_cutoff_hz``). With none
-of them and the ideal source the controller reads the exact wrench. A tare (``SimWorld.tare_sensor``, which the
-executor takes in free space before contact) removes an offset in the tool frame from the readings after it.
+of them and the ideal source the controller reads the exact wrench. The sensor's own offset
+(``wrench_offset_tool_n``, its strain gauges' zero, fixed in the TOOL frame) is added by the world, turned with the
+tool. A tare (``SimWorld.tare_sensor``, which the executor takes in free space before contact) removes an offset in
+the tool frame from the readings after it: the sensor's own entirely, a world-fixed one in the tare's pose only.
 
 :data:`WRIST_SENSOR` is what a real cell has (values of a small six-axis sensor at 1 kHz, e.g. the
 ATI Mini45 class: 0.06 N / 0.002 N·m noise, 2 ms of transport and driver delay, a 200 Hz driver filter, a
@@ -62,6 +64,8 @@ class WrenchSensor:
         self._random_each_step = bool(np.any(std > 0.0)) or drift_step > 0.0
         self._fixed_bias = np.concatenate([np.asarray(config.wrench_bias_n, dtype=float), np.zeros(3)])
         self._biased = bool(np.any(self._fixed_bias != 0.0))
+        self.tool_offset = np.concatenate([np.asarray(config.wrench_offset_tool_n, dtype=float), np.zeros(3)])
+        """The sensor's own offset (6,), TOOL frame: the world adds it turned with the tool (``SimWorld``)."""
         delay_steps = round(config.wrench_delay_s / dt)
         cutoff_hz = config.wrench_filter_cutoff_hz
         self._alpha = 1.0 if cutoff_hz is None else dt / (dt + 1.0 / (2.0 * math.pi * cutoff_hz))
@@ -69,6 +73,7 @@ class WrenchSensor:
             config.sensor_model == "ideal"
             and not self._random_each_step
             and not self._biased
+            and not np.any(self.tool_offset)
             and delay_steps == 0
             and cutoff_hz is None
         )

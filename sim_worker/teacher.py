@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration, DemonstrationMetadata
+from schemas.job_budget import JobEstimate, JobPart
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.world import SimWorld
@@ -400,15 +401,67 @@ def record_demonstration(scenario: str, seed: int = 0, **overrides: Any) -> Teac
     ``overrides`` are ``TeacherParams`` fields (e.g. ``target_force_n=10``, ``move_duration_s=4``) or
     ``WorldConfig`` fields (e.g. ``table_height_m=0.15``). Same scenario, seed and overrides give the same recording.
     """
+    spec, config, params = _resolved(scenario, overrides)
+    rng = np.random.default_rng(seed)
+    with SimWorld(config) as world:
+        return _record(world, scenario, spec, params, rng, seed)
+
+
+def recording_estimate(scenario: str, **overrides: Any) -> JobEstimate:
+    """What recording ``scenario`` with ``overrides`` implies (``schemas.job_budget``), before recording: its phases
+    at the world's time step, the guarded descent at its longest; its log signals are allocated for the whole
+    horizon at once. Raises ValueError or TypeError as :func:`record_demonstration` does."""
+    _, config, params = _resolved(scenario, overrides)
+    parts = _recording_parts(params)
+    longest = max(parts, key=lambda part: part.simulated_s)
+    horizon = JobPart(
+        what=f"the recording's horizon (its longest stretch: {longest.what})",
+        field=longest.field,
+        simulated_s=sum(part.simulated_s for part in parts) + HORIZON_MARGIN_S,
+    )
+    return JobEstimate(
+        kind="recording",
+        time_step_s=config.time_step_s,
+        time_step_field="overrides.time_step_s",
+        parts=parts,
+        longest_phase=horizon,
+    )
+
+
+def _resolved(scenario: str, overrides: dict[str, Any]) -> tuple[_Scenario, WorldConfig, TeacherParams]:
+    """The scenario, its world and the teacher's parameters with ``overrides`` applied."""
     if scenario not in _SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(SCENARIOS)}")
     spec = _SCENARIOS[scenario]
     world_over, param_over = _split_overrides(overrides)
     config = WorldConfig().replace(**{**spec.world, **world_over})
-    params = TeacherParams(**{**asdict(TeacherParams()), **spec.params, **param_over})
-    rng = np.random.default_rng(seed)
-    with SimWorld(config) as world:
-        return _record(world, scenario, spec, params, rng, seed)
+    return spec, config, TeacherParams(**{**asdict(TeacherParams()), **spec.params, **param_over})
+
+
+HORIZON_MARGIN_S = 1.0
+"""The teacher's signals run this long past the longest recording its parameters allow, s."""
+
+
+def _longest_descent_s(prm: TeacherParams) -> float:
+    """The longest guarded descent before it gives up (three times its height and a centimetre), s."""
+    return 3.0 * (prm.guard_height_m + 0.01) / prm.guard_speed_m_s
+
+
+def _recording_parts(prm: TeacherParams) -> list[JobPart]:
+    """The stretches of a recording with parameters ``prm`` (the guarded descent at its longest), each named by the
+    override that sets its length."""
+    stretches = [
+        ("the rests before and after", "rest_s", 2.0 * prm.rest_s),
+        ("the approach from above", "approach_duration_s", prm.approach_duration_s),
+        (f"the guarded descent at guard_speed_m_s {prm.guard_speed_m_s:g} m/s at its longest", "guard_speed_m_s",
+         _longest_descent_s(prm)),
+        ("the force ramp up", "ramp_up_s", prm.ramp_up_s),
+        ("the dwells", "dwell_s", 2.0 * prm.dwell_s),
+        ("the motion in contact", "move_duration_s", prm.move_duration_s),
+        ("the force ramp down", "ramp_down_s", prm.ramp_down_s),
+        ("the retreat", "retreat_duration_s", prm.retreat_duration_s),
+    ]  # fmt: skip
+    return [JobPart(what=what, field=f"overrides.{name}", simulated_s=s) for what, name, s in stretches]
 
 
 def _record(
@@ -429,17 +482,7 @@ def _record(
     s_of_move /= s_of_move[-1]
 
     # Tremor (3-D, 4-9 Hz) and orientation wobble, generated for a generous horizon.
-    horizon = (
-        2.0 * prm.rest_s
-        + prm.approach_duration_s
-        + 3.0 * (prm.guard_height_m + 0.01) / prm.guard_speed_m_s
-        + prm.ramp_up_s
-        + 2.0 * prm.dwell_s
-        + T_move
-        + prm.ramp_down_s
-        + prm.retreat_duration_s
-        + 1.0
-    )
+    horizon = sum(part.simulated_s for part in _recording_parts(prm)) + HORIZON_MARGIN_S
     t_all = np.arange(round(horizon / dt)) * dt
     tremor = np.zeros((t_all.size, 3))
     for _ in range(3):
@@ -508,7 +551,7 @@ def _record(
     # Guarded descent along the normal until the force sensor reads the threshold.
     p_d = p_guard.copy()
     v_guard = -prm.guard_speed_m_s * n0
-    max_guard = round(3.0 * (prm.guard_height_m + 0.01) / prm.guard_speed_m_s / dt)
+    max_guard = round(_longest_descent_s(prm) / dt)
     for _ in range(max_guard):
         p_d = p_d + v_guard * dt
         run(p_d, v_guard, R0, p_d.copy())

@@ -8,34 +8,20 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from schemas.execution import ExecutionPhase, TelemetryBatch, TelemetrySample
+from schemas.execution import (
+    TELEMETRY_COLUMNS,
+    ExecutionPhase,
+    TelemetryBatch,
+    TelemetrySample,
+)
 
-TELEMETRY_COLUMNS: dict[str, slice] = {
-    "t": slice(0, 1),
-    "phase": slice(1, 2),
-    "segment_index": slice(2, 3),
-    "tool_position": slice(3, 6),
-    "tool_orientation": slice(6, 10),
-    "reference_position": slice(10, 13),
-    "reference_orientation": slice(13, 17),
-    "wrench_world": slice(17, 23),
-    "wrench_cf": slice(23, 29),
-    "desired_force_cf_z_n": slice(29, 30),
-    "in_contact": slice(30, 31),
-    "normal_force_true_n": slice(31, 32),
-    "contact_normal": slice(32, 35),
-}
-"""Columns of one telemetry row: t (s), phase code (``PHASE_CODES``), segment (-1 settling), tool and
-reference pose (world, m, xyzw), measured wrench applied by the tool (world; CF axes), desired CF-z force
-(N), in contact (1/0, the simulator's contact points), the exact force along the true surface normal (N) and
-that normal (into the surface; zeros without contact), from the simulator's contact points, not the sensor."""
-TELEMETRY_WIDTH = 35
 _PHASES = list(ExecutionPhase)
 
 
 @dataclass(frozen=True)
 class Telemetry:
-    """Recorded control steps, one row each (``data`` (N, 35), columns :data:`TELEMETRY_COLUMNS`).
+    """Recorded control steps, one row each (``data`` (N, :data:`TELEMETRY_WIDTH`), columns
+    :data:`schemas.execution.TELEMETRY_COLUMNS`).
 
     The properties are views: ``t`` (N,), ``phase_codes`` (N,), ``segment_index`` (N,),
     ``tool_position`` (N, 3), ``tool_orientation`` (N, 4), ``reference_position``,

@@ -12,11 +12,10 @@ import time
 
 import numpy as np
 
-from schemas.execution import PHASE_CODES, ExecutionPhase
+from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase
 from schemas.skill import SELECTION_CONTACT
-from sim_worker.executor import _control_and_record
+from sim_worker.executor import _record_row
 from sim_worker.sensor import WRIST_SENSOR
-from sim_worker.telemetry import TELEMETRY_WIDTH
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
 from skills.control import (
@@ -45,11 +44,10 @@ def warm_up() -> float:
         reference[:7] = robot[ROBOT_POSITION.start : ROBOT_QUAT.stop]  # hold the current pose
         controller.step(frame, robot, reference, np.zeros(6), True, mass, True)
         controller.step(frame, robot, reference, np.zeros(6), True, None, True)
-        gain, law = controller.law_arrays
+        controller.step_into(frame, robot, reference, np.zeros(6), True, None, False, np.zeros(LAW_OUTPUT_SIZE))
         rows = np.zeros((1, TELEMETRY_WIDTH))
         phase = float(PHASE_CODES[ExecutionPhase.contact])
-        _control_and_record(gain, law, robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0,
-                            0.0, phase, 0.0, True, np.zeros(LAW_OUTPUT_SIZE))  # fmt: skip
+        _record_row(robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0, 0.0, phase, 0.0)
     quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
     QuaternionDMP.fit(np.arange(11) * 0.01, quaternions).rollout(0.01)
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])

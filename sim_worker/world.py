@@ -18,7 +18,8 @@ Torque control
     The default velocity motors are disabled once (``VELOCITY_CONTROL``, force 0); ``step()`` sends
     ``TORQUE_CONTROL`` before every ``stepSimulation``. The URDF joint damping (0.5 N·m·s/rad) and the
     default link damping (0.04) are zeroed, so ``gravity_coriolis_torques()`` alone holds the arm still.
-    Torques are clipped to the iiwa 14 limits ``TORQUE_LIMITS_NM`` (320, 320, 176, 176, 110, 40, 40 N·m);
+    Torques are clipped to the iiwa 14 limits ``skills.control.IIWA_TORQUE_LIMITS_NM`` (320, 320, 176, 176, 110, 40,
+    40 N·m);
     ``last_step_clipped`` says whether the last ``step()`` clipped. Joint limits are NOT enforced by
     PyBullet in torque mode (the executor checks them).
 
@@ -268,6 +269,7 @@ class SimWorld:
         self.bodies: dict[str, int] = {}
         self._build_environment()
         self.sensor = WrenchSensor(c)
+        self._tool_offset = -self.sensor.tool_offset if np.any(self.sensor.tool_offset) else None
         self._wrist = c.sensor_model == "wrist"
         if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
             pybullet.enableJointForceTorqueSensor(self.robot, TOOL_LINK, True, physicsClientId=cid)
@@ -729,6 +731,8 @@ class SimWorld:
                 self._contact_summary()
                 source = self._applied
             self.sensor.measure_into(source, self._measured)
+            if self._tool_offset is not None:  # the sensor's own offset turns with it: R_tool b (adding -(-b))
+                _remove_tare(self._measured, self._arm_raw(), self._tool_offset)
             if self._tared:
                 _remove_tare(self._measured, self._arm_raw(), self._tare)
             self._measured_fresh = True
@@ -746,14 +750,18 @@ class SimWorld:
 
         An offset that turns with the sensor (its own bias, its drift) is removed in any pose; one that is fixed in
         the world (a misestimated tool weight, ``WorldConfig.wrench_bias_n``) only in the orientation of the tare.
+        The reading of the current state, which the sensor sampled at the last :meth:`step`, is tared too: the step
+        after a tare reads the tared force (a phase starting right after the tare must not see the old offset).
         The ideal sensor reads the exact wrench and is never tared (ValueError)."""
         if self.sensor.ideal:
             raise ValueError("the ideal sensor reads the exact contact wrench: there is nothing to tare")
         tare = np.asarray(offset, dtype=float)
         if tare.shape != (6,) or not np.all(np.isfinite(tare)):
             raise ValueError(f"tare: expected 6 finite numbers (force N, moment N·m, tool frame), got {offset!r}")
+        if self._measured_fresh:  # this state's reading was sampled before the tare: it is the first tared one
+            _remove_tare(self._measured, self._arm_raw(), tare - self._tare)
         self._tare[:] = tare
-        self._tared = bool(np.any(tare != 0.0))  # this step's reading stays as sampled: one reading per state
+        self._tared = bool(np.any(tare != 0.0))
 
     # -- kinematics ----------------------------------------------------------------------------------------------
 

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
-from sim_worker.robot_model import TORQUE_LIMITS_NM
+from skills.control import IIWA_TORQUE_LIMITS_NM
 
 
 @dataclass
@@ -78,7 +78,7 @@ class WorldConfig:
     tool_shaft_radius_m: float = 0.008
     tool_mass_kg: float = 0.2
     # Robot.
-    torque_limits_nm: tuple[float, ...] = TORQUE_LIMITS_NM
+    torque_limits_nm: tuple[float, ...] = IIWA_TORQUE_LIMITS_NM
     # Wrench sensor model (sim_worker.sensor): "ideal" reads the exact contact wrench; "wrist" a force/torque
     # sensor between flange and tool (tool weight compensated from the tool model, its inertia not). Noise, bias
     # drift, a constant untared force bias (world frame), delay and the driver's low-pass apply to either (all off
@@ -91,6 +91,7 @@ class WorldConfig:
     wrench_delay_s: float = 0.0
     wrench_filter_cutoff_hz: float | None = None
     wrench_bias_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wrench_offset_tool_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the sensor's own offset, TOOL frame
     seed: int = 0
     # An unknown tilt of the work piece (the parts ``sim_worker.executor.shifted_world_config`` moves): rotated
     # about world x, then world y (deg), about the pivot (world, m; it moves with the work piece's offsets).

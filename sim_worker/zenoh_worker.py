@@ -69,9 +69,11 @@ from schemas.bus import (
 from schemas.bus_security import BusSecurity
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
+from schemas.job_budget import JobBudget, JobEstimate
 from schemas.skill import Skill
 from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
+from skills.job_estimate import execution_estimate
 
 log = logging.getLogger("contact_skills.worker")
 _PHASES = list(ExecutionPhase)
@@ -106,6 +108,9 @@ class WorkerSettings:
     """Give up connecting after this long (None: keep trying until a signal arrives), s."""
     security: BusSecurity = field(default_factory=BusSecurity)
     """Login and TLS (``schemas.bus_security``); with a login the worker's id is its user name."""
+    budget: JobBudget = field(default_factory=JobBudget)
+    """The most one execution or recording may imply (``schemas.job_budget``): a job over it is refused, a job that
+    reaches it while running is aborted."""
 
     @classmethod
     def from_env(cls) -> WorkerSettings:
@@ -114,6 +119,7 @@ class WorkerSettings:
             endpoints=split_endpoints(os.environ.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
             prefix=os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX,
             security=BusSecurity.from_env(),
+            budget=JobBudget.from_env(),
         )
 
 
@@ -175,6 +181,8 @@ class _Run:
         self.dt = float(world.config.time_step_s)
         self.streams = self.request.telemetry is TelemetryMode.stream
         """Whether its control steps are published and kept for replays (``ExecutionSettings.telemetry``)."""
+        self.step_limit = worker.settings.budget.step_limit(self.dt)
+        """The most control steps it may run (the job budget at its time step): past them it is aborted."""
         self.abort_requested = False
         self.abort_received_t: float | None = None
         self.abort_reason: str | None = None
@@ -193,7 +201,12 @@ class _Run:
 
     # Polled by the control loop (its thread).
     def should_abort(self) -> bool:
+        """Whether to stop now: an abort was asked for, or the run reached its step limit (its pauses' held steps, a
+        surface found beyond its window: what its estimate could not foresee)."""
         self.polls += 1
+        if self.polls >= self.step_limit and not self.abort_requested:
+            reason = f"reached {self.worker.settings.budget.describe()} after {self.polls:,} control steps"
+            self.command(ExecutionCommand(command="abort", execution_id=self.execution_id, reason=reason))
         return self.abort_requested
 
     def should_pause(self) -> bool:
@@ -525,8 +538,12 @@ class Worker:
                           f"{named.demonstration_id}")  # fmt: skip
                     return
                 world = world_for(start)
+                estimate = execution_estimate(world.skill, start.request, float(world.config.time_step_s))
             except Exception as exc:
                 reply("error", _short_error(exc))
+                return
+            if over := _over_budget(estimate, self.settings.budget):
+                reply("error", over)
                 return
             if start.answer_by_unix_s is not None and time.time() > start.answer_by_unix_s - START_REPLY_MARGIN_S:
                 reply("busy", "the start request expired before this worker could take it (the caller gave up)")
@@ -609,6 +626,11 @@ class Worker:
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 request = RecordRequest.model_validate_json(payload)
+                from sim_worker.teacher import recording_estimate
+
+                over = _over_budget(recording_estimate(request.scenario, **request.overrides), self.settings.budget)
+                if over:
+                    raise ValueError(over)
             except Exception as exc:
                 query.reply(self.keys.record(self.worker_id), RecordReply(worker_id=self.worker_id, code="error",
                                                         error=_short_error(exc)).model_dump_json())  # fmt: skip
@@ -629,30 +651,39 @@ class Worker:
                 self._recording = False
 
     def _record(self, query, request: RecordRequest) -> None:
+        """The recording thread: record, reply, and only then free the worker (its info says ``recording`` until
+        the reply, whose demonstration may take seconds to encode, is out)."""
         started = time.perf_counter()
-        try:  # the import too: whatever fails, the query is answered and the worker is free again
-            from sim_worker.teacher import record_demonstration
+        try:
+            try:  # the import too: whatever fails, the query is answered and the worker is free again
+                from sim_worker.teacher import record_demonstration
 
-            log.info("recording %s (seed %d, overrides %s)", request.scenario, request.seed, request.overrides)
-            recording = record_demonstration(request.scenario, request.seed, **request.overrides)
-            reply = RecordReply(
-                worker_id=self.worker_id,
-                code="ok",
-                demonstration=recording.demonstration,
-                ground_truth=recording.ground_truth_dict(),
-                wall_s=time.perf_counter() - started,
-            )
-        except Exception as exc:
-            reply = RecordReply(worker_id=self.worker_id, code="error", error=_short_error(exc),
-                                wall_s=time.perf_counter() - started)  # fmt: skip
+                log.info("recording %s (seed %d, overrides %s)", request.scenario, request.seed, request.overrides)
+                recording = record_demonstration(request.scenario, request.seed, **request.overrides)
+                reply = RecordReply(
+                    worker_id=self.worker_id,
+                    code="ok",
+                    demonstration=recording.demonstration,
+                    ground_truth=recording.ground_truth_dict(),
+                    wall_s=time.perf_counter() - started,
+                )
+            except Exception as exc:
+                reply = RecordReply(worker_id=self.worker_id, code="error", error=_short_error(exc),
+                                    wall_s=time.perf_counter() - started)  # fmt: skip
+            try:
+                query.reply(self.keys.record(self.worker_id), reply.model_dump_json())
+                query.drop()
+            except Exception:
+                log.exception("record reply failed")
         finally:
             with self._lock:
                 self._recording = False
-        try:
-            query.reply(self.keys.record(self.worker_id), reply.model_dump_json())
-            query.drop()
-        except Exception:
-            log.exception("record reply failed")
+
+
+def _over_budget(estimate: JobEstimate, budget: JobBudget) -> str | None:
+    """Why a job is refused (``field: reason`` for each setting that takes it past ``budget``), or None if it fits."""
+    problems = estimate.problems(budget)
+    return "; ".join(f"{field}: {message}" for field, message in problems) or None
 
 
 def _short_error(exc: BaseException) -> str:

@@ -164,9 +164,7 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
-def _stretch_normal(
-    forces: NDArray[np.float64], velocities: NDArray[np.float64], rows: slice
-) -> NDArray[np.float64]:
+def _stretch_normal(forces: NDArray[np.float64], velocities: NDArray[np.float64], rows: slice) -> NDArray[np.float64]:
     """Return the surface normal (into the surface) over ``rows``: the mean friction-free force direction."""
     v = velocities[rows]
     sliding = np.linalg.norm(v, axis=1, keepdims=True) > CORE_MIN_SPEED_M_S
@@ -216,12 +214,18 @@ def analyse_contact(
     window = max(2, round(LOCAL_NORMAL_S * rate_hz))
 
     intervals: list[tuple[int, int, BoundaryReason, BoundaryReason]] = []
-    for c0, c1 in _runs(cores_mask):
-        head = slice(c0, min(c1, c0 + window))
-        tail = slice(max(c0, c1 - window), c1)
-        start, start_reason = _touch_down(p, f, v, head, c0, touch, backward=True)
-        end, end_reason = _touch_down(p, f, v, tail, c1 - 1, touch, backward=False)
-        intervals.append((start, end + 1, start_reason, end_reason))
+    cores = _runs(cores_mask)
+    for k, (c0, c1) in enumerate(cores):
+        # Each search reads only the rows up to the neighbouring cores (a whole-recording scan per core made
+        # learning grow with strokes x samples); a contact that reaches a neighbour core merges with it below.
+        lo = cores[k - 1][1] if k > 0 else 0
+        hi = cores[k + 1][0] if k + 1 < len(cores) else n
+        rows = slice(lo, hi)
+        head = slice(c0 - lo, min(c1, c0 + window) - lo)
+        tail = slice(max(c0, c1 - window) - lo, c1 - lo)
+        start, start_reason = _touch_down(p[rows], f[rows], v[rows], head, c0 - lo, touch, backward=True)
+        end, end_reason = _touch_down(p[rows], f[rows], v[rows], tail, c1 - 1 - lo, touch, backward=False)
+        intervals.append((lo + start, lo + end + 1, start_reason, end_reason))
 
     merged: list[ContactInterval] = []
     bridge = round(CORE_GAP_S * rate_hz)
@@ -301,4 +305,3 @@ def _touch_down(
 def mask_runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     """Return ``[start, end)`` of every run of True in a per-sample ``mask``."""
     return _runs(mask)
-

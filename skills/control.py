@@ -124,10 +124,8 @@ DAMPING_UPDATE_EVERY = 5
 """The adaptive damping matrix is rebuilt on every this-many-th model update (it costs ~2x the projector)."""
 _SINGULAR_DAMPING = 1e-6
 """Relative Tikhonov term of the task-space inverses in the null-space projector."""
-_ZERO6 = np.zeros(6)
 _EYE6 = np.eye(6)
 _EYE7 = np.eye(7)
-_ZERO7 = np.zeros(7)
 _NO_MASS_MATRIX = np.zeros((0, 0))
 
 # Layout of the law's per-step input vector x (see the module docstring, "Cost") and of the gain matrix G.
@@ -226,6 +224,32 @@ def _pose_error_into(px, py, pz, q, rpx, rpy, rpz, qr, out):  # pragma: no cover
     out[3], out[4], out[5] = scale * ex, scale * ey, scale * ez
 
 
+# The layouts' offsets as plain ints for the compiled step (numba freezes module-level ints as constants; it does not
+# take slices as globals). Derived from the slices above: one home for each layout.
+_R_Q, _R_QD, _R_P, _R_QUAT, _R_QUAT_END = (
+    ROBOT_Q.start,
+    ROBOT_QD.start,
+    ROBOT_POSITION.start,
+    ROBOT_QUAT.start,
+    ROBOT_QUAT.stop,
+)
+_R_J, _R_BIAS = ROBOT_JACOBIAN.start, ROBOT_BIAS.start
+_F_P, _F_QUAT, _F_QUAT_END, _F_TWIST = (
+    REFERENCE_POSITION.start,
+    REFERENCE_QUAT.start,
+    REFERENCE_QUAT.stop,
+    REFERENCE_TWIST.start,
+)
+_X_REF_TWIST0, _X_WRENCH0, _X_INTEGRAL0 = _X_REF_TWIST.start, _X_WRENCH.start, _X_INTEGRAL.start
+_X_TWIST0, _X_Q0, _X_QD0, _X_BIAS0, _X_TASK_END = _X_TWIST.start, _X_Q.start, _X_QD.start, _X_BIAS.start, _X_TASK.stop
+_G_WRENCH0, _G_JOINT0, _G_TASK_END = _G_WRENCH.start, _G_JOINT.start, _G_TASK.stop
+_L_INTEGRAL0, _L_LIMITS0, _L_CF_Z0 = _L_INTEGRAL.start, _L_LIMITS.start, _L_CF_Z.start
+_L_AXES0, _L_ERROR_PER_N0, _L_ADG_INV0 = _L_AXES.start, _L_ERROR_PER_N.start, _L_ADG_INV.start
+_O_MOTION0 = _O_MOTION.start
+if _O_FORCE.start != _O_MOTION.stop or _G_FORCE.start != _G_MOTION.stop:  # the step copies F_m, F_f in one run
+    raise AssertionError("F_m and F_f must be adjacent in G and in the output")
+
+
 @numba.njit(cache=True)
 def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no cover - compiled
     """One step of the law (module docstring, "Cost"): τ, F_m, F_f into ``out``; returns a code (``LAW_OK``, ...).
@@ -234,91 +258,95 @@ def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no c
     ``_L_*``, ``_O_*`` layouts, ``wrench`` (6,) the measured wrench; updates the force integral and the saturation
     state in ``law``.
     """
-    f_d = reference[13]
-    rpx, rpy, rpz = reference[0], reference[1], reference[2]
-    kz = law[10]
+    f_d = reference[REFERENCE_FORCE]
+    rpx, rpy, rpz = reference[_F_P], reference[_F_P + 1], reference[_F_P + 2]
+    kz = law[_L_IMPEDANCE_KZ]
     if kz != 0.0 and f_d != 0.0:  # impedance: the reference presses f_d through the spring along CF z
         shift = f_d / kz
-        rpx, rpy, rpz = rpx + law[20] * shift, rpy + law[21] * shift, rpz + law[22] * shift
-    x = np.empty(53)
-    _pose_error_into(robot[14], robot[15], robot[16], robot[17:21], rpx, rpy, rpz, reference[3:7], x)
+        rpx, rpy, rpz = rpx + law[_L_CF_Z0] * shift, rpy + law[_L_CF_Z0 + 1] * shift, rpz + law[_L_CF_Z0 + 2] * shift
+    x = np.empty(_X_SIZE)
+    _pose_error_into(
+        robot[_R_P], robot[_R_P + 1], robot[_R_P + 2], robot[_R_QUAT:_R_QUAT_END], rpx, rpy, rpz,
+        reference[_F_QUAT:_F_QUAT_END], x,
+    )  # fmt: skip
 
     # Force integral, CF coordinates, one force axis at a time: ∫ S~ (f_d S~ Adg^-1 F_d,1 - Adg^-1 F) dt.
-    if in_contact and law[6] == 0.0:
-        dt, limit = law[8], law[9]
+    if in_contact and law[_L_SATURATED] == 0.0:
+        dt, limit = law[_L_DT], law[_L_INTEGRAL_BOUND]
         for i in range(6):
-            if law[23 + i] != 0.0:
-                measured = law[35 + 6 * i] * wrench[0]
+            if law[_L_AXES0 + i] != 0.0:
+                row = _L_ADG_INV0 + 6 * i
+                measured = law[row] * wrench[0]
                 for j in range(1, 6):
-                    measured += law[35 + 6 * i + j] * wrench[j]
-                error = f_d * law[29 + i] - measured
-                law[i] = min(max(law[i] + error * dt, -limit), limit)
+                    measured += law[row + j] * wrench[j]
+                error = f_d * law[_L_ERROR_PER_N0 + i] - measured
+                law[_L_INTEGRAL0 + i] = min(max(law[_L_INTEGRAL0 + i] + error * dt, -limit), limit)
 
     # x = [e_p, f_d, 1, ξ_r, F, ∫e_cf, J q̇, q, q̇, g + c]; y = G x = [F_m; F_f; F_m + F_f; N^T τ_0 + g + c].
-    x[6] = f_d
-    x[7] = 1.0
+    x[_X_FORCE] = f_d
+    x[_X_ONE] = 1.0
     for i in range(6):
-        x[8 + i] = reference[7 + i]
-        x[14 + i] = wrench[i]
-        x[20 + i] = law[i]
+        x[_X_REF_TWIST0 + i] = reference[_F_TWIST + i]
+        x[_X_WRENCH0 + i] = wrench[i]
+        x[_X_INTEGRAL0 + i] = law[_L_INTEGRAL0 + i]
         twist = 0.0
         for j in range(7):
-            twist += robot[30 + 7 * i + j] * robot[7 + j]
-        x[26 + i] = twist
+            twist += robot[_R_J + 7 * i + j] * robot[_R_QD + j]
+        x[_X_TWIST0 + i] = twist
     for j in range(7):
-        x[32 + j] = robot[j]
-        x[39 + j] = robot[7 + j]
-        x[46 + j] = robot[72 + j]
-    y = np.empty(25)
-    for r in range(18):  # the wrench rows read the task columns only, the joint rows the joint columns and the 1
+        x[_X_Q0 + j] = robot[_R_Q + j]
+        x[_X_QD0 + j] = robot[_R_QD + j]
+        x[_X_BIAS0 + j] = robot[_R_BIAS + j]
+    y = np.empty(_G_ROWS)
+    for r in range(_G_JOINT0):  # the wrench rows read the task columns only, the joint rows the joint columns and 1
         acc = 0.0
-        for col in range(32):
+        for col in range(_X_TASK_END):
             acc += G[r, col] * x[col]
         y[r] = acc
-    for r in range(18, 25):
-        acc = G[r, 7]
-        for col in range(32, 53):
+    for r in range(_G_JOINT0, _G_ROWS):
+        acc = G[r, _X_ONE]
+        for col in range(_X_Q0, _X_SIZE):
             acc += G[r, col] * x[col]
         y[r] = acc
     total = 0.0
     for j in range(7):  # τ = J^T (F_m + F_f) + N^T τ_0 + g + c
         acc = 0.0
         for i in range(6):
-            acc += robot[30 + 7 * i + j] * y[12 + i]
-        out[j] = acc + y[18 + j]
+            acc += robot[_R_J + 7 * i + j] * y[_G_WRENCH0 + i]
+        out[j] = acc + y[_G_JOINT0 + j]
         total += out[j]
-    for i in range(12):
-        out[7 + i] = y[i]
+    for i in range(_G_TASK_END):  # F_m, F_f
+        out[_O_MOTION0 + i] = y[i]
 
     # Limits and sanity.
     fx, fy, fz, mx, my, mz = wrench[0], wrench[1], wrench[2], wrench[3], wrench[4], wrench[5]
     force_sq = fx * fx + fy * fy + fz * fz
-    out[19] = 0.0
-    out[20] = 0.0
+    out[_O_SATURATED] = 0.0
+    out[_O_JOINT] = 0.0
     if not math.isfinite(total + force_sq + mx * mx + my * my + mz * mz):
-        law[6] = 0.0
+        law[_L_SATURATED] = 0.0
         for j in range(7):
             out[j] = 0.0
         return _NON_FINITE
     saturated, joint, worst = False, 0, 1.0
     for j in range(7):
-        limit = law[13 + j]
+        limit = law[_L_LIMITS0 + j]
         if abs(out[j]) > limit * worst:
             saturated, joint, worst = True, j, abs(out[j]) / limit
     code = LAW_OK
     if saturated:
         for j in range(7):
-            limit = law[13 + j]
+            limit = law[_L_LIMITS0 + j]
             out[j] = min(max(out[j], -limit), limit)
-        law[7] += law[8]
-        if law[7] >= law[12]:
+        law[_L_SATURATED_FOR] += law[_L_DT]
+        if law[_L_SATURATED_FOR] >= law[_L_SATURATION_ABORT]:
             code = _TORQUE_LIMIT
-        out[19] = 1.0
-        out[20] = joint
+        out[_O_SATURATED] = 1.0
+        out[_O_JOINT] = joint
     else:
-        law[7] = 0.0
-    law[6] = 1.0 if saturated else 0.0
-    if force_sq > law[11]:
+        law[_L_SATURATED_FOR] = 0.0
+    law[_L_SATURATED] = 1.0 if saturated else 0.0
+    if force_sq > law[_L_MAX_FORCE_SQ]:
         code = _FORCE_LIMIT
     return code
 
@@ -805,18 +833,37 @@ class HybridController:
         """:meth:`compute` on packed arrays, for a control loop: ``robot`` (:data:`ROBOT_STATE_SIZE`,) in the
         ``ROBOT_*`` layout (a simulated world's arm state as it is), ``reference`` (:data:`REFERENCE_SIZE`,) in the
         ``REFERENCE_*`` layout, ``wrench`` (6,) float64; the rest as :meth:`compute`. The outputs are new arrays."""
-        reason = self.prepare(frame, robot, reference, wrench, mass_matrix, update_null_space)
-        if reason is not None:
-            return ControlOutput(_ZERO7.copy(), _ZERO6, _ZERO6, False, reason)
-        out = np.empty(LAW_OUTPUT_SIZE)
-        code = law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
-        tau, wrench_motion, wrench_force = out[LAW_TAU], out[_O_MOTION], out[_O_FORCE]
-        if code == LAW_OK:
-            return ControlOutput(tau, wrench_motion, wrench_force, out[_O_SATURATED] > 0.0, None)
-        reason = self.abort_reason(code, out, robot, reference, wrench, mass_matrix)
-        return ControlOutput(tau, wrench_motion, wrench_force, code != _NON_FINITE and out[_O_SATURATED] > 0.0, reason)
+        out = np.zeros(LAW_OUTPUT_SIZE)  # a step that must not run leaves it zero
+        reason = self.step_into(frame, robot, reference, wrench, in_contact, mass_matrix, update_null_space, out)
+        return ControlOutput(out[LAW_TAU], out[_O_MOTION], out[_O_FORCE], out[_O_SATURATED] > 0.0, reason)
 
-    def prepare(
+    def step_into(
+        self,
+        frame: ControlFrame,
+        robot: NDArray[np.float64],
+        reference: NDArray[np.float64],
+        wrench: NDArray[np.float64],
+        in_contact: bool,
+        mass_matrix: NDArray[np.float64] | None,
+        update_model: bool,
+        out: NDArray[np.float64],
+    ) -> str | None:
+        """One control step for a 1 kHz loop, on packed arrays without allocations: the torque, F_m and F_f into
+        ``out`` (:data:`LAW_OUTPUT_SIZE`, ``LAW_TAU`` first); returns why the loop must stop (a non-finite or
+        singular model, a force or torque limit: the torque is zero or clipped then), else None.
+
+        ``update_model``: refresh the null-space model with ``mass_matrix`` (a loop does it every few steps);
+        the gain rows follow ``frame`` by themselves. The arrays as :meth:`step`. The same law as :meth:`step`
+        (the same floating-point operations: the same torques to the last bit)."""
+        if update_model or frame is not self._gain_frame or self._projector is None:
+            reason = self._prepare(frame, robot, reference, wrench, mass_matrix, update_model)
+            if reason is not None:
+                out[LAW_TAU] = 0.0
+                return reason
+        code = law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
+        return None if code == LAW_OK else self.abort_reason(code, out, robot, reference, wrench, mass_matrix)
+
+    def _prepare(
         self,
         frame: ControlFrame,
         robot: NDArray[np.float64],
@@ -825,10 +872,9 @@ class HybridController:
         mass_matrix: NDArray[np.float64] | None,
         update_null_space: bool,
     ) -> str | None:
-        """The part of :meth:`step` before the compiled law (:func:`law_step` on :attr:`law_arrays`): rebuild the
-        null-space model when asked (or when there is none), the gain rows when the frame or the damping changed.
-        Returns why the step must not run (a non-finite or singular model; zero torque then), else None. For a
-        loop that calls the compiled law itself together with its own per-step work."""
+        """The part of a step before the compiled law (:func:`law_step`): rebuild the null-space model when asked
+        (or when there is none), the gain rows when the frame or the damping changed. Returns why the step must not
+        run (a non-finite or singular model; zero torque then), else None."""
         if update_null_space or self._projector is None:
             jacobian = robot[ROBOT_JACOBIAN].reshape(6, 7)
             if not (np.isfinite(jacobian).all() and (mass_matrix is None or np.isfinite(mass_matrix).all())):
@@ -842,12 +888,6 @@ class HybridController:
         if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
             self._cache_frame(frame)
         return None
-
-    @property
-    def law_arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The compiled law's gain matrix and its state (integral, saturation timer, frame data), as
-        :func:`law_step` takes them; valid after :meth:`prepare`."""
-        return self._gain, self._law
 
     def abort_reason(
         self,

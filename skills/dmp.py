@@ -43,7 +43,6 @@ goal moves. With ``s = 1`` the demonstrated shape is kept and the spring still p
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -184,18 +183,47 @@ def canonical_phase(t: ArrayLike, alpha_x: float, duration_s: float) -> NDArray[
     return np.exp(-alpha_x * np.asarray(t, dtype=float) / duration_s)
 
 
-@functools.lru_cache(maxsize=8)
+ROLLOUT_FEATURES_CACHE_BYTES = 64 * 2**20
+"""The rollout design matrices kept for reuse take at most this much memory, bytes; of the larger ones (a minute-long
+segment at 1 kHz with 300 bases is 134 MB) only the last one is kept: the three DMPs of a segment roll out one after
+the other, so they still share it, and a worker no longer holds eight of them (1.1 GB)."""
+FEATURE_ROWS_PER_BLOCK = 4096
+"""The design matrix is evaluated this many rows at a time (each row on its own: the same numbers), so its
+temporaries stay small."""
+_features_cache: dict[tuple, NDArray[np.float64]] = {}
+_last_large_features: list[tuple[tuple, NDArray[np.float64]]] = []
+
+
 def _rollout_features(
     dt: float, duration_s: float, alpha_x: float, centers: bytes, widths: bytes
 ) -> NDArray[np.float64]:
     """The design matrix :func:`forcing_features` (M - 1, n_basis) at the phases of the rollout steps
     ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s), for the basis given as float64 bytes.
 
-    Cached (read-only): a segment's position, orientation and force DMPs share their duration and basis, so a plan
-    that rolls out all three evaluates the Gaussians once instead of three times."""
+    Cached (read-only) within ``ROLLOUT_FEATURES_CACHE_BYTES`` (the last larger one aside): a segment's position,
+    orientation and force DMPs share their duration and basis, so a plan that rolls out all three evaluates the
+    Gaussians once instead of three times."""
+    key = (dt, duration_s, alpha_x, centers, widths)
+    cached = _features_cache.get(key)
+    if cached is None and _last_large_features and _last_large_features[0][0] == key:
+        cached = _last_large_features[0][1]
+    if cached is not None:
+        return cached
     x = canonical_phase(_rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
-    features = forcing_features(x, np.frombuffer(centers), np.frombuffer(widths))
+    c, w = np.frombuffer(centers), np.frombuffer(widths)
+    features = np.empty((x.size, c.size))
+    for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
+        rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
+        features[rows] = forcing_features(x[rows], c, w)
     features.flags.writeable = False
+    if features.nbytes > ROLLOUT_FEATURES_CACHE_BYTES // 8:
+        _last_large_features[:] = [(key, features)]
+        return features
+    while _features_cache and sum(f.nbytes for f in _features_cache.values()) + features.nbytes > (
+        ROLLOUT_FEATURES_CACHE_BYTES
+    ):
+        _features_cache.pop(next(iter(_features_cache)))  # the oldest first
+    _features_cache[key] = features
     return features
 
 

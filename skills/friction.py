@@ -69,9 +69,7 @@ def friction_coefficient(
     return _median_fast_lean(_removal_ratios(forces, velocities), np.linalg.norm(velocities, axis=1), mask)
 
 
-def _median_fast_lean(
-    ratios: NDArray[np.float64], speed: NDArray[np.float64], mask: NDArray[np.bool_] | None
-) -> float:
+def _median_fast_lean(ratios: NDArray[np.float64], speed: NDArray[np.float64], mask: NDArray[np.bool_] | None) -> float:
     """The median of the leans ``ratios`` (N,) where the tool moves faster than ``FAST_SLIDING_M_S`` (``speed`` (N,)
     m/s) within ``mask``, leaning less than ``FRICTION_CONE_MAX``; 0 when there are none."""
     fast = (speed > FAST_SLIDING_M_S) & (ratios <= FRICTION_CONE_MAX)

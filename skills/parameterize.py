@@ -245,8 +245,12 @@ def _segment(
 
 
 def _checks(
-    learned: list[_Learned], r: _Recording, classification: SkillClassification | None, skill_type: SkillType,
-    auto: bool, offset_uncertainty_n: float | None,
+    learned: list[_Learned],
+    r: _Recording,
+    classification: SkillClassification | None,
+    skill_type: SkillType,
+    auto: bool,
+    offset_uncertainty_n: float | None,
 ) -> list[SkillCheck]:
     """Return the skill's checks against what the demonstration measured (`skills.skill_checks`); the import's
     sensor-offset uncertainty (N) is checked where it fitted one."""

@@ -335,7 +335,8 @@ def _without_brushes(segments: list[SegmentBounds], press: NDArray[np.float64], 
         return segments
     strongest = max(presses.values())
     brushes = {
-        k for k, p in presses.items()
+        k
+        for k, p in presses.items()
         if p < BRUSH_FRACTION * strongest and segments[k].end - segments[k].start < BRUSH_MAX_S * rate_hz
     }
     marked = [

@@ -96,8 +96,11 @@ class SegmentGeometry:
     def log_odds_contour(self) -> NDArray[np.float64]:
         """Return the log-odds for contour from (turning, tool following, planarity)."""
         plane_ratio = np.log(max(self.plane_rms_m, 1e-6) / PLANE_RMS_AT_EVEN_ODDS_M)
-        planarity = STEEPNESS * plane_ratio if plane_ratio > 0 else max(PLANARITY_SLIDE_STEEPNESS * plane_ratio,
-                                                                         -PLANARITY_SLIDE_CAP)
+        planarity = (
+            STEEPNESS * plane_ratio
+            if plane_ratio > 0
+            else max(PLANARITY_SLIDE_STEEPNESS * plane_ratio, -PLANARITY_SLIDE_CAP)
+        )
         return np.array(
             [
                 STEEPNESS * np.log(max(self.turning_deg, 1e-3) / TURNING_AT_EVEN_ODDS_DEG),

@@ -95,7 +95,11 @@ def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.f
     passed = low <= ratio <= high
     verdict = "" if passed else f" (allowed {100 * low:.0f}-{100 * high:.0f} %): CF z is not along the press"
     return SkillCheck(
-        name=CheckName.force_along_cf, segment=index, passed=passed, value=ratio, limit=low if ratio < 1 else high,
+        name=CheckName.force_along_cf,
+        segment=index,
+        passed=passed,
+        value=ratio,
+        limit=low if ratio < 1 else high,
         unit="ratio",
         message=f"segment {index} presses {learned:.2f} N along its CF z where the tool pressed {measured:.2f} N "
         f"({100 * ratio:.0f} %){verdict}",
@@ -122,7 +126,12 @@ def cf_z_vs_force(
         what = f"the friction-free force over {1000 * CHECK_SMOOTHING_S:.0f} ms (95th percentile over the samples)"
     passed = value <= limit
     return SkillCheck(
-        name=CheckName.cf_z_vs_force, segment=index, passed=passed, value=value, limit=limit, unit="deg",
+        name=CheckName.cf_z_vs_force,
+        segment=index,
+        passed=passed,
+        value=value,
+        limit=limit,
+        unit="deg",
         message=f"segment {index}: CF z is {value:.1f} deg from {what}"
         + ("" if passed else f", more than the {limit:.0f} deg a hand's lean or noise explains"),
     )
@@ -148,8 +157,13 @@ def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
         conditioned = False
     checks = [
         SkillCheck(
-            name=CheckName.plane_conditioning, segment=index, passed=conditioned, value=width_mm,
-            limit=1000.0 * plane.equal_width_m, unit="mm", message=f"segment {index}: {conditioning}",
+            name=CheckName.plane_conditioning,
+            segment=index,
+            passed=conditioned,
+            value=width_mm,
+            limit=1000.0 * plane.equal_width_m,
+            unit="mm",
+            message=f"segment {index}: {conditioning}",
         )
     ]
     angle = plane.plane_force_angle_deg
@@ -166,8 +180,13 @@ def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
         )
     checks.append(
         SkillCheck(
-            name=CheckName.plane_vs_force, segment=index, passed=passed, value=0.0 if angle is None else angle,
-            limit=PLANE_FORCE_TOLERANCE_DEG, unit="deg", message=message,
+            name=CheckName.plane_vs_force,
+            segment=index,
+            passed=passed,
+            value=0.0 if angle is None else angle,
+            limit=PLANE_FORCE_TOLERANCE_DEG,
+            unit="deg",
+            message=message,
         )
     )
     return checks
@@ -182,7 +201,11 @@ def stroke_strength(presses_n: dict[int, float]) -> list[SkillCheck]:
         passed = share >= BRUSH_FRACTION
         checks.append(
             SkillCheck(
-                name=CheckName.stroke_strength, segment=index, passed=passed, value=share, limit=BRUSH_FRACTION,
+                name=CheckName.stroke_strength,
+                segment=index,
+                passed=passed,
+                value=share,
+                limit=BRUSH_FRACTION,
                 unit="ratio",
                 message=f"segment {index} presses {press:.1f} N, {100 * share:.0f} % of the strongest "
                 f"({strongest:.1f} N)" + ("" if passed else ": a brush, not a stroke?"),
@@ -192,7 +215,10 @@ def stroke_strength(presses_n: dict[int, float]) -> list[SkillCheck]:
 
 
 def force_outside_contact(
-    forces: NDArray[np.float64], velocities: NDArray[np.float64], free: NDArray[np.bool_], weakest_press_n: float,
+    forces: NDArray[np.float64],
+    velocities: NDArray[np.float64],
+    free: NDArray[np.bool_],
+    weakest_press_n: float,
     rate_hz: float,
 ) -> SkillCheck:
     """Check the largest press held in free segments (``free`` (N,) mask) against the weakest contact's press (N)."""
@@ -209,7 +235,11 @@ def force_outside_contact(
     share = worst / max(weakest_press_n, 1e-9)
     passed = share <= OUTSIDE_PRESS_FRACTION
     return SkillCheck(
-        name=CheckName.force_outside_contact, segment=None, passed=passed, value=share, limit=OUTSIDE_PRESS_FRACTION,
+        name=CheckName.force_outside_contact,
+        segment=None,
+        passed=passed,
+        value=share,
+        limit=OUTSIDE_PRESS_FRACTION,
         unit="ratio",
         message=f"free segments hold at most {worst:.1f} N for {HELD_PRESS_S:.1f} s without moving along it, "
         f"{100 * share:.0f} % of the weakest contact's press"
@@ -233,8 +263,13 @@ def sensor_offset(uncertainty_n: float, weakest_press_n: float) -> SkillCheck:
             "--tare-window) pins the offset down"
         )
     return SkillCheck(
-        name=CheckName.sensor_offset, segment=None, passed=passed, value=share, limit=OFFSET_SHARE_LIMIT,
-        unit="ratio", message=message,
+        name=CheckName.sensor_offset,
+        segment=None,
+        passed=passed,
+        value=share,
+        limit=OFFSET_SHARE_LIMIT,
+        unit="ratio",
+        message=message,
     )
 
 
@@ -242,8 +277,12 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
     """Check the chosen type against `skills.selection`'s evidence (None: it could not be measured)."""
     if classification is None:
         return SkillCheck(
-            name=CheckName.type_evidence, segment=None, passed=True, value=0.5,
-            limit=AGAINST_EVIDENCE, unit="probability",
+            name=CheckName.type_evidence,
+            segment=None,
+            passed=True,
+            value=0.5,
+            limit=AGAINST_EVIDENCE,
+            unit="probability",
             message=f"{chosen.value} was asked for; the tool never slid long enough to weigh slide against contour",
         )
     p_contour = float(1.0 / (1.0 + np.exp(-classification.log_odds.sum())))
@@ -261,6 +300,11 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
             f"{classification.reason}"
         )
     return SkillCheck(
-        name=CheckName.type_evidence, segment=None, passed=passed, value=p_chosen, limit=limit, unit="probability",
+        name=CheckName.type_evidence,
+        segment=None,
+        passed=passed,
+        value=p_chosen,
+        limit=limit,
+        unit="probability",
         message=message,
     )

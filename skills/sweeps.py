@@ -1,22 +1,37 @@
 """The statistics of a robustness sweep (pure functions, no I/O): the trial design, what each trial changes in the
-cell, how a trial is judged, and what the results say (per-controller success and force-error quantiles, which
-parameters drive the failures). The service (``services/sweeps.py``) stores and runs; this module computes.
+cell, how a trial is judged (its execution's verdict), and what the results say (per-controller success, failure
+causes and force-error quantiles, which parameters drive the failures). The service (``services/sweeps.py``) stores
+and runs; this module computes.
 
 Units: a parameter's values are in the unit its name says (``_m``, ``_deg``, ``_n``, ``_n_m``, ``_n_s_m``, or 1).
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M, ControllerKind
+from schemas.execution import (
+    NOMINAL_CONTACT_DAMPING_N_S_M,
+    NOMINAL_CONTACT_STIFFNESS_N_M,
+    ControllerKind,
+    EnvironmentChange,
+    ExecutionVerdict,
+    Verdict,
+    VerdictCheckName,
+    WorkPieceSource,
+)
+from schemas.skill import Skill
 from schemas.sweep import (
+    CYLINDER_PARAMETERS,
+    SWEEP_TOLERANCES,
     ControllerSummary,
     ParameterRange,
     Quantiles,
@@ -24,6 +39,7 @@ from schemas.sweep import (
     Sensitivity,
     SweepParameter,
 )
+from skills.frames import matrix_from_axis_angle
 
 SEED_STRIDE = 1_000_003
 """Trial k's sensor noise seed is ``(seed * SEED_STRIDE + k) mod 2**32``: distinct per trial, the same for every
@@ -62,18 +78,29 @@ def trial_environment(base: Mapping, parameters: Mapping[SweepParameter, float],
     """The `EnvironmentChange` fields (a JSON dict) of one trial: ``base`` with the varied fields set.
 
     Offsets and tilts are UNKNOWN to the controller (``unknown_offset``, ``unknown_tilt_deg``); the bias is along
-    world z; ``noise_seed`` makes the sensor noise differ between trials (and repeat with the sweep's seed)."""
+    world x, y and z, the sensor's own offset along the tool's; ``noise_seed`` makes the sensor noise differ between
+    trials (and repeat with the sweep's seed)."""
     env = dict(base)
     offset = list(env.get("unknown_offset") or [0.0, 0.0, 0.0])
     tilt = list(env.get("unknown_tilt_deg") or [0.0, 0.0])
     bias = list(env.get("sensor_bias_n") or [0.0, 0.0, 0.0])
+    own = list(env.get("sensor_offset_tool_n") or [0.0, 0.0, 0.0])
     P = SweepParameter
     for axis, name in enumerate((P.offset_x_m, P.offset_y_m, P.offset_z_m)):
         offset[axis] = parameters.get(name, offset[axis])
     for axis, name in enumerate((P.tilt_x_deg, P.tilt_y_deg)):
         tilt[axis] = parameters.get(name, tilt[axis])
-    bias[2] = parameters.get(P.sensor_bias_z_n, bias[2])
-    env.update(unknown_offset=offset, unknown_tilt_deg=tilt, sensor_bias_n=bias, noise_seed=noise_seed)
+    for axis, name in enumerate((P.sensor_bias_x_n, P.sensor_bias_y_n, P.sensor_bias_z_n)):
+        bias[axis] = parameters.get(name, bias[axis])
+    for axis, name in enumerate((P.sensor_offset_x_n, P.sensor_offset_y_n, P.sensor_offset_z_n)):
+        own[axis] = parameters.get(name, own[axis])
+    env.update(
+        unknown_offset=offset,
+        unknown_tilt_deg=tilt,
+        sensor_bias_n=bias,
+        sensor_offset_tool_n=own,
+        noise_seed=noise_seed,
+    )
     for name, field in (
         (P.friction, "friction"),
         (P.contact_stiffness_n_m, "contact_stiffness_n_m"),
@@ -104,6 +131,58 @@ def planned_pad(base: Mapping, parameters: Mapping[SweepParameter, float]) -> di
     }
 
 
+def taught_cylinder_world(skill: Skill, scenario: str | None, environment: EnvironmentChange) -> dict[str, Any] | None:
+    """The skill's taught world (a `WorldConfig` dict) when a sweep's trials run in it and it has a cylinder, else
+    None. The trials run in the taught world when the sweep names no scenario and its environment's work piece is
+    ``auto`` or ``taught`` (the precedence of ``sim_worker.execution_world``: a sweep gives no world file)."""
+    world = skill.taught_world
+    in_taught_world = scenario is None and environment.work_piece in (WorkPieceSource.auto, WorkPieceSource.taught)
+    return world if in_taught_world and world is not None and world.get("cylinder_enabled") else None
+
+
+def inapplicable_parameter(
+    vary: Mapping[SweepParameter, ParameterRange], skill: Skill, scenario: str | None, environment: EnvironmentChange
+) -> tuple[SweepParameter, str] | None:
+    """The first varied parameter the trials' world has nothing for, with why (a 422 names it), or None: the
+    cylinder parameters need :func:`taught_cylinder_world`."""
+    cylinder = [name for name in vary if name in CYLINDER_PARAMETERS]
+    if not cylinder or taught_cylinder_world(skill, scenario, environment) is not None:
+        return None
+    if skill.taught_world is None or not skill.taught_world.get("cylinder_enabled"):
+        why = "the skill's taught world has no cylinder (vary it for a contour skill recorded on contour_cylinder)"
+    elif scenario is not None:
+        why = f"the trials run in the scenario {scenario!r}, not in the skill's taught world (give no scenario)"
+    else:
+        why = f"the trials run on a {environment.work_piece.value} work piece, not in the skill's taught world"
+    return cylinder[0], f"{cylinder[0].value} changes the cylinder of the skill's taught world: {why}"
+
+
+def trial_world_overrides(world: Mapping[str, Any] | None, parameters: Mapping[SweepParameter, float]) -> dict:
+    """The `WorldConfig` fields one trial changes in ``world`` (the skill's taught world, the trials' world when they
+    vary a cylinder parameter: :func:`taught_cylinder_world`; read only then): the cylinder's radius with its crown
+    held where it was taught (the cylinder lies on the table, its centre one radius above it: lowering it by twice
+    the change along the table normal keeps the crown), and its yaw turned from the taught one (deg)."""
+    P = SweepParameter
+    changes: dict[str, Any] = {}
+    if world is None:
+        return changes
+    if P.cylinder_radius_m in parameters:
+        radius = parameters[P.cylinder_radius_m]
+        normal = matrix_from_axis_angle(world["table_tilt_axis"], math.radians(world["table_tilt_deg"]))[:, 2]
+        lowered = np.asarray(world["cylinder_offset_m"], float) + 2.0 * (world["cylinder_radius_m"] - radius) * normal
+        changes.update(cylinder_radius_m=radius, cylinder_offset_m=lowered.tolist())
+    if P.cylinder_yaw_deg in parameters:
+        changes["cylinder_yaw_deg"] = world["cylinder_yaw_deg"] + parameters[P.cylinder_yaw_deg]
+    return changes
+
+
+def trial_tolerances(base: Mapping[str, Any], criteria: Mapping[str, float]) -> dict[str, Any]:
+    """The `ExecutionTolerances` fields (a JSON dict) of every trial: ``base`` (the sweep's settings' tolerances) with
+    the sweep's success criteria (``criteria``: its request, ``success_rms_pct`` and ``success_contact_ratio``)
+    written in (:data:`schemas.sweep.SWEEP_TOLERANCES`)."""
+    return {**base, **{tolerance: criteria[field] for field, tolerance in SWEEP_TOLERANCES.items()}}
+
+
 def trial_noise_seed(seed: int, trial: int) -> int:
     """The sensor noise seed of trial ``trial`` of a sweep seeded ``seed`` (:data:`SEED_STRIDE`)."""
     return (seed * SEED_STRIDE + trial) % 2**32
@@ -111,7 +190,7 @@ def trial_noise_seed(seed: int, trial: int) -> int:
 
 @dataclass(frozen=True)
 class Outcome:
-    """What one finished trial x controller gave (from its execution's status and metrics)."""
+    """What one finished trial x controller gave (from its execution's status and metrics) and how it is judged."""
 
     phase: str
     """done, aborted or failed."""
@@ -120,27 +199,91 @@ class Outcome:
     touchdown_ratio: float | None
     contact_ratio: float | None
     abort_reason: str | None
+    success: bool
+    """Its verdict passed (for a trial stored without a verdict: :func:`legacy_success`)."""
+    reasons: tuple[str, ...] = ()
+    """Why it failed, in words (its verdict's reasons)."""
+    causes: tuple[str, ...] = ()
+    """Why it failed, as counted (:func:`failure_causes`)."""
+    warnings: tuple[str, ...] = ()
+    """The checks its verdict warned about (names)."""
+
+    @property
+    def verdict(self) -> Verdict:
+        """Pass or fail (its execution's verdict, or the old rule's)."""
+        return Verdict.passed if self.success else Verdict.failed
 
 
-def trial_success(outcome: Outcome, rms_pct: float, contact_ratio: float) -> bool:
-    """Done, in contact at least ``contact_ratio`` of the contact phase, true normal RMS error <= ``rms_pct`` %."""
+def legacy_success(
+    phase: str, contact_ratio: float | None, true_rms_pct: float | None, criteria: Mapping[str, float]
+) -> bool:
+    """How a trial stored before executions had a verdict is judged: done, in contact at least
+    ``success_contact_ratio`` of the contact phase and a true normal RMS error of at most ``success_rms_pct`` % (the
+    sweep request's fields in ``criteria``)."""
     return (
-        outcome.phase == "done"
-        and outcome.contact_ratio is not None
-        and outcome.contact_ratio >= contact_ratio
-        and outcome.true_rms_pct is not None
-        and outcome.true_rms_pct <= rms_pct
+        phase == "done"
+        and contact_ratio is not None
+        and contact_ratio >= criteria["success_contact_ratio"]
+        and true_rms_pct is not None
+        and true_rms_pct <= criteria["success_rms_pct"]
     )
 
 
-def failure_cause(outcome: Outcome, rms_pct: float, contact_ratio: float) -> str:
-    """Why an unsuccessful trial failed, in a few words (the abort reason up to its first colon)."""
-    if outcome.phase != "done":
-        reason = (outcome.abort_reason or outcome.phase).split(":", 1)[0].split(" at t =", 1)[0]
-        return f"{outcome.phase}: {reason}"
-    if outcome.contact_ratio is None or outcome.contact_ratio < contact_ratio:
-        return "contact below the threshold"
-    return f"force error above {rms_pct:g} %"
+def _abort_cause(phase: str, abort_reason: str | None) -> str:
+    """``<phase>: <the reason up to its first colon or its time>``, e.g. ``aborted: contact lost in segment 1``."""
+    return f"{phase}: {(abort_reason or phase).split(':', 1)[0].split(' at t =', 1)[0]}"
+
+
+def failure_causes(verdict: ExecutionVerdict, phase: str, abort_reason: str | None) -> tuple[str, ...]:
+    """Why a trial failed its verdict, as the sweep counts it: ``aborted: <reason>`` (or ``failed: <error>``) for one
+    that did not finish (the verdict fails on that alone), else the names of its failed checks (a warning is no
+    cause); () for a verdict that passed."""
+    if verdict.verdict is Verdict.passed:
+        return ()
+    if phase != "done":
+        return (_abort_cause(phase, abort_reason),)
+    return tuple(c.name.value for c in verdict.checks if not c.passed and not c.warning_only)
+
+
+def outcome(
+    metrics: Mapping[str, Any] | None, status: str, error: str | None, criteria: Mapping[str, float]
+) -> Outcome:
+    """The judged outcome of a finished trial from its execution's ``metrics`` (the stored JSON dict; None when it
+    failed before any), its ``status`` and ``error``: success is the metrics' verdict, or for metrics without one
+    (stored before verdicts; no metrics at all) :func:`legacy_success` with the sweep's ``criteria``."""
+    m = metrics or {}
+    phase = m.get("phase") or status
+    abort_reason = m.get("abort_reason") or error
+    rms, contact = m.get("true_force_rms_error_pct"), m.get("contact_ratio")
+    judged: dict[str, Any]
+    if m.get("verdict") is not None:
+        verdict = ExecutionVerdict.model_validate(m["verdict"])
+        judged = {
+            "success": verdict.verdict is Verdict.passed,
+            "reasons": tuple(verdict.reasons),
+            "causes": failure_causes(verdict, phase, abort_reason),
+            "warnings": tuple(c.name.value for c in verdict.checks if not c.passed and c.warning_only),
+        }
+    else:
+        success = legacy_success(phase, contact, rms, criteria)
+        if success:
+            causes: tuple[str, ...] = ()
+        elif phase != "done":
+            causes = (_abort_cause(phase, abort_reason),)
+        elif contact is None or contact < criteria["success_contact_ratio"]:
+            causes = (VerdictCheckName.contact_ratio.value,)
+        else:
+            causes = (VerdictCheckName.true_force_rms.value,)
+        judged = {"success": success, "reasons": causes, "causes": causes}
+    return Outcome(
+        phase=phase,
+        true_rms_pct=rms,
+        true_max_pct=m.get("true_force_max_error_pct"),
+        touchdown_ratio=m.get("touchdown_peak_ratio"),
+        contact_ratio=contact,
+        abort_reason=abort_reason,
+        **judged,
+    )
 
 
 def quantiles(values: Sequence[float | None]) -> Quantiles | None:
@@ -152,23 +295,23 @@ def quantiles(values: Sequence[float | None]) -> Quantiles | None:
     return Quantiles(p10=float(p10), p50=float(p50), p90=float(p90), max=float(finite.max()), n=int(finite.size))
 
 
-def controller_summary(
-    controller: ControllerKind, trials: int, outcomes: Sequence[Outcome], rms_pct: float, contact_ratio: float
-) -> ControllerSummary:
-    """Success rate, force-error quantiles and failure causes of one controller over its finished ``outcomes``."""
-    success = [trial_success(o, rms_pct, contact_ratio) for o in outcomes]
-    failed = [o for o, ok in zip(outcomes, success, strict=True) if not ok]
-    causes = Counter(failure_cause(o, rms_pct, contact_ratio) for o in failed)
+def controller_summary(controller: ControllerKind, trials: int, outcomes: Sequence[Outcome]) -> ControllerSummary:
+    """Success rate, force-error quantiles, failure causes (a trial under each of its causes) and warnings of one
+    controller over its finished ``outcomes``."""
+    succeeded = sum(o.success for o in outcomes)
+    causes = Counter(cause for o in outcomes for cause in o.causes)
+    warned = Counter(name for o in outcomes for name in o.warnings)
     return ControllerSummary(
         controller=controller,
         trials=trials,
         finished=len(outcomes),
-        succeeded=sum(success),
-        success_rate=sum(success) / len(outcomes) if outcomes else None,
+        succeeded=succeeded,
+        success_rate=succeeded / len(outcomes) if outcomes else None,
         true_force_rms_error_pct=quantiles([o.true_rms_pct for o in outcomes]),
         true_force_max_error_pct=quantiles([o.true_max_pct for o in outcomes]),
         touchdown_peak_ratio=quantiles([o.touchdown_ratio for o in outcomes]),
         failures=dict(causes.most_common()),
+        warnings=dict(warned.most_common()),
     )
 
 
@@ -177,11 +320,7 @@ def _rate(flags: NDArray[np.bool_]) -> float | None:
 
 
 def sensitivity(
-    controller: ControllerKind,
-    parameters: Sequence[Mapping[SweepParameter, float]],
-    outcomes: Sequence[Outcome],
-    rms_pct: float,
-    contact_ratio: float,
+    controller: ControllerKind, parameters: Sequence[Mapping[SweepParameter, float]], outcomes: Sequence[Outcome]
 ) -> list[Sensitivity]:
     """For each varied parameter: the Spearman rank correlation with the true RMS error (a trial without one ranks
     worst: it failed harder than any that pressed) and the success rates of the trials below and above the
@@ -192,7 +331,7 @@ def sensitivity(
         return []
     rms = np.asarray([np.inf if o.true_rms_pct is None else o.true_rms_pct for o in outcomes])
     ranks = rankdata(rms)  # inf ranks last; ties share their mean rank
-    success = np.asarray([trial_success(o, rms_pct, contact_ratio) for o in outcomes])
+    success = np.asarray([o.success for o in outcomes])
     result = []
     for name in parameters[0]:
         values = np.asarray([p[name] for p in parameters], dtype=float)
@@ -215,3 +354,57 @@ def sensitivity(
             )
         )
     return sorted(result, key=lambda s: -s.importance)
+
+
+def equal_count_bins(values: NDArray[np.float64], bins: int) -> list[NDArray[np.int_]]:
+    """The indices of ``values`` split into ``bins`` groups of (nearly) equal count, lowest values first (fewer groups
+    for fewer values; none empty)."""
+    order = np.argsort(values, kind="stable")
+    return [group for group in np.array_split(order, min(bins, values.size)) if group.size]
+
+
+@dataclass(frozen=True)
+class CauseDriver:
+    """Where along the parameter that best separates them one failure cause of a controller happened."""
+
+    cause: str
+    count: int
+    """Finished trials with this cause."""
+    finished: int
+    parameter: SweepParameter
+    bins: tuple[tuple[float, float, int, int], ...]
+    """Per equal-count bin of the parameter: its lowest and highest value, the trials in it with the cause, and all
+    trials in it."""
+
+
+def cause_drivers(
+    parameters: Sequence[Mapping[SweepParameter, float]], causes: Sequence[Sequence[str]], bins: int = 4
+) -> list[CauseDriver]:
+    """For each failure cause of one controller's finished trials (``causes[k]`` of ``parameters[k]``; most frequent
+    first): the varied parameter whose ``bins`` equal-count bins differ most in the share of trials with that cause
+    (a cause at both ends of a range, such as an offset either way, shows as well as one at one end); of equals, the
+    one whose rank correlates most with the cause (its trials bunched at one end)."""
+    from scipy.stats import spearmanr
+
+    if not parameters:
+        return []
+    counted = Counter(cause for trial in causes for cause in trial)
+    columns = {name: np.asarray([p[name] for p in parameters], dtype=float) for name in parameters[0]}
+    groups = {name: equal_count_bins(values, bins) for name, values in columns.items()}
+    result = []
+    for cause, count in counted.most_common():
+        has = np.asarray([cause in trial for trial in causes])
+
+        def separation(name: SweepParameter, has: NDArray[np.bool_] = has) -> tuple[float, float]:
+            rates = [float(has[g].mean()) for g in groups[name]]
+            values = columns[name]
+            rho = spearmanr(values, has).statistic if np.ptp(values) > 0 and 0 < has.sum() < has.size else 0.0
+            return max(rates) - min(rates), abs(float(rho))
+
+        name = max(columns, key=separation)
+        values = columns[name]
+        summary = tuple(
+            (float(values[g].min()), float(values[g].max()), int(has[g].sum()), int(g.size)) for g in groups[name]
+        )
+        result.append(CauseDriver(cause, count, len(causes), name, summary))
+    return result

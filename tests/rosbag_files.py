@@ -130,9 +130,7 @@ def write_bag(
         r_bf, p_bf = r_wb.inv() * r_wf, r_wb.inv().apply(p_wf - p_wb)
         for j, k in enumerate(pose_rows):
             tf = _transform(types, int(stamps[k]), "base", "flange", r_bf[j], p_bf[j])
-            messages.append(
-                (int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types[TF_MESSAGE]([tf]))
-            )
+            messages.append((int(stamps[k] + rng.integers(0, 30_000_000)), "/tf", types[TF_MESSAGE]([tf])))
         static = [
             _transform(types, int(stamps[0]), "world", "base", r_wb, p_wb),
             _transform(types, int(stamps[0]), "flange", "tool", r_ft, p_ft),

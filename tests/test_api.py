@@ -18,6 +18,7 @@ from conftest import loopback_client as _client
 from corpus import kinesthetic
 from corpus.synthetic import plane_slide
 from schemas import Demonstration, ExecutionMetrics, TelemetryBatch
+from schemas.api import ExecutionState
 from schemas.bus import ExecutionStatus, RecordReply
 from services.app import BusEvents, create_app
 from services.settings import ServiceSettings, SettingsError
@@ -388,6 +389,25 @@ def test_execution_lifecycle_with_a_fake_bus(bus_client, demo):
     assert c.get(f"/executions/{exec_id}/telemetry?every=7").json()["n_samples"] == 5
     assert _names(c.get(f"/executions/{exec_id}/telemetry?every=0"), "every")
     bus.on_telemetry(_batch("exec_unknown", 0.0))  # not ours: not stored, no error
+
+
+def test_what_a_deletion_keeps_and_what_cannot_be_deleted(bus_client, demo):
+    """A demonstration's skills outlive it and still run; a running execution and a sweep's trial are 409."""
+    c, store = bus_client, bus_client.app.state.store
+    stored = c.post("/demonstrations", json=demo).json()["id"]
+    skill_id = c.post("/skills", json={"demonstration_id": stored}).json()["id"]
+    assert c.delete(f"/demonstrations/{stored}").status_code == 204
+    assert c.delete(f"/demonstrations/{stored}").status_code == 404
+    assert c.get(f"/skills/{skill_id}").status_code == 200
+    running = c.post("/executions", json={"skill_id": skill_id})
+    assert running.status_code == 202 and c.bus.started[-1][0] == running.json()["id"]
+    refused = c.delete(f"/executions/{running.json()['id']}")
+    assert refused.status_code == 409 and "running" in refused.text
+    trial = store.add_execution({"sweep": {"id": "sweep_0a1b", "trial": 3}}, skill_id)
+    store.update_execution(trial.id, ExecutionState.done)
+    refused = c.delete(f"/executions/{trial.id}")
+    assert refused.status_code == 409 and "trial 3 of sweep sweep_0a1b" in refused.text
+    assert c.get(f"/executions/{trial.id}").status_code == 200
 
 
 def test_a_gap_no_worker_fills_is_reported_and_a_repeated_batch_is_counted_once(bus_client, demo):

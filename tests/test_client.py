@@ -21,6 +21,7 @@ from waiting import wait_for  # noqa: E402
 
 from corpus.synthetic import plane_slide  # noqa: E402
 from schemas import Demonstration  # noqa: E402
+from schemas.execution import Verdict  # noqa: E402
 from services.client import (  # noqa: E402
     Client,
     ConflictError,
@@ -95,6 +96,9 @@ def test_record_learn_execute_live_and_telemetry(client, stack):
     view = execution.wait(timeout_s=120)
     assert states == ["paused", "running"]
     assert view.status.value == "done" and view.metrics is not None and view.metrics.contact_ratio > 0.9
+    # The verdict against the tolerances: the list's word and the checks behind it (1 cm moved: inside the window).
+    assert view.verdict is Verdict.passed and view.metrics.verdict.verdict is Verdict.passed
+    assert {c.name.value for c in view.metrics.verdict.checks} >= {"true_force_rms", "contact_ratio", "surface_found"}
     telemetry = execution.telemetry()
     assert len(telemetry) == view.metrics.steps == view.telemetry_samples
     assert telemetry.wrench_cf.shape == (len(telemetry), 6) and telemetry.phase.dtype.kind == "U"
@@ -117,6 +121,7 @@ def test_record_learn_execute_live_and_telemetry(client, stack):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     watched = subprocess.run(watch, env=env, capture_output=True, text=True, timeout=60)
     assert watched.returncode == 0 and f"{execution.id} done" in watched.stdout and "force error RMS" in watched.stdout
+    assert "verdict: pass" in watched.stdout
     with pytest.raises(ConflictError, match=f"execution {execution.id} has already finished"):
         execution.abort()
 

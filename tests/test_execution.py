@@ -273,7 +273,14 @@ def test_cli_simulate_prints_metrics_and_writes_the_figure(slide_flat, tmp_path,
     assert code == 0, out
     assert "controller hybrid_cf: done" in out
     assert "guarded approach: surface found -20." in out  # the table 2 cm higher, found along CF z (down)
+    assert "verdict: pass (6 checks)" in out
     assert figure.stat().st_size > 10_000
+    # Met 7.5 cm early by the free segment, a stiff table: it runs to the end, its verdict fails (exit 4) and says why.
+    stiff = ["--unknown-offset", "0", "0", "0.075", "--contact-stiffness", "3e5"]
+    assert main(["simulate", str(skill_file), *stiff]) == 4
+    out = capsys.readouterr().out
+    assert "controller hybrid_cf: done" in out and "verdict: FAIL\n  - touch-down peak / target" in out
+    assert "WARNING: surface found -75." in out
     metrics = ExecutionMetrics.model_validate_json(metrics_file.read_text())
     assert metrics.force_rms_error_pct < 5.0
     # a skill without its taught world (a real recording) runs on the work piece rebuilt from it
@@ -386,14 +393,18 @@ def test_following_the_surface_normal_holds_on_an_unknown_tilt(slide_flat, tilt_
     assert metrics[False].true_force_rms_error_pct > 1.5 * bound_pct  # the fixed CF cannot
 
 
-def test_the_crease_between_two_planes_is_passed_within_10_percent_of_the_true_force(slide_two_planes) -> None:
+def test_the_crease_between_two_planes_is_passed_within_15_percent_of_the_true_force(slide_two_planes) -> None:
     """Table -> 20° ramp in one contact: the plan slows to the crease speed around the switch, so the ball meets
-    the ramp gently. Before, it was driven into the ramp at ~8 cm/s and the true normal force peaked 38 % high."""
+    the ramp gently. Before, it was driven into the ramp at ~8 cm/s and the true normal force peaked 38 % high.
+
+    The crease passage is scored: the steady window spans the switch (it used to restart there, and the crease's
+    11.8 % peak was reported as 4.6 %), and the transition figure is that peak."""
     result = _run(slide_two_planes)
     m = result.metrics
     _assert_clean(result)
     assert m.phase is ExecutionPhase.done, m.abort_reason
-    assert m.true_force_max_error_pct < 10.0
+    assert m.true_force_max_error_pct < 15.0
+    assert m.transition_true_force_max_error_pct == pytest.approx(m.true_force_max_error_pct)  # the worst is there
     assert m.true_force_rms_error_pct < 3.0
     tel = result.telemetry
     contact = np.array([p is ExecutionPhase.contact for p in tel.phases])

@@ -489,3 +489,19 @@ def test_with_a_time_column_dt_is_the_resampling_step():
     by_rate = demonstration_from_csv(text, CsvImportOptions(rate_hz=100.0))
     assert by_dt.t == by_rate.t and by_dt.metadata.resampled_rate_hz == pytest.approx(100.0)
     assert not any("no time column" in note for note in by_dt.metadata.extra["import_notes"])
+
+
+def test_a_too_long_csv_is_refused_before_it_is_parsed(tmp_path):
+    """More rows than a recording may have: refused from a count of its lines, before any row is parsed (the rows
+    after the header are not even numbers here), and a file larger than such a recording can be is refused from its
+    size before it is read."""
+    from services import csv_import
+
+    text = "t,px,py,pz,qx,qy,qz,qw,fx,fy,fz\n" + "not,a,number\n" * (csv_import.MAX_CSV_ROWS + 1)
+    with pytest.raises(CsvImportError, match=rf"too many rows: {csv_import.MAX_CSV_ROWS + 2} lines, at most"):
+        demonstration_from_csv(text)
+    huge = tmp_path / "huge.csv"
+    with huge.open("wb") as f:
+        f.truncate(csv_import.MAX_CSV_BYTES + 1)  # a sparse file: nothing written, its size is what is checked
+    with pytest.raises(CsvImportError, match="MB, larger than the 400 MB a recording"):
+        demonstration_from_csv(huge)

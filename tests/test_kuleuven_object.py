@@ -150,6 +150,21 @@ def test_trials_b_share_one_placement_and_register_alike(truths):
     assert np.linalg.norm(b1.to_world(crease) - b2.to_world(crease), axis=1).max() < 0.003  # measured 1.3 mm
 
 
+def test_a_placement_moves_the_registered_object_with_the_skill(truths):
+    """A skill placed in the robot's reach by ``x_robot = R x + t`` finds the object moved alike: the crease where the
+    placement puts the recording's crease, and the normal cones at the placed path turned by ``R``."""
+    truth = truths["contour_a_1"]
+    R = Rotation.from_euler("xyz", [0.3, -0.2, 1.1]).as_matrix()
+    t = np.array([0.9, -1.7, 1.2])
+    placed = truth.placed_registration(R, t)
+    crease = truth.kuleuven_object.crease
+    np.testing.assert_allclose(placed.to_world(crease.points), truth.registration.to_world(crease.points) @ R.T + t)
+    path = truth.demonstration.arrays().positions[::50]
+    cones = normal_cones_at(path @ R.T + t, crease, placed)
+    np.testing.assert_allclose(cones.bisectors, truth.cones_at(path).bisectors @ R.T, atol=1e-12)
+    assert placed.rms_distance_m == truth.registration.rms_distance_m
+
+
 @pytest.mark.parametrize("seed", [3, 11])
 def test_registration_recovers_a_known_placement_of_the_edge(seed):
     rng = np.random.default_rng(seed)

@@ -4,6 +4,7 @@ from functools import cache
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from corpus import synthetic
 from schemas import Demonstration, LearnOptions, Skill, SkillType, SkillTypeRequest
@@ -188,9 +189,11 @@ def test_learned_profiles_do_not_depend_on_the_rollout_step() -> None:
 
 @pytest.mark.parametrize(
     ("scale", "gap_s", "reason"),
-    [(1e-6, 0.0, "must be seconds"), (1.0, 100.0, "gap of 100 s")],
+    [(5e-3, 0.0, "must be seconds"), (1.0, 100.0, "gap of 100 s")],
 )
 def test_implausible_time_stamps_are_refused_naming_t(scale: float, gap_s: float, reason: str) -> None:
+    """Time stamps 5 µs apart (200 kHz: not seconds) and a 100 s gap: the learner refuses them naming t. Time
+    stamps closer than the contract's minimum step (1 µs) do not even make a demonstration."""
     demo = synthetic.plane_slide(seed=0)
     t = demo.t * scale
     t[t.size // 2 :] += gap_s
@@ -198,3 +201,5 @@ def test_implausible_time_stamps_are_refused_naming_t(scale: float, gap_s: float
         learn_skill(Demonstration.from_arrays(t, demo.positions, demo.orientations, demo.wrenches))
     assert raised.value.field == "t"
     assert reason in raised.value.reason
+    with pytest.raises(ValidationError, match="step by at least 1e-06 s"):
+        Demonstration.from_arrays(demo.t * 1e-6, demo.positions, demo.orientations, demo.wrenches)

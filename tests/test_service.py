@@ -47,20 +47,26 @@ def _alive(pid: int) -> bool:
 
 
 class Stack:
-    def __init__(self, tmp: Path) -> None:
+    """`contact-skills up` with ``workers`` workers in ``tmp``, its children given ``env`` on top of this process's."""
+
+    def __init__(self, tmp: Path, workers: int = 2, env: dict[str, str] | None = None) -> None:
         self.port, self.zenoh_port = _free_port(), _free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
         self.log_path = tmp / "up.log"
         self.log = self.log_path.open("w")
-        env = {**os.environ, "PYTHONPATH": str(REPO)}
+        environment = {**os.environ, "PYTHONPATH": str(REPO), **(env or {})}
         for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "CONTACT_SKILLS_TOKEN",
                      "CONTACT_SKILLS_TOKEN_READS"):  # fmt: skip
-            env.pop(name, None)  # `up` sets the thread limits of its children itself
-        argv = ["up", "--workers", "2", "--port", str(self.port), "--zenoh-port", str(self.zenoh_port),
+            environment.pop(name, None)  # `up` sets the thread limits of its children itself
+        argv = ["up", "--workers", str(workers), "--port", str(self.port), "--zenoh-port", str(self.zenoh_port),
                 "--db", str(tmp / "service.db")]  # fmt: skip
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "cli.main", *argv], cwd=tmp, env=env, stdout=self.log, stderr=subprocess.STDOUT
+            [sys.executable, "-m", "cli.main", *argv],
+            cwd=tmp,
+            env=environment,
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
         )
         self.http = httpx.Client(base_url=self.url, timeout=60)
 
@@ -117,11 +123,12 @@ class Stack:
         return self.process.returncode
 
 
-def running_stack(tmp: Path) -> Iterator[Stack]:
-    """`contact-skills up --workers 2` in ``tmp`` with both workers connected; stopped afterwards."""
-    stack = Stack(tmp)
+def running_stack(tmp: Path, workers: int = 2, env: dict[str, str] | None = None) -> Iterator[Stack]:
+    """`contact-skills up --workers N` in ``tmp`` (``env``: for its children) with every worker connected; stopped
+    afterwards."""
+    stack = Stack(tmp, workers, env)
     try:
-        stack.workers(2)
+        stack.workers(workers)
         yield stack
     finally:
         stack.stop()
@@ -250,8 +257,9 @@ def test_two_executions_run_at_once_on_two_workers(stack, skill_id):
 
 
 def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
-    """POST /executions for a skill learned from a CSV (KU Leuven, another lab's frame): the worker rebuilds its work
-    piece and places it in reach; a skill too large to place is refused with 422 on environment.placement."""
+    """POST /executions for a skill learned from a CSV (KU Leuven, another lab's frame): the worker measures its work
+    piece from the stored recording and places it in reach; a skill too large to place is refused with 422 on
+    environment.placement."""
     stack.workers(2)
     path = REPO / "data" / "kuleuven_contour" / "contour_a_2.csv"
     options = {"quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool"}
@@ -263,7 +271,7 @@ def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
     view = stack.finished(created["id"], timeout_s=120)
     metrics = view["metrics"]
     assert view["status"] == "done", view
-    assert metrics["work_piece"] == "rebuilt" and metrics["placement"]["translation_m"] != [0.0, 0.0, 0.0]
+    assert metrics["work_piece"] == "measured" and metrics["placement"]["translation_m"] != [0.0, 0.0, 0.0]
     assert metrics["force_rms_error_pct"] <= 10.0 and metrics["contact_ratio"] >= 0.95, metrics
     assert metrics["true_force_rms_error_pct"] is not None and metrics["touchdown_peak_n"] > 0
 

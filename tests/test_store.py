@@ -42,11 +42,11 @@ def _in_thread(fn):
 def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
     store = Store(tmp_path / "s.db")
     demonstration = _demonstration()
-    for _ in range(3):
-        store.add_demonstration(demonstration)
-    # One stored row whose summary no longer reads (as an overflowed force summary did): reading the list fails.
+    for k in range(3):
+        store.add_execution({"n": k}, None)
+    # One stored row no version of the service writes (a status it does not know): reading the list fails.
     raw = sqlite3.connect(tmp_path / "s.db")
-    raw.execute("UPDATE demonstrations SET summary = '{\"max_force_n\": null}' WHERE rowid = 2")
+    raw.execute("UPDATE executions SET status = 'lost in space' WHERE rowid = 2")
     raw.commit()
     raw.close()
 
@@ -57,7 +57,7 @@ def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
 
     def reader_then_writer() -> None:
         try:
-            store.list_demonstrations(limit=10)
+            store.list_executions(limit=10)
         except Exception as exc:
             kept.append(exc)
         done.set()

@@ -9,9 +9,10 @@ import pybullet
 import pytest
 
 from sim_worker.geometry import WorldGeometry
-from sim_worker.robot_model import Q_HOME, TOOL_LINK, TORQUE_LIMITS_NM
+from sim_worker.robot_model import Q_HOME, TOOL_LINK
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
+from skills.control import IIWA_TORQUE_LIMITS_NM
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
@@ -104,7 +105,7 @@ def test_sliding_drags_the_table_along_the_tool_velocity_with_coulomb_friction(w
 
 def test_torques_are_clipped_to_the_iiwa_limits(world):
     world.reset()
-    assert np.allclose(world.torque_limits, TORQUE_LIMITS_NM)
+    assert np.allclose(world.torque_limits, IIWA_TORQUE_LIMITS_NM)
     q0, _ = world.joint_state()
     g = world.gravity_coriolis_torques()
     world.step(g)
@@ -362,14 +363,15 @@ def test_the_sensor_composes_bias_delay_and_filter_in_the_documented_order() -> 
 def test_a_tare_removes_an_offset_in_the_tool_frame_so_a_world_fixed_one_returns_as_the_tool_turns() -> None:
     """``tare_sensor(offset)`` removes ``offset`` (tool frame) turned into the world at every reading. A bias fixed in
     the world ``b`` (``wrench_bias_n``, the source the exact wrench: zero in free space), tared in the pose ``R_a``,
-    reads zero there and ``b - R_b R_aᵀ b`` in a turned pose ``R_b``; ``reset()`` clears the tare; the ideal sensor
-    refuses one."""
+    reads zero there, from the reading already sampled on (the step after a tare must not see the old offset: it
+    once took it for a touch-down in the air), and ``b - R_b R_aᵀ b`` in a turned pose ``R_b``; ``reset()`` clears the
+    tare; the ideal sensor refuses one."""
     bias = np.array([0.3, -0.2, -0.8])
     with SimWorld(WorldConfig(wrench_bias_n=tuple(bias))) as world:
         np.testing.assert_allclose(world.contact_wrench(), np.r_[bias, 0, 0, 0], rtol=0, atol=1e-12)
         R_a = world.tool_rotation()
         world.tare_sensor(np.r_[R_a.T @ bias, 0, 0, 0])
-        np.testing.assert_allclose(world.contact_wrench(), np.r_[bias, 0, 0, 0], atol=1e-12)  # from the next reading
+        np.testing.assert_allclose(world.contact_wrench(), np.zeros(6), rtol=0, atol=1e-12)  # this reading too
         world.set_joint_positions(Q_HOME)
         np.testing.assert_allclose(world.contact_wrench(), np.zeros(6), rtol=0, atol=1e-12)
         turned = np.array(Q_HOME) + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.9])

@@ -16,13 +16,15 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from schemas.api import TelemetryFormat
 from schemas.bus import KeyExpressions
+from schemas.execution import ExecutionSettings
+from schemas.job_budget import JobBudget
 from schemas.skill import Skill
 from services.api import errors
 from services.bus import BusClient
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
 from services.settings import ServiceSettings
-from services.store import Store
+from services.store import DemonstrationRow, Store
 from services.sweeps import SweepRunner
 
 
@@ -99,6 +101,33 @@ def skill_to_run(store: Store, skill_id: str | None, skill: Skill | None) -> tup
     return Skill.model_validate_json(stored.skill_json), stored.demonstration_id
 
 
+def readable_demonstration(store: Store, demonstration_id: str) -> tuple[DemonstrationRow, str]:
+    """The stored demonstration's row and body (JSON text): 404 for an unknown id, 409 for one stored under looser
+    rules that cannot be read back."""
+    found = store.demonstration_json(demonstration_id)
+    if found is None:
+        raise errors.not_found("demonstration", demonstration_id)
+    if found[0].problem is not None:
+        raise errors.unreadable(demonstration_id, found[0].problem)
+    return found
+
+
+def check_job_budget(
+    skill: Skill,
+    settings: ExecutionSettings,
+    budget: JobBudget,
+    settings_at: tuple[str, ...] = ("body",),
+    skill_at: tuple[str, ...] = ("body", "skill_id"),
+) -> None:
+    """422 naming each setting that takes an execution of ``skill`` with ``settings`` past ``budget`` (at the step
+    of the world it was taught in; ``skills.job_estimate``); ``settings_at``, ``skill_at``: where the settings and
+    the skill are in the request."""
+    from skills.job_estimate import execution_estimate, taught_time_step_s
+
+    if problems := execution_estimate(skill, settings, taught_time_step_s(skill)).problems(budget):
+        raise errors.over_budget(problems, settings_at, skill_at)
+
+
 BEARER = HTTPBearer(auto_error=False, description="Set CONTACT_SKILLS_TOKEN on the server to require it.")
 """Optional bearer token of the mutating endpoints."""
 
@@ -149,6 +178,26 @@ ExportFormat = Annotated[
 WindowStart = Annotated[float | None, Query(description="Only samples at or after this time, s (the record's t).")]
 WindowEnd = Annotated[float | None, Query(description="Only samples at or before this time, s (the record's t).")]
 """The export parameters of ``GET .../telemetry``."""
+Cursor = Annotated[
+    int,
+    Query(
+        ge=0,
+        le=MAX_OFFSET,
+        description="The stream index to start from: 0 for the first page, then the previous page's next_cursor "
+        "(X-Next-Cursor header).",
+    ),
+]
+PageLimit = Annotated[
+    int | None,
+    Query(
+        ge=1,
+        description="Most samples in this page; at most (and by default) the service's cap, "
+        "CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES (20 000).",
+    ),
+]
+"""The paging parameters of ``GET /executions/{id}/telemetry``."""
+NEXT_CURSOR_HEADER = "X-Next-Cursor"
+"""The header of a telemetry page that is not the last: the cursor of the next one."""
 EXPORT_RESPONSES: dict[int | str, dict] = {
     200: {"content": {"text/csv": {}, "application/octet-stream": {}}, "description": "JSON, CSV or MCAP."}
 }

@@ -4,7 +4,9 @@ becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodi
 - 422: any bad body or parameter — pydantic's errors, plus `LearningError` and `CsvImportError`
   with ``loc`` naming the field (``["body", "demonstration", "wrenches"]``, ``["body", "file"]``);
   error entries never echo large inputs back.
-- 404: unknown id. 409: a command to a finished execution, the telemetry of one run without it. 401:
+- 404: unknown id. 409: a command to a finished execution, the telemetry of one run without it, the deletion of
+  a queued or running execution or a sweep's trial, a demonstration stored under looser rules that cannot be read
+  back. 401:
   missing/wrong bearer token on POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``; on GET
   too with ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed
   request or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
@@ -91,21 +93,59 @@ def no_telemetry(execution_id: str, sweep: dict[str, Any] | None) -> HTTPExcepti
     )
 
 
+def unreadable(demonstration_id: str, problem: str) -> HTTPException:
+    """409: a demonstration stored by an earlier version under looser rules cannot be read back."""
+    return HTTPException(
+        409,
+        f"demonstration {demonstration_id} was stored under looser rules and cannot be read back ({problem}); delete "
+        f"it with DELETE /demonstrations/{demonstration_id}",
+    )
+
+
+def still_active(execution_id: str, status: str) -> HTTPException:
+    """409: an execution queued or running cannot be deleted."""
+    return HTTPException(
+        409, f"execution {execution_id} is {status}: abort it (POST /executions/{execution_id}/abort) before deleting"
+    )
+
+
+def part_of_sweep(execution_id: str, sweep: dict[str, Any]) -> HTTPException:
+    """409: a sweep's trial cannot be deleted alone (the sweep's results are its executions)."""
+    return HTTPException(
+        409, f"execution {execution_id} is trial {sweep.get('trial')} of sweep {sweep.get('id')}: the sweep's results "
+        "are its executions, it cannot be deleted alone"
+    )  # fmt: skip
+
+
 def not_running(execution_id: str, status: str) -> HTTPException:
     return HTTPException(409, f"execution {execution_id} is {status}, not running: only abort applies (it cancels it)")
 
 
 def refused_by_worker(reason: str, environment_at: tuple[str, ...] = ("body",)) -> RequestValidationError:
-    """422 for a request a worker refused (an unknown scenario, a skill it cannot place in reach), on the field the
-    worker's message names; ``environment_at``: where the request's ``environment`` is."""
+    """422 for a request a worker refused (an unknown scenario, a skill it cannot place in reach, a recording over
+    the job budget), on the field the worker's message names; ``environment_at``: where the request's
+    ``environment`` is."""
     if reason.startswith("unknown scenario"):
         loc: list[str | int] = ["body", "scenario"]
     elif reason.startswith(("environment.", "the skill cannot be placed")):
         field = reason.split(":", 1)[0] if reason.startswith("environment.") else "environment.placement"
         loc = [*environment_at, *field.split(".")]
+    elif reason.startswith("overrides."):
+        loc = ["body", *reason.split(":", 1)[0].split(".")]
     else:
         loc = ["body"]
     return unprocessable(loc, reason)
+
+
+def over_budget(
+    problems: list[tuple[str, str]], settings_at: tuple[str, ...], skill_at: tuple[str, ...]
+) -> RequestValidationError:
+    """422 with one entry per setting that takes a job past the job budget (``schemas.job_budget``): on the setting
+    (under ``settings_at``), or on the skill (``skill_at``) for its own segments and time step."""
+    return RequestValidationError(
+        [{"loc": skill_at if field == "skill" else (*settings_at, *field.split(".")), "msg": message,
+          "type": "job_budget"} for field, message in problems]
+    )  # fmt: skip
 
 
 def sweep_not_running(sweep_id: str, status: str) -> HTTPException:

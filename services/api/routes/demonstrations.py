@@ -1,5 +1,5 @@
 """``/demonstrations``: store one (JSON, a CSV or ROS bag upload, or recorded by a sim worker's scripted teacher), list,
-get."""
+get, delete."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import json
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
+from pydantic import ValidationError
 
 from schemas.api import (
     ApiError,
@@ -27,10 +28,12 @@ from services.api.deps import (
     ExportFormat,
     Limit,
     Offset,
+    QueueDep,
     StoreDep,
     WindowEnd,
     WindowStart,
     need_bus,
+    readable_demonstration,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.api.responses import download, raw_json
@@ -42,7 +45,7 @@ from services.demonstration_files import (
     other_kind,
     unsupported_file,
 )
-from services.store import DemonstrationRow
+from services.store import DemonstrationRow, first_problem
 
 RECORD_TIMEOUT_S = 120.0
 """How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
@@ -162,7 +165,9 @@ def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -
     """Ask a sim worker to record the scripted teacher's demonstration of a scenario, and store it.
 
     The teacher's ground truth is returned in ``extra.ground_truth`` and kept in the demonstration's
-    metadata (``metadata.extra.ground_truth``)."""
+    metadata (``metadata.extra.ground_truth``). The worker refuses at once (422 naming the override) a recording
+    over the job budget (``CONTACT_SKILLS_JOB_MAX_SIMULATED_S``, ``..._STEPS``) or longer than a demonstration may
+    be (200 000 samples: one per step of ``overrides.time_step_s``)."""
     from services.bus import NoWorkerAvailable
 
     client = need_bus(bus)
@@ -175,7 +180,7 @@ def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -
     if reply.code == "busy":
         raise errors.unavailable(f"every sim worker is busy: {reply.error or 'try again later'}")
     if not reply.ok or reply.demonstration is None:
-        raise errors.unprocessable(["body"], reply.error or "the worker recorded nothing")
+        raise errors.refused_by_worker(reply.error or "the worker recorded nothing")
     demonstration = reply.demonstration
     demonstration.metadata.extra.setdefault("scenario", request.scenario)
     demonstration.metadata.extra["record_request"] = request.model_dump(mode="json")
@@ -190,32 +195,56 @@ def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0)
     """Stored demonstrations, newest first (summaries, no samples).
 
     Each row: id, name, source (json, csv:FILE, bag:FILE, teacher:SCENARIO), creation time and the summary
-    (samples, duration, rate, largest force); ``limit`` and ``offset`` page through them."""
+    (samples, duration, rate, largest force); ``limit`` and ``offset`` page through them. A demonstration stored
+    under looser rules that cannot be read back is listed with its ``problem`` (and no summary)."""
     return [
-        DemonstrationInfo(id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary)
+        DemonstrationInfo(
+            id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary, problem=r.problem
+        )
         for r in store.list_demonstrations(limit, offset)
     ]
 
 
-@router.get("/demonstrations/{demonstration_id}", responses={200: {"model": StoredDemonstration}, **ERROR_RESPONSES})
+@router.get(
+    "/demonstrations/{demonstration_id}",
+    responses={200: {"model": StoredDemonstration}, **ERROR_RESPONSES, 409: {"model": ApiError}},
+)
 def get_demonstration(demonstration_id: str, store: StoreDep) -> Response:
     """A stored demonstration with all its samples.
 
     Time, tool positions and orientations ([x, y, z, w]) and the wrench the tool applied (world frame, at the tool
-    point), with the import metadata (conventions of the file, resampling, tare, notes); 404 for an unknown id."""
-    found = store.demonstration_json(demonstration_id)
-    if found is None:
-        raise errors.not_found("demonstration", demonstration_id)
-    row, body = found
+    point), with the import metadata (conventions of the file, resampling, tare, notes); 404 for an unknown id, 409
+    for one stored under looser rules that cannot be read back (delete it)."""
+    row, body = readable_demonstration(store, demonstration_id)
+    assert row.summary is not None  # a readable row has its summary
     return raw_json(
         {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")},
         {"demonstration": body},
     )
 
 
+@router.delete(
+    "/demonstrations/{demonstration_id}",
+    status_code=204,
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES},
+    dependencies=TOKEN_GUARD,
+)
+def delete_demonstration(demonstration_id: str, store: StoreDep, queue: QueueDep) -> Response:
+    """Delete a stored demonstration: its samples, metadata and ground truth (one that cannot be read back too).
+
+    Skills learned from it keep their parameters and still run; their executions from now on get no path metric
+    (it compares the run with the demonstration). 204 when deleted, 404 for an unknown id; needs the bearer token
+    when one is set."""
+    if not store.delete_demonstration(demonstration_id):
+        raise errors.not_found("demonstration", demonstration_id)
+    if queue is not None:
+        queue.forget_demonstration(demonstration_id)
+    return Response(status_code=204)
+
+
 @router.get(
     "/demonstrations/{demonstration_id}/telemetry",
-    responses={**EXPORT_RESPONSES, **ERROR_RESPONSES},
+    responses={**EXPORT_RESPONSES, **ERROR_RESPONSES, 409: {"model": ApiError}},
 )
 def get_demonstration_telemetry(
     demonstration_id: str,
@@ -227,16 +256,17 @@ def get_demonstration_telemetry(
     """A stored demonstration's samples to save or plot: JSON columns, CSV (as the importer reads it) or MCAP.
 
     ``t0``/``t1`` (s) cut a window; MCAP holds the tool pose, the applied wrench and /tf as ROS 2 messages, a bag
-    that ``contact-skills learn`` reads back."""
+    that ``contact-skills learn`` reads back. 409 for a demonstration stored under looser rules that cannot be read
+    back."""
     from services.csv_import import samples_csv_text
     from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, demonstration_mcap, window_mask
 
-    found = store.demonstration_json(demonstration_id)
-    if found is None:
-        raise errors.not_found("demonstration", demonstration_id)
+    row, body = readable_demonstration(store, demonstration_id)
     errors.check_window(t0, t1)
-    row, body = found
-    demonstration = Demonstration.model_validate_json(body)
+    try:
+        demonstration = Demonstration.model_validate_json(body)
+    except ValidationError as exc:
+        raise errors.unreadable(demonstration_id, f"its samples do not validate: {first_problem(exc)}") from None
     a = demonstration.arrays()
     keep = window_mask(a.t, t0, t1)
     if format is TelemetryFormat.csv:

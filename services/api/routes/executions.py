@@ -1,13 +1,11 @@
-"""``/executions``: run a skill on a sim worker over Zenoh, list, get, abort/pause/resume, the recorded telemetry."""
+"""``/executions``: run a skill on a sim worker over Zenoh, list, get, abort/pause/resume, the recorded telemetry,
+delete."""
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 from typing import Annotated, Any
 
-import numpy as np
 from fastapi import APIRouter, Query, Response
 
 from schemas.api import (
@@ -24,25 +22,30 @@ from schemas.execution import ExecutionRequest
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
+    NEXT_CURSOR_HEADER,
     READ_GUARD,
     TOKEN_GUARD,
     BusDep,
+    Cursor,
     ExportFormat,
     KeysDep,
     Limit,
     Offset,
+    PageLimit,
     QueueDep,
+    SettingsDep,
     StoreDep,
     WindowEnd,
     WindowStart,
+    check_job_budget,
     need_bus,
     need_queue,
     skill_to_run,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
-from services.api.responses import download
+from services.api.responses import streamed
 from services.queue import ExecutionQueue
-from services.store import TERMINAL, ExecutionRow, Store, telemetry_columns
+from services.store import TERMINAL, ExecutionRow, Store
 
 log = logging.getLogger("contact_skills.api")
 
@@ -66,6 +69,7 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         status=row.status,
         phase=row.phase,
         metrics=row.metrics,
+        verdict=((row.metrics or {}).get("verdict") or {}).get("verdict"),
         error=row.error,
         created=row.created,
         updated=row.updated,
@@ -95,11 +99,15 @@ def _found(store: Store, execution_id: str) -> ExecutionRow:
     responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
     dependencies=TOKEN_GUARD,
 )
-def post_execution(request: ExecutionRequest, store: StoreDep, queue: QueueDep, keys: KeysDep) -> ExecutionCreated:
+def post_execution(
+    request: ExecutionRequest, store: StoreDep, queue: QueueDep, keys: KeysDep, settings: SettingsDep
+) -> ExecutionCreated:
     """Run a skill on a sim worker: in the world its demonstration was recorded in (simulator recordings), else on
     a work piece rebuilt from the skill and placed in the robot's reach (``environment.work_piece``,
     ``environment.placement``), changed by the known ``environment.offset`` and the ``environment.unknown_offset``,
-    with the controller, gains and pace asked for. 422 when the skill cannot be placed in reach.
+    with the controller, gains and pace asked for. 422 when the skill cannot be placed in reach, and when the run
+    its settings imply (segments, guarded approaches over their speeds, settle, ramps, the time step) is over the
+    job budget (``CONTACT_SKILLS_JOB_MAX_SIMULATED_S``, ``..._STEPS``), naming the settings that make it so.
 
     Replies 202 at once with the execution id and the Zenoh key of its telemetry; follow it with
     ``GET /executions/{id}`` or a Zenoh subscriber. When every worker is busy it is ``queued`` (with its
@@ -110,6 +118,8 @@ def post_execution(request: ExecutionRequest, store: StoreDep, queue: QueueDep, 
     from services.store import QueueFull
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)  # the queue sends the demo along
+    skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
+    check_job_budget(skill, request, settings.job_budget, skill_at=skill_at)
     executions = need_queue(queue)
     stored = request.model_dump(mode="json", exclude={"skill"})
     stored.update(inline_skill=request.skill is not None)
@@ -150,6 +160,26 @@ def get_execution(execution_id: str, store: StoreDep, keys: KeysDep) -> Executio
     return _view(_found(store, execution_id), store, keys)
 
 
+@router.delete(
+    "/executions/{execution_id}",
+    status_code=204,
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, 409: {"model": ApiError}},
+    dependencies=TOKEN_GUARD,
+)
+def delete_execution(execution_id: str, store: StoreDep) -> Response:
+    """Delete a finished execution: its record (request, status, metrics, verdict) and its stored telemetry.
+
+    409 while it is queued or running (abort it first: ``POST /executions/{id}/abort``) and for a sweep's trial (the
+    sweep's results are its executions); the skill it ran is kept. 204 when deleted, 404 for an unknown id; needs the
+    bearer token when one is set."""
+    row = _found(store, execution_id)
+    if sweep := row.request.get("sweep"):
+        raise errors.part_of_sweep(execution_id, sweep)
+    if not store.delete_execution(execution_id, TERMINAL):
+        raise errors.still_active(execution_id, (store.execution(execution_id) or row).status.value)
+    return Response(status_code=204)
+
+
 def _command(
     execution_id: str, name: str, store: Store, bus: Any, queue: ExecutionQueue | None, keys: KeyExpressions
 ) -> CommandAccepted:
@@ -173,9 +203,7 @@ def _command(
     responses=COMMAND_RESPONSES,
     dependencies=TOKEN_GUARD,
 )
-def abort_execution(
-    execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep
-) -> CommandAccepted:
+def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep) -> CommandAccepted:
     """Abort a running execution (a live command over Zenoh; the final status follows), or cancel a queued one
     (status aborted at once, ``sent_to`` "queue").
 
@@ -191,9 +219,7 @@ def abort_execution(
     responses=COMMAND_RESPONSES,
     dependencies=TOKEN_GUARD,
 )
-def pause_execution(
-    execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep
-) -> CommandAccepted:
+def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, queue: QueueDep, keys: KeysDep) -> CommandAccepted:
     """Pause a running execution: it holds its current reference (and force) until resumed.
 
     202 once the command is put on the bus; the status then reads ``paused``. 409 if the execution has already
@@ -220,42 +246,58 @@ def resume_execution(
 
 @router.get(
     "/executions/{execution_id}/telemetry",
-    responses={200: {"model": TelemetryView, **EXPORT_RESPONSES[200]}, **ERROR_RESPONSES, 409: {"model": ApiError}},
-)
+    responses={
+        200: {
+            "model": TelemetryView,
+            **EXPORT_RESPONSES[200],
+            "headers": {NEXT_CURSOR_HEADER: {"description": "The next page's cursor (absent on the last page).",
+                                             "schema": {"type": "integer"}}},
+        },
+        **ERROR_RESPONSES,
+        409: {"model": ApiError},
+    },
+)  # fmt: skip
 def get_telemetry(
     execution_id: str,
     store: StoreDep,
+    settings: SettingsDep,
     every: Annotated[int, Query(ge=1, le=1_000_000, description="Return every N-th sample.")] = 1,
     format: ExportFormat = TelemetryFormat.json,
     t0: WindowStart = None,
     t1: WindowEnd = None,
+    cursor: Cursor = 0,
+    limit: PageLimit = None,
 ) -> Response:
-    """The recorded telemetry stream (wrenches, poses, references, phases): JSON columns, CSV or MCAP.
+    """A page of the recorded telemetry stream (wrenches, poses, references, phases): JSON columns, CSV or MCAP.
 
-    ``t0``/``t1`` (s of the execution's time) cut a window, ``every`` decimates; MCAP holds ROS 2 messages
-    (poses, wrenches in world and CF, desired force, phases, /tf) stamped from the execution's creation time.
-    409 for an execution run with ``telemetry`` ``none`` (e.g. a sweep's trial): it never had a stream."""
-    from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, execution_csv, execution_mcap, window_mask
+    ``t0``/``t1`` (s of the execution's time) cut a window, ``every`` decimates; MCAP holds ROS 2 messages (poses,
+    wrenches in world and CF, desired force, phases, /tf) stamped from the execution's creation time. One reply holds
+    at most ``CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES`` samples (20 000 by default; ``limit`` asks for fewer), streamed:
+    a longer window goes on from ``cursor`` = the ``next_cursor`` of the JSON body, or the ``X-Next-Cursor`` header
+    (absent on the last page). 409 for an execution run with ``telemetry`` ``none`` (e.g. a sweep's trial): it never
+    had a stream."""
+    from services.telemetry_export import (
+        CSV_MEDIA_TYPE,
+        MCAP_MEDIA_TYPE,
+        execution_csv_chunks,
+        execution_json_chunks,
+        execution_mcap,
+        telemetry_page,
+    )
 
     row = _found(store, execution_id)
     if not row.streams_telemetry:
         raise errors.no_telemetry(execution_id, row.request.get("sweep"))
     errors.check_window(t0, t1)
-    matrix = store.telemetry(execution_id)
-    picked = matrix[window_mask(matrix[:, 0], t0, t1)][::every]
+    size = min(limit or settings.telemetry_page_samples, settings.telemetry_page_samples)
+    page = telemetry_page(store.telemetry_blocks(execution_id, cursor), cursor, every, t0, t1, size)
+    headers = {} if page.next_cursor is None else {NEXT_CURSOR_HEADER: str(page.next_cursor)}
     if format is TelemetryFormat.csv:
-        return download(execution_csv(picked), CSV_MEDIA_TYPE, f"{execution_id}.csv")
+        return streamed(execution_csv_chunks(page.rows), CSV_MEDIA_TYPE, f"{execution_id}.csv", headers)
     if format is TelemetryFormat.mcap:
-        return download(execution_mcap(picked, row.created, execution_id).data, MCAP_MEDIA_TYPE, f"{execution_id}.mcap")
-    columns: dict[str, Any] = telemetry_columns(picked)
-    if not np.isfinite(picked).all():  # never expected (the executor reports no NaN); keep the JSON valid
-        columns = json.loads(re.sub(r"-?Infinity|NaN", "null", json.dumps(columns)))
-    body = {
-        "execution_id": execution_id,
-        "every": every,
-        "n_samples": int(picked.shape[0]),
-        "stored_samples": int(matrix.shape[0]),
-        "status": row.status.value,
-        **columns,
-    }
-    return Response(json.dumps(body), media_type="application/json")
+        mcap = execution_mcap(page.rows, row.created, execution_id).data  # a page: at most the cap
+        return streamed([mcap], MCAP_MEDIA_TYPE, f"{execution_id}.mcap", headers)
+    head = {"execution_id": execution_id, "every": every, "cursor": cursor, "next_cursor": page.next_cursor,
+            "n_samples": int(page.rows.shape[0]), "stored_samples": store.telemetry_counts(execution_id)[1],
+            "status": row.status.value}  # fmt: skip
+    return streamed(execution_json_chunks(head, page.rows), "application/json", headers=headers)

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from services.api import errors
-from services.api.deps import READ_GUARD, TOKEN_GUARD, LearnersDep, Limit, Offset, StoreDep
+from services.api.deps import READ_GUARD, TOKEN_GUARD, LearnersDep, Limit, Offset, StoreDep, readable_demonstration
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.api.responses import raw_json
 from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
@@ -20,15 +20,22 @@ router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESP
 @router.post(
     "/skills",
     status_code=201,
-    responses={201: {"model": StoredSkill}, **ERROR_RESPONSES, **MUTATING_RESPONSES, 503: {"model": ApiError}},
+    responses={
+        201: {"model": StoredSkill},
+        **ERROR_RESPONSES,
+        **MUTATING_RESPONSES,
+        409: {"model": ApiError},
+        503: {"model": ApiError},
+    },
     dependencies=TOKEN_GUARD,
 )
 async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersDep, http: Request) -> Response:
     """Learn a skill (slide, contour or auto) from a stored or an inline demonstration, and store it.
 
     Learns in a separate process within the service's time and memory budget (422 past either); a request
-    whose client goes away is cancelled. A demonstration that cannot give the skill is a 422 naming the field;
-    503 when too many learning requests are waiting. The skill checks itself against the demonstration: the
+    whose client goes away is cancelled. A demonstration that cannot give the skill is a 422 naming the field, a
+    stored one that cannot be read back (stored under looser rules) a 409; 503 when too many learning requests are
+    waiting. The skill checks itself against the demonstration: the
     reply's ``warnings`` are its failed checks; with ``strict: true`` such a skill is refused instead (422, one
     entry per failed check)."""
     if request.demonstration is not None:
@@ -36,10 +43,7 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
         loc, stored_id = ["body", "demonstration"], None
     else:
         assert request.demonstration_id is not None
-        found = await asyncio.to_thread(store.demonstration_json, request.demonstration_id)
-        if found is None:
-            raise errors.not_found("demonstration", request.demonstration_id)
-        demonstration_json = found[1]
+        _, demonstration_json = await asyncio.to_thread(readable_demonstration, store, request.demonstration_id)
         loc, stored_id = ["body", "demonstration_id"], request.demonstration_id
     options_json = request.learn_options().model_dump_json()
     try:

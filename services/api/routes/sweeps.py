@@ -13,14 +13,17 @@ from services.api.deps import (
     KeysDep,
     Limit,
     Offset,
+    SettingsDep,
     StoreDep,
     SweepsDep,
+    check_job_budget,
     need_sweeps,
     skill_to_run,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
 from services.store import Store, SweepRow
 from services.sweeps import sweep_view, trial_results
+from skills.sweeps import inapplicable_parameter
 
 router = APIRouter(tags=["sweeps"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
@@ -39,18 +42,27 @@ def _found(store: Store, sweep_id: str) -> SweepRow:
     responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
     dependencies=TOKEN_GUARD,
 )
-def post_sweep(request: SweepRequest, store: StoreDep, sweeps: SweepsDep, keys: KeysDep) -> SweepCreated:
+def post_sweep(
+    request: SweepRequest, store: StoreDep, sweeps: SweepsDep, keys: KeysDep, settings: SettingsDep
+) -> SweepCreated:
     """Run a skill over ``trials`` sampled variations (``vary``: unknown offset and tilt, friction, contact
     stiffness and damping, sensor bias and noise, force scale) once per controller, each as an execution through
     the queue at ``priority`` (below single executions), on every worker of the bus.
 
     Replies 202 once the first executions are submitted; follow it with ``GET /sweeps/{id}`` or the Zenoh key
-    ``progress_key``. The same ``seed`` draws the same trials. 404 for an unknown skill, 422 for a bad request or
-    one a worker refuses (an unknown scenario), 503 when no worker is connected."""
+    ``progress_key``. The same ``seed`` draws the same trials. 404 for an unknown skill, 422 for a bad request, for a
+    parameter the trials' world has nothing for (``cylinder_radius_m`` of a skill not taught on a cylinder) or one a
+    worker refuses (an unknown scenario), for ``settings`` whose trials would each be over the job budget, 503 when
+    no worker is connected."""
     from services.bus import BusRequestError, NoWorkerAvailable
     from services.store import QueueFull
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)
+    skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
+    check_job_budget(skill, request.settings, settings.job_budget, ("body", "settings"), skill_at)
+    if problem := inapplicable_parameter(request.vary, skill, request.scenario, request.settings.environment):
+        parameter, why = problem
+        raise errors.unprocessable(["body", "vary", parameter.value], why)
     runner = need_sweeps(sweeps)
     try:
         row = runner.create(request, skill, request.skill_id, demonstration_id)
