@@ -299,11 +299,6 @@ class _Execution:
         self.contact_offsets: list[float] = []
         self.timing = [0.0] * 5  # sensing, dynamics, control law, physics step, telemetry (s, summed)
 
-    # -------------------------------------------------------------------------------------- state helpers
-
-    def _contact_force_along(self, axis: NDArray[np.float64]) -> float:
-        return float(self.world.contact_wrench()[:3] @ axis)
-
     # -------------------------------------------------------------------------------------- the loop
 
     def _grow(self) -> None:
