@@ -268,6 +268,24 @@ def plane_case(
     return _analytic(f"{shape}-tilt{tilt_deg:g}-s{seed}", shape, "slide", contact, params, rng)
 
 
+def two_tables_case(seed: int = 23) -> CorpusCase:
+    """Two straight 15 cm strokes on flat tables 1.2 m apart, the tool lifted 40 cm between them: no placement puts
+    both in the iiwa's reach, each alone fits easily (a long wiping recording's lifts, held back from us)."""
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / 500.0
+    strokes = []
+    for y in (-0.6, 0.6):
+        plane = tilted_plane(0.0, rng)
+        plane.origin = np.array([0.5, y, 0.15])
+        strokes.append(plane_stroke(plane, "straight", rng, dt, 12.0, 0.3, 0.1))
+    lift_off, touch_down = retreat(strokes[0], 1.0, 0.1, dt), approach(strokes[1], 1.0, 0.1, dt)
+    carry = transfer(lift_off.points[-1], touch_down.points[0], -UP, 3.0, dt, 0.4)
+    pieces = [approach(strokes[0], 1.2, 0.1, dt), strokes[0], lift_off, carry, touch_down, strokes[1]]
+    pieces.append(retreat(strokes[1], 1.2, 0.1, dt))
+    assembled = assemble(pieces, dt, rng, 3.0e4, 0.3, 5e-5, 0.1)
+    return analytic_case("two-tables", "straight", "slide", assembled, {"pad_stiffness_n_m": 3.0e4}, rng)
+
+
 def cylinder_case(
     radius_m: float,
     seed: int = 0,

@@ -481,7 +481,10 @@ def real_data_summary(report: DemoReport) -> list[str]:
         + (f", confidence {_span(confidences, unit='')}" if confidences else "")
         + "). A real recording carries no world: the worker builds the work piece from what the recording measured "
         "(its contact points and friction-free force normals, not what the skill learned) and places skill and work "
-        "piece together in the robot's reach (the placement is in the cases table)."
+        "piece together in the robot's reach (the placement is in the cases table). What that piece itself adds to "
+        "the error, its floor on a flat surface against the ideal table, is measured by "
+        "`benchmarks/bench_work_piece.py` (docs/LEARNING.md, section 10); a curved crease like these is held by "
+        "several convex hulls, whose seams add to the max."
     )
     if ours:
         text += (

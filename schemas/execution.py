@@ -836,3 +836,9 @@ class ExecutionMetrics(BaseModel):
     verdict: ExecutionVerdict | None = Field(
         None, description="Pass or fail against the tolerances, with reasons (None only for stored older runs)."
     )
+    strokes: list[ExecutionMetrics] | None = Field(
+        None,
+        description="A skill whose strokes no single placement reaches runs one stroke at a time, each placed on its "
+        "own: each stroke's own metrics, in order (the figures above combine them: RMS over all their steady "
+        "contact, the largest max, the verdict fails when one of them fails). None for a single run.",
+    )

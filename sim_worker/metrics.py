@@ -331,3 +331,67 @@ def compute_metrics(
     contact_expected = any(s.kind is SegmentKind.contact for s in skill.segments)
     result.verdict = execution_verdict(result, settings.tolerances, log, contact_expected)
     return result
+
+
+def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics:
+    """The metrics of one execution run one stroke at a time (``strokes``, each its own run, in order): time, steps and
+    real-time factor over all of them; each RMS error over their steady contact together (weighted by its length);
+    the largest max error, touch-down and CF angle; the contact ratio weighted by steady contact; the first phase and
+    abort reason that is not ``done``; a verdict that fails when one stroke's fails (its reasons prefixed with the
+    stroke). ``strokes`` keeps each one's own metrics."""
+    if len(strokes) == 1:
+        return strokes[0]
+    weights = np.array([m.steady_contact_s for m in strokes])
+
+    def rms(name: str) -> float | None:
+        values = [getattr(m, name) for m in strokes]
+        if any(v is None for v in values) or weights.sum() <= 0:
+            return None
+        return float(np.sqrt(np.sum(weights * np.square(values)) / weights.sum()))
+
+    def largest(name: str) -> float | None:
+        values = [getattr(m, name) for m in strokes if getattr(m, name) is not None]
+        return max(values) if values else None
+
+    ended = next((m for m in strokes if m.phase is not ExecutionPhase.done), strokes[-1])
+    duration = sum(m.duration_s for m in strokes)
+    wall = sum(m.duration_s / m.real_time_factor for m in strokes if m.real_time_factor > 0)
+    fields = {
+        name: rms(name)
+        for name in ("force_rms_error_n", "force_rms_error_pct", "true_force_rms_error_n", "true_force_rms_error_pct")
+    }
+    fields |= {
+        name: largest(name)
+        for name in (
+            "force_max_error_n", "force_max_error_pct", "true_force_max_error_n", "true_force_max_error_pct",
+            "force_reference_n", "touchdown_peak_n", "touchdown_peak_ratio", "settle_time_s",
+            "cf_normal_angle_max_deg", "transition_true_force_max_error_n", "transition_true_force_max_error_pct",
+            "contact_threshold_n", "contact_persistence_steps",
+        )
+    }  # fmt: skip
+    contact = [m.contact_ratio for m in strokes]
+    if all(c is not None for c in contact) and weights.sum() > 0:
+        fields["contact_ratio"] = float(np.sum(weights * np.asarray(contact)) / weights.sum())
+    reasons = [f"stroke {k + 1}: {r}" for k, m in enumerate(strokes) if m.verdict for r in m.verdict.reasons]
+    warnings = [f"stroke {k + 1}: {w}" for k, m in enumerate(strokes) if m.verdict for w in m.verdict.warnings]
+    verdict = ExecutionVerdict(
+        verdict=Verdict.failed if reasons else Verdict.passed,
+        reasons=reasons,
+        warnings=warnings,
+        checks=[c for m in strokes if m.verdict for c in m.verdict.checks],
+    )
+    return ExecutionMetrics(
+        controller=strokes[0].controller,
+        phase=ended.phase,
+        abort_reason=ended.abort_reason,
+        real_time_factor=duration / wall if wall > 0 else 0.0,
+        duration_s=duration,
+        steps=sum(m.steps for m in strokes),
+        peak_force_n=max(m.peak_force_n for m in strokes),
+        contact_found_offsets_m=[o for m in strokes for o in m.contact_found_offsets_m],
+        steady_contact_s=float(weights.sum()),
+        work_piece=strokes[0].work_piece,
+        verdict=verdict,
+        strokes=strokes,
+        **{name: value for name, value in fields.items() if value is not None},
+    )

@@ -70,7 +70,6 @@ from schemas.bus_security import BusSecurity
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
-from schemas.skill import Skill
 from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
 from skills.job_estimate import execution_estimate
@@ -134,15 +133,16 @@ def default_worker_id() -> str:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def world_for(start: StartExecution):
-    """Where ``start``'s skill runs (``sim_worker.execution_world``): its world and its placed skill.
+def worlds_for(start: StartExecution) -> list:
+    """Where ``start``'s skill runs (``sim_worker.execution_world.execution_worlds``): its world and its placed skill,
+    or one world per stroke when no single placement reaches them all (the run goes through them in order).
 
     Raises ValueError (an unknown scenario or world field, a skill out of reach) with the message to reply.
     """
-    from sim_worker.execution_world import execution_world
+    from sim_worker.execution_world import execution_worlds
 
     request = start.request
-    return execution_world(
+    return execution_worlds(
         request.skill,  # type: ignore[arg-type]  (inline, checked by StartExecution)
         request.environment,
         scenario=request.scenario,
@@ -170,15 +170,19 @@ def _load_execution_code() -> None:
 class _Run:
     """State of one execution, shared by its thread, the command callback and the publisher."""
 
-    def __init__(self, worker: Worker, start: StartExecution, world) -> None:
+    def __init__(self, worker: Worker, start: StartExecution, worlds: list) -> None:
         self.worker = worker
         self.execution_id = start.execution_id
         self.start = start
         self.request = start.request
-        self.world = world
-        """The resolved ``ExecutionWorld``: world config, placed skill and demonstration."""
-        self.skill: Skill = world.skill
-        self.dt = float(world.config.time_step_s)
+        self.worlds = worlds
+        """The resolved ``ExecutionWorld`` (world config, placed skill and demonstration), or one per stroke."""
+        self.segments = sum(len(world.skill.segments) for world in worlds)
+        """Segments over all the worlds: a stroke's are numbered after the strokes before it."""
+        self.dt = float(worlds[0].config.time_step_s)
+        self.t_offset = 0.0
+        self.segment_offset = 0
+        """Where the world running now starts, in the execution's time (s) and segment numbers."""
         self.streams = self.request.telemetry is TelemetryMode.stream
         """Whether its control steps are published and kept for replays (``ExecutionSettings.telemetry``)."""
         self.step_limit = worker.settings.budget.step_limit(self.dt)
@@ -224,7 +228,12 @@ class _Run:
 
     def on_sample(self, tel) -> None:
         """A batch of control steps from the loop: queue it (unless the request's telemetry is ``none``) and a status
-        for each phase/segment change."""
+        for each phase/segment change. A stroke after the first runs in its own world from t = 0: its rows move to
+        the execution's time and segment numbers (the batch is the loop's copy)."""
+        if self.t_offset or self.segment_offset:
+            tel.data[:, 0] += self.t_offset
+            segments = tel.data[:, 2]
+            segments[segments >= 0] += self.segment_offset
         if self.streams:
             stamp = time.time()
             first = self.worker.archive.append(self.execution_id, tel)
@@ -248,7 +257,7 @@ class _Run:
                 "worker_id": self.worker.worker_id,
                 "phase": self.phase,
                 "segment_index": self.segment_index,
-                "segments": len(self.skill.segments),
+                "segments": self.segments,
                 "t": self.t,
                 "steps": self.polls,
                 "paused": self.paused,
@@ -282,18 +291,26 @@ class _Run:
     def run(self) -> None:
         """The execution thread: run the skill, publish the final status, free the worker."""
         from sim_worker.executor import run_skill
+        from sim_worker.metrics import combined_stroke_metrics
 
         final: dict[str, Any]
         try:
             self.status(message="accepted")
-            result = run_skill(
-                self.world,
-                self.request,
-                on_sample=self.on_sample,
-                should_abort=self.should_abort,
-                should_pause=self.should_pause,
-            )
-            metrics = result.metrics
+            strokes = []
+            for world in self.worlds:  # one, or one per stroke: each from where the one before ended
+                result = run_skill(
+                    world,
+                    self.request,
+                    on_sample=self.on_sample,
+                    should_abort=self.should_abort,
+                    should_pause=self.should_pause,
+                )
+                strokes.append(result.metrics)
+                if result.metrics.phase is not ExecutionPhase.done:
+                    break
+                self.t_offset += result.metrics.duration_s
+                self.segment_offset += len(world.skill.segments)
+            metrics = combined_stroke_metrics(strokes)
             phase = metrics.phase
             error = metrics.abort_reason
             if phase is ExecutionPhase.aborted and self.abort_requested and error == "aborted on request":
@@ -537,8 +554,10 @@ class Worker:
                     reply("need_demonstration", f"worker {self.worker_id} keeps no demonstration "
                           f"{named.demonstration_id}")  # fmt: skip
                     return
-                world = world_for(start)
-                estimate = execution_estimate(world.skill, start.request, float(world.config.time_step_s))
+                worlds = worlds_for(start)
+                estimate = _whole_estimate(
+                    [execution_estimate(w.skill, start.request, float(w.config.time_step_s)) for w in worlds]
+                )
             except Exception as exc:
                 reply("error", _short_error(exc))
                 return
@@ -551,7 +570,7 @@ class Worker:
             with self._lock:
                 busy = self._busy_reason()
                 if busy is None and not self._closed:
-                    run = _Run(self, start, world)
+                    run = _Run(self, start, worlds)
                     self._run = run
                     self.executions_run += 1
             if busy is not None or self._closed:
@@ -562,7 +581,7 @@ class Worker:
                 self.keys.cmd(execution_id), lambda sample: self._on_command(run, sample)
             )
             reply("accepted")
-            log.info("%s accepted (%d segments, pace %s)", execution_id, len(run.skill.segments), run.request.pace)
+            log.info("%s accepted (%d segments, pace %s)", execution_id, run.segments, run.request.pace)
             run.thread = threading.Thread(target=run.run, name=f"execution-{execution_id}", daemon=True)
             run.thread.start()
         except Exception as exc:
@@ -680,6 +699,15 @@ class Worker:
                 self._recording = False
 
 
+def _whole_estimate(estimates: list[JobEstimate]) -> JobEstimate:
+    """The estimate of one execution that runs its strokes one after the other (each estimated on its own): their
+    stretches of time in order, the longest phase of any."""
+    if len(estimates) == 1:
+        return estimates[0]
+    longest = max((e.longest_phase for e in estimates), key=lambda part: part.simulated_s)
+    return estimates[0].model_copy(update={"parts": [p for e in estimates for p in e.parts], "longest_phase": longest})
+
+
 def _over_budget(estimate: JobEstimate, budget: JobBudget) -> str | None:
     """Why a job is refused (``field: reason`` for each setting that takes it past ``budget``), or None if it fits."""
     problems = estimate.problems(budget)
@@ -716,4 +744,4 @@ def run_worker(settings: WorkerSettings | None = None, worker_id: str | None = N
     return 0
 
 
-__all__ = ["Worker", "WorkerSettings", "default_worker_id", "run_worker", "world_for"]
+__all__ = ["Worker", "WorkerSettings", "default_worker_id", "run_worker", "worlds_for"]

@@ -181,3 +181,29 @@ def test_the_readme_curl_flow_runs(stack, tmp_path):
     assert (tmp_path / "run.mcap").stat().st_size > 100_000
     assert (tmp_path / "window.csv").read_text().splitlines()[0].startswith("t,phase,segment_index")
     assert "ROS 2 bag: wrench /ft_sensor/wrench" in result.stdout
+
+
+def test_a_skill_no_placement_reaches_runs_one_stroke_at_a_time_on_the_service(client, tmp_path):
+    """Two strokes on tables 1.2 m apart (the tool lifted 40 cm between them): no placement reaches both. Through the
+    service the worker runs them one after the other, each placed on its own on the piece measured from the stored
+    recording: one execution, its telemetry continuous in time and segment numbers, its metrics combining both
+    strokes' (each kept) and its verdict theirs."""
+    from corpus.families import two_tables_case
+
+    demo = two_tables_case().demonstration()
+    (tmp_path / "two_tables.json").write_text(demo.model_dump_json())
+    skill = client.learn(client.upload(tmp_path / "two_tables.json").id)
+    view = client.execute(skill.id).wait(timeout_s=180)
+    m = view.metrics
+    assert view.status.value == "done" and m is not None and m.strokes is not None and len(m.strokes) == 2, view
+    assert m.work_piece == "measured" and all(s.work_piece == "measured" for s in m.strokes)
+    assert view.verdict is Verdict.passed and all(s.verdict.verdict is Verdict.passed for s in m.strokes)
+    assert m.steps == sum(s.steps for s in m.strokes)
+    assert m.true_force_rms_error_pct == pytest.approx(
+        np.sqrt(sum(s.steady_contact_s * s.true_force_rms_error_pct**2 for s in m.strokes) / m.steady_contact_s)
+    )
+    assert max(s.true_force_rms_error_pct for s in m.strokes) < 3.0
+    telemetry = client.execution(view.id).telemetry()
+    assert len(telemetry) == m.steps and np.all(np.diff(telemetry.t) > 0)  # one run in time, no restart
+    contact_segments = sorted(set(telemetry.segment_index[telemetry.phase == "contact"].tolist()))
+    assert contact_segments == [0, 1]  # the second stroke's segment numbered after the first's

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from corpus.build import UP, approach, assemble, retreat, tilted_plane, transfer
-from corpus.case import CorpusCase, analytic_case
-from corpus.families import cylinder_case, plane_case, plane_stroke
+from corpus.case import CorpusCase
+from corpus.families import cylinder_case, plane_case, two_tables_case
 from schemas import EnvironmentChange, ExecutionSettings, LearnOptions, Skill, SkillType
 from schemas.execution import ExecutionMetrics, Verdict
 from schemas.skill import SegmentKind
@@ -144,21 +143,7 @@ def test_the_work_piece_source_is_asked_for_or_follows_the_demonstration(cylinde
 
 @pytest.fixture(scope="module")
 def long_demonstration() -> CorpusCase:
-    """Two straight 15 cm strokes on flat tables 1.2 m apart, the tool lifted 40 cm between them: no placement puts
-    both in the iiwa's reach, each alone fits easily."""
-    rng = np.random.default_rng(23)
-    dt = 1.0 / 500.0
-    strokes = []
-    for y in (-0.6, 0.6):
-        plane = tilted_plane(0.0, rng)
-        plane.origin = np.array([0.5, y, 0.15])
-        strokes.append(plane_stroke(plane, "straight", rng, dt, 12.0, 0.3, 0.1))
-    lift_off, touch_down = retreat(strokes[0], 1.0, 0.1, dt), approach(strokes[1], 1.0, 0.1, dt)
-    carry = transfer(lift_off.points[-1], touch_down.points[0], -UP, 3.0, dt, 0.4)
-    pieces = [approach(strokes[0], 1.2, 0.1, dt), strokes[0], lift_off, carry, touch_down, strokes[1]]
-    pieces.append(retreat(strokes[1], 1.2, 0.1, dt))
-    assembled = assemble(pieces, dt, rng, 3.0e4, 0.3, 5e-5, 0.1)
-    return analytic_case("two-tables", "straight", "slide", assembled, {"pad_stiffness_n_m": 3.0e4}, rng)
+    return two_tables_case()
 
 
 def test_a_skill_splits_into_one_skill_per_stroke(long_demonstration) -> None:

@@ -242,7 +242,7 @@ def test_a_sweep_runs_each_trial_with_its_criteria_its_bias_and_its_cylinder_and
     """Through the API on a fake bus: every trial's execution carries the sweep's success criteria as tolerances
     (the others from its settings), its sensor bias on world x, y and z and the sensor's own offset on the tool's,
     and its cylinder as world overrides, which the
-    worker's world resolution (`execution_world`, as `world_for` calls it) applies: the radius drawn, the crown where
+    worker's world resolution (`execution_worlds`, as `worlds_for` calls it) applies: the radius drawn, the crown where
     it was taught. Their verdicts then decide the trials, the failed checks are the causes, the warnings counted
     apart."""
     from schemas.bus import ExecutionStatus
