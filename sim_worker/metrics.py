@@ -336,9 +336,9 @@ def compute_metrics(
 def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics:
     """The metrics of one execution run one stroke at a time (``strokes``, each its own run, in order): time, steps and
     real-time factor over all of them; each RMS error over their steady contact together (weighted by its length);
-    the largest max error, touch-down and CF angle; the contact ratio weighted by steady contact; the first phase and
-    abort reason that is not ``done``; a verdict that fails when one stroke's fails (its reasons prefixed with the
-    stroke). ``strokes`` keeps each one's own metrics."""
+    the largest max error, touch-down and CF angle; the contact ratio and mean CF angle weighted by steady contact;
+    the first phase and abort reason that is not ``done``; a verdict that fails when one stroke's fails (its reasons
+    prefixed with the stroke). ``strokes`` keeps each one's own metrics."""
     if len(strokes) == 1:
         return strokes[0]
     weights = np.array([m.steady_contact_s for m in strokes])
@@ -369,9 +369,10 @@ def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics
             "contact_threshold_n", "contact_persistence_steps",
         )
     }  # fmt: skip
-    contact = [m.contact_ratio for m in strokes]
-    if all(c is not None for c in contact) and weights.sum() > 0:
-        fields["contact_ratio"] = float(np.sum(weights * np.asarray(contact)) / weights.sum())
+    for name in ("contact_ratio", "cf_normal_angle_deg"):  # shares and means: weighted by steady contact
+        values = [getattr(m, name) for m in strokes]
+        if all(v is not None for v in values) and weights.sum() > 0:
+            fields[name] = float(np.sum(weights * np.asarray(values)) / weights.sum())
     reasons = [f"stroke {k + 1}: {r}" for k, m in enumerate(strokes) if m.verdict for r in m.verdict.reasons]
     warnings = [f"stroke {k + 1}: {w}" for k, m in enumerate(strokes) if m.verdict for w in m.verdict.warnings]
     verdict = ExecutionVerdict(
