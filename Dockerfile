@@ -28,15 +28,22 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 COPY --from=build /wheels /wheels
 RUN pip install --no-cache-dir --no-index --find-links /wheels "contact-skills[service]" \
     && rm -rf /wheels \
-    && contact-skills --help > /dev/null \
-    && python -m sim_worker.warm_up
+    && contact-skills --help > /dev/null
 
-# The API's database goes to /data, where docker-compose mounts the named volume (no VOLUME here: it would give
-# every container, each worker too, an anonymous volume). The API listens on all interfaces INSIDE the container
-# only (docker-compose publishes it on the host's loopback).
-RUN useradd --create-home --uid 1000 cskills && mkdir -p /data && chown cskills /data
+# The API's database goes to /data, the bus logins to /keys and /worker-logins, where docker-compose mounts the named
+# volumes (a fresh named volume takes the owner of the folder it is mounted on: the runtime user's). No VOLUME here:
+# it would give every container, each worker too, an anonymous volume. The API listens on all interfaces INSIDE the
+# container only (docker-compose publishes it on the host's loopback).
+RUN useradd --create-home --uid 1000 cskills \
+    && mkdir -p /data /keys /worker-logins \
+    && chown cskills /data /keys /worker-logins
 USER cskills
 WORKDIR /home/cskills
+# The compiled control loop is cached where the runtime user can read and write it, and warmed up AS that user:
+# every container starts with it compiled (as root, the cache went where the user could not write, and every
+# container compiled it again: 17 s).
+ENV NUMBA_CACHE_DIR=/home/cskills/.cache/numba
+RUN python -m sim_worker.warm_up
 ENV CONTACT_SKILLS_DB=/data/contact_skills.db
 EXPOSE 8000
 

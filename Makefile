@@ -12,9 +12,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e ".[service,dev]"
 	touch $(STAMP)
 
-run: $(STAMP)
+run: $(STAMP)  # make run PORT=8001 ZENOH_PORT=7448: the HTTP and Zenoh ports (loopback)
 	$(BIN)/python -m sim_worker.warm_up
-	$(BIN)/contact-skills up
+	$(BIN)/contact-skills up $(if $(PORT),--port $(PORT)) $(if $(ZENOH_PORT),--zenoh-port $(ZENOH_PORT))
 
 test: $(STAMP)
 	$(BIN)/ruff check .

@@ -13,7 +13,12 @@ Reported: the real-time factor (simulated time over the loop's wall time, and ov
 time, which a loaded machine disturbs less; medians of the repeats), the loop's own per-step timers
 (µs), PyBullet's own share of a step (every PyBullet call of one execution timed individually: the
 floor no Python-side work can go below) and, for reference, the per-call cost of the world's queries
-(``SimWorld.measure_costs``) and of the control law alone. The load average is printed with the table. The force / path
+(``SimWorld.measure_costs``) and of the control law alone. Beside it, the floor: a BARE loop this script builds
+itself, making the same four PyBullet calls per step as the project's loop (``getJointStates``, ``getContactPoints``,
+``setJointMotorControlArray``, ``stepSimulation``) in the same world, replaying the exact torques one project execution
+commanded from the same start state (so every step is the same physics: the contact steps are counted and must agree),
+timed interleaved with project executions, for the ideal and the wrist sensor: µs per step side by side and their
+ratio. The load average is printed with the table. The force / path
 measures of the same runs are reported too (ours and the two baselines in the same run). Writes its
 section of docs/BENCHMARKS.md between ``<!-- bench_control_loop:start -->`` and
 ``<!-- bench_control_loop:end -->``.
@@ -39,12 +44,15 @@ import numpy as np  # noqa: E402
 import pybullet  # noqa: E402
 
 from schemas import ControllerKind, ExecutionSettings, LearnOptions  # noqa: E402
+from schemas.execution import EnvironmentChange, SensorChoice  # noqa: E402
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
-from sim_worker.execution_world import execution_world  # noqa: E402
-from sim_worker.executor import NULL_SPACE_UPDATE_STEPS, execute_skill, run_skill  # noqa: E402
+from sim_worker.control_loop import NULL_SPACE_UPDATE_STEPS  # noqa: E402
+from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
+from sim_worker.executor import execute_skill, run_skill  # noqa: E402
+from sim_worker.robot_model import N_JOINTS, TOOL_LINK  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
 from sim_worker.world import SimWorld  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
+from sim_worker.world_config import SensorModel, WorldConfig  # noqa: E402
 from skills.control import HybridController  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 
@@ -80,6 +88,10 @@ PYBULLET_CALLS = (
     "calculateMassMatrix",
 )
 """The PyBullet functions the control loop calls (``sim_worker.world``)."""
+FLOOR_SCENARIO = "slide_flat"
+"""The skill the project loop is compared with the bare PyBullet loop on (settle, free motion, touch-down, slide)."""
+TARGET_FLOOR_RATIO = 1.3
+"""Issue 28's target: the project loop within this factor of the bare loop's µs per step."""
 
 
 def pin_one_core() -> str:
@@ -159,10 +171,143 @@ def pybullet_share(
     return {name: ns / 1e3 / steps for name, ns in spent.items()}, result.timings_us["total"]
 
 
+def captured_torques(world: ExecutionWorld, settings: ExecutionSettings) -> tuple[list[list[float]], tuple, int]:
+    """Execute once, capturing every torque command (N·m, as sent to PyBullet) and the joint states (PyBullet's
+    tuples) at the first one; and the steps the telemetry records in contact."""
+    torques: list[list[float]] = []
+    start: list[tuple] = []
+    original = pybullet.setJointMotorControlArray
+
+    def capture(body, joints, mode, *args, **kwargs):
+        if mode == pybullet.TORQUE_CONTROL:
+            if not torques:
+                start.append(pybullet.getJointStates(body, joints, physicsClientId=kwargs["physicsClientId"]))
+            torques.append(list(kwargs["forces"]))
+        return original(body, joints, mode, *args, **kwargs)
+
+    pybullet.setJointMotorControlArray = capture
+    try:
+        result = run_skill(world, settings)
+    finally:
+        pybullet.setJointMotorControlArray = original
+    return torques, start[0], int(result.telemetry.in_contact.sum())
+
+
+def bare_loop(world: ExecutionWorld, torques: list[list[float]], start: tuple) -> tuple[float, float, int]:
+    """The floor: the same world (built as the project builds it), the arm put in the captured start state, then per
+    step the project loop's four PyBullet calls and nothing else, replaying ``torques``. Returns µs per step by wall
+    time and by the thread's CPU time, and the steps that began in contact (contact points reported)."""
+    with SimWorld(world.config) as sim:
+        client, robot = sim.client_id, sim.robot
+        joints = list(range(N_JOINTS))
+        for joint, state in zip(joints, start, strict=True):
+            pybullet.resetJointState(robot, joint, state[0], state[1], physicsClientId=client)
+        wrist = world.config.sensor.model is SensorModel.wrist
+        queried = [*joints, TOOL_LINK] if wrist else joints  # the project reads the tool joint's reaction with them
+        joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
+        command, step, torque_control = (
+            pybullet.setJointMotorControlArray,
+            pybullet.stepSimulation,
+            pybullet.TORQUE_CONTROL,
+        )
+        touching = 0
+        wall, cpu = time.perf_counter(), time.thread_time()
+        for forces in torques:  # each call as the project makes it (positional where PyBullet allows)
+            joint_states(robot, queried, client)
+            if contact_points(robot, -1, TOOL_LINK, -2, client):
+                touching += 1
+            command(robot, joints, torque_control, forces=forces, physicsClientId=client)
+            step(client)
+        wall, cpu = time.perf_counter() - wall, time.thread_time() - cpu
+    return 1e6 * wall / len(torques), 1e6 * cpu / len(torques), touching
+
+
+def floor_comparison(skill: Skill, recording, repeats: int) -> list[dict[str, float | str | int]]:
+    """Per sensor: the project loop (``run_skill``, µs per step of the loop's wall and CPU time) and the bare loop
+    replaying its torques, interleaved ``repeats`` times; medians, and whether every step was the same physics."""
+    rows = []
+    for sensor in (SensorChoice.ideal, SensorChoice.wrist):
+        environment = EnvironmentChange(sensor=sensor)
+        settings = ExecutionSettings(controller=ControllerKind.hybrid_cf, pace="fast", environment=environment)
+        world = execution_world(skill, environment, scenario=FLOOR_SCENARIO, demonstration=recording.demonstration)
+        torques, start, project_contact = captured_torques(world, settings)
+        project_wall, project_cpu, bare_wall, bare_cpu = [], [], [], []
+        for _ in range(repeats):
+            result = run_skill(world, settings)
+            steps = max(result.metrics.steps, 1)
+            project_wall.append(1e6 * result.loop_wall_s / steps)
+            project_cpu.append(1e6 * result.loop_cpu_s / steps)
+            wall, cpu, bare_contact = bare_loop(world, torques, start)
+            bare_wall.append(wall)
+            bare_cpu.append(cpu)
+        rows.append(
+            {
+                "sensor": sensor.value,
+                "steps": len(torques),
+                "same_physics": project_contact == bare_contact,
+                "contact_steps": bare_contact,
+                "project_wall": statistics.median(project_wall),
+                "bare_wall": statistics.median(bare_wall),
+                "project_cpu": statistics.median(project_cpu),
+                "bare_cpu": statistics.median(bare_cpu),
+                "ratio_wall": statistics.median(p / b for p, b in zip(project_wall, bare_wall, strict=True)),
+                "ratio_cpu": statistics.median(p / b for p, b in zip(project_cpu, bare_cpu, strict=True)),
+            }
+        )
+        row = rows[-1]
+        print(
+            f"floor {sensor.value:5s}: project {row['project_wall']:.1f} µs/step, bare {row['bare_wall']:.1f}, ratio "
+            f"{row['ratio_wall']:.2f} (CPU {row['project_cpu']:.1f} / {row['bare_cpu']:.1f} = {row['ratio_cpu']:.2f}); "
+            f"contact steps {bare_contact} bare, {project_contact} project",
+            flush=True,
+        )
+    return rows
+
+
+def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tuple[float, float, float]) -> list[str]:
+    """The floor comparison's table and its reading."""
+    lines = [
+        "",
+        f"The project loop beside the floor ({FLOOR_SCENARIO}, hybrid_cf, `run_skill` as a worker runs it): a bare "
+        "loop built by this benchmark makes only the project loop's four PyBullet calls per step (`getJointStates`, "
+        "with the wrist sensor of the arm's joints and the tool joint; `getContactPoints` of the tool; "
+        "`setJointMotorControlArray`; `stepSimulation`) in the same world, from the same start state, replaying the "
+        "torques one project execution commanded: the same physics step by step (the steps in contact agree, column "
+        f"'same physics'). {repeats} project executions interleaved with {repeats} bare loops per sensor, medians; "
+        "the ratio is the median of the pairs' ratios. The project's µs cover its whole loop (as the table above, the "
+        f"phases' set-up included). Load average (1, 5, 15 min) at the end: {_load(load)}.",
+        "",
+        "| sensor | steps (in contact) | same physics | project µs / step | bare loop µs / step | ratio | "
+        "project CPU µs / step | bare CPU µs / step | ratio (CPU) |",
+        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['sensor']} | {r['steps']} ({r['contact_steps']}) | {'yes' if r['same_physics'] else 'NO'} | "
+            f"{r['project_wall']:.1f} | {r['bare_wall']:.1f} | {r['ratio_wall']:.2f} | {r['project_cpu']:.1f} | "
+            f"{r['bare_cpu']:.1f} | {r['ratio_cpu']:.2f} |"
+        )
+    met = [r["sensor"] for r in rows if r["ratio_cpu"] <= TARGET_FLOOR_RATIO]
+    lines += [
+        "",
+        f"- Target (issue 28): the project loop within {TARGET_FLOOR_RATIO}x of the bare loop for both sensors. "
+        + (f"Met by CPU time for: {', '.join(map(str, met))}." if met else "Not met for either sensor.")
+        + " What the project adds per step beyond the four calls: turning `getJointStates`' tuples into the arm "
+        "state and the compiled model (`sim_worker/arm_model.py`), the sum over the contact points "
+        "(`sim_worker/contact_sensing.py`), the torque list and its limit check (`SimWorld.step`), the executor's loop "
+        "body with its two compiled calls (telemetry row, control law), and with the wrist sensor its compiled "
+        "reading (weight compensation, noise, delay, filter, tare).",
+    ]
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3, help="executions per run (median RTF)")
     parser.add_argument("--no-write", action="store_true", help="print only, do not touch docs/BENCHMARKS.md")
+    parser.add_argument(
+        "--floor-only", action="store_true", help="only the comparison with the bare PyBullet loop (print, no write)"
+    )
     args = parser.parse_args()
     pinned = pin_one_core()
     load_before = os.getloadavg()
@@ -174,6 +319,11 @@ def main() -> None:
             options = LearnOptions(skill_type=skill_type)
             learned[scenario] = (recording, learn_skill(recording.demonstration, options))
 
+    recording, skill = learned[FLOOR_SCENARIO]
+    floor = floor_comparison(skill, recording, args.repeats)
+    if args.floor_only:
+        print("\n".join(floor_lines(floor, args.repeats, os.getloadavg())))
+        return
     rows = []
     breakdown = None
     for scenario, _, controller, sensor in RUNS:
@@ -272,12 +422,14 @@ def main() -> None:
     }
     for part in PARTS:
         lines.append(f"| {labels[part]} | {timings[part]:.1f} | {100 * timings[part] / total:.0f} % |")
+    lines += floor_lines(floor, args.repeats, load_after)
     simulator = sum(share.values())
     lines += [
         "",
         f"PyBullet's own share of a step ({scenario}, {controller.value}; each PyBullet call of one more execution "
-        f"timed on its own, µs per control step; those executions took {share_total:.1f} µs per step with the "
-        f"ideal sensor, {wrist_total:.1f} with the wrist sensor):",
+        f"timed on its own, µs per control step; those executions, the project's loop slowed by the timers around "
+        f"each call, took {share_total:.1f} µs per step with the ideal sensor, {wrist_total:.1f} with the wrist "
+        "sensor: not a floor, which is the bare loop's column above):",
         "",
         "| PyBullet call | µs / step, ideal sensor | µs / step, wrist sensor |",
         "| --- | ---: | ---: |",
@@ -311,7 +463,7 @@ def main() -> None:
         f"{verdict_cpu}. PyBullet's own calls take {simulator:.0f} µs of the {total:.0f} µs step ({scenario}; "
         f"`stepSimulation` alone {share['stepSimulation']:.0f} µs): with no Python work at all the loop could not "
         f"exceed {1e3 / simulator:.0f}x. The other ~{python_side:.0f} µs are the interpreter (the loop's glue, the "
-        "world's joint-state and contact-point tuples turned into arrays, the telemetry row, the phase plans) and, "
+        "calls into the compiled arm model, contact summary and law, the telemetry row, the phase plans) and, "
         "on a loaded machine, time the loop waited for the CPU (compare the CPU column). "
         f"Rows at or above the target: {len(at_target)} of {len(rows)}"
         + (f" ({', '.join(at_target)})" if at_target else "")

@@ -12,6 +12,11 @@ import os
 import sys
 from pathlib import Path
 
+from services.service_url import URL_HELP
+
+PACES = ("realtime", "fast")
+"""`schemas.execution.Pace`, spelled out: ``--help`` imports no pydantic (tests/test_cli.py compares)."""
+
 EXIT_ENDED_EARLY = 1
 """`watch`: the execution was aborted or failed."""
 EXIT_TIMEOUT = 3
@@ -20,7 +25,6 @@ EXIT_VERDICT_FAILED = 4
 """`watch`, `simulate`: the execution ran every segment, but its verdict failed (the force, contact or touch-down
 outside the tolerances)."""
 LOG_LEVELS = ["debug", "info", "warning", "error"]
-DEFAULT_API_URL = "http://127.0.0.1:8000"
 LOG_LEVEL_HELP = "how much the process logs to stderr (default info)"
 
 
@@ -69,7 +73,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     _logging(args.log_level)
     listen = _endpoints(args.listen) or listen_from_env()
     try:
-        security = BusSecurity.from_env(users_file=args.users, tls_cert=args.tls_cert, tls_key=args.tls_key)
+        security = BusSecurity.from_env(os.environ, users_file=args.users, tls_cert=args.tls_cert, tls_key=args.tls_key)
         run_router(listen, security, args.prefix or os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX)
     except (ConnectionError, BusSecurityError, OSError) as exc:
         print(f"contact-skills router: error: {exc}", file=sys.stderr)
@@ -96,6 +100,9 @@ def cmd_bus_keys(args: argparse.Namespace) -> int:
 
 def cmd_worker(args: argparse.Namespace) -> int:
     """``contact-skills worker``: a sim worker on the bus (executes skills, records demonstrations)."""
+    from services.quiet_imports import import_pybullet_quietly
+
+    import_pybullet_quietly()
     from sim_worker.zenoh_worker import WorkerSettings, run_worker
 
     _logging(args.log_level)
@@ -131,6 +138,20 @@ def _status_line(execution_id: str, status, last: dict | None, samples: int) -> 
     return " | ".join(parts)
 
 
+def _show(line: str, tty: bool, last_print: float) -> float:
+    """Show the status ``line``: rewritten in place on a terminal, else printed at most once a second (``last_print``:
+    the monotonic time of the last one, s); returns the new ``last_print``."""
+    import time
+
+    if tty:
+        sys.stdout.write("\r" + line + "\x1b[K")
+        sys.stdout.flush()
+    elif time.monotonic() - last_print >= 1.0:
+        print(line, flush=True)
+        return time.monotonic()
+    return last_print
+
+
 def _metrics_lines(status) -> list[str]:
     m = status.metrics
     lines = [f"{status.execution_id} {status.phase.value} on {status.worker_id}: {status.message}"]
@@ -163,22 +184,30 @@ def exit_code(done: bool, metrics) -> int:
     return EXIT_VERDICT_FAILED if failed else 0
 
 
-def _asked_the_api(args: argparse.Namespace) -> int | None:
+def _asked_the_api(args: argparse.Namespace) -> int | list[str] | None:
     """Ask the API at ``--url`` about the execution first: exit 2 for an id it does not know, the stored metrics for
-    a finished one (exit as :func:`exit_code`); None to follow it on the bus (running, or no API answers there)."""
-    from schemas.bus import ExecutionStatus
-    from services.client import Client, NotFoundError, ServiceError
+    a finished one (exit as :func:`exit_code`; unless it is to be replayed, ``--from-start``); else, to follow it,
+    the Zenoh endpoints the API reports (``GET /health``), or None when no API answers there."""
+    from services.client import FINAL_STATUSES, Client, NotFoundError, ServiceError
 
     try:
         with Client(args.url, timeout_s=5.0) as client:
             view = client.execution(args.execution_id).status()
+            endpoints = client.health().zenoh_endpoints
     except NotFoundError as exc:
         print(f"contact-skills watch: error: {exc.detail} (asked the API at {args.url})", file=sys.stderr)
         return 2
     except ServiceError:
         return None
-    if view.status.value not in ("done", "aborted", "failed"):
-        return None
+    if view.status not in FINAL_STATUSES or args.from_start:
+        return endpoints
+    return _report_final(view)
+
+
+def _report_final(view) -> int:
+    """Print a finished execution's metrics and verdict as the API stored them (an `ExecutionView`); its exit code."""
+    from schemas.bus import ExecutionStatus
+
     status = ExecutionStatus(
         execution_id=view.id,
         worker_id=view.worker_id or "?",
@@ -190,6 +219,38 @@ def _asked_the_api(args: argparse.Namespace) -> int | None:
     for text in _metrics_lines(status):
         print(text)
     return exit_code(view.status.value == "done", view.metrics)
+
+
+def _watch_replayed(args: argparse.Namespace, endpoints: list[str]) -> int:
+    """``--pace realtime`` or ``--from-start``: the run through the typed client's live view (``Client.live``: the
+    stored samples first with --from-start, each batch held back to the clock with realtime), then its end as the
+    API stored it."""
+    from schemas.execution import Pace
+    from services.client import Client, ServiceError
+
+    tty, samples, last_print, line = sys.stdout.isatty(), 0, 0.0, ""
+    try:
+        with Client(args.url) as client:
+            execution = client.execution(args.execution_id)
+            live = execution.live(endpoints, args.timeout, Pace(args.pace), from_start=args.from_start)
+            for batch in live:
+                samples += len(batch.t)
+                last = {"t": batch.t[-1], "phase": batch.phase[-1].value, "segment": batch.segment_index[-1],
+                        "fz": batch.wrench_cf[-1][2], "fdes": batch.desired_force_cf_z_n[-1]}  # fmt: skip
+                line = _status_line(args.execution_id, None, last, samples)
+                last_print = _show(line, tty, last_print)
+            print(("\r" + line + "\x1b[K") if tty else line)  # where it ended: every sample counted
+            view = execution.wait(timeout_s=10.0, poll_s=0.05)
+    except TimeoutError as exc:
+        print(f"contact-skills watch: {exc}", file=sys.stderr)
+        return EXIT_TIMEOUT
+    except ServiceError as exc:
+        print(f"contact-skills watch: error: {exc} (asked the API at {args.url})", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print()
+        return 130
+    return _report_final(view)
 
 
 def _await_the_api(args: argparse.Namespace, timeout_s: float = 10.0) -> None:
@@ -215,21 +276,31 @@ def cmd_watch(args: argparse.Namespace) -> int:
     import threading
     import time
 
-    from schemas.bus import ExecutionStatus, KeyExpressions, check_id
+    from schemas.bus import ENV_ENDPOINTS, ExecutionStatus, KeyExpressions, check_id
     from schemas.execution import TelemetryBatch
     from services.bus import BusSettings, open_session
+    from services.service_url import service_url
 
     apply_login(args)
+    args.url = service_url(args.url)
     settings = BusSettings.from_env()
-    endpoints = _endpoints(args.connect) or settings.endpoints
     try:
         check_id(args.execution_id, "execution_id")
     except ValueError as exc:
         print(f"contact-skills watch: error: {exc}", file=sys.stderr)
         return 2
     answered = _asked_the_api(args)
-    if answered is not None:
+    if isinstance(answered, int):
         return answered
+    if answered is not None and (args.from_start or args.pace != "fast"):
+        return _watch_replayed(args, _endpoints(args.connect) or answered)
+    if args.from_start:
+        print(f"contact-skills watch: error: --from-start reads the stored run from the API at {args.url}, which "
+              "does not answer", file=sys.stderr)  # fmt: skip
+        return 2
+    # --connect, else $CONTACT_SKILLS_ZENOH_ENDPOINTS, else the endpoints the API reports, else the default
+    endpoints = _endpoints(args.connect) or _endpoints([os.environ.get(ENV_ENDPOINTS, "")]) or answered
+    endpoints = endpoints or settings.endpoints
     try:
         keys = KeyExpressions(args.prefix or settings.prefix)
         session = open_session("client", connect=endpoints, wait_s=10.0)
@@ -281,12 +352,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
                 return EXIT_TIMEOUT
             with lock:
                 line = _status_line(args.execution_id, state["status"], state["last"], state["samples"])
-            if tty:
-                sys.stdout.write("\r" + line + "\x1b[K")
-                sys.stdout.flush()
-            elif time.monotonic() - last_print >= 1.0:
-                print(line, flush=True)
-                last_print = time.monotonic()
+            last_print = _show(line, tty, last_print)
             if deadline is not None and time.monotonic() > deadline:
                 if tty:
                     print()
@@ -353,7 +419,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         "worker", help="run a sim worker on the Zenoh bus (until SIGINT/SIGTERM)", description=cmd_worker.__doc__
     )
     worker.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
-    worker.add_argument("--id", help="worker id (default worker-<hostname>-<pid>)")
+    worker.add_argument("--id", help="worker id (default: its bus login, else worker-<6 random hex digits>)")
     worker.add_argument("--prefix", help=prefix_help)
     login_arguments(worker)
     worker.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
@@ -374,9 +440,18 @@ def register(commands: argparse._SubParsersAction) -> None:
         metavar="S",
         help="without an answer from the API: give up if the bus says nothing of the execution for S s (default 10)",
     )
+    watch.add_argument("--url", help=f"{URL_HELP}: asked about the execution first, and for the Zenoh endpoint")
     watch.add_argument(
-        "--url",
-        default=DEFAULT_API_URL,
-        help=f"the API asked about the execution first (default {DEFAULT_API_URL})",
+        "--pace",
+        choices=PACES,
+        default="fast",
+        help="fast: show the samples as they arrive; realtime: hold each back until its simulated time has passed on "
+        "the clock, so a run executed at the default fast pace (~20x real time) is seen as it would run (default fast)",
+    )
+    watch.add_argument(
+        "--from-start",
+        action="store_true",
+        help="replay the run from its first sample (the samples the API stored, then the live ones), also one that "
+        "has ended",
     )
     watch.set_defaults(run=cmd_watch)

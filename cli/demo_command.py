@@ -11,6 +11,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from services.service_url import URL_HELP
+
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """``contact-skills demo``: record, learn and execute the paper's slide (Fig. 3) and contour (Fig. 4) trials,
@@ -22,10 +24,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import time
 
     from experiments.paper_demo import DemoError, DemoOptions, run_demo, text_table
+    from services.service_url import service_url
 
     shown = ["contact-skills", "demo", *sys.argv[2:]] if sys.argv[1:2] == ["demo"] else ["contact-skills", "demo"]
     options = DemoOptions(
-        url=args.url,
+        url=service_url(args.url),
         workers=args.workers,
         quick=args.quick,
         out=args.out,
@@ -74,9 +77,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         description=cmd_demo.__doc__,
     )
     demo.add_argument(
-        "--url",
-        default="http://127.0.0.1:8000",
-        help="the service; if none answers there (loopback), the embedded stack is started on its port",
+        "--url", help=f"{URL_HELP}; if none answers there (loopback), the embedded stack is started on its port"
     )
     demo.add_argument("--workers", type=int, default=2, help="sim workers of the embedded stack (default 2)")
     demo.add_argument(

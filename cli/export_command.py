@@ -6,12 +6,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from services.service_url import URL_HELP
+
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a demonstration or an execution: an id (demo_..., exec_...) is fetched from the API, a local JSON or
     CSV demonstration (in the project's conventions, as `record` writes them) is converted here. The format
     follows the output's suffix (.mcap, .csv, .json) unless --format says."""
-    from cli.main import UserError, _report_user_error
+    from cli.errors import UserError, report_user_error
 
     try:
         fmt = args.format or {".mcap": "mcap", ".csv": "csv", ".json": "json"}.get(args.output.suffix.lower())
@@ -27,7 +29,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_bytes(data)
     except Exception as exc:
-        return _report_user_error("export", exc)
+        return report_user_error("export", exc)
     print(f"{what} -> {args.output} ({fmt}, {len(data) / 1e6:.2f} MB)")
     return 0
 
@@ -54,17 +56,18 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
 
 def _remote(args: argparse.Namespace, fmt: str) -> tuple[bytes, str]:
     """The record ``args.source`` (an id) fetched from the API at ``args.url``."""
-    from cli.main import UserError
+    from cli.errors import UserError
     from services.client import Client, ServiceError
+    from services.service_url import service_url
 
     try:
-        with Client(args.url) as client:
+        with Client(service_url(args.url)) as client:
             data = client.export(args.source, format=fmt, t0=args.t0, t1=args.t1, every=args.every)
     except ServiceError as exc:
         raise UserError([str(exc)]) from None
     except ValueError as exc:  # neither a file nor an id
         raise UserError([f"{args.source}: no such file, and {exc}"]) from None
-    return data, f"{args.source} from {args.url}"
+    return data, f"{args.source} from {service_url(args.url)}"
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -80,7 +83,5 @@ def register(commands: argparse._SubParsersAction) -> None:
     export.add_argument("--t0", type=float, metavar="S", help="only samples at or after S seconds")
     export.add_argument("--t1", type=float, metavar="S", help="only samples at or before S seconds")
     export.add_argument("--every", type=int, default=1, metavar="N", help="every N-th sample (executions)")
-    export.add_argument(
-        "--url", default="http://127.0.0.1:8000", help="the API to fetch ids from (default http://127.0.0.1:8000)"
-    )
+    export.add_argument("--url", help=f"{URL_HELP}, to fetch ids from")
     export.set_defaults(run=cmd_export)

@@ -154,7 +154,7 @@ def _given_options(args: argparse.Namespace) -> dict[str, Any]:
 def options_from_args(args: argparse.Namespace, model: type[ImportOptions], what: str) -> ImportOptions:
     """The options ``args`` gave, as ``model``; a flag that is not one of ``model``'s is a user error naming it and
     ``what`` the file is ('x.bag is a ROS 1 bag')."""
-    from cli.main import UserError
+    from cli.errors import UserError
 
     given = _given_options(args)
     fields = {name: field for base, _ in _models() for name, field in _own_fields(base).items()}

@@ -57,9 +57,10 @@ def _configure_logging(level: str) -> None:
 
 def cmd_api(args: argparse.Namespace) -> int:
     """``contact-skills api``: serve the REST API (OpenAPI at /docs) over the SQLite store and the Zenoh bus."""
-    import uvicorn
+    from services.quiet_imports import import_pybullet_quietly
 
-    from services.app import connect_bus, create_app
+    import_pybullet_quietly()  # the live scene and the MCAP export solve the arm's joints with PyBullet: no banner
+    from services.app import connect_bus, create_app, serve_api
 
     apply_login(args)
     from services.settings import SettingsError
@@ -88,7 +89,7 @@ def cmd_api(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-        uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level.lower(), access_log=False)
+        serve_api(app, settings, args.log_level.lower())  # with the connection limits of the settings
     finally:
         if bus is not None:
             bus.close()
@@ -252,10 +253,13 @@ def cmd_up(args: argparse.Namespace) -> int:
     workers = [_Child(f"worker-{k + 1}", [*base, "worker"], env, printer, preexec) for k in range(settings.workers)]
     code = 0
     try:
-        from services.router import EmbeddedRouter
+        from services.router import local_router
 
-        with EmbeddedRouter(listen=[listen]):
-            printer.line("up", f"zenoh router listening on {listen} (in process {os.getpid()})")
+        with local_router(args.zenoh_port, len(workers), settings.zenoh_prefix, args.open_bus) as logins:
+            for child in (api, *workers):  # each its own login (none with --open-bus)
+                child.env = {**child.env, **logins.get(child.name, {})}
+            guard = "OPEN to every local process (--open-bus)" if args.open_bus else "each process logs in"
+            printer.line("up", f"zenoh router listening on {listen} (in process {os.getpid()}), {guard}")
             api.start()
             for worker in workers:
                 worker.start()
@@ -375,4 +379,10 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--workers", type=int, help=f"sim worker processes (default $CONTACT_SKILLS_WORKERS or {DEFAULT_WORKERS})"
     )
     up.add_argument("--zenoh-port", type=int, default=7447, help="TCP port of the embedded Zenoh router (loopback)")
+    up.add_argument(
+        "--open-bus",
+        action="store_true",
+        help="DEVELOPMENT ONLY: no logins on the bus, so any local process can command and report (default: each "
+        "process logs in; others read with the observer login, services/bus_keys.py)",
+    )
     up.set_defaults(run=cmd_up)

@@ -9,6 +9,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from services.service_url import URL_HELP
+
 SHOWN_CONTROLLERS = "hybrid_cf,impedance_found_surface,hybrid_world_z"
 CONTROLLERS = ("hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z")
 """`schemas.execution.ControllerKind`, spelled out: `--help` imports no pydantic (tests/test_sweeps.py compares)."""
@@ -24,7 +26,7 @@ SAMPLERS = ("lhs", "sobol")
 
 def _vary(items: list[str] | None) -> dict[str, dict]:
     """``NAME=LOW:HIGH[:log]`` options as the ``vary`` of a `SweepRequest` (none: :data:`DEFAULT_RANGES`)."""
-    from cli.main import UserError
+    from cli.errors import UserError
     from schemas.sweep import DEFAULT_RANGES
 
     if not items:
@@ -46,7 +48,7 @@ def _vary(items: list[str] | None) -> dict[str, dict]:
 def _settings(path: Path | None) -> dict:
     """The execution settings every trial starts from, read from a JSON object file (validated by the request); none:
     the fields :data:`schemas.sweep.DEFAULT_SETTINGS` sets."""
-    from cli.main import UserError
+    from cli.errors import UserError
     from schemas.sweep import DEFAULT_SETTINGS
 
     if path is None:
@@ -69,7 +71,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     the success rate (the executions' verdicts: finished, in contact >= 99 %, TRUE normal RMS error <= --threshold %,
     max error and touch-down within the default tolerances), the failures by verdict check, the error quantiles and
     the parameters that drive the failures. Exit 0 when the sweep finished, 1 when it did not, 2 for bad options."""
-    from cli.main import UserError, _report_user_error
+    from cli.errors import UserError, report_user_error
     from experiments.cases import DemoOptions
     from experiments.stack import DemoError
     from experiments.sweep import (
@@ -86,6 +88,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         text_table,
     )
     from schemas.sweep import SweepRequest
+    from services.service_url import service_url
 
     shown = ["contact-skills", "sweep", *sys.argv[2:]] if sys.argv[1:2] == ["sweep"] else ["contact-skills", "sweep"]
     try:
@@ -103,8 +106,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         }
         SweepRequest.model_validate({**body, "skill_id": "checked-by-the-service"})  # bad options: exit 2 here
     except Exception as exc:
-        return _report_user_error("sweep", exc)
-    service = DemoOptions(url=args.url, workers=args.workers, db=args.db, command=shlex.join(shown))
+        return report_user_error("sweep", exc)
+    service = DemoOptions(url=service_url(args.url), workers=args.workers, db=args.db, command=shlex.join(shown))
     options = SweepOptions(body, args.scenario, args.skill_id, args.record_seed, service, world_ranges=not args.vary)
     try:
         outcome = run_sweep(options)
@@ -197,7 +200,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     sweep.add_argument("--figure", type=Path, help="write the figure (PNG) here")
     sweep.add_argument("--json", type=Path, help="write the sweep and every trial (JSON) here")
     sweep.add_argument("--results", type=Path, help="write/replace this sweep's subsection of a RESULTS.md")
-    sweep.add_argument("--url", default="http://127.0.0.1:8000", help="the service (none there: started here)")
+    sweep.add_argument("--url", help=f"{URL_HELP} (none there: started here)")
     sweep.add_argument("--workers", type=int, default=2, help="sim workers of a service started here (default 2)")
     sweep.add_argument("--db", type=Path, help="database of a service started here (default: a temporary file)")
     sweep.set_defaults(run=cmd_sweep)

@@ -197,7 +197,7 @@ def surface_gap(
     """How far the surface of ``world``'s work piece (its pieces' faces out by ``margin_m``: the collision surface)
     lies from the recording's object placed by ``placement``, along and across the placed skill's contact path (see
     :class:`SurfaceGap`)."""
-    pieces = [_inflated_equations(np.asarray(p["vertices"], dtype=float), margin_m) for p in world.config.work_pieces]
+    pieces = [_inflated_equations(np.asarray(p.vertices, dtype=float), margin_m) for p in world.config.work_pieces]
     path = skill_tool_path(world.skill, PATH_STEP_S)
     points, z = path.positions[path.contact], path.cf_z[path.contact]
     across = np.cross(z, np.gradient(points, axis=0))
@@ -277,7 +277,7 @@ def kuleuven_cad_trial(recording: Path) -> CadTrial:
         chosen = settings.model_copy(update={"gains": gains})
         resolved = execution_world(rebuilt.skill, chosen.environment, world=cad)
         result = run_skill(resolved, chosen)
-        share = on_face_share(result.telemetry, where, truth, resolved.config.tool_radius_m)
+        share = on_face_share(result.telemetry, where, truth, resolved.config.tool.radius_m)
         runs.append(CadRun("CAD", stiffness, result.metrics, share))
     path = skill_tool_path(rebuilt.skill, PATH_STEP_S)
     crease = where.to_world(truth.kuleuven_object.crease.points)

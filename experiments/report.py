@@ -27,6 +27,7 @@ from experiments.cases import (
     counted,
     fmt,
 )
+from experiments.contour_stress import RESULTS_SECTION
 from experiments.sweep import SWEEPS_SECTION
 from services.machine import machine_line
 
@@ -615,11 +616,13 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
 
 
 def write_results(options: DemoOptions, report: DemoReport) -> Path:
-    """Write RESULTS.md, keeping the generated sweeps section (``contact-skills sweep --results``) it may hold."""
+    """Write RESULTS.md, keeping the generated sections it may hold: the sweeps (``contact-skills sweep --results``)
+    and the contour stress table (``benchmarks/bench_contours.py``)."""
     from services.doc_sections import section_of
 
     options.out.mkdir(parents=True, exist_ok=True)
     path = options.out / "RESULTS.md"
-    kept = section_of(path.read_text(), SWEEPS_SECTION) if path.exists() else None
-    path.write_text(results_markdown(options, report) + (f"\n{kept}\n" if kept else ""))
+    text = path.read_text() if path.exists() else ""
+    kept = [section for name in (SWEEPS_SECTION, RESULTS_SECTION) if (section := section_of(text, name))]
+    path.write_text(results_markdown(options, report) + "".join(f"\n{section}\n" for section in kept))
     return path

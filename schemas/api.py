@@ -270,4 +270,15 @@ class Health(BaseModel):
         description="The learner processes: processes, running, waiting, completed, timed_out, cancelled, restarted, "
         "rejected."
     )
+    foxglove_url: str | None = Field(
+        None,
+        description="The Foxglove WebSocket server of the live execution (foxglove.websocket.v1, loopback), e.g. "
+        "ws://127.0.0.1:8765; None when it is off (CONTACT_SKILLS_FOXGLOVE_PORT=off, or no bus).",
+    )
+    zenoh_login: dict[str, str] | None = Field(
+        None,
+        description="The bus's read-only login, ``{'user': 'observer', 'password': …}``, for a Zenoh session that "
+        "reads telemetry and statuses (``transport: {auth: {usrpwd: …}}``); it cannot command or report. None on an "
+        "open bus, and without the bearer token when reads need it (CONTACT_SKILLS_TOKEN_READS).",
+    )
     detail: HealthDetail | None = Field(None, description="Only for a request with the bearer token.")

@@ -1,6 +1,7 @@
 """The Zenoh bus contract: key expressions, payload models (JSON on the wire) and the session configuration.
 
-Key expressions (``P`` is the prefix, default ``cskills``; ids are single key chunks, see ``ID_PATTERN``):
+Key expressions (``P`` is the prefix, default ``cskills``; ids are single key chunks; both built in
+``schemas/key_expressions.py``):
 
 - ``P/workers/{worker_id}`` — liveliness token, present while the worker process lives.
 - ``P/exec/{worker_id}/info`` — queryable; reply ``WorkerInfo``.
@@ -33,18 +34,17 @@ from __future__ import annotations
 import math
 import re
 import time
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from schemas.bus_security import BusSecurity
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
+from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus contract is imported from here
+from schemas.key_expressions import KeyExpressions as KeyExpressions
+from schemas.key_expressions import check_id
 
-if TYPE_CHECKING:
-    from schemas.bus_security import BusSecurity
-
-DEFAULT_PREFIX = "cskills"
-"""Key-expression prefix used unless configured (``CONTACT_SKILLS_ZENOH_PREFIX``)."""
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
 
@@ -54,10 +54,6 @@ ENV_LISTEN = "CONTACT_SKILLS_ZENOH_LISTEN"
 """Environment variable: comma-separated endpoints the embedded router listens on."""
 ENV_PREFIX = "CONTACT_SKILLS_ZENOH_PREFIX"
 """Environment variable: the key-expression prefix."""
-
-ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.:@+=-]{0,127}$"
-"""Worker and execution ids are one key chunk: no ``/``, no wildcard or reserved characters (``* $ ? #``)."""
-_ID = re.compile(ID_PATTERN)
 
 FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, ExecutionPhase.failed})
 """Phases after which an execution publishes nothing more."""
@@ -104,95 +100,9 @@ def check_override(name: str, value: Any) -> None:
             raise ValueError(f"override {name}: {v!r} is outside the plausible range [{low:g}, {high:g}]")
 
 
-def check_id(value: str, what: str = "id") -> str:
-    """Return ``value`` if it can be a key chunk (``ID_PATTERN``), else raise ValueError saying why."""
-    if not isinstance(value, str) or not _ID.match(value):
-        raise ValueError(
-            f"{what} {value!r} cannot be a key-expression chunk: use 1-128 characters from letters, digits and "
-            "_ . : @ + = - (starting with a letter or digit)"
-        )
-    return value
-
-
 def split_endpoints(text: str | None) -> list[str]:
     """Split a comma-separated endpoint list (``tcp/127.0.0.1:7447,tcp/10.0.0.2:7447``); empty items dropped."""
     return [item.strip() for item in (text or "").split(",") if item.strip()]
-
-
-class KeyExpressions:
-    """Builds the key expressions of the bus from the prefix (see the module docstring)."""
-
-    def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
-        prefix = prefix.strip("/")
-        if not prefix or any(c in prefix for c in "*$?#") or "//" in prefix:
-            raise ValueError(f"invalid key-expression prefix {prefix!r}")
-        self.prefix = prefix
-
-    def __repr__(self) -> str:
-        return f"KeyExpressions({self.prefix!r})"
-
-    # Workers.
-    def worker(self, worker_id: str) -> str:
-        """Liveliness token of a worker."""
-        return f"{self.prefix}/workers/{check_id(worker_id, 'worker_id')}"
-
-    @property
-    def workers(self) -> str:
-        """Every worker's liveliness token (``P/workers/*``)."""
-        return f"{self.prefix}/workers/*"
-
-    def info(self, worker_id: str = "*") -> str:
-        """A worker's info queryable (``*``: every worker's)."""
-        return f"{self.prefix}/exec/{self._chunk(worker_id, 'worker_id')}/info"
-
-    def start(self, worker_id: str) -> str:
-        """A worker's start queryable."""
-        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/start"
-
-    def record(self, worker_id: str) -> str:
-        """A worker's record queryable."""
-        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/record"
-
-    def replay(self, worker_id: str) -> str:
-        """A worker's telemetry replay queryable."""
-        return f"{self.prefix}/exec/{check_id(worker_id, 'worker_id')}/replay"
-
-    # Executions.
-    def cmd(self, execution_id: str) -> str:
-        """Commands to an execution."""
-        return f"{self.prefix}/exec/{check_id(execution_id, 'execution_id')}/cmd"
-
-    def status(self, execution_id: str = "*") -> str:
-        """Status of an execution (``*``: of every execution)."""
-        return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/status"
-
-    def telemetry(self, execution_id: str = "*") -> str:
-        """Telemetry of an execution (``*``: of every execution)."""
-        return f"{self.prefix}/exec/{self._chunk(execution_id, 'execution_id')}/telemetry"
-
-    # Sweeps.
-    def sweep_progress(self, sweep_id: str = "*") -> str:
-        """Live progress of a sweep (``*``: of every sweep)."""
-        return f"{self.prefix}/sweeps/{self._chunk(sweep_id, 'sweep_id')}/progress"
-
-    # Parsing.
-    def worker_id_of(self, key: str) -> str:
-        """The worker id in a liveliness key ``P/workers/{worker_id}``."""
-        head = f"{self.prefix}/workers/"
-        if not key.startswith(head) or "/" in key[len(head) :]:
-            raise ValueError(f"{key!r} is not a worker key under {head}")
-        return key[len(head) :]
-
-    def id_of(self, key: str) -> str:
-        """The worker or execution id in ``P/exec/{id}/...``."""
-        head = f"{self.prefix}/exec/"
-        if not key.startswith(head):
-            raise ValueError(f"{key!r} is not under {head}")
-        return key[len(head) :].split("/", 1)[0]
-
-    @staticmethod
-    def _chunk(value: str, what: str) -> str:
-        return value if value == "*" else check_id(value, what)
 
 
 def session_config(

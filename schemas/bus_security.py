@@ -25,19 +25,21 @@ never opened) and applies :func:`access_control`, default deny:
   info and telemetry replays.
 
 Statuses and telemetry are keyed by execution, not by worker: an authenticated worker could publish for an
-execution it does not run. The API therefore takes a status or telemetry batch only from the worker it handed the
-execution to (`services.bus_events`), by the ``worker_id`` the payload names; the bus does not sign payloads.
+execution it does not run, and write any ``worker_id`` into a payload. The API therefore gives each execution a
+secret bound to the worker it chose (sent as the attachment of that worker's start query, which only that worker's
+login can receive) and takes a status, a telemetry batch or a replay only when its attachment is
+:func:`report_signature` of the payload under that secret (`services.bus`).
 """
 
 from __future__ import annotations
 
-import os
+import hashlib
+import hmac
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
-from schemas.bus import KeyExpressions, check_id
+from schemas.key_expressions import KeyExpressions, check_id
 
 ENV_USERS = "CONTACT_SKILLS_ZENOH_USERS"
 ENV_USER = "CONTACT_SKILLS_ZENOH_USER"
@@ -45,6 +47,10 @@ ENV_PASSWORD = "CONTACT_SKILLS_ZENOH_PASSWORD"
 ENV_TLS_CA = "CONTACT_SKILLS_ZENOH_TLS_CA"
 ENV_TLS_CERT = "CONTACT_SKILLS_ZENOH_TLS_CERT"
 ENV_TLS_KEY = "CONTACT_SKILLS_ZENOH_TLS_KEY"
+ENV_LOGINS = "CONTACT_SKILLS_ZENOH_LOGINS"
+"""A folder of login env files (docker-compose): the API logs in with its ``api.env``; a worker claims one of its
+``worker-K.env`` no other live worker holds (``sim_worker.zenoh_worker.claim_login``), so scaled workers each get
+their own login and id."""
 
 Role = Literal["api", "worker", "observer"]
 ROLES: tuple[str, ...] = ("api", "worker", "observer")
@@ -63,21 +69,22 @@ class BusUser:
     password: str
 
 
-def read_users(path: str | Path) -> list[BusUser]:
-    """Parse a users file: one ``role:user:password`` per line (``#`` comments and blank lines ignored)."""
+def parse_users(text: str, source: str) -> list[BusUser]:
+    """The users of a users file's ``text`` (``source``: its name, for the messages): one ``role:user:password`` per
+    line, ``#`` comments and blank lines ignored. Reading the file is the router's (``services.router.read_users``)."""
     users: list[BusUser] = []
-    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
+    for number, line in enumerate(text.splitlines(), start=1):
+        text_line = line.strip()
+        if not text_line or text_line.startswith("#"):
             continue
-        parts = text.split(":", 2)
+        parts = text_line.split(":", 2)
         if len(parts) != 3 or parts[0] not in ROLES or not parts[1] or not parts[2]:
-            raise BusSecurityError(f"{path} line {number}: expected role:user:password with role one of {ROLES}")
+            raise BusSecurityError(f"{source} line {number}: expected role:user:password with role one of {ROLES}")
         role, user, password = parts
         check_id(user, "user name")
         users.append(BusUser(role, user, password))  # type: ignore[arg-type]
     if not users:
-        raise BusSecurityError(f"{path}: no users")
+        raise BusSecurityError(f"{source}: no users")
     return users
 
 
@@ -94,9 +101,9 @@ class BusSecurity:
     users_file: str | None = None
 
     @classmethod
-    def from_env(cls, env: Mapping[str, str] | None = None, **overrides: str | None) -> BusSecurity:
-        """The ``CONTACT_SKILLS_ZENOH_*`` variables of the table above, replaced by ``overrides`` not None."""
-        env = os.environ if env is None else env
+    def from_env(cls, env: Mapping[str, str], **overrides: str | None) -> BusSecurity:
+        """The ``CONTACT_SKILLS_ZENOH_*`` variables of the table above in ``env`` (the caller passes its process's
+        ``os.environ``: the contract reads no environment itself), replaced by ``overrides`` not None."""
         names = {"user": ENV_USER, "password": ENV_PASSWORD, "tls_ca": ENV_TLS_CA, "tls_cert": ENV_TLS_CERT,
                  "tls_key": ENV_TLS_KEY, "users_file": ENV_USERS}  # fmt: skip
         values = {field: env.get(var) or None for field, var in names.items()}
@@ -181,3 +188,15 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
         "subjects": subjects,
         "policies": policies,
     }
+
+
+def report_signature(secret: bytes, payload: bytes) -> bytes:
+    """The Zenoh attachment a worker puts on every status, telemetry batch and replay reply of an execution:
+    HMAC-SHA256 (32 bytes) of the payload's exact bytes under the execution's secret (the attachment of the start
+    query that handed the execution to this worker)."""
+    return hmac.new(secret, payload, hashlib.sha256).digest()
+
+
+def parse_env(text: str) -> dict[str, str]:
+    """The ``NAME=value`` lines of an env file's ``text`` (as ``contact-skills bus-keys`` writes them)."""
+    return dict(line.split("=", 1) for line in text.splitlines() if "=" in line and not line.startswith("#"))

@@ -544,9 +544,12 @@ class ExecutionSettings(BaseModel):
     )
     follow_surface_normal: bool = Field(
         False,
-        description="hybrid_cf on slide segments: turn the CF z towards the surface normal estimated online from the "
-        "applied force without its friction part (within 40 deg of the learned one, 60 deg/s at most), for a "
-        "surface tilted differently than taught. Off: the paper's fixed CF.",
+        description="hybrid_cf: every contact phase follows the surface it meets: the CF z turns towards the normal "
+        "estimated online from the applied force without its friction part (contours: within 75 deg of the taught "
+        "one; slides: 40 deg), a contour's path is re-anchored where the surface was found and kept on it (relocated "
+        "when the touch-down presses on a normal taught elsewhere on its path), and consecutive contact segments "
+        "switch where the next surface is met. Off: the paper's fixed CF (docs/EXECUTION.md, 'Following the "
+        "surface': what it costs where the part is as taught).",
     )
     tare_sensor: bool = Field(
         True,
@@ -779,6 +782,12 @@ class ExecutionMetrics(BaseModel):
         default_factory=list,
         description="Per guarded approach: where contact was found along +CF z relative to the expected "
         "(known-offset-shifted) surface, m (positive = deeper than taught).",
+    )
+    contour_relocations_m: list[Offset3] = Field(
+        default_factory=list,
+        description="Per contour relocated (follow_surface_normal): the move of the part [dx, dy, dz] (m, world) its "
+        "touch-down found, from the normal it pressed on matched against the taught ones; the contour then ran "
+        "where the part is (docs/EXECUTION.md, \"Following the surface\").",
     )
     steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
     abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")

@@ -14,7 +14,6 @@ Both read the budget from the same environment variables (:data:`ENV_JOB_MAX_SIM
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from typing import Literal
 
@@ -62,9 +61,9 @@ class JobBudget(BaseModel):
     )
 
     @classmethod
-    def from_env(cls, env: Mapping[str, str] | None = None) -> JobBudget:
-        """The budget the environment (default ``os.environ``) sets; the defaults where it sets none."""
-        env = os.environ if env is None else env
+    def from_env(cls, env: Mapping[str, str]) -> JobBudget:
+        """The budget the environment ``env`` sets (the caller passes its process's ``os.environ``: the contract reads
+        no environment itself); the defaults where it sets none."""
         values: dict[str, float | int] = {}
         for name, var, kind in (
             ("max_simulated_s", ENV_JOB_MAX_SIMULATED_S, float),

@@ -12,6 +12,8 @@ expressions) on ``app.state``, the body limit, the error handlers and the router
 - ``services/learner_pool.py``: learning in separate processes with a time and memory budget;
 - ``services/queue.py``: executions wait in the database for a free worker, in priority order;
 - ``services/sweeps.py``: robustness sweeps, their trials fanned out through the queue, resumed after a restart;
+- ``services/foxglove_live.py``: the Foxglove WebSocket server of the live execution (with a bus; ``/health`` gives
+  its URL); ``services/dashboard/``: the browser dashboard served at ``/``;
 - ``services/bus_events.py``: the bus callbacks (:class:`BusEvents`) that write status, metrics and telemetry
   into the same store from Zenoh threads, and :func:`connect_bus`.
 """
@@ -27,11 +29,14 @@ from fastapi.middleware.cors import CORSMiddleware
 
 from schemas.bus import KeyExpressions
 from services.api.body_limit import BodyLimit
-from services.api.browser_guard import LOOPBACK_NAMES, BrowserGuard
+from services.api.browser_guard import BrowserGuard
 from services.api.docs import install_offline_docs
 from services.api.errors import install_error_handlers
+from services.api.limits import ClientCaps
 from services.api.main import api_router
+from services.api.openapi import install_truthful_openapi
 from services.bus_events import BusEvents, connect_bus, reconcile
+from services.foxglove_live import FoxgloveLive
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
 from services.settings import ServiceSettings, package_version
@@ -44,6 +49,42 @@ if TYPE_CHECKING:
 __all__ = ["BusEvents", "connect_bus", "create_app"]
 
 
+H11_MAX_HEAD_BYTES = 64 * 1024
+"""Largest request head (request line and headers) the server reads, bytes; a larger one is refused (400)."""
+
+
+def serve_api(app: FastAPI, settings: ServiceSettings, log_level: str) -> None:
+    """Serve ``app`` with uvicorn until SIGINT/SIGTERM, with the connection limits of ``settings``: a request head
+    within ``header_timeout_s`` (``services.api.limits.HeadTimeoutH11Protocol``), idle keep-alive connections closed
+    after ``keep_alive_s``, at most ``max_connections`` connections and requests at once (uvicorn answers 503 past
+    it), heads of at most :data:`H11_MAX_HEAD_BYTES`; and every log line of a kind at most once per
+    ``services.log_limits.LOG_EVERY_S``."""
+    import logging
+
+    import uvicorn
+
+    from services.api.limits import head_timeout_protocol
+    from services.log_limits import RateLimitFilter
+
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=log_level,
+        access_log=False,
+        http=head_timeout_protocol(settings.header_timeout_s),
+        timeout_keep_alive=max(1, round(settings.keep_alive_s)),
+        limit_concurrency=settings.max_connections,
+        h11_max_incomplete_event_size=H11_MAX_HEAD_BYTES,
+    )
+    server = uvicorn.Server(config)  # configures uvicorn's loggers: the filter goes on their handlers after
+    limit = RateLimitFilter()
+    for name in ("", "uvicorn", "uvicorn.error", "contact_skills"):
+        for handler in logging.getLogger(name).handlers:
+            handler.addFilter(limit)
+    server.run()
+
+
 def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: Store | None = None) -> FastAPI:
     """The FastAPI app. ``bus``: a connected `services.bus.BusClient` whose callbacks are a :class:`BusEvents`
     on the same store (see :func:`connect_bus`), or None (executions and recordings then get 503).
@@ -54,6 +95,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     queue = ExecutionQueue(store, bus, settings.queue_max) if bus is not None else None
     keys = KeyExpressions(settings.zenoh_prefix)
     sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
+    foxglove = FoxgloveLive.from_env(store, settings.token_reads) if bus is not None else None  # the live view
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -66,7 +108,11 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
             queue.start()
         if sweeps is not None:
             sweeps.start()
+        if foxglove is not None:
+            foxglove.start()
         yield
+        if foxglove is not None:
+            foxglove.close()
         if sweeps is not None:
             sweeps.close()
         if queue is not None:
@@ -91,6 +137,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     app.state.learners = learners
     app.state.queue = queue
     app.state.sweeps = sweeps
+    app.state.client_caps = ClientCaps(store, settings.client_queued_max, settings.client_sweeps_max)
+    app.state.foxglove = foxglove
     app.state.started_unix_s = time.time()
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     if settings.cors_origins:
@@ -100,10 +148,9 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
             allow_methods=["GET", "POST", "DELETE"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    app.add_middleware(
-        BrowserGuard, allowed_origins=settings.cors_origins, loopback_only=settings.host in LOOPBACK_NAMES
-    )
+    app.add_middleware(BrowserGuard, allowed_origins=settings.cors_origins, host_names=settings.host_names)
     install_error_handlers(app)
     app.include_router(api_router)
     install_offline_docs(app)
+    install_truthful_openapi(app, settings)
     return app

@@ -25,6 +25,16 @@
     the latest status of each it still knows goes to ``on_worker_back`` (the receiver withdraws the failure and
     applies the worker's true status; a run still going is followed again as before).
 
+REPORTS: a worker's status, telemetry batch or replay counts only if it proves it comes from the worker the execution
+was handed to. Each execution gets a secret bound to the chosen worker (:meth:`BusClient.execution_secret`, derived
+from ``BusSettings.report_key``, which the API keeps in its database so that it survives a restart), sent only to that
+worker as the attachment of its start query (the router lets only that worker's login answer its start key); the
+worker attaches ``schemas.bus_security.report_signature`` of every payload it sends for the execution. A report
+whose signature does not verify (forged, or from another worker, whatever ``worker_id`` it names), or that is
+implausible (negative counters, ``done`` without a control step), is dropped and logged (each kind of line at most
+once per ``services.log_limits.LOG_EVERY_S``). An info reply counts only under the key of the worker it names (its own
+queryable, which the router lets only that worker declare) and with plausible counters.
+
 THREADS: the callbacks run on Zenoh's threads (``on_worker_lost`` and the synthesized or caught-up statuses on
 timer threads), concurrently with each other and with the caller's threads.
 They must be thread-safe and quick (store, enqueue, notify; no blocking I/O, no calls back into the client that
@@ -35,15 +45,21 @@ arrive in the order the worker published them; a status may arrive before ``star
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import hmac
 import itertools
 import json
 import logging
 import math
 import os
+import queue
+import secrets
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Literal
 
 from schemas.bus import (
@@ -63,11 +79,14 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
-from schemas.bus_security import BusSecurity
+from schemas.bus_security import ENV_LOGINS, ENV_PASSWORD, ENV_USER, BusSecurity, report_signature
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest, TelemetryBatch
+from services.bus_keys import local_logins_folder, read_env_file
+from services.log_limits import RateLimitFilter
 
 log = logging.getLogger("contact_skills.bus")
+log.addFilter(RateLimitFilter())  # a flood of forged or bad reports cannot flood the log
 
 INFO_TIMEOUT_S = 2.0
 """How long ``workers()`` waits for the workers' info replies, s (they answer in about a millisecond)."""
@@ -100,6 +119,46 @@ def lost_worker_reason(worker_id: str) -> str:
 
 REPLAY_TIMEOUT_S = 10.0
 """How long a telemetry replay waits for the worker's replies, s."""
+INBOX_BYTES = 512 * 2**20
+"""Telemetry received and not yet handled, at most, bytes of JSON (~850 000 samples). Zenoh's threads only put
+statuses and batches in the inbox and never wait: the handling (parse, check, store: a busy database waits) is the
+inbox thread's. A session that does not read its link for the lease (10 s) loses it: the API lost its link to its own
+router 6 times in a 733 s fast run when its callbacks stored each batch themselves (making them wait for room instead
+lost it 3 times in a 1344 s run). A batch past this is dropped, and asked again of the worker."""
+REPLAY_SAMPLES = 10_000
+"""Samples asked of a worker in one replay query (a longer gap is asked in parts, each with its own timeout)."""
+INBOX_CLOSE_S = 10.0
+"""How long ``close`` waits for the inbox to be handled, s."""
+HANDED_KEPT = 10_000
+"""Executions whose worker this client remembers (to check their reports), the most recent ones; older ones are
+looked up through ``owner``."""
+
+
+def implausible_status(status: ExecutionStatus) -> str | None:
+    """Why a worker's status cannot be true (negative counters or time, ``done`` without a control step), or None."""
+    counters = {"steps": status.steps, "seq": status.seq, "segments": status.segments, "t": status.t}
+    if status.metrics is not None:
+        counters["metrics.steps"] = status.metrics.steps
+    negative = [f"{name} {value}" for name, value in counters.items() if value < 0]
+    if negative:
+        return "negative " + ", ".join(negative)
+    if status.segment_index < -1:
+        return f"segment_index {status.segment_index}"
+    if status.phase is ExecutionPhase.done and (status.metrics is None or status.metrics.steps <= 0):
+        return "done without a control step"
+    return None
+
+
+def implausible_info(info: WorkerInfo, key: str, keys: KeyExpressions) -> str | None:
+    """Why a worker's info reply on ``key`` cannot be taken (under another worker's key, negative counters), or
+    None."""
+    if key != keys.info(info.worker_id):
+        return f"info of {info.worker_id} under {key}"
+    if info.executions_run < 0 or info.pid < 0 or info.started_unix_s < 0:
+        return f"negative counters from {info.worker_id}"
+    if info.busy != (info.activity != "idle"):
+        return f"{info.worker_id} busy={info.busy} while {info.activity}"
+    return None
 
 
 @dataclass
@@ -115,6 +174,9 @@ class BusSettings:
     """How long ``BusClient()`` keeps trying to reach the router before raising ``ConnectionError``, s."""
     security: BusSecurity | None = None
     """Login and TLS (None: from the environment, ``schemas.bus_security``)."""
+    report_key: bytes = field(default_factory=lambda: secrets.token_bytes(32))
+    """The key every execution's secret is derived from (:meth:`BusClient.execution_secret`): the API keeps its own
+    in its database (``services.store.Store.service_key``), so the executions it adopts after a restart verify."""
 
     @classmethod
     def from_env(cls) -> BusSettings:
@@ -122,6 +184,38 @@ class BusSettings:
             endpoints=split_endpoints(os.environ.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
             prefix=os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX,
         )
+
+
+@dataclass(frozen=True)
+class Reply:
+    """One valid reply of a query: its payload as ``model``, its key, its exact bytes and its attachment."""
+
+    value: Any
+    key: str
+    payload: bytes
+    signature: bytes | None
+
+
+def _attachment(zbytes: Any) -> bytes | None:
+    return None if zbytes is None else zbytes.to_bytes()
+
+
+def observer_login(endpoints: list[str]) -> dict[str, str] | None:
+    """The bus's read-only ``observer`` login (``{"user": …, "password": …}``), or None: the one in the folder of
+    logins ``CONTACT_SKILLS_ZENOH_LOGINS`` (docker-compose), else that of the ``contact-skills up`` of this user that
+    serves one of ``endpoints`` on loopback (``services.bus_keys.local_logins_folder``)."""
+    folders = [Path(os.environ[ENV_LOGINS])] if os.environ.get(ENV_LOGINS) else []
+    for endpoint in endpoints:
+        protocol, _, address = endpoint.partition("/")
+        host, _, port = address.rpartition(":")
+        if protocol == "tcp" and host in ("127.0.0.1", "localhost") and port.isdigit():
+            folders.append(local_logins_folder(int(port)))
+    for folder in folders:
+        login = folder / "observer.env"
+        if login.is_file():
+            values = read_env_file(login)
+            return {"user": values[ENV_USER], "password": values[ENV_PASSWORD]}
+    return None
 
 
 class NoWorkerAvailable(RuntimeError):  # noqa: N818 (the name is the interface)
@@ -148,7 +242,13 @@ def open_session(
     """
     import zenoh
 
-    security = security if security is not None else BusSecurity.from_env()
+    if security is None:
+        logins = os.environ.get(ENV_LOGINS)  # docker-compose: the API's login in its folder of logins
+        api_env = Path(logins or ".") / "api.env"
+        api_login = read_env_file(api_env) if logins and mode == "client" and api_env.is_file() else {}
+        security = BusSecurity.from_env({**os.environ, **api_login})
+    if mode == "client" and security.user is None and (observer := observer_login(connect or [])):
+        security = replace(security, **observer)  # how `watch`, `live()` and this user's sessions read the bus
     config = zenoh.Config.from_json5(
         json.dumps(session_config(mode, connect, listen, security, access_control))  # type: ignore[arg-type]
     )
@@ -174,8 +274,13 @@ class BusClient:
         on_telemetry: Callable[[TelemetryBatch], None],
         on_worker_lost: Callable[[str], None],
         on_worker_back: Callable[[ExecutionStatus], None] | None = None,
+        owner: Callable[[str], str | None] | None = None,
     ) -> None:
+        """``owner``: the worker an execution this client does not remember was handed to (the store's record), for
+        the reports of executions started by a previous API process."""
         self.settings = settings
+        self._owner_of = owner
+        self._handed: OrderedDict[str, str] = OrderedDict()  # execution_id -> the worker it was offered or handed to
         self.keys = KeyExpressions(settings.prefix)
         self._on_status = on_status
         self._on_telemetry = on_telemetry
@@ -193,6 +298,10 @@ class BusClient:
         self._link_up = True
         self._link_changed = -math.inf  # time.monotonic() when the router link last went or came back
         self._closed = False
+        self._inbox: queue.Queue = queue.Queue()
+        self._inbox_bytes = 0  # telemetry bytes in the inbox (statuses are few and always kept)
+        self._drainer = threading.Thread(target=self._drain_inbox, name="bus-inbox", daemon=True)
+        self._drainer.start()
         self._session = open_session(
             settings.mode, connect=settings.endpoints, wait_s=settings.connect_timeout_s, security=settings.security
         )
@@ -220,7 +329,12 @@ class BusClient:
     def workers(self, timeout_s: float = INFO_TIMEOUT_S) -> list[WorkerInfo]:
         """The connected workers, sorted by id: each one's own ``WorkerInfo`` (activity ``unknown`` and busy if a
         live worker did not answer its info query in time)."""
-        infos = {info.worker_id: info for info in self._ask_all(self.keys.info("*"), WorkerInfo, timeout_s)}
+        infos: dict[str, WorkerInfo] = {}
+        for reply in self._ask_all(self.keys.info("*"), WorkerInfo, timeout_s):
+            if why := implausible_info(reply.value, reply.key, self.keys):
+                log.warning("worker info refused: %s", why)
+            else:
+                infos[reply.value.worker_id] = reply.value
         with self._lock:
             self._seen = (time.monotonic(), dict(infos))
             alive = set(self._alive)
@@ -258,7 +372,10 @@ class BusClient:
         """The latest status of every execution the connected workers ran recently (their status queryables keep
         the last ``STATUS_CACHE``), by execution id: how runs ended while this client was not listening."""
         latest: dict[str, ExecutionStatus] = {}
-        for status in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s):
+        for reply in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s):
+            status = reply.value
+            if not self._trusted(status, reply.payload, reply.signature):
+                continue
             known = latest.get(status.execution_id)
             if known is None or status.seq > known.seq:
                 latest[status.execution_id] = status
@@ -269,15 +386,25 @@ class BusClient:
     ) -> ExecutionStatus | None:
         """The latest status of ``execution_id`` that ``worker_id`` reports (its status queryable), or None if it
         does not know the execution (it never ran it, restarted, or forgot it among more recent ones)."""
-        statuses = [s for s in self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s)
-                    if s.worker_id == worker_id and s.execution_id == execution_id]  # fmt: skip
+        statuses = [r.value for r in self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s)
+                    if r.value.worker_id == worker_id and r.value.execution_id == execution_id
+                    and self._trusted(r.value, r.payload, r.signature)]  # fmt: skip
         return max(statuses, key=lambda s: s.seq, default=None)
 
     def telemetry_replay(
         self, worker_id: str, execution_id: str, start: int, stop: int, timeout_s: float = REPLAY_TIMEOUT_S
     ) -> list[TelemetryBatch]:
         """The samples ``start`` to ``stop - 1`` of an execution's telemetry, asked again of the worker that ran it
-        (``P/exec/{worker_id}/replay``): the batches it still keeps of them (none if it is gone or dropped them)."""
+        (``P/exec/{worker_id}/replay``, :data:`REPLAY_SAMPLES` at a time, each ask waiting up to ``timeout_s``): the
+        batches it still keeps of them (none if it is gone or dropped them)."""
+        batches = []
+        for first in range(start, stop, REPLAY_SAMPLES):
+            batches += self._replay_part(worker_id, execution_id, first, min(first + REPLAY_SAMPLES, stop), timeout_s)
+        return batches
+
+    def _replay_part(
+        self, worker_id: str, execution_id: str, start: int, stop: int, timeout_s: float
+    ) -> list[TelemetryBatch]:
         ask = TelemetryReplay(execution_id=execution_id, start=start, stop=stop).model_dump_json()
         import zenoh
 
@@ -290,12 +417,18 @@ class BusClient:
                 log.warning("replay of %s [%d, %d) from %s: %s", execution_id, start, stop, worker_id,
                             reply.err.payload.to_string() if reply.err else "no reply")  # fmt: skip
                 continue
+            payload = reply.ok.payload.to_bytes()
             try:
-                batch = TelemetryBatch.model_validate_json(reply.ok.payload.to_bytes())
+                batch = TelemetryBatch.model_validate_json(payload)
             except ValueError:
                 log.warning("bad replayed telemetry from %s", worker_id)
                 continue
-            if batch.execution_id == execution_id and batch.first_sample is not None:
+            secret = self.execution_secret(execution_id, worker_id)
+            if not self._signed(secret, payload, _attachment(reply.ok.attachment)):
+                log.warning("replayed telemetry of %s not signed by %s: refused", execution_id,
+                                      worker_id)  # fmt: skip
+                continue
+            if batch.execution_id == execution_id and batch.first_sample is not None and batch.first_sample >= 0:
                 batches.append(batch)
         return batches
 
@@ -304,6 +437,52 @@ class BusClient:
         its worker is lost, caught up on if the worker comes back from an outage."""
         with self._lock:
             self._running[execution_id] = worker_id
+        self._hand(execution_id, worker_id)
+
+    # ------------------------------------------------------------------------------------------ reports
+
+    def execution_secret(self, execution_id: str, worker_id: str) -> bytes:
+        """The secret of ``execution_id`` run by ``worker_id`` (32 bytes): known to this client and sent to that
+        worker alone; the same execution offered to another worker has another one."""
+        message = f"{execution_id}/{worker_id}".encode()
+        return hmac.new(self.settings.report_key, message, hashlib.sha256).digest()
+
+    def _hand(self, execution_id: str, worker_id: str) -> None:
+        with self._lock:
+            self._handed[execution_id] = worker_id
+            self._handed.move_to_end(execution_id)
+            while len(self._handed) > HANDED_KEPT:
+                self._handed.popitem(last=False)
+
+    def _owner(self, execution_id: str) -> str | None:
+        """The worker ``execution_id`` was handed to (None: not known to this client nor to ``owner``)."""
+        with self._lock:
+            worker_id = self._handed.get(execution_id)
+        if worker_id is None and self._owner_of is not None:
+            worker_id = self._owner_of(execution_id)
+            if worker_id is not None:
+                self._hand(execution_id, worker_id)
+        return worker_id
+
+    @staticmethod
+    def _signed(secret: bytes, payload: bytes, signature: bytes | None) -> bool:
+        return signature is not None and hmac.compare_digest(report_signature(secret, payload), signature)
+
+    def _trusted(self, status: ExecutionStatus, payload: bytes, signature: bytes | None) -> bool:
+        """Whether a status comes from the worker its execution was handed to (the worker it names, if this client
+        knows of none) and is plausible; a refused one is logged."""
+        owner = self._owner(status.execution_id) or status.worker_id
+        if owner != status.worker_id:
+            log.warning("status of %s naming %s refused: the execution was handed to %s",
+                                  status.execution_id, status.worker_id, owner)  # fmt: skip
+            return False
+        if not self._signed(self.execution_secret(status.execution_id, owner), payload, signature):
+            log.warning("status of %s not signed by %s: refused", status.execution_id, owner)
+            return False
+        if why := implausible_status(status):
+            log.warning("status of %s from %s refused: %s", status.execution_id, owner, why)
+            return False
+        return True
 
     def deliver(self, status: ExecutionStatus) -> None:
         """Hand ``status`` to ``on_status`` as if it had just been received (one the subscriber missed)."""
@@ -312,18 +491,22 @@ class BusClient:
                 self._running.pop(status.execution_id, None)
         self._call(self._on_status, status)
 
-    def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Any]:
-        """Every valid reply (as ``model``) of every queryable on ``key``; bad replies are logged and skipped."""
+    def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Reply]:
+        """Every valid reply (its payload as ``model``) of every queryable on ``key``; bad replies are logged and
+        skipped."""
         import zenoh
 
         answers = []
         for reply in self._session.get(key, timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE):
             if reply.ok is None:
                 continue
+            payload = reply.ok.payload.to_bytes()
             try:
-                answers.append(model.model_validate_json(reply.ok.payload.to_bytes()))
+                value = model.model_validate_json(payload)
             except ValueError:
                 log.warning("bad %s on %s", model.__name__, reply.ok.key_expr)
+                continue
+            answers.append(Reply(value, str(reply.ok.key_expr), payload, _attachment(reply.ok.attachment)))
         return answers
 
     def _candidates(self, everyone: list[WorkerInfo] | None = None) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
@@ -384,10 +567,12 @@ class BusClient:
         everyone, free = self._candidates(workers)
         refused: list[str] = []
         for worker in free:
-            key = self.keys.start(worker.worker_id)
-            answer = self._ask_start(key, start, timeout_s)
+            key, secret = self.keys.start(worker.worker_id), self.execution_secret(execution_id, worker.worker_id)
+            self._hand(execution_id, worker.worker_id)  # its first statuses may come before its reply
+            answer = self._ask_start(key, start, secret, timeout_s)
             if answer is not None and answer.code == "need_demonstration":
-                answer = self._ask_start(key, start.model_copy(update={"demonstration": demonstration}), timeout_s)
+                with_demonstration = start.model_copy(update={"demonstration": demonstration})
+                answer = self._ask_start(key, with_demonstration, secret, timeout_s)
             if answer is None:
                 refused.append(f"{worker.worker_id} did not answer within {timeout_s:g} s")
                 continue
@@ -401,12 +586,12 @@ class BusClient:
             refused.append(f"{worker.worker_id} busy ({answer.reason})")
         raise self._why_none(everyone, refused, f"run execution {execution_id}")
 
-    def _ask_start(self, key: str, start: StartExecution, timeout_s: float) -> StartReply | None:
-        """One worker's reply to ``start`` (None if none came within ``timeout_s``). Each ask carries its own
-        deadline: a worker that could only answer after it refuses, so a request given up on here (and offered to
-        the next worker) never runs twice."""
+    def _ask_start(self, key: str, start: StartExecution, secret: bytes, timeout_s: float) -> StartReply | None:
+        """One worker's reply to ``start`` (None if none came within ``timeout_s``), the execution's ``secret`` for
+        that worker attached. Each ask carries its own deadline: a worker that could only answer after it refuses,
+        so a request given up on here (and offered to the next worker) never runs twice."""
         start.answer_by_unix_s = time.time() + timeout_s
-        reply = self._query_one(key, start.model_dump_json(), timeout_s)
+        reply = self._query_one(key, start.model_dump_json(), timeout_s, attachment=secret)
         return None if reply is None else StartReply.model_validate_json(reply)
 
     def send_command(self, execution_id: str, command: Literal["abort", "pause", "resume"]) -> None:
@@ -448,9 +633,9 @@ class BusClient:
             refused.append(f"{worker.worker_id} busy ({answer.error})")
         raise self._why_none(everyone, refused, f"record {request.scenario}")
 
-    def _query_one(self, key: str, payload: str, timeout_s: float) -> bytes | None:
+    def _query_one(self, key: str, payload: str, timeout_s: float, attachment: bytes | None = None) -> bytes | None:
         """The first OK reply's payload of a query to one worker's queryable, or None (no reply, error reply)."""
-        for reply in self._session.get(key, payload=payload, timeout=timeout_s):
+        for reply in self._session.get(key, payload=payload, timeout=timeout_s, attachment=attachment):
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
             log.warning("error reply on %s: %s", key, reply.err.payload.to_string() if reply.err else "?")
@@ -459,18 +644,65 @@ class BusClient:
     # ------------------------------------------------------------------------------------------ callbacks
 
     def _status_sample(self, sample) -> None:
-        try:
-            status = ExecutionStatus.model_validate_json(sample.payload.to_bytes())
-        except ValueError:
-            log.warning("bad status on %s", sample.key_expr)
-            return
-        self.deliver(status)
+        """Zenoh's thread: hand the status to the inbox thread (never dropped; waits if the inbox is full)."""
+        self._inbox.put((self._status_received, sample.payload.to_bytes(), str(sample.key_expr),
+                         _attachment(sample.attachment)))  # fmt: skip
 
     def _telemetry_sample(self, sample) -> None:
+        """Zenoh's thread: hand the batch to the inbox thread, never waiting: past :data:`INBOX_BYTES` it is dropped
+        (the receiver sees the gap in ``first_sample`` and asks the worker for it again)."""
+        item = (
+            self._telemetry_received,
+            sample.payload.to_bytes(),
+            str(sample.key_expr),
+            _attachment(sample.attachment),
+        )
+        with self._lock:
+            full = self._inbox_bytes + len(item[1]) > INBOX_BYTES
+            self._inbox_bytes += 0 if full else len(item[1])
+        if full:
+            log.warning("bus inbox full (%d MB): a telemetry batch dropped, to be asked again", INBOX_BYTES >> 20)
+        else:
+            self._inbox.put(item)
+
+    def _drain_inbox(self) -> None:
+        """The inbox thread: check and deliver each status and telemetry batch in the order they arrived."""
+        while (item := self._inbox.get()) is not None:
+            handle, *received = item
+            try:
+                handle(*received)
+            except Exception:
+                log.exception("handling a message from the bus failed")
+            if handle == self._telemetry_received:
+                with self._lock:
+                    self._inbox_bytes -= len(received[0])
+
+    def _status_received(self, payload: bytes, key: str, signature: bytes | None) -> None:
         try:
-            batch = TelemetryBatch.model_validate_json(sample.payload.to_bytes())
+            status = ExecutionStatus.model_validate_json(payload)
         except ValueError:
-            log.warning("bad telemetry on %s", sample.key_expr)
+            log.warning("bad status on %s", key)
+            return
+        if key == self.keys.status(status.execution_id) and self._trusted(status, payload, signature):
+            self.deliver(status)
+
+    def _telemetry_received(self, payload: bytes, key: str, signature: bytes | None) -> None:
+        try:
+            batch = TelemetryBatch.model_validate_json(payload)
+        except ValueError:
+            log.warning("bad telemetry on %s", key)
+            return
+        owner = self._owner(batch.execution_id) if batch.execution_id else None
+        if owner is None or key != self.keys.telemetry(batch.execution_id):
+            log.warning("telemetry of %s, an execution handed to no worker: refused",
+                                  batch.execution_id)  # fmt: skip
+            return
+        if not self._signed(self.execution_secret(batch.execution_id, owner), payload, signature):
+            log.warning("telemetry of %s not signed by %s: refused", batch.execution_id, owner)
+            return
+        if (batch.first_sample is not None and batch.first_sample < 0) or (batch.seq is not None and batch.seq < 0):
+            log.warning("telemetry of %s from %s refused: negative counters",
+                                  batch.execution_id, owner)  # fmt: skip
             return
         self._call(self._on_telemetry, batch)
 
@@ -639,3 +871,5 @@ class BusClient:
             with contextlib.suppress(Exception):
                 subscriber.undeclare()
         self._session.close()
+        self._inbox.put(None)
+        self._drainer.join(INBOX_CLOSE_S)

@@ -27,6 +27,8 @@ FINAL_STATES = {
     ExecutionPhase.failed: ExecutionState.failed,
 }
 """Execution status for each final phase; any other phase means running."""
+REPORT_KEY_NAME = "bus-reports"
+"""The database's key every execution's secret is derived from (``services.bus.BusSettings.report_key``)."""
 WORKER_DISCOVERY_S = 2.0
 """On start, how long the API waits to see workers before reconciling executions left running."""
 
@@ -91,6 +93,7 @@ class BusEvents:
         self.on_worker_lost = _guarded(self._worker_lost)
         self.on_worker_back = _guarded(self._worker_back)
         self._held: dict[str, ExecutionStatus] = {}
+        self._seen_stored: dict[str, int] = {}  # held execution -> samples stored when last looked at
         self._received: dict[str, int] = {}  # execution -> one past the last sample received live
         self._lock = threading.Lock()
         self._repairs: queue.Queue[str] = queue.Queue()
@@ -122,9 +125,28 @@ class BusEvents:
             return True
         return self.store.telemetry_counts(status.execution_id)[1] >= status.metrics.steps
 
+    def _still_arriving(self, execution_id: str) -> bool:
+        """Whether a held final status's telemetry is incomplete but still arriving (more samples stored than at the
+        last look: a fast run's stream behind its status); if so, look again after :data:`FINAL_TELEMETRY_GRACE_S`
+        before asking the worker for what is missing."""
+        with self._lock:
+            held = self._held.get(execution_id)
+        if held is None or self._telemetry_complete(held):
+            return False
+        stored = self.store.telemetry_counts(execution_id)[1]
+        with self._lock:
+            growing = stored > self._seen_stored.get(execution_id, -1)
+            self._seen_stored[execution_id] = stored
+        if growing:
+            timer = threading.Timer(FINAL_TELEMETRY_GRACE_S, self._repair, args=(execution_id,))
+            timer.daemon = True
+            timer.start()
+        return growing
+
     def _release(self, execution_id: str) -> None:
         with self._lock:
             status = self._held.pop(execution_id, None)
+            self._seen_stored.pop(execution_id, None)
         if status is not None:
             store_status(self.store, status, FINAL_STATES[status.phase])
             self._forget(execution_id)
@@ -157,7 +179,8 @@ class BusEvents:
     def _repair(self, execution_id: str) -> None:
         """Have the repair thread fill the execution's telemetry gaps (then store its held final status)."""
         if self.bus is None:
-            self._release(execution_id)
+            if not self._still_arriving(execution_id):
+                self._release(execution_id)
             return
         with self._lock:
             if execution_id in self._repairing:
@@ -173,6 +196,8 @@ class BusEvents:
             execution_id = self._repairs.get()
             with self._lock:
                 self._repairing.discard(execution_id)
+            if self._still_arriving(execution_id):
+                continue
             try:
                 self._fill(execution_id)
             except Exception:
@@ -269,8 +294,14 @@ def connect_bus(settings: ServiceSettings, store: Store) -> BusClient:
         endpoints=list(settings.zenoh_endpoints),
         prefix=settings.zenoh_prefix,
         connect_timeout_s=settings.connect_timeout_s,
+        report_key=store.service_key(REPORT_KEY_NAME),
     )
+
+    def owner(execution_id: str) -> str | None:
+        row = store.execution(execution_id)
+        return None if row is None else row.worker_id
+
     events.bus = BusClient(
-        bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost, events.on_worker_back
+        bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost, events.on_worker_back, owner
     )
     return events.bus

@@ -22,10 +22,11 @@ import datetime
 import ipaddress
 import os
 import secrets
+import tempfile
 from pathlib import Path
 
 from schemas.bus import ENV_ENDPOINTS
-from schemas.bus_security import ENV_PASSWORD, ENV_TLS_CA, ENV_USER
+from schemas.bus_security import ENV_PASSWORD, ENV_TLS_CA, ENV_USER, parse_env
 
 CERTIFICATE_DAYS = 825
 """Validity of the generated certificates, days."""
@@ -97,13 +98,46 @@ def generate_bus_keys(
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _certificates(folder, hosts)
+    extra = {ENV_TLS_CA: ca_path or str((folder / "ca.pem").resolve())}
+    if endpoint:
+        extra[ENV_ENDPOINTS] = endpoint
+    generate_logins(folder, workers, extra)
+    return sorted(folder.iterdir())
+
+
+def generate_logins(folder: Path, workers: int, extra: dict[str, str] | None = None) -> dict[str, dict[str, str]]:
+    """Write ``users.txt`` (random passwords) and one ``LOGIN.env`` per login into ``folder`` (which must exist), all
+    readable by their owner only: ``api``, ``worker-1`` .. ``worker-N``, ``observer``, each env file with ``extra``
+    variables too. Returns each login's variables (what its env file holds)."""
     logins = [("api", "api"), *((f"worker-{k}", "worker") for k in range(1, workers + 1)), ("observer", "observer")]
     passwords = {user: secrets.token_urlsafe(18) for user, _ in logins}
     _private(folder / "users.txt", "".join(f"{role}:{user}:{passwords[user]}\n" for user, role in logins).encode())
-    ca = ca_path or str((folder / "ca.pem").resolve())
-    for user, _ in logins:
-        lines = [f"{ENV_USER}={user}", f"{ENV_PASSWORD}={passwords[user]}", f"{ENV_TLS_CA}={ca}"]
-        if endpoint:
-            lines.append(f"{ENV_ENDPOINTS}={endpoint}")
-        _private(folder / f"{user}.env", ("\n".join(lines) + "\n").encode())
-    return sorted(folder.iterdir())
+    variables = {user: {ENV_USER: user, ENV_PASSWORD: passwords[user], **(extra or {})} for user, _ in logins}
+    for user, values in variables.items():
+        _private(folder / f"{user}.env", "".join(f"{name}={value}\n" for name, value in values.items()).encode())
+    return variables
+
+
+def local_logins_folder(port: int) -> Path:
+    """Where ``contact-skills up`` keeps the logins of its bus on loopback ``port``: a folder of this user's
+    (``$XDG_RUNTIME_DIR``, else the temporary directory), readable by this user only. Its ``observer.env`` is how
+    this user's other processes (``watch``, the client's ``live()``) read the bus without being told a login."""
+    base = Path(os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()) / f"contact-skills-{os.getuid()}"
+    return base / f"bus-{port}"
+
+
+def read_env_file(path: Path) -> dict[str, str]:
+    """The ``NAME=value`` lines of an env file (``schemas.bus_security.parse_env``)."""
+    return parse_env(path.read_text())
+
+
+def make_local_logins(port: int, workers: int) -> tuple[Path, dict[str, dict[str, str]]]:
+    """Fresh logins for the bus of ``contact-skills up`` on loopback ``port`` (:func:`generate_logins` in
+    :func:`local_logins_folder`, replacing what a previous run left): (the folder, each login's variables)."""
+    folder = local_logins_folder(port)
+    folder.parent.mkdir(mode=0o700, exist_ok=True)
+    os.chmod(folder.parent, 0o700)  # made by this user: another one could otherwise list or swap its folders
+    folder.mkdir(mode=0o700, exist_ok=True)
+    for stale in folder.glob("*"):
+        stale.unlink()
+    return folder, generate_logins(folder, workers)

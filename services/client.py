@@ -6,12 +6,16 @@
         demo = client.record("slide_flat", seed=0)                  # or client.upload("demo.mcap")
         skill = client.learn(demo.id, skill_type="auto")
         execution = client.execute(skill.id, unknown_offset=[0, 0, 0.02])
-        for batch in execution.live():                              # over Zenoh while it runs
+        for batch in execution.live(pace=Pace.realtime, from_start=True):  # over Zenoh, at the clock's pace
             print(batch.t[-1], batch.wrench_cf[-1][2])
         view = execution.wait()                                     # status, metrics
         telemetry = execution.telemetry()                           # numpy arrays
 
-Every reply is a pydantic model of ``schemas`` (`DemonstrationCreated`, `StoredSkill`, `ExecutionView`, ...).
+``Client()`` finds the service at ``$CONTACT_SKILLS_URL`` (default http://127.0.0.1:8000) and the Zenoh router from
+the API (``GET /health``). Every closed set is an enum of ``schemas`` (`ControllerKind`, `Pace`, `ExecutionPhase`,
+`TelemetryFormat`, `SkillTypeRequest`, `Sampler`, `SweepParameter`; their string values are accepted too and
+checked by the API). Every reply is a pydantic model of ``schemas`` (`DemonstrationCreated`, `StoredSkill`,
+`ExecutionView`, `SweepView`, ...).
 Every error answer raises a :class:`ServiceError` subclass carrying the API's message (``str(error)``), the
 status code and, for a 422, one ``(field path, message)`` per problem.
 """
@@ -22,27 +26,42 @@ import queue
 import threading
 import time
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
+from pydantic import BaseModel
 
 from schemas.api import (
     CommandAccepted,
     DemonstrationCreated,
     DemonstrationInfo,
     ExecutionCreated,
+    ExecutionState,
     ExecutionView,
     Health,
     SkillInfo,
     StoredSkill,
+    TelemetryFormat,
+    TelemetryView,
 )
+from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
-from schemas.execution import TelemetryBatch
+from schemas.execution import ControllerKind, ExecutionPhase, Pace, TelemetryBatch
 from schemas.skill import SkillTypeRequest
+from schemas.sweep import (
+    DEFAULT_RANGES,
+    ParameterRange,
+    Sampler,
+    SweepCreated,
+    SweepParameter,
+    SweepState,
+    SweepView,
+    TrialResult,
+)
 from services.demonstration_files import (
     ROS2_STORAGE_SUFFIXES,
     UPLOAD_PATHS,
@@ -50,9 +69,12 @@ from services.demonstration_files import (
     path_kind,
     unsupported_file,
 )
+from services.quiet_imports import import_pybullet_quietly
+from services.service_url import service_url
 
-DEFAULT_URL = "http://127.0.0.1:8000"
-FINAL_STATUSES = ("done", "aborted", "failed")
+ListedT = TypeVar("ListedT", bound=BaseModel)
+FINAL_STATUSES = frozenset({ExecutionState.done, ExecutionState.aborted, ExecutionState.failed})
+"""The API's states of an execution that has ended."""
 
 
 # --------------------------------------------------------------------------- errors
@@ -120,10 +142,13 @@ def _error(response: httpx.Response) -> ServiceError:
 
 @dataclass(frozen=True)
 class Telemetry:
-    """An execution's telemetry as numpy arrays, one row per control step (SI units, quaternions [x, y, z, w]).
+    """An execution's telemetry as numpy arrays, one row per control step (SI units, quaternions [x, y, z, w]): the
+    columns of `TelemetryBatch` with the same types (``phase`` holds `ExecutionPhase` members, ``segment_index``
+    ints), so a live batch and the stored stream compare as they are.
 
-    ``wrench_world`` is the wrench the tool applies at the tool point in world axes; ``wrench_cf`` the same in the
-    compliant frame (force z into the surface); ``desired_force_cf_z_n`` the desired CF-z force."""
+    ``t`` s since the execution started; ``tool_position`` / ``reference_position`` world, m; ``wrench_world`` is the
+    wrench the tool applies at the tool point in world axes (N, N·m); ``wrench_cf`` the same in the compliant frame
+    (force z into the surface); ``desired_force_cf_z_n`` the desired CF-z force, N."""
 
     t: np.ndarray
     phase: np.ndarray
@@ -139,13 +164,16 @@ class Telemetry:
     @classmethod
     def from_columns(cls, columns: dict[str, Any]) -> Telemetry:
         """From the columns of ``GET /executions/{id}/telemetry`` or of a `TelemetryBatch`."""
-        arrays = {}
-        for name in cls.__dataclass_fields__:
-            values = columns[name]
-            arrays[name] = np.asarray(values, dtype=object if name == "phase" else float)
-        arrays["phase"] = arrays["phase"].astype(str)
+        arrays = {name: np.asarray(columns[name], dtype=float) for name in cls.__dataclass_fields__ if name != "phase"}
+        phases = {phase.value: phase for phase in ExecutionPhase}  # a lookup per row, not an enum call
+        arrays["phase"] = np.array([phases[str(p)] for p in columns["phase"]], dtype=object)
         arrays["segment_index"] = arrays["segment_index"].astype(int)
         return cls(**arrays)
+
+    @classmethod
+    def of_batches(cls, batches: Sequence[TelemetryBatch]) -> Telemetry:
+        """The rows of ``batches`` (e.g. what :meth:`Client.live` yielded), in order, as one."""
+        return cls.joined([cls.from_columns(batch.model_dump()) for batch in batches])
 
     @classmethod
     def joined(cls, parts: Sequence[Telemetry]) -> Telemetry:
@@ -159,14 +187,23 @@ class Telemetry:
 # --------------------------------------------------------------------------- an execution
 
 
-class Execution:
-    """A handle on one execution: status, wait, telemetry, live stream, commands."""
+class _Handle:
+    """A handle on one resource of the service, by its id: nothing is fetched until a method asks."""
 
-    def __init__(self, client: Client, execution_id: str, created: ExecutionCreated | None = None) -> None:
-        self.client, self.id, self.created = client, execution_id, created
+    def __init__(self, client: Client, resource_id: str) -> None:
+        self.client, self.id = client, resource_id
 
     def __repr__(self) -> str:
-        return f"Execution({self.id!r})"
+        return f"{type(self).__name__}({self.id!r})"
+
+
+class Execution(_Handle):
+    """A handle on one execution: status, wait, telemetry, live stream, commands (``created``: the reply that
+    started it, when this client did)."""
+
+    def __init__(self, client: Client, execution_id: str, created: ExecutionCreated | None = None) -> None:
+        super().__init__(client, execution_id)
+        self.created = created
 
     def status(self) -> ExecutionView:
         """``GET /executions/{id}``: status, phase, metrics."""
@@ -179,7 +216,7 @@ class Execution:
         deadline = time.monotonic() + timeout_s
         while True:
             view = self.status()
-            if view.status.value in FINAL_STATUSES:
+            if view.status in FINAL_STATUSES:
                 return view
             if time.monotonic() > deadline:
                 raise TimeoutError(
@@ -192,20 +229,32 @@ class Execution:
         return self.client.telemetry(self.id, every=every, t0=t0, t1=t1)
 
     def export(self, path: str | Path, t0: float | None = None, t1: float | None = None) -> Path:
-        """Save the telemetry as MCAP, CSV or JSON (by ``path``'s suffix); returns ``path``."""
+        """Save the telemetry as MCAP, CSV or JSON (by ``path``'s suffix; ``t0``/``t1`` s cut a window); returns
+        ``path``."""
         path = Path(path)
-        data = self.client.export(self.id, format=path.suffix.lstrip(".") or "json", t0=t0, t1=t1)
+        data = self.client.export(self.id, format=TelemetryFormat(path.suffix.lstrip(".") or "json"), t0=t0, t1=t1)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
         return path
 
-    def live(self, endpoints: Sequence[str] | None = None, timeout_s: float | None = None) -> Iterator[TelemetryBatch]:
+    def live(
+        self,
+        endpoints: Sequence[str] | None = None,
+        timeout_s: float | None = None,
+        pace: Pace = Pace.fast,
+        from_start: bool = False,
+    ) -> Iterator[TelemetryBatch]:
         """The telemetry batches as the worker publishes them (over Zenoh), until the execution ends.
 
-        Starts with the batches published after it subscribed (the whole stream is in :meth:`telemetry`). ``endpoints``:
-        the Zenoh router (default: the API's, from ``GET /health``). Raises ``TimeoutError`` if nothing final
-        arrives within ``timeout_s``."""
-        return self.client.live(self.id, endpoints=endpoints, timeout_s=timeout_s)
+        ``from_start`` False: starts with the batches published after it subscribed, and yields nothing for an
+        execution that has ended (the whole stream is in :meth:`telemetry`). ``from_start`` True: first the samples
+        already stored (``GET /executions/{id}/telemetry``, from sample 0), then the live ones, each sample once and
+        in order: a run watched late, or one that has ended, is replayed from its start.
+        ``pace`` `Pace.realtime`: no batch is yielded before its last sample's simulated time has passed on the
+        clock since the first one (a run at the default fast pace, ~20x real time, is then seen as it would run);
+        `Pace.fast`: as they come. ``endpoints``: the Zenoh router (default: the API's, from ``GET /health``).
+        Raises ``TimeoutError`` if nothing final arrives within ``timeout_s`` seconds."""
+        return self.client.live(self.id, endpoints=endpoints, timeout_s=timeout_s, pace=pace, from_start=from_start)
 
     def abort(self) -> CommandAccepted:
         return self.client._command(self.id, "abort")
@@ -217,14 +266,53 @@ class Execution:
         return self.client._command(self.id, "resume")
 
 
+# --------------------------------------------------------------------------- a sweep
+
+
+class Sweep(_Handle):
+    """A handle on one robustness sweep: status, wait, trials, cancel (``created``: the reply that started it, when
+    this client did)."""
+
+    def __init__(self, client: Client, sweep_id: str, created: SweepCreated | None = None) -> None:
+        super().__init__(client, sweep_id)
+        self.created = created
+
+    def status(self) -> SweepView:
+        """``GET /sweeps/{id}``: state, counts, per-controller summary, sensitivity ranking."""
+        return SweepView.model_validate(self.client._request("GET", f"/sweeps/{self.id}").json())
+
+    def wait(self, timeout_s: float = 3600.0, poll_s: float = 0.5) -> SweepView:
+        """Poll until the sweep is no longer running; return its final view. Raises ``TimeoutError`` (naming the
+        counts) after ``timeout_s`` seconds."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            view = self.status()
+            if view.status is not SweepState.running:
+                return view
+            if time.monotonic() > deadline:
+                counts = view.counts
+                raise TimeoutError(f"sweep {self.id} still running after {timeout_s:g} s "
+                                   f"({counts.finished}/{counts.total} executions finished)")  # fmt: skip
+            time.sleep(poll_s)
+
+    def trials(self) -> list[TrialResult]:
+        """``GET /sweeps/{id}/trials``: every trial x controller with its parameters, execution and metrics."""
+        return [TrialResult.model_validate(t) for t in self.client._request("GET", f"/sweeps/{self.id}/trials").json()]
+
+    def cancel(self) -> SweepView:
+        """``POST /sweeps/{id}/cancel``: queued executions cancelled, running ones aborted."""
+        return SweepView.model_validate(self.client._request("POST", f"/sweeps/{self.id}/cancel").json())
+
+
 # --------------------------------------------------------------------------- the client
 
 
 class Client:
-    """The service at ``url`` (``token``: the bearer token, if the service requires one)."""
+    """The service at ``url`` (default ``$CONTACT_SKILLS_URL``, else http://127.0.0.1:8000: ``services.service_url``);
+    ``token``: the bearer token, if the service requires one; ``timeout_s``: of one HTTP request, s."""
 
-    def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 300.0) -> None:
-        self.url = url.rstrip("/")
+    def __init__(self, url: str | None = None, token: str | None = None, timeout_s: float = 300.0) -> None:
+        self.url = service_url(url)
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout_s)
 
@@ -250,6 +338,11 @@ class Client:
             raise _error(response)
         return response
 
+    def _list(self, path: str, model: type[ListedT], limit: int, offset: int) -> list[ListedT]:
+        """``GET path`` of a resource's list (``limit`` items from ``offset``), each item as ``model``."""
+        reply = self._request("GET", path, params={"limit": limit, "offset": offset})
+        return [model.model_validate(item) for item in reply.json()]
+
     # ------------------------------------------------------------------ service
 
     def health(self) -> Health:
@@ -264,10 +357,13 @@ class Client:
         return DemonstrationCreated.model_validate(self._request("POST", "/demonstrations/record", json=body).json())
 
     def upload(self, path: str | Path, **options: Any) -> DemonstrationCreated:
-        """Store a demonstration file, sent to the route that takes what it holds (its content, not only its name):
-        a JSON `Demonstration`, a CSV recording, a ROS 2 bag (a bag directory, its ``.mcap`` or ``.db3``) or a ROS 1
-        ``.bag``. ``options`` are the form fields of ``POST /demonstrations/csv`` or ``/bag`` (the fields of
-        `schemas.import_options.CsvImportOptions` or `BagImportOptions` by their form names, e.g.
+        """Store a demonstration file, sent to the route that takes what it holds, told by its content (its first
+        bytes, whatever its name): an MCAP or sqlite3 file (a ROS 2 bag's storage; or the bag directory) or a ROS 1
+        bag (``#ROSBAG V2.0``) to ``POST /demonstrations/bag``, UTF-8 text starting with ``{`` (a JSON
+        `Demonstration`; or named ``.json``) to ``POST /demonstrations``, other UTF-8 text (a CSV recording) to
+        ``POST /demonstrations/csv``; text named like a bag is refused here, as every interface refuses it.
+        ``options`` are the form fields of ``POST /demonstrations/csv`` or ``/bag``
+        (the fields of `schemas.import_options.CsvImportOptions` or `BagImportOptions` by their form names, e.g.
         ``wrench="measured-on-tool"``, ``wrench_topic="/ft"``, ``rate=100``). Raises ``ValueError`` for a file no
         importer reads, with the message the API and ``contact-skills learn`` give."""
         path = Path(path)
@@ -295,8 +391,7 @@ class Client:
         )
 
     def demonstrations(self, limit: int = 100, offset: int = 0) -> list[DemonstrationInfo]:
-        reply = self._request("GET", "/demonstrations", params={"limit": limit, "offset": offset})
-        return [DemonstrationInfo.model_validate(item) for item in reply.json()]
+        return self._list("/demonstrations", DemonstrationInfo, limit, offset)
 
     # ------------------------------------------------------------------ skills
 
@@ -328,8 +423,7 @@ class Client:
         return StoredSkill.model_validate(self._request("GET", f"/skills/{skill_id}").json())
 
     def skills(self, limit: int = 100, offset: int = 0) -> list[SkillInfo]:
-        reply = self._request("GET", "/skills", params={"limit": limit, "offset": offset})
-        return [SkillInfo.model_validate(item) for item in reply.json()]
+        return self._list("/skills", SkillInfo, limit, offset)
 
     # ------------------------------------------------------------------ executions
 
@@ -339,12 +433,13 @@ class Client:
         *,
         offset: Sequence[float] | None = None,
         unknown_offset: Sequence[float] | None = None,
-        controller: str = "hybrid_cf",
-        pace: str = "fast",
+        controller: ControllerKind = ControllerKind.hybrid_cf,
+        pace: Pace = Pace.fast,
         **settings: Any,
     ) -> Execution:
-        """Run a stored skill on a sim worker (``offset`` known, ``unknown_offset`` unknown work piece shifts, m;
-        ``settings``: other `ExecutionRequest` fields, e.g. ``gains``, ``scenario``). Returns at once."""
+        """Run a stored skill on a sim worker (``offset`` known, ``unknown_offset`` unknown work piece shifts, world,
+        m; ``pace`` `Pace.realtime` makes simulated time follow the clock, so a live view sees the run as it
+        happens; ``settings``: other `ExecutionRequest` fields, e.g. ``gains``, ``scenario``). Returns at once."""
         environment = {
             "offset": list(offset or [0.0, 0.0, 0.0]),
             "unknown_offset": list(unknown_offset or [0.0, 0.0, 0.0]),
@@ -358,8 +453,7 @@ class Client:
         return Execution(self, execution_id)
 
     def executions(self, limit: int = 100, offset: int = 0) -> list[ExecutionView]:
-        reply = self._request("GET", "/executions", params={"limit": limit, "offset": offset})
-        return [ExecutionView.model_validate(item) for item in reply.json()]
+        return self._list("/executions", ExecutionView, limit, offset)
 
     def telemetry(
         self, execution_id: str, every: int = 1, t0: float | None = None, t1: float | None = None
@@ -387,7 +481,7 @@ class Client:
     def export(
         self,
         record_id: str,
-        format: str = "mcap",
+        format: TelemetryFormat = TelemetryFormat.mcap,
         t0: float | None = None,
         t1: float | None = None,
         every: int | None = None,
@@ -397,15 +491,16 @@ class Client:
         An execution's file is written here from every page of its telemetry (the service sends at most its cap of
         samples per request), exactly as the service writes one page."""
         if record_id.startswith("demo_"):
-            params = _given({"format": format, "t0": t0, "t1": t1})
+            params = _given({"format": TelemetryFormat(format).value, "t0": t0, "t1": t1})
             return self._request("GET", f"/demonstrations/{record_id}/telemetry", params=params).content
         if not record_id.startswith("exec_"):
             raise ValueError(f"{record_id!r} is not a demonstration (demo_...) or an execution (exec_...) id")
-        from schemas.api import TelemetryFormat, TelemetryView
         from services.store import telemetry_matrix
         from services.telemetry_export import execution_csv, execution_json_chunks, execution_mcap
 
         kind = TelemetryFormat(format)
+        if kind is TelemetryFormat.mcap:
+            import_pybullet_quietly()  # the MCAP's scene solves the arm's joints with PyBullet: no banner in our output
         pages = [TelemetryView.model_validate(page) for page in self.telemetry_pages(record_id, every or 1, t0, t1)]
         matrix = np.concatenate([telemetry_matrix(page) for page in pages])
         if kind is TelemetryFormat.mcap:
@@ -418,21 +513,45 @@ class Client:
                 "status": last.status.value}  # fmt: skip
         return "".join(execution_json_chunks(head, matrix)).encode()
 
-    def _command(self, execution_id: str, command: str) -> CommandAccepted:
+    def _command(self, execution_id: str, command: CommandName) -> CommandAccepted:
         return CommandAccepted.model_validate(self._request("POST", f"/executions/{execution_id}/{command}").json())
 
     # ------------------------------------------------------------------ live telemetry over Zenoh
 
     def live(
-        self, execution_id: str, endpoints: Sequence[str] | None = None, timeout_s: float | None = None
+        self,
+        execution_id: str,
+        endpoints: Sequence[str] | None = None,
+        timeout_s: float | None = None,
+        pace: Pace = Pace.fast,
+        from_start: bool = False,
     ) -> Iterator[TelemetryBatch]:
         """See :meth:`Execution.live`."""
+        paced = _Pacer(Pace(pace))
+        view = Execution(self, execution_id).status()
+        stored = _StoredStream(self, execution_id) if from_start else None
+        if view.status in FINAL_STATUSES:
+            if stored is not None:
+                yield from map(paced, stored.batches_before(None))
+            return
+        for batch in self._live_batches(view, endpoints, timeout_s):
+            if stored is None:
+                yield paced(batch)
+                continue
+            yield from map(paced, stored.batches_before(batch.first_sample))  # what was sent before we listened
+            rest = stored.unseen(batch)
+            if rest is not None:
+                yield paced(rest)
+        if stored is not None:
+            yield from map(paced, stored.batches_before(None))  # the end, when it came before the last live batch
+
+    def _live_batches(
+        self, view: ExecutionView, endpoints: Sequence[str] | None, timeout_s: float | None
+    ) -> Iterator[TelemetryBatch]:
+        """The telemetry batches of ``view``'s execution as they arrive over Zenoh, until it ends."""
         from schemas.bus import ExecutionStatus
         from services.bus import open_session
 
-        view = Execution(self, execution_id).status()
-        if view.status.value in FINAL_STATUSES:
-            return
         connect = list(endpoints) if endpoints else self.health().zenoh_endpoints
         status_key = view.telemetry_key.rsplit("/", 1)[0] + "/status"
         batches: queue.Queue[TelemetryBatch] = queue.Queue()
@@ -462,16 +581,107 @@ class Client:
                     if final.is_set():
                         break  # ended, and nothing more arrived for LIVE_DRAIN_S
                 if deadline is not None and time.monotonic() > deadline:
-                    raise TimeoutError(f"execution {execution_id}: no final status within {timeout_s:g} s")
+                    raise TimeoutError(f"execution {view.id}: no final status within {timeout_s:g} s")
             for subscriber in subscribers:
                 subscriber.undeclare()
         finally:
             session.close()
 
+    # ------------------------------------------------------------------ robustness sweeps
+
+    def run_sweep(
+        self,
+        skill_id: str,
+        *,
+        controllers: Sequence[ControllerKind] = (ControllerKind.hybrid_cf,),
+        vary: Mapping[SweepParameter, ParameterRange | Mapping[str, Any]] | None = None,
+        trials: int = 20,
+        seed: int = 0,
+        sampler: Sampler = Sampler.lhs,
+        **request: Any,
+    ) -> Sweep:
+        """``POST /sweeps``: run the stored skill over ``trials`` sampled variations of ``vary`` (a parameter's
+        `ParameterRange`, or its fields ``low``, ``high``, ``log``; default: ``schemas.sweep.DEFAULT_RANGES``, what a
+        real cell sees), once per controller; ``request``: other `SweepRequest` fields (``settings``,
+        ``success_rms_pct``, ``store_telemetry``, ...). Returns at once, with the sweep's handle."""
+        ranges = DEFAULT_RANGES if vary is None else vary
+        body: dict[str, Any] = {"skill_id": skill_id, "controllers": list(controllers), "trials": trials,
+                                "seed": seed, "sampler": sampler, **request}  # fmt: skip
+        body["vary"] = {
+            str(name): spread.model_dump() if isinstance(spread, ParameterRange) else dict(spread)
+            for name, spread in ranges.items()
+        }
+        created = SweepCreated.model_validate(self._request("POST", "/sweeps", json=body).json())
+        return Sweep(self, created.id, created)
+
+    def sweep(self, sweep_id: str) -> Sweep:
+        """A handle on an existing sweep (nothing is fetched)."""
+        return Sweep(self, sweep_id)
+
+    def sweeps(self, limit: int = 100, offset: int = 0) -> list[SweepView]:
+        return self._list("/sweeps", SweepView, limit, offset)
+
 
 LIVE_DRAIN_S = 0.5
 """After the final status, :meth:`Client.live` keeps yielding until no batch arrived for this long, s (status and
 telemetry travel on different keys: the last batches may come after the final status)."""
+
+
+class _Pacer:
+    """Holds each batch back until its simulated time has passed on the clock since the first one (`Pace.realtime`);
+    `Pace.fast` lets every batch through at once."""
+
+    def __init__(self, pace: Pace) -> None:
+        self.pace = pace
+        self.origin: float | None = None  # monotonic clock at simulated time 0, s
+
+    def __call__(self, batch: TelemetryBatch) -> TelemetryBatch:
+        if self.pace is Pace.realtime and batch.t:
+            if self.origin is None:
+                self.origin = time.monotonic() - batch.t[0]
+            time.sleep(max(0.0, self.origin + batch.t[-1] - time.monotonic()))
+        return batch
+
+
+class _StoredStream:
+    """The stored part of an execution's stream, read in pages from where the caller has got to (``next_sample``)."""
+
+    def __init__(self, client: Client, execution_id: str) -> None:
+        self.client, self.execution_id = client, execution_id
+        self.next_sample = 0  # the stream index of the first sample not yielded yet
+
+    def batches_before(self, stop: int | None) -> Iterator[TelemetryBatch]:
+        """Stored samples from ``next_sample`` (up to ``stop``, None: all that are stored) as batches."""
+        while stop is None or self.next_sample < stop:
+            path = f"/executions/{self.execution_id}/telemetry"
+            params = {"cursor": self.next_sample} | ({} if stop is None else {"limit": stop - self.next_sample})
+            page = TelemetryView.model_validate(self.client._request("GET", path, params=params).json())
+            if page.n_samples == 0:
+                return  # not stored yet (the API stores what it receives): the live batches carry it
+            for start in range(0, page.n_samples, REPLAY_BATCH_SAMPLES):  # small batches, as the bus sends them
+                rows = slice(start, start + REPLAY_BATCH_SAMPLES)
+                columns = {name: getattr(page, name)[rows] for name in TELEMETRY_FIELDS}
+                yield TelemetryBatch(execution_id=self.execution_id, first_sample=self.next_sample, **columns)
+                self.next_sample += len(columns["t"])
+
+    def unseen(self, batch: TelemetryBatch) -> TelemetryBatch | None:
+        """The rows of a live ``batch`` not yielded yet (None: none), advancing ``next_sample`` past them."""
+        first = batch.first_sample if batch.first_sample is not None else self.next_sample
+        skip = max(0, self.next_sample - first)
+        if skip >= len(batch.t):
+            return None
+        self.next_sample = first + len(batch.t)
+        if skip == 0:
+            return batch
+        columns = {name: getattr(batch, name)[skip:] for name in TELEMETRY_FIELDS}
+        return batch.model_copy(update={**columns, "first_sample": first + skip})
+
+
+REPLAY_BATCH_SAMPLES = 100
+"""Samples per batch :meth:`Client.live` yields of the stored part of a stream (0.1 s at 1 kHz): a replay at
+`Pace.realtime` moves on in steps no coarser than that."""
+TELEMETRY_FIELDS = tuple(Telemetry.__dataclass_fields__)
+"""The per-sample columns of a `TelemetryBatch` (the rest describe the batch)."""
 
 
 def _given(params: dict[str, Any]) -> dict[str, Any]:
@@ -494,6 +704,7 @@ __all__ = [
     "InvalidRequestError",
     "NotFoundError",
     "ServiceError",
+    "Sweep",
     "Telemetry",
     "UnauthorizedError",
     "UnavailableError",

@@ -8,18 +8,26 @@ The default listens on loopback only; use ``tcp/0.0.0.0:7447`` (or the docker-co
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import shutil
 import signal
 import tempfile
 import threading
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 from schemas.bus import DEFAULT_ENDPOINT, DEFAULT_PREFIX, ENV_LISTEN, split_endpoints
-from schemas.bus_security import BusSecurity, BusUser, access_control, read_users
+from schemas.bus_security import BusSecurity, BusUser, access_control, parse_users
 
 log = logging.getLogger("contact_skills.router")
+
+
+def read_users(path: str | Path) -> list[BusUser]:
+    """The router's users file at ``path`` (``schemas.bus_security.parse_users`` says what it holds)."""
+    return parse_users(Path(path).read_text(), str(path))
 
 
 def listen_from_env() -> list[str]:
@@ -85,6 +93,31 @@ class EmbeddedRouter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@contextlib.contextmanager
+def local_router(port: int, workers: int, prefix: str, open_bus: bool = False) -> Iterator[dict[str, dict[str, str]]]:
+    """The router of ``contact-skills up`` on ``tcp/127.0.0.1:PORT``, running inside the block, secured by default.
+
+    Fresh logins (``services.bus_keys.make_local_logins``: ``api``, ``worker-1`` .. ``worker-N``, ``observer``, random
+    passwords, in a folder of this user's removed on exit) and the access control of
+    ``schemas.bus_security.access_control``: an anonymous local process cannot even open a session, the observer
+    login (which this user's ``watch`` and ``live()`` find by the port) only reads. Yields each login's environment
+    variables by login name (the children of ``up`` are named after theirs). ``open_bus`` (development only): an
+    open router, no logins (yields {})."""
+    from services.bus_keys import make_local_logins
+
+    listen = [f"tcp/127.0.0.1:{port}"]
+    if open_bus:
+        with EmbeddedRouter(listen, prefix=prefix):
+            yield {}
+        return
+    folder, logins = make_local_logins(port, workers)
+    try:
+        with EmbeddedRouter(listen, BusSecurity(users_file=str(folder / "users.txt")), prefix):
+            yield logins
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def run_router(listen: list[str], security: BusSecurity | None = None, prefix: str = DEFAULT_PREFIX) -> None:

@@ -20,6 +20,12 @@
 | job_max_simulated_s | ``CONTACT_SKILLS_JOB_MAX_SIMULATED_S`` | ``1800`` (longest simulated time of one job, s) |
 | job_max_steps | ``CONTACT_SKILLS_JOB_MAX_STEPS`` | ``2000000`` (most control steps of one job) |
 | telemetry_page_samples | ``CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES`` | ``20000`` (samples per telemetry response) |
+| allowed_hosts | ``CONTACT_SKILLS_ALLOWED_HOSTS`` | none (``Host`` names besides loopback, bind address, host name) |
+| header_timeout_s | ``CONTACT_SKILLS_HEADER_TIMEOUT_S`` | ``10`` (s a connection has to send a whole request head) |
+| keep_alive_s | ``CONTACT_SKILLS_KEEP_ALIVE_S`` | ``5`` (s an idle keep-alive connection is kept) |
+| max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (open connections and requests at once; more get 503) |
+| client_queued_max | ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` | ``100`` (a client's queued or running executions; 429) |
+| client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
 
 A job is one execution or recording; its budget (``schemas.job_budget``) is read from the same variables by the sim
 workers, which hold every job they are sent to it too.
@@ -68,6 +74,12 @@ ENV_VARS: dict[str, str] = {
     "job_max_simulated_s": "CONTACT_SKILLS_JOB_MAX_SIMULATED_S",
     "job_max_steps": "CONTACT_SKILLS_JOB_MAX_STEPS",
     "telemetry_page_samples": "CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES",
+    "allowed_hosts": "CONTACT_SKILLS_ALLOWED_HOSTS",
+    "header_timeout_s": "CONTACT_SKILLS_HEADER_TIMEOUT_S",
+    "keep_alive_s": "CONTACT_SKILLS_KEEP_ALIVE_S",
+    "max_connections": "CONTACT_SKILLS_MAX_CONNECTIONS",
+    "client_queued_max": "CONTACT_SKILLS_CLIENT_QUEUED_MAX",
+    "client_sweeps_max": "CONTACT_SKILLS_CLIENT_SWEEPS_MAX",
     "instance": "CONTACT_SKILLS_INSTANCE",
 }
 """Setting name -> the environment variable that sets it."""
@@ -119,6 +131,14 @@ class ServiceSettings:
     job_max_simulated_s: float = field(default_factory=lambda: _default_budget().max_simulated_s)
     job_max_steps: int = field(default_factory=lambda: _default_budget().max_steps)
     telemetry_page_samples: int = DEFAULT_TELEMETRY_PAGE_SAMPLES
+    allowed_hosts: list[str] = field(default_factory=list)
+    """``Host`` names the API answers besides loopback names, its bind address and this host's name (a DNS-rebinding
+    page's own name is refused on every bind)."""
+    header_timeout_s: float = 10.0
+    keep_alive_s: float = 5.0
+    max_connections: int = 256
+    client_queued_max: int = 100
+    client_sweeps_max: int = 2
     instance: str = field(default_factory=lambda: secrets.token_hex(8))
     """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
 
@@ -145,10 +165,21 @@ class ServiceSettings:
             )
         if self.telemetry_page_samples < 1:
             raise SettingsError(f"telemetry_page_samples: {self.telemetry_page_samples} must be >= 1")
+        if not (self.header_timeout_s > 0 and self.keep_alive_s > 0) or self.max_connections < 1:
+            raise SettingsError(
+                f"header_timeout_s {self.header_timeout_s}, keep_alive_s {self.keep_alive_s} must be > 0 s and "
+                f"max_connections {self.max_connections} >= 1"
+            )
+        if self.client_queued_max < 1 or self.client_sweeps_max < 1:
+            raise SettingsError(
+                f"client_queued_max {self.client_queued_max}, client_sweeps_max {self.client_sweeps_max}: must be >= 1"
+            )
         if self.token_reads and not self.token:
             raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")
         cors = self.cors_origins.split(",") if isinstance(self.cors_origins, str) else self.cors_origins
         object.__setattr__(self, "cors_origins", [origin.strip() for origin in cors if origin.strip()])
+        hosts = self.allowed_hosts.split(",") if isinstance(self.allowed_hosts, str) else self.allowed_hosts
+        object.__setattr__(self, "allowed_hosts", [host.strip().lower() for host in hosts if host.strip()])
         object.__setattr__(self, "db_path", Path(self.db_path))
         object.__setattr__(self, "zenoh_endpoints", _endpoints(self.zenoh_endpoints))
         object.__setattr__(self, "token", self.token or None)
@@ -159,6 +190,17 @@ class ServiceSettings:
         from schemas.job_budget import JobBudget
 
         return JobBudget(max_simulated_s=self.job_max_simulated_s, max_steps=self.job_max_steps)
+
+    @property
+    def host_names(self) -> frozenset[str]:
+        """Every ``Host`` name the API answers: loopback names, the address it binds (unless all interfaces), this
+        host's name (docker-compose: the container's) and ``allowed_hosts``."""
+        import socket
+
+        from services.api.browser_guard import LOOPBACK_NAMES
+
+        bound = set() if self.host in ("0.0.0.0", "::", "") else {self.host.lower()}
+        return frozenset(LOOPBACK_NAMES | bound | {socket.gethostname().lower()} | set(self.allowed_hosts))
 
     @property
     def max_body_bytes(self) -> int:

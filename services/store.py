@@ -160,6 +160,27 @@ TERMINAL = (ExecutionState.done, ExecutionState.aborted, ExecutionState.failed)
 RESTART_REASON = "API restarted while running; worker state unknown"
 
 
+LOCKED_RETRY_S = 120.0
+"""How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
+
+
+def _retry_locked(step: Callable[[], object], what: str) -> None:
+    """Run ``step`` (a BEGIN or a COMMIT), again while SQLite says the database is locked or busy, for up to
+    :data:`LOCKED_RETRY_S`."""
+    deadline = time.monotonic() + LOCKED_RETRY_S
+    tries = 0
+    while True:
+        try:
+            step()
+            return
+        except sqlite3.OperationalError as exc:
+            tries += 1
+            if ("locked" not in str(exc) and "busy" not in str(exc)) or time.monotonic() > deadline:
+                raise
+            log.warning("%s: database locked (try %d); retrying", what, tries)
+            time.sleep(min(0.05 * tries, 1.0))
+
+
 def new_id(prefix: str) -> str:
     """A short random id: ``prefix`` + 12 hex digits (48 random bits)."""
     return f"{prefix}_{secrets.token_hex(6)}"
@@ -384,14 +405,26 @@ class Store:
 
     @contextmanager
     def _transaction(self) -> Iterator[sqlite3.Connection]:
+        """A write transaction. Taking the write lock, and committing, retry while the database is locked (each try
+        waits ``busy_timeout``, 5 s), for up to :data:`LOCKED_RETRY_S`: a status or a telemetry batch from a bus
+        thread waits for a long write (a big upload, a deletion) instead of being dropped."""
         connection = self._connection()
-        connection.execute("BEGIN IMMEDIATE")
+        _retry_locked(lambda: connection.execute("BEGIN IMMEDIATE"), "BEGIN")
         try:
             yield connection
         except BaseException:
             connection.execute("ROLLBACK")
             raise
-        connection.execute("COMMIT")
+        _retry_locked(lambda: connection.execute("COMMIT"), "COMMIT")
+
+    def service_key(self, name: str, size: int = 32) -> bytes:
+        """A random key of ``size`` bytes kept in the database under ``name`` (made on first use, then the same for
+        every process and restart on this database): e.g. what the bus client derives each execution's secret
+        from (``services.bus.BusSettings.report_key``)."""
+        with self._transaction() as db:
+            db.execute("CREATE TABLE IF NOT EXISTS service_keys (name TEXT PRIMARY KEY, value BLOB NOT NULL)")
+            db.execute("INSERT OR IGNORE INTO service_keys VALUES (?, ?)", (name, secrets.token_bytes(size)))
+            return bytes(db.execute("SELECT value FROM service_keys WHERE name = ?", (name,)).fetchone()[0])
 
     def _migrate(self) -> None:
         try:

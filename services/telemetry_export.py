@@ -14,7 +14,12 @@ zstd chunks, written with the ``mcap`` library). Every message is stamped ``star
 - ``/force/desired`` (WrenchStamped, ``cf``): the desired CF force on force z, zero elsewhere (executions);
 - ``/phase`` (``std_msgs/msg/String``) and ``/segment`` (``std_msgs/msg/Int32``): at the start and at every
   change (executions);
-- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> tool`` (and ``world -> reference``), for the 3D panels.
+- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> tool`` (and, for an execution, ``world -> reference``,
+  ``flange``, ``cf`` and the robot's base link ``lbr_iiwa_link_0``), for the 3D panels;
+- executions also: ``/joint_states`` (``sensor_msgs/msg/JointState``), ``/robot_description`` (the URDF,
+  ``std_msgs/msg/String``) and ``/markers`` (``visualization_msgs/msg/MarkerArray``: reference and executed paths,
+  CF triads, the touched surface): the scene the live Foxglove server streams, built by the same code
+  (``services.dashboard.ros_scene``), so a recorded run looks in Foxglove as the live one did.
 
 A demonstration's MCAP is also a bag ``contact-skills learn`` reads back (the wrench is in ``world``, the pose
 frame). CSV: one row per sample, the columns named in :data:`EXECUTION_CSV_COLUMNS` (an execution) or the
@@ -39,12 +44,12 @@ import numpy as np
 from schemas.demonstration import Demonstration
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
 from services.cdr import pose_stamped, tf_message, wrench_stamped
+from services.dashboard.scene import CF_FRAME, TOOL_FRAME, WORLD_FRAME
 from services.store import TELEMETRY_LAYOUT, telemetry_column
 
 PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
 MCAP_MEDIA_TYPE = "application/octet-stream"
 CSV_MEDIA_TYPE = "text/csv"
-WORLD_FRAME, TOOL_FRAME, REFERENCE_FRAME, CF_FRAME = "world", "tool", "reference", "cf"
 CONVENTIONS = (
     "SI units; quaternions [x, y, z, w]; /wrench/world is the wrench the tool applies, world axes, moment about the "
     "tool point; /wrench/cf the same in the compliant frame (force z into the surface); stamps = start + t"
@@ -181,13 +186,6 @@ class _McapOut:
         for sequence, (stamp, data) in enumerate(zip(stamps_ns.tolist(), payloads, strict=True)):
             add(channel, stamp, data, stamp, sequence)
 
-    def changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> None:
-        """``values`` as ``std_msgs`` messages (``data``) at the first sample and wherever the value changes."""
-        kept = [k for k in range(len(values)) if k == 0 or values[k] != values[k - 1]]
-        message = self.typestore.types[msgtype]
-        payloads = [bytes(self.typestore.serialize_cdr(message(data=values[k]), msgtype)) for k in kept]
-        self.write(topic, msgtype, stamps[kept], payloads)
-
     def finish(self) -> bytes:
         self.writer.finish()
         return self.buffer.getvalue()
@@ -202,33 +200,76 @@ class McapExport:
     topics: list[str]
 
 
+POSE_TYPE, WRENCH_TYPE = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/WrenchStamped"
+PHASE_TYPE, SEGMENT_TYPE = "std_msgs/msg/String", "std_msgs/msg/Int32"
+_POSE, _WRENCH_WORLD, _WRENCH_CF = pose_stamped(WORLD_FRAME), wrench_stamped(WORLD_FRAME), wrench_stamped(CF_FRAME)
+
+
+def execution_topics() -> dict[str, str]:
+    """Every topic of an execution (MCAP export and live Foxglove) and its ROS 2 message type."""
+    from services.dashboard.ros_scene import SCENE_TOPICS
+
+    return {"/tool/pose": POSE_TYPE, "/reference/pose": POSE_TYPE, "/wrench/world": WRENCH_TYPE,
+            "/wrench/cf": WRENCH_TYPE, "/force/desired": WRENCH_TYPE, "/phase": PHASE_TYPE, "/segment": SEGMENT_TYPE,
+            **SCENE_TOPICS}  # fmt: skip
+
+
+class ExecutionMessages:
+    """The CDR messages of an execution's telemetry, block after block (the whole run for an export, each new batch
+    live): per topic of :func:`execution_topics`, (stamps ns, payloads). ``start_ns``: the execution's start, ns since
+    the epoch; ``solver``: the IK of the scene's joint states (`services.dashboard.scene.JointSolver`)."""
+
+    def __init__(self, start_ns: int, solver: Any = None) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        from services.dashboard.ros_scene import SceneStream
+
+        self.scene = SceneStream(start_ns, solver)
+        self.typestore = get_typestore(Stores.ROS2_HUMBLE)
+        self.last: dict[str, Any] = {}  # /phase, /segment: the value last sent
+
+    def messages(self, matrix: np.ndarray, final: bool = False) -> dict[str, tuple[np.ndarray, list[bytes]]]:
+        """The messages of ``matrix`` (the store's rows, following those given before); ``final``: the run's end."""
+        if not matrix.shape[0]:
+            return {}
+        column = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
+        stamps = self.scene.stamps(column["t"][:, 0])
+        tool = np.hstack([column["tool_position"], column["tool_orientation"]])
+        reference = np.hstack([column["reference_position"], column["reference_orientation"]])
+        desired = np.zeros((matrix.shape[0], 6))
+        desired[:, 2] = column["desired_force_cf_z_n"][:, 0]
+        out = {
+            "/tool/pose": (stamps, _POSE.messages(stamp=stamps, pose=tool)),
+            "/reference/pose": (stamps, _POSE.messages(stamp=stamps, pose=reference)),
+            "/wrench/world": (stamps, _WRENCH_WORLD.messages(stamp=stamps, wrench=column["wrench_world"])),
+            "/wrench/cf": (stamps, _WRENCH_CF.messages(stamp=stamps, wrench=column["wrench_cf"])),
+            "/force/desired": (stamps, _WRENCH_CF.messages(stamp=stamps, wrench=desired)),
+        }
+        phases = [PHASE_NAMES.get(int(code), "failed") for code in column["phase"][:, 0]]
+        out["/phase"] = self._changes("/phase", PHASE_TYPE, stamps, phases)
+        segments = [int(v) for v in column["segment_index"][:, 0]]
+        out["/segment"] = self._changes("/segment", SEGMENT_TYPE, stamps, segments)
+        return {**out, **self.scene.messages(matrix, final)}
+
+    def _changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> tuple[np.ndarray, list]:
+        """``values`` as ``std_msgs`` messages (``data``) where the value differs from the one before (the first
+        value of a stream included)."""
+        kept = []
+        for k, value in enumerate(values):
+            if topic not in self.last or value != self.last[topic]:
+                kept.append(k)
+                self.last[topic] = value
+        message = self.typestore.types[msgtype]
+        payloads = [bytes(self.typestore.serialize_cdr(message(data=values[k]), msgtype)) for k in kept]
+        return stamps[kept], payloads
+
+
 def execution_mcap(matrix: np.ndarray, start_unix_s: float, execution_id: str) -> McapExport:
     """An execution's telemetry (the store's matrix rows) as MCAP (see the module docstring for the topics)."""
     out = _McapOut(int(start_unix_s * 1e9), {"execution_id": execution_id, "conventions": CONVENTIONS})
-    column = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
-    stamps = out.stamps(column["t"][:, 0])
-    tool = np.hstack([column["tool_position"], column["tool_orientation"]])
-    reference = np.hstack([column["reference_position"], column["reference_orientation"]])
-    desired = np.zeros((matrix.shape[0], 6))
-    desired[:, 2] = column["desired_force_cf_z_n"][:, 0]
-    pose, wrench = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/WrenchStamped"
-    out.write("/tool/pose", pose, stamps, pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=tool))
-    out.write("/reference/pose", pose, stamps, pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=reference))
-    for topic, frame, values in (
-        ("/wrench/world", WORLD_FRAME, column["wrench_world"]),
-        ("/wrench/cf", CF_FRAME, column["wrench_cf"]),
-        ("/force/desired", CF_FRAME, desired),
-    ):
-        out.write(topic, wrench, stamps, wrench_stamped(frame).messages(stamp=stamps, wrench=values))  # fmt: skip
-    tf = tf_message(WORLD_FRAME, [TOOL_FRAME, REFERENCE_FRAME])
-    transforms = tf.messages(
-        **{"stamp_tool": stamps, "stamp_reference": stamps, TOOL_FRAME: tool, REFERENCE_FRAME: reference}
-    )
-    out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)
-    if matrix.shape[0]:
-        phases = [PHASE_NAMES.get(int(code), "failed") for code in column["phase"][:, 0]]
-        out.changes("/phase", "std_msgs/msg/String", stamps, phases)
-        out.changes("/segment", "std_msgs/msg/Int32", stamps, [int(v) for v in column["segment_index"][:, 0]])
+    topics = execution_topics()
+    for topic, (stamps, payloads) in ExecutionMessages(out.start_ns).messages(matrix, final=True).items():
+        out.write(topic, topics[topic], stamps, payloads)
     return _finished(out)
 
 

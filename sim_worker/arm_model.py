@@ -21,13 +21,26 @@ it is): ``q``, ``q̇`` (inputs) and the outputs ``p`` (tool point), ``quat`` (to
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numba
 import numpy as np
 import pybullet
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from skills.control import ROBOT_BIAS, ROBOT_JACOBIAN, ROBOT_POSITION, ROBOT_QUAT, ROBOT_ROTATION
+from sim_worker.robot_model import N_JOINTS, TOOL_LINK
+from skills.control import (
+    ROBOT_BIAS,
+    ROBOT_JACOBIAN,
+    ROBOT_POSITION,
+    ROBOT_Q,
+    ROBOT_QD,
+    ROBOT_QUAT,
+    ROBOT_ROTATION,
+    ROBOT_STATE_SIZE,
+)
+from skills.frames import rotation_vector_from_matrix
+from skills.quaternions import matrix_from_quaternion
 
 # Rows of the model array (one per body; body 0 is the base, then the links in PyBullet order).
 _M_POS = slice(0, 3)  # parent COM frame -> link frame: translation (parent COM axes)
@@ -40,9 +53,8 @@ _M_INERTIA = slice(28, 31)  # principal moments of inertia in the COM frame, kg 
 _M_PARENT = 31  # parent body row
 _M_WIDTH = 32
 
-N_DOF = 7
 _WORK_PER_BODY = 45
-_NO_ACCELERATION = np.zeros(N_DOF)  # a compile-time constant of the compiled functions
+_NO_ACCELERATION = np.zeros(N_JOINTS)  # a compile-time constant of the compiled functions
 _P = ROBOT_POSITION.start
 _QUAT = ROBOT_QUAT.start
 _R = ROBOT_ROTATION.start
@@ -83,8 +95,8 @@ def arm_model_from_pybullet(body: int, tool_link: int, gravity: tuple[float, flo
         row[_M_PARENT] = info[16] + 1
         rows.append(row)
     model = np.array(rows)
-    if int(np.count_nonzero(np.abs(model[1:, _M_AXIS]).sum(axis=1))) != N_DOF:
-        raise ValueError(f"arm model: expected {N_DOF} revolute joints")
+    if int(np.count_nonzero(np.abs(model[1:, _M_AXIS]).sum(axis=1))) != N_JOINTS:
+        raise ValueError(f"arm model: expected {N_JOINTS} revolute joints")
     gravity_row = np.zeros(_M_WIDTH)
     gravity_row[:3] = gravity
     return np.vstack([model, gravity_row])
@@ -273,7 +285,7 @@ def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
     """Fill ``state``'s outputs from its ``q``, ``q̇``: tool pose, rotation, Jacobian and (``with_bias``) ``g + c``;
     ``work`` scratch of :func:`workspace_size` floats."""
     R, o, Rc, c, z, work = _workspace(model, work)
-    _frames(model, state[0:N_DOF], R, o, Rc, c, z)
+    _frames(model, state[0:N_JOINTS], R, o, Rc, c, z)
     tool = model.shape[0] - 2
     p0, p1, p2 = o[tool, 0], o[tool, 1], o[tool, 2]
     state[_P], state[_P + 1], state[_P + 2] = p0, p1, p2
@@ -289,7 +301,34 @@ def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
             state[_J + 21 + dof], state[_J + 28 + dof], state[_J + 35 + dof] = z[b, 0], z[b, 1], z[b, 2]
             dof += 1
     if with_bias:
-        _rnea(model, Rc, o, c, z, state[N_DOF : 2 * N_DOF], _NO_ACCELERATION, 1.0, state[_BIAS : _BIAS + N_DOF], work)
+        _rnea(
+            model,
+            Rc,
+            o,
+            c,
+            z,
+            state[N_JOINTS : 2 * N_JOINTS],
+            _NO_ACCELERATION,
+            1.0,
+            state[_BIAS : _BIAS + N_JOINTS],
+            work,
+        )
+
+
+@numba.njit(cache=True)
+def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # pragma: no cover - compiled
+    """:func:`arm_state` with ``g + c`` straight from ``getJointStates``' tuples (one compiled call, no Python list
+    per step): the positions and velocities of the first 7 joints into ``state``; an 8th joint's (the tool joint's,
+    wrist sensor) reaction force and moment into ``reaction`` (6,)."""
+    for j in range(N_JOINTS):
+        joint = joint_states[j]
+        state[j] = joint[0]
+        state[N_JOINTS + j] = joint[1]
+    for j in range(N_JOINTS, len(joint_states)):
+        tool = joint_states[j][2]
+        for i in range(6):
+            reaction[i] = tool[i]
+    arm_state(model, state, work, True)
 
 
 @numba.njit(cache=True)
@@ -297,11 +336,11 @@ def arm_mass_matrix(model, q):  # pragma: no cover - compiled
     """Joint-space mass matrix (7, 7) at ``q``: column j is the inverse dynamics of ``q̈ = e_j`` without gravity."""
     R, o, Rc, c, z, work = _workspace(model, np.empty(model.shape[0] * _WORK_PER_BODY))
     _frames(model, q, R, o, Rc, c, z)
-    M = np.empty((N_DOF, N_DOF))
-    zero = np.zeros(N_DOF)
-    e = np.zeros(N_DOF)
-    column = np.empty(N_DOF)
-    for j in range(N_DOF):
+    M = np.empty((N_JOINTS, N_JOINTS))
+    zero = np.zeros(N_JOINTS)
+    e = np.zeros(N_JOINTS)
+    column = np.empty(N_JOINTS)
+    for j in range(N_JOINTS):
         e[:] = 0.0
         e[j] = 1.0
         _rnea(model, Rc, o, c, z, zero, e, 0.0, column, work)
@@ -320,6 +359,132 @@ def arm_inverse_dynamics(
 def _inverse_dynamics(model, q, qd, qdd):  # pragma: no cover - compiled
     R, o, Rc, c, z, work = _workspace(model, np.empty(model.shape[0] * _WORK_PER_BODY))
     _frames(model, q, R, o, Rc, c, z)
-    tau = np.empty(N_DOF)
+    tau = np.empty(N_JOINTS)
     _rnea(model, Rc, o, c, z, qd, qdd, 1.0, tau, work)
     return tau
+
+
+class Arm:
+    """The arm of a PyBullet world as a control loop reads it: its state (:attr:`state`, the ``skills.control.ROBOT_*``
+    layout) brought up to date once per simulated state by :meth:`read` (one ``getJointStates`` query, then the
+    compiled model), the mass matrix on demand, and, with the wrist sensor, the tool joint's reaction read with the
+    joints (same query).
+
+    The arrays are overwritten in place by the next read: the views below are the same arrays every step.
+    """
+
+    def __init__(self, client: int, body: int, gravity: tuple[float, float, float], read_tool_reaction: bool):
+        self._client, self._body = client, body
+        # The arm's kinematics and dynamics come from its compiled model, read from this multibody: equal to
+        # calculateJacobian / calculateInverseDynamics / calculateMassMatrix / getLinkState to round-off, without
+        # their 2-5 µs round trips per step.
+        self.model = arm_model_from_pybullet(body, TOOL_LINK, gravity, client)
+        self.state = np.zeros(ROBOT_STATE_SIZE)
+        self._work = np.empty(workspace_size(self.model))
+        self.q, self.qd = self.state[ROBOT_Q], self.state[ROBOT_QD]
+        self.position, self.quat = self.state[ROBOT_POSITION], self.state[ROBOT_QUAT]
+        self.rotation = self.state[ROBOT_ROTATION].reshape(3, 3)
+        self.jacobian = self.state[ROBOT_JACOBIAN].reshape(6, N_JOINTS)
+        self.bias = self.state[ROBOT_BIAS]
+        self._joints = list(range(N_JOINTS))
+        self._queried = [*self._joints, TOOL_LINK] if read_tool_reaction else self._joints
+        """The joints read each step: the arm's, and the tool joint's reaction with the wrist sensor (one query)."""
+        self.tool_reaction = np.zeros(6)
+        """The tool joint's reaction of this state (force on the tool N, moment N·m; tool frame), wrist sensor only."""
+        self._mass = np.zeros((N_JOINTS, N_JOINTS))
+        self.fresh = self.mass_fresh = False
+
+    def invalidate(self) -> None:
+        """The simulated state changed: read again when next asked for."""
+        self.fresh = self.mass_fresh = False
+
+    def read(self) -> NDArray[np.float64]:
+        """This state's arm state (``skills.control.ROBOT_*`` layout): joints (one PyBullet query), then in one
+        compiled call from its tuples the tool pose, Jacobian, gravity/Coriolis (the compiled model)."""
+        if not self.fresh:
+            # positional arguments: PyBullet parses keywords by name on every call
+            states = pybullet.getJointStates(self._body, self._queried, self._client)
+            arm_state_from_joint_states(self.model, states, self.state, self._work, self.tool_reaction)
+            self.fresh = True
+        return self.state
+
+    def mass_matrix(self) -> NDArray[np.float64]:
+        """Joint-space mass matrix (7, 7) of this state, the cached array."""
+        if not self.mass_fresh:
+            self._mass = arm_mass_matrix(self.model, self.read()[ROBOT_Q])
+            self.mass_fresh = True
+        return self._mass
+
+    def teleport(self, q: NDArray[np.float64], qd: NDArray[np.float64]) -> None:
+        """Reset the joints to ``q`` (rad) with velocities ``qd`` (rad/s)."""
+        for j in self._joints:
+            pybullet.resetJointState(self._body, j, float(q[j]), float(qd[j]), physicsClientId=self._client)
+        self.invalidate()
+
+
+class Kinematic(Protocol):
+    """What inverse kinematics needs of a world: teleporting the arm and reading its tool pose and Jacobian."""
+
+    joint_lower: NDArray[np.float64]
+    joint_upper: NDArray[np.float64]
+
+    def joint_state(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def set_joint_positions(self, q: ArrayLike, qd: ArrayLike | None = None) -> None: ...
+    def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def tool_rotation(self) -> NDArray[np.float64]: ...
+    def jacobian(self) -> NDArray[np.float64]: ...
+
+
+def inverse_kinematics(
+    world: Kinematic,
+    position: ArrayLike,
+    quat: ArrayLike,
+    q_seed: ArrayLike | None = None,
+    *,
+    position_tolerance_m: float = 1e-5,
+    orientation_tolerance_rad: float = 1e-4,
+    max_iterations: int = 300,
+    null_gain: float = 0.05,
+) -> NDArray[np.float64]:
+    """Joint positions (7,) rad putting ``world``'s tool point at ``position`` (3,) m with orientation ``quat``
+    (``[x, y, z, w]``), world frame.
+
+    Damped least squares on the world's Jacobian with set-and-check forward kinematics, a null-space pull
+    towards ``q_seed`` (default: the current posture) and joint limits. The simulated state is restored.
+    Raises ``ValueError`` when the target is not reached within 0.1 mm and 1 mrad.
+    """
+    target_p = np.asarray(position, dtype=float)
+    target_R = matrix_from_quaternion(np.asarray(quat, dtype=float))
+    q_save, qd_save = world.joint_state()
+    q = q_save.copy() if q_seed is None else np.asarray(q_seed, dtype=float).copy()
+    q_rest = q.copy()
+    margin = 1e-3
+    lo, hi = world.joint_lower + margin, world.joint_upper - margin
+    err_p = err_o = np.inf
+    try:
+        for _ in range(max_iterations):
+            world.set_joint_positions(q)
+            p = world.tool_pose()[0]
+            R = world.tool_rotation()
+            err = np.empty(6)
+            err[:3] = target_p - p
+            err[3:] = rotation_vector_from_matrix(target_R @ R.T)
+            err_p, err_o = float(np.linalg.norm(err[:3])), float(np.linalg.norm(err[3:]))
+            if err_p < position_tolerance_m and err_o < orientation_tolerance_rad:
+                break
+            J = world.jacobian()
+            step = err.copy()
+            step[:3] = np.clip(step[:3], -0.05, 0.05)
+            damping = 1e-4 + 1e-2 * min(err_p, 0.05)
+            JJt = J @ J.T + damping * np.eye(6)
+            J_pinv = J.T @ np.linalg.inv(JJt)
+            dq = J_pinv @ step + null_gain * (np.eye(N_JOINTS) - J_pinv @ J) @ (q_rest - q)
+            q = np.clip(q + dq, lo, hi)
+    finally:
+        world.set_joint_positions(q_save, qd_save)
+    if err_p > 1e-4 or err_o > 1e-3:
+        raise ValueError(
+            f"inverse kinematics did not converge: position error {err_p * 1e3:.3f} mm, "
+            f"orientation error {math.degrees(err_o):.3f} deg (target unreachable or near a joint limit)"
+        )
+    return q

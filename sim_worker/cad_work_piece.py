@@ -45,14 +45,13 @@ import itertools
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
-from sim_worker.world_config import WorldConfig
+from sim_worker.world_config import WorkPiece, WorldConfig
 from skills.mesh_geometry import plane_section_segments
 from skills.registration import Crease, TriangleMesh, closest_points_on_polyline
 
@@ -259,13 +258,13 @@ def cad_work_pieces(
     translation: ArrayLike,
     spacing_m: float = CAD_STATION_SPACING_M,
     layers: int = CAD_LAYERS,
-) -> list[dict[str, Any]]:
+) -> list[WorkPiece]:
     """The ``WorldConfig.work_pieces`` entries of the object along ``crease`` placed at ``x_world = R x_cad + t``
     (``rotation`` (3, 3), ``translation`` (3,) m): :func:`crease_pieces`."""
     R = np.asarray(rotation, dtype=float)
     t = np.asarray(translation, dtype=float)
     return [
-        {"name": f"cad_{k}", "vertices": np.round(v @ R.T + t, 9).tolist(), "layers": count}
+        WorkPiece(name=f"cad_{k}", vertices=np.round(v @ R.T + t, 9).tolist(), layers=count)
         for k, (v, count) in enumerate(crease_pieces(mesh, crease, spacing_m, layers))
     ]
 
@@ -282,7 +281,4 @@ def cad_world_config(
     """``base`` (default: the default world) without its table, ramp, cylinder and block, holding the object along
     ``crease`` placed by ``rotation``, ``translation`` (:func:`cad_work_pieces`)."""
     base = base or WorldConfig()
-    pieces = cad_work_pieces(mesh, crease, rotation, translation, spacing_m, layers)
-    return base.replace(
-        table_enabled=False, ramp_enabled=False, cylinder_enabled=False, block_enabled=False, work_pieces=pieces
-    )
+    return base.with_only_work_pieces(cad_work_pieces(mesh, crease, rotation, translation, spacing_m, layers))

@@ -67,16 +67,14 @@ def world_config_from_file_dict(data: dict[str, Any]) -> WorldConfig:
         data = data["world_config"]
     try:
         return WorldConfig.from_dict(data)
-    except TypeError as exc:
+    except ValueError as exc:
         raise ValueError(f"world: {exc}") from None
 
 
 def _sensor_fields_set(world: dict[str, Any]) -> set[str]:
-    """The sensor fields a world dict (or ground-truth dict) sets to something else than the default world's: a file
-    written whole (``record --truth``) carries every field, its defaults are not a choice."""
-    given = world["world_config"] if isinstance(world.get("world_config"), dict) else world
-    default = WorldConfig().to_dict()
-    return {name for name in WRIST_SENSOR if name in given and given[name] != default[name]}
+    """The ``SensorConfig`` fields a world dict (or ground-truth dict) sets to something else than the default world's:
+    a file written whole (``record --truth``) carries every field, its defaults are not a choice."""
+    return set(world_config_from_file_dict(world).sensor.model_dump(exclude_defaults=True))
 
 
 def _placed_demonstration(demonstration: Demonstration | None, choice: PlacementChoice) -> Demonstration | None:
@@ -106,10 +104,10 @@ def execution_world(
     """Resolve where ``skill`` runs (see the module). Raises ValueError (PlacementError included) with a message
     naming what to change."""
     env = environment or EnvironmentChange()
-    sensor = dict(WRIST_SENSOR) if env.sensor is SensorChoice.wrist else {}
+    sensor = WRIST_SENSOR.model_dump(exclude_defaults=True) if env.sensor is SensorChoice.wrist else {}
     if world is not None:  # a world file's own sensor is honoured: the wrist sensor fills the fields it leaves out
         sensor = {name: value for name, value in sensor.items() if name not in _sensor_fields_set(world)}
-    changes = {**sensor, **(overrides or {})}
+    changes = {"sensor": sensor, **(overrides or {})}
     changes.update(_environment_fields(env))
     skill = force_scaled_skill(skill, env.force_scale)
     source = None
@@ -221,5 +219,5 @@ def _tilt_about(skill: Skill, env: EnvironmentChange, changes: dict[str, Any]) -
 def _with(config: WorldConfig, changes: dict[str, Any]) -> WorldConfig:
     try:
         return config.replace(**changes)
-    except TypeError as exc:
+    except ValueError as exc:
         raise ValueError(f"world_overrides: {exc}") from None

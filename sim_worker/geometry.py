@@ -94,7 +94,9 @@ class BoxSolid(Solid):
 
 @dataclass
 class CylinderSolid(Solid):
-    """A finite cylinder, axis = body y axis through ``p``, of ``radius`` and ``length``."""
+    """A finite cylinder, axis = body y axis through ``p``, of ``radius`` and ``length``. The simulator collides with a
+    capsule of the same axis, radius and straight length (``sim_worker.world_build``): the same surface everywhere a
+    skill touches it, rounded beyond its ends."""
 
     radius: float = 0.0
     length: float = 0.0
@@ -258,48 +260,47 @@ class WorldGeometry:
     """Exact shapes of a ``WorldConfig`` (no PyBullet): table, ramp, cylinder, block and work pieces as solids."""
 
     def __init__(self, config: WorldConfig):
-        c = config
-        self.config = c
-        self.table_R = matrix_from_axis_angle(c.table_tilt_axis, math.radians(c.table_tilt_deg))
-        self.table_origin = np.array([c.table_center_xy[0], c.table_center_xy[1], c.table_height_m])
+        self.config = config
+        table, ramp, cylinder, block = config.table, config.ramp, config.cylinder, config.block
+        self.table_R = matrix_from_axis_angle(table.tilt_axis, math.radians(table.tilt_deg))
+        self.table_origin = np.array([table.center_xy[0], table.center_xy[1], table.height_m])
         self.solids: dict[str, Solid] = {}
-        half = np.array([0.5 * c.table_size_xy[0], 0.5 * c.table_size_xy[1], 0.5 * c.table_thickness_m])
-        if c.table_enabled:
+        half = np.array([0.5 * table.size_xy[0], 0.5 * table.size_xy[1], 0.5 * table.thickness_m])
+        if table.enabled:
             self.solids["table"] = BoxSolid(
                 "table", self.table_R, self.table_origin - self.table_R @ np.array([0.0, 0.0, half[2]]), half
             )
-        if c.ramp_enabled:
+        if ramp.enabled:
             buried = 0.05
-            R = self.table_R @ matrix_from_axis_angle((0.0, 1.0, 0.0), -math.radians(c.ramp_tilt_deg))
-            half_r = np.array([0.5 * (c.ramp_length_m + buried), half[1], 0.5 * c.ramp_thickness_m])
-            crease = self.table_point(c.ramp_crease_x_m, 0.0)
+            R = self.table_R @ matrix_from_axis_angle((0.0, 1.0, 0.0), -math.radians(ramp.tilt_deg))
+            half_r = np.array([0.5 * (ramp.length_m + buried), half[1], 0.5 * ramp.thickness_m])
+            crease = self.table_point(ramp.crease_x_m, 0.0)
             centre = crease - R @ np.array([-half_r[0] + buried, 0.0, half_r[2]])
             self.solids["ramp"] = BoxSolid("ramp", R, centre, half_r)
-        if c.cylinder_enabled:
-            R = self.table_R @ matrix_from_axis_angle((0.0, 0.0, 1.0), math.radians(c.cylinder_yaw_deg))
+        if cylinder.enabled:
+            R = self.table_R @ matrix_from_axis_angle((0.0, 0.0, 1.0), math.radians(cylinder.yaw_deg))
             centre = (
-                self.table_point(*c.cylinder_xy_m)
-                + self.table_normal * c.cylinder_radius_m
-                + np.asarray(c.cylinder_offset_m)
+                self.table_point(*cylinder.xy_m) + self.table_normal * cylinder.radius_m + np.asarray(cylinder.offset_m)
             )
             self.solids["cylinder"] = CylinderSolid(
-                "cylinder", R, centre, radius=c.cylinder_radius_m, length=c.cylinder_length_m
+                "cylinder", R, centre, radius=cylinder.radius_m, length=cylinder.length_m
             )
-        if c.block_enabled:
-            R = self.table_R @ matrix_from_axis_angle((0.0, 0.0, 1.0), math.radians(c.block_yaw_deg))
-            origin = self.table_point(*c.block_xy_m) + np.asarray(c.block_offset_m)
+        if block.enabled:
+            R = self.table_R @ matrix_from_axis_angle((0.0, 0.0, 1.0), math.radians(block.yaw_deg))
+            origin = self.table_point(*block.xy_m) + np.asarray(block.offset_m)
             self.solids["block"] = CurvedBlockSolid(
                 "block",
                 R,
                 origin,
-                a=c.block_half_length_m,
-                cap=c.block_cap_height_m,
-                base=c.block_base_height_m,
-                width=c.block_width_m,
+                a=block.half_length_m,
+                cap=block.cap_height_m,
+                base=block.base_height_m,
+                width=block.width_m,
             )
-        for name, piece in zip(self.work_piece_names() if c.work_pieces else [], c.work_pieces, strict=True):
-            self.solids[name] = ConvexSolid(name, np.eye(3), np.zeros(3), np.asarray(piece["vertices"], dtype=float))
-        if any(c.work_piece_tilt_deg):
+        pieces = config.work_pieces
+        for name, piece in zip(self.work_piece_names() if pieces else [], pieces, strict=True):
+            self.solids[name] = ConvexSolid(name, np.eye(3), np.zeros(3), np.asarray(piece.vertices, dtype=float))
+        if any(config.work_piece_tilt.deg):
             self._tilt_work_piece()
 
     def work_piece_names(self) -> list[str]:
@@ -307,16 +308,16 @@ class WorldGeometry:
         contour objects if any, else the table and its ramp (as ``sim_worker.executor.shifted_world_config``)."""
         c = self.config
         if c.work_pieces:
-            return [str(p.get("name", f"work_piece_{k}")) for k, p in enumerate(c.work_pieces)]
+            return [p.name or f"work_piece_{k}" for k, p in enumerate(c.work_pieces)]
         contour = [n for n in ("cylinder", "block") if n in self.solids]
         return contour or [n for n in ("table", "ramp") if n in self.solids]
 
     def _tilt_work_piece(self) -> None:
-        """Rotate the work piece's solids about world x then world y by ``work_piece_tilt_deg`` through
-        ``work_piece_tilt_pivot_m``: ``x' = R (x - pivot) + pivot``."""
-        tx, ty = (math.radians(a) for a in self.config.work_piece_tilt_deg)
+        """Rotate the work piece's solids about world x then world y by ``work_piece_tilt.deg`` through
+        ``work_piece_tilt.pivot_m``: ``x' = R (x - pivot) + pivot``."""
+        tx, ty = (math.radians(a) for a in self.config.work_piece_tilt.deg)
         R = matrix_from_axis_angle((0.0, 1.0, 0.0), ty) @ matrix_from_axis_angle((1.0, 0.0, 0.0), tx)
-        pivot = np.asarray(self.config.work_piece_tilt_pivot_m, dtype=float)
+        pivot = np.asarray(self.config.work_piece_tilt.pivot_m, dtype=float)
         for name in self.work_piece_names():
             solid = self.solids[name]
             solid.R = R @ solid.R
@@ -333,13 +334,13 @@ class WorldGeometry:
 
     @property
     def ramp_normal(self) -> NDArray[np.float64]:
-        """Outward unit normal of the ramp top (requires ``ramp_enabled``)."""
+        """Outward unit normal of the ramp top (requires ``ramp.enabled``)."""
         return self.solids["ramp"].R[:, 2].copy()
 
     def ramp_point(self, s: float, y: float) -> NDArray[np.float64]:
         """World point on the ramp top ``s`` m up the slope from the crease, ``y`` along the crease."""
         ramp = self.solids["ramp"]
-        crease = self.table_point(self.config.ramp_crease_x_m, 0.0)
+        crease = self.table_point(self.config.ramp.crease_x_m, 0.0)
         return crease + ramp.R @ np.array([s, y, 0.0])
 
     def query(self, points: ArrayLike) -> SurfaceQuery:

@@ -707,7 +707,7 @@ def record_kinesthetic(
         raise ValueError(f"n_strokes must be 1..6, got {n}")
     curved = scenario == "wipe_curved"
     rng = np.random.default_rng([seed, 1])
-    plans = _plan_strokes(n, curved, config.cylinder_radius_m, rng, config.time_step_s)
+    plans = _plan_strokes(n, curved, config.cylinder.radius_m, rng, config.time_step_s)
     with SimWorld(config) as world:
         surface = _Surface(world.geometry, curved)
         recorder = _Recorder(world, surface, rng, TeacherParams())
@@ -726,7 +726,7 @@ def record_kinesthetic(
 
     # Truth from the simulation: inward normal at the tool ball's centre, true normal force along it.
     tool_z = Rotation.from_quat(quats).as_matrix()[:, :, 2]
-    _, outward = surface.distance_and_outward(positions - config.tool_radius_m * tool_z)
+    _, outward = surface.distance_and_outward(positions - config.tool.radius_m * tool_z)
     inward = -outward
     normal_force = np.einsum("ij,ij->i", wrenches[:, :3], inward)
 
@@ -761,7 +761,7 @@ def record_kinesthetic(
     truth = KinestheticTruth(
         surface=SURFACE_OF_SCENARIO[scenario],
         skill_type="contour" if curved else "slide",
-        friction=config.lateral_friction,
+        friction=config.contact.lateral_friction,
         strokes=strokes,
         in_contact=touching[sample],
         normals=inward[sample],
@@ -771,7 +771,8 @@ def record_kinesthetic(
     )
     wall = time.perf_counter() - started
     notes = [
-        f"PyBullet kinesthetic teacher {scenario} (seed {seed}): {n} strokes, friction {config.lateral_friction:.3f}, "
+        f"PyBullet kinesthetic teacher {scenario} (seed {seed}): {n} strokes, "
+        f"friction {config.contact.lateral_friction:.3f}, "
         f"{t[-1] + dt:.1f} s simulated at 1 kHz in {wall:.1f} s; joints >= {joint_margin:.2f} rad from their limits "
         f"(joint {joint} at {joint_t:.2f} s)"
     ]

@@ -217,6 +217,8 @@ class ExecutionLog:
     frame_log: list[tuple[int, float, float, float]] = field(default_factory=list)
     """(first telemetry row, CF z) of every control frame the controller took."""
     contact_guard: ContactGuard | None = None
+    relocations_m: list[list[float]] = field(default_factory=list)
+    """Per contour relocated where its touch-down found the part, the part's move (m, world)."""
     surface_window_m: float = 0.02
     """How far from where it was taught a surface may be found, m."""
 
@@ -324,6 +326,7 @@ def compute_metrics(
         steps=len(tel),
         peak_force_n=float(forces.max()),
         contact_found_offsets_m=log.contact_offsets_m,
+        contour_relocations_m=log.relocations_m,
         steady_contact_s=float(steady.sum() * dt),
         abort_reason=abort_reason,
         **metrics,
@@ -390,6 +393,7 @@ def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics
         steps=sum(m.steps for m in strokes),
         peak_force_n=max(m.peak_force_n for m in strokes),
         contact_found_offsets_m=[o for m in strokes for o in m.contact_found_offsets_m],
+        contour_relocations_m=[o for m in strokes for o in m.contour_relocations_m],
         steady_contact_s=float(weights.sum()),
         work_piece=strokes[0].work_piece,
         verdict=verdict,

@@ -88,10 +88,24 @@ class PhasePlan:
     """Guarded: end the phase when the measured force along this axis exceeds the contact threshold."""
     exhausted_reason: str | None = None
     """Abort with this reason if the phase runs to its end (the guarded approach found nothing)."""
+    learned_rotations: NDArray[np.float64] | None = None
+    """A contour's learned CF rotations (M, 3, 3), one every ``stride`` steps (``series`` holds their frames)."""
+    follows_surface: bool = False
+    """The frame follows the surface normal estimated online (``sim_worker.surface_following``)."""
+    quick_steps: NDArray[np.bool_] | None = None
+    """With ``follows_surface``: per step, whether it is near a crease, where the normal is followed quickly."""
+    next_z: NDArray[np.float64] | None = None
+    """With ``follows_surface``: the next contact segment's learned CF z; the phase ends when the tracked normal says
+    the tool is on that surface (a crease met before the taught time)."""
 
     @property
     def steps(self) -> int:
         return int(self.ref_p.shape[0])
+
+    def reference_rows(self) -> NDArray[np.float64]:
+        """One row per step in the control law's reference layout (``skills.control.REFERENCE_*``: position,
+        quaternion, twist, desired force), a new array the loop (and a follower) may rewrite."""
+        return np.concatenate((self.ref_p, self.ref_q, self.ref_twist, self.force[:, None]), axis=1)
 
 
 def smooth_ramp(a: float, b: float, n: int) -> NDArray[np.float64]:
@@ -103,12 +117,14 @@ def smooth_ramp(a: float, b: float, n: int) -> NDArray[np.float64]:
     return a + (b - a) * s
 
 
-def crease_speed_caps(arc_m: NDArray[np.float64], crease_speed_m_s: float, towards_end: bool) -> NDArray[np.float64]:
+def crease_speed_caps(
+    arc_m: NDArray[np.float64], crease_speed_m_s: float, towards_end: bool, hold_m: float = CREASE_HOLD_DISTANCE_M
+) -> NDArray[np.float64]:
     """Speed limits (m/s) along a path of arc lengths ``arc_m`` (N,) m so that the tool passes the crease at its
-    start (``towards_end`` False) or end at ``crease_speed_m_s``: held for ``CREASE_HOLD_DISTANCE_M``, reached at
+    start (``towards_end`` False) or end at ``crease_speed_m_s``: held for ``hold_m`` (m), reached at
     ``CREASE_DECELERATION_M_S2`` from farther away."""
     distance = arc_m[-1] - arc_m if towards_end else arc_m - arc_m[0]
-    beyond = np.maximum(distance - CREASE_HOLD_DISTANCE_M, 0.0)
+    beyond = np.maximum(distance - hold_m, 0.0)
     return np.sqrt(crease_speed_m_s**2 + 2.0 * CREASE_DECELERATION_M_S2 * beyond)
 
 
@@ -129,6 +145,15 @@ def first_force(segment: Segment) -> float:
     if segment.force_dmp is not None:
         return max(0.0, float(segment.force_dmp.start[0]))
     return 0.0
+
+
+def force_after(segment: Segment, t_s: float, dt: float) -> float:
+    """The desired CF-z force ``t_s`` (s) into a contact segment, as executed at the control step ``dt`` (s), N (never
+    negative)."""
+    if segment.force_dmp is None:
+        return first_force(segment)
+    force = DMP.from_parameters(segment.force_dmp).rollout(dt, duration_s=segment.position_dmp.duration_s).y[:, 0]
+    return max(0.0, float(force[min(round(t_s / dt), force.size - 1)]))
 
 
 class PhasePlanner:
@@ -188,16 +213,18 @@ class PhasePlanner:
         )
 
     def approach(
-        self, segment: Segment, p: NDArray, ref_q: NDArray[np.float64], touchdown_speed_m_s: float
+        self, segment: Segment, p: NDArray, ref_q: NDArray[np.float64], touchdown_speed_m_s: float, fast: bool = True
     ) -> PhasePlan:
         """The guarded approach from ``p`` along the segment's first CF z: at the approach speed until
-        ``approach_slow_distance_m`` before the taught contact point, then at ``touchdown_speed_m_s`` (m/s) for the
-        rest of ``approach_max_distance_m``; the speed blends over 10 ms."""
+        ``approach_slow_distance_m`` before the taught contact point (not at all without ``fast``: a surface was
+        just met), then at ``touchdown_speed_m_s`` (m/s) for the rest of ``approach_max_distance_m``; the speed
+        blends over 10 ms."""
         s = self.settings
         geo = self.geometry[segment.index]
         z = geo.first_rotation[:, 2]
         v_fast, v_slow = s.approach_speed_m_s, min(touchdown_speed_m_s, s.approach_speed_m_s)
-        fast_m = float(np.clip((geo.start_world - p) @ z - s.approach_slow_distance_m, 0.0, s.approach_max_distance_m))
+        before = (geo.start_world - p) @ z - s.approach_slow_distance_m if fast else 0.0
+        fast_m = float(np.clip(before, 0.0, s.approach_max_distance_m))
         fast_steps = round(fast_m / v_fast / self.dt)
         slow_steps = math.ceil((s.approach_max_distance_m - fast_m) / v_slow / self.dt) + 1
         speed = np.concatenate([np.full(fast_steps, v_fast), np.full(slow_steps, v_slow)])
@@ -271,11 +298,15 @@ class PhasePlanner:
         f_previous: float | None,
         crease_in_m_s: float | None = None,
         crease_out_m_s: float | None = None,
+        follows_surface: bool = False,
     ) -> PhasePlan:
         """A contact segment from the tool pose ``(p, q)``; ``f_previous`` (N) ramps in from the previous segment.
 
         ``crease_in_m_s`` / ``crease_out_m_s``: the segment starts / ends at a crease with another contact segment,
-        passed at this tangential speed (m/s; the plan is slowed there, see :func:`crease_speed_caps`)."""
+        passed at this tangential speed (m/s; the plan is slowed there, see :func:`crease_speed_caps`).
+        ``follows_surface``: the frame follows the surface found (``sim_worker.surface_following``); the crease may
+        then be met up to ``approach_slow_distance_m`` before the taught one (the slow-down before it starts that
+        much earlier), and a contour keeps its learned rotations for the follower instead of a frame series."""
         geo = self.geometry[segment.index]
         duration = segment.position_dmp.duration_s
         pos = DMP.from_parameters(segment.position_dmp)
@@ -307,7 +338,10 @@ class PhasePlanner:
         ref_q, twist = rq.q[:n], np.hstack([v, rq.omega[:n]])
         times = np.arange(n) * self.dt  # the plan time of each control step, s
         if crease_in_m_s is not None or crease_out_m_s is not None:
-            times, ref_p, ref_q, twist, force = self._slowed(ref_p, ref_q, twist, force, crease_in_m_s, crease_out_m_s)
+            window = self.settings.approach_slow_distance_m if follows_surface else 0.0
+            times, ref_p, ref_q, twist, force = self._slowed(
+                ref_p, ref_q, twist, force, crease_in_m_s, crease_out_m_s, window
+            )
             n = times.size
         if f_previous is not None:  # contact -> contact: ramp between the levels
             k = min(n, round(self.settings.gains.force_ramp_s / self.dt))
@@ -315,13 +349,78 @@ class PhasePlanner:
                 blend = smooth_ramp(0.0, 1.0, k)
                 force[:k] = f_previous + blend * (force[:k] - f_previous)
         plan = PhasePlan(ExecutionPhase.contact, segment.index, ref_p, ref_q, twist, force)
+        plan.follows_surface = follows_surface
         if geo.t.size == 1:
             plan.frame = self.controller.frame(geo.rotations[0], segment.selection)
         else:
             stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
             fractions = times[::stride] / max(times[-1], self.dt)
-            plan.series = self.controller.frames(geo.rotations_at(np.minimum(fractions, 1.0)), segment.selection)
+            plan.learned_rotations = geo.rotations_at(np.minimum(fractions, 1.0))
             plan.stride = stride
+            if not follows_surface:
+                plan.series = self.controller.frames(plan.learned_rotations, segment.selection)
+        return plan
+
+    def transfer(
+        self,
+        segment_index: int,
+        p: NDArray,
+        q: NDArray,
+        goal: NDArray[np.float64],
+        goal_q: NDArray[np.float64],
+        stop_axis: NDArray[np.float64],
+    ) -> PhasePlan:
+        """A straight move in free space from the tool pose ``(p, q)`` to ``(goal, goal_q)`` (m, world; scalar-last
+        quaternions) at the approach speed on average (smoothstep in time, at least 0.5 s), guarded along
+        ``stop_axis``: to the pre-contact point of a relocated contour."""
+        distance = float(np.linalg.norm(goal - p))
+        n = max(round(0.5 / self.dt), math.ceil(1.5 * distance / self.settings.approach_speed_m_s / self.dt))
+        x = smooth_ramp(0.0, 1.0, n)
+        ref_p = p + x[:, None] * (goal - p)
+        quats = quaternions_sign_continuous(np.stack((q, goal_q)))
+        ref_q = quaternions_slerp(x, np.array([0.0, 1.0]), quats)
+        twist = np.zeros((n, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
+        return PhasePlan(
+            ExecutionPhase.free,
+            segment_index,
+            ref_p,
+            ref_q,
+            twist,
+            np.zeros(n),
+            frame=self.identity_frame,
+            stop_axis=stop_axis,
+        )
+
+    def crease_zone(self, plan: PhasePlan, from_start_m: float, from_end_m: float) -> NDArray[np.bool_]:
+        """Per step of ``plan``, whether the tool is within ``from_start_m`` of path from its start or within
+        ``from_end_m`` of its end (m; a crease at either end)."""
+        speed = np.linalg.norm(plan.ref_twist[:, :3], axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * self.dt
+        return (arc <= from_start_m) | (arc[-1] - arc <= from_end_m)
+
+    def extension(
+        self, segment: Segment, p: NDArray, previous: PhasePlan, speed_m_s: float, distance_m: float
+    ) -> PhasePlan:
+        """The slide ``segment`` (its last plan ``previous``) carried on beyond its taught end from the tool position
+        ``p``, along its last direction of motion at ``speed_m_s`` for at most ``distance_m`` (m), pressing its last
+        force in its frame: a crease that was taught here has not been met yet (the follower ends it when it is)."""
+        direction = previous.ref_twist[-1, :3]
+        direction = direction / max(float(np.linalg.norm(direction)), 1e-12)
+        n = max(1, math.ceil(distance_m / max(speed_m_s, 1e-6) / self.dt))
+        ref_p = p + (np.arange(n) * speed_m_s * self.dt)[:, None] * direction
+        twist = np.zeros((n, 6))
+        twist[:, :3] = speed_m_s * direction
+        plan = PhasePlan(
+            ExecutionPhase.contact,
+            segment.index,
+            ref_p,
+            np.broadcast_to(previous.ref_q[-1], (n, 4)),
+            twist,
+            np.full(n, previous.force[-1]),
+            frame=previous.frame,
+        )
+        plan.follows_surface = True
         return plan
 
     def _slowed(
@@ -332,9 +431,11 @@ class PhasePlanner:
         force: NDArray[np.float64],
         crease_in_m_s: float | None,
         crease_out_m_s: float | None,
+        window_m: float = 0.0,
     ) -> tuple[NDArray[np.float64], ...]:
         """A contact plan's references resampled so that it passes its creases at the given speeds (m/s): the
-        plan times of its control steps (s), positions, quaternions, twists (scaled by the slowing), forces."""
+        plan times of its control steps (s), positions, quaternions, twists (scaled by the slowing), forces. The
+        crease it ends at may come ``window_m`` (m) before its end."""
         n, dt = ref_p.shape[0], self.dt
         speed = np.linalg.norm(twist[:, :3], axis=1)
         arc = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * dt
@@ -342,7 +443,8 @@ class PhasePlanner:
         if crease_in_m_s is not None:
             cap = np.minimum(cap, crease_speed_caps(arc, crease_in_m_s, towards_end=False))
         if crease_out_m_s is not None:
-            cap = np.minimum(cap, crease_speed_caps(arc, crease_out_m_s, towards_end=True))
+            hold = CREASE_HOLD_DISTANCE_M + window_m
+            cap = np.minimum(cap, crease_speed_caps(arc, crease_out_m_s, towards_end=True, hold_m=hold))
         t = np.arange(n) * dt
         times = slowed_times(speed, cap, dt)
         rate = np.interp(times, t, np.minimum(1.0, cap / np.maximum(speed, 1e-12)))

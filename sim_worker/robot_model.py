@@ -3,7 +3,7 @@
 Tool and tool point
     A rigid tool is part of the robot URDF, built at run time: a shaft (radius 8 mm, 70 mm long)
     on the iiwa flange (45 mm beyond the link-7 frame) ending in a ball of radius
-    ``WorldConfig.tool_radius_m`` (10 mm). It is a separate link (``tool_link``, index 7) on a FIXED
+    ``ToolConfig.radius_m`` (10 mm). It is a separate link (``tool_link``, index 7) on a FIXED
     joint, so it has an exact link frame and Jacobian. The TOOL POINT (the origin of that link frame)
     is the ball's lowest point along the tool axis, i.e. ball centre + radius along the tool's z axis,
     125 mm from the link-7 frame. The tool frame's z axis points out of the flange, along the tool:
@@ -16,12 +16,10 @@ Conventions: docs/CONVENTIONS.md (SI units, quaternions ``[x, y, z, w]``).
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
 
 import pybullet_data
 
-if TYPE_CHECKING:
-    from sim_worker.world_config import WorldConfig
+from sim_worker.world_config import ToolConfig
 
 N_JOINTS = 7
 TOOL_LINK = 7
@@ -33,16 +31,16 @@ FLANGE_OFFSET_M = 0.045
 Q_HOME = (0.0, 0.5325, 0.0, -1.6083, 0.0, 1.0008, 0.0)
 
 
-def robot_urdf(config: WorldConfig) -> str:
-    """The iiwa URDF with absolute mesh paths and the tool link appended on a fixed joint."""
+def robot_urdf(tool: ToolConfig) -> str:
+    """The iiwa URDF with absolute mesh paths and the ``tool`` link (m, kg) appended on a fixed joint."""
     data = pybullet_data.getDataPath()
     with open(os.path.join(data, "kuka_iiwa", "model.urdf"), encoding="utf-8") as handle:
         text = handle.read()
     text = text.replace('filename="meshes/', f'filename="{os.path.join(data, "kuka_iiwa", "meshes")}/')
-    r = config.tool_radius_m
-    L = config.tool_shaft_length_m
-    rs = config.tool_shaft_radius_m
-    m = config.tool_mass_kg
+    r = tool.radius_m
+    L = tool.shaft_length_m
+    rs = tool.shaft_radius_m
+    m = tool.mass_kg
     tip = FLANGE_OFFSET_M + L + r  # link-7 frame to tool point
     com = -(0.5 * L + r)  # shaft centre in the tool frame
     ixx = m * (3 * rs * rs + L * L) / 12.0

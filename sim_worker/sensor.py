@@ -1,7 +1,7 @@
 """The force/torque sensor model: what the controller reads instead of the exact contact wrench.
 
 Every reading is the wrench the tool applies to the environment at the tool point, world frame (N, N·m;
-docs/CONVENTIONS.md). Its source (``WorldConfig.sensor_model``):
+docs/CONVENTIONS.md). Its source (``SensorConfig.model``, a :class:`~sim_worker.world_config.SensorModel`):
 
 - ``ideal``: the exact contact wrench (the sum over the simulator's contact points);
 - ``wrist``: a force/torque sensor between the flange and the tool, as mounted on a real arm. It reads the force
@@ -10,11 +10,11 @@ docs/CONVENTIONS.md). Its source (``WorldConfig.sensor_model``):
   tool's inertia is not, so accelerating the tool shows up (0.2 kg x a).
 
 Then, once per control step and in this order: a bias that drifts as a random walk
-(``wrench_bias_drift_n_per_sqrt_s``, zero at the start), white noise (``wrench_noise_*``), a constant force offset
-fixed in the world (``wrench_bias_n``, as a misestimated tool weight), a delay
-(``wrench_delay_s``, whole steps) and the driver's first-order low-pass (``wrench_filter_cutoff_hz``). With none
+(``bias_drift_n_per_sqrt_s``, zero at the start), white noise (``noise_*``), a constant force offset
+fixed in the world (``bias_n``, as a misestimated tool weight), a delay
+(``delay_s``, whole steps) and the driver's first-order low-pass (``filter_cutoff_hz``). With none
 of them and the ideal source the controller reads the exact wrench. The sensor's own offset
-(``wrench_offset_tool_n``, its strain gauges' zero, fixed in the TOOL frame) is added by the world, turned with the
+(``offset_tool_n``, its strain gauges' zero, fixed in the TOOL frame) is added by the world, turned with the
 tool. A tare (``SimWorld.tare_sensor``, which the executor takes in free space before contact) removes an offset in
 the tool frame from the readings after it: the sensor's own entirely, a world-fixed one in the tare's pose only.
 
@@ -31,17 +31,17 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_worker.world_config import WorldConfig
+from sim_worker.world_config import SensorConfig, SensorModel
 
-WRIST_SENSOR = {
-    "sensor_model": "wrist",
-    "wrench_noise_force_std_n": 0.06,
-    "wrench_noise_torque_std_nm": 0.002,
-    "wrench_bias_drift_n_per_sqrt_s": 0.02,
-    "wrench_delay_s": 0.002,
-    "wrench_filter_cutoff_hz": 200.0,
-}
-"""The realistic wrist sensor (``WorldConfig`` fields)."""
+WRIST_SENSOR = SensorConfig(
+    model=SensorModel.wrist,
+    noise_force_std_n=0.06,
+    noise_torque_std_nm=0.002,
+    bias_drift_n_per_sqrt_s=0.02,
+    delay_s=0.002,
+    filter_cutoff_hz=200.0,
+)
+"""The realistic wrist sensor (no bias, no own offset, noise seed 0)."""
 BLOCK = 1024
 """Steps of noise drawn at once (a generator call costs as much as a control law step's arithmetic)."""
 
@@ -54,23 +54,22 @@ class WrenchSensor:
     floating-point operations in the same order (the same readings to the last bit).
     """
 
-    def __init__(self, config: WorldConfig) -> None:
-        if config.sensor_model not in ("ideal", "wrist"):
-            raise ValueError(f"sensor_model: {config.sensor_model!r} is neither 'ideal' nor 'wrist'")
+    def __init__(self, config: SensorConfig, time_step_s: float) -> None:
+        """``config`` the sensor; ``time_step_s`` the control step (s), at which it samples."""
         self.config = config
-        dt = config.time_step_s
-        std = np.array([config.wrench_noise_force_std_n] * 3 + [config.wrench_noise_torque_std_nm] * 3)
-        drift_step = config.wrench_bias_drift_n_per_sqrt_s * math.sqrt(dt)
+        dt = time_step_s
+        std = np.array([config.noise_force_std_n] * 3 + [config.noise_torque_std_nm] * 3)
+        drift_step = config.bias_drift_n_per_sqrt_s * math.sqrt(dt)
         self._random_each_step = bool(np.any(std > 0.0)) or drift_step > 0.0
-        self._fixed_bias = np.concatenate([np.asarray(config.wrench_bias_n, dtype=float), np.zeros(3)])
+        self._fixed_bias = np.concatenate([np.asarray(config.bias_n, dtype=float), np.zeros(3)])
         self._biased = bool(np.any(self._fixed_bias != 0.0))
-        self.tool_offset = np.concatenate([np.asarray(config.wrench_offset_tool_n, dtype=float), np.zeros(3)])
+        self.tool_offset = np.concatenate([np.asarray(config.offset_tool_n, dtype=float), np.zeros(3)])
         """The sensor's own offset (6,), TOOL frame: the world adds it turned with the tool (``SimWorld``)."""
-        delay_steps = round(config.wrench_delay_s / dt)
-        cutoff_hz = config.wrench_filter_cutoff_hz
+        delay_steps = round(config.delay_s / dt)
+        cutoff_hz = config.filter_cutoff_hz
         self._alpha = 1.0 if cutoff_hz is None else dt / (dt + 1.0 / (2.0 * math.pi * cutoff_hz))
         self.ideal = (
-            config.sensor_model == "ideal"
+            config.model is SensorModel.ideal
             and not self._random_each_step
             and not self._biased
             and not np.any(self.tool_offset)
@@ -80,14 +79,22 @@ class WrenchSensor:
         """True when the reading is the exact contact wrench (ideal source, nothing added): read every step."""
         self._rng = np.random.default_rng(config.seed)
         self._scale = np.concatenate([std, np.full(3, drift_step)])
-        self._block = np.zeros((0, 9))
-        self._next = 0
+        self._block = np.zeros((BLOCK, 9))
+        """The noise (6) and bias increments (3) of the next steps, one row per step, refilled in place."""
+        self._drawn = np.array([BLOCK])
+        """The next row of ``_block`` (all drawn: the first reading fills it); not reset with a run."""
         self._line = np.zeros((delay_steps + 1, 6))
         """The delay line: the last ``delay_steps + 1`` raw readings, a ring."""
         self._bias = np.zeros(6)
         self._filtered = np.zeros(6)
         self._counters = np.zeros(3, dtype=np.int64)
         """Readings in the delay line, its next slot, whether the filter has started."""
+        self.state = (
+            self._block, self._drawn, self._random_each_step, self._bias, self._fixed_bias, self._biased, self._line,
+            self._counters, self._filtered, self._alpha,
+        )  # fmt: skip
+        """The arguments of :func:`measure_drawn` after the source and the reading: arrays updated in place (one
+        tuple for a compiled caller, no packing per step; call :meth:`draw` before each reading)."""
         self.reset()
 
     def reset(self) -> None:
@@ -96,22 +103,17 @@ class WrenchSensor:
         self._bias[:] = 0.0
         self._counters[:] = 0
 
-    def _random(self) -> NDArray[np.float64]:
-        """This step's noise (6,) and bias increment (3,), drawn in blocks (one generator call per ``BLOCK`` steps)."""
-        if self._next >= self._block.shape[0]:
-            self._block = self._rng.normal(0.0, 1.0, (BLOCK, 9)) * self._scale
-            self._next = 0
-        row = self._block[self._next]
-        self._next += 1
-        return row
+    def draw(self) -> None:
+        """Make this step's noise and bias increment ready: the next block of them is drawn (one generator call per
+        ``BLOCK`` steps) when the last is used up."""
+        if self._random_each_step and self._drawn[0] >= BLOCK:
+            self._block[:] = self._rng.normal(0.0, 1.0, (BLOCK, 9)) * self._scale
+            self._drawn[0] = 0
 
     def measure_into(self, source: NDArray[np.float64], out: NDArray[np.float64]) -> None:
         """Write the reading (6,) for this step's source wrench (6,) into ``out`` (float64, may not be ``source``)."""
-        random = self._random() if self._random_each_step else _NO_RANDOM
-        _measure_into(
-            source, out, random, self._random_each_step, self._bias, self._fixed_bias, self._biased, self._line,
-            self._counters, self._filtered, self._alpha,
-        )  # fmt: skip
+        self.draw()
+        measure_drawn(source, out, *self.state)
 
     def measure(self, source: NDArray[np.float64]) -> NDArray[np.float64]:
         """The reading (6,) for this step's source wrench (6,), a new array."""
@@ -120,7 +122,17 @@ class WrenchSensor:
         return out
 
 
-_NO_RANDOM = np.zeros(9)
+@numba.njit(cache=True)
+def measure_drawn(
+    source, out, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha
+):  # pragma: no cover - compiled
+    """:func:`_measure_into` with this step's row of ``block`` (``drawn``: its index, advanced) when the sensor adds
+    noise or drift (:attr:`WrenchSensor.state` after :meth:`WrenchSensor.draw`)."""
+    random = block[0]  # not read without noise and drift
+    if add_random:
+        random = block[drawn[0]]
+        drawn[0] += 1
+    _measure_into(source, out, random, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
 
 
 @numba.njit(cache=True)

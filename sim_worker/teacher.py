@@ -41,7 +41,7 @@ from schemas.job_budget import JobEstimate, JobPart
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
+from sim_worker.world_config import LEGACY_FIELDS, WorldConfig
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
 
@@ -204,13 +204,13 @@ def _two_planes_path(geometry: WorldGeometry):
     n_table, n_ramp = geometry.table_normal, geometry.ramp_normal
     R_table = geometry.table_R @ R_TOOL_DOWN
     R_ramp = geometry.solids["ramp"].R @ R_TOOL_DOWN
-    tilt = math.radians(c.ramp_tilt_deg)
+    tilt = math.radians(c.ramp.tilt_deg)
     axis = geometry.table_R[:, 1]
 
     def path(s: float):
         u = _two_planes_u(s)
         y = 0.07 * math.sin(2.0 * math.pi * s)
-        point = geometry.table_point(c.ramp_crease_x_m + u, y) if u < 0 else geometry.ramp_point(u, y)
+        point = geometry.table_point(c.ramp.crease_x_m + u, y) if u < 0 else geometry.ramp_point(u, y)
         w = float(_smoothstep((u + _TWO_PLANES_BLEND) / (2.0 * _TWO_PLANES_BLEND)))
         R_blend = matrix_from_axis_angle(axis, -tilt * w) @ R_table
         n = n_table if u < 0 else n_ramp
@@ -371,7 +371,7 @@ class _Controller:
 
 
 def _split_overrides(overrides: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    world_names = {f.name for f in fields(WorldConfig)}
+    world_names = {*WorldConfig.model_fields, *LEGACY_FIELDS}
     param_names = {f.name for f in fields(TeacherParams)}
     world, params = {}, {}
     for key, value in overrides.items():
@@ -591,7 +591,7 @@ def _record(
         if spec.kind == "contour":
             # The true normal at the tool ball's centre (the person feels the surface).
             p, _ = world.tool_pose()
-            centre = p - world.config.tool_radius_m * world.tool_rotation()[:, 2]
+            centre = p - world.config.tool.radius_m * world.tool_rotation()[:, 2]
             return contour_solid.outward_normal(centre)
         return n_nominal
 
@@ -630,7 +630,7 @@ def _record(
     wrenches = np.asarray(log_sensor) + noise
     in_contact = np.asarray(log_c, dtype=bool)
     R_all = matrix_from_quaternion(quats)
-    centres = positions - world.config.tool_radius_m * R_all[:, :, 2]
+    centres = positions - world.config.tool.radius_m * R_all[:, :, 2]
     query = geometry.query(centres)
     normals_true = -query.normal
     s_log = np.asarray(log_s)

@@ -14,7 +14,8 @@ import numpy as np
 
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase
 from schemas.skill import SELECTION_CONTACT
-from sim_worker.executor import _record_row
+from sim_worker.contact_sensing import compile_contact_summaries
+from sim_worker.control_loop import _record_row
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
@@ -31,10 +32,13 @@ from skills.dmp import QuaternionDMP
 
 
 def warm_up() -> float:
-    """Run each compiled function once on a real world (arm model, control law, model update, the loop's step, the
-    wrist sensor, the orientation DMP); return the seconds it took."""
+    """Run each compiled function once on a real world (arm model, contact summary, control law, model update, the
+    loop's step, the wrist sensor, the orientation DMP); return the seconds it took."""
     start = time.perf_counter()
-    with SimWorld(WorldConfig(**WRIST_SENSOR)) as world:  # the wrist sensor's compiled parts too
+    compile_contact_summaries()
+    with SimWorld(WorldConfig()) as world:  # the arm read of the ideal sensor's world (7 joints; the wrist's reads 8)
+        world.robot_state()
+    with SimWorld(WorldConfig(sensor=WRIST_SENSOR)) as world:  # the wrist sensor's compiled parts too
         world.contact_wrench()
         robot = world.robot_state()
         mass = world.mass_matrix()

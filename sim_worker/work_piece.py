@@ -49,7 +49,7 @@ A skill holds what it touched:
   surface normal). The rebuilt part is a strip ``2 STRIP_HALF_WIDTH_M`` wide through the contact points, its
   normal following the learned one, cut every ``STRIP_PIECE_LENGTH_M`` of path into convex pieces and extended
   ``WORK_PIECE_MARGIN_M`` past both ends. Each piece reaches halfway into both neighbours, so every point of the
-  strip lies in exactly two pieces (``"layers": 2``).
+  strip lies in exactly two pieces (``layers=2``).
 
 Why two layers: PyBullet's compliant contact is one spring per touching body. With pieces butted or slightly
 overlapped the tool meets one piece here and two near a seam, the stiffness doubling and halving every few
@@ -65,14 +65,13 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration
 from schemas.skill import Segment, SegmentKind, Skill
-from sim_worker.world_config import WorldConfig
+from sim_worker.world_config import WorkPiece, WorldConfig
 from skills.compliant_frames import compliant_frame_rotations, slide_frame
 from skills.dmp import QuaternionDMP
 from skills.measured_surface import MeasuredPass, measured_passes
@@ -262,7 +261,7 @@ def _strip_pieces(P: NDArray, N: NDArray, T: NDArray) -> list[NDArray[np.float64
     return pieces
 
 
-def rebuilt_work_pieces(skill: Skill, tool_radius_m: float) -> list[dict[str, Any]]:
+def rebuilt_work_pieces(skill: Skill, tool_radius_m: float) -> list[WorkPiece]:
     """The convex parts (``WorldConfig.work_pieces`` entries) of the work piece a skill touched (world frame)."""
     contact = [s for s in skill.segments if s.kind is SegmentKind.contact and s.compliant_frames is not None]
     if not contact:
@@ -276,7 +275,7 @@ def rebuilt_work_pieces(skill: Skill, tool_radius_m: float) -> list[dict[str, An
         if k not in slides:
             parts += [(segment.index, v, layers) for v, layers in _strip(*points[k])]
     return [
-        {"name": f"work_piece_s{index}_{n}", "vertices": np.round(v, 9).tolist(), "layers": layers}
+        WorkPiece(name=f"work_piece_s{index}_{n}", vertices=np.round(v, 9).tolist(), layers=layers)
         for n, (index, v, layers) in enumerate(parts)
     ]
 
@@ -284,10 +283,7 @@ def rebuilt_work_pieces(skill: Skill, tool_radius_m: float) -> list[dict[str, An
 def rebuilt_world_config(skill: Skill, base: WorldConfig | None = None) -> WorldConfig:
     """``base`` (default: the default world) without its table, with the work piece rebuilt from ``skill``."""
     base = base or WorldConfig()
-    pieces = rebuilt_work_pieces(skill, base.tool_radius_m)
-    return base.replace(
-        table_enabled=False, ramp_enabled=False, cylinder_enabled=False, block_enabled=False, work_pieces=pieces
-    )
+    return base.with_only_work_pieces(rebuilt_work_pieces(skill, base.tool.radius_m))
 
 
 # --------------------------------------------------------------------------------------------- measured
@@ -449,7 +445,7 @@ def _touches(a: tuple[_Contact, list[NDArray]], b: tuple[_Contact, list[NDArray]
 
 def measured_work_pieces(
     skill: Skill, demonstration: Demonstration, tool_radius_m: float, contact_stiffness_n_m: float
-) -> list[dict[str, Any]]:
+) -> list[WorkPiece]:
     """The convex parts (``WorldConfig.work_pieces`` entries, world frame) of the surface ``demonstration`` measured
     under the passes of ``skill`` (learned from it, placed with it), for a ball tool of ``tool_radius_m`` (m) in a
     world of ``contact_stiffness_n_m`` (N/m); see the module. Raises ValueError when the skill has no contact or the
@@ -469,7 +465,7 @@ def measured_work_pieces(
                 merging = True
                 break
     return [
-        {"name": f"measured_{g}_{k}", "vertices": np.round(v, 9).tolist()}
+        WorkPiece(name=f"measured_{g}_{k}", vertices=np.round(v, 9).tolist())
         for g, (_, pieces) in enumerate(groups)
         for k, v in enumerate(pieces)
     ]
@@ -479,7 +475,5 @@ def measured_world_config(skill: Skill, demonstration: Demonstration, base: Worl
     """``base`` (default: the default world) without its table, with the work piece ``demonstration`` measured under
     the passes of ``skill``, for ``base``'s tool and contact stiffness."""
     base = base or WorldConfig()
-    pieces = measured_work_pieces(skill, demonstration, base.tool_radius_m, base.contact_stiffness)
-    return base.replace(
-        table_enabled=False, ramp_enabled=False, cylinder_enabled=False, block_enabled=False, work_pieces=pieces
-    )
+    pieces = measured_work_pieces(skill, demonstration, base.tool.radius_m, base.contact.stiffness_n_m)
+    return base.with_only_work_pieces(pieces)

@@ -38,12 +38,14 @@ import json
 import logging
 import os
 import queue
+import secrets
 import signal
 import socket
 import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -53,6 +55,7 @@ from schemas.bus import (
     DEFAULT_PREFIX,
     ENV_ENDPOINTS,
     ENV_PREFIX,
+    FINAL_PHASES,
     ExecutionCommand,
     ExecutionStatus,
     KeyExpressions,
@@ -66,7 +69,7 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
-from schemas.bus_security import BusSecurity
+from schemas.bus_security import ENV_LOGINS, BusSecurity, parse_env, report_signature
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
@@ -110,22 +113,75 @@ class WorkerSettings:
     budget: JobBudget = field(default_factory=JobBudget)
     """The most one execution or recording may imply (``schemas.job_budget``): a job over it is refused, a job that
     reaches it while running is aborted."""
+    login_claim: Path | None = None
+    """The claim this worker holds on a login of a shared folder (``CONTACT_SKILLS_ZENOH_LOGINS``, :func:`claim_login`):
+    renewed while it runs, released when it stops."""
 
     @classmethod
     def from_env(cls) -> WorkerSettings:
-        """Settings from the environment, defaults for what is not set."""
+        """Settings from the environment, defaults for what is not set. With ``CONTACT_SKILLS_ZENOH_LOGINS`` (a folder
+        of ``worker-K.env`` files) the worker claims a login no other live worker holds."""
+        env, claim = dict(os.environ), None
+        if logins := env.get(ENV_LOGINS):
+            claim, login = claim_login(Path(logins), socket.gethostname())
+            env.update(login)
         return cls(
-            endpoints=split_endpoints(os.environ.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
-            prefix=os.environ.get(ENV_PREFIX) or DEFAULT_PREFIX,
-            security=BusSecurity.from_env(),
-            budget=JobBudget.from_env(),
+            endpoints=split_endpoints(env.get(ENV_ENDPOINTS)) or [DEFAULT_ENDPOINT],
+            prefix=env.get(ENV_PREFIX) or DEFAULT_PREFIX,
+            security=BusSecurity.from_env(env),
+            budget=JobBudget.from_env(os.environ),
+            login_claim=claim,
         )
 
 
+LOGIN_LEASE_S = 30.0
+"""A worker's claim on a shared login (:func:`claim_login`) lapses when not renewed for this long, s: the login of a
+container that was removed (``--scale`` down) is free again; a running worker renews its claim every few seconds."""
+
+
+def claim_login(folder: Path, holder: str) -> tuple[Path, dict[str, str]]:
+    """Claim one of the ``worker-K.env`` logins of ``folder`` for ``holder`` (this container's host name, stable
+    across its restarts): the one it held before, else the first that no one holds or whose claim lapsed
+    (:data:`LOGIN_LEASE_S`). Claims are files ``folder/claims/worker-K`` holding the holder's name, made with
+    ``O_EXCL`` (two workers starting at once never get the same login). Returns (the claim, the login's variables).
+    Raises ValueError when every login is held."""
+    claims = folder / "claims"
+    claims.mkdir(exist_ok=True)
+    logins = sorted(folder.glob("worker-*.env"), key=lambda f: int(f.stem.rsplit("-", 1)[1]))
+    for prefer_own in (True, False):
+        for login in logins:
+            claim = claims / login.stem
+            try:
+                descriptor = os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+            except FileExistsError:
+                try:
+                    owner, age = claim.read_text(), time.time() - claim.stat().st_mtime
+                except FileNotFoundError:
+                    continue
+                if owner != holder and (prefer_own or age < LOGIN_LEASE_S):
+                    continue
+                taken = claims / f".{login.stem}.{holder}"
+                taken.write_text(holder)
+                os.replace(taken, claim)  # a lapsed claim: whoever replaced it last holds it, the others go on
+                time.sleep(0.2)
+                if claim.read_text() != holder:
+                    continue
+            else:
+                if prefer_own:  # the first pass only looks for this holder's own claim
+                    os.close(descriptor)
+                    claim.unlink()
+                    continue
+                with os.fdopen(descriptor, "w") as out:
+                    out.write(holder)
+            return claim, parse_env(login.read_text())
+    raise ValueError(f"no free worker login in {folder}: all {len(logins)} are held by live workers (make more with "
+                     "`contact-skills bus-keys --workers N`)")  # fmt: skip
+
+
 def default_worker_id() -> str:
-    """``worker-<hostname>-<pid>``, with characters a key chunk cannot hold replaced by '-'."""
-    host = "".join(c if c.isalnum() or c in "_.-" else "-" for c in socket.gethostname()) or "host"
-    return f"worker-{host}-{os.getpid()}"
+    """``worker-<6 random hex digits>`` for a worker without a login or ``--id``: unique enough on one bus, and
+    naming neither the host nor the process (the id shows on the open ``/health`` and ``GET /executions``)."""
+    return f"worker-{secrets.token_hex(3)}"
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -242,6 +298,8 @@ class _Run:
         changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
         for k in (0, *changes.tolist()):
             phase, segment = _PHASES[int(codes[k])], int(segments[k])
+            if phase in FINAL_PHASES:  # the loop's last rows: the final status, with the metrics, is _finish's
+                break
             if phase is not self.phase or segment != self.segment_index:
                 self.phase, self.segment_index = phase, segment
                 where = f"segment {segment}" if segment >= 0 else "start pose"
@@ -347,7 +405,10 @@ class Worker:
         self._lock = threading.Lock()
         self._run: _Run | None = None
         self._recording = False
-        self._statuses: OrderedDict[str, ExecutionStatus] = OrderedDict()
+        self._statuses: OrderedDict[str, tuple[bytes, bytes | None]] = OrderedDict()
+        """The latest status of each recent execution as sent: (payload, signature)."""
+        self._secrets: OrderedDict[str, bytes] = OrderedDict()
+        """Each recent execution's secret (the start query's attachment): what its reports are signed with."""
         self._demonstrations: OrderedDict[str, Demonstration] = OrderedDict()
         """The demonstrations starts sent, by their stored id, the most recently used last."""
         self.archive = TelemetryArchive()
@@ -479,16 +540,18 @@ class Worker:
                     batch = telemetry.to_batch(execution_id)
                     batch.sent_unix_s, batch.first_sample = stamp, first
                     batch.seq = self.archive.next_batch(execution_id)
-                    key, data = self.keys.telemetry(execution_id), batch.model_dump_json()
+                    key, data = self.keys.telemetry(execution_id), batch.model_dump_json().encode()
+                    signature = self._signature(execution_id, data)
                 else:
                     payload.sent_unix_s = time.time()
+                    key, data = self.keys.status(execution_id), payload.model_dump_json().encode()
+                    signature = self._signature(execution_id, data)
                     with self._lock:
-                        self._statuses[execution_id] = payload
+                        self._statuses[execution_id] = (data, signature)
                         self._statuses.move_to_end(execution_id)
                         while len(self._statuses) > STATUS_CACHE:
                             self._statuses.popitem(last=False)
-                    key, data = self.keys.status(execution_id), payload.model_dump_json()
-                self._session.put(key, data, congestion_control=block)
+                self._session.put(key, data, congestion_control=block, attachment=signature)
             except Exception:  # keep publishing whatever happens to one item
                 log.exception("publishing %s of %s failed", kind, execution_id)
 
@@ -506,11 +569,11 @@ class Worker:
         try:
             wanted = zenoh.KeyExpr(str(query.key_expr))
             with self._lock:
-                statuses = list(self._statuses.values())
-            for status in statuses:
-                key = self.keys.status(status.execution_id)
+                statuses = list(self._statuses.items())
+            for execution_id, (data, signature) in statuses:
+                key = self.keys.status(execution_id)
                 if wanted.intersects(zenoh.KeyExpr(key)):
-                    query.reply(key, status.model_dump_json())
+                    query.reply(key, data, attachment=signature)
         except Exception:
             log.exception("status query failed")
 
@@ -532,7 +595,8 @@ class Worker:
             for first in range(0, len(telemetry), MAX_COALESCED_ROWS):
                 batch = Telemetry(telemetry.data[first : first + MAX_COALESCED_ROWS]).to_batch(ask.execution_id)
                 batch.first_sample = ask.start + first
-                query.reply(key, batch.model_dump_json())
+                data = batch.model_dump_json().encode()
+                query.reply(key, data, attachment=self._signature(ask.execution_id, data))
         except Exception:
             log.exception("replay query failed")
 
@@ -549,6 +613,7 @@ class Worker:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 named = StartExecution.model_validate_json(payload)
                 execution_id = named.execution_id
+                secret = query.attachment.to_bytes() if query.attachment is not None else None
                 start = self._with_demonstration(named)
                 if start is None:
                     reply("need_demonstration", f"worker {self.worker_id} keeps no demonstration "
@@ -576,6 +641,12 @@ class Worker:
             if busy is not None or self._closed:
                 reply("busy", busy or "worker shutting down")
                 return
+            if secret is not None:
+                with self._lock:
+                    self._secrets[execution_id] = secret
+                    self._secrets.move_to_end(execution_id)
+                    while len(self._secrets) > STATUS_CACHE:
+                        self._secrets.popitem(last=False)
             # Listen for commands before anyone knows the execution exists.
             run.cmd_subscriber = self._session.declare_subscriber(
                 self.keys.cmd(execution_id), lambda sample: self._on_command(run, sample)
@@ -593,6 +664,13 @@ class Worker:
                 reply("error", _short_error(exc))
             except Exception:
                 log.debug("could not reply", exc_info=True)
+
+    def _signature(self, execution_id: str, data: bytes) -> bytes | None:
+        """The attachment of a report of ``execution_id`` (``schemas.bus_security.report_signature``); None for an
+        execution started without a secret (a caller that checks none)."""
+        with self._lock:
+            secret = self._secrets.get(execution_id)
+        return None if secret is None else report_signature(secret, data)
 
     def _with_demonstration(self, start: StartExecution) -> StartExecution | None:
         """``start`` with its demonstration: as sent (and kept under its ``demonstration_id`` for the starts that
@@ -733,12 +811,16 @@ def run_worker(settings: WorkerSettings | None = None, worker_id: str | None = N
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     worker = Worker(settings, worker_id)
+    claim = worker.settings.login_claim
     try:
         if worker.open(stop):
             while not stop.wait(0.5):
-                pass
+                if claim is not None and time.time() - claim.stat().st_mtime > LOGIN_LEASE_S / 6:
+                    os.utime(claim)  # renew the lease on the login
     finally:
         worker.close()
+        if claim is not None:
+            claim.unlink(missing_ok=True)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0

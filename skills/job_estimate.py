@@ -7,7 +7,9 @@ contact segments and the force release. Each guarded approach is counted until t
 expected window (``tolerances.surface_window_m``); its references are allocated for its whole
 ``approach_max_distance_m``, the job's longest phase. A default touch-down speed depends on the world's pad and
 the arm's pose (the worker's business): it is counted at its slowest, :data:`TOUCHDOWN_SPEED_MIN_M_S`. Not counted,
-and cut by the worker's step budget at run time: pauses, creases passed slowly, a surface found beyond its window.
+and cut by the worker's step budget at run time: pauses, creases passed slowly (or a crease found later than taught,
+followed to it), a surface found beyond its window, a contour relocated where its part was found
+(``follow_surface_normal``: one more retract, transfer and approach).
 """
 
 from __future__ import annotations

@@ -137,7 +137,7 @@ def taught_cylinder_world(skill: Skill, scenario: str | None, environment: Envir
     ``auto`` or ``taught`` (the precedence of ``sim_worker.execution_world``: a sweep gives no world file)."""
     world = skill.taught_world
     in_taught_world = scenario is None and environment.work_piece in (WorkPieceSource.auto, WorkPieceSource.taught)
-    return world if in_taught_world and world is not None and world.get("cylinder_enabled") else None
+    return world if in_taught_world and world is not None and _world_field(world, "cylinder", "enabled") else None
 
 
 def inapplicable_parameter(
@@ -148,7 +148,7 @@ def inapplicable_parameter(
     cylinder = [name for name in vary if name in CYLINDER_PARAMETERS]
     if not cylinder or taught_cylinder_world(skill, scenario, environment) is not None:
         return None
-    if skill.taught_world is None or not skill.taught_world.get("cylinder_enabled"):
+    if skill.taught_world is None or not _world_field(skill.taught_world, "cylinder", "enabled"):
         why = "the skill's taught world has no cylinder (vary it for a contour skill recorded on contour_cylinder)"
     elif scenario is not None:
         why = f"the trials run in the scenario {scenario!r}, not in the skill's taught world (give no scenario)"
@@ -168,12 +168,21 @@ def trial_world_overrides(world: Mapping[str, Any] | None, parameters: Mapping[S
         return changes
     if P.cylinder_radius_m in parameters:
         radius = parameters[P.cylinder_radius_m]
-        normal = matrix_from_axis_angle(world["table_tilt_axis"], math.radians(world["table_tilt_deg"]))[:, 2]
-        lowered = np.asarray(world["cylinder_offset_m"], float) + 2.0 * (world["cylinder_radius_m"] - radius) * normal
+        tilt_axis, tilt_deg = _world_field(world, "table", "tilt_axis"), _world_field(world, "table", "tilt_deg")
+        normal = matrix_from_axis_angle(tilt_axis, math.radians(tilt_deg))[:, 2]
+        taught_offset = np.asarray(_world_field(world, "cylinder", "offset_m"), float)
+        lowered = taught_offset + 2.0 * (_world_field(world, "cylinder", "radius_m") - radius) * normal
         changes.update(cylinder_radius_m=radius, cylinder_offset_m=lowered.tolist())
     if P.cylinder_yaw_deg in parameters:
-        changes["cylinder_yaw_deg"] = world["cylinder_yaw_deg"] + parameters[P.cylinder_yaw_deg]
+        changes["cylinder_yaw_deg"] = _world_field(world, "cylinder", "yaw_deg") + parameters[P.cylinder_yaw_deg]
     return changes
+
+
+def _world_field(world: Mapping[str, Any], part: str, name: str) -> Any:
+    """Field ``name`` of sub-config ``part`` of a `WorldConfig` dict: nested (``world[part][name]``), or flat as a world
+    stored before the sub-configs holds it (``world[f"{part}_{name}"]``); None when absent."""
+    section = world.get(part)
+    return section.get(name) if isinstance(section, Mapping) else world.get(f"{part}_{name}")
 
 
 def trial_tolerances(base: Mapping[str, Any], criteria: Mapping[str, float]) -> dict[str, Any]:

@@ -351,7 +351,9 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
 
     def start_naming(worker_id: str, execution_id: str) -> StartReply:
         start = StartExecution(execution_id=execution_id, request=_request(skill), demonstration_id="demo_kept")
-        [reply] = session.get(keys.start(worker_id), payload=start.model_dump_json(), timeout=WAIT_S)
+        client.adopt(execution_id, worker_id)  # its reports verify with the secret the client would have sent
+        secret = client.execution_secret(execution_id, worker_id)
+        [reply] = session.get(keys.start(worker_id), payload=start.model_dump_json(), timeout=WAIT_S, attachment=secret)
         return StartReply.model_validate_json(reply.ok.payload.to_bytes())
 
     try:
@@ -443,13 +445,20 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
     from conftest import api_settings, loopback_client
 
     from services.app import BusEvents, create_app
-    from services.bus_events import reconcile
+    from services.bus_events import REPORT_KEY_NAME, reconcile
     from services.store import Store
 
     endpoint, _ = bus
     store = Store(tmp_path / "api.db")
     events = BusEvents(store)
-    first = BusClient(BusSettings(endpoints=[endpoint]), events.on_status, events.on_telemetry, events.on_worker_lost)
+    # As `connect_bus`: the report key kept in the database, the store's record of each execution's worker.
+    settings = BusSettings(endpoints=[endpoint], report_key=store.service_key(REPORT_KEY_NAME))
+
+    def owner(execution_id: str) -> str | None:
+        row = store.execution(execution_id)  # None: another test's execution on the same workers
+        return None if row is None else row.worker_id
+
+    first = BusClient(settings, events.on_status, events.on_telemetry, events.on_worker_lost, owner=owner)
     try:
         _wait(lambda: len(first.workers()) == 2 and not any(w.busy for w in first.workers()), what="two free workers")
         row = store.add_execution({"skill": "inline"}, None)
@@ -463,8 +472,7 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
                    recorder.on_worker_lost) as watcher:  # fmt: skip
         _wait(lambda: not next(w for w in watcher.workers() if w.worker_id == worker).busy, 30, "the run to end")
     events = BusEvents(store)
-    second = BusClient(BusSettings(endpoints=[endpoint]), events.on_status, events.on_telemetry,
-                       events.on_worker_lost)  # fmt: skip
+    second = BusClient(settings, events.on_status, events.on_telemetry, events.on_worker_lost, owner=owner)
     events.bus = second
     try:
         stored_before = store.telemetry_counts(row.id)[1]
@@ -493,7 +501,36 @@ def test_a_start_request_the_caller_gave_up_on_is_refused_not_run(client, skill)
     answer = StartReply.model_validate_json(reply)
     assert not answer.accepted and answer.code == "busy" and "expired" in answer.reason
     fresh = StartExecution(execution_id="ex-fresh", request=_request(skill), answer_by_unix_s=time.time() + 10.0)
-    answer = StartReply.model_validate_json(client._query_one(client.keys.start("w-a"), fresh.model_dump_json(), 10.0))
+    client.adopt("ex-fresh", "w-a")
+    secret = client.execution_secret("ex-fresh", "w-a")
+    answer = StartReply.model_validate_json(client._query_one(client.keys.start("w-a"), fresh.model_dump_json(), 10.0,
+                                                              attachment=secret))  # fmt: skip
     assert answer.accepted
     assert client.recorder.final("ex-fresh").phase is ExecutionPhase.done
     assert not client.recorder.statuses.get("ex-late")  # the refused one never ran: not one status
+
+
+def test_the_bus_sends_each_status_once(bus, client, skill):
+    """Issue 27: the final ``done`` went out twice (once when the loop's last rows turned the phase to done, once
+    with the metrics). An independent subscriber counts every status of a run on the real bus: numbered 0, 1, 2, ...
+    without a repeat, one final status, the last, with the metrics; the API side got exactly the same ones."""
+    endpoint, _ = bus
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+    seen: list[ExecutionStatus] = []
+    try:
+        key = KeyExpressions("cskills").status("ex-once")
+        session.declare_subscriber(
+            key, lambda sample: seen.append(ExecutionStatus.model_validate_json(sample.payload.to_bytes()))
+        )
+        time.sleep(0.5)  # the subscription reaches the router
+        _wait(lambda: not any(w.busy for w in client.workers()), 30, "a free worker")
+        client.start_execution("ex-once", _request(skill))
+        final = client.recorder.final("ex-once")
+        time.sleep(0.5)  # anything sent after the final status would have arrived
+    finally:
+        session.close()
+    assert [s.seq for s in seen] == list(range(len(seen))) and len(seen) >= 4
+    assert [s.phase for s in seen].count(ExecutionPhase.done) == 1 and [s.final for s in seen].count(True) == 1
+    assert seen[-1].phase is ExecutionPhase.done and seen[-1].metrics == final.metrics
+    with client.recorder.lock:
+        assert [s.seq for s in client.recorder.statuses["ex-once"]] == [s.seq for s in seen]

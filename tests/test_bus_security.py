@@ -23,12 +23,13 @@ pytest.importorskip("cryptography")
 from test_bus import REPO, WAIT_S, Recorder, _wait  # noqa: E402
 
 from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
-from schemas.bus import ExecutionCommand, ExecutionStatus, KeyExpressions  # noqa: E402
-from schemas.bus_security import BusSecurity, access_control, read_users  # noqa: E402
-from schemas.execution import ExecutionPhase  # noqa: E402
+from schemas.bus import ExecutionCommand, ExecutionStatus, KeyExpressions, WorkerInfo  # noqa: E402
+from schemas.bus_security import BusSecurity, access_control, report_signature  # noqa: E402
+from schemas.execution import ExecutionPhase, TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusSettings, open_session  # noqa: E402
 from services.local_processes import free_port, spawn_cli, wait_for_port  # noqa: E402
 from services.local_processes import stop_process as _stop  # noqa: E402
+from services.router import read_users  # noqa: E402
 
 KEYS = KeyExpressions("cskills")
 
@@ -206,3 +207,74 @@ def test_a_worker_cannot_take_another_workers_queries_or_command(secure_bus, api
         assert stolen == []
     finally:
         other.close()
+
+
+def _forged_batch(execution_id: str, first_sample: int) -> TelemetryBatch:
+    """One telemetry row that no worker produced (a force of 999 N)."""
+    zero3, unit_q, wrench = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 999.0, 0.0, 0.0, 0.0]
+    return TelemetryBatch(execution_id=execution_id, t=[0.0], phase=["contact"], segment_index=[0],
+                          tool_position=[zero3], tool_orientation=[unit_q], reference_position=[zero3],
+                          reference_orientation=[unit_q], wrench_world=[wrench], wrench_cf=[wrench],
+                          desired_force_cf_z_n=[999.0], seq=0, first_sample=first_sample)  # fmt: skip
+
+
+def test_a_second_worker_login_cannot_falsify_another_workers_run(secure_bus, api, skill):
+    """Issue 25 H3, with a REAL second worker login (worker-2) on the secured bus while worker-1 runs: a ``done``
+    naming worker-1 (signed with a made-up secret, and unsigned), a status naming itself, telemetry appended while
+    the run goes and after it ended, an answer to the status query with a forged final status, and its own info
+    reply of ``executions_run: -1000`` are all refused: the run ends as worker-1 says, with worker-1's samples
+    only, and worker-2 is never offered an execution."""
+    endpoint, keys = secure_bus
+    other = open_session("client", connect=[endpoint], security=_login(keys, "worker-2"))
+    run = "sec-falsify"
+    forged_done = ExecutionStatus(execution_id=run, worker_id="worker-1", phase="done", message="forged", steps=5)
+    info = WorkerInfo(worker_id="worker-2", busy=False, executions_run=-1000)
+    try:
+        other.declare_queryable(KEYS.info("worker-2"), lambda q: q.reply(KEYS.info("worker-2"), info.model_dump_json()))
+        other.declare_queryable(KEYS.status("*"), lambda q: q.reply(KEYS.status(run), forged_done.model_dump_json(),
+                                                                     attachment=b"\0" * 32))  # fmt: skip
+        token = other.liveliness().declare_token(KEYS.worker("worker-2"))
+        time.sleep(0.5)
+        assert {w.worker_id: w.busy for w in api.workers()} == {"worker-1": False, "worker-2": True}
+        assert api.start_execution(run, _request(skill, pace="realtime")) == "worker-1"
+        _wait(lambda: api.recorder.samples(run) > 100, what="the execution to run")
+        other.put(KEYS.status(run), forged_done.model_dump_json(), attachment=b"\1" * 32)
+        other.put(KEYS.status(run), forged_done.model_dump_json())
+        own = forged_done.model_copy(update={"worker_id": "worker-2"})
+        other.put(KEYS.status(run), own.model_dump_json(), attachment=report_signature(b"guess", b"x"))
+        other.put(KEYS.telemetry(run), _forged_batch(run, 50).model_dump_json(), attachment=b"\2" * 32)
+        time.sleep(1.0)
+        with api.recorder.lock:
+            assert not any(s.final or s.message == "forged" for s in api.recorder.statuses[run])
+        assert api.latest_status("worker-1", run) is not None and not api.latest_status("worker-1", run).final
+        api.send_command(run, "abort")
+        final = api.recorder.final(run)
+        assert final.worker_id == "worker-1" and final.phase is ExecutionPhase.aborted and final.metrics.steps > 100
+        other.put(KEYS.telemetry(run), _forged_batch(run, final.metrics.steps).model_dump_json())  # after the end
+        time.sleep(1.0)
+        with api.recorder.lock:
+            batches = sorted(api.recorder.telemetry[run], key=lambda b: b.first_sample)
+        assert sum(len(b.t) for b in batches) == final.metrics.steps
+        assert max(abs(f[2]) for b in batches for f in b.wrench_cf) < 500  # not one forged row
+        assert api.latest_statuses()[run].phase is ExecutionPhase.aborted  # worker-1's, not the forged done
+        token.undeclare()
+    finally:
+        other.close()
+
+
+def test_implausible_reports_are_named_and_refused():
+    """A worker's own reports that cannot be true: negative counters, ``done`` without a control step, an info
+    reply under another worker's key."""
+    from schemas.execution import ExecutionMetrics
+    from services.bus import implausible_info, implausible_status
+
+    ok = ExecutionStatus(execution_id="e", worker_id="w", phase="contact", steps=10, seq=3)
+    assert implausible_status(ok) is None
+    assert "steps -1" in implausible_status(ok.model_copy(update={"steps": -1}))
+    done = ok.model_copy(update={"phase": ExecutionPhase.done})
+    assert implausible_status(done) == "done without a control step"
+    assert implausible_status(done.model_copy(update={"metrics": ExecutionMetrics.model_construct(steps=0)}))
+    assert "negative" in implausible_info(WorkerInfo(worker_id="w", busy=False, executions_run=-1000),
+                                          KEYS.info("w"), KEYS)  # fmt: skip
+    assert "under" in implausible_info(WorkerInfo(worker_id="w", busy=False), KEYS.info("v"), KEYS)
+    assert implausible_info(WorkerInfo(worker_id="w", busy=False), KEYS.info("w"), KEYS) is None

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from conftest import KULEUVEN_DATA
 
-from cli.main import DATA_ENV, kuleuven_recordings, main
+from cli.main import main
 from corpus.synthetic import plane_slide
 from schemas import Demonstration, Skill
 from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
+from services.datasets import DATA_ENV, kuleuven_recordings
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
 from skills.quaternions import matrix_from_quaternion
 
@@ -250,3 +251,45 @@ def test_record_to_csv_then_learn_recovers_the_taught_plane(tmp_path: Path) -> N
 def test_record_refuses_an_unknown_scenario(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     assert main(["record", "slide_on_the_moon", "-o", str(tmp_path / "x.json")]) == 2
     assert "slide_on_the_moon" in capsys.readouterr().err
+
+
+def test_simulate_prints_no_library_banner(learned, tmp_path):
+    """PyBullet's C extension prints `pybullet build time: ...` when it is imported (a bare import shows it, so the
+    check can see it); a simulating command discards it, whether its output is a pipe or a file."""
+    bare = subprocess.run([sys.executable, "-c", "import pybullet"], capture_output=True, text=True, timeout=60)
+    assert "pybullet build time" in bare.stdout + bare.stderr
+    _, skill, _ = learned["contour_a_1"]
+    (tmp_path / "skill.json").write_text(skill.model_dump_json())
+    result = _subprocess(["simulate", "skill.json", "--sensor", "ideal"], tmp_path)
+    assert result.returncode == 0 and "controller hybrid_cf: done" in result.stdout, result.stderr
+    assert "pybullet" not in result.stdout + result.stderr
+
+
+def test_the_cli_reference_page_is_what_the_parser_says():
+    """docs/CLI.md is generated from the parser (`python -m cli.reference > docs/CLI.md`): it names every command and
+    every argument as `--help` does, and a change to the parser without regenerating it fails here."""
+    from cli.main import build_parser
+    from cli.reference import reference
+
+    page = (REPO / "docs" / "CLI.md").read_text()
+    assert page == reference(build_parser()), "docs/CLI.md is stale: .venv/bin/python -m cli.reference > docs/CLI.md"
+
+
+def test_the_spelled_out_paces_are_the_schema_s():
+    """`--pace` choices are spelled out so that `--help` imports no pydantic: they are `schemas.execution.Pace`."""
+    from cli.bus_commands import PACES
+    from schemas.execution import Pace
+
+    assert set(PACES) == {pace.value for pace in Pace}
+
+
+def test_the_client_commands_find_the_service_by_contact_skills_url(tmp_path):
+    """Without --url, `demo`, `sweep` and `export ID` ask the service at $CONTACT_SKILLS_URL: nothing answers at this
+    one (and, not named 127.0.0.1 or localhost, it is not one they would start), and each says where it asked."""
+    from services.local_processes import free_port
+
+    nobody = f"http://[::1]:{free_port()}"
+    for args, code in ((["demo", "--quick"], 1), (["sweep", "slide_flat", "--trials", "1"], 1),
+                       (["export", "exec_000000000000", "-o", "run.csv"], 2)):  # fmt: skip
+        result = _subprocess(args, tmp_path, CONTACT_SKILLS_URL=nobody)
+        assert result.returncode == code and nobody in result.stderr, (args, result.stdout, result.stderr)

@@ -1,5 +1,8 @@
-"""docker-compose.yml and the Dockerfile agree with the code (no Docker engine needed): services, commands,
-environment variables, ports, the installed entry point."""
+"""docker-compose.yml, docker-compose.secure.yml and the Dockerfile agree with the code (no Docker engine needed):
+services, commands, environment variables, ports, the installed entry point; the bus secured as shipped (the logins
+made by a one-shot service into volumes owned by the image's user, which the router reads; each scaled worker claims
+its own login; the numba cache warmed as the runtime user). Where a Docker engine runs, the compose file itself is
+brought up with two workers (skipped with the reason elsewhere)."""
 
 from __future__ import annotations
 
@@ -13,13 +16,16 @@ yaml = pytest.importorskip("yaml")
 
 from cli.main import build_parser  # noqa: E402
 from schemas import bus as bus_contract  # noqa: E402
+from schemas import bus_security  # noqa: E402
 from services.settings import DEFAULT_PORT, ENV_VARS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+SECURE = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())
 DOCKERFILE = (REPO / "Dockerfile").read_text()
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
-KNOWN_ENV = set(ENV_VARS.values()) | {bus_contract.ENV_ENDPOINTS, bus_contract.ENV_PREFIX, bus_contract.ENV_LISTEN}
+KNOWN_ENV = set(ENV_VARS.values()) | {bus_contract.ENV_ENDPOINTS, bus_contract.ENV_PREFIX, bus_contract.ENV_LISTEN,
+                                        bus_security.ENV_LOGINS, bus_security.ENV_TLS_CA}  # fmt: skip
 
 
 def _command(service: dict) -> list[str]:
@@ -37,8 +43,8 @@ def _dockerfile_json(instruction: str) -> list[str]:
 
 def test_services_exist_and_use_the_right_images():
     services = COMPOSE["services"]
-    assert {"router", "api", "worker"} <= set(services)
-    assert services["router"]["image"].startswith("eclipse/zenoh")
+    assert {"bus-keys", "router", "api", "worker"} <= set(services)
+    assert {s["image"] for s in services.values()} == {services["api"]["image"]}  # one image, the router's too
     assert "build" in services["api"]
     assert services["worker"]["image"] == services["api"]["image"]  # same built image
     assert "build" not in services["worker"] or services["worker"]["build"] == services["api"]["build"]
@@ -76,7 +82,7 @@ def test_ports_match_the_defaults():
     assert str(DEFAULT_PORT) in COMPOSE["services"]["api"]["environment"]["CONTACT_SKILLS_PORT"]
     router_port = bus_contract.DEFAULT_ENDPOINT.rsplit(":", 1)[1]
     assert router_port == "7447"
-    assert any(p.endswith(f":{router_port}") for p in COMPOSE["services"]["router"]["ports"])
+    assert COMPOSE["services"]["router"]["ports"] == [f"127.0.0.1:{router_port}:{router_port}"]  # the host's only
     assert f"tcp/0.0.0.0:{router_port}" in _command(COMPOSE["services"]["router"])
     assert re.search(rf"^EXPOSE\s+{DEFAULT_PORT}\b", DOCKERFILE, re.MULTILINE)
 
@@ -118,23 +124,14 @@ def test_the_api_is_healthy_on_health_and_the_workers_wait_for_it():
 
 def test_built_images_are_built_not_pulled_and_every_service_has_an_init():
     services = COMPOSE["services"]
-    for name in ("api", "worker"):
+    for name in ("bus-keys", "api", "worker"):
         assert services[name]["pull_policy"] == "build" and services[name]["build"] == services["api"]["build"]
     assert all(service.get("init") is True for service in services.values())
 
 
 def test_no_anonymous_volume_per_worker():
     assert not re.search(r"^VOLUME\b", DOCKERFILE, re.MULTILINE), "VOLUME gives every container an anonymous volume"
-    assert "volumes" not in COMPOSE["services"]["worker"]
-
-
-def test_zenoh_is_the_same_version_in_the_router_image_and_the_python_package():
-    router_tag = COMPOSE["services"]["router"]["image"].split(":", 1)[1]
-    [pin] = [d for d in PYPROJECT["project"]["optional-dependencies"]["service"] if d.startswith("eclipse-zenoh")]
-    assert pin.split("==", 1)[1] == router_tag, (pin, router_tag)
-    from importlib import metadata
-
-    assert metadata.version("eclipse-zenoh") == router_tag
+    assert COMPOSE["services"]["worker"]["volumes"] == ["cskills-worker-logins:/worker-logins"]  # its logins only
 
 
 def test_the_build_context_leaves_out_what_the_image_does_not_need():
@@ -146,22 +143,146 @@ def test_the_build_context_leaves_out_what_the_image_does_not_need():
     assert not copied & set(ignored), copied & set(ignored)
 
 
-def test_the_secure_compose_file_runs_real_commands_with_generated_logins(tmp_path):
-    from services.bus_keys import generate_bus_keys
-    from services.settings import ServiceSettings
+def _bus_keys_argv(service: dict, env: dict[str, str]) -> tuple[list[str], str]:
+    """The `contact-skills bus-keys` command line inside the one-shot service's shell command (its ``$${VAR:-x}``
+    filled from ``env``, else their defaults), and the whole shell command."""
+    [script] = service["command"]
+    assert service["entrypoint"] == ["sh", "-c"] and script.startswith("test -f /keys/users.txt ||")  # kept if made
+    filled = re.sub(r'"\$\$\{(\w+):-([^}]*)\}"', lambda m: env.get(m[1], m[2]), script)
+    command = re.search(r"contact-skills (bus-keys [^&]*)&&", filled)
+    assert command, script
+    return command[1].split(), filled
 
-    secure = yaml.safe_load((REPO / "docker-compose.secure.yml").read_text())["services"]
-    parser = build_parser()
-    router = parser.parse_args(_command(secure["router"]))
-    assert router.command == "router" and router.users == "/keys/users.txt" and router.tls_cert == "/keys/router.pem"
-    assert all(endpoint.startswith("tls/") for endpoint in router.listen)
-    generate_bus_keys(tmp_path, ["router"], 2, ca_path="/keys/ca.pem", endpoint="tls/router:7447")
-    for name, login in (("api", "api"), ("worker", "worker-1")):
-        assert parser.parse_args(_command(secure[name])).command == name
-        assert secure[name]["env_file"] == [f"./bus-keys/{login}.env"]
-        env = dict(line.split("=", 1) for line in (tmp_path / f"{login}.env").read_text().splitlines())
-        assert env["CONTACT_SKILLS_ZENOH_TLS_CA"] == "/keys/ca.pem"
-        assert env["CONTACT_SKILLS_ZENOH_ENDPOINTS"] == "tls/router:7447"
-        assert "./bus-keys/ca.pem:/keys/ca.pem:ro" in secure[name]["volumes"]
-    api_env = {k: ("t0ken" if "$" in v else v) for k, v in secure["api"]["environment"].items()}
-    assert ServiceSettings.from_env(api_env).token_reads and secure["api"]["environment"]["CONTACT_SKILLS_TOKEN"]
+
+@pytest.mark.parametrize("compose", [COMPOSE, SECURE], ids=["docker-compose.yml", "docker-compose.secure.yml"])
+def test_the_bus_is_secured_as_shipped(compose, tmp_path):
+    """Logins made by the one-shot `bus-keys` (kept across starts) into volumes; the router requires them; the API
+    logs in from the keys volume; the workers claim theirs from a volume that holds no API login."""
+    from services.bus_keys import generate_bus_keys
+
+    services, parser = compose["services"], build_parser()
+    argv, script = _bus_keys_argv(services["bus-keys"], {"CONTACT_SKILLS_WORKER_LOGINS": "3"})
+    keys = parser.parse_args(argv)
+    assert keys.command == "bus-keys" and str(keys.folder) == "/keys" and keys.workers == 3 and "router" in keys.host
+    assert "mv /keys/worker-*.env /worker-logins/" in script
+    router = parser.parse_args(_command(services["router"]))
+    assert router.command == "router" and router.users == "/keys/users.txt"
+    assert services["router"]["depends_on"]["bus-keys"] == {"condition": "service_completed_successfully"}
+    assert services["router"]["volumes"] == ["cskills-keys:/keys:ro"]
+    assert services["api"]["environment"][bus_security.ENV_LOGINS] == "/keys"
+    assert "cskills-keys:/keys:ro" in services["api"]["volumes"]
+    assert services["worker"]["environment"][bus_security.ENV_LOGINS] == "/worker-logins"
+    assert not any("cskills-keys" in volume for volume in services["worker"]["volumes"])
+    assert {"cskills-keys", "cskills-worker-logins"} <= set(compose["volumes"])
+    # What the service writes: logins any process of the image's user reads (the router, the API, the workers).
+    generate_bus_keys(tmp_path, keys.host, keys.workers, keys.ca_path, keys.endpoint)
+    assert {f"worker-{k}.env" for k in (1, 2, 3)} | {"api.env", "users.txt", "router.key"} <= {
+        p.name for p in tmp_path.iterdir()}  # fmt: skip
+
+
+def test_key_permissions_work_for_the_routers_uid():
+    """Every service runs as the image's user (no ``user:`` override), the one that owns the volumes' mount points
+    and writes the 0600 keys: the router reads what `bus-keys` wrote."""
+    user = re.search(r"useradd[^\n]*--uid (\d+) (\w+)", DOCKERFILE)
+    assert user and re.search(rf"^USER {user[2]}$", DOCKERFILE, re.MULTILINE)
+    owned = re.search(rf"chown {user[2]} ([^\n]+)", DOCKERFILE)
+    assert owned and {"/keys", "/worker-logins", "/data"} <= set(owned[1].split())
+    for compose in (COMPOSE, SECURE):
+        assert not any("user" in service for service in compose["services"].values())
+
+
+def test_the_numba_cache_is_warm_for_the_runtime_user():
+    """The control loop is compiled at build time by the user that runs it, into a cache it owns."""
+    user_line = DOCKERFILE.index("\nUSER cskills")
+    warm = DOCKERFILE.index("python -m sim_worker.warm_up")
+    cache = re.search(r"^ENV NUMBA_CACHE_DIR=(\S+)$", DOCKERFILE, re.MULTILINE)
+    assert user_line < warm and cache and cache[1].startswith("/home/cskills/")
+    assert DOCKERFILE.index(cache[0]) < warm
+
+
+def test_scaled_workers_each_claim_their_own_login(tmp_path):
+    """`--scale worker=2`: the workers share the logins volume and each claims a login no other live one holds
+    (``sim_worker.zenoh_worker.claim_login``); a restarted container (same host name) gets its own back; a removed
+    one's lapses and is taken."""
+    import os
+    import time
+
+    from services.bus_keys import generate_logins
+    from sim_worker.zenoh_worker import LOGIN_LEASE_S, claim_login
+
+    generate_logins(tmp_path, 3)
+    (tmp_path / "api.env").unlink()  # as the compose file's `mv`: the workers' volume holds worker logins only
+    first, first_login = claim_login(tmp_path, "container-a")
+    _, second_login = claim_login(tmp_path, "container-b")
+    assert (first_login["CONTACT_SKILLS_ZENOH_USER"], second_login["CONTACT_SKILLS_ZENOH_USER"]) == (
+        "worker-1",
+        "worker-2",
+    )
+    assert first_login["CONTACT_SKILLS_ZENOH_PASSWORD"] != second_login["CONTACT_SKILLS_ZENOH_PASSWORD"]
+    assert claim_login(tmp_path, "container-a")[0] == first  # restarted: its own login again
+    lapsed = time.time() - 2 * LOGIN_LEASE_S
+    os.utime(first, (lapsed, lapsed))  # container-a removed, its claim not renewed
+    assert claim_login(tmp_path, "container-c")[0] == first
+    claim_login(tmp_path, "container-d")
+    with pytest.raises(ValueError, match="no free worker login"):
+        claim_login(tmp_path, "container-e")
+
+
+def _docker_engine() -> str | None:
+    """Why the compose files cannot be brought up here (None: a Docker engine answers)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("docker") is None:
+        return "no docker command on this machine"
+    info = subprocess.run(["docker", "info"], capture_output=True, text=True, timeout=30)
+    return None if info.returncode == 0 else f"no Docker engine answers: {info.stderr.strip()[:200]}"
+
+
+@pytest.mark.skipif(_docker_engine() is not None, reason=f"{_docker_engine()}")
+def test_the_compose_file_runs_as_shipped_with_two_workers_each_with_its_login(tmp_path):
+    """docker compose up --build --scale worker=2: two workers, worker-1 and worker-2; a recording, a skill and an
+    execution end to end; an anonymous Zenoh client on the published router port cannot open a session."""
+    import json
+    import os
+    import subprocess
+    import time
+    import urllib.request
+
+    import zenoh
+
+    from schemas.bus import session_config
+
+    project = ["docker", "compose", "-p", f"cskills-test-{os.getpid()}", "-f", str(REPO / "docker-compose.yml")]
+    subprocess.run([*project, "up", "--build", "-d", "--scale", "worker=2"], check=True, timeout=1800)
+
+    def get(path: str, body: dict | None = None) -> dict:
+        data = None if body is None else json.dumps(body).encode()
+        request = urllib.request.Request(f"http://127.0.0.1:8000{path}", data=data,
+                                         headers={"content-type": "application/json"})  # fmt: skip
+        with urllib.request.urlopen(request, timeout=120) as response:
+            return json.loads(response.read())
+
+    try:
+        deadline = time.monotonic() + 300
+        while True:
+            try:
+                workers = sorted(w["worker_id"] for w in get("/health")["workers"])
+                if len(workers) == 2:
+                    break
+            except OSError:
+                pass
+            assert time.monotonic() < deadline, "the stack did not come up with two workers"
+            time.sleep(2)
+        assert workers == ["worker-1", "worker-2"]
+        demo = get("/demonstrations/record", {"scenario": "slide_flat", "seed": 0})
+        skill = get("/skills", {"demonstration_id": demo["id"], "skill_type": "auto"})
+        run = get("/executions", {"skill_id": skill["id"]})
+        while (view := get(f"/executions/{run['id']}"))["status"] not in ("done", "aborted", "failed"):
+            time.sleep(1)
+        assert view["status"] == "done", view
+        config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=["tcp/127.0.0.1:7447"])))
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(config)
+    finally:
+        subprocess.run([*project, "down", "-v"], timeout=300)

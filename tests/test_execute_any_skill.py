@@ -96,8 +96,8 @@ def test_the_rebuilt_slab_is_the_true_table(kinesthetic_slides, scenario: str) -
     demo, skill = kinesthetic_slides[scenario]
     truth = WorldGeometry(demo.world_config)
     normal = truth.table_normal
-    for piece in rebuilt_work_pieces(skill, demo.world_config.tool_radius_m):
-        v = np.asarray(piece["vertices"])
+    for piece in rebuilt_work_pieces(skill, demo.world_config.tool.radius_m):
+        v = np.asarray(piece.vertices)
         distance = truth.signed_distance(v)
         top = v[distance > -0.02]  # the slab's top face (its bottom is 4 cm down)
         assert np.abs(truth.signed_distance(top)).max() < 0.003  # within 3 mm of the true table top

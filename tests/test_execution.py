@@ -365,13 +365,13 @@ def test_a_path_that_runs_off_the_table_stops_pressing_into_nothing(slide_flat) 
     """The table moved 45 cm sideways without telling the controller: the stroke starts on it and runs off its edge.
     The tool may not chase the lost surface (it went 31 cm below the table top before): it stops within the travel
     bound, retracts and the execution aborts naming the loss."""
-    from sim_worker.executor import CONTACT_LOSS_TRAVEL_M
+    from sim_worker.control_loop import CONTACT_LOSS_TRAVEL_M
 
     recording, _ = slide_flat
     result = _run(slide_flat, unknown_offset=(0.0, -0.45, 0.0))
     assert result.metrics.phase is ExecutionPhase.aborted
     assert result.metrics.abort_reason.startswith("contact lost in segment")
-    table_top = recording.world_config.table_height_m
+    table_top = recording.world_config.table.height_m
     assert result.telemetry.tool_position[:, 2].min() > table_top - CONTACT_LOSS_TRAVEL_M - 0.01
     assert result.telemetry.phases[-1] is ExecutionPhase.retreat
     assert result.telemetry.tool_position[-1, 2] > table_top + 0.03  # backed off

@@ -27,6 +27,7 @@ from schemas.execution import (
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import ExecutionResult, execute_skill, run_skill
 from sim_worker.teacher import record_demonstration
+from sim_worker.world_config import SensorModel
 from skills.parameterize import learn_skill
 
 SLIDE_BOUND_PCT = 2.0
@@ -196,8 +197,8 @@ def test_a_world_files_sensor_is_honoured(slide):
     recording = record_demonstration("slide_flat", seed=0)
     world = recording.world_config.to_dict() | {"wrench_noise_force_std_n": 0.4, "wrench_delay_s": 0.004}
     config = execution_world(slide, world=world).config
-    assert config.wrench_noise_force_std_n == 0.4 and config.wrench_delay_s == 0.004
-    assert config.sensor_model == "wrist"  # the file's is the default world's: the wrist sensor's
-    assert config.wrench_filter_cutoff_hz == 200.0
+    assert config.sensor.noise_force_std_n == 0.4 and config.sensor.delay_s == 0.004
+    assert config.sensor.model is SensorModel.wrist  # the file's is the default world's: the wrist sensor's
+    assert config.sensor.filter_cutoff_hz == 200.0
     noisier = execution_world(slide, EnvironmentChange(sensor_noise_n=0.9), world=world).config
-    assert noisier.wrench_noise_force_std_n == 0.9  # the request's own change still wins
+    assert noisier.sensor.noise_force_std_n == 0.9  # the request's own change still wins

@@ -8,7 +8,6 @@ docs/SERVICE.md measures).
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from pathlib import Path
@@ -29,7 +28,6 @@ from schemas.bus import (  # noqa: E402
     RecordRequest,
     StartExecution,
     StartReply,
-    session_config,
 )
 from schemas.job_budget import ENV_JOB_MAX_STEPS, NOMINAL_TIME_STEP_S  # noqa: E402
 from services.client import Client  # noqa: E402
@@ -72,9 +70,9 @@ def _worker(stack) -> dict:
     return stack.workers(1)[0]
 
 
-def _rss_mb(worker: dict) -> float:
-    """The resident memory of a worker process (its id ends with its pid), MB."""
-    status = Path(f"/proc/{worker['worker_id'].rsplit('-', 1)[1]}/status").read_text()
+def _rss_mb(stack, worker: dict) -> float:
+    """The resident memory of a worker process of ``stack``, MB."""
+    status = Path(f"/proc/{stack.worker_pids()[worker['worker_id']]}/status").read_text()
     return int(next(line for line in status.splitlines() if line.startswith("VmRSS")).split()[1]) / 1024
 
 
@@ -101,7 +99,7 @@ def test_an_execution_whose_settings_imply_hours_is_422_naming_them(stack, skill
     """The probe's POST /executions (approach and touch-down at 10 µm/s: 8 000 s, 3.3 GB of worker memory before):
     a 422 naming both speeds and the budget; the worker never sees it. The same skill at a sane speed fits."""
     worker = _worker(stack)
-    before = _rss_mb(worker)
+    before = _rss_mb(stack, worker)
     response = stack.http.post("/executions", json={"skill_id": skill["id"], **CRAWL})
     detail = _detail(response)
     assert {tuple(entry["loc"]) for entry in detail} == {
@@ -112,7 +110,7 @@ def test_an_execution_whose_settings_imply_hours_is_422_naming_them(stack, skill
         assert entry["type"] == "job_budget" and "8,0" in entry["msg"] and "s of simulated time" in entry["msg"]
         assert f"{BUDGET_STEPS:,} control steps" in entry["msg"] and ENV_JOB_MAX_STEPS in entry["msg"]
     time.sleep(1.0)
-    assert _rss_mb(worker) < before + 50
+    assert _rss_mb(stack, worker) < before + 50
     assert _worker(stack)["executions_run"] == worker["executions_run"]
     estimate = execution_estimate(Skill.model_validate(skill["skill"]), ExecutionRequest(**TOUCHDOWN, skill_id="s"),
                                   taught_time_step_s(Skill.model_validate(skill["skill"])))  # fmt: skip
@@ -148,8 +146,7 @@ def test_a_worker_refuses_a_job_over_its_budget_sent_over_the_bus(stack, skill):
     keys = f"cskills/exec/{worker['worker_id']}"
     request = ExecutionRequest(skill=Skill.model_validate(skill["skill"]), **CRAWL)
     start = StartExecution(execution_id="exec_straight_to_the_worker", request=request)
-    config = zenoh.Config.from_json5(json.dumps(session_config("client", connect=[stack.endpoint])))
-    with zenoh.open(config) as session:
+    with stack.session("api") as session:  # the API's login: a worker takes starts from it alone
         answer = StartReply.model_validate_json(_asked(session, f"{keys}/start", start.model_dump_json()))
         if answer.accepted:  # the code before: it runs for hours; stop it
             abort = ExecutionCommand(command="abort", execution_id=start.execution_id)
@@ -254,12 +251,16 @@ def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_w
     variables the workers read."""
     from schemas import job_budget
     from services.settings import ENV_VARS, ServiceSettings
-    from sim_worker import executor
+    from sim_worker import executor, impacts
     from sim_worker.world_config import WorldConfig
     from skills import job_estimate
 
-    for name in ("TARE_HOLD_S", "TOUCHDOWN_SPEED_MIN_M_S", "SURFACE_WINDOW_MIN_M"):
-        assert getattr(job_estimate, name) == getattr(executor, name), name
+    for module, name in (
+        (executor, "TARE_HOLD_S"),
+        (impacts, "TOUCHDOWN_SPEED_MIN_M_S"),
+        (executor, "SURFACE_WINDOW_MIN_M"),
+    ):
+        assert getattr(job_estimate, name) == getattr(module, name), name
     assert WorldConfig().time_step_s == NOMINAL_TIME_STEP_S
     names = {ENV_VARS["job_max_simulated_s"], ENV_VARS["job_max_steps"]}
     assert names == {job_budget.ENV_JOB_MAX_SIMULATED_S, job_budget.ENV_JOB_MAX_STEPS}

@@ -80,7 +80,7 @@ def test_a_recording_at_100_hz_with_its_strokes_friction_and_world(recordings, c
         assert truth.friction == friction
     else:
         assert 0.2 <= truth.friction <= 0.4
-    assert demo.world_config.lateral_friction == truth.friction
+    assert demo.world_config.contact.lateral_friction == truth.friction
     assert demo.world_config == kinesthetic_world_config(scenario, seed, friction)
     assert truth.surface == {"wipe_flat": "flat", "wipe_tilted": "tilted", "wipe_curved": "curved"}[scenario]
     assert truth.skill_type == ("contour" if scenario == "wipe_curved" else "slide")
@@ -141,7 +141,7 @@ def test_normals_come_from_the_world_geometry(recordings, case):
     truth = demo.truth
     solid = _wiped(demo)
     tool_z = matrix_from_quaternion(demo.orientations)[:, :, 2]
-    centres = demo.positions - demo.world_config.tool_radius_m * tool_z
+    centres = demo.positions - demo.world_config.tool.radius_m * tool_z
     outward = solid.signed_distance(centres)[1]
     # (The file's positions are period means, its normals at mid-period: 0.5 mm apart at 0.1 m/s.)
     assert np.allclose(truth.normals[truth.in_contact], -outward[truth.in_contact], atol=2e-3)
@@ -165,7 +165,7 @@ def test_normals_come_from_the_world_geometry(recordings, case):
             table_normal = WorldGeometry(demo.world_config).table_normal
             assert np.allclose(stroke.normal, -table_normal, atol=1e-9)
             assert stroke.normal_turn_deg < 1e-3
-            tilt_deg = demo.world_config.table_tilt_deg
+            tilt_deg = demo.world_config.table.tilt_deg
             assert math.degrees(math.acos(-stroke.normal[2])) == pytest.approx(tilt_deg, abs=1e-6)
 
 

@@ -61,14 +61,14 @@ def test_the_world_puts_the_object_where_registration_and_placement_put_it(truth
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     placement = Placement(translation_m=[0.3, -1.2, 0.9], rotation=[0.0, 0.0, 0.7071067811865476, 0.7071067811865476])
     world = WorldConfig.from_dict(cad_world(truth, placement))
-    assert not world.table_enabled
+    assert not world.table.enabled
     crease = polyline_resampled(truth.kuleuven_object.crease.points, 0.002)
     where = placed_object(truth, placement)
     np.testing.assert_allclose(where.rotation, turn @ truth.registration.rotation, atol=1e-12)
     points = where.to_world(crease)
     heights = np.full(len(points), np.inf)
     for piece in world.work_pieces:
-        equations = ConvexHull(np.asarray(piece["vertices"])).equations
+        equations = ConvexHull(np.asarray(piece.vertices)).equations
         heights = np.minimum(heights, np.max(points @ equations[:, :3].T + equations[:, 3], axis=1))
     # Each piece is its part of the object shrunk by the margin: the crease lies margin-far outside the pieces' faces.
     np.testing.assert_allclose(heights, CONVEX_MARGIN_M, atol=5e-4)
@@ -90,5 +90,5 @@ def test_a_real_skill_holds_its_force_on_the_true_crease(truth):
     assert m.contact_ratio >= 0.95
     assert m.true_force_rms_error_pct < TRUE_RMS_BOUND_PCT
     assert m.true_force_max_error_pct < TRUE_MAX_BOUND_PCT
-    share = on_face_share(result.telemetry, placed_object(truth, rebuilt.placement), truth, world.config.tool_radius_m)
+    share = on_face_share(result.telemetry, placed_object(truth, rebuilt.placement), truth, world.config.tool.radius_m)
     assert share < ON_FACE_BOUND

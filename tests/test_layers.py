@@ -9,12 +9,15 @@ function, points down the layers.
 - nothing below ``cli/`` imports from ``cli`` (the console script is the top; a child process started as
   ``python -m cli.main`` is a command line, not an import);
 - ``services/`` and ``sim_worker/`` import nothing from ``experiments/`` (the runners sit on top of them), nor
-  from each other (they meet on the bus, through the ``schemas`` contract).
+  from each other (they meet on the bus, through the ``schemas`` contract);
+- no module imports itself through others: the graph of every import between the repository's modules (lazy ones
+  inside functions included, ``from pkg import mod`` counted as an import of ``pkg.mod``) has no cycle.
 """
 
 from __future__ import annotations
 
 import ast
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -28,6 +31,7 @@ FORBIDDEN: dict[str, set[str]] = {
     "sim_worker": {"services", "experiments", "cli", "benchmarks"},
     "experiments": {"cli", "benchmarks"},
 }
+PACKAGES = ("schemas", "skills", "corpus", "services", "sim_worker", "experiments", "cli", "benchmarks")
 
 
 def imported_packages(source: str, package: tuple[str, ...]) -> list[tuple[int, str]]:
@@ -69,3 +73,120 @@ def test_the_check_sees_lazy_and_relative_imports() -> None:
     found = imported_packages(source, ("services", "api", "routes"))
     assert sorted(found) == [(2, "cli"), (4, "services"), (5, "services")]
     assert imported_packages("from . import x\n", ("skills",)) == [(1, "skills")]
+
+
+def module_graph(root: Path, packages: Iterable[str]) -> dict[str, set[str]]:
+    """Module (dotted name) -> the repository's modules it imports, from the source of ``packages`` under ``root``."""
+    files = [path for package in packages for path in (root / package).rglob("*.py")]
+    paths = {path: path.relative_to(root).with_suffix("").parts for path in files}
+    names = {p: ".".join(parts[:-1] if parts[-1] == "__init__" else parts) for p, parts in paths.items()}
+    modules = set(names.values())
+
+    def resolve(name: str) -> str | None:
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {}
+    for path, name in names.items():
+        package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+        targets: set[str | None] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets |= {resolve(alias.name) for alias in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = ".".join(package[: len(package) - node.level + 1]) if node.level else ""
+                module = ".".join(part for part in (base, node.module or "") if part)
+                targets |= {resolve(f"{module}.{a.name}" if f"{module}.{a.name}" in modules else module)
+                            for a in node.names}  # fmt: skip
+        graph[name] = {t for t in targets if t is not None and t != name}
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[set[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm, iteratively)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[set[str]] = []
+    for start in sorted(graph):
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start])))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, successors = work[-1]
+            successor = next(successors, None)
+            if successor is not None:
+                if successor not in index:
+                    index[successor] = low[successor] = len(index)
+                    stack.append(successor)
+                    on_stack.add(successor)
+                    work.append((successor, iter(sorted(graph[successor]))))
+                elif successor in on_stack:
+                    low[node] = min(low[node], index[successor])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = set()
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.add(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    cycles.append(component)
+    return cycles
+
+
+def test_no_import_cycles() -> None:
+    cycles = [sorted(c) for c in import_cycles(module_graph(REPO, PACKAGES))]
+    assert cycles == [], f"import cycles: {cycles}"
+
+
+def test_the_cycle_check_finds_a_lazy_cycle_through_a_package(tmp_path: Path) -> None:
+    """``a.main`` imports ``a.cmd`` at the top, ``a.cmd`` imports ``main`` lazily as ``from a import main``: one
+    cycle; ``b`` imports ``a`` without a way back: none."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "__init__.py").write_text("")
+    (tmp_path / "a" / "main.py").write_text("from . import cmd\n")
+    (tmp_path / "a" / "cmd.py").write_text("def f():\n    from a import main\n")
+    (tmp_path / "b" / "__init__.py").write_text("import a.main\n")
+    graph = module_graph(tmp_path, ("a", "b"))
+    assert graph["a.cmd"] == {"a.main"} and graph["a.main"] == {"a.cmd"} and graph["b"] == {"a.main"}
+    assert import_cycles(graph) == [{"a.main", "a.cmd"}]
+
+
+IO_CALLS = frozenset({"open", "read_text", "read_bytes", "write_text", "write_bytes", "getenv"})
+"""Calls that read or write files or the environment (``os.environ`` is found as an attribute)."""
+
+
+def io_uses(source: str) -> list[tuple[int, str]]:
+    """(line, what) of every file or environment access in ``source``: a call of :data:`IO_CALLS`, ``os.environ``."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call):
+            name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+            if name in IO_CALLS:
+                found.append((node.lineno, f"{name}()"))
+        elif isinstance(node, ast.Attribute) and node.attr == "environ":
+            found.append((node.lineno, "environ"))
+    return sorted(found)
+
+
+def test_the_contract_reads_no_file_and_no_environment() -> None:
+    """``schemas/`` is the contract: a process's files and environment are read by the services, the worker and the
+    command line, and handed to it (e.g. ``BusSecurity.from_env(os.environ)``)."""
+    uses = [f"{path.relative_to(REPO)}:{line} {what}" for path in sorted((REPO / "schemas").rglob("*.py"))
+            for line, what in io_uses(path.read_text())]  # fmt: skip
+    assert uses == []
+    assert io_uses("import os\nx = os.environ.get('A')\nopen('f')\nPath('p').read_text()\n") == [
+        (2, "environ"), (3, "open()"), (4, "read_text()")
+    ]  # fmt: skip

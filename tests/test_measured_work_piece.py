@@ -27,8 +27,8 @@ from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 from skills.strokes import stroke_skills
 
-STIFFNESS = WorldConfig().contact_stiffness
-TOOL_RADIUS = WorldConfig().tool_radius_m
+STIFFNESS = WorldConfig().contact.stiffness_n_m
+TOOL_RADIUS = WorldConfig().tool.radius_m
 
 
 def metrics_of(world: ExecutionWorld) -> ExecutionMetrics:
@@ -58,10 +58,10 @@ def test_a_flat_stroke_runs_on_its_measured_slab_as_on_the_ideal_table() -> None
     world = execution_world(skill, demonstration=demo)
     assert world.source == "measured" and world.placement_reason == "in reach as recorded"
     [piece] = world.config.work_pieces
-    vertices = np.asarray(piece["vertices"])
+    vertices = np.asarray(piece.vertices)
     assert vertices.shape == (8, 3)  # one slab
     top = vertices[np.argsort(vertices[:, 2])[4:]]
-    assert np.abs(top[:, 2] - table.table_height_m).max() < 5e-4  # on the true table top, level
+    assert np.abs(top[:, 2] - table.table.height_m).max() < 5e-4  # on the true table top, level
     measured = metrics_of(world)
     assert measured.work_piece == "measured" and measured.phase.value == on_table.phase.value == "done"
     assert abs(measured.true_force_rms_error_pct - on_table.true_force_rms_error_pct) <= 1.0, (measured, on_table)
@@ -85,7 +85,7 @@ def test_the_measured_piece_is_the_surface_touched_whatever_type_was_learned(cyl
     demo = case.demonstration()
     pieces = {name: measured_work_pieces(skill, demo, TOOL_RADIUS, STIFFNESS) for name, skill in skills.items()}
     assert pieces["auto"] == pieces["slide"] and len(pieces["auto"]) == 1  # one seamless hull for the pass
-    vertices = np.asarray(pieces["auto"][0]["vertices"])
+    vertices = np.asarray(pieces["auto"][0].vertices)
     # The hull's surface runs through the true cylinder along the path: its contact points lie on it.
     hull = ConvexHull(vertices)
     depth = -np.max(true_surface(case) @ hull.equations[:, :3].T + hull.equations[:, 3], axis=1)
@@ -121,8 +121,8 @@ def test_the_measured_piece_moves_with_the_placement_wrenches_included(cylinder)
     placement = {"translation_m": t.tolist(), "rotation": quaternion_from_matrix(R).tolist()}
     moved = execution_world(skill, EnvironmentChange(placement=placement), demonstration=demo)
     assert moved.source == "measured" and len(moved.config.work_pieces) == len(here) == 1
-    expected = np.asarray(here[0]["vertices"]) @ R.T + t
-    placed = np.asarray(moved.config.work_pieces[0]["vertices"])
+    expected = np.asarray(here[0].vertices) @ R.T + t
+    placed = np.asarray(moved.config.work_pieces[0].vertices)
     hull = ConvexHull(expected)
     assert np.isclose(ConvexHull(placed).volume, hull.volume, rtol=1e-6)
     assert np.abs(placed @ hull.equations[:, :3].T + hull.equations[:, 3]).min(axis=1).max() < 1e-6
@@ -172,7 +172,7 @@ def test_a_long_demonstration_runs_one_stroke_at_a_time(long_demonstration) -> N
         [piece] = world.config.work_pieces
         assert world.placement is not None
         R = matrix_from_quaternion(np.asarray(world.placement.rotation))
-        unplaced = (np.asarray(piece["vertices"]) - world.placement.translation_m) @ R  # the demonstration's frame
+        unplaced = (np.asarray(piece.vertices) - world.placement.translation_m) @ R  # the demonstration's frame
         top = unplaced[np.argsort(unplaced[:, 2])[4:]]
         stroke = positions[segment.start_index : segment.end_index]
         assert np.abs(top[:, 2] - np.median(stroke[:, 2])).max() < 1e-3  # the table under this stroke

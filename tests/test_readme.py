@@ -1,11 +1,12 @@
-"""The README's commands run as written, so they cannot rot.
+"""The README's and the docs pages' commands run as written, and their quoted outputs are what the commands print
+today, so neither can rot (``tests/docs_commands.py`` finds them and says how each is checked).
 
-Every ``.venv/bin/contact-skills record|learn|simulate|export FILE`` command in a ```bash block of the README
-runs, in the README's order, in a temporary directory that holds the repository's ``data/`` (as
-a fresh clone does); outputs go to ``scratch/`` there. The quoted output of the KU Leuven example
-(a ``$`` command with its printed lines) must be printed line for line by the same command today.
-The commands that need a running service (``up``, ``api``, ``watch``, ``demo``, curl) are tested
-by the service tests; here their subcommands must at least exist.
+Every offline command (``record``, ``learn``, ``simulate``, ``export FILE``, ``bus-keys``) runs in page order in a
+directory laid out as a fresh clone (``data/`` and nothing else), outputs in ``scratch/`` there; a quoted run (a
+plain block starting with ``$``) runs too and every line it quotes must be printed, in order (``…`` marks a wall-clock
+figure). The sweep runs with 2 trials. Commands that serve until stopped, and ``demo`` (4 minutes; tests/test_demo.py
+runs ``--quick``), are parsed by the real parser; ``make run`` by ``make -n``. The service flows (curl, the typed
+client, the Zenoh snippet) run against the real stack in tests/test_client.py. A command no test checks fails here.
 """
 
 from __future__ import annotations
@@ -13,42 +14,24 @@ from __future__ import annotations
 import json
 import os
 import re
-import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from docs_commands import PAGES, REPO, Check, Step, steps, unmatched_lines
 
-REPO = Path(__file__).resolve().parents[1]
-README = (REPO / "README.md").read_text()
+from cli.main import build_parser
+from services.local_processes import free_port
+from services.service_url import URL_ENV
+from services.settings import ENV_VARS
+
 CLI = [sys.executable, "-m", "cli.main"]
-OFFLINE = ("record", "learn", "simulate", "export")
+SWEEP_TRIALS = 2
 
 
-def _blocks(language: str) -> list[str]:
-    """The fenced blocks of the README whose info string is ``language`` ('' for plain ones)."""
-    return [body for info, body in re.findall(r"^```(\w*)\n(.*?)^```", README, flags=re.M | re.S) if info == language]
-
-
-def _commands(block: str) -> list[str]:
-    """The shell commands of a block: continuation lines joined, comments dropped."""
-    joined = re.sub(r"\\\n\s*", " ", block)
-    lines = [line.split("  #")[0].strip() for line in joined.splitlines()]
-    return [line for line in lines if line and not line.startswith("#")]
-
-
-def _contact_skills_commands() -> list[list[str]]:
-    found = []
-    for block in _blocks("bash"):
-        for command in _commands(block):
-            if command.startswith(".venv/bin/contact-skills "):
-                found.append(shlex.split(command)[1:])
-    return found
-
-
-def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(REPO), "MPLBACKEND": "Agg"}
+def _run(args: list[str], cwd: Path, **variables: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(REPO), "MPLBACKEND": "Agg", **variables}
     return subprocess.run([*CLI, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
@@ -60,59 +43,115 @@ def clone_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def test_the_readme_shows_the_offline_flows() -> None:
-    subcommands = [args[0] for args in _contact_skills_commands()]
-    for name in OFFLINE:
-        assert name in subcommands, f"the README shows no `contact-skills {name}` command"
+ALL_STEPS, UNCHECKED = steps()
 
 
-def test_every_offline_readme_command_runs_as_written(clone_dir: Path) -> None:
-    ran = 0
-    for args in _contact_skills_commands():
-        if args[0] not in OFFLINE or (args[0] == "export" and not Path(args[1]).suffix):
-            continue  # `export ID` needs the service (tests/test_export.py runs it)
-        result = _run(args, clone_dir)
-        assert result.returncode == 0, f"contact-skills {' '.join(args)}\n{result.stdout}\n{result.stderr}"
-        for value in args:  # every file the command names in scratch/ exists afterwards
-            if value.startswith("scratch/"):
-                assert (clone_dir / value).exists(), value
-        ran += 1
-    assert ran >= 8
+def test_every_command_of_the_pages_is_checked_by_a_test() -> None:
+    assert UNCHECKED == []
+    shown = {step.args[0] for step in ALL_STEPS if step.check in (Check.run, Check.quoted) and step.args}
+    assert {"record", "learn", "simulate", "export"} <= shown, f"the pages show no offline flow: {shown}"
+    assert any(step.check is Check.service for step in ALL_STEPS if step.page == "README.md")
 
 
-def test_the_quoted_kuleuven_output_is_what_the_command_prints(clone_dir: Path) -> None:
-    [block] = [b for b in _blocks("") if b.startswith("$ .venv/bin/contact-skills learn data/kuleuven_contour")]
-    command_text, _, printed = block.partition("\ndemonstration ")
-    args = shlex.split(re.sub(r"\\\n\s*", " ", command_text.removeprefix("$ ")))[1:]
-    result = _run(args, clone_dir)
-    assert result.returncode == 0, result.stderr
-    for line in ("demonstration " + printed).strip().splitlines():
-        assert line in result.stdout, f"README line not printed any more: {line!r}\n{result.stdout}"
+def test_the_readme_fits_one_read() -> None:
+    readme = (REPO / "README.md").read_text()
+    assert len(readme.splitlines()) <= 250
+    assert readme.index("make run") < readme.index("## ") and readme.index("make test") < readme.index("## ")
+    assert "<!-- contour results -->" in readme.split("## Results", 1)[1].split("\n## ", 1)[0]
+    assert "docs/CONVENTIONS.md" in readme and "Where things live" in (REPO / "docs/CONVENTIONS.md").read_text()
 
 
-def test_service_subcommands_the_readme_shows_exist() -> None:
-    shown = {args[0] for args in _contact_skills_commands()} | {"up", "api", "worker", "router", "watch", "demo"}
-    for name in sorted(shown):
-        result = subprocess.run([*CLI, name, "--help"], cwd=REPO, capture_output=True, text=True, timeout=60)
-        assert result.returncode == 0, (name, result.stderr)
+@pytest.mark.parametrize("page", [*PAGES, "docs/CONVENTIONS.md"])
+def test_every_relative_link_of_the_pages_leads_to_a_file(page: str) -> None:
+    base = (REPO / page).parent
+    found = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", (REPO / page).read_text())
+    links = [link for link in found if "://" not in link]
+    missing = [link for link in links if not (base / link).exists()]
+    assert missing == [], f"{page} links to missing files"
 
 
-def test_the_readme_sweep_runs_as_written_with_fewer_trials(clone_dir: Path) -> None:
-    """The README's `contact-skills sweep` command in a fresh clone's layout: nothing serves its --url there, so it
-    starts the embedded stack itself, records and learns the scenario, runs the sweep with a progress bar and
-    writes the figure and the tables. Only --trials is cut to 2 (6 executions), to keep the suite short."""
-    [args] = [a for a in _contact_skills_commands() if a[0] == "sweep"]
-    settings = clone_dir / "scratch" / "sweep_settings.json"  # the base settings reach every trial's request
-    settings.parent.mkdir(exist_ok=True)
-    settings.write_text('{"approach_slow_distance_m": 0.04}')
-    args = [*args, "--url", "http://127.0.0.1:8799", "--json", "scratch/readme_sweep.json", "--settings", str(settings)]
-    args[args.index("--trials") + 1] = "2"
-    result = _run(args, clone_dir)
-    assert result.returncode == 0, f"contact-skills {' '.join(args)}\n{result.stdout}\n{result.stderr}"
-    assert "starting `contact-skills up" in result.stderr and "done, 6/6 executions" in result.stdout
+def _check(step: Step, cwd: Path) -> str | None:
+    """Run or parse one step as its check says; the problem, or None."""
+    if step.check in (Check.run, Check.quoted, Check.sweep):
+        args = step.args
+        if step.check is Check.sweep:
+            settings = cwd / "scratch" / "sweep_settings.json"  # the base settings reach every trial's request
+            settings.parent.mkdir(exist_ok=True)
+            settings.write_text('{"approach_slow_distance_m": 0.04}')
+            args = [*args, "--json", "scratch/sweep.json", "--settings", str(settings)]
+            args[args.index("--trials") + 1] = str(SWEEP_TRIALS)
+        nobody = f"http://127.0.0.1:{free_port()}"  # where the service is: nowhere, so the sweep starts one there
+        result = _run(args, cwd, CONTACT_SKILLS_URL=nobody)
+        if result.returncode != 0:
+            return f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
+        if "pybullet build time" in result.stdout + result.stderr:
+            return "printed the pybullet banner"
+        missing = unmatched_lines(step.quoted, result.stdout)
+        if missing:
+            return "quoted lines not printed any more:\n" + "\n".join(missing) + "\n--- printed:\n" + result.stdout
+        written = [v for v in args if v.startswith("scratch/") and not (cwd / v).exists()]
+        if written:
+            return f"did not write {written}"
+        if step.check is Check.sweep:
+            return _sweep_problem(result, cwd, args, nobody)
+        return None
+    if step.check is Check.parse:
+        if step.env_file is not None and not (cwd / step.env_file).exists():
+            return f"{step.env_file} does not exist after the commands before it"
+        try:
+            build_parser().parse_args(step.args)
+        except SystemExit:
+            return "the parser refuses it"
+        return None
+    if step.check is Check.make:
+        dry = subprocess.run(["make", "-n", *step.command.split()[1:]], cwd=REPO, capture_output=True, text=True)
+        [up] = [line for line in dry.stdout.splitlines() if "contact-skills up" in line]
+        given = dict(word.split("=", 1) for word in step.command.split()[2:])
+        flags = {"PORT": "--port", "ZENOH_PORT": "--zenoh-port"}
+        expected = [f"{flags[name]} {value}" for name, value in given.items()]
+        if not all(flag in up for flag in expected):
+            return f"`make -n` runs {up!r}"
+        build_parser().parse_args(up.split("contact-skills ", 1)[1].split())
+        return None
+    if step.check is Check.environment:
+        name = step.command.split()[1].split("=")[0]
+        return None if name in {URL_ENV, *ENV_VARS.values()} else f"{name} is read by no code"
+    return None  # suite, docker, service: checked elsewhere (see Check)
+
+
+def _sweep_problem(result: subprocess.CompletedProcess, cwd: Path, args: list[str], url: str) -> str | None:
+    """Nothing serves at ``$CONTACT_SKILLS_URL``: the sweep starts the embedded stack itself on its port, records and
+    learns the scenario, runs the sweep with a progress bar and writes the figure and the tables."""
+    executions = 3 * SWEEP_TRIALS
+    started = f"no service at {url}: starting `contact-skills up" in result.stderr
+    if not started or f"done, {executions}/{executions}" not in result.stdout:
+        return result.stdout + result.stderr
     for name in ("hybrid_cf", "impedance_found_surface", "hybrid_world_z"):
-        assert re.search(rf"^{name} +\d+% \(\d/2\)", result.stdout, flags=re.M), result.stdout
-    figure = clone_dir / args[args.index("--figure") + 1]
-    assert figure.stat().st_size > 20_000
-    stored = json.loads((clone_dir / "scratch" / "readme_sweep.json").read_text())
-    assert stored["sweep"]["request"]["settings"]["approach_slow_distance_m"] == 0.04
+        if not re.search(rf"^{name} +\d+% \(\d/{SWEEP_TRIALS}\)", result.stdout, flags=re.M):
+            return result.stdout
+    if (cwd / args[args.index("--figure") + 1]).stat().st_size < 20_000:
+        return "figure too small"
+    stored = json.loads((cwd / "scratch" / "sweep.json").read_text())
+    return None if stored["sweep"]["request"]["settings"]["approach_slow_distance_m"] == 0.04 else "settings lost"
+
+
+def test_every_command_runs_as_written_and_every_quoted_output_is_printed(clone_dir: Path) -> None:
+    """In page order (a page may use what an earlier one wrote): each problem names its page and command."""
+    problems, ran = [], set()
+    for step in ALL_STEPS:
+        if step.check is Check.run and tuple(step.args) in ran:
+            continue  # shown again on another page: its files are there already
+        ran.add(tuple(step.args))
+        problem = _check(step, clone_dir)
+        if problem is not None:
+            problems.append(f"{step.page}: `{step.command}`: {problem}")
+    assert problems == [], "\n\n".join(problems)
+    assert {step.page for step in ALL_STEPS} >= {"README.md", "docs/GETTING_STARTED.md", "docs/BUS.md"}, PAGES
+
+
+def test_a_stale_quoted_line_is_caught() -> None:
+    """The comparison fails on a changed figure, passes over a wall-clock one."""
+    printed = "peak force 15.95 N; 11.76 s simulated in 0.61 s (real-time factor 19.4)\nverdict: pass (6 checks)\n"
+    assert unmatched_lines(("peak force 15.95 N; 11.76 s simulated in … s (real-time factor …)",), printed) == []
+    assert unmatched_lines(("peak force 15.96 N; 11.76 s simulated in … s (real-time factor …)",), printed) != []
+    assert unmatched_lines(("verdict: pass (6 checks)", "peak force 15.95 N; …"), printed) != []  # order counts

@@ -27,7 +27,9 @@ zenoh = pytest.importorskip("zenoh")
 
 from waiting import wait_for  # noqa: E402
 
-from schemas.bus import session_config  # noqa: E402
+from schemas.bus_security import ENV_PASSWORD, ENV_USER, BusSecurity  # noqa: E402
+from services.bus import open_session  # noqa: E402
+from services.bus_keys import local_logins_folder, read_env_file  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -82,9 +84,22 @@ class Stack:
         """The process id of the API `up` started last (from its log: /health shows none without a token)."""
         return int(re.findall(r"started api \(pid (\d+)\)", self.log_path.read_text())[-1])
 
+    def worker_pids(self) -> dict[str, int]:
+        """The process id of each worker `up` started last, by worker id (its login, named as its child; from the
+        log: the open /health shows no process ids)."""
+        started = re.findall(r"started (worker-\d+) \(pid (\d+)\)", self.log_path.read_text())
+        return {name: int(pid) for name, pid in started}
+
+    def session(self, login: str = "observer"):  # -> zenoh.Session
+        """A Zenoh session on this stack's bus as one of the logins `up` made (``observer``: read only)."""
+        values = read_env_file(local_logins_folder(self.zenoh_port) / f"{login}.env")
+        security = BusSecurity(user=values[ENV_USER], password=values[ENV_PASSWORD])
+        return open_session("client", connect=[self.endpoint], security=security, wait_s=10)
+
     def pids(self) -> list[int]:
-        """The API's and the connected workers' process ids (a worker's id ends with its pid)."""
-        return [self.api_pid(), *(int(w["worker_id"].rsplit("-", 1)[1]) for w in self.health()["workers"])]
+        """The API's and the connected workers' process ids."""
+        pids = self.worker_pids()
+        return [self.api_pid(), *(pids[w["worker_id"]] for w in self.health()["workers"])]
 
     def workers(self, n: int = 2, timeout_s: float = 90) -> list[dict]:
         def ready():
@@ -156,7 +171,7 @@ class Watcher:
         self.samples: dict[str, int] = {}
         self.phases: dict[str, list[str]] = {}
         self._lock = threading.Lock()
-        self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+        self.session = open_session("client", connect=[endpoint], wait_s=10)  # as this user's `up`'s observer
         self._subscribers = [
             self.session.declare_subscriber("cskills/exec/*/telemetry", self._on_telemetry),
             self.session.declare_subscriber("cskills/exec/*/status", self._on_status),
@@ -291,7 +306,7 @@ def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
 
 def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack, skill_id):
     stack.workers(2)
-    workers = {w["worker_id"]: int(w["worker_id"].rsplit("-", 1)[1]) for w in stack.health()["workers"]}
+    workers = stack.worker_pids()
     created = stack.post("/executions", {"skill_id": skill_id, "pace": "realtime"}, 202)
     wait_for(lambda: stack.execution(created["id"])["telemetry_samples"] > 300, 30, "the execution to run")
     os.kill(workers[created["worker_id"]], signal.SIGKILL)
@@ -301,8 +316,9 @@ def test_killing_a_worker_mid_execution_fails_it_and_the_api_keeps_serving(stack
     assert health is not None and health["status"] == "ok"
     assert created["worker_id"] not in {w["worker_id"] for w in health["workers"]}
     assert stack.http.get(f"/skills/{skill_id}").status_code == 200
-    restarted = stack.workers(2)  # `up` restarts the dead worker
-    assert created["worker_id"] not in {w["worker_id"] for w in restarted}
+    dead = workers[created["worker_id"]]
+    wait_for(lambda: stack.worker_pids()[created["worker_id"]] != dead, 30, "`up` to restart the dead worker")
+    assert created["worker_id"] in {w["worker_id"] for w in stack.workers(2)}  # back, under its own login
 
 
 def test_api_killed_and_restarted_keeps_every_stored_object(stack, skill_id):

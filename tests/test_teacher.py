@@ -68,7 +68,7 @@ def test_contact_force_tracks_the_target_along_the_true_normal(scenario):
     assert np.percentile(angle, 99) < 2.0
     # The whole force stays inside the friction cone around the true normal (Coulomb friction while sliding).
     total = np.degrees(np.arccos(np.clip(f_normal / np.linalg.norm(f, axis=1), -1.0, 1.0)))
-    assert np.percentile(total, 99) < math.degrees(math.atan(rec.world_config.lateral_friction)) + 3.0
+    assert np.percentile(total, 99) < math.degrees(math.atan(rec.world_config.contact.lateral_friction)) + 3.0
 
 
 @pytest.mark.parametrize("scenario", sorted(SCENARIOS))
@@ -134,7 +134,7 @@ def test_same_seed_same_recording_and_overrides_apply():
     b = record_demonstration("slide_flat", seed=1, move_duration_s=2.0, target_force_n=10.0, table_height_m=0.12)
     assert a.demonstration.wrenches == b.demonstration.wrenches
     assert a.demonstration.positions == b.demonstration.positions
-    assert a.world_config.table_height_m == 0.12 and a.target_force_n == 10.0
+    assert a.world_config.table.height_m == 0.12 and a.target_force_n == 10.0
     core = _core(a)
     assert np.asarray(a.demonstration.positions)[core, 2].mean() == pytest.approx(0.12, abs=1e-3)
     assert a.ground_truth_dict()["segments"][1]["kind"] == "slide"

@@ -5,8 +5,10 @@
   request whose ``Origin`` is neither the API itself nor in ``CONTACT_SKILLS_CORS_ORIGINS`` gets 403; none is
   allowed by default. The allowed ones get CORS headers (Starlette's ``CORSMiddleware``). Clients that are not
   browsers (curl, httpx, the CLI) send no ``Origin`` and are not affected.
-- **Host.** An API listening on loopback answers only requests addressed to a loopback name (``127.0.0.1``,
-  ``localhost``, ``[::1]``): a DNS-rebinding page, whose requests carry its own host name, gets 400.
+- **Host.** On every bind, the API answers only requests addressed to one of its names
+  (``ServiceSettings.host_names``: loopback names, the address it binds, this host's name, and
+  ``CONTACT_SKILLS_ALLOWED_HOSTS``): a DNS-rebinding page, whose requests carry its own host name, gets 400, whether
+  the API listens on loopback or, in a container, on every interface.
 """
 
 from __future__ import annotations
@@ -27,12 +29,12 @@ def _host_name(host_header: str) -> str:
 
 class BrowserGuard:
     """ASGI middleware: 403 for a cross-origin request from an origin not in ``allowed_origins``; 400 for a ``Host``
-    that is not a loopback name when ``loopback_only``."""
+    whose name is not in ``host_names``."""
 
-    def __init__(self, app: ASGIApp, allowed_origins: list[str], loopback_only: bool) -> None:
+    def __init__(self, app: ASGIApp, allowed_origins: list[str], host_names: frozenset[str]) -> None:
         self.app = app
         self.allowed = {origin.rstrip("/").lower() for origin in allowed_origins}
-        self.loopback_only = loopback_only
+        self.host_names = host_names
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -40,8 +42,10 @@ class BrowserGuard:
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers") or []}
         host = headers.get("host", "")
-        if self.loopback_only and _host_name(host) not in LOOPBACK_NAMES:
-            detail = f"Host {host!r} is not this loopback service's (127.0.0.1, localhost, [::1])"
+        if _host_name(host) not in self.host_names:
+            names = ", ".join(sorted(self.host_names - LOOPBACK_NAMES))
+            detail = (f"Host {host!r} is neither a loopback name nor one of this service's ({names}); "
+                      "CONTACT_SKILLS_ALLOWED_HOSTS adds names")  # fmt: skip
             await JSONResponse({"detail": detail}, status_code=400)(scope, receive, send)
             return
         origin = headers.get("origin")

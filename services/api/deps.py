@@ -20,6 +20,7 @@ from schemas.execution import ExecutionSettings
 from schemas.job_budget import JobBudget
 from schemas.skill import Skill
 from services.api import errors
+from services.api.limits import ClientCaps
 from services.bus import BusClient
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
@@ -56,6 +57,15 @@ def get_sweeps(request: Request) -> SweepRunner | None:
     return request.app.state.sweeps
 
 
+def get_client_caps(request: Request) -> ClientCaps:
+    return request.app.state.client_caps
+
+
+def client_address(request: Request) -> str:
+    """Who sent the request, for the per-client caps: its address (``unknown`` if the server gave none)."""
+    return request.client.host if request.client is not None else "unknown"
+
+
 StoreDep = Annotated[Store, Depends(get_store)]
 SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 BusDep = Annotated[BusClient | None, Depends(get_bus)]
@@ -63,6 +73,8 @@ KeysDep = Annotated[KeyExpressions, Depends(get_keys)]
 LearnersDep = Annotated[LearnerPool, Depends(get_learners)]
 QueueDep = Annotated[ExecutionQueue | None, Depends(get_queue)]
 SweepsDep = Annotated[SweepRunner | None, Depends(get_sweeps)]
+ClientCapsDep = Annotated[ClientCaps, Depends(get_client_caps)]
+ClientDep = Annotated[str, Depends(client_address)]
 
 
 def need_bus(bus: BusClient | None) -> BusClient:
@@ -172,7 +184,7 @@ ExportFormat = Annotated[
     Query(
         alias="format",
         description="json: columns of arrays; csv: one row per sample; mcap: ROS 2 messages for Foxglove or "
-        "PlotJuggler (topics in README 'Export').",
+        "PlotJuggler (topics in docs/API.md, 'Export').",
     ),
 ]
 WindowStart = Annotated[float | None, Query(description="Only samples at or after this time, s (the record's t).")]

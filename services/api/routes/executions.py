@@ -26,6 +26,8 @@ from services.api.deps import (
     READ_GUARD,
     TOKEN_GUARD,
     BusDep,
+    ClientCapsDep,
+    ClientDep,
     Cursor,
     ExportFormat,
     KeysDep,
@@ -43,6 +45,7 @@ from services.api.deps import (
     skill_to_run,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.limits import TOO_MANY, WorkKind
 from services.api.responses import streamed
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store
@@ -96,11 +99,17 @@ def _found(store: Store, execution_id: str) -> ExecutionRow:
     "/executions",
     status_code=202,
     response_model=ExecutionCreated,
-    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
     dependencies=TOKEN_GUARD,
 )
 def post_execution(
-    request: ExecutionRequest, store: StoreDep, queue: QueueDep, keys: KeysDep, settings: SettingsDep
+    request: ExecutionRequest,
+    store: StoreDep,
+    queue: QueueDep,
+    keys: KeysDep,
+    settings: SettingsDep,
+    caps: ClientCapsDep,
+    client: ClientDep,
 ) -> ExecutionCreated:
     """Run a skill on a sim worker: in the world its demonstration was recorded in (simulator recordings), else on
     a work piece rebuilt from the skill and placed in the robot's reach (``environment.work_piece``,
@@ -112,7 +121,8 @@ def post_execution(
     Replies 202 at once with the execution id and the Zenoh key of its telemetry; follow it with
     ``GET /executions/{id}`` or a Zenoh subscriber. When every worker is busy it is ``queued`` (with its
     ``queue_position``; ``priority`` orders the queue) and starts as soon as one is free. 503 when no worker is
-    connected or the queue is full."""
+    connected or the queue is full; 429 when this client has ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` executions queued
+    or running already."""
     from services.bus import BusRequestError, NoWorkerAvailable
     from services.queue import Dispatch
     from services.store import QueueFull
@@ -121,6 +131,7 @@ def post_execution(
     skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
     check_job_budget(skill, request, settings.job_budget, skill_at=skill_at)
     executions = need_queue(queue)
+    caps.admit(WorkKind.execution, client)
     stored = request.model_dump(mode="json", exclude={"skill"})
     stored.update(inline_skill=request.skill is not None)
     wire = request.model_copy(update={"skill": skill, "skill_id": None})
@@ -132,6 +143,7 @@ def post_execution(
         raise errors.unavailable(str(exc)) from None
     except BusRequestError as exc:  # the worker refused: an unknown scenario, a skill it cannot place in reach
         raise errors.refused_by_worker(str(exc)) from None
+    caps.hold(WorkKind.execution, client, row.id)
     return ExecutionCreated(
         id=row.id,
         status=row.status,

@@ -9,6 +9,7 @@ from fastapi import APIRouter, Request
 
 from schemas.api import Health, HealthDetail, WorkerSummary
 from services.api.deps import AuthenticatedDep, BusDep, LearnersDep, SettingsDep, StoreDep
+from services.bus import observer_login
 
 router = APIRouter(tags=["service"])
 
@@ -30,6 +31,8 @@ def health(
     database path and the process ids and host names of the API and its workers only for a request with the
     bearer token."""
     infos = bus.workers_seen() if bus is not None else []  # never waits on the bus (but the first time)
+    reads = known or not settings.token_reads
+    zenoh_login = observer_login(settings.zenoh_endpoints) if bus is not None and reads else None
     detail = None
     if known:
         detail = HealthDetail(
@@ -48,5 +51,7 @@ def health(
         active_executions=len(store.active_executions()),
         queued_executions=store.queued_count(),
         learning=dataclasses.asdict(learners.stats),
+        foxglove_url=request.app.state.foxglove.url if request.app.state.foxglove is not None else None,
+        zenoh_login=zenoh_login,
         detail=detail,
     )

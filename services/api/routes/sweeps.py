@@ -10,6 +10,8 @@ from services.api import errors
 from services.api.deps import (
     READ_GUARD,
     TOKEN_GUARD,
+    ClientCapsDep,
+    ClientDep,
     KeysDep,
     Limit,
     Offset,
@@ -21,6 +23,7 @@ from services.api.deps import (
     skill_to_run,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.limits import TOO_MANY, WorkKind
 from services.store import Store, SweepRow
 from services.sweeps import sweep_view, trial_results
 from skills.sweeps import inapplicable_parameter
@@ -39,11 +42,17 @@ def _found(store: Store, sweep_id: str) -> SweepRow:
     "/sweeps",
     status_code=202,
     response_model=SweepCreated,
-    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE},
+    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
     dependencies=TOKEN_GUARD,
 )
 def post_sweep(
-    request: SweepRequest, store: StoreDep, sweeps: SweepsDep, keys: KeysDep, settings: SettingsDep
+    request: SweepRequest,
+    store: StoreDep,
+    sweeps: SweepsDep,
+    keys: KeysDep,
+    settings: SettingsDep,
+    caps: ClientCapsDep,
+    client: ClientDep,
 ) -> SweepCreated:
     """Run a skill over ``trials`` sampled variations (``vary``: unknown offset and tilt, friction, contact
     stiffness and damping, sensor bias and noise, force scale) once per controller, each as an execution through
@@ -53,7 +62,7 @@ def post_sweep(
     ``progress_key``. The same ``seed`` draws the same trials. 404 for an unknown skill, 422 for a bad request, for a
     parameter the trials' world has nothing for (``cylinder_radius_m`` of a skill not taught on a cylinder) or one a
     worker refuses (an unknown scenario), for ``settings`` whose trials would each be over the job budget, 503 when
-    no worker is connected."""
+    no worker is connected, 429 when this client has ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` sweeps running already."""
     from services.bus import BusRequestError, NoWorkerAvailable
     from services.store import QueueFull
 
@@ -64,12 +73,14 @@ def post_sweep(
         parameter, why = problem
         raise errors.unprocessable(["body", "vary", parameter.value], why)
     runner = need_sweeps(sweeps)
+    caps.admit(WorkKind.sweep, client)
     try:
         row = runner.create(request, skill, request.skill_id, demonstration_id)
     except (NoWorkerAvailable, QueueFull) as exc:
         raise errors.unavailable(str(exc)) from None
     except BusRequestError as exc:
         raise errors.refused_by_worker(str(exc), environment_at=("body", "settings")) from None
+    caps.hold(WorkKind.sweep, client, row.id)
     return SweepCreated(
         id=row.id,
         status=SweepState(row.status),

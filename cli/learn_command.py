@@ -1,0 +1,175 @@
+"""``contact-skills learn`` (a recording: import, learn, write, summary) and ``demo-learn`` (the first KU Leuven
+recording)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from cli.errors import UserError, report_user_error
+from cli.import_options import LazyArgumentsParser, add_import_arguments, import_demonstration
+from services.datasets import DATA_ENV, KULEUVEN_IMPORT, data_directory, kuleuven_recordings
+from services.demonstration_files import SUPPORTED_FILES
+
+
+def _add_learn_arguments(parser: LazyArgumentsParser) -> None:
+    parser.add_argument(
+        "file",
+        type=Path,
+        help=f"demonstration: {SUPPORTED_FILES}",
+    )
+    parser.add_argument(
+        "--type",
+        dest="skill_type",
+        choices=["slide", "contour", "auto"],
+        default="auto",
+        help="the skill to learn; auto chooses slide or contour from the contact's geometry (default auto)",
+    )
+    parser.add_argument(
+        "--basis", type=int, default=50, metavar="N", help="fewest DMP basis functions per segment (long ones get more)"
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse a skill that fails any of its checks against the demonstration (exit 2 giving each); by default "
+        "it is written and the failed checks are printed as warnings",
+    )
+    parser.add_argument("-o", "--output", type=Path, required=True, help="skill JSON to write")
+    parser.add_argument("--figure", type=Path, help="learning figure to write (PNG)")
+    add_import_arguments(parser)
+
+
+def learn_and_report(demonstration, options, output: Path, figure: Path | None) -> None:
+    """Learn the skill from ``demonstration`` with ``options`` (`schemas.LearnOptions`), write it (and the figure),
+    print the summary with its checks' warnings."""
+    import time
+
+    from threadpoolctl import threadpool_limits
+
+    from skills.parameterize import learn_skill
+
+    started = time.perf_counter()
+    with threadpool_limits(1):  # one BLAS thread: a busy core makes a multi-threaded BLAS several times slower
+        skill = learn_skill(demonstration, options)
+    elapsed = time.perf_counter() - started
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(skill.model_dump_json(indent=1))
+    for line in summary_lines(demonstration, skill):
+        print(line)
+    print(f"learned in {elapsed:.2f} s; skill written to {output}")
+    if figure is not None:
+        from services.figures import write_learning_figure
+
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        write_learning_figure(demonstration, skill, figure)
+        print(f"figure written to {figure}")
+
+
+def _vector(v) -> str:
+    return "[" + ", ".join(f"{x:+.3f}" for x in v) + "]"
+
+
+def summary_lines(demonstration, skill) -> list[str]:
+    """The learn summary: import notes, type, segments, CF axes, learned force, DMP reproduction errors."""
+    import numpy as np
+
+    from schemas import DemonstrationSummary, SegmentKind
+    from services.figures import compliant_frame_axes
+
+    d = DemonstrationSummary.of(demonstration)
+    arrays = demonstration.arrays()  # once: each segment reads its own rows of them
+    meta = demonstration.metadata
+    lines = [f"demonstration {d.name or '(unnamed)'}: {d.n_samples} samples, {d.duration_s:.2f} s, "
+             f"{d.mean_rate_hz:.0f} Hz, max |f| {d.max_force_n:.1f} N (source {meta.source})"]  # fmt: skip
+    lines += [f"  import: {note}" for note in meta.extra.get("import_notes", [])]
+    if skill.auto_selection is not None:
+        auto = skill.auto_selection
+        lines.append(f"skill type: {skill.skill_type.value} (auto, confidence {auto.confidence:.2f}: {auto.reason})")
+    else:
+        lines.append(f"skill type: {skill.skill_type.value} (as asked)")
+    lines.append(f"segments: {len(skill.segments)}")
+    for s in skill.segments:
+        q = s.quality
+        lines.append(
+            f"  {s.index} {s.kind.value:7s} {s.t_start:7.3f} - {s.t_end:7.3f} s"
+            f"  (starts: {s.start_reason}, ends: {s.end_reason})"
+        )
+        if s.kind == SegmentKind.contact and s.compliant_frames is not None:
+            axes = compliant_frame_axes(arrays, s)
+            if len(s.compliant_frames.t) == 1:
+                lines.append(f"    CF normal (z) in world {_vector(axes.mean_world)}")
+            else:
+                lines.append(
+                    f"    CF z mean in world {_vector(axes.mean_world)}, in tool {_vector(axes.mean_tool)} "
+                    f"(RMS {axes.tool_spread_deg:.1f} deg about it in the tool frame)"
+                )
+        if s.force_constant_n is not None:
+            lines.append(f"    force: constant {s.force_constant_n:.2f} N along CF z")
+            if q.force_measured_percentiles_n is not None:
+                p10, p50, p90 = q.force_measured_percentiles_n
+                lines.append(
+                    f"    measured along CF z: median {p50:.2f} N, 10-90 % {p10:.2f}-{p90:.2f} N "
+                    f"(std {q.force_std_low_variance_n:.2f} N in the steady part the constant comes from)"
+                )
+        elif s.force_dmp is not None:
+            from services.figures import learned_force_curve
+
+            _, f = learned_force_curve(s, 1.0 / skill.sample_rate_hz)
+            lines.append(f"    force profile (DMP): min {f.min():.1f} / mean {f.mean():.1f} / max {f.max():.1f} N")
+        errors = f"position {q.position_rms_m * 1e3:.2f} mm, orientation {np.degrees(q.orientation_rms_rad):.2f} deg"
+        if q.force_rms_n is not None:
+            errors += f", force {q.force_rms_n:.2f} N"
+        lines.append(f"    DMP reproduction RMS: {errors}")
+    warnings = skill.warnings()
+    lines.append(f"checks against the demonstration: {len(skill.checks) - len(warnings)} of {len(skill.checks)} passed")
+    lines += [f"  WARNING: {warning}" for warning in warnings]
+    return lines
+
+
+def cmd_learn(args: argparse.Namespace) -> int:
+    """``contact-skills learn``: import a recording, learn the skill, write it, print the summary."""
+    try:
+        demonstration = import_demonstration(args)
+        from schemas import LearnOptions
+
+        options = LearnOptions(skill_type=args.skill_type, n_basis=args.basis, strict=args.strict)
+        learn_and_report(demonstration, options, args.output, args.figure)
+    except Exception as exc:
+        return report_user_error("learn", exc)
+    return 0
+
+
+def cmd_demo_learn(args: argparse.Namespace) -> int:
+    """``contact-skills demo-learn``: learn a contour skill from the first KU Leuven recording."""
+    try:
+        recordings = kuleuven_recordings()
+        if not recordings:
+            raise UserError([f"no KU Leuven recordings (contour_*.csv) under {data_directory()}; set {DATA_ENV}"])
+        from schemas.import_options import CsvImportOptions
+        from services.csv_import import demonstration_from_csv
+
+        print(f"importing {recordings[0]}")
+        demonstration = demonstration_from_csv(recordings[0], CsvImportOptions(**KULEUVEN_IMPORT))
+        out = args.out_dir
+        from schemas import LearnOptions
+
+        learn_and_report(demonstration, LearnOptions(skill_type="contour"), out / "skill.json", out / "learn.png")
+    except Exception as exc:
+        return report_user_error("demo-learn", exc)
+    return 0
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    """Add ``learn`` and ``demo-learn`` to the `contact-skills` parser."""
+    learn = commands.add_parser(
+        "learn",
+        help="learn a skill from a recorded demonstration (CSV, JSON, ROS 1 or ROS 2 bag)",
+        description=cmd_learn.__doc__,
+    )
+    _add_learn_arguments(learn)
+    learn.set_defaults(run=cmd_learn)
+    demo = commands.add_parser(
+        "demo-learn", help="learn a contour skill from a real KU Leuven recording", description=cmd_demo_learn.__doc__
+    )
+    demo.add_argument("--out-dir", type=Path, default=Path("out"), help="where to write skill.json and learn.png")
+    demo.set_defaults(run=cmd_demo_learn)

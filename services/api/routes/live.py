@@ -1,0 +1,116 @@
+"""``GET /executions/{id}/live``: an execution as it runs, for a browser, as server-sent events.
+
+Read from the store as the bus callbacks write it (every sample received, a repaired gap too, once and in order),
+every :data:`PERIOD_S`: each ``telemetry`` event carries what arrived since the last, decimated to :data:`PLOT_HZ`
+samples per second of execution time, ALWAYS with the last sample stored (so the live plot ends where the stored
+telemetry ends); each event's ``id`` is the stream index to go on from. A client that lost the connection (the API
+restarted) asks again with ``cursor`` = that id and misses nothing. ``status`` events carry the state when it
+changes; ``end``, once the execution has finished and its telemetry is stored, the final view (metrics, verdict),
+and closes the stream.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import StreamingResponse
+
+from services.api import errors
+from services.api.deps import MAX_OFFSET, READ_GUARD, StoreDep
+from services.api.errors import ERROR_RESPONSES, READ_RESPONSES
+from services.dashboard.stream import decimated, stored_rows
+from services.store import TELEMETRY_LAYOUT, TERMINAL, Store
+
+router = APIRouter(tags=["executions"], dependencies=READ_GUARD, responses=READ_RESPONSES)
+
+PERIOD_S = 0.04
+"""How often the store is read for new samples, s: 25 events per second at most."""
+PLOT_HZ = 100.0
+"""Samples per second of execution time an event carries (the control loop's 1 kHz is in the stored telemetry)."""
+FINAL_WAIT_S = 3.0
+"""After the final status, how long to wait for the telemetry it counts before ending the stream anyway, s."""
+SEND = ("t", "phase", "segment_index", "tool_position", "reference_position", "wrench_world", "wrench_cf",
+        "desired_force_cf_z_n")  # fmt: skip
+"""The columns an event carries (poses' orientations stay in the stored telemetry)."""
+
+LiveCursor = Annotated[int, Query(ge=0, le=MAX_OFFSET, description="The stream index to start from (an event's id).")]
+
+
+def _event(kind: str, data: dict[str, Any], ident: int | None = None) -> str:
+    head = f"id: {ident}\n" if ident is not None else ""
+    return f"{head}event: {kind}\ndata: {json.dumps(data, allow_nan=False)}\n\n"
+
+
+def _telemetry(rows: np.ndarray, first: int) -> dict[str, Any]:
+    """The columns of ``rows`` (the store's matrix, stream index ``first`` onwards) decimated to :data:`PLOT_HZ`,
+    the last row always kept; ``index``: each kept row's stream index."""
+    keep = decimated(rows[:, 0], PLOT_HZ)
+    picked = np.nan_to_num(rows[keep])
+    out: dict[str, Any] = {"index": (first + keep).tolist()}
+    for name in SEND:
+        a, b = TELEMETRY_LAYOUT[name]
+        out[name] = picked[:, a].tolist() if b - a == 1 else picked[:, a:b].round(6).tolist()
+    return out
+
+
+def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tuple[Any, np.ndarray]:
+    """The execution's row and its samples from ``cursor`` on (up to a gap still being repaired, unless
+    ``skip_gaps``)."""
+    return store.execution(execution_id), stored_rows(store, execution_id, cursor, skip_gaps)
+
+
+async def _events(request: Request, store: Store, execution_id: str, cursor: int) -> AsyncIterator[str]:
+    sent_state: tuple | None = None
+    final_since: float | None = None
+    loop = asyncio.get_running_loop()
+    next_read = loop.time()
+    while not await request.is_disconnected():
+        next_read += PERIOD_S  # a fixed rate: the time spent reading and sending is not added to the period
+        given_up = final_since is not None and loop.time() - final_since > FINAL_WAIT_S  # what is missing is lost
+        row, rows = await asyncio.to_thread(_read, store, execution_id, cursor, given_up)
+        if row is None:
+            yield _event("end", {"error": f"execution {execution_id} was deleted"})
+            return
+        if rows.shape[0]:
+            yield _event("telemetry", _telemetry(rows, cursor), cursor + rows.shape[0])
+            cursor += rows.shape[0]
+        state = (row.status.value, row.phase.value, row.error)
+        if state != sent_state:
+            sent_state = state
+            yield _event("status", {"status": row.status.value, "phase": row.phase.value, "error": row.error})
+        if row.status in TERMINAL:
+            final_since = final_since if final_since is not None else loop.time()
+            steps = (row.metrics or {}).get("steps")
+            complete = not row.streams_telemetry or steps is None or cursor >= steps
+            if complete or (given_up and not rows.shape[0]):
+                verdict = ((row.metrics or {}).get("verdict") or {}).get("verdict")
+                final = {"status": row.status.value, "phase": row.phase.value, "error": row.error,
+                         "metrics": row.metrics, "verdict": verdict, "samples": cursor}  # fmt: skip
+                yield _event("end", final, cursor)
+                return
+        await asyncio.sleep(max(0.0, next_read - loop.time()))
+
+
+@router.get(
+    "/executions/{execution_id}/live",
+    responses={200: {"content": {"text/event-stream": {}}, "description": "Server-sent events."}, **ERROR_RESPONSES},
+)
+def get_live(execution_id: str, request: Request, store: StoreDep, cursor: LiveCursor = 0) -> StreamingResponse:
+    """An execution as it runs, as server-sent events (``text/event-stream``), for a browser: ``telemetry`` events
+    (t s, phase code, segment, tool and reference positions world m, wrenches world and CF N N·m, desired CF-z force
+    N; decimated to 100 samples per s of execution time, always with the last one stored) at up to 25 per s, each
+    with the stream index to resume from as its ``id``; ``status`` when the state changes; ``end`` with the final
+    view (metrics, verdict) once it finished and its telemetry is stored. ``cursor``: where to start (0: the
+    beginning; after a lost connection, the last event's id). 404 for an unknown id."""
+    if store.execution(execution_id) is None:
+        raise errors.not_found("execution", execution_id)
+    return StreamingResponse(
+        _events(request, store, execution_id, cursor),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )

@@ -1,0 +1,378 @@
+// The dashboard: lists, a skill's page, live executions, a sweep's page. Plain ES module, data from the API only
+// (same origin; the bearer token, if the service wants one, from the field in the header, kept in localStorage).
+import { linePlot, View3D } from "/dashboard/static/plot.js";
+
+const main = document.getElementById("main");
+const tokenField = document.getElementById("token");
+const connection = document.getElementById("connection");
+const PHASES = ["pending", "settle", "free", "approach", "contact", "retreat", "done", "aborted", "failed"];
+const FINAL = ["done", "aborted", "failed"];
+const LIST_PERIOD_MS = 2000;
+const RETRY_MS = [250, 500, 1000, 2000, 3000];   // reconnect back-off of a live stream
+
+tokenField.value = localStorage.getItem("contact-skills-token") || "";
+tokenField.addEventListener("change", () => { localStorage.setItem("contact-skills-token", tokenField.value); route(); });
+
+function headers(extra = {}) {
+  return tokenField.value ? { ...extra, Authorization: `Bearer ${tokenField.value}` } : extra;
+}
+
+function say(text) { document.getElementById("message").textContent = text; }
+
+async function api(path, options = {}) {
+  const response = await fetch(path, { ...options, headers: headers(options.headers || {}) });
+  const body = response.headers.get("content-type")?.includes("json") ? await response.json() : await response.text();
+  if (!response.ok) {
+    const detail = Array.isArray(body?.detail)
+      ? body.detail.map((d) => `${(d.loc || []).join(".")}: ${d.msg}`).join("; ")
+      : body?.detail || body;
+    throw new Error(`${response.status}: ${detail}`);
+  }
+  return body;
+}
+
+const el = (tag, attrs = {}, ...children) => {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k.startsWith("on")) node.addEventListener(k.slice(2), v); else if (v !== undefined && v !== null) node.setAttribute(k, v);
+  }
+  node.append(...children.flat().filter((c) => c !== null && c !== undefined));
+  return node;
+};
+const fmt = (v, digits = 2) => (v === null || v === undefined ? "–" : typeof v === "number" ? v.toFixed(digits) : String(v));
+const when = (unix) => new Date(unix * 1000).toLocaleString();
+const badge = (text) => el("span", { class: String(text) }, String(text ?? "–"));
+
+function table(columns, rows, rowId) {
+  return el("table", {},
+    el("thead", {}, el("tr", {}, columns.map(([name]) => el("th", {}, name)))),
+    el("tbody", {}, rows.map((row) => el("tr", { "data-id": rowId ? rowId(row) : null }, columns.map(([, cell]) => el("td", {}, cell(row)))))));
+}
+
+// ------------------------------------------------------------------------------------------------ lists
+
+let listTimer = null;
+
+async function listsPage() {
+  const demos = el("section", { id: "demonstrations" }, el("h2", {}, "Demonstrations"));
+  const skills = el("section", { id: "skills" }, el("h2", {}, "Skills"));
+  const executions = el("section", { id: "executions" }, el("h2", {}, "Executions"));
+  const sweeps = el("section", { id: "sweeps" }, el("h2", {}, "Sweeps"));
+  const scenario = el("input", { id: "scenario", value: "slide_flat", size: 16 });
+  const file = el("input", { id: "upload-file", type: "file", accept: ".csv,.json,.mcap,.db3,.bag" });
+  const add = el("section", {}, el("h2", {}, "Add a demonstration"),
+    el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); record(scenario.value); } },
+      el("label", {}, "teacher scenario", scenario), el("button", { id: "record", type: "submit" }, "Record in simulation")),
+    el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); upload(file.files[0]); } },
+      el("label", {}, "recording (CSV, JSON, ROS bag)", file), el("button", { id: "upload", type: "submit" }, "Upload")));
+  main.replaceChildren(add, demos, skills, executions, sweeps);
+  let shown = "";
+  const refresh = async () => {
+    try {
+      const [d, s, x, w] = await Promise.all(["/demonstrations", "/skills", "/executions", "/sweeps"].map((p) => api(`${p}?limit=50`)));
+      connected(true);
+      const now = JSON.stringify([d, s, x, w]);
+      if (now === shown) return;   // redraw only what changed: a button under the pointer stays where it is
+      shown = now;
+      demos.replaceChildren(demos.firstChild, table([
+        ["id", (r) => r.id], ["created", (r) => when(r.created)], ["name", (r) => r.name], ["source", (r) => r.source],
+        ["samples", (r) => r.summary?.n_samples ?? r.problem], ["s", (r) => fmt(r.summary?.duration_s, 1)],
+        ["", (r) => el("button", { class: "learn", onclick: () => learn(r.id) }, "Learn")],
+      ], d, (r) => r.id));
+      skills.replaceChildren(skills.firstChild, table([
+        ["id", (r) => el("a", { href: `#/skill/${r.id}` }, r.id)], ["created", (r) => when(r.created)],
+        ["type", (r) => r.skill_type], ["segments", (r) => r.segments], ["confidence", (r) => fmt(r.confidence)],
+        ["checks", (r) => (r.failed_checks ? badge("fail") : badge("pass"))], ["from", (r) => r.demonstration_name],
+      ], s, (r) => r.id));
+      executions.replaceChildren(executions.firstChild, table([
+        ["id", (r) => el("a", { href: `#/execution/${r.id}` }, r.id)], ["created", (r) => when(r.created)],
+        ["status", (r) => badge(r.status)], ["verdict", (r) => badge(r.verdict)], ["controller", (r) => r.request?.controller],
+        ["true RMS %", (r) => fmt(r.metrics?.true_force_rms_error_pct)], ["CF-z RMS %", (r) => fmt(r.metrics?.force_rms_error_pct)],
+        ["contact", (r) => fmt(r.metrics?.contact_ratio)], ["s", (r) => fmt(r.metrics?.duration_s, 1)],
+      ], x, (r) => r.id));
+      const running = x.filter((r) => !FINAL.includes(r.status)).map((r) => r.id);
+      if (running.length > 1) executions.append(el("a", { href: `#/execution/${running.join(",")}` }, `watch the ${running.length} running`));
+      sweeps.replaceChildren(sweeps.firstChild, table([
+        ["id", (r) => el("a", { href: `#/sweep/${r.id}` }, r.id)], ["created", (r) => when(r.created)], ["status", (r) => badge(r.status)],
+        ["trials", (r) => `${r.counts?.finished ?? 0}/${r.counts?.total ?? 0}`],
+        ["success", (r) => (r.controllers || []).map((c) => `${c.controller} ${fmt(c.success_rate)}`).join(", ")],
+      ], w, (r) => r.id));
+    } catch (error) { connected(false); say(error.message); }
+  };
+  await refresh();
+  listTimer = setInterval(refresh, LIST_PERIOD_MS);
+}
+
+function connected(up) {
+  connection.textContent = up ? "connected" : "API unreachable: retrying";
+  connection.style.background = up ? "#d7f5dd" : "#fde2e2";
+}
+
+async function record(scenario) {
+  say(`recording ${scenario}…`);
+  try {
+    const demo = await api("/demonstrations/record", { method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ scenario, seed: 0 }) });
+    say(`recorded ${demo.id} (${demo.summary.n_samples} samples)`);
+    route();
+  } catch (error) { say(`record: ${error.message}`); }
+}
+
+async function upload(file) {
+  if (!file) { say("choose a file first"); return; }
+  const name = file.name.toLowerCase();
+  say(`uploading ${file.name}…`);
+  try {
+    let demo;
+    if (name.endsWith(".json")) {
+      demo = await api("/demonstrations", { method: "POST", headers: { "content-type": "application/json" }, body: await file.text() });
+    } else {
+      const form = new FormData();
+      form.append("file", file);
+      demo = await api(name.endsWith(".csv") ? "/demonstrations/csv" : "/demonstrations/bag", { method: "POST", body: form });
+    }
+    say(`stored ${demo.id}: ${(demo.import_notes || []).join(" ")}`);
+    route();
+  } catch (error) { say(`upload: ${error.message}`); }
+}
+
+async function learn(demonstrationId) {
+  say(`learning from ${demonstrationId}…`);
+  try {
+    const skill = await api("/skills", { method: "POST", headers: { "content-type": "application/json" },
+      body: JSON.stringify({ demonstration_id: demonstrationId, skill_type: "auto" }) });
+    say(`learned ${skill.id} (${skill.skill.skill_type})`);
+    location.hash = `#/skill/${skill.id}`;
+  } catch (error) { say(`learn: ${error.message}`); }
+}
+
+// ------------------------------------------------------------------------------------------------ a skill
+
+async function skillPage(id) {
+  const view = await api(`/dashboard/api/skills/${id}`);
+  const spans = view.segments.map((s) => ({ x0: s.t_start, x1: s.t_end, color: s.kind === "contact" ? "rgba(255,152,0,.15)" : "rgba(120,120,120,.08)" }));
+  const timeline = el("canvas", { id: "timeline" });
+  const force = el("canvas", { id: "skill-force" });
+  const path = el("canvas", { id: "skill-path" });
+  const number = (name, value) => el("label", {}, name, el("input", { type: "number", step: "0.005", value, name }));
+  const form = el("form", { class: "inline", id: "execute-form", onsubmit: (e) => { e.preventDefault(); execute(id, form); } },
+    el("label", {}, "controller", el("select", { name: "controller" },
+      ["hybrid_cf", "impedance", "impedance_found_surface", "hybrid_world_z"].map((c) => el("option", { value: c }, c)))),
+    ["x", "y", "z"].map((a) => number(`known ${a} m`, 0)), ["x", "y", "z"].map((a) => number(`unknown ${a} m`, 0)),
+    el("label", {}, "pace", el("select", { name: "pace" }, el("option", { value: "fast" }, "fast"), el("option", { value: "realtime" }, "realtime"))),
+    el("button", { id: "execute", type: "submit" }, "Execute"));
+  const auto = view.auto_selection;
+  main.replaceChildren(
+    el("section", {}, el("h2", {}, `Skill ${id}: ${view.skill_type}, ${view.segments.length} segments`), form),
+    el("section", {}, el("h2", {}, "Segments on the demonstration's time line"), timeline,
+      el("div", { class: "legend" }, view.segments.map((s) => el("span", {}, el("i", { style: `background:${s.kind === "contact" ? "#ff9800" : "#bbb"}` }),
+        `${s.index} ${s.kind} ${fmt(s.t_start)}–${fmt(s.t_end)} s${s.force_n !== null ? `, ${fmt(s.force_n, 1)} N` : ""}`)))),
+    el("div", { class: "grid2" },
+      el("section", {}, el("h2", {}, "Force along CF z: demonstrated vs learned (N)"), force,
+        el("div", { class: "legend" }, el("span", {}, el("i", { style: "background:#1565c0" }), "demonstrated"), el("span", {}, el("i", { style: "background:#000" }), "learned"))),
+      el("section", {}, el("h2", {}, "Path and compliant frames (drag to rotate)"), path)),
+    el("div", { class: "grid2" },
+      el("section", { id: "auto-selection" }, el("h2", {}, "Auto selection"), auto
+        ? el("div", {}, el("p", {}, el("b", {}, auto.chosen), ` (confidence ${fmt(auto.confidence)}): ${auto.reason}`),
+          table([["evidence", (r) => r[0]], ["value", (r) => fmt(r[1], 3)]],
+            Object.entries({ ...(auto.evidence || {}), turning_within_planes_deg: auto.turning_within_planes_deg, plane_rms_m: auto.plane_rms_m, mixed: auto.mixed }).map(([k, v]) => [k, v])))
+        : el("p", {}, "type given, not chosen")),
+      el("section", { id: "checks" }, el("h2", {}, "The skill's checks"), table([
+        ["check", (r) => r.name], ["segment", (r) => r.segment ?? "all"], ["", (r) => badge(r.passed ? "pass" : "fail")],
+        ["value", (r) => `${fmt(r.value, 3)} ${r.unit}`], ["limit", (r) => fmt(r.limit, 3)], ["", (r) => r.message],
+      ], view.checks))));
+  linePlot(timeline, view.segments.map((s) => ({ x: [s.t_start, s.t_end], y: [0, 0], color: "#fff" })), { height: 60, bands: spans, xLabel: "t s" });
+  linePlot(force, [
+    { x: view.t, y: view.force_cf_z, color: "#1565c0", width: 1 },
+    { x: view.learned_t, y: view.learned_force, color: "#000", dash: [6, 3], width: 2 },
+  ], { bands: spans, xLabel: "t s", yLabel: "N" });
+  new View3D(path).set([{ points: view.path.length ? view.path : view.triads.map((tr) => tr.origin), color: "#555" }], view.triads);
+  path.dataset.triads = String(view.triads.length);
+  timeline.dataset.segments = String(view.segments.length);
+}
+
+async function execute(skillId, form) {
+  const data = new FormData(form);
+  const values = [...form.querySelectorAll("input[type=number]")].map((i) => Number(i.value));
+  const body = { skill_id: skillId, controller: data.get("controller"), pace: data.get("pace"),
+    environment: { offset: values.slice(0, 3), unknown_offset: values.slice(3, 6) } };
+  try {
+    const created = await api("/executions", { method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify(body) });
+    location.hash = `#/execution/${created.id}`;
+  } catch (error) { say(`execute: ${error.message}`); }
+}
+
+// ------------------------------------------------------------------------------------------------ live executions
+
+const streams = new Set();   // the live streams of the page shown (closed when leaving it)
+window.__drawLog = [];        // [stream index of the last point drawn, Date.now()] per frame: the benchmark reads it
+
+class LivePanel {
+  constructor(id) {
+    this.id = id; this.cursor = 0; this.attempt = 0; this.closed = false; this.ended = false; this.pending = false;
+    this.t = []; this.fz = []; this.fd = []; this.fw = []; this.index = []; this.maxGap = 0;
+    this.tool = []; this.reference = []; this.contactBands = [];
+    this.head = el("div", { class: "live-head" });
+    this.force = el("canvas", { class: "live-force", "data-execution": id });
+    this.path = el("canvas", { class: "live-path" });
+    this.view = new View3D(this.path, { height: 260 });
+    this.final = el("div", { class: "final" });
+    const command = (name) => el("button", { class: name, onclick: () => this.command(name) }, name);
+    this.root = el("section", { class: "live", "data-execution": id },
+      el("h2", {}, `Execution ${id} `, command("pause"), " ", command("resume"), " ", command("abort")), this.head,
+      el("div", { class: "grid2" },
+        el("div", {}, this.force, el("div", { class: "legend" },
+          el("span", {}, el("i", { style: "background:#1565c0" }), "CF-z measured"), el("span", {}, el("i", { style: "background:#000" }), "desired"),
+          el("span", {}, el("i", { style: "background:#9e9e9e" }), "|F| world"), el("span", {}, el("i", { style: "background:rgba(46,125,50,.25)" }), "contact phase"))),
+        el("div", {}, this.path, el("div", { class: "legend" },
+          el("span", {}, el("i", { style: "background:#ff9800" }), "tool"), el("span", {}, el("i", { style: "background:#1565c0" }), "reference")))),
+      this.final);
+    streams.add(this);
+    this.status = { status: "…", phase: "…" };
+    this.connect();
+  }
+
+  async command(name) {
+    try { await api(`/executions/${this.id}/${name}`, { method: "POST" }); say(`${name} sent to ${this.id}`); } catch (error) { say(`${name}: ${error.message}`); }
+  }
+
+  async connect() {
+    // Server-sent events read with fetch (EventSource cannot send the bearer token); on a lost connection (the API
+    // restarted) go on from the last event's id: nothing is missed, nothing drawn twice.
+    while (!this.closed && !this.ended) {
+      try {
+        const response = await fetch(`/executions/${this.id}/live?cursor=${this.cursor}`, { headers: headers() });
+        if (!response.ok) throw new Error(`${response.status}: ${(await response.text()).slice(0, 200)}`);
+        if (this.attempt) say(`${this.id}: reconnected`);
+        connected(true); this.attempt = 0; this.root.dataset.connected = "1";
+        const reader = response.body.getReader();
+        const decoder = new TextDecoder();
+        let buffer = "";
+        for (;;) {
+          const { value, done } = await reader.read();
+          if (done || this.closed) break;
+          buffer += decoder.decode(value, { stream: true });
+          let cut;
+          while ((cut = buffer.indexOf("\n\n")) >= 0) { this.onEvent(buffer.slice(0, cut)); buffer = buffer.slice(cut + 2); }
+        }
+      } catch (error) { connected(false); say(`${this.id}: ${error.message}; reconnecting`); }
+      this.root.dataset.connected = "0";
+      if (!this.ended && !this.closed) await new Promise((r) => setTimeout(r, RETRY_MS[Math.min(this.attempt++, RETRY_MS.length - 1)]));
+    }
+  }
+
+  onEvent(text) {
+    let kind = "message", data = "", id = null;
+    for (const line of text.split("\n")) {
+      if (line.startsWith("event: ")) kind = line.slice(7);
+      else if (line.startsWith("data: ")) data += line.slice(6);
+      else if (line.startsWith("id: ")) id = Number(line.slice(4));
+    }
+    const body = JSON.parse(data || "{}");
+    if (kind === "telemetry") this.addTelemetry(body);
+    else if (kind === "status") this.status = body;
+    else if (kind === "end") { this.ended = true; this.status = { ...this.status, ...body }; this.showFinal(body); }
+    if (id !== null) this.cursor = id;
+    this.schedule();
+  }
+
+  addTelemetry(b) {
+    for (let k = 0; k < b.t.length; k++) {
+      const t = b.t[k];
+      if (this.index.length) this.maxGap = Math.max(this.maxGap, b.index[k] - this.index[this.index.length - 1]);
+      this.t.push(t); this.index.push(b.index[k]);
+      this.fz.push(b.wrench_cf[k][2]); this.fd.push(b.desired_force_cf_z_n[k]);
+      const f = b.wrench_world[k]; this.fw.push(Math.hypot(f[0], f[1], f[2]));
+      this.tool.push(b.tool_position[k]); this.reference.push(b.reference_position[k]);
+      const contact = PHASES[b.phase[k]] === "contact";
+      const last = this.contactBands[this.contactBands.length - 1];
+      if (contact && last && last.open) last.x1 = t; else if (contact) this.contactBands.push({ x0: t, x1: t, open: true, color: "rgba(46,125,50,.18)" });
+      else if (last) last.open = false;
+    }
+    this.latest = b;
+  }
+
+  schedule() {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => { this.pending = false; this.draw(); });
+  }
+
+  draw() {
+    const n = this.t.length;
+    const b = this.latest;
+    const k = b ? b.t.length - 1 : -1;
+    const phase = b ? PHASES[b.phase[k]] : this.status.phase;
+    const contact = b && phase === "contact" && b.wrench_cf[k][2] > 0.5 * Math.max(b.desired_force_cf_z_n[k], 1);
+    this.head.replaceChildren(...[
+      el("span", {}, "status ", badge(this.status.status)), el("span", {}, "phase ", el("b", { class: "phase" }, phase)),
+      el("span", {}, "segment ", el("b", {}, b ? String(b.segment_index[k]) : "–")),
+      el("span", {}, "t ", el("b", {}, n ? `${this.t[n - 1].toFixed(3)} s` : "–")),
+      el("span", {}, "CF-z ", el("b", {}, b ? `${b.wrench_cf[k][2].toFixed(2)} N` : "–"), " / desired ", el("b", {}, b ? `${b.desired_force_cf_z_n[k].toFixed(2)} N` : "–")),
+      el("span", { class: contact ? "contact-on" : "contact-off" }, contact ? "in contact" : "no contact"),
+      this.status.error ? el("span", { class: "failed" }, this.status.error) : null].filter(Boolean));
+    linePlot(this.force, [
+      { x: this.t, y: this.fw, color: "#9e9e9e", width: 1 },
+      { x: this.t, y: this.fd, color: "#000", dash: [6, 3], width: 1.5 },
+      { x: this.t, y: this.fz, color: "#1565c0", width: 1.2 },
+    ], { xLabel: "t s", yLabel: "N", bands: this.contactBands });
+    this.view.set([{ points: this.reference, color: "#1565c0", width: 1 }, { points: this.tool, color: "#ff9800", width: 2 }]);
+    if (n) {
+      // The plot's last point, for whoever checks it against the stored telemetry (tests, the benchmark).
+      Object.assign(this.force.dataset, { lastIndex: this.index[n - 1], lastT: this.t[n - 1], lastFz: this.fz[n - 1], points: n, maxGap: this.maxGap });
+      window.__drawLog.push([this.id, this.index[n - 1], Date.now()]);
+    }
+    this.root.dataset.status = this.status.status;
+  }
+
+  showFinal(end) {
+    const m = end.metrics || {};
+    const v = m.verdict || {};
+    this.final.replaceChildren(el("h2", {}, "Result: ", badge(end.verdict || end.status)),
+      table([["metric", (r) => r[0]], ["value", (r) => fmt(r[1], 3)]], [
+        ["status", end.status], ["true normal force RMS error %", m.true_force_rms_error_pct], ["true max error %", m.true_force_max_error_pct],
+        ["CF-z RMS error %", m.force_rms_error_pct], ["contact ratio", m.contact_ratio], ["touch-down peak ratio", m.touchdown_peak_ratio],
+        ["path RMS m", m.path_rms_m], ["duration s", m.duration_s], ["real-time factor", m.real_time_factor], ["telemetry samples", String(end.samples)],
+        ["abort reason", m.abort_reason || end.error],
+      ]), el("ul", {}, [...(v.reasons || []), ...(v.warnings || []).map((w) => `warning: ${w}`)].map((r) => el("li", {}, r))));
+    this.root.dataset.ended = "1";
+  }
+
+  close() { this.closed = true; streams.delete(this); }
+}
+
+function executionPage(ids) {
+  main.replaceChildren(...ids.map((id) => new LivePanel(id).root));
+}
+
+// ------------------------------------------------------------------------------------------------ a sweep
+
+async function sweepPage(id) {
+  const view = await api(`/sweeps/${id}`);
+  const image = el("img", { id: "sweep-figure", alt: "success rate and true force error along each parameter", style: "max-width:100%" });
+  main.replaceChildren(el("section", {}, el("h2", {}, `Sweep ${id}: `, badge(view.status)),
+    table([["controller", (r) => r.controller], ["finished", (r) => `${r.finished}/${r.trials}`], ["success rate", (r) => fmt(r.success_rate)],
+      ["true RMS % p50", (r) => fmt(r.true_force_rms_error_pct?.p50)], ["p90", (r) => fmt(r.true_force_rms_error_pct?.p90)],
+      ["failures", (r) => Object.entries(r.failures || {}).map(([k, v]) => `${k}: ${v}`).join(", ")]], view.controllers || [])),
+  el("section", {}, el("h2", {}, "Success rate along each varied parameter"), image));
+  const response = await fetch(`/dashboard/api/sweeps/${id}/figure.png`, { headers: headers() });
+  if (response.ok) image.src = URL.createObjectURL(await response.blob());
+}
+
+// ------------------------------------------------------------------------------------------------ routing
+
+async function route() {
+  clearInterval(listTimer);
+  for (const stream of [...streams]) stream.close();
+  const [, page, id] = location.hash.split("/");
+  try {
+    if (page === "skill" && id) await skillPage(id);
+    else if (page === "execution" && id) executionPage(id.split(","));
+    else if (page === "sweep" && id) await sweepPage(id);
+    else await listsPage();
+    document.body.dataset.page = page || "lists";
+  } catch (error) { say(error.message); connected(false); }
+}
+
+window.addEventListener("hashchange", route);
+route();

@@ -1,0 +1,224 @@
+"""The live execution in Foxglove: a Foxglove WebSocket server (protocol ``foxglove.websocket.v1``, the
+``foxglove-sdk`` package) in the API process, on loopback, streaming the execution that runs.
+
+What it streams is what the exported MCAP holds (``services.telemetry_export.ExecutionMessages``: the same topics,
+ROS 2 message types, CDR, built by the same code), so a recorded run looks in Foxglove as the live one did: poses,
+wrenches (world, CF), desired force, phase, segment, ``/tf`` (world, flange, tool, reference, ``cf``),
+``/joint_states``, ``/robot_description`` (the URDF; its meshes served by the asset handler, ``package://`` URIs) and
+``/markers`` (paths, CF triads, the touched work piece). ``/execution`` (``std_msgs/msg/String``) names the
+execution shown.
+
+Where the telemetry comes from: the store, as the API's bus callbacks write it (``services.bus_events``), polled
+every :data:`POLL_S` from a cursor: every sample received (a repaired gap too) is shown once, in order. One
+execution at a time: the newest one running; when it ends the view keeps it until another starts. Poses, wrenches
+and ``/tf`` at :data:`LIVE_HZ` (every n-th control step; a whole run at 1 kHz is in the export), joint states and
+markers at the scene's own rates.
+
+Configuration: ``CONTACT_SKILLS_FOXGLOVE_PORT`` (default :data:`DEFAULT_PORT`; ``0`` any free port; ``off`` no
+server). A port already taken falls back to a free one (``/health`` gives the URL, ``foxglove_url``). The protocol
+has no authentication: when the API's reads need its token (``CONTACT_SKILLS_TOKEN_READS``) the server is off unless
+the variable is set.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from typing import Any
+
+import numpy as np
+
+from schemas.api import ExecutionState
+from services.dashboard.stream import decimated, stored_rows
+from services.store import TERMINAL, Store
+
+log = logging.getLogger("contact_skills.foxglove")
+
+PORT_ENV = "CONTACT_SKILLS_FOXGLOVE_PORT"
+DEFAULT_PORT = 8765
+"""Foxglove's own default WebSocket port (what its "Open connection" dialog proposes)."""
+HOST = "127.0.0.1"
+POLL_S = 0.05
+"""How often the store is read for new samples, s (20 Hz; each read sends everything new)."""
+LIVE_HZ = 100.0
+"""Poses, wrenches and ``/tf`` per second of execution time (1 kHz control steps; the last of each read always)."""
+EXECUTION_TOPIC = "/execution"
+
+
+class FoxgloveLive:
+    """The Foxglove WebSocket server of one API process, following ``store``'s running executions (see the module
+    docstring). :meth:`start` it, :meth:`close` it; :attr:`url` is where Foxglove connects."""
+
+    def __init__(self, store: Store, port: int = DEFAULT_PORT) -> None:
+        self.store = store
+        self.port = port
+        self.server: Any = None
+        self._context: Any = None
+        self._channels: dict[str, Any] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._solver: Any = None  # the IK, made on the first execution (a PyBullet client)
+        self._following: str | None = None
+        self._created = 0.0
+        self._cursor = 0
+        self._resends: set[str] = set()
+        self._lock = threading.Lock()
+        self._done = False
+        self._messages: Any = None
+        self._description: bytes | None = None
+        self._markers: bytes | None = None
+
+    @classmethod
+    def from_env(cls, store: Store, reads_need_token: bool = False) -> FoxgloveLive | None:
+        """The server ``CONTACT_SKILLS_FOXGLOVE_PORT`` asks for (None for ``off``). ``reads_need_token``: the API
+        serves reads only with its token (``CONTACT_SKILLS_TOKEN_READS``); Foxglove's protocol has no token, so the
+        server is then off unless the variable asks for it."""
+        given = os.environ.get(PORT_ENV)
+        if given is None and reads_need_token:
+            log.info("Foxglove live view off: reads need the token and %s is not set", PORT_ENV)
+            return None
+        value = (given or str(DEFAULT_PORT)).strip().lower()
+        if value in ("off", "none", "no", "false"):
+            return None
+        try:
+            port = int(value)
+        except ValueError:
+            raise ValueError(f"{PORT_ENV}={value!r}: give a port number, 0 (any free port) or off") from None
+        return cls(store, port)
+
+    @property
+    def url(self) -> str | None:
+        """``ws://127.0.0.1:PORT`` while serving, else None."""
+        return None if self.server is None else f"ws://{HOST}:{self.server.port}"
+
+    def start(self) -> None:
+        """Serve on loopback (falling back to a free port when :attr:`port` is taken) and start following."""
+        import foxglove
+
+        from services.dashboard.ros_scene import message_definition
+        from services.dashboard.scene import robot_asset, robot_description
+        from services.telemetry_export import execution_topics
+
+        context = self._context = foxglove.Context()  # kept: the channels and the server live in it
+        topics = {**execution_topics(), EXECUTION_TOPIC: "std_msgs/msg/String"}
+        for topic, msgtype in topics.items():
+            schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=message_definition(msgtype).encode())
+            self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
+        options = dict(name="contact-skills", host=HOST, context=context, asset_handler=robot_asset,
+                       server_listener=_Listener(self))  # fmt: skip
+        try:
+            self.server = foxglove.start_server(port=self.port, **options)
+        except RuntimeError as exc:
+            log.warning("Foxglove server: port %d not available (%s): serving on a free port", self.port, exc)
+            try:
+                self.server = foxglove.start_server(port=0, **options)
+            except RuntimeError:  # the API serves on without the live view (/health: foxglove_url null)
+                log.exception("Foxglove server could not start")
+                return
+        self._description = self._string(robot_description())
+        log.info("Foxglove live view on %s", self.url)
+        self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+        if self._solver is not None:
+            self._solver.close()
+
+    # ------------------------------------------------------------------------------------------ following
+
+    def _run(self) -> None:
+        while not self._stop.wait(POLL_S):
+            try:
+                self._step()
+            except Exception:  # a bad row must not end the live view
+                log.exception("Foxglove live view: following %s failed", self._following)
+                self._done = True
+
+    def _step(self) -> None:
+        with self._lock:
+            resends, self._resends = self._resends, set()
+        for topic in resends:
+            self._resend(topic)
+        running = [row for row in self.store.active_executions() if row.status is not ExecutionState.queued
+                   and row.streams_telemetry]  # fmt: skip
+        newest = max(running, key=lambda row: row.created, default=None)
+        if newest is not None and newest.id != self._following and (self._done or self._following is None
+                                                                    or newest.created >= self._created):  # fmt: skip
+            self._follow(newest.id, newest.created)
+        if self._following is None or self._done:
+            return
+        row = self.store.execution(self._following)
+        finished = row is None or row.status in TERMINAL
+        rows = stored_rows(self.store, self._following, self._cursor)
+        if rows.shape[0]:
+            self._cursor += rows.shape[0]
+            self._publish(rows, final=finished)
+        if finished:
+            self._done = True
+
+    def _follow(self, execution_id: str, created: float) -> None:
+        from services.dashboard.scene import JointSolver
+        from services.telemetry_export import ExecutionMessages
+
+        if self._solver is None:
+            self._solver = JointSolver()
+        self._following, self._created, self._cursor, self._done = execution_id, created, 0, False
+        self._messages = ExecutionMessages(int(created * 1e9), self._solver)
+        self._log(EXECUTION_TOPIC, self._string(execution_id), int(created * 1e9))
+        log.info("Foxglove live view follows %s", execution_id)
+
+    def _publish(self, rows: np.ndarray, final: bool) -> None:
+        picked = decimated(rows[:, 0], LIVE_HZ)
+        from services.dashboard.ros_scene import MARKERS, ROBOT_DESCRIPTION
+
+        for topic, (stamps, payloads) in self._messages.messages(rows[picked], final).items():
+            for stamp, payload in zip(stamps.tolist(), payloads, strict=True):
+                self._log(topic, payload, stamp)
+            if topic == ROBOT_DESCRIPTION:
+                self._description = payloads[-1]
+            elif topic == MARKERS:
+                self._markers = payloads[-1]
+
+    def _log(self, topic: str, payload: bytes, stamp_ns: int) -> None:
+        self._channels[topic].log(payload, log_time=int(stamp_ns))
+
+    @staticmethod
+    def _string(text: str) -> bytes:
+        """A ``std_msgs/msg/String``, CDR."""
+        from rosbags.typesys import Stores, get_typestore
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        return bytes(store.serialize_cdr(store.types["std_msgs/msg/String"](data=text), "std_msgs/msg/String"))
+
+    def subscribed(self, topic: str) -> None:
+        """A client subscribed to ``topic``: what is sent only once goes again at the next poll (not from the
+        server's callback, which runs before the subscription is in place)."""
+        with self._lock:
+            self._resends.add(topic)
+
+    def _resend(self, topic: str) -> None:
+        import time
+
+        from services.dashboard.ros_scene import MARKERS, ROBOT_DESCRIPTION
+
+        latched = {ROBOT_DESCRIPTION: self._description, MARKERS: self._markers,
+                   EXECUTION_TOPIC: self._string(self._following) if self._following else None}  # fmt: skip
+        if latched.get(topic) is not None:
+            self._log(topic, latched[topic], time.time_ns())
+
+
+class _Listener:
+    """The server's callbacks: a new subscriber gets what is sent only once (Foxglove's protocol keeps nothing)."""
+
+    def __init__(self, live: FoxgloveLive) -> None:
+        self.live = live
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.live.subscribed(channel.topic)

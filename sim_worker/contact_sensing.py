@@ -1,0 +1,282 @@
+"""What the tool's contact gives a control loop, once per simulated state: the contact points' summary (the exact
+applied wrench, the contact flag, the force along the true surface normal), and the force/torque sensor's reading
+(``sensor``: the exact wrench, or a wrist sensor between flange and tool with its weight compensated), with the
+sensor's own offset and a tare removed.
+
+Conventions (docs/CONVENTIONS.md): the contact wrench is the wrench the TOOL APPLIES TO THE ENVIRONMENT, at the tool
+point, in the world frame (N, N·m); a tare and the sensor's own offset are in the TOOL frame.
+
+Measured PyBullet 3.2.7 facts this module relies on
+    - ``getContactPoints`` with the tool as body A: ``contactNormalOnB`` points from the environment to the tool, and
+      ``lateralFriction1/2`` along ``lateralFrictionDir1/2`` are forces ON THE TOOL too; the applied wrench is minus
+      their sum.
+    - The multibody solver uses fixed friction directions with a circular friction cone: while sliding the friction
+      magnitude is exactly μ·N, but its direction can be ~15° off the slip direction (depends on the arm's
+      mobility); the normal part is exact (:meth:`ContactSensing.contact_forces` separates them).
+    - The fixed tool joint's reaction (``enableJointForceTorqueSensor``) is the force the flange exerts on the tool,
+      in the tool frame, and its moment about the tool's centre of mass (``-m g`` along the tool z when it hangs
+      pointing down; a lateral force at the tool point gives ``M_c = F × c``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+import pybullet
+from numpy.typing import ArrayLike, NDArray
+
+from sim_worker.arm_model import Arm
+from sim_worker.robot_model import TOOL_LINK
+from sim_worker.sensor import WrenchSensor, measure_drawn
+from sim_worker.world_config import SensorModel, WorldConfig
+from skills.control import ROBOT_POSITION, ROBOT_ROTATION, ROBOT_STATE_SIZE
+
+CONTACT_DISTANCE_M = 0.0
+"""A contact point counts as contact when its distance is at or below this (m) or it carries force."""
+_ROTATION = ROBOT_ROTATION.start
+_POSITION = ROBOT_POSITION.start
+
+
+@numba.njit(cache=True)
+def _wrist_wrench(reaction, arm, weight, com_z, out):  # pragma: no cover - compiled
+    """:meth:`ContactSensing.wrist_wrench_into` from the tool joint's ``reaction`` (the flange's force on the tool,
+    tool frame, and its moment about the tool's centre of mass, which lies on the tool axis at ``com_z``), the tool
+    orientation in ``arm`` (``ROBOT_ROTATION``, world from tool by rows) and the tool's ``weight`` (world, N), into
+    ``out``."""
+    fx, fy, fz, mx, my, mz = reaction[0], reaction[1], reaction[2], reaction[3], reaction[4], reaction[5]
+    r = arm[_ROTATION : _ROTATION + 9]
+    gx, gy, gz = weight[0], weight[1], weight[2]
+    wx = r[0] * gx + r[3] * gy + r[6] * gz  # the weight in the tool frame: R^T m g
+    wy = r[1] * gx + r[4] * gy + r[7] * gz
+    wz = r[2] * gx + r[5] * gy + r[8] * gz
+    fx, fy, fz = fx + wx, fy + wy, fz + wz
+    mx, my = mx - com_z * fy, my + com_z * fx  # M_c + c x F, c = (0, 0, com_z)
+    out[0] = r[0] * fx + r[1] * fy + r[2] * fz
+    out[1] = r[3] * fx + r[4] * fy + r[5] * fz
+    out[2] = r[6] * fx + r[7] * fy + r[8] * fz
+    out[3] = r[0] * mx + r[1] * my + r[2] * mz
+    out[4] = r[3] * mx + r[4] * my + r[5] * mz
+    out[5] = r[6] * mx + r[7] * my + r[8] * mz
+
+
+@numba.njit(cache=True)
+def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
+    """Subtract the sensor's ``tare`` (6,: force, moment, TOOL frame) turned into the world with the tool orientation
+    in ``arm`` (``ROBOT_ROTATION``, world from tool by rows) from ``wrench`` (6,, world), in place."""
+    r = arm[_ROTATION : _ROTATION + 9]
+    for i in range(3):
+        wrench[i] -= r[3 * i] * tare[0] + r[3 * i + 1] * tare[1] + r[3 * i + 2] * tare[2]
+        wrench[3 + i] -= r[3 * i] * tare[3] + r[3 * i + 1] * tare[4] + r[3 * i + 2] * tare[5]
+
+
+@numba.njit(cache=True)
+def _wrist_reading(
+    reaction, arm, weight, com_z, source, out, offsets, removed,
+    block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha,
+):  # fmt: skip  # pragma: no cover - compiled
+    """The wrist sensor's reading of this state in one compiled call: the weight-compensated wrench
+    (:func:`_wrist_wrench`, into ``source``), the sensor model (``sensor.measure_drawn``, into ``out``), then the
+    offsets ``offsets`` (2, 6: the sensor's own, negated, and the tare; TOOL frame) whose ``removed`` flag is set
+    removed, turned with the tool (:func:`_remove_tare`)."""
+    _wrist_wrench(reaction, arm, weight, com_z, source)
+    measure_drawn(source, out, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
+    for k in range(2):
+        if removed[k]:
+            _remove_tare(out, arm, offsets[k])
+
+
+@numba.njit(cache=True)
+def _contact_summary(points, arm, out):  # pragma: no cover - compiled
+    """Sum ``getContactPoints``' tuples (the tool as body A) in one pass, straight from PyBullet's result: into
+    ``out`` (10,) the wrench the tool applies (6,: force N, moment N·m about the tool point in ``arm``, world frame)
+    and the force along the true surface normal (N) with that unit normal (3,; zeros without normal force); returns
+    whether the tool touches (a point at or below :data:`CONTACT_DISTANCE_M`, or carrying force). One compilation
+    per number of points (a tuple's length is its type; :func:`compile_contact_summaries`)."""
+    px, py, pz = arm[_POSITION], arm[_POSITION + 1], arm[_POSITION + 2]
+    fx = fy = fz = mx = my = mz = 0.0
+    nx = ny = nz = 0.0
+    touching = False
+    for c in points:
+        fn, f1, f2 = c[9], c[10], c[12]
+        n, d1, d2, r = c[7], c[11], c[13], c[5]
+        touching = touching or c[8] <= CONTACT_DISTANCE_M or fn > 0.0
+        ax = -(fn * n[0] + f1 * d1[0] + f2 * d2[0])
+        ay = -(fn * n[1] + f1 * d1[1] + f2 * d2[1])
+        az = -(fn * n[2] + f1 * d1[2] + f2 * d2[2])
+        rx, ry, rz = r[0] - px, r[1] - py, r[2] - pz
+        fx += ax
+        fy += ay
+        fz += az
+        mx += ry * az - rz * ay
+        my += rz * ax - rx * az
+        mz += rx * ay - ry * ax
+        nx -= fn * n[0]
+        ny -= fn * n[1]
+        nz -= fn * n[2]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    out[0], out[1], out[2], out[3], out[4], out[5] = fx, fy, fz, mx, my, mz
+    if norm > 0.0:
+        out[6], out[7], out[8], out[9] = norm, nx / norm, ny / norm, nz / norm
+    else:
+        out[6] = out[7] = out[8] = out[9] = 0.0
+    return touching
+
+
+COMPILED_CONTACT_COUNTS = 8
+"""Numbers of contact points :func:`compile_contact_summaries` compiles for ahead of a run (a ball on a surface has
+one, in a crease two; more bodies under the ball, e.g. overlapping work piece parts, more)."""
+
+
+def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
+    """Compile (or load from numba's cache) :func:`_contact_summary` for 1 to ``counts`` contact points, with tuples
+    typed as ``getContactPoints`` returns them, so that no run compiles in its loop."""
+    point = (0, 0, 0, 0, 0, (0.0,) * 3, (0.0,) * 3, (0.0, 0.0, 1.0), 0.0, 1.0, 0.0, (1.0, 0.0, 0.0), 0.0, (0.0,) * 3)
+    for n in range(1, counts + 1):
+        _contact_summary((point,) * n, np.zeros(ROBOT_STATE_SIZE), np.zeros(10))
+
+
+class ContactSensing:
+    """The tool's contact and the wrench sensor of one world, read once per simulated state (:meth:`invalidate` after
+    each change of it). The arrays are overwritten in place by the next state's reading: :attr:`applied` (6,) and
+    :attr:`true_normal` (4,) views of one summary array, :attr:`measured` (6,) the non-ideal sensor's reading."""
+
+    def __init__(self, client: int, robot: int, config: WorldConfig, arm: Arm) -> None:
+        self._client, self._robot, self._arm = client, robot, arm
+        self.sensor = WrenchSensor(config.sensor, config.time_step_s)
+        self.ideal = self.sensor.ideal
+        self._wrist = config.sensor.model is SensorModel.wrist
+        if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
+            pybullet.enableJointForceTorqueSensor(robot, TOOL_LINK, True, physicsClientId=client)
+        self._offsets = np.stack([-self.sensor.tool_offset, np.zeros(6)])
+        """What every reading has removed (6, each: force N, moment N·m, TOOL frame): the sensor's own offset, negated
+        (adding it), and the tare (:meth:`set_tare`), when their flag in ``_removed`` is set."""
+        self._removed = np.array([bool(np.any(self.sensor.tool_offset)), False])
+        self._tare = self._offsets[1]
+        self._state = np.zeros(10)
+        """The summary of ``points``, written in one assignment (zeros without points): the two views below."""
+        self.applied = self._state[:6]
+        """The exact wrench the tool applies this step (see :meth:`SimWorld.true_contact_wrench`)."""
+        self.true_normal = self._state[6:]
+        """The force along the true surface normal (N) and that normal (3,), see :meth:`SimWorld.true_normal_force`."""
+        self.measured = np.zeros(6)
+        """The sensor's reading this step (a non-ideal sensor's; the ideal one reads :attr:`applied`)."""
+        self.reading = self.applied if self.ideal else self.measured
+        """The array the controller reads."""
+        self._source = np.zeros(6)
+        """The wrist sensor's source wrench this step (see :meth:`wrist_wrench_into`)."""
+        self.points: tuple = ()
+        self.touching = False
+        tool = config.tool
+        self._tool_com_z = -(0.5 * tool.shaft_length_m + tool.radius_m)
+        """The tool's centre of mass on the tool axis, tool frame (the tool model the weight is compensated with), m."""
+        self._tool_weight = np.array([tool.mass_kg * g for g in config.gravity])
+        """The tool's weight in the world, N."""
+        self._wrist_arguments = (
+            arm.tool_reaction, arm.state, self._tool_weight, self._tool_com_z, self._source, self.measured,
+            self._offsets, self._removed, *self.sensor.state,
+        )  # fmt: skip
+        """:func:`_wrist_reading`'s arguments: the same arrays every step, updated in place."""
+        self.fresh = self.measured_fresh = False
+
+    def invalidate(self) -> None:
+        """The simulated state changed: read the contact points and the sensor again when next asked for."""
+        self.fresh = self.measured_fresh = False
+
+    def reset(self) -> None:
+        """A new run: the sensor starts afresh, no tare."""
+        self.sensor.reset()
+        self._tare[:] = 0.0
+        self._removed[1] = False
+
+    def summary(self) -> None:
+        """Read the contact points (one PyBullet query) and sum them in one pass: the exact applied wrench
+        (:attr:`applied`), the contact flag, the normal force and its direction (:attr:`true_normal`), kept until the
+        next state (nothing to do when this state's are read)."""
+        if self.fresh:
+            return
+        previous = self.points
+        # positional arguments (bodyA, bodyB, linkIndexA, linkIndexB: -1 and -2 are "any"): keywords cost a lookup
+        points = self.points = pybullet.getContactPoints(self._robot, -1, TOOL_LINK, -2, self._client)
+        self.fresh = True
+        if not points:
+            if previous:  # the summary of no points is zeros: written once, when the contact ends
+                self._state[:] = 0.0
+            self.touching = False
+        else:
+            self.touching = _contact_summary(points, self._arm.read(), self._state)
+
+    def contacts(self, names: dict[int, str]) -> list[dict[str, Any]]:
+        """The tool's contact points: body name (``names``: by body id), position on the tool (m, world), the normal
+        into the environment, normal force (N), distance (m)."""
+        self.summary()
+        return [
+            {
+                "body": names.get(c[2], str(c[2])),
+                "position": np.asarray(c[5]),
+                "normal_into_environment": -np.asarray(c[7]),
+                "normal_force_n": c[9],
+                "distance_m": c[8],
+            }
+            for c in self.points
+        ]
+
+    def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The applied contact force's normal part and friction part (3,) each, N, world frame."""
+        self.summary()
+        normal = np.zeros(3)
+        friction = np.zeros(3)
+        for c in self.points:
+            normal -= c[9] * np.asarray(c[7])
+            friction -= c[10] * np.asarray(c[11]) + c[12] * np.asarray(c[13])
+        return normal, friction
+
+    def wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The wrist sensor's noise-free, weight-compensated wrench (6,) in the applied convention (at the tool point,
+        world frame), written into ``out``; returns it.
+
+        Tool equilibrium gives the applied wrench at the tool point from the flange's force ``F`` on the tool and its
+        moment ``M_c`` about the tool's centre of mass ``c``: ``F + m g`` and ``M_c + c × (F + m g)``, minus the tool's
+        inertial terms, which a real integration does not know either."""
+        arm = self._arm.read()  # reads the tool joint's reaction too
+        _wrist_wrench(self._arm.tool_reaction, arm, self._tool_weight, self._tool_com_z, out)
+        return out
+
+    def reading_now(self) -> NDArray[np.float64]:
+        """This state's sensor reading (the array itself): the sensor samples once per simulated state."""
+        if self.ideal:
+            self.summary()
+            return self.applied
+        if not self.measured_fresh:
+            arm = self._arm.read()
+            if self._wrist:  # one compiled call from the tool joint's reaction to the reading
+                self.sensor.draw()
+                _wrist_reading(*self._wrist_arguments)
+            else:
+                self.summary()
+                self.sensor.measure_into(self.applied, self.measured)
+                for offset, removed in zip(self._offsets, self._removed, strict=True):
+                    if removed:  # the sensor's own offset turns with it: R_tool b (adding -(-b)); the tare too
+                        _remove_tare(self.measured, arm, offset)
+            self.measured_fresh = True
+        return self.measured
+
+    @property
+    def tare(self) -> NDArray[np.float64]:
+        """The offset the last :meth:`set_tare` removes from every reading (6,), tool frame, N and N·m (a copy)."""
+        return self._tare.copy()
+
+    def set_tare(self, offset: ArrayLike) -> None:
+        """Remove ``offset`` (6,: force N, moment N·m, TOOL frame) from every reading from this state's on (see
+        :meth:`SimWorld.tare_sensor`). ValueError for the ideal sensor or a malformed offset."""
+        if self.ideal:
+            raise ValueError("the ideal sensor reads the exact contact wrench: there is nothing to tare")
+        tare = np.asarray(offset, dtype=float)
+        if tare.shape != (6,) or not np.all(np.isfinite(tare)):
+            raise ValueError(f"tare: expected 6 finite numbers (force N, moment N·m, tool frame), got {offset!r}")
+        if self.measured_fresh:  # this state's reading was sampled before the tare: it is the first tared one
+            _remove_tare(self.measured, self._arm.read(), tare - self._tare)
+        self._tare[:] = tare
+        self._removed[1] = bool(np.any(tare != 0.0))

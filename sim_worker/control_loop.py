@@ -1,0 +1,393 @@
+"""The 1 kHz control loop of an execution: one phase plan at a time, every step sensed, controlled, recorded and
+stepped in the simulated world (``sim_worker.executor`` sequences the phases; ``sim_worker.plans`` builds them).
+
+:class:`ControlLoop` owns what every phase shares: the world and the controller, the telemetry rows (one float row
+per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, handed to ``on_sample`` in batches), the step count, the
+per-part timing, the control frames the controller took, and what the last guarded phase found. A phase ends at
+its last step, on contact (guarded), on the next surface (a follower), or by an exception: an abort with its reason
+(force, torque or joint limit, non-finite values, ``should_abort()``) or a contact lost (pressing into nothing).
+World frame, SI units (docs/CONVENTIONS.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from enum import Enum
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
+from sim_worker.contact_detection import ContactGuard
+from sim_worker.plans import PhasePlan, smooth_ramp
+from sim_worker.surface_following import SurfaceFollower
+from sim_worker.telemetry import Telemetry
+from sim_worker.world import SimWorld
+from skills.control import (
+    LAW_OUTPUT_SIZE,
+    LAW_TAU,
+    REFERENCE_FORCE,
+    REFERENCE_TWIST,
+    ROBOT_POSITION,
+    ControlFrame,
+    HybridController,
+)
+
+NULL_SPACE_UPDATE_STEPS = 20
+"""The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
+CONTACT_LOSS_TRAVEL_M = 0.01
+"""In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
+(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
+CONTACT_LOSS_RETRACT_M = 0.05
+"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
+CONTACT_LOSS_RETRACT_S = 1.0
+REALTIME_CHECK_STEPS = 10
+"""With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
+
+
+# Telemetry columns (schemas.execution.TELEMETRY_COLUMNS) and arm state entries, as plain ints for the compiled step.
+_C_T, _C_PHASE, _C_SEGMENT = (TELEMETRY_COLUMNS[c].start for c in ("t", "phase", "segment_index"))
+_C_POSE = TELEMETRY_COLUMNS["tool_position"].start  # position then orientation
+_C_REFERENCE = TELEMETRY_COLUMNS["reference_position"].start  # position then orientation
+_C_WRENCH, _C_WRENCH_CF = TELEMETRY_COLUMNS["wrench_world"].start, TELEMETRY_COLUMNS["wrench_cf"].start
+_C_DESIRED, _C_CONTACT = TELEMETRY_COLUMNS["desired_force_cf_z_n"].start, TELEMETRY_COLUMNS["in_contact"].start
+_C_TRUE_NORMAL = TELEMETRY_COLUMNS["normal_force_true_n"].start  # force then the normal (3)
+_R_POSE = ROBOT_POSITION.start  # position then quaternion
+
+
+@numba.njit(cache=True)
+def _record_row(
+    robot, reference, wrench, cf_rotation, in_contact, normal, rows, n, t, phase, segment
+):  # pragma: no cover - compiled
+    """Telemetry row ``n`` of ``rows`` for one control step, in one compiled call (:data:`TELEMETRY_COLUMNS`: the
+    state measured before the step, its reference and desired force, the measured wrench in world and CF axes
+    (``R^T f``, ``R^T m``, ``cf_rotation`` (9,) by rows), the true normal force and direction ``normal`` (4,)).
+    Returns the control law's contact flag: the CF-z force above half the desired one, at most 0.5 N."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
+        cf_rotation[0], cf_rotation[1], cf_rotation[2], cf_rotation[3], cf_rotation[4], cf_rotation[5],
+        cf_rotation[6], cf_rotation[7], cf_rotation[8],
+    )  # fmt: skip
+    fx, fy, fz, mx, my, mz = wrench[0], wrench[1], wrench[2], wrench[3], wrench[4], wrench[5]
+    row = rows[n]
+    row[_C_T], row[_C_PHASE], row[_C_SEGMENT] = t, phase, segment
+    for i in range(7):  # tool pose (position, quaternion); reference pose, the same layout
+        row[_C_POSE + i] = robot[_R_POSE + i]
+        row[_C_REFERENCE + i] = reference[i]
+    for i in range(6):
+        row[_C_WRENCH + i] = wrench[i]
+    cf = _C_WRENCH_CF
+    row[cf] = fx * r00 + fy * r10 + fz * r20
+    row[cf + 1] = fx * r01 + fy * r11 + fz * r21
+    row[cf + 2] = fx * r02 + fy * r12 + fz * r22
+    row[cf + 3] = mx * r00 + my * r10 + mz * r20
+    row[cf + 4] = mx * r01 + my * r11 + mz * r21
+    row[cf + 5] = mx * r02 + my * r12 + mz * r22
+    f_des = reference[REFERENCE_FORCE]
+    row[_C_DESIRED] = f_des
+    row[_C_CONTACT] = 1.0 if in_contact else 0.0
+    for i in range(4):  # the true normal force and the normal
+        row[_C_TRUE_NORMAL + i] = normal[i]
+    return row[cf + 2] > min(0.5, 0.5 * f_des)
+
+
+class PlanEnd(Enum):
+    """How a phase plan ended (:meth:`_Execution.run_plan`)."""
+
+    done = "done"
+    """It ran to its last step."""
+    contact = "contact"
+    """A guarded phase met a surface (:class:`ContactGuard`)."""
+    next_surface = "next_surface"
+    """A phase that follows the surface found itself on the next segment's surface (a crease, met early)."""
+
+
+class ContactLostError(Exception):
+    """Raised inside the loop when the tool lost the surface in a contact phase (it is retracted, then aborted)."""
+
+
+class ExecutionAbortError(Exception):
+    """Raised inside the loop to stop the execution with a reason."""
+
+    def __init__(self, reason: str, phase: ExecutionPhase = ExecutionPhase.aborted) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.phase = phase
+
+
+class ControlLoop:
+    """Runs phase plans on ``world`` with ``controller`` at the world's time step, recording every step.
+
+    ``capacity_s`` (s): the rows allocated at first (they grow by doubling); ``telemetry_batch`` rows per
+    ``on_sample`` call; ``pace`` realtime sleeps to follow the wall clock; ``dynamic_null`` refreshes the mass matrix
+    for the null-space projector; ``should_abort()`` is polled after every step, ``should_pause()`` before;
+    ``identity_frame`` the controller's frame with motion control on every axis (the retreat's).
+    """
+
+    def __init__(
+        self,
+        world: SimWorld,
+        controller: HybridController,
+        identity_frame: ControlFrame,
+        capacity_s: float,
+        telemetry_batch: int,
+        pace: Pace,
+        dynamic_null: bool,
+        on_sample: Callable[[Telemetry], None] | None,
+        should_abort: Callable[[], bool] | None,
+        should_pause: Callable[[], bool] | None,
+    ) -> None:
+        self.world = world
+        self.controller = controller
+        self.identity_frame = identity_frame
+        self.dt = float(world.config.time_step_s)
+        self.telemetry_batch = telemetry_batch
+        self.realtime = pace is Pace.realtime
+        self._dynamic_null = dynamic_null
+        self.on_sample = on_sample
+        self.should_abort = should_abort
+        self.should_pause = should_pause
+        self.capacity = max(4096, round(capacity_s / self.dt))
+        self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
+        self.n = 0
+        """Rows recorded."""
+        self.emitted = 0
+        self.step_count = 0
+        self.timing = [0.0] * 5  # sensing, dynamics, control law, physics step, telemetry (s, summed)
+        self.wall_start = time.perf_counter()
+        """When the loop began (the realtime pace follows the wall clock from here), s."""
+        self.found_force: float | None = None
+        """The windowed reading along the stop axis when the last guarded phase met a surface, N."""
+        self.touched = False
+        """Whether the tool has touched anything (the simulator's contact) since the caller last cleared it."""
+        self.frame_log: list[tuple[int, float, float, float]] = []
+        """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
+        self.cf_rotation = np.eye(3)
+        """The CF rotation of the control frame in use (world from CF)."""
+
+    def telemetry(self) -> Telemetry:
+        """The rows recorded so far (a copy)."""
+        return Telemetry(self.rows[: self.n].copy())
+
+    def recent(self, duration_s: float) -> Telemetry:
+        """The rows of the last ``duration_s`` (s) recorded (a view: read it before the loop runs on)."""
+        return Telemetry(self.rows[max(0, self.n - round(duration_s / self.dt)) : self.n])
+
+    def _grow(self) -> None:
+        self.capacity *= 2
+        rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
+        rows[: self.n] = self.rows[: self.n]
+        self.rows = rows
+
+    def emit(self, final: bool = False) -> None:
+        """Hand the rows recorded since the last batch to ``on_sample`` (a full batch, or whatever is left when
+        ``final``)."""
+        pending = self.n - self.emitted
+        if self.on_sample is not None and pending > 0 and (final or pending >= self.telemetry_batch):
+            self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
+            self.emitted = self.n
+
+    def run_plan(
+        self,
+        plan: PhasePlan,
+        guard: ContactGuard,
+        references: NDArray[np.float64] | None = None,
+        follower: SurfaceFollower | None = None,
+    ) -> PlanEnd:
+        """Run a phase; return how it ended: a guarded phase ends on contact (``guard`` on the readings along the
+        plan's stop axis), a phase with a ``follower`` may end on the next surface. ``references``: the phase's
+        reference rows (``PhasePlan.reference_rows``; the follower rewrites them), built here when not given.
+        Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing.
+
+        One control step: sensing (``SimWorld.sense``: the joint state and the contact points, two PyBullet
+        queries; tool pose, Jacobian and gravity/Coriolis from the arm's compiled model into the world's arm
+        state array, used without copies), the mass matrix on model-update steps, the control law (one compiled
+        call on the arm state and the plan's packed reference row, ``HybridController.step``), one telemetry
+        row, the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
+        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the wrench in CF axes and the
+        telemetry row are plain float arithmetic, written into the row array in one assignment.
+        """
+        world = self.world
+        sense, dynamics, step = world.sense, world.dynamics, world.step
+        # The arm state and the true normal force: the world's arrays, the same every step, updated by sense().
+        robot, true_normal = world.robot_state(), world.true_normal_state()
+        controller = self.controller
+        step_into = controller.step_into
+        out = np.zeros(LAW_OUTPUT_SIZE)
+        tau = out[LAW_TAU]
+        perf = time.perf_counter
+        dt = self.dt
+        phase_code = float(PHASE_CODES[plan.phase])
+        guard_loss = plan.phase is ExecutionPhase.contact
+        loss_travel = CONTACT_LOSS_TRAVEL_M
+        seg = float(plan.segment)
+        ts = td = tc = tp = tt = 0.0
+        batch = self.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
+        realtime = self.realtime
+        window = guard.window_steps
+        window_threshold = guard.threshold_n * window  # on the sum of the last `window` readings
+        window_readings, window_sum, window_slot = [0.0] * window, 0.0, 0
+        touched = self.touched
+        frame_log = self.frame_log
+        stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
+        if stop_axis is not None:
+            self.found_force = None
+        single = plan.frame
+        series, stride = plan.series, plan.stride
+        if references is None:
+            references = plan.reference_rows()
+        dynamic_null = self._dynamic_null
+        q_lower, q_upper = world.joint_lower, world.joint_upper
+        should_abort, should_pause = self.should_abort, self.should_pause
+        frame: ControlFrame | None = None
+        current = single
+        next_frame_step = 0  # the step at which the series' next frame is due (indexing it costs ~0.3 µs)
+        cf_rotation = np.eye(3).ravel()
+        r02 = r12 = r22 = 0.0
+        if follower is not None:
+            single = follower.first_frame()
+        next_surface = plan.next_z is not None
+        p_tracked: list[float] | None = None
+        step_tracked = 0
+        try:
+            k, steps = 0, plan.steps
+            while k < steps:
+                # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
+                paused = should_pause is not None and should_pause()
+                t0 = perf()
+                q, _, p, _, w, touching = sense()
+                t1 = perf()
+                update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
+                M = dynamics(True).mass_matrix if update_null and dynamic_null else None
+                if update_null and ((q < q_lower).any() or (q > q_upper).any()):
+                    raise ExecutionAbortError(self._joint_limit_reason(q))
+                t2 = perf()
+                if single is not None:
+                    current = single
+                elif k >= next_frame_step:
+                    current = series[k // stride]
+                    next_frame_step = (k // stride + 1) * stride
+                new_frame = current is not frame
+                if new_frame:  # a new control frame: its CF rotation by rows, for the CF wrench
+                    frame = current
+                    self.cf_rotation = frame.cf_rotation
+                    cf_rotation = np.ascontiguousarray(frame.cf_rotation).ravel()
+                    r02, r12, r22 = frame.cf_z.tolist()
+                    frame_log.append((self.n, r02, r12, r22))
+                reference = references[k]
+                if paused:
+                    reference = reference.copy()
+                    reference[REFERENCE_TWIST] = 0.0
+                # One compiled call records the telemetry row (the state measured before the step, its reference and
+                # desired force, the CF wrench), one runs the law (its model and gain updates on a model step or a
+                # new frame).
+                if self.n >= self.capacity:
+                    self._grow()
+                pressing = _record_row(
+                    robot, reference, w, cf_rotation, touching, true_normal, self.rows, self.n, self.step_count * dt,
+                    phase_code, seg,
+                )  # fmt: skip
+                self.n += 1
+                reason = step_into(frame, robot, reference, w, pressing, M, update_null, out)
+                t3 = perf()
+                if self.n - self.emitted >= batch:
+                    self.emit()
+                t4 = perf()
+                if reason is not None:
+                    raise ExecutionAbortError(reason)
+                if stop_axis is not None or follower is not None:
+                    fx, fy, fz = w[:3].tolist()  # this step's reading: the step below overwrites w
+                step(tau)
+                self.step_count += 1
+                t5 = perf()
+                ts += t1 - t0
+                td += t2 - t1
+                tc += t3 - t2
+                tt += t4 - t3
+                tp += t5 - t4
+                if should_abort is not None and should_abort():  # every step: stops within one control cycle
+                    raise ExecutionAbortError("aborted on request")
+                if touching:
+                    touched = True
+                if stop_axis is not None:  # the mean of the last `window` readings along the axis over the threshold
+                    along = fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2]
+                    window_sum += along - window_readings[window_slot]
+                    window_readings[window_slot] = along
+                    window_slot = (window_slot + 1) % window
+                    if window_sum > window_threshold:
+                        self.found_force = window_sum / window
+                        return PlanEnd.contact
+                if follower is not None and follower.due(k):
+                    p_now = p.tolist()
+                    velocity = [0.0, 0.0, 0.0]
+                    if p_tracked is not None:
+                        span = (self.step_count - step_tracked) * dt
+                        velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
+                    single = follower.update(k, [fx, fy, fz], velocity, p_now, pressing, references)
+                    p_tracked, step_tracked = p_now, self.step_count
+                    if next_surface and follower.on_next_surface:
+                        return PlanEnd.next_surface
+                if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
+                    rx, ry, rz = references[k, :3].tolist()
+                    px, py, pz = p.tolist()
+                    beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
+                    if beyond > loss_travel:
+                        raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
+                if realtime and self.step_count % REALTIME_CHECK_STEPS == 0:
+                    lag = self.step_count * dt - (perf() - self.wall_start)
+                    if lag > 0:
+                        time.sleep(lag)
+                if not paused:
+                    k += 1
+        finally:
+            self.touched = touched
+            timing = self.timing
+            timing[0] += ts
+            timing[1] += td
+            timing[2] += tc
+            timing[3] += tp
+            timing[4] += tt
+        if plan.exhausted_reason is not None:
+            guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
+            raise ExecutionAbortError(plan.exhausted_reason + guarded)
+        return PlanEnd.done
+
+    def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
+        """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,
+        or, when the tool never touched anything since its guarded approach began, never made (the approach took a
+        reading for the surface)."""
+        t = f"t = {self.step_count * self.dt:.3f} s"
+        retracted = f"the tool stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
+        if not touched:
+            found = "" if self.found_force is None else f" (it read {self.found_force:.2f} N)"
+            return (
+                f"no contact made in segment {segment} at {t}: the guarded approach stopped on a reading of the "
+                f"sensor above {guard.describe()}{found} without touching anything (a sensor offset or noise "
+                f"the tare did not remove?), and the tool found nothing {beyond_m * 1e3:.0f} mm beyond; {retracted}"
+            )
+        return (
+            f"contact lost in segment {segment} at {t}: no contact {beyond_m * 1e3:.0f} mm beyond the surface along "
+            f"CF z (an edge or a hole?); {retracted}"
+        )
+
+    def retract(self, guard: ContactGuard) -> None:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -CF z (the frame in use) from the current pose with motion control
+        on every axis (``guard``: the execution's, unused: the retreat is not guarded)."""
+        p, q = self.world.tool_pose()
+        z = self.cf_rotation[:, 2]
+        n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
+        ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * z
+        twist = np.zeros((n, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
+        plan = PhasePlan(ExecutionPhase.retreat, -1, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
+                         frame=self.identity_frame)  # fmt: skip
+        self.controller.reset_integral()
+        self.run_plan(plan, guard)
+
+    def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
+        """Name the joint outside its URDF limits (PyBullet does not enforce them in torque mode)."""
+        lower, upper = self.world.joint_lower, self.world.joint_upper
+        j = int(np.argmax(np.maximum(lower - q, q - upper)))
+        return f"joint limit: joint {j + 1} at {q[j]:.3f} rad outside [{lower[j]:.3f}, {upper[j]:.3f}] rad"

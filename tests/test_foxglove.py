@@ -1,0 +1,240 @@
+"""The live execution in Foxglove and the exported MCAP, against the REAL stack (`contact-skills up`: embedded Zenoh
+router, the API, a PyBullet sim worker on 127.0.0.1).
+
+A WebSocket client speaking Foxglove's protocol (``foxglove.websocket.v1``, which the SDK's server negotiates as
+``foxglove.sdk.v1``: serverInfo, advertise, subscribe, binary message data, fetchAsset) connects to the URL
+``/health`` gives, subscribes to every channel and records an execution. The messages must decode as their
+advertised ROS 2 types and agree with physics and with each other: the ``cf`` frame of ``/tf`` turns the CF wrench
+into the world wrench of the same step, the joint states put the arm's tool point where ``/tf`` says the tool is
+(forward kinematics), the URDF's meshes are served. The exported MCAP of the same run (read with the ``mcap``
+reader) holds ``/joint_states``, the URDF and the ``cf`` frame, with the same agreement."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import re
+import struct
+import xml.etree.ElementTree as ET
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+websockets = pytest.importorskip("websockets")
+
+from test_service import RECORD, running_stack  # noqa: E402
+
+from services.dashboard.ros_scene import TF_CHILDREN  # noqa: E402
+from services.dashboard.scene import LINK7_TO_FLANGE_M, LINK7_TO_TOOL_POINT_M, robot_description  # noqa: E402
+from services.local_processes import free_port  # noqa: E402
+from services.telemetry_export import execution_topics  # noqa: E402
+from skills.quaternions import matrix_from_quaternion  # noqa: E402
+
+PROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+"""The WebSocket subprotocols a client offers: the SDK names Foxglove's protocol ``foxglove.sdk.v1`` (the messages of
+``foxglove.websocket.v1`` under a new name; the Foxglove app offers both)."""
+MESSAGE_DATA, FETCH_ASSET_RESPONSE = 0x01, 0x04
+PORT = free_port()
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    yield from running_stack(tmp_path_factory.mktemp("foxglove"), workers=1,
+                             env={"CONTACT_SKILLS_FOXGLOVE_PORT": str(PORT)})  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def skill_id(stack) -> str:
+    demo = stack.post("/demonstrations/record", RECORD, 201)
+    return stack.post("/skills", {"demonstration_id": demo["id"], "skill_type": "auto"}, 201)["id"]
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str, list], bytes | None, str]:
+    """Connect to the Foxglove server at ``url``, subscribe to every channel, call ``start()`` (-> execution id), and
+    collect the messages until ``finished(id)`` and a second more; fetch the first mesh of the URDF. Returns the
+    advertised channels, the decoded messages per topic, the mesh and its URI."""
+    store = _typestore()
+    channels: dict[int, dict] = {}
+    received: dict[str, list] = defaultdict(list)
+    mesh, mesh_uri = None, ""
+    async with websockets.connect(url, subprotocols=PROTOCOLS, max_size=None) as ws:
+        assert ws.subprotocol in PROTOCOLS
+        info = json.loads(await ws.recv())
+        assert info["op"] == "serverInfo" and "assets" in info.get("capabilities", []), info
+        while not channels:
+            message = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            if message["op"] == "advertise":
+                channels.update({c["id"]: c for c in message["channels"]})
+        by_subscription = dict(enumerate(channels.values()))
+        subscriptions = [{"id": k, "channelId": c["id"]} for k, c in by_subscription.items()]
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+        execution_id = await asyncio.to_thread(start)
+        done_at = None
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 120
+        while done_at is None or loop.time() - done_at < 1.0:
+            assert loop.time() < deadline, f"execution {execution_id} did not finish within 120 s"
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.5)
+            except TimeoutError:
+                frame = None
+            if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA:
+                subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                channel = by_subscription[subscription]
+                received[channel["topic"]].append(store.deserialize_cdr(frame[13:], channel["schemaName"]))
+            elif isinstance(frame, bytes) and frame[0] == FETCH_ASSET_RESPONSE:
+                _, status, error_length = struct.unpack_from("<IBI", frame, 1)
+                assert status == 0, frame[10 : 10 + error_length]
+                mesh = frame[10 + error_length :]
+            if done_at is None and await asyncio.to_thread(finished, execution_id):
+                done_at = loop.time()
+                description = received["/robot_description"][0].data
+                mesh_uri = ET.fromstring(description).find(".//mesh").get("filename")
+                await ws.send(json.dumps({"op": "fetchAsset", "uri": mesh_uri, "requestId": 7}))
+    return list(channels.values()), {"execution": execution_id, **received}, mesh, mesh_uri
+
+
+def _stamp(header) -> int:
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+def _check_cf_turns_the_cf_wrench_into_the_world_wrench(tf: list, world: list, cf: list) -> int:
+    """Every step with a force (> 1 N): R_cf (from /tf ``cf``) times the CF force is the world force of the same
+    stamp, to 1e-6 N. Returns how many steps were checked."""
+    rotation = {}
+    for message in tf:
+        for transform in message.transforms:
+            if transform.child_frame_id == "cf":
+                q = transform.transform.rotation
+                rotation[_stamp(transform.header)] = matrix_from_quaternion([q.x, q.y, q.z, q.w])
+    world_force = {_stamp(m.header): [m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in world}
+    checked = 0
+    for message in cf:
+        stamp = _stamp(message.header)
+        f_cf = np.array([message.wrench.force.x, message.wrench.force.y, message.wrench.force.z])
+        if stamp in rotation and stamp in world_force and np.linalg.norm(f_cf) > 1.0:
+            np.testing.assert_allclose(rotation[stamp] @ f_cf, world_force[stamp], atol=1e-6)
+            checked += 1
+    return checked
+
+
+def _check_joint_states_put_the_tool_where_tf_says(joint_states: list, tf: list) -> int:
+    """Forward kinematics of every joint state (PyBullet, the simulator's iiwa) puts the tool point within 2 mm of
+    ``/tf``'s tool at that stamp. Returns how many were checked."""
+    import pybullet
+    import pybullet_data
+
+    tool = {}
+    for message in tf:
+        for transform in message.transforms:
+            if transform.child_frame_id == "tool":
+                p = transform.transform.translation
+                tool[_stamp(transform.header)] = np.array([p.x, p.y, p.z])
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        robot = pybullet.loadURDF(f"{pybullet_data.getDataPath()}/kuka_iiwa/model.urdf", useFixedBase=True,
+                                  physicsClientId=client)  # fmt: skip
+        checked = 0
+        for message in joint_states:
+            assert list(message.name) == [f"lbr_iiwa_joint_{k}" for k in range(1, 8)]
+            for k, angle in enumerate(message.position):
+                pybullet.resetJointState(robot, k, float(angle), physicsClientId=client)
+            state = pybullet.getLinkState(robot, 6, computeForwardKinematics=True, physicsClientId=client)
+            tip = np.array(state[4]) + matrix_from_quaternion(state[5])[:, 2] * LINK7_TO_TOOL_POINT_M
+            assert np.linalg.norm(tip - tool[_stamp(message.header)]) < 0.002
+            checked += 1
+        return checked
+    finally:
+        pybullet.disconnect(client)
+
+
+def test_the_live_server_streams_a_run_that_decodes_and_agrees_with_physics(stack, skill_id):
+    health = stack.http.get("/health").json()
+    assert health["foxglove_url"] == f"ws://127.0.0.1:{PORT}"
+
+    def start() -> str:
+        return stack.post("/executions", {"skill_id": skill_id, "environment": {"unknown_offset": [0, 0, 0.01]}},
+                          202)["id"]  # fmt: skip
+
+    def finished(execution_id: str) -> bool:
+        return stack.execution(execution_id)["status"] in ("done", "aborted", "failed")
+
+    channels, received, mesh, mesh_uri = asyncio.run(_record_live(health["foxglove_url"], start, finished))
+    advertised = {c["topic"]: c for c in channels}
+    assert set(execution_topics()) | {"/execution"} <= set(advertised)
+    for topic, msgtype in execution_topics().items():
+        assert (advertised[topic]["encoding"], advertised[topic]["schemaEncoding"]) == ("cdr", "ros2msg")
+        assert advertised[topic]["schemaName"] == msgtype and received[topic], f"nothing received on {topic}"
+    assert received["/execution"][-1].data == received["execution"]
+    children = {t.child_frame_id for m in received["/tf"] for t in m.transforms}
+    assert children == set(TF_CHILDREN) and "cf" in children
+    assert {t.header.frame_id for m in received["/tf"] for t in m.transforms} == {"world"}
+    assert _check_cf_turns_the_cf_wrench_into_the_world_wrench(received["/tf"], received["/wrench/world"],
+                                                               received["/wrench/cf"]) > 50  # fmt: skip
+    assert _check_joint_states_put_the_tool_where_tf_says(received["/joint_states"], received["/tf"]) > 20
+    namespaces = {m.ns for m in received["/markers"][-1].markers}
+    assert namespaces == {"reference_path", "executed_path", "cf_triads", "work_piece"}
+    import pybullet_data
+
+    assert mesh_uri.startswith("package://kuka_iiwa/meshes/") and mesh_uri.endswith(".stl")
+    expected = (pybullet_data.getDataPath() + "/kuka_iiwa/meshes/" + mesh_uri.rsplit("/", 1)[1])
+    assert mesh == open(expected, "rb").read()  # noqa: SIM115
+
+
+def test_the_exported_mcap_holds_joint_states_the_urdf_and_the_cf_frame(stack, skill_id):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    execution_id = stack.post("/executions", {"skill_id": skill_id}, 202)["id"]
+    view = stack.finished(execution_id)
+    data = stack.http.get(f"/executions/{execution_id}/telemetry", params={"format": "mcap"}).content
+    reader = make_reader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+    topics: dict[str, list] = defaultdict(list)
+    for _, channel, _, message in reader.iter_decoded_messages():
+        topics[channel.topic].append(message)
+    assert set(execution_topics()) == set(topics)
+    assert len(topics["/tf"]) == view["telemetry_samples"]  # one per control step, as the poses
+    assert {t.child_frame_id for t in topics["/tf"][0].transforms} == set(TF_CHILDREN)
+    assert "<robot" in topics["/robot_description"][0].data
+    assert _check_cf_turns_the_cf_wrench_into_the_world_wrench(topics["/tf"], topics["/wrench/world"],
+                                                               topics["/wrench/cf"]) > 1000  # fmt: skip
+    assert _check_joint_states_put_the_tool_where_tf_says(topics["/joint_states"], topics["/tf"]) > 100
+
+
+def test_the_urdf_foxglove_draws_is_the_simulators_arm_and_tool():
+    """``services`` may not import the simulator (tests/test_layers.py): its copy of the tool geometry is held equal
+    here, and the arm's joints are the simulator's."""
+    from sim_worker.robot_model import FLANGE_OFFSET_M, robot_urdf
+    from sim_worker.world_config import ToolConfig
+
+    simulated = ET.fromstring(robot_urdf(ToolConfig()))
+    drawn = ET.fromstring(robot_description())
+    tip = simulated.find("joint[@name='tool_joint']/origin").get("xyz").split()
+    assert LINK7_TO_FLANGE_M == FLANGE_OFFSET_M and float(tip[2]) == pytest.approx(LINK7_TO_TOOL_POINT_M)
+
+    def joints(robot: ET.Element) -> list[tuple]:
+        return [(j.get("name"), j.find("origin").attrib, j.find("axis").attrib) for j in robot.findall("joint")
+                if j.get("type") == "revolute"]  # fmt: skip
+
+    assert joints(drawn) == joints(simulated) and len(joints(drawn)) == 7
+    meshes = [m.get("filename") for m in drawn.iter("mesh")]
+    assert meshes and all(m.startswith("package://kuka_iiwa/meshes/") and m.endswith(".stl") for m in meshes)
+
+
+def test_the_layout_users_load_shows_only_topics_the_server_and_the_export_have():
+    layout = json.loads((Path(__file__).resolve().parents[1] / "docs" / "foxglove_layout.json").read_text())
+    text = json.dumps(layout["configById"])
+    named = set(re.findall(r'"(/[a-z_/]+?)(?:\.[a-z_.]+)?"', text)) - {"/move_base_simple/goal", "/clicked_point",
+                                                                       "/initialpose"}  # fmt: skip
+    assert named and named <= set(execution_topics()) | {"/execution"}, named - set(execution_topics())
+    assert "3D!scene" in json.dumps(layout["layout"]) and "/robot_description" in text
