@@ -155,6 +155,9 @@ class VerdictCheckName(StrEnum):
     surface_found = "surface_found"
     """Every guarded approach found the surface within the expected window of where it was taught (outside it: a
     warning, or an abort with ``surface_outside_window: abort``)."""
+    not_relocated = "not_relocated"
+    """No contour was relocated where its touch-down found the part (``follow_surface_normal``; relocated: a warning
+    naming the part's move, which the run believed)."""
 
 
 class ExecutionTolerances(BaseModel):
@@ -787,7 +790,7 @@ class ExecutionMetrics(BaseModel):
         default_factory=list,
         description="Per contour relocated (follow_surface_normal): the move of the part [dx, dy, dz] (m, world) its "
         "touch-down found, from the normal it pressed on matched against the taught ones; the contour then ran "
-        "where the part is (docs/EXECUTION.md, \"Following the surface\").",
+        'where the part is (docs/EXECUTION.md, "Following the surface").',
     )
     steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
     abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")

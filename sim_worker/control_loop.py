@@ -44,6 +44,9 @@ CONTACT_LOSS_TRAVEL_M = 0.01
 CONTACT_LOSS_RETRACT_M = 0.05
 """How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
 CONTACT_LOSS_RETRACT_S = 1.0
+UNGUARDED = ContactGuard(math.inf)
+"""The guard of a phase without a stop axis (it reads nothing; a contact phase names the approaches' guard in its
+reasons)."""
 REALTIME_CHECK_STEPS = 10
 """With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
 
@@ -192,7 +195,7 @@ class ControlLoop:
     def run_plan(
         self,
         plan: PhasePlan,
-        guard: ContactGuard,
+        guard: ContactGuard = UNGUARDED,
         references: NDArray[np.float64] | None = None,
         follower: SurfaceFollower | None = None,
     ) -> PlanEnd:
@@ -372,9 +375,9 @@ class ControlLoop:
             f"CF z (an edge or a hole?); {retracted}"
         )
 
-    def retract(self, guard: ContactGuard) -> None:
+    def retract(self) -> None:
         """Back off ``CONTACT_LOSS_RETRACT_M`` along -CF z (the frame in use) from the current pose with motion control
-        on every axis (``guard``: the execution's, unused: the retreat is not guarded)."""
+        on every axis."""
         p, q = self.world.tool_pose()
         z = self.cf_rotation[:, 2]
         n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
@@ -384,7 +387,7 @@ class ControlLoop:
         plan = PhasePlan(ExecutionPhase.retreat, -1, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
                          frame=self.identity_frame)  # fmt: skip
         self.controller.reset_integral()
-        self.run_plan(plan, guard)
+        self.run_plan(plan)
 
     def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
         """Name the joint outside its URDF limits (PyBullet does not enforce them in torque mode)."""

@@ -326,7 +326,7 @@ class _Execution:
             segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, self.loop.cf_rotation
         )
         self._run(release)
-        self.loop.retract(self.guard)
+        self.loop.retract()
         self.offset = self.offset + shift
         self.relocations.append(shift.tolist())
         self.planner = PhasePlanner(self.skill, self.settings, self.controller, self.offset, self.dt)
@@ -344,7 +344,7 @@ class _Execution:
         window = self.surface_window_m()
         if abs(offset) > window and self.settings.surface_outside_window is SurfaceWindowAction.abort:
             where = "before" if offset < 0 else "beyond"
-            self.loop.retract(self.guard)
+            self.loop.retract()
             raise ExecutionAbortError(
                 f"surface outside its window in segment {segment.index}: found {abs(offset) * 1e3:.0f} mm {where} "
                 f"where it was taught, outside the expected ±{window * 1e3:.0f} mm (another surface, or the part "
@@ -520,7 +520,7 @@ def execute_skill(
         try:
             execution.run()
         except ContactLostError as lost:
-            loop.retract(execution.guard)
+            loop.retract()
             raise ExecutionAbortError(str(lost)) from None
     except ExecutionAbortError as abort:
         phase, reason = abort.phase, abort.reason

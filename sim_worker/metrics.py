@@ -268,6 +268,18 @@ def execution_verdict(
                 message=message,
             )
         )
+    for move in log.relocations_m:
+        moved = float(np.linalg.norm(move))
+        where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
+        message = (
+            "contour relocated: its touch-down pressed on a normal taught elsewhere on its path, so the part was "
+            f"taken as moved by ({where}) mm and the contour ran there"
+        )
+        checks.append(
+            VerdictCheck(
+                name=name.not_relocated, passed=False, warning_only=True, value=moved, limit=0.0, message=message
+            )
+        )
     failed = [c.message for c in checks if not c.passed and not c.warning_only]
     warnings = [c.message for c in checks if not c.passed and c.warning_only]
     verdict = Verdict.failed if failed else Verdict.passed

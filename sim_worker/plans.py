@@ -147,13 +147,19 @@ def first_force(segment: Segment) -> float:
     return 0.0
 
 
-def force_after(segment: Segment, t_s: float, dt: float) -> float:
-    """The desired CF-z force ``t_s`` (s) into a contact segment, as executed at the control step ``dt`` (s), N (never
-    negative)."""
+def force_profile(segment: Segment, n: int, dt: float) -> NDArray[np.float64]:
+    """The desired CF-z force of a contact segment at its first ``n`` control steps of ``dt`` (s), as executed: the
+    force DMP rolled out (held at its last value beyond it) or the learned constant, N (never negative)."""
     if segment.force_dmp is None:
-        return first_force(segment)
-    force = DMP.from_parameters(segment.force_dmp).rollout(dt, duration_s=segment.position_dmp.duration_s).y[:, 0]
-    return max(0.0, float(force[min(round(t_s / dt), force.size - 1)]))
+        return np.full(n, max(0.0, float(segment.force_constant_n or 0.0)))
+    rollout = DMP.from_parameters(segment.force_dmp).rollout(dt, duration_s=segment.position_dmp.duration_s)
+    force = np.maximum(rollout.y[:n, 0], 0.0)
+    return np.concatenate([force, np.full(n - force.size, force[-1])]) if force.size < n else force
+
+
+def force_after(segment: Segment, t_s: float, dt: float) -> float:
+    """The desired CF-z force ``t_s`` (s) into a contact segment, as executed at the control step ``dt`` (s), N."""
+    return float(force_profile(segment, round(t_s / dt) + 1, dt)[-1])
 
 
 class PhasePlanner:
@@ -328,13 +334,7 @@ class PhasePlanner:
             rp = pos.rollout(self.dt, start=p_ref0, goal=goal, duration_s=duration)
             n = min(len(rp.t), len(rq.t))
             ref_p, v = rp.y[:n], rp.yd[:n]
-        if segment.force_dmp is not None:
-            force = DMP.from_parameters(segment.force_dmp).rollout(self.dt, duration_s=duration).y[:, 0]
-            force = np.maximum(force[:n], 0.0)
-            if force.size < n:
-                force = np.concatenate([force, np.full(n - force.size, force[-1])])
-        else:
-            force = np.full(n, max(0.0, float(segment.force_constant_n or 0.0)))
+        force = force_profile(segment, n, self.dt)
         ref_q, twist = rq.q[:n], np.hstack([v, rq.omega[:n]])
         times = np.arange(n) * self.dt  # the plan time of each control step, s
         if crease_in_m_s is not None or crease_out_m_s is not None:

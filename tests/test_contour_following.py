@@ -49,6 +49,7 @@ def test_a_contour_met_elsewhere_on_its_path_is_relocated_by_the_parts_move(skil
     place looks the same: taken as not moved) and the whole contour runs there."""
     m = run_case(_CASES["8 cm lower"], FOLLOWING, skills).metrics
     assert len(m.contour_relocations_m) == 1
+    assert any(w.startswith("contour relocated") for w in m.verdict.warnings)  # said, not only done
     # Within the friction cone's reach: the pressing direction says the normal within atan(0.2) = 11°, 1.8 cm of the
     # ball's 9 cm path radius.
     np.testing.assert_allclose(m.contour_relocations_m[0], [0.0, 0.0, -0.08], atol=0.02)
