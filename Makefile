@@ -24,8 +24,30 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
+# Every benchmark in its documented (full) mode, one after the other: each rewrites its own section of
+# docs/BENCHMARKS.md (the corpus, KU Leuven truth and work-piece ones: docs/LEARNING.md; the contours one:
+# docs/RESULTS.md) with the machine and its load. Long on 2 shared cores: run it on a quiet machine.
+# make test runs each one's --smoke instead (tests/test_benchmarks_smoke*.py).
 bench: $(STAMP)
+	$(BIN)/pip install --quiet movement-primitives pytransform3d  # bench_dmp_peer's peer, for this target only
+	$(BIN)/python -m sim_worker.warm_up
 	$(BIN)/python benchmarks/bench_learning.py
+	$(BIN)/python benchmarks/bench_kinesthetic.py
+	$(BIN)/python benchmarks/bench_corpus.py
+	$(BIN)/python benchmarks/bench_kuleuven_truth.py
+	$(BIN)/python benchmarks/bench_work_piece.py
+	$(BIN)/python benchmarks/bench_real_skills.py
+	$(BIN)/python benchmarks/bench_kuleuven_cad.py
+	$(BIN)/python benchmarks/bench_contours.py
+	$(BIN)/python benchmarks/bench_toolchain.py
+	$(BIN)/python benchmarks/bench_dmp_peer.py
+	$(BIN)/python benchmarks/bench_control_loop.py --repeats 5
+	$(BIN)/python benchmarks/bench_telemetry.py
+	$(BIN)/python benchmarks/bench_service.py
+	$(BIN)/python benchmarks/bench_service_load.py
+	$(BIN)/python benchmarks/bench_sweeps.py
+	$(BIN)/python benchmarks/bench_dashboard.py
+	$(BIN)/python benchmarks/bench_long_run.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

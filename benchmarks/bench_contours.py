@@ -101,5 +101,6 @@ if __name__ == "__main__":
             build,
             path=RESULTS_MD,
             options=[("--cases", {"nargs": "+", "help": "run only these cases (names as in the table)"})],
+            smoke={"cases": ["as taught"]},
         )
     )

@@ -181,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         options=[
             ("--seeds", {"type": int, "nargs": "+", "default": [0, 1, 2], "help": "corpus seeds (default 0 1 2)"})
         ],
+        smoke={"seeds": [0]},
     )
 
 

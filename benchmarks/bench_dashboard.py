@@ -3,7 +3,7 @@ long the page takes to load.
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_dashboard.py [--executions 3] [--loads 10] [--no-write]
+    .venv/bin/python benchmarks/bench_dashboard.py [--executions 3] [--loads 10] [--no-write] [--smoke]
 
 Real processes on 127.0.0.1: ``contact-skills up --workers 1`` (embedded Zenoh router, the API, a sim worker) and
 the system's headless Chromium driven by Playwright (``services.dashboard.browser``). This process also holds an
@@ -92,6 +92,7 @@ def _wait(url: str, timeout_s: float = 120) -> None:
 
 
 def build(executions: int, loads: int) -> str:
+    load = os.getloadavg()[0]  # other work on the machine shares the cores
     folder = Path(tempfile.mkdtemp(prefix="bench-dashboard-"))
     port, zenoh_port = free_port(), free_port()
     url = f"http://127.0.0.1:{port}"
@@ -140,7 +141,6 @@ def build(executions: int, loads: int) -> str:
         http.close()
     finally:
         stop_process(up, 40)
-    load = os.getloadavg()[0]  # other work on the machine shares the cores
     latency = np.array(latencies_ms)
     loads_ms = np.array(load_s) * 1000.0
     rows = [
@@ -168,7 +168,7 @@ def build(executions: int, loads: int) -> str:
             f"- Live plot frames while running: {', '.join(f'{r:.1f}' for r in rates_hz)} per s (target >= 20); "
             f"longest pause between two frames {max(longest_pause_ms, default=float('nan')):.0f} ms.",
             "",
-            machine_line(f"the API, the router, the worker and Chromium on 2 shared cores; load average {load:.1f}"),
+            machine_line("the API, the router, the worker and Chromium on 2 shared cores", load_at_start=load),
         ]
     )
 
@@ -183,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             ("--executions", {"type": int, "default": 3, "help": "realtime executions watched"}),
             ("--loads", {"type": int, "default": 10, "help": "page loads timed"}),
         ],
+        smoke={"executions": 1, "loads": 1},
     )
 
 

@@ -38,7 +38,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section  # noqa: E402
+from benchmarks.report import add_smoke_argument, machine_line, median_time, pin_blas_threads, write_section  # noqa: E402
 
 pin_blas_threads()
 
@@ -600,7 +600,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=15, help="timing repeats (median reported)")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "BENCHMARKS.md", help="markdown file to update")
     parser.add_argument("--no-write", action="store_true", help="only print the report")
+    add_smoke_argument(parser, "one timing repeat")
     args = parser.parse_args(argv)
+    if args.smoke:
+        args.repeats, args.no_write = 1, True
     report = build_report(args.repeats)
     print(report)
     if not args.no_write:

@@ -165,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         build_report,
         argv,
         options=[("--seeds", {"type": int, "default": 10, "help": "recordings per surface"})],
+        smoke={"seeds": 1},
     )
 
 

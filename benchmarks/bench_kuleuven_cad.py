@@ -87,11 +87,12 @@ def ridge() -> tuple[TriangleMesh, Crease]:
     return mesh, crease_along_edge(mesh, vertices[[0, 3]])
 
 
-def ridge_demonstration() -> Demonstration:
-    """The tool point along the ridge's crease at :data:`RIDGE_SPEED_M_S`, still for 0.3 s at both ends, the tool
-    pointing down with its x along the stroke, applying :data:`RIDGE_FORCE_N` down and the drag of friction."""
+def ridge_demonstration(stroke_m: float = RIDGE_STROKE_M) -> Demonstration:
+    """The tool point ``stroke_m`` (m) along the ridge's crease at :data:`RIDGE_SPEED_M_S`, still for 0.3 s at both
+    ends, the tool pointing down with its x along the stroke, applying :data:`RIDGE_FORCE_N` down and the drag of
+    friction."""
     dt = 0.005
-    travel = np.arange(-0.5 * RIDGE_STROKE_M, 0.5 * RIDGE_STROKE_M, RIDGE_SPEED_M_S * dt)
+    travel = np.arange(-0.5 * stroke_m, 0.5 * stroke_m, RIDGE_SPEED_M_S * dt)
     hold = round(0.3 / dt)
     y = np.concatenate([np.full(hold, travel[0]), travel, np.full(hold, travel[-1])])
     positions = RIDGE_APEX_M + np.column_stack([np.zeros_like(y), y, np.zeros_like(y)])
@@ -108,15 +109,16 @@ def ridge_demonstration() -> Demonstration:
     )
 
 
-def ridge_rows() -> list[dict]:
-    """The ridge stroke on each geometry (see the module)."""
+def ridge_rows(layouts: int, stroke_m: float) -> list[dict]:
+    """The ridge stroke of ``stroke_m`` (m) on one exact prism and on the last ``layouts`` of `RIDGE_PIECES` (see the
+    module)."""
     mesh, crease = ridge()
-    skill = learn_skill(ridge_demonstration())
+    skill = learn_skill(ridge_demonstration(stroke_m))
     settings = ExecutionSettings()
     base = WorldConfig(table_enabled=False)
     worlds = {"one exact convex prism": base.replace(work_pieces=({"name": "prism", "vertices": margin_shrunk_hull(
         mesh.vertices).tolist()},))}  # fmt: skip
-    for spacing, layers in RIDGE_PIECES:
+    for spacing, layers in RIDGE_PIECES[len(RIDGE_PIECES) - layouts :]:
         label = f"pieces {1e3 * spacing * layers:g} mm long, {1e3 * spacing:g} mm apart ({layers} layers)"
         worlds[label] = cad_world_config(mesh, crease, np.eye(3), np.zeros(3), base, spacing, layers)
     rows = []
@@ -149,11 +151,13 @@ def stl_rows() -> list[tuple[float, float, float, float, float]]:
     return rows
 
 
-def build_report() -> str:
+def build_report(ridge_layouts: int, ridge_stroke_m: float, trials: int) -> str:
+    """The report over the last ``ridge_layouts`` ridge piece layouts (the last is the KU object's), with a ridge
+    stroke of ``ridge_stroke_m`` (m), and the first ``trials`` KU Leuven recordings."""
     started = time.perf_counter()
-    ridges = ridge_rows()
+    ridges = ridge_rows(ridge_layouts, ridge_stroke_m)
     fit = stl_rows()
-    trials = kuleuven_cad_trials()
+    trials = kuleuven_cad_trials(kuleuven_recordings()[:trials])
     elapsed = time.perf_counter() - started
     ridge_table = [
         "| geometry | convex parts | final | true RMS % | true max % | CF-z RMS % | real-time × |",
@@ -217,7 +221,7 @@ def build_report() -> str:
             "realistic wrist sensor (`experiments/kuleuven_cad.py`).",
             "",
             f"The collision geometry on a straight 90° ridge: the ball pressed {RIDGE_FORCE_N:g} N along the bisector, "
-            f"sliding {1e3 * RIDGE_STROKE_M:g} mm along the crease at {RIDGE_SPEED_M_S:g} m/s.",
+            f"sliding {1e3 * ridge_stroke_m:g} mm along the crease at {RIDGE_SPEED_M_S:g} m/s.",
             "",
             *ridge_table,
             "",
@@ -238,7 +242,18 @@ def build_report() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv)
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        options=[
+            ("--ridge-layouts", {"type": int, "default": len(RIDGE_PIECES), "help": "ridge piece layouts, from last"}),
+            ("--ridge-stroke-m", {"type": float, "default": RIDGE_STROKE_M, "help": "ridge stroke length, m"}),
+            ("--trials", {"type": int, "default": 4, "help": "KU Leuven recordings (the first N)"}),
+        ],
+        smoke={"ridge_layouts": 1, "ridge_stroke_m": 0.05, "trials": 1},
+    )
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The service end to end over HTTP: learning latency through the API and executions per minute per worker count.
 
-Run: ``.venv/bin/python benchmarks/bench_service.py [--repeats 15] [--executions 8]``; writes the
-``bench_service`` section of docs/BENCHMARKS.md.
+Run: ``.venv/bin/python benchmarks/bench_service.py [--repeats 15] [--executions 8] [--no-write] [--smoke]``; writes
+the ``bench_service`` section of docs/BENCHMARKS.md.
 
 1. Learning latency: ``contact-skills api --no-bus`` (a real uvicorn process, temp SQLite), a 10 s 1 kHz
    demonstration (``corpus.synthetic.plane_slide(duration_s=10)``, 10 000 samples):
@@ -28,7 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, write_section
+from benchmarks.report import add_smoke_argument, machine_line, median_time, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -65,7 +65,9 @@ def running(
                 if len(health["workers"]) >= workers:
                     break
             if time.monotonic() > deadline:
-                raise RuntimeError(f"{argv[0]} not ready in {timeout_s} s")
+                log.seek(0)
+                output = log.read().decode(errors="replace")[-3000:]
+                raise RuntimeError(f"{argv[0]} not ready in {timeout_s} s: {output}")
             time.sleep(0.3)
         yield process
     finally:
@@ -203,9 +205,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15, help="learning requests per variant")
     parser.add_argument("--executions", type=int, default=8, help="executions per worker count")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts of the throughput runs")
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/BENCHMARKS.md alone")
+    add_smoke_argument(parser, "2 learning requests per variant, 2 executions with 2 workers")
     args = parser.parse_args()
+    if args.smoke:  # one stack of workers: each `up` costs more than its executions
+        args.repeats, args.executions, args.workers, args.no_write = 2, 2, [2], True
     os.chdir(Path(__file__).resolve().parents[1])
+    load_before = os.getloadavg()[0]
 
     learn_rows, _ = bench_learning(args.repeats)
     print("\n".join(learn_rows), flush=True)
@@ -215,7 +222,7 @@ def main() -> None:
     rate = (n_samples - 1) / duration
     throughput_rows = []
     runs: dict[int, dict] = {}
-    for workers in (1, 2):
+    for workers in args.workers:
         per_minute, finished, cpu = bench_executions(workers, args.executions)
         phases = {}
         for view in finished:
@@ -270,10 +277,10 @@ def main() -> None:
             f"{last['cpu']['API']:.2f} the API: decoding and storing a median {last['batches']:.0f} telemetry "
             f"batches; {last['cpu']['router (up)']:.2f} `up` and its router). At that cost {cores} cores allow at most "
             f"{ceiling:.0f} executions per minute; the {last['per_minute']:.1f}/min measured kept {busy:.1f} of the "
-            f"{cores} cores busy with these processes (this benchmark client and other jobs use the rest). Load "
-            f"average during the run: {os.getloadavg()[0]:.1f} (1 min; other jobs share this machine).",
+            f"{cores} cores busy with these processes (this benchmark client and other jobs use the rest: the load "
+            "below).",
             "",
-            machine_line(f"{cores} cores shared by the API, the router and the workers"),
+            machine_line(f"{cores} cores shared by the API, the router and the workers", load_at_start=load_before),
         ]
     )
     print(body)

@@ -1,7 +1,7 @@
 """The service under load (issue 13): concurrent learns against /health latency, and the execution queue.
 
-Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--executions 20]``; writes the
-``bench_service_load`` section of docs/BENCHMARKS.md.
+Run: ``.venv/bin/python benchmarks/bench_service_load.py [--learns 50] [--executions 20] [--no-write] [--smoke]``;
+writes the ``bench_service_load`` section of docs/BENCHMARKS.md.
 
 1. Learning under load: ``contact-skills up --workers 2`` (a real uvicorn API, its learner processes, temp SQLite);
    a 10 s 1 kHz demonstration (``corpus.synthetic.plane_slide(duration_s=10)``) is stored, then ``--learns``
@@ -30,7 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.bench_service import RECORD_OVERRIDES, SCENARIO, demonstration_body, running
-from benchmarks.report import machine_line, pin_blas_threads, write_section
+from benchmarks.report import add_smoke_argument, machine_line, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -58,7 +58,7 @@ def _ms(seconds: float) -> str:
     return f"{seconds * 1000:.0f}" if seconds >= 0.1 else f"{seconds * 1000:.1f}"
 
 
-def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
+def bench_learns(learns: int, baseline_s: float) -> tuple[list[str], dict[str, float]]:
     with tempfile.TemporaryDirectory() as tmp:
         argv, url = _up(2, tmp)
         limits = httpx.Limits(max_connections=learns + 8)
@@ -80,7 +80,7 @@ def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
 
             idle: list[float] = []  # the same requests with no learning, on the machine as loaded now
             idle_load = os.getloadavg()[0]
-            timer = threading.Timer(BASELINE_S, stop.set)
+            timer = threading.Timer(baseline_s, stop.set)
             timer.start()
             poll_health(idle)
             stop.clear()
@@ -105,7 +105,7 @@ def bench_learns(learns: int) -> tuple[list[str], dict[str, float]]:
     h, i = np.array(health), np.array(idle)
     p99, idle_p99 = float(np.percentile(h, 99)), float(np.percentile(i, 99))
     rows = [
-        f"| none ({BASELINE_S:g} s) | — | — | — | — | {idle_load:.1f} | {len(i)} | {_ms(np.median(i))} / "
+        f"| none ({baseline_s:g} s) | — | — | — | — | {idle_load:.1f} | {len(i)} | {_ms(np.median(i))} / "
         f"{_ms(idle_p99)} / {_ms(i.max())} | {'MET' if idle_p99 < HEALTH_TARGET_P99_S else 'NOT MET'} |",
         f"| {learns} at once | {codes.count(201)} / {learns} | {wall:.1f} | {learns / wall:.2f} | "
         f"{np.median(latency):.2f} / {latency.max():.2f} | {burst_load:.1f} | {len(h)} | {_ms(np.median(h))} / "
@@ -165,18 +165,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--learns", type=int, default=50)
     parser.add_argument("--executions", type=int, default=20)
+    parser.add_argument("--baseline-s", type=float, default=BASELINE_S, help="/health asked with no learning, s")
+    parser.add_argument("--no-write", action="store_true", help="print only; leave docs/BENCHMARKS.md alone")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker counts of the queue runs")
+    add_smoke_argument(parser, "2 learns, 2 executions queued on 2 workers, a 1 s baseline")
     args = parser.parse_args()
+    if args.smoke:  # one queue stack: each `up` costs more than its executions
+        args.learns, args.executions, args.workers, args.baseline_s, args.no_write = 2, 2, [2], 1.0, True
     load_before = os.getloadavg()[0]
-    learn_rows, learning = bench_learns(args.learns)
+    learn_rows, learning = bench_learns(args.learns, args.baseline_s)
     load_learning = os.getloadavg()[0]
     queue_rows, queues = [], {}
-    for workers in (1, 2):
+    for workers in args.workers:
         row, numbers = bench_queue(workers, args.executions)
         queue_rows.append(row)
         queues[workers] = numbers
         print(row, flush=True)
     options = (
-        "" if (args.learns, args.executions) == (50, 20) else f" --learns {args.learns} --executions {args.executions}"
+        ""
+        if (args.learns, args.executions, args.baseline_s, args.workers) == (50, 20, BASELINE_S, [1, 2])
+        else f" --learns {args.learns} --executions {args.executions} --baseline-s {args.baseline_s:g} --workers "
+        + " ".join(map(str, args.workers))
     )
     command = f"`.venv/bin/python benchmarks/bench_service_load.py{options}`"
     sentences = [
@@ -203,7 +212,7 @@ def main() -> None:
             "## Service under load: concurrent learns, /health, the execution queue",
             "",
             f"Reproduce: {command} (real processes on loopback: `contact-skills up --workers N`, temp SQLite).",
-            machine_line(),
+            machine_line(load_at_start=load_before),
             "",
             f"Learning: a 10 s 1 kHz demonstration stored once, then `POST /skills` (`demonstration_id`) sent at once "
             f"from {args.learns} client threads while `GET /health` is asked every {HEALTH_EVERY_S * 1000:.0f} ms. "
@@ -227,7 +236,8 @@ def main() -> None:
         ]
     )
     print(body)
-    write_section("bench_service_load", body)
+    if not args.no_write:
+        write_section("bench_service_load", body)
 
 
 if __name__ == "__main__":

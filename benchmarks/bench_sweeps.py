@@ -2,9 +2,9 @@
 the trials' telemetry off (the default) and streamed and stored (``store_telemetry``), and where each trial's time
 goes.
 
-Run: ``.venv/bin/python benchmarks/bench_sweeps.py [--trials-per-worker 10]``; writes the ``bench_sweeps`` section
-of docs/BENCHMARKS.md. Run it when ``uptime`` shows a low load: it prints the 1-minute load average before and after
-every run.
+Run: ``.venv/bin/python benchmarks/bench_sweeps.py [--trials-per-worker 10] [--no-write] [--smoke]``; writes the
+``bench_sweeps`` section of docs/BENCHMARKS.md. Run it when ``uptime`` shows a low load: it prints the 1-minute load
+average before and after every run.
 
 For N = 1, 2 and each telemetry choice: ``contact-skills up --workers N`` (real processes on loopback, a temporary
 SQLite database); the teacher's ``slide_flat`` demonstration recorded by a worker with a stroke that makes an
@@ -33,7 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, machine_speed, pin_blas_threads, write_section
+from benchmarks.report import add_smoke_argument, machine_line, machine_speed, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -231,7 +231,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials-per-worker", type=int, default=10, help="trials per sim worker (default 10)")
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/BENCHMARKS.md alone")
+    add_smoke_argument(parser, "--trials-per-worker 1")
     args = parser.parse_args()
+    if args.smoke:
+        args.trials_per_worker, args.no_write = 1, True
     os.chdir(Path(__file__).resolve().parents[1])
     speed = machine_speed()
     runs = []

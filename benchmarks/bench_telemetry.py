@@ -29,7 +29,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, write_section
+from benchmarks.report import add_smoke_argument, machine_line, pin_blas_threads, write_section
 
 pin_blas_threads()
 
@@ -50,11 +50,12 @@ import numpy as np  # noqa: E402
 from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
 from schemas.bus import ExecutionStatus, KeyExpressions, session_config  # noqa: E402
 from schemas.execution import TelemetryBatch  # noqa: E402
-from services.bus import LOST_GRACE_S, BusClient, BusSettings, NoWorkerAvailable  # noqa: E402
+from services.bus import BusClient, BusSettings, NoWorkerAvailable  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
 from services.local_processes import port_listening as _listening  # noqa: E402
 from services.local_processes import spawn_cli  # noqa: E402
 from services.local_processes import stop_process as _stop  # noqa: E402
+from services.worker_liveness import LOST_GRACE_S  # noqa: E402
 
 SECTION = "bench_telemetry"
 COMMAND = ".venv/bin/python benchmarks/bench_telemetry.py"
@@ -282,14 +283,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--executions", type=int, default=6, help="executions per worker count (throughput)")
     parser.add_argument("--aborts", type=int, default=5)
     parser.add_argument("--kills", type=int, default=3)
+    parser.add_argument(
+        "--batches", type=int, nargs="+", default=list(BATCHES), help="telemetry batch sizes whose latency is measured"
+    )
     parser.add_argument("--no-write", action="store_true", help="print only, do not write docs/BENCHMARKS.md")
+    add_smoke_argument(parser, "one batch size, one abort, one kill, one execution per worker count")
     args = parser.parse_args(argv)
+    if args.smoke:
+        args.executions, args.aborts, args.kills, args.no_write = 1, 1, 1, True
+        args.batches = [ExecutionRequest.model_fields["telemetry_batch"].default]
+    load = os.getloadavg()[0]
 
     with tempfile.TemporaryDirectory() as tmp:
         logs = Path(tmp)
         with cluster(logs, 1) as c:
             skill = learn_skill_over_bus(c.client)
-            latency = [bench_latency(c, skill, batch) for batch in BATCHES]
+            latency = [bench_latency(c, skill, batch) for batch in args.batches]
             aborts = bench_abort(c, skill, args.aborts)
             losses = bench_worker_loss(c, skill, args.kills)
         throughput = {n: bench_throughput(logs, skill, n, args.executions) for n in (1, 2)}
@@ -370,10 +379,10 @@ def main(argv: list[str] | None = None) -> int:
         f"{np.median(detection) * 1e3:.0f} ms) is the bus noticing the worker gone (its liveliness token).",
         f"- Executions per minute (pace fast, {args.executions} executions, median "
         f"{throughput[1][1]:.1f} s simulated each): 1 worker {throughput[1][0]:.1f}/min, 2 workers "
-        f"{throughput[2][0]:.1f}/min ({os.cpu_count()} cores shared by this process, the router and the workers; "
-        f"load average at the end {os.getloadavg()[0]:.1f} over 1 min, other jobs included).",
+        f"{throughput[2][0]:.1f}/min ({os.cpu_count()} cores shared by this process, the router, the workers and "
+        "other jobs: the load below).",
         "",
-        machine_line("router, workers and subscriber on one machine, loopback TCP"),
+        machine_line("router, workers and subscriber on one machine, loopback TCP", load_at_start=load),
     ]
     body = "\n".join(lines)
     print(body)

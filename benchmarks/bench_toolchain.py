@@ -16,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, run_benchmark
+from benchmarks.report import machine_line, median_time, pin_blas_threads, report_main
 
 pin_blas_threads()
 
@@ -28,14 +28,14 @@ BAG_SECONDS = 60.0
 EXPORT_SECONDS = 10.0
 
 
-def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
+def import_rows(repeats: int, bag_seconds: float) -> tuple[list[str], dict[str, float]]:
     from rosbag_files import write_bag
 
     from corpus.synthetic import plane_slide
     from schemas.import_options import BagImportOptions
     from services.bag_import import demonstration_from_bag
 
-    demo = plane_slide(duration_s=BAG_SECONDS, rate_hz=1000.0)
+    demo = plane_slide(duration_s=bag_seconds, rate_hz=1000.0)
     rows, seconds = [], {}
     with tempfile.TemporaryDirectory() as folder:
         for storage in ("mcap", "sqlite3"):
@@ -53,7 +53,11 @@ def import_rows(repeats: int) -> tuple[list[str], dict[str, float]]:
     return rows, seconds
 
 
-def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
+def export_rows(
+    repeats: int, export_seconds: float, move_duration_s: float | None
+) -> tuple[list[str], dict[str, tuple[float, int]]]:
+    """The export table's rows and (median s, bytes) per format: the first ``export_seconds`` of a teacher's
+    ``slide_flat`` (its stroke lasting ``move_duration_s``, None: the scenario's own) learned and executed."""
     from fastapi.testclient import TestClient
 
     from schemas import ExecutionSettings
@@ -64,18 +68,19 @@ def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
     from sim_worker.teacher import record_demonstration
     from skills.parameterize import learn_skill
 
-    recording = record_demonstration("slide_flat", seed=0)
+    overrides = {} if move_duration_s is None else {"move_duration_s": move_duration_s}
+    recording = record_demonstration("slide_flat", seed=0, **overrides)
     result = execute_skill(learn_skill(recording.demonstration), recording.world_config, ExecutionSettings())
     rows, measured = [], {}
     with tempfile.TemporaryDirectory() as folder:
         store = Store(Path(folder) / "bench.db")
-        execution = store.add_execution({}, None)
-        store.add_telemetry(execution.id, result.telemetry.to_batch(execution.id))
-        samples = int((store.telemetry(execution.id)[:, 0] <= EXPORT_SECONDS).sum())
+        execution = store.executions.add({}, None)
+        store.telemetry.add(execution.id, result.telemetry.to_batch(execution.id))
+        samples = int((store.telemetry.rows(execution.id)[:, 0] <= export_seconds).sum())
         app = create_app(ServiceSettings(db_path=Path(folder) / "bench.db"), bus=None, store=store)
         with TestClient(app, base_url="http://127.0.0.1") as client:  # a loopback API answers loopback names only
             for fmt in ("mcap", "csv", "json"):
-                params = {"format": fmt, "t1": EXPORT_SECONDS}
+                params = {"format": fmt, "t1": export_seconds}
                 url = f"/executions/{execution.id}/telemetry"
                 elapsed, response = median_time(lambda params=params, url=url: client.get(url, params=params), repeats)
                 assert response.status_code == 200, response.text
@@ -86,27 +91,27 @@ def export_rows(repeats: int) -> tuple[list[str], dict[str, tuple[float, int]]]:
     return rows, measured
 
 
-def build_report(repeats: int) -> str:
+def build_report(repeats: int, bag_seconds: float, export_seconds: float, move_duration_s: float | None) -> str:
     import os
 
     load = os.getloadavg()[0]
-    imports, import_s = import_rows(repeats)
-    exports, export_measured = export_rows(repeats)
+    imports, import_s = import_rows(repeats, bag_seconds)
+    exports, export_measured = export_rows(repeats, export_seconds, move_duration_s)
     mcap_s, mcap_bytes = export_measured["mcap"]
     sentences = [
-        f"A {BAG_SECONDS:.0f} s bag at 1 kHz imports in {import_s['mcap']:.1f} s from MCAP and "
+        f"A {bag_seconds:.0f} s bag at 1 kHz imports in {import_s['mcap']:.1f} s from MCAP and "
         f"{import_s['sqlite3']:.1f} s from sqlite3 (median of {repeats}).",
-        f"A {EXPORT_SECONDS:.0f} s execution exports as MCAP in {mcap_s:.1f} s ({mcap_bytes / 1e6:.1f} MB, "
+        f"A {export_seconds:g} s execution exports as MCAP in {mcap_s:.1f} s ({mcap_bytes / 1e6:.1f} MB, "
         f"{np.round(mcap_bytes / export_measured['json'][1], 2)} of its JSON).",
     ]
     return "\n".join([
         "## ROS 2 bag import, MCAP/CSV/JSON export",
         "",
-        f"Command: `{COMMAND}`. Import: a {BAG_SECONDS:.0f} s demonstration as a ROS 2 bag written by `rosbags`, "
+        f"Command: `{COMMAND}`. Import: a {bag_seconds:.0f} s demonstration as a ROS 2 bag written by `rosbags`, "
         "WrenchStamped and PoseStamped at 1 kHz each, imported with `contact-skills learn`'s importer (read, align "
-        "on one time base, tare, validate). Export: the first 10 s of a real PyBullet execution's stored telemetry "
-        "(1 kHz) through `GET /executions/{id}/telemetry?format=...&t1=10` (in-process app). Medians of "
-        f"{repeats} runs.",
+        f"on one time base, tare, validate). Export: the first {export_seconds:g} s of a real PyBullet execution's "
+        f"stored telemetry (1 kHz) through `GET /executions/{{id}}/telemetry?format=...&t1={export_seconds:g}` "
+        f"(in-process app). Medians of {repeats} runs.",
         "",
         "| bag storage | messages | MB | samples imported | import s | k messages / s |",
         "| --- | ---: | ---: | ---: | ---: | ---: |",
@@ -118,12 +123,24 @@ def build_report(repeats: int) -> str:
         "",
         *sentences,
         "",
-        machine_line(f"1-minute load average {load:.1f} when the run started"),
+        machine_line(load_at_start=load),
     ])  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_benchmark(__doc__.splitlines()[0], SECTION, build_report, "runs per measurement (median)", argv)
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        options=[
+            ("--repeats", {"type": int, "default": 3, "help": "runs per measurement (median)"}),
+            ("--bag-seconds", {"type": float, "default": BAG_SECONDS, "help": "length of the imported bag, s"}),
+            ("--export-seconds", {"type": float, "default": EXPORT_SECONDS, "help": "telemetry exported, s"}),
+            ("--move-duration-s", {"type": float, "help": "the executed skill's stroke, s (default: the teacher's)"}),
+        ],
+        smoke={"repeats": 1, "bag_seconds": 5.0, "export_seconds": 2.0, "move_duration_s": 1.0},
+    )
 
 
 if __name__ == "__main__":

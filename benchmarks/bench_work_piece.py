@@ -128,9 +128,9 @@ def _case_rows(case: CorpusCase, other_type: str) -> list[dict]:
     return rows
 
 
-def _ku_rows() -> list[dict]:
+def _ku_rows(trials: list[str]) -> list[dict]:
     rows = []
-    for trial in KU_TRIALS:
+    for trial in trials:
         path = ROOT / "data" / "kuleuven_contour" / f"{trial}.csv"
         demonstration = demonstration_from_csv(path, CsvImportOptions(**KU_IMPORT))
         for asked in ("auto", "slide"):
@@ -167,11 +167,14 @@ def _added(rows: list[dict], key: str) -> tuple[float, float]:
     )
 
 
-def build_report() -> str:
+def build_report(flat_cases: int, radii: list[float], ku_trials: list[str]) -> str:
+    """The report over the first ``flat_cases`` of `FLAT_CASES`, the cylinders of ``radii`` (m) and the KU Leuven
+    recordings ``ku_trials``."""
     started = time.perf_counter()
-    flat = [row for shape, seed in FLAT_CASES for row in _case_rows(plane_case(shape, 0.0, seed), "contour")]
-    curved = [row for radius in CYLINDER_RADII_M for row in _case_rows(cylinder_case(radius, 0), "slide")]
-    ku = _ku_rows()
+    cases = FLAT_CASES[:flat_cases]
+    flat = [row for shape, seed in cases for row in _case_rows(plane_case(shape, 0.0, seed), "contour")]
+    curved = [row for radius in radii for row in _case_rows(cylinder_case(radius, 0), "slide")]
+    ku = _ku_rows(ku_trials)
     for r in flat:
         r["added"] = f"{r['measured'].rms - r['truth'].rms:+.2f} / {r['measured'].max - r['truth'].max:+.1f}"
     elapsed = time.perf_counter() - started
@@ -220,7 +223,19 @@ def build_report() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, path=LEARNING_MD)
+    return report_main(
+        __doc__.splitlines()[0],
+        SECTION,
+        build_report,
+        argv,
+        path=LEARNING_MD,
+        options=[
+            ("--flat-cases", {"type": int, "default": len(FLAT_CASES), "help": "how many of the flat cases to run"}),
+            ("--radii", {"type": float, "nargs": "+", "default": list(CYLINDER_RADII_M), "help": "cylinder radii, m"}),
+            ("--ku-trials", {"nargs": "+", "default": list(KU_TRIALS), "choices": KU_TRIALS, "help": "KU recordings"}),
+        ],
+        smoke={"flat_cases": 1, "radii": [0.08], "ku_trials": ["contour_a_1"]},
+    )
 
 
 if __name__ == "__main__":

@@ -1,22 +1,35 @@
-"""Shared by the benchmark scripts: timing, the machine line, and writing one section of docs/BENCHMARKS.md.
+"""Shared by the benchmark scripts: timing, the machine line, the command line, and writing one section of
+docs/BENCHMARKS.md.
 
 Each script owns the section between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` and
-replaces only that, so scripts can be re-run independently.
+replaces only that, so scripts can be re-run independently. Every script takes ``--smoke``: its smallest run that
+still goes through the whole script (tiny sizes, one repeat), printing the report computed from that run and writing
+nothing (``make test`` runs each so, tests/test_benchmarks_smoke*.py); ``make bench`` runs each in its full mode.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import statistics
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from services import doc_sections
-from services.machine import machine_line
+from services import machine as _machine
 
-__all__ = ["BENCHMARKS_MD", "ROOT", "machine_line", "median_time", "pin_blas_threads", "run_benchmark", "write_section"]
+__all__ = [
+    "BENCHMARKS_MD",
+    "ROOT",
+    "add_smoke_argument",
+    "machine_line",
+    "median_time",
+    "pin_blas_threads",
+    "report_main",
+    "write_section",
+]
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS_MD = ROOT / "docs" / "BENCHMARKS.md"
@@ -33,6 +46,28 @@ def pin_blas_threads() -> None:
 
     for var, value in THREAD_LIMIT_ENV.items():
         os.environ.setdefault(var, value)
+
+
+def machine_line(extra: str = "", load_at_start: float | None = None) -> str:
+    """The machine line (`services.machine.machine_line`, with ``extra``) and the load the run came from: the 1-minute
+    load average now, at the end of the run (and ``load_at_start`` when the script took it before), on a machine
+    shared with other jobs."""
+    now = os.getloadavg()[0]
+    load = (
+        f"1-minute load average {now:.1f} at the end of the run"
+        if load_at_start is None
+        else f"1-minute load average {load_at_start:.1f} at the start of the run, {now:.1f} at its end"
+    )
+    return _machine.machine_line(f"{extra}; {load}" if extra else load)
+
+
+def add_smoke_argument(parser: argparse.ArgumentParser, smallest: str) -> None:
+    """Add ``--smoke`` to a benchmark's ``parser``: ``smallest`` says what that run is (the script sets it)."""
+    parser.add_argument(
+        "--smoke",
+        action="store_true",
+        help=f"the smallest run through the whole script ({smallest}): prints its report, writes nothing",
+    )
 
 
 def median_time(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
@@ -52,18 +87,23 @@ def report_main(
     argv: list[str] | None = None,
     path: Path = BENCHMARKS_MD,
     options: Sequence[tuple[str, dict[str, Any]]] = (),
+    *,
+    smoke: Mapping[str, Any],
 ) -> int:
     """The command line of a benchmark that builds one report section: its ``options`` (a flag and its
-    ``argparse`` keywords; their values go to ``build`` by name) and ``--no-write``. Prints the report ``build``
+    ``argparse`` keywords; their values go to ``build`` by name), ``--no-write`` and ``--smoke`` (the values of
+    ``smoke`` replace those of the options: the smallest run; nothing is written). Prints the report ``build``
     returns and writes it into ``path`` between the ``section`` markers. Returns the exit code."""
-    import argparse
-
     parser = argparse.ArgumentParser(description=description)
     for flag, keywords in options:
         parser.add_argument(flag, **keywords)
     parser.add_argument("--no-write", action="store_true", help=f"only print the report; leave {path.name} alone")
+    add_smoke_argument(parser, ", ".join(f"{name} {value}" for name, value in smoke.items()) or "as it is")
     arguments = vars(parser.parse_args(argv))
     write = not arguments.pop("no_write")
+    if arguments.pop("smoke"):
+        arguments.update(smoke)
+        write = False
     report = build(**arguments)
     print(report)
     if write:
@@ -74,24 +114,6 @@ def report_main(
 def write_section(name: str, body: str, path: Path = BENCHMARKS_MD) -> None:
     """Replace (or append) the section between the ``name`` markers in ``path``; keep everything else."""
     doc_sections.write_section(path, name, body, title="# Benchmarks\n")
-
-
-def run_benchmark(
-    description: str, section: str, build_report: Callable[[int], str], repeats_help: str, argv: list[str] | None
-) -> int:
-    """The command line of a benchmark script: ``--repeats N`` (passed to ``build_report``), ``--no-write``; prints
-    the report and writes it as section ``section`` of docs/BENCHMARKS.md."""
-    import argparse
-
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--repeats", type=int, default=3, help=repeats_help)
-    parser.add_argument("--no-write", action="store_true", help="only print the report")
-    args = parser.parse_args(argv)
-    report = build_report(args.repeats)
-    print(report)
-    if not args.no_write:
-        write_section(section, report)
-    return 0
 
 
 def machine_speed() -> dict[str, float]:

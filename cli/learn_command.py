@@ -4,15 +4,22 @@ recording)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from cli.errors import UserError, report_user_error
 from cli.import_options import LazyArgumentsParser, add_import_arguments, import_demonstration
 from services.datasets import DATA_ENV, KULEUVEN_IMPORT, data_directory, kuleuven_recordings
 from services.demonstration_files import SUPPORTED_FILES
+from services.local_processes import THREAD_LIMIT_ENV
 
 
 def _add_learn_arguments(parser: LazyArgumentsParser) -> None:
+    # The first of the parser's lazy steps, before add_import_arguments' step (it imports numpy to build its options):
+    # the thread limit must be in the environment before numpy loads its BLAS, which happens while `learn` is parsed.
+    parser.add_lazily(lambda _: _thread_limit_environment())
     parser.add_argument(
         "file",
         type=Path,
@@ -39,18 +46,35 @@ def _add_learn_arguments(parser: LazyArgumentsParser) -> None:
     add_import_arguments(parser)
 
 
+def _thread_limit_environment() -> None:
+    """Put `THREAD_LIMIT_ENV` (one BLAS/OpenMP thread) into this process's environment, where the user's own setting
+    wins: a BLAS reads its thread count from there when it loads, so this works only before numpy is imported."""
+    for variable, value in THREAD_LIMIT_ENV.items():
+        os.environ.setdefault(variable, value)
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Run the block with one BLAS/OpenMP thread, as `contact-skills up` runs its processes: a multi-threaded BLAS is
+    3.5x slower with one of two cores busy, 12x under heavier load. A BLAS not loaded yet gets it from the environment
+    (`_thread_limit_environment`); one already loaded (an in-process caller) is limited through threadpoolctl for the
+    block."""
+    _thread_limit_environment()
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        yield
+
+
 def learn_and_report(demonstration, options, output: Path, figure: Path | None) -> None:
     """Learn the skill from ``demonstration`` with ``options`` (`schemas.LearnOptions`), write it (and the figure),
-    print the summary with its checks' warnings."""
+    print the summary with its checks' warnings. Callers run it in `one_blas_thread`."""
     import time
-
-    from threadpoolctl import threadpool_limits
 
     from skills.parameterize import learn_skill
 
     started = time.perf_counter()
-    with threadpool_limits(1):  # one BLAS thread: a busy core makes a multi-threaded BLAS several times slower
-        skill = learn_skill(demonstration, options)
+    skill = learn_skill(demonstration, options)
     elapsed = time.perf_counter() - started
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(skill.model_dump_json(indent=1))
@@ -129,11 +153,12 @@ def summary_lines(demonstration, skill) -> list[str]:
 def cmd_learn(args: argparse.Namespace) -> int:
     """``contact-skills learn``: import a recording, learn the skill, write it, print the summary."""
     try:
-        demonstration = import_demonstration(args)
-        from schemas import LearnOptions
+        with one_blas_thread():
+            demonstration = import_demonstration(args)
+            from schemas import LearnOptions
 
-        options = LearnOptions(skill_type=args.skill_type, n_basis=args.basis, strict=args.strict)
-        learn_and_report(demonstration, options, args.output, args.figure)
+            options = LearnOptions(skill_type=args.skill_type, n_basis=args.basis, strict=args.strict)
+            learn_and_report(demonstration, options, args.output, args.figure)
     except Exception as exc:
         return report_user_error("learn", exc)
     return 0
@@ -145,15 +170,16 @@ def cmd_demo_learn(args: argparse.Namespace) -> int:
         recordings = kuleuven_recordings()
         if not recordings:
             raise UserError([f"no KU Leuven recordings (contour_*.csv) under {data_directory()}; set {DATA_ENV}"])
-        from schemas.import_options import CsvImportOptions
-        from services.csv_import import demonstration_from_csv
+        with one_blas_thread():
+            from schemas.import_options import CsvImportOptions
+            from services.csv_import import demonstration_from_csv
 
-        print(f"importing {recordings[0]}")
-        demonstration = demonstration_from_csv(recordings[0], CsvImportOptions(**KULEUVEN_IMPORT))
-        out = args.out_dir
-        from schemas import LearnOptions
+            print(f"importing {recordings[0]}")
+            demonstration = demonstration_from_csv(recordings[0], CsvImportOptions(**KULEUVEN_IMPORT))
+            out = args.out_dir
+            from schemas import LearnOptions
 
-        learn_and_report(demonstration, LearnOptions(skill_type="contour"), out / "skill.json", out / "learn.png")
+            learn_and_report(demonstration, LearnOptions(skill_type="contour"), out / "skill.json", out / "learn.png")
     except Exception as exc:
         return report_user_error("demo-learn", exc)
     return 0

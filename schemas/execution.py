@@ -672,6 +672,17 @@ class TelemetryBatch(BaseModel):
     wrench_world: list[Wrench] = Field(description="Measured wrenches applied by the tool, world, N, N·m.")
     wrench_cf: list[Wrench] = Field(description="The same wrenches in the CF, N, N·m.")
     desired_force_cf_z_n: list[float] = Field(description="Desired CF-z forces, N.")
+    in_contact: list[bool] = Field(
+        default_factory=list,
+        description="Whether the tool touched anything per step (the simulator's contact points, not the sensor); "
+        "empty for telemetry stored before this column was streamed.",
+    )
+    normal_force_true_n: list[float] = Field(
+        default_factory=list,
+        description="The exact force the tool pressed with along the true surface normal per step, N (the "
+        "simulator's contact points, not the sensor: what a test judges by; 0 without contact); empty for telemetry "
+        "stored before this column was streamed.",
+    )
     seq: int | None = Field(
         None,
         ge=0,
@@ -716,8 +727,9 @@ TELEMETRY_WIDTH = max(columns.stop for columns in TELEMETRY_COLUMNS.values())
 STREAMED_TELEMETRY_COLUMNS: dict[str, slice] = {
     name: columns for name, columns in TELEMETRY_COLUMNS.items() if name in TelemetryBatch.model_fields
 }
-"""The columns a :class:`TelemetryBatch` carries (published, stored): the first ones of a row, at the same offsets
-(the truth the simulator knows stays in the worker)."""
+"""The columns a :class:`TelemetryBatch` carries (published, stored): the first ones of a row, at the same offsets.
+They include the true normal force and the contact, so that a live view can judge the force by the truth; the true
+normal's direction stays in the worker (its metrics use it)."""
 STREAMED_TELEMETRY_WIDTH = max(columns.stop for columns in STREAMED_TELEMETRY_COLUMNS.values())
 if sum(c.stop - c.start for c in STREAMED_TELEMETRY_COLUMNS.values()) != STREAMED_TELEMETRY_WIDTH:  # a prefix
     raise AssertionError("the streamed telemetry columns must lead the row")

@@ -39,6 +39,7 @@ from services.bus_events import BusEvents, connect_bus, reconcile
 from services.foxglove_live import FoxgloveLive
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
+from services.retention import Retention
 from services.settings import ServiceSettings, package_version
 from services.store import Store
 from services.sweeps import SweepRunner
@@ -96,6 +97,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     keys = KeyExpressions(settings.zenoh_prefix)
     sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
     foxglove = FoxgloveLive.from_env(store, settings.token_reads) if bus is not None else None  # the live view
+    retention = Retention(store, settings.retention_days) if settings.retention_days > 0 else None
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -110,7 +112,11 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
             sweeps.start()
         if foxglove is not None:
             foxglove.start()
+        if retention is not None:
+            retention.start()
         yield
+        if retention is not None:
+            retention.close()
         if foxglove is not None:
             foxglove.close()
         if sweeps is not None:

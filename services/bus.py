@@ -26,7 +26,7 @@
     applies the worker's true status; a run still going is followed again as before).
 
 REPORTS: a worker's status, telemetry batch or replay counts only if it proves it comes from the worker the execution
-was handed to. Each execution gets a secret bound to the chosen worker (:meth:`BusClient.execution_secret`, derived
+was handed to. Each execution gets a secret bound to the chosen worker (:meth:`.ReportChecks.execution_secret`, derived
 from ``BusSettings.report_key``, which the API keeps in its database so that it survives a restart), sent only to that
 worker as the attachment of its start query (the router lets only that worker's login answer its start key); the
 worker attaches ``schemas.bus_security.report_signature`` of every payload it sends for the execution. A report
@@ -45,18 +45,15 @@ arrive in the order the worker published them; a status may arrive before ``star
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import hmac
+import functools
 import itertools
 import json
 import logging
-import math
 import os
 import queue
 import secrets
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -79,14 +76,14 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
-from schemas.bus_security import ENV_LOGINS, ENV_PASSWORD, ENV_USER, BusSecurity, report_signature
+from schemas.bus_security import ENV_LOGINS, ENV_PASSWORD, ENV_USER, BusSecurity
 from schemas.demonstration import Demonstration
-from schemas.execution import ExecutionPhase, ExecutionRequest, TelemetryBatch
+from schemas.execution import ExecutionRequest, TelemetryBatch
 from services.bus_keys import local_logins_folder, read_env_file
-from services.log_limits import RateLimitFilter
+from services.bus_reports import ReportChecks, implausible_info
+from services.worker_liveness import WORKER_CHECK_S, WorkerLiveness
 
-log = logging.getLogger("contact_skills.bus")
-log.addFilter(RateLimitFilter())  # a flood of forged or bad reports cannot flood the log
+log = logging.getLogger("contact_skills.bus")  # rate-limited: services.bus_reports adds the filter
 
 INFO_TIMEOUT_S = 2.0
 """How long ``workers()`` waits for the workers' info replies, s (they answer in about a millisecond)."""
@@ -96,27 +93,6 @@ background."""
 START_TIMEOUT_S = 30.0
 """How long a start request waits for the chosen worker's reply, s: the worker builds the execution's world and
 checks its reach (placement) before it accepts, 0.1-1.2 s on a quiet core, ten times that on a loaded one."""
-LOST_GRACE_S = 0.25
-"""A worker's token gone, wait this long for its last statuses before checking whether it is lost, s (a token that
-comes back within it cancels the check)."""
-WORKER_CHECK_S = 0.5
-"""A worker whose token went while this client kept its router link is lost unless it answers its info query within
-this, s."""
-WORKER_RETURN_GRACE_S = 15.0
-"""After a router outage, how long a worker whose token went with this client's link has, once the link is back, to
-show its token again before it is lost, s (clients retry the router with a back-off: 4.4 s measured after a 2.6 s
-outage)."""
-OUTAGE_WINDOW_S = 1.0
-"""A token that went within this of this client losing (or regaining) its router link went with the link, s."""
-LOST_RUNS_KEPT_S = 600.0
-"""A lost worker that comes back within this is asked what became of the executions failed for its loss, s."""
-
-
-def lost_worker_reason(worker_id: str) -> str:
-    """The error of an execution failed because its worker was lost (the one the worker's return can withdraw)."""
-    return f"worker {worker_id} lost during the execution (process ended or connection lost)"
-
-
 REPLAY_TIMEOUT_S = 10.0
 """How long a telemetry replay waits for the worker's replies, s."""
 INBOX_BYTES = 512 * 2**20
@@ -129,36 +105,6 @@ REPLAY_SAMPLES = 10_000
 """Samples asked of a worker in one replay query (a longer gap is asked in parts, each with its own timeout)."""
 INBOX_CLOSE_S = 10.0
 """How long ``close`` waits for the inbox to be handled, s."""
-HANDED_KEPT = 10_000
-"""Executions whose worker this client remembers (to check their reports), the most recent ones; older ones are
-looked up through ``owner``."""
-
-
-def implausible_status(status: ExecutionStatus) -> str | None:
-    """Why a worker's status cannot be true (negative counters or time, ``done`` without a control step), or None."""
-    counters = {"steps": status.steps, "seq": status.seq, "segments": status.segments, "t": status.t}
-    if status.metrics is not None:
-        counters["metrics.steps"] = status.metrics.steps
-    negative = [f"{name} {value}" for name, value in counters.items() if value < 0]
-    if negative:
-        return "negative " + ", ".join(negative)
-    if status.segment_index < -1:
-        return f"segment_index {status.segment_index}"
-    if status.phase is ExecutionPhase.done and (status.metrics is None or status.metrics.steps <= 0):
-        return "done without a control step"
-    return None
-
-
-def implausible_info(info: WorkerInfo, key: str, keys: KeyExpressions) -> str | None:
-    """Why a worker's info reply on ``key`` cannot be taken (under another worker's key, negative counters), or
-    None."""
-    if key != keys.info(info.worker_id):
-        return f"info of {info.worker_id} under {key}"
-    if info.executions_run < 0 or info.pid < 0 or info.started_unix_s < 0:
-        return f"negative counters from {info.worker_id}"
-    if info.busy != (info.activity != "idle"):
-        return f"{info.worker_id} busy={info.busy} while {info.activity}"
-    return None
 
 
 @dataclass
@@ -175,7 +121,7 @@ class BusSettings:
     security: BusSecurity | None = None
     """Login and TLS (None: from the environment, ``schemas.bus_security``)."""
     report_key: bytes = field(default_factory=lambda: secrets.token_bytes(32))
-    """The key every execution's secret is derived from (:meth:`BusClient.execution_secret`): the API keeps its own
+    """The key every execution's secret is derived from (:meth:`.ReportChecks.execution_secret`): the API keeps its own
     in its database (``services.store.Store.service_key``), so the executions it adopts after a restart verify."""
 
     @classmethod
@@ -279,24 +225,21 @@ class BusClient:
         """``owner``: the worker an execution this client does not remember was handed to (the store's record), for
         the reports of executions started by a previous API process."""
         self.settings = settings
-        self._owner_of = owner
-        self._handed: OrderedDict[str, str] = OrderedDict()  # execution_id -> the worker it was offered or handed to
         self.keys = KeyExpressions(settings.prefix)
+        self.reports = ReportChecks(settings.report_key, self.keys, owner)
         self._on_status = on_status
         self._on_telemetry = on_telemetry
-        self._on_worker_lost = on_worker_lost
-        self._on_worker_back = on_worker_back
-        self._lost_runs: dict[str, dict[str, float]] = {}  # worker_id -> {execution failed for its loss: when}
         self._lock = threading.Lock()
-        self._alive: set[str] = set()
-        self._running: dict[str, str] = {}  # execution_id -> worker_id, started by this client, not finished
         self._rotation = itertools.count()
-        self._timers: dict[str, threading.Timer] = {}  # worker_id -> the check of a token that went
-        self._out_of_sight: set[str] = set()  # workers whose tokens went with the router link
         self._seen: tuple[float, dict[str, WorkerInfo]] | None = None  # (time.monotonic(), the last info replies)
         self._refreshing = False
-        self._link_up = True
-        self._link_changed = -math.inf  # time.monotonic() when the router link last went or came back
+        self.liveness = WorkerLiveness(
+            answering=lambda worker_id: bool(self._ask_all(self.keys.info(worker_id), WorkerInfo, WORKER_CHECK_S)),
+            latest_status=self.latest_status,
+            report=functools.partial(self._call, on_status),
+            on_worker_lost=on_worker_lost,
+            on_worker_back=on_worker_back,
+        )
         self._closed = False
         self._inbox: queue.Queue = queue.Queue()
         self._inbox_bytes = 0  # telemetry bytes in the inbox (statuses are few and always kept)
@@ -313,7 +256,7 @@ class BusClient:
                 s.declare_subscriber(k.telemetry("*"), self._telemetry_sample),
                 s.liveliness().declare_subscriber(k.workers, self._liveliness_sample, history=True),
             ]
-            self._link_up = bool(list(s.info.routers_zid()))
+            self.liveness.link(bool(list(s.info.routers_zid())), initial=True)
         except Exception:
             self._session.close()
             raise
@@ -335,9 +278,9 @@ class BusClient:
                 log.warning("worker info refused: %s", why)
             else:
                 infos[reply.value.worker_id] = reply.value
+        alive = self.liveness.alive()
         with self._lock:
             self._seen = (time.monotonic(), dict(infos))
-            alive = set(self._alive)
         for worker_id in alive - set(infos):
             infos[worker_id] = WorkerInfo(worker_id=worker_id, busy=True, activity="unknown")
         return [infos[w] for w in sorted(infos)]
@@ -349,7 +292,7 @@ class BusClient:
         an older one is refreshed in the background; ``unknown`` for a worker that query did not see). The first
         call waits for a query."""
         with self._lock:
-            seen, alive = self._seen, set(self._alive)
+            seen, alive = self._seen, self.liveness.alive()
             refresh = seen is not None and time.monotonic() - seen[0] > WORKERS_FRESH_S and not self._refreshing
             self._refreshing = self._refreshing or refresh
         if seen is None:
@@ -374,7 +317,7 @@ class BusClient:
         latest: dict[str, ExecutionStatus] = {}
         for reply in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s):
             status = reply.value
-            if not self._trusted(status, reply.payload, reply.signature):
+            if not self.reports.status_trusted(status, reply.payload, reply.signature):
                 continue
             known = latest.get(status.execution_id)
             if known is None or status.seq > known.seq:
@@ -388,7 +331,7 @@ class BusClient:
         does not know the execution (it never ran it, restarted, or forgot it among more recent ones)."""
         statuses = [r.value for r in self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s)
                     if r.value.worker_id == worker_id and r.value.execution_id == execution_id
-                    and self._trusted(r.value, r.payload, r.signature)]  # fmt: skip
+                    and self.reports.status_trusted(r.value, r.payload, r.signature)]  # fmt: skip
         return max(statuses, key=lambda s: s.seq, default=None)
 
     def telemetry_replay(
@@ -423,8 +366,7 @@ class BusClient:
             except ValueError:
                 log.warning("bad replayed telemetry from %s", worker_id)
                 continue
-            secret = self.execution_secret(execution_id, worker_id)
-            if not self._signed(secret, payload, _attachment(reply.ok.attachment)):
+            if not self.reports.signed_by(execution_id, worker_id, payload, _attachment(reply.ok.attachment)):
                 log.warning("replayed telemetry of %s not signed by %s: refused", execution_id,
                                       worker_id)  # fmt: skip
                 continue
@@ -435,60 +377,15 @@ class BusClient:
     def adopt(self, execution_id: str, worker_id: str) -> None:
         """Watch an execution this client did not start (a previous API process did) as its own: it is failed if
         its worker is lost, caught up on if the worker comes back from an outage."""
-        with self._lock:
-            self._running[execution_id] = worker_id
-        self._hand(execution_id, worker_id)
+        self.liveness.running(execution_id, worker_id)
+        self.reports.hand(execution_id, worker_id)
 
     # ------------------------------------------------------------------------------------------ reports
-
-    def execution_secret(self, execution_id: str, worker_id: str) -> bytes:
-        """The secret of ``execution_id`` run by ``worker_id`` (32 bytes): known to this client and sent to that
-        worker alone; the same execution offered to another worker has another one."""
-        message = f"{execution_id}/{worker_id}".encode()
-        return hmac.new(self.settings.report_key, message, hashlib.sha256).digest()
-
-    def _hand(self, execution_id: str, worker_id: str) -> None:
-        with self._lock:
-            self._handed[execution_id] = worker_id
-            self._handed.move_to_end(execution_id)
-            while len(self._handed) > HANDED_KEPT:
-                self._handed.popitem(last=False)
-
-    def _owner(self, execution_id: str) -> str | None:
-        """The worker ``execution_id`` was handed to (None: not known to this client nor to ``owner``)."""
-        with self._lock:
-            worker_id = self._handed.get(execution_id)
-        if worker_id is None and self._owner_of is not None:
-            worker_id = self._owner_of(execution_id)
-            if worker_id is not None:
-                self._hand(execution_id, worker_id)
-        return worker_id
-
-    @staticmethod
-    def _signed(secret: bytes, payload: bytes, signature: bytes | None) -> bool:
-        return signature is not None and hmac.compare_digest(report_signature(secret, payload), signature)
-
-    def _trusted(self, status: ExecutionStatus, payload: bytes, signature: bytes | None) -> bool:
-        """Whether a status comes from the worker its execution was handed to (the worker it names, if this client
-        knows of none) and is plausible; a refused one is logged."""
-        owner = self._owner(status.execution_id) or status.worker_id
-        if owner != status.worker_id:
-            log.warning("status of %s naming %s refused: the execution was handed to %s",
-                                  status.execution_id, status.worker_id, owner)  # fmt: skip
-            return False
-        if not self._signed(self.execution_secret(status.execution_id, owner), payload, signature):
-            log.warning("status of %s not signed by %s: refused", status.execution_id, owner)
-            return False
-        if why := implausible_status(status):
-            log.warning("status of %s from %s refused: %s", status.execution_id, owner, why)
-            return False
-        return True
 
     def deliver(self, status: ExecutionStatus) -> None:
         """Hand ``status`` to ``on_status`` as if it had just been received (one the subscriber missed)."""
         if status.final:
-            with self._lock:
-                self._running.pop(status.execution_id, None)
+            self.liveness.finished(status.execution_id)
         self._call(self._on_status, status)
 
     def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Reply]:
@@ -567,8 +464,11 @@ class BusClient:
         everyone, free = self._candidates(workers)
         refused: list[str] = []
         for worker in free:
-            key, secret = self.keys.start(worker.worker_id), self.execution_secret(execution_id, worker.worker_id)
-            self._hand(execution_id, worker.worker_id)  # its first statuses may come before its reply
+            key, secret = (
+                self.keys.start(worker.worker_id),
+                self.reports.execution_secret(execution_id, worker.worker_id),
+            )
+            self.reports.hand(execution_id, worker.worker_id)  # its first statuses may come before its reply
             answer = self._ask_start(key, start, secret, timeout_s)
             if answer is not None and answer.code == "need_demonstration":
                 with_demonstration = start.model_copy(update={"demonstration": demonstration})
@@ -577,8 +477,7 @@ class BusClient:
                 refused.append(f"{worker.worker_id} did not answer within {timeout_s:g} s")
                 continue
             if answer.accepted:
-                with self._lock:
-                    self._running[execution_id] = worker.worker_id
+                self.liveness.running(execution_id, worker.worker_id)
                 log.info("execution %s started on %s", execution_id, worker.worker_id)
                 return worker.worker_id
             if answer.code == "error":
@@ -683,7 +582,7 @@ class BusClient:
         except ValueError:
             log.warning("bad status on %s", key)
             return
-        if key == self.keys.status(status.execution_id) and self._trusted(status, payload, signature):
+        if key == self.keys.status(status.execution_id) and self.reports.status_trusted(status, payload, signature):
             self.deliver(status)
 
     def _telemetry_received(self, payload: bytes, key: str, signature: bytes | None) -> None:
@@ -692,19 +591,8 @@ class BusClient:
         except ValueError:
             log.warning("bad telemetry on %s", key)
             return
-        owner = self._owner(batch.execution_id) if batch.execution_id else None
-        if owner is None or key != self.keys.telemetry(batch.execution_id):
-            log.warning("telemetry of %s, an execution handed to no worker: refused",
-                                  batch.execution_id)  # fmt: skip
-            return
-        if not self._signed(self.execution_secret(batch.execution_id, owner), payload, signature):
-            log.warning("telemetry of %s not signed by %s: refused", batch.execution_id, owner)
-            return
-        if (batch.first_sample is not None and batch.first_sample < 0) or (batch.seq is not None and batch.seq < 0):
-            log.warning("telemetry of %s from %s refused: negative counters",
-                                  batch.execution_id, owner)  # fmt: skip
-            return
-        self._call(self._on_telemetry, batch)
+        if self.reports.telemetry_trusted(batch, key, payload, signature):
+            self._call(self._on_telemetry, batch)
 
     def _transport_event(self, event) -> None:
         """This client's link to a router went or came back."""
@@ -712,14 +600,7 @@ class BusClient:
 
         if event.transport.whatami != zenoh.WhatAmI.ROUTER:
             return
-        up = event.kind == zenoh.SampleKind.PUT
-        with self._lock:
-            self._link_up, self._link_changed = up, time.monotonic()
-            waiting = sorted(self._out_of_sight - set(self._timers)) if up else []
-        log.warning("router link %s%s", "back" if up else "lost", f"; waiting for {', '.join(waiting)}" if waiting
-                    else "")  # fmt: skip
-        for worker_id in waiting:
-            self._schedule(worker_id, WORKER_RETURN_GRACE_S, self._overdue)
+        self.liveness.link(event.kind == zenoh.SampleKind.PUT)
 
     def _liveliness_sample(self, sample) -> None:
         import zenoh
@@ -728,126 +609,7 @@ class BusClient:
             worker_id = self.keys.worker_id_of(str(sample.key_expr))
         except ValueError:
             return
-        came = sample.kind == zenoh.SampleKind.PUT
-        with self._lock:
-            pending = self._timers.pop(worker_id, None)
-            returned = came and (pending is not None or worker_id in self._out_of_sight or worker_id in self._lost_runs)
-            self._out_of_sight.discard(worker_id)
-            (self._alive.add if came else self._alive.discard)(worker_id)
-        if pending is not None:
-            pending.cancel()
-        if came:
-            log.info("worker %s connected%s", worker_id, " again" if returned else "")
-            if returned:
-                self._schedule(worker_id, 0.0, self._caught_up)
-            return
-        # The token goes on the control path, the worker's last statuses on the data path: give them
-        # LOST_GRACE_S to arrive before deciding what became of the worker.
-        self._schedule(worker_id, LOST_GRACE_S, self._token_gone, time.monotonic())
-
-    def _schedule(self, worker_id: str, delay_s: float, check: Callable[..., None], *args: Any) -> None:
-        """Run ``check(worker_id, *args)`` on a timer thread after ``delay_s``, unless the worker's token comes back
-        first (or another check replaces this one)."""
-
-        def run() -> None:
-            with self._lock:
-                if self._timers.get(worker_id) is not timer:
-                    return
-                del self._timers[worker_id]
-            check(worker_id, *args)
-
-        timer = threading.Timer(delay_s, run)
-        timer.daemon = True
-        with self._lock:
-            if self._closed:
-                return
-            replaced = self._timers.pop(worker_id, None)
-            self._timers[worker_id] = timer
-        if replaced is not None:
-            replaced.cancel()
-        timer.start()
-
-    def _token_gone(self, worker_id: str, gone_at: float) -> None:
-        """A worker's token went ``LOST_GRACE_S`` ago and has not come back: a router outage, or the worker lost."""
-        with self._lock:
-            with_link = not self._link_up or self._link_changed >= gone_at - OUTAGE_WINDOW_S
-            if with_link:
-                self._out_of_sight.add(worker_id)
-            link_up = self._link_up
-        if with_link:
-            log.warning("worker %s out of sight with the router link: its executions wait for it", worker_id)
-            if link_up:
-                self._schedule(worker_id, WORKER_RETURN_GRACE_S, self._overdue)
-            return
-        if self._ask_all(self.keys.info(worker_id), WorkerInfo, WORKER_CHECK_S):
-            log.warning("worker %s's token went but it answers: kept", worker_id)
-            return
-        self._worker_lost(worker_id)
-
-    def _overdue(self, worker_id: str) -> None:
-        """The router link is back and a worker out of sight since the outage did not return in time."""
-        with self._lock:
-            gone = worker_id in self._out_of_sight
-            self._out_of_sight.discard(worker_id)
-        if gone:
-            self._worker_lost(worker_id)
-
-    def _caught_up(self, worker_id: str) -> None:
-        """A worker is back after its token went: what became of the executions it runs for this client, and of
-        those failed when it was lost (:meth:`_lost_and_back`)."""
-        with self._lock:
-            executions = [e for e, w in self._running.items() if w == worker_id]
-            lost = self._lost_runs.pop(worker_id, {})
-        self._lost_and_back(worker_id, lost)
-        for execution_id in executions:
-            status = self.latest_status(worker_id, execution_id)
-            if status is None:
-                error = f"worker {worker_id} came back without execution {execution_id} (it restarted)"
-                status = ExecutionStatus(execution_id=execution_id, worker_id=worker_id, phase=ExecutionPhase.failed,
-                                         message=error, error=error)  # fmt: skip
-            log.warning("worker %s back: execution %s is %s", worker_id, execution_id, status.phase.value)
-            self.deliver(status)
-
-    def _lost_and_back(self, worker_id: str, lost: dict[str, float]) -> None:
-        """Executions failed when ``worker_id`` was lost (``lost``: id -> time.monotonic() of the failure), the worker
-        now back: the latest status of each it still knows goes to ``on_worker_back``; one still running is
-        followed again. Unknown to the worker (it restarted), or failed too long ago: the verdict stands."""
-        if self._on_worker_back is None:
-            return
-        for execution_id, failed_at in lost.items():
-            if time.monotonic() - failed_at > LOST_RUNS_KEPT_S:
-                continue
-            status = self.latest_status(worker_id, execution_id)
-            if status is None:
-                continue
-            if not status.final:
-                with self._lock:
-                    self._running[execution_id] = worker_id
-            log.warning("worker %s back: execution %s, failed for its loss, is %s", worker_id, execution_id,
-                        status.phase.value)  # fmt: skip
-            self._call(self._on_worker_back, status)
-
-    def _worker_lost(self, worker_id: str) -> None:
-        with self._lock:
-            orphans = [e for e, w in self._running.items() if w == worker_id]
-            for execution_id in orphans:
-                del self._running[execution_id]
-            now = time.monotonic()
-            runs = self._lost_runs.setdefault(worker_id, {})
-            runs.update(dict.fromkeys(orphans, now))
-            for execution_id in [e for e, when in runs.items() if now - when > LOST_RUNS_KEPT_S]:
-                del runs[execution_id]
-        log.warning("worker %s lost (%d execution(s) running on it)", worker_id, len(orphans))
-        for execution_id in orphans:
-            status = ExecutionStatus(
-                execution_id=execution_id,
-                worker_id=worker_id,
-                phase=ExecutionPhase.failed,
-                message=f"worker {worker_id} lost",
-                error=lost_worker_reason(worker_id),
-            )
-            self._call(self._on_status, status)
-        self._call(self._on_worker_lost, worker_id)
+        self.liveness.token(worker_id, sample.kind == zenoh.SampleKind.PUT)
 
     @staticmethod
     def _call(callback: Callable[[Any], None], value: Any) -> None:
@@ -863,10 +625,7 @@ class BusClient:
         if self._closed:
             return
         self._closed = True
-        with self._lock:
-            timers, self._timers = list(self._timers.values()), {}
-        for timer in timers:
-            timer.cancel()
+        self.liveness.close()
         for subscriber in self._subscribers:
             with contextlib.suppress(Exception):
                 subscriber.undeclare()

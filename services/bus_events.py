@@ -57,12 +57,12 @@ def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -
     error = status.error
     if error is None and status.metrics is not None and status.metrics.abort_reason:
         error = status.metrics.abort_reason
-    return store.update_execution(
+    return store.executions.update(
         status.execution_id,
         status=state,
         phase=status.phase,
         worker_id=status.worker_id,
-        metrics=status.metrics.model_dump(mode="json") if status.metrics is not None else None,
+        metrics=status.metrics,
         error=error,
     )
 
@@ -101,7 +101,7 @@ class BusEvents:
         self._repairer: threading.Thread | None = None
 
     def _status(self, status: ExecutionStatus) -> None:
-        row = self.store.execution(status.execution_id)
+        row = self.store.executions.get(status.execution_id)
         if row is not None and row.worker_id is not None and row.worker_id != status.worker_id:
             log.warning("status of %s from %s ignored: it runs on %s", status.execution_id, status.worker_id,
                         row.worker_id)  # fmt: skip
@@ -111,7 +111,7 @@ class BusEvents:
         if status.final and streamed and not self._telemetry_complete(status):
             with self._lock:
                 self._held[status.execution_id] = status
-            self.store.update_execution(status.execution_id, phase=status.phase, worker_id=status.worker_id)
+            self.store.executions.update(status.execution_id, phase=status.phase, worker_id=status.worker_id)
             timer = threading.Timer(FINAL_TELEMETRY_GRACE_S, self._repair, args=(status.execution_id,))
             timer.daemon = True
             timer.start()
@@ -123,7 +123,7 @@ class BusEvents:
     def _telemetry_complete(self, status: ExecutionStatus) -> bool:
         if status.metrics is None:
             return True
-        return self.store.telemetry_counts(status.execution_id)[1] >= status.metrics.steps
+        return self.store.telemetry.counts(status.execution_id)[1] >= status.metrics.steps
 
     def _still_arriving(self, execution_id: str) -> bool:
         """Whether a held final status's telemetry is incomplete but still arriving (more samples stored than at the
@@ -133,7 +133,7 @@ class BusEvents:
             held = self._held.get(execution_id)
         if held is None or self._telemetry_complete(held):
             return False
-        stored = self.store.telemetry_counts(execution_id)[1]
+        stored = self.store.telemetry.counts(execution_id)[1]
         with self._lock:
             growing = stored > self._seen_stored.get(execution_id, -1)
             self._seen_stored[execution_id] = stored
@@ -162,8 +162,8 @@ class BusEvents:
         with self._lock:
             received = self._received.get(execution_id)
         if received is None:
-            received = self.store.telemetry_end(execution_id)
-        self.store.add_telemetry(execution_id, batch)
+            received = self.store.telemetry.end(execution_id)
+        self.store.telemetry.add(execution_id, batch)
         if batch.first_sample is not None:
             if batch.first_sample > received:
                 log.warning("telemetry of %s: samples %d to %d missed; asking the worker again", execution_id,
@@ -207,15 +207,15 @@ class BusEvents:
     def _fill(self, execution_id: str) -> None:
         """Ask the worker that ran the execution for every sample missing from the store (up to the held final
         status's count, else up to the last one stored)."""
-        row = self.store.execution(execution_id)
+        row = self.store.executions.get(execution_id)
         if row is None or row.worker_id is None or self.bus is None:
             return
         with self._lock:
             held = self._held.get(execution_id)
         total = held.metrics.steps if held is not None and held.metrics is not None else None
-        gaps = self.store.telemetry_gaps(execution_id, total)
+        gaps = self.store.telemetry.gaps(execution_id, total)
         filled = sum(
-            self.store.add_telemetry(execution_id, batch)
+            self.store.telemetry.add(execution_id, batch)
             for start, stop in gaps
             for batch in self.bus.telemetry_replay(row.worker_id, execution_id, start, stop)
         )
@@ -226,15 +226,17 @@ class BusEvents:
     def _worker_back(self, status: ExecutionStatus) -> None:
         """A worker failed as lost is back and knows the execution (its own link to the router had dropped): the
         failure is withdrawn and its true status applied (the telemetry it sent meanwhile is asked again)."""
-        from services.bus import lost_worker_reason
+        from services.worker_liveness import lost_worker_reason
 
-        if self.store.reopen_execution(status.execution_id, lost_worker_reason(status.worker_id)):
+        if self.store.executions.reopen(status.execution_id, lost_worker_reason(status.worker_id)):
             log.warning("execution %s: worker %s is back, its loss no longer fails the run", status.execution_id,
                         status.worker_id)  # fmt: skip
             self._status(status)
 
     def _worker_lost(self, worker_id: str) -> None:
-        marked = self.store.fail_active(f"worker {worker_id} was lost while running (process gone)", worker_id)
+        marked = self.store.executions.fail_active(
+            f"worker {worker_id} was lost while running (process gone)", worker_id
+        )
         if marked:
             log.warning("worker %s lost: executions %s marked failed", worker_id, ", ".join(marked))
 
@@ -247,7 +249,7 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
     keep it: a run that finished is ``done``, not failed; it is stored once its missing telemetry has been asked
     again, :class:`BusEvents`), put those still being handed over back in the queue (``services.queue``), mark the
     rest failed (:data:`RESTART_REASON`). Returns the ids marked failed."""
-    active = store.active_executions()
+    active = store.executions.active()
     if not active:
         return []
     running: set[str] = set()
@@ -267,14 +269,14 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
         if row.id in running and bus is not None and row.worker_id is not None:
             bus.adopt(row.id, row.worker_id)
             continue
-        if row.id in running or (row.status is ExecutionState.starting and store.requeue(row.id)):
+        if row.id in running or (row.status is ExecutionState.starting and store.executions.requeue(row.id)):
             continue
         status = ended.get(row.id)
         if bus is not None and status is not None and status.final and status.worker_id == row.worker_id:
             log.warning("execution %s ended %s while no API listened", row.id, status.phase.value)
             bus.deliver(status)
             continue
-        if store.update_execution(
+        if store.executions.update(
             row.id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=RESTART_REASON
         ):
             marked.append(row.id)
@@ -298,7 +300,7 @@ def connect_bus(settings: ServiceSettings, store: Store) -> BusClient:
     )
 
     def owner(execution_id: str) -> str | None:
-        row = store.execution(execution_id)
+        row = store.executions.get(execution_id)
         return None if row is None else row.worker_id
 
     events.bus = BusClient(

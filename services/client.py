@@ -148,7 +148,9 @@ class Telemetry:
 
     ``t`` s since the execution started; ``tool_position`` / ``reference_position`` world, m; ``wrench_world`` is the
     wrench the tool applies at the tool point in world axes (N, N·m); ``wrench_cf`` the same in the compliant frame
-    (force z into the surface); ``desired_force_cf_z_n`` the desired CF-z force, N."""
+    (force z into the surface); ``desired_force_cf_z_n`` the desired CF-z force, N; ``in_contact`` (bool) and
+    ``normal_force_true_n`` (N) the simulator's truth: whether the tool touched anything and the exact force along the
+    true surface normal (both empty for telemetry stored before they were streamed)."""
 
     t: np.ndarray
     phase: np.ndarray
@@ -160,6 +162,8 @@ class Telemetry:
     wrench_world: np.ndarray
     wrench_cf: np.ndarray
     desired_force_cf_z_n: np.ndarray
+    in_contact: np.ndarray
+    normal_force_true_n: np.ndarray
 
     @classmethod
     def from_columns(cls, columns: dict[str, Any]) -> Telemetry:
@@ -168,6 +172,7 @@ class Telemetry:
         phases = {phase.value: phase for phase in ExecutionPhase}  # a lookup per row, not an enum call
         arrays["phase"] = np.array([phases[str(p)] for p in columns["phase"]], dtype=object)
         arrays["segment_index"] = arrays["segment_index"].astype(int)
+        arrays["in_contact"] = arrays["in_contact"].astype(bool)
         return cls(**arrays)
 
     @classmethod

@@ -55,10 +55,14 @@ class CsvImportError(DemonstrationImportError):
 
 MAX_CSV_ROWS = 5 * MAX_DEMONSTRATION_SAMPLES
 """The most data rows a CSV file may have: a file resampled to a fifth of its rate still fits the sample limit.
-Counted before anything is parsed (parsing a too-long file in full cost 12.8 s and 2.3 GB before it was refused)."""
+Counted while a file is read, before anything is parsed (parsing a too-long file in full cost 12.8 s and 2.3 GB
+before it was refused)."""
 MAX_CSV_BYTES = 400 * MAX_CSV_ROWS
 """The largest CSV file read, bytes (400 bytes per row is twice a 19-column row written at full double precision):
 checked from the file's size before it is read."""
+READ_CHUNK_BYTES = 1 << 22
+"""A CSV file is read in chunks of this many bytes (4 MiB), its lines counted as they come: a file with too many rows
+is refused after reading just past the limit, not after reading (let alone parsing) all of it."""
 
 
 # --------------------------------------------------------------------------- column mapping
@@ -381,6 +385,28 @@ def _numeric_columns(table: _Table, indices: dict[str, int | None]) -> dict[str,
     return values
 
 
+def _too_many_rows(lines: int, read_in_full: bool = True) -> CsvImportError:
+    """The refusal of a CSV text of ``lines`` lines (header included; ``read_in_full`` False: at least that many,
+    reading stopped there), more than `MAX_CSV_ROWS` data rows."""
+    return CsvImportError(
+        f"too many rows: {'' if read_in_full else 'at least '}{lines} lines, at most {MAX_CSV_ROWS} data rows (a "
+        f"resampled recording may have at most {MAX_DEMONSTRATION_SAMPLES} samples); cut it into shorter recordings"
+    )
+
+
+def _read_counting_lines(path: Path) -> bytes:
+    """Return the bytes of the file at ``path``, read in `READ_CHUNK_BYTES` chunks whose lines are counted as they
+    come; raise :class:`CsvImportError` as soon as there are more than `MAX_CSV_ROWS` data rows."""
+    chunks, lines = [], 0
+    with path.open("rb") as file:
+        while chunk := file.read(READ_CHUNK_BYTES):
+            lines += chunk.count(b"\n")
+            if lines > MAX_CSV_ROWS + 1:
+                raise _too_many_rows(lines, read_in_full=False)
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
 def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, str | None]:
     """Return the CSV text and the file name (None for text given inline)."""
     if isinstance(path_or_text, bytes):
@@ -398,7 +424,7 @@ def _text_and_name(path_or_text: str | os.PathLike[str] | bytes) -> tuple[str, s
                 f"{str(path)!r}: {size / 1e6:.0f} MB, larger than the {MAX_CSV_BYTES / 1e6:.0f} MB a recording of at "
                 f"most {MAX_CSV_ROWS} rows can have; cut it into shorter recordings"
             )
-        return path.read_text(encoding="utf-8-sig"), path.name
+        return _read_counting_lines(path).decode("utf-8-sig"), path.name
     except OSError as exc:
         raise CsvImportError(f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
@@ -448,12 +474,9 @@ def demonstration_from_csv(
     rate = sampling_rate_hz(options.rate_hz, dt_s, CsvImportError)
     text, file_name = _text_and_name(path_or_text)
     file_name = file_name or (f"{name}.csv" if name else "inline.csv")
-    lines = text.count("\n")  # one pass in C: refuse a too-long file before parsing it
+    lines = text.count("\n")  # one pass in C: refuse a too-long text (inline or uploaded) before parsing it
     if lines > MAX_CSV_ROWS + 1:
-        raise CsvImportError(
-            f"too many rows: {lines} lines, at most {MAX_CSV_ROWS} data rows (a resampled recording may have at most "
-            f"{MAX_DEMONSTRATION_SAMPLES} samples); cut it into shorter recordings"
-        )
+        raise _too_many_rows(lines)
     table = _read_table(text)
     resolved = resolved_columns(table.header, columns, frame, options.quaternion_order, time_optional=rate is not None)
     indices, order = resolved.indices, resolved.quaternion_order

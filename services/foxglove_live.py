@@ -5,8 +5,9 @@ What it streams is what the exported MCAP holds (``services.telemetry_export.Exe
 ROS 2 message types, CDR, built by the same code), so a recorded run looks in Foxglove as the live one did: poses,
 wrenches (world, CF), desired force, phase, segment, ``/tf`` (world, flange, tool, reference, ``cf``),
 ``/joint_states``, ``/robot_description`` (the URDF; its meshes served by the asset handler, ``package://`` URIs) and
-``/markers`` (paths, CF triads, the touched work piece). ``/execution`` (``std_msgs/msg/String``) names the
-execution shown.
+``/markers`` (paths, CF triads, the touched work piece); and what the simulator knows of the contact,
+``/force/true`` (the true normal force, N) and ``/contact`` (``services.dashboard.ros_scene.truth_messages``).
+``/execution`` (``std_msgs/msg/String``) names the execution shown.
 
 Where the telemetry comes from: the store, as the API's bus callbacks write it (``services.bus_events``), polled
 every :data:`POLL_S` from a cursor: every sample received (a repaired gap too) is shown once, in order. One
@@ -146,7 +147,7 @@ class FoxgloveLive:
             resends, self._resends = self._resends, set()
         for topic in resends:
             self._resend(topic)
-        running = [row for row in self.store.active_executions() if row.status is not ExecutionState.queued
+        running = [row for row in self.store.executions.active() if row.status is not ExecutionState.queued
                    and row.streams_telemetry]  # fmt: skip
         newest = max(running, key=lambda row: row.created, default=None)
         if newest is not None and newest.id != self._following and (self._done or self._following is None
@@ -154,7 +155,7 @@ class FoxgloveLive:
             self._follow(newest.id, newest.created)
         if self._following is None or self._done:
             return
-        row = self.store.execution(self._following)
+        row = self.store.executions.get(self._following)
         finished = row is None or row.status in TERMINAL
         rows = stored_rows(self.store, self._following, self._cursor)
         if rows.shape[0]:
@@ -175,10 +176,10 @@ class FoxgloveLive:
         log.info("Foxglove live view follows %s", execution_id)
 
     def _publish(self, rows: np.ndarray, final: bool) -> None:
-        picked = decimated(rows[:, 0], LIVE_HZ)
         from services.dashboard.ros_scene import MARKERS, ROBOT_DESCRIPTION
 
-        for topic, (stamps, payloads) in self._messages.messages(rows[picked], final).items():
+        shown = rows[decimated(rows[:, 0], LIVE_HZ)]
+        for topic, (stamps, payloads) in self._messages.messages(shown, final).items():
             for stamp, payload in zip(stamps.tolist(), payloads, strict=True):
                 self._log(topic, payload, stamp)
             if topic == ROBOT_DESCRIPTION:

@@ -103,7 +103,7 @@ class ExecutionQueue:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._demonstrations: dict[str, Demonstration | None] = {}  # by id, the oldest first (hold self._lock)
-        store.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
+        store.executions.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
 
     # ------------------------------------------------------------------ what the service calls
 
@@ -120,25 +120,25 @@ class ExecutionQueue:
 
         if not self.bus.workers():
             raise NoWorkerAvailable("no worker connected: cannot run executions (start one: contact-skills worker)")
-        row = self.store.add_execution(shown_request, skill_id, dispatch.to_json(), priority, self.max_queued)
+        row = self.store.executions.add(shown_request, skill_id, dispatch.to_json(), priority, self.max_queued)
         with self._lock:
-            if self.store.queue_position(row.id) == 0:
+            if self.store.executions.queue_position(row.id) == 0:
                 outcome, reason = self._hand_over(row.id, dispatch)
                 if outcome is Handover.refused:
-                    self.store.delete_execution(row.id)
+                    self.store.executions.delete(row.id)
                     raise BusRequestError(reason)
-            found, position = self.store.execution(row.id), self.store.queue_position(row.id)
+            found, position = self.store.executions.get(row.id), self.store.executions.queue_position(row.id)
         self.wake()
         return found or row, position
 
     def cancel(self, execution_id: str, reason: str = "cancelled while queued") -> bool:
         """Take a queued execution out of the queue (status aborted with ``reason``); False if it was not queued."""
         with self._lock:
-            return self.store.cancel_queued(execution_id, reason)
+            return self.store.executions.cancel_queued(execution_id, reason)
 
     def position(self, execution_id: str) -> int | None:
         """0 for the next one to start, None for one not queued."""
-        return self.store.queue_position(execution_id)
+        return self.store.executions.queue_position(execution_id)
 
     def forget_demonstration(self, demonstration_id: str) -> None:
         """Drop the parsed copy of a demonstration that was deleted: the executions handed over from now on run
@@ -181,7 +181,7 @@ class ExecutionQueue:
         whether executions are still waiting."""
         while not self._stop.is_set():
             with self._lock:
-                heads = self.store.queued_executions(limit=1)
+                heads = self.store.executions.queued(limit=1)
                 if not heads:
                     return False
                 row, dispatch_json = heads[0]
@@ -189,7 +189,7 @@ class ExecutionQueue:
             if outcome is Handover.busy:
                 return True
             if outcome is Handover.refused:
-                self.store.update_execution(
+                self.store.executions.update(
                     row.id, ExecutionState.failed, ExecutionPhase.failed, error=f"the worker refused it: {reason}"
                 )
         return True
@@ -200,7 +200,7 @@ class ExecutionQueue:
         if demonstration_id not in self._demonstrations:
             if len(self._demonstrations) >= DEMONSTRATIONS_KEPT:
                 self._demonstrations.pop(next(iter(self._demonstrations)))
-            self._demonstrations[demonstration_id] = self.store.demonstration(demonstration_id)
+            self._demonstrations[demonstration_id] = self.store.demonstrations.get(demonstration_id)
         return self._demonstrations[demonstration_id]
 
     def _hand_over(self, execution_id: str, dispatch: Dispatch) -> tuple[Handover, str]:
@@ -210,7 +210,7 @@ class ExecutionQueue:
         workers = self.bus.workers()
         if all(worker.busy for worker in workers):  # checked first: a queued one stays queued meanwhile
             return Handover.busy, "every worker busy"
-        if not self.store.claim_queued(execution_id):
+        if not self.store.executions.claim_queued(execution_id):
             return Handover.gone, "not queued"
         demonstration = None if dispatch.demonstration_id is None else self._demonstration(dispatch.demonstration_id)
         try:
@@ -223,14 +223,14 @@ class ExecutionQueue:
                 workers=workers,
             )
         except NoWorkerAvailable:
-            self.store.requeue(execution_id)
+            self.store.executions.requeue(execution_id)
             return Handover.busy, "every worker busy"
         except BusRequestError as exc:
             return Handover.refused, str(exc)
         except Exception as exc:  # the bus failed: keep it queued and try again later
             log.exception("handing %s to a worker failed", execution_id)
-            self.store.requeue(execution_id)
+            self.store.executions.requeue(execution_id)
             return Handover.busy, f"{type(exc).__name__}: {exc}"
-        self.store.mark_started(execution_id, worker_id)
+        self.store.executions.mark_started(execution_id, worker_id)
         log.info("execution %s started on %s", execution_id, worker_id)
         return Handover.started, worker_id

@@ -26,6 +26,8 @@
 | max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (open connections and requests at once; more get 503) |
 | client_queued_max | ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` | ``100`` (a client's queued or running executions; 429) |
 | client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
+| storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB the database holds at most; then 507) |
+| retention_days | ``CONTACT_SKILLS_RETENTION_DAYS`` | ``0`` (keep all; > 0: older finished runs deleted) |
 
 A job is one execution or recording; its budget (``schemas.job_budget``) is read from the same variables by the sim
 workers, which hold every job they are sent to it too.
@@ -50,6 +52,10 @@ DEFAULT_MAX_BODY_MB = 64.0
 DEFAULT_WORKERS = 1
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_ZENOH_PREFIX = "cskills"
+DEFAULT_STORAGE_QUOTA_MB = 4096.0
+"""What the database may hold, MiB. Measured: a one-minute execution's 1 kHz telemetry takes ~8.4 MB (147 bytes a
+sample), so about 120 of them fit in a GiB; a demonstration takes ~285 bytes a sample (the longest, 200 000 samples,
+~57 MB)."""
 DEFAULT_TELEMETRY_PAGE_SAMPLES = 20_000
 """Most samples one ``GET /executions/{id}/telemetry`` returns (20 s at 1 kHz; ~11 MB of JSON, ~15 MB of the API's
 memory while it streams): a longer run is read page by page (``cursor``)."""
@@ -80,6 +86,8 @@ ENV_VARS: dict[str, str] = {
     "max_connections": "CONTACT_SKILLS_MAX_CONNECTIONS",
     "client_queued_max": "CONTACT_SKILLS_CLIENT_QUEUED_MAX",
     "client_sweeps_max": "CONTACT_SKILLS_CLIENT_SWEEPS_MAX",
+    "storage_quota_mb": "CONTACT_SKILLS_STORAGE_QUOTA_MB",
+    "retention_days": "CONTACT_SKILLS_RETENTION_DAYS",
     "instance": "CONTACT_SKILLS_INSTANCE",
 }
 """Setting name -> the environment variable that sets it."""
@@ -139,6 +147,8 @@ class ServiceSettings:
     max_connections: int = 256
     client_queued_max: int = 100
     client_sweeps_max: int = 2
+    storage_quota_mb: float = DEFAULT_STORAGE_QUOTA_MB
+    retention_days: float = 0.0
     instance: str = field(default_factory=lambda: secrets.token_hex(8))
     """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
 
@@ -173,6 +183,11 @@ class ServiceSettings:
         if self.client_queued_max < 1 or self.client_sweeps_max < 1:
             raise SettingsError(
                 f"client_queued_max {self.client_queued_max}, client_sweeps_max {self.client_sweeps_max}: must be >= 1"
+            )
+        if not (self.storage_quota_mb >= 0 and self.retention_days >= 0):
+            raise SettingsError(
+                f"storage_quota_mb {self.storage_quota_mb}, retention_days {self.retention_days}: must be >= 0 "
+                "(0: no quota, keep all)"
             )
         if self.token_reads and not self.token:
             raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")

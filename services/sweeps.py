@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
 from schemas.bus import KeyExpressions
-from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionRequest, TelemetryMode
+from schemas.execution import ControllerKind, ExecutionRequest, TelemetryMode
 from schemas.skill import Skill
 from schemas.sweep import (
     SWEEP_TOLERANCES,
@@ -97,7 +97,12 @@ def _finished(row: SweepTrialRow) -> bool:
 
 def _outcome(row: SweepTrialRow, criteria: dict[str, float]) -> Outcome:
     """The judged outcome of a finished trial (``criteria``: the sweep's request, for a trial without a verdict)."""
-    return outcome(row.metrics, row.status.value if row.status else "failed", row.error, criteria)
+    return outcome(
+        row.metrics.model_dump(mode="json") if row.metrics else None,
+        row.status.value if row.status else "failed",
+        row.error,
+        criteria,
+    )
 
 
 def _counts(rows: list[SweepTrialRow], criteria: dict[str, float]) -> SweepCounts:
@@ -122,7 +127,7 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
     """Every trial x controller of the sweep with its execution's result (judged once finished: its verdict)."""
     criteria = _criteria(row)
     results = []
-    for r in store.sweep_trials(row.id):
+    for r in store.sweeps.trials(row.id):
         finished = _finished(r)
         judged = _outcome(r, criteria)
         results.append(
@@ -142,7 +147,7 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
                 touchdown_peak_ratio=judged.touchdown_ratio,
                 contact_ratio=judged.contact_ratio,
                 abort_reason=judged.abort_reason if finished and judged.phase != "done" else None,
-                metrics=ExecutionMetrics.model_validate(r.metrics) if r.metrics else None,
+                metrics=r.metrics,
             )
         )
     return results
@@ -151,7 +156,7 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
 def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
     """The sweep's state, counts, per-controller summary and sensitivity ranking (from the finished trials)."""
     criteria = _criteria(row)
-    rows = store.sweep_trials(row.id)
+    rows = store.sweeps.trials(row.id)
     summaries, ranking = [], []
     for controller in row.request["controllers"]:
         kind = ControllerKind(controller)
@@ -163,7 +168,7 @@ def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
         ranking.extend(sensitivity(kind, parameters, outcomes))
     return SweepView(
         id=row.id,
-        status=SweepState(row.status),
+        status=row.status,
         created=row.created,
         updated=row.updated,
         request=row.request,
@@ -194,7 +199,9 @@ class SweepRunner:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
-        store.on_finish(lambda _execution_id: self._wake.set())  # submit the successor now, not on the next poll
+        store.executions.on_finish(
+            lambda _execution_id: self._wake.set()
+        )  # submit the successor now, not on the next poll
 
     # ------------------------------------------------------------------ what the routes call
 
@@ -219,11 +226,11 @@ class SweepRunner:
         shown = request.model_dump(mode="json", exclude={"skill"})
         shown.update(inline_skill=request.skill is not None)
         with self._lock:
-            row = self.store.add_sweep(shown, spec, trials, SweepState.running.value)
+            row = self.store.sweeps.add(shown, spec, trials, SweepState.running)
             try:
                 self._advance(row, first=True)
             except Exception:
-                self.store.delete_sweep(row.id)
+                self.store.sweeps.delete(row.id)
                 raise
         return row
 
@@ -231,15 +238,15 @@ class SweepRunner:
         """Stop a running sweep: its queued executions are cancelled, its running ones aborted; False if it was not
         running."""
         with self._lock:
-            running = SweepState.running.value
-            if not self.store.set_sweep_status(sweep_id, SweepState.cancelled.value, only_from=running):
+            running = SweepState.running
+            if not self.store.sweeps.set_status(sweep_id, SweepState.cancelled, only_from=running):
                 return False
-            for r in self.store.sweep_trials(sweep_id):
+            for r in self.store.sweeps.trials(sweep_id):
                 if r.status is ExecutionState.queued and r.execution_id:
                     self.queue.cancel(r.execution_id, "sweep cancelled")
                 elif r.status in (ExecutionState.running, ExecutionState.paused) and r.execution_id:
                     self.bus.send_command(r.execution_id, "abort")
-            row = self.store.sweep(sweep_id)
+            row = self.store.sweeps.get(sweep_id)
             if row is not None:
                 self._publish(row)
         return True
@@ -266,11 +273,11 @@ class SweepRunner:
             self._wake.clear()  # before looking: an execution that ends meanwhile wakes the next round
             if self._stop.is_set():
                 return
-            for listed in self.store.list_sweeps(limit=1000, status=SweepState.running.value):
+            for listed in self.store.sweeps.page(limit=1000, status=SweepState.running):
                 try:
                     with self._lock:
-                        row = self.store.sweep(listed.id)  # read again under the lock: a cancel may have come
-                        if row is not None and row.status == SweepState.running.value:
+                        row = self.store.sweeps.get(listed.id)  # read again under the lock: a cancel may have come
+                        if row is not None and row.status == SweepState.running:
                             self._advance(row)
                 except Exception:  # keep the thread alive whatever one sweep does
                     log.exception("sweep %s could not advance", listed.id)
@@ -282,12 +289,12 @@ class SweepRunner:
         from services.bus import BusRequestError, NoWorkerAvailable
         from services.store import QueueFull
 
-        rows = self.store.sweep_trials(row.id)  # read once a round (~30 ms for 600 trials x controllers)
+        rows = self.store.sweeps.trials(row.id)  # read once a round (~30 ms for 600 trials x controllers)
         in_flight = sum(r.status is not None and r.status not in TERMINAL for r in rows)
         waiting = [k for k, r in enumerate(rows) if r.execution_id is None or _needs_rerun(r)]
         if not waiting and in_flight == 0:
-            self.store.set_sweep_status(row.id, SweepState.done.value, only_from=SweepState.running.value)
-            row = self.store.sweep(row.id) or row
+            self.store.sweeps.set_status(row.id, SweepState.done, only_from=SweepState.running)
+            row = self.store.sweeps.get(row.id) or row
         spec = json.loads(row.spec) if waiting else {}
         for k in waiting[: max(0, self.window - in_flight)]:
             r = rows[k]
@@ -325,7 +332,7 @@ class SweepRunner:
         execution, _ = self.queue.submit(
             Dispatch(request, overrides, spec["demonstration_id"]), shown, spec["skill_id"], request.priority
         )
-        self.store.assign_sweep_trial(row.id, r.trial, r.controller, execution.id)
+        self.store.sweeps.assign_trial(row.id, r.trial, r.controller, execution.id)
         return replace(r, execution_id=execution.id, attempts=r.attempts + 1, status=execution.status, metrics=None,
                        error=execution.error)  # fmt: skip
 
@@ -333,7 +340,7 @@ class SweepRunner:
         """Put the sweep's progress on the bus if its counts (or status) changed since the last put (``rows``: its
         trials as just read, else read now)."""
         criteria = _criteria(row)
-        rows = self.store.sweep_trials(row.id) if rows is None else rows
+        rows = self.store.sweeps.trials(row.id) if rows is None else rows
         counts = _counts(rows, criteria)
         key = f"{row.id}:{row.status}"
         if self._published.get(key) == counts:
@@ -343,7 +350,7 @@ class SweepRunner:
             done = [_outcome(r, criteria) for r in rows if r.controller == controller and _finished(r)]
             ok = sum(o.success for o in done)
             rates[controller] = ok / len(done) if done else None
-        progress = SweepProgress(sweep_id=row.id, status=SweepState(row.status), counts=counts, success_rate=rates)
+        progress = SweepProgress(sweep_id=row.id, status=row.status, counts=counts, success_rate=rates)
         try:
             self.bus.publish(self.keys.sweep_progress(row.id), progress.model_dump_json())
         except Exception:  # the bus is down for a moment: the next change publishes again

@@ -126,9 +126,11 @@ def execution_json_chunks(head: dict[str, Any], matrix: np.ndarray) -> Iterator[
     yield "{" + ",".join(f"{json.dumps(key)}:{json.dumps(value)}" for key, value in head.items())
     for name in TELEMETRY_LAYOUT:
         yield f",{json.dumps(name)}:["
+        separator = ""  # none before the first value (a column not recorded has none)
         for a in range(0, matrix.shape[0], CHUNK_ROWS):
-            text = json.dumps(telemetry_column(matrix[a : a + CHUNK_ROWS], name))[1:-1]
-            yield ("," if a else "") + _NON_FINITE.sub("null", text)
+            if text := json.dumps(telemetry_column(matrix[a : a + CHUNK_ROWS], name))[1:-1]:
+                yield separator + _NON_FINITE.sub("null", text)
+                separator = ","
         yield "]"
     yield "}"
 
@@ -207,11 +209,11 @@ _POSE, _WRENCH_WORLD, _WRENCH_CF = pose_stamped(WORLD_FRAME), wrench_stamped(WOR
 
 def execution_topics() -> dict[str, str]:
     """Every topic of an execution (MCAP export and live Foxglove) and its ROS 2 message type."""
-    from services.dashboard.ros_scene import SCENE_TOPICS
+    from services.dashboard.ros_scene import SCENE_TOPICS, TRUTH_TOPICS
 
     return {"/tool/pose": POSE_TYPE, "/reference/pose": POSE_TYPE, "/wrench/world": WRENCH_TYPE,
             "/wrench/cf": WRENCH_TYPE, "/force/desired": WRENCH_TYPE, "/phase": PHASE_TYPE, "/segment": SEGMENT_TYPE,
-            **SCENE_TOPICS}  # fmt: skip
+            **SCENE_TOPICS, **TRUTH_TOPICS}  # fmt: skip
 
 
 class ExecutionMessages:
@@ -249,7 +251,9 @@ class ExecutionMessages:
         out["/phase"] = self._changes("/phase", PHASE_TYPE, stamps, phases)
         segments = [int(v) for v in column["segment_index"][:, 0]]
         out["/segment"] = self._changes("/segment", SEGMENT_TYPE, stamps, segments)
-        return {**out, **self.scene.messages(matrix, final)}
+        from services.dashboard.ros_scene import truth_messages
+
+        return {**out, **self.scene.messages(matrix, final), **truth_messages(matrix, stamps)}
 
     def _changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> tuple[np.ndarray, list]:
         """``values`` as ``std_msgs`` messages (``data``) where the value differs from the one before (the first

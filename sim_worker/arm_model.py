@@ -331,6 +331,19 @@ def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # 
     arm_state(model, state, work, True)
 
 
+ARM_REACTION = slice(ROBOT_STATE_SIZE, ROBOT_STATE_SIZE + 6)
+"""Where :attr:`Arm.buffer` keeps the tool joint's reaction, after the arm state (``skills.control.ROBOT_*``); its
+scratch space follows."""
+_REACTION, _WORK = ARM_REACTION.start, ARM_REACTION.stop
+
+
+@numba.njit(cache=True)
+def read_arm(model, joint_states, buffer):  # pragma: no cover - compiled
+    """:func:`arm_state_from_joint_states` into an :attr:`Arm.buffer` (the arm state, the reaction, the scratch space
+    of its layout): the arm's one compiled call per simulated state, callable from another compiled step."""
+    arm_state_from_joint_states(model, joint_states, buffer[:ROBOT_STATE_SIZE], buffer[_WORK:], buffer[_REACTION:_WORK])
+
+
 @numba.njit(cache=True)
 def arm_mass_matrix(model, q):  # pragma: no cover - compiled
     """Joint-space mass matrix (7, 7) at ``q``: column j is the inverse dynamics of ``q̈ = e_j`` without gravity."""
@@ -379,17 +392,20 @@ class Arm:
         # calculateJacobian / calculateInverseDynamics / calculateMassMatrix / getLinkState to round-off, without
         # their 2-5 µs round trips per step.
         self.model = arm_model_from_pybullet(body, TOOL_LINK, gravity, client)
-        self.state = np.zeros(ROBOT_STATE_SIZE)
-        self._work = np.empty(workspace_size(self.model))
+        self.buffer = np.zeros(_WORK + workspace_size(self.model))
+        """The arm state, the tool joint's reaction and the model's scratch space in one array (:data:`ARM_REACTION`),
+        so that a compiled step reads the arm with one argument (:func:`read_arm`); the views below are of it."""
+        self.state = self.buffer[:ROBOT_STATE_SIZE]
         self.q, self.qd = self.state[ROBOT_Q], self.state[ROBOT_QD]
         self.position, self.quat = self.state[ROBOT_POSITION], self.state[ROBOT_QUAT]
         self.rotation = self.state[ROBOT_ROTATION].reshape(3, 3)
         self.jacobian = self.state[ROBOT_JACOBIAN].reshape(6, N_JOINTS)
         self.bias = self.state[ROBOT_BIAS]
         self._joints = list(range(N_JOINTS))
-        self._queried = [*self._joints, TOOL_LINK] if read_tool_reaction else self._joints
-        """The joints read each step: the arm's, and the tool joint's reaction with the wrist sensor (one query)."""
-        self.tool_reaction = np.zeros(6)
+        self.queried = [*self._joints, TOOL_LINK] if read_tool_reaction else self._joints
+        """The joints read each step (``getJointStates``): the arm's, and the tool joint's reaction with the wrist
+        sensor (one query)."""
+        self.tool_reaction = self.buffer[ARM_REACTION]
         """The tool joint's reaction of this state (force on the tool N, moment N·m; tool frame), wrist sensor only."""
         self._mass = np.zeros((N_JOINTS, N_JOINTS))
         self.fresh = self.mass_fresh = False
@@ -403,8 +419,8 @@ class Arm:
         compiled call from its tuples the tool pose, Jacobian, gravity/Coriolis (the compiled model)."""
         if not self.fresh:
             # positional arguments: PyBullet parses keywords by name on every call
-            states = pybullet.getJointStates(self._body, self._queried, self._client)
-            arm_state_from_joint_states(self.model, states, self.state, self._work, self.tool_reaction)
+            states = pybullet.getJointStates(self._body, self.queried, self._client)
+            read_arm(self.model, states, self.buffer)
             self.fresh = True
         return self.state
 

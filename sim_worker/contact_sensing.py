@@ -26,13 +26,15 @@ from typing import Any
 import numba
 import numpy as np
 import pybullet
+from numba.core import types
+from numba.extending import overload
 from numpy.typing import ArrayLike, NDArray
 
-from sim_worker.arm_model import Arm
+from sim_worker.arm_model import ARM_REACTION, Arm, read_arm
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
 from sim_worker.world_config import SensorModel, WorldConfig
-from skills.control import ROBOT_POSITION, ROBOT_ROTATION, ROBOT_STATE_SIZE
+from skills.control import ROBOT_POSITION, ROBOT_ROTATION
 
 CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
@@ -73,22 +75,6 @@ def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _wrist_reading(
-    reaction, arm, weight, com_z, source, out, offsets, removed,
-    block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha,
-):  # fmt: skip  # pragma: no cover - compiled
-    """The wrist sensor's reading of this state in one compiled call: the weight-compensated wrench
-    (:func:`_wrist_wrench`, into ``source``), the sensor model (``sensor.measure_drawn``, into ``out``), then the
-    offsets ``offsets`` (2, 6: the sensor's own, negated, and the tare; TOOL frame) whose ``removed`` flag is set
-    removed, turned with the tool (:func:`_remove_tare`)."""
-    _wrist_wrench(reaction, arm, weight, com_z, source)
-    measure_drawn(source, out, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
-    for k in range(2):
-        if removed[k]:
-            _remove_tare(out, arm, offsets[k])
-
-
-@numba.njit(cache=True)
 def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     """Sum ``getContactPoints``' tuples (the tool as body A) in one pass, straight from PyBullet's result: into
     ``out`` (10,) the wrench the tool applies (6,: force N, moment N·m about the tool point in ``arm``, world frame)
@@ -125,17 +111,105 @@ def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     return touching
 
 
+def _summary(points, arm, out):
+    """:func:`_contact_summary` for compiled callers, also of no points (numba cannot iterate over an empty tuple)."""
+    raise NotImplementedError("compiled only: called from compiled code")
+
+
+@overload(_summary)
+def _summary_typed(points, arm, out):  # pragma: no cover - typing only
+    """The implementation of :func:`_summary` for the type of ``points``: an empty tuple writes the summary of no
+    points (zeros, not touching)."""
+    if isinstance(points, types.BaseTuple) and len(points) == 0:
+
+        def no_points(points, arm, out):
+            out[:10] = 0.0
+            return False
+
+        return no_points
+    return lambda points, arm, out: _contact_summary(points, arm, out)
+
+
 COMPILED_CONTACT_COUNTS = 8
 """Numbers of contact points :func:`compile_contact_summaries` compiles for ahead of a run (a ball on a surface has
 one, in a crease two; more bodies under the ball, e.g. overlapping work piece parts, more)."""
 
 
+# Layout of :attr:`ContactSensing.buffer`: the contact summary (the applied wrench, the true normal force and normal),
+# the sensor's reading and source, the offsets it removes with their flags, the tool's weight and centre of mass.
+CONTACT_APPLIED = slice(0, 6)
+CONTACT_NORMAL = slice(6, 10)
+CONTACT_MEASURED = slice(10, 16)
+_SOURCE = slice(16, 22)
+_OFFSETS = slice(22, 34)  # (2, 6) by rows
+_REMOVED = slice(34, 36)
+_WEIGHT = slice(36, 39)
+_COM_Z = 39
+_BUFFER_SIZE = 40
+_REACTION0 = ARM_REACTION.start  # the offsets as plain ints for the compiled code (it takes no slices as globals)
+_MEASURED0, _SOURCE0, _OFFSETS0, _REMOVED0, _WEIGHT0 = (
+    CONTACT_MEASURED.start, _SOURCE.start, _OFFSETS.start, _REMOVED.start, _WEIGHT.start
+)  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _reading(
+    arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha
+):  # pragma: no cover - compiled
+    """A non-ideal sensor's reading of this state into ``contact``'s ``CONTACT_MEASURED``, in one compiled call: the
+    source wrench (``wrist``: the tool joint's reaction, weight-compensated, :func:`_wrist_wrench`; else the exact
+    wrench of the summary), the sensor model (``sensor.measure_drawn`` with :attr:`WrenchSensor.state` after its
+    ``draw()``), then the offsets whose flag is set removed, turned with the tool (:func:`_remove_tare`). ``arm`` an
+    :attr:`Arm.buffer` of this state, ``contact`` a :attr:`ContactSensing.buffer` with this state's summary."""
+    source = contact[0:6]  # CONTACT_APPLIED
+    if wrist:
+        source = contact[_SOURCE0 : _SOURCE0 + 6]
+        _wrist_wrench(arm[_REACTION0 : _REACTION0 + 6], arm, contact[_WEIGHT0 : _WEIGHT0 + 3], contact[_COM_Z], source)
+    measured = contact[_MEASURED0 : _MEASURED0 + 6]
+    measure_drawn(source, measured, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
+    for k in range(2):
+        if contact[_REMOVED0 + k] != 0.0:
+            _remove_tare(measured, arm, contact[_OFFSETS0 + 6 * k : _OFFSETS0 + 6 * k + 6])
+
+
+@numba.njit(cache=True)
+def sense(model, joint_states, points, arm, contact):  # pragma: no cover - compiled
+    """The arm state (:func:`read_arm` into the :attr:`Arm.buffer` ``arm``) and the contact summary
+    (:func:`_contact_summary` into the :attr:`ContactSensing.buffer` ``contact``) of this state from PyBullet's
+    ``getJointStates`` and ``getContactPoints`` tuples; returns whether the tool touches."""
+    read_arm(model, joint_states, arm)
+    return _summary(points, arm, contact)
+
+
+@numba.njit(cache=True)
+def sample(
+    model, joint_states, points, arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line,
+    counters, filtered, alpha,
+):  # fmt: skip  # pragma: no cover - compiled
+    """:func:`sense`, then the non-ideal sensor's reading (:func:`_reading`): a loop's one compiled call per
+    simulated state to bring the arm, the contact and the sensor up to date (after ``draw()``); returns whether the
+    tool touches."""
+    touching = sense(model, joint_states, points, arm, contact)
+    _reading(arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
+    return touching
+
+
 def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
-    """Compile (or load from numba's cache) :func:`_contact_summary` for 1 to ``counts`` contact points, with tuples
-    typed as ``getContactPoints`` returns them, so that no run compiles in its loop."""
+    """Compile (or load from numba's cache) what takes ``getContactPoints``' tuples, for 0 to ``counts`` contact points
+    (:func:`_contact_summary`, and :func:`sense` and :func:`sample` with the arm's joint states of either sensor, 7 or
+    8 joints), with tuples typed as PyBullet returns them, so that no run compiles in its loop. Typed, not run."""
     point = (0, 0, 0, 0, 0, (0.0,) * 3, (0.0,) * 3, (0.0, 0.0, 1.0), 0.0, 1.0, 0.0, (1.0, 0.0, 0.0), 0.0, (0.0,) * 3)
-    for n in range(1, counts + 1):
-        _contact_summary((point,) * n, np.zeros(ROBOT_STATE_SIZE), np.zeros(10))
+    joint = (0.0, 0.0, (0.0,) * 6, 0.0)
+    array, matrix = numba.typeof(np.zeros(1)), numba.typeof(np.zeros((1, 1)))
+    sensor = tuple(map(numba.typeof, WrenchSensor(WorldConfig().sensor, 1e-3).state))
+    for n in range(counts + 1):
+        points = numba.typeof((point,) * n)
+        if n:
+            _contact_summary.compile((points, array, array))
+        for joints in (7, 8):
+            states = numba.typeof((joint,) * joints)
+            sense.compile((matrix, states, points, array, array))
+            sample.compile((matrix, states, points, array, array, numba.types.boolean, *sensor))
 
 
 class ContactSensing:
@@ -150,35 +224,39 @@ class ContactSensing:
         self._wrist = config.sensor.model is SensorModel.wrist
         if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
             pybullet.enableJointForceTorqueSensor(robot, TOOL_LINK, True, physicsClientId=client)
-        self._offsets = np.stack([-self.sensor.tool_offset, np.zeros(6)])
+        self.buffer = np.zeros(_BUFFER_SIZE)
+        """The contact summary, the sensor's reading and source, the offsets it removes and the tool model in one array
+        (layout ``CONTACT_*``, ``_OFFSETS`` ...), so that a loop's compiled step reads them with one argument; the
+        arrays below are views of it, overwritten in place."""
+        buffer = self.buffer
+        self._offsets = buffer[_OFFSETS].reshape(2, 6)
         """What every reading has removed (6, each: force N, moment N·m, TOOL frame): the sensor's own offset, negated
-        (adding it), and the tare (:meth:`set_tare`), when their flag in ``_removed`` is set."""
-        self._removed = np.array([bool(np.any(self.sensor.tool_offset)), False])
+        (adding it), and the tare (:meth:`set_tare`), when their flag in ``_removed`` is set (1.0)."""
+        self._offsets[0] = -self.sensor.tool_offset
+        self._removed = buffer[_REMOVED]
+        self._removed[0] = float(np.any(self.sensor.tool_offset))
         self._tare = self._offsets[1]
-        self._state = np.zeros(10)
+        self._state = buffer[: CONTACT_NORMAL.stop]
         """The summary of ``points``, written in one assignment (zeros without points): the two views below."""
-        self.applied = self._state[:6]
+        self.applied = buffer[CONTACT_APPLIED]
         """The exact wrench the tool applies this step (see :meth:`SimWorld.true_contact_wrench`)."""
-        self.true_normal = self._state[6:]
+        self.true_normal = buffer[CONTACT_NORMAL]
         """The force along the true surface normal (N) and that normal (3,), see :meth:`SimWorld.true_normal_force`."""
-        self.measured = np.zeros(6)
+        self.measured = buffer[CONTACT_MEASURED]
         """The sensor's reading this step (a non-ideal sensor's; the ideal one reads :attr:`applied`)."""
         self.reading = self.applied if self.ideal else self.measured
         """The array the controller reads."""
-        self._source = np.zeros(6)
-        """The wrist sensor's source wrench this step (see :meth:`wrist_wrench_into`)."""
         self.points: tuple = ()
         self.touching = False
         tool = config.tool
-        self._tool_com_z = -(0.5 * tool.shaft_length_m + tool.radius_m)
-        """The tool's centre of mass on the tool axis, tool frame (the tool model the weight is compensated with), m."""
-        self._tool_weight = np.array([tool.mass_kg * g for g in config.gravity])
-        """The tool's weight in the world, N."""
-        self._wrist_arguments = (
-            arm.tool_reaction, arm.state, self._tool_weight, self._tool_com_z, self._source, self.measured,
-            self._offsets, self._removed, *self.sensor.state,
-        )  # fmt: skip
-        """:func:`_wrist_reading`'s arguments: the same arrays every step, updated in place."""
+        # The tool model the weight is compensated with: its centre of mass on the tool axis (tool frame, m), its weight
+        # in the world (N).
+        buffer[_COM_Z] = -(0.5 * tool.shaft_length_m + tool.radius_m)
+        self._tool_weight = buffer[_WEIGHT]
+        self._tool_weight[:] = [tool.mass_kg * g for g in config.gravity]
+        self.sample_arguments = (self._wrist, *self.sensor.state)
+        """:func:`sample`'s and :func:`_reading`'s arguments after the arm and contact buffers: the same every step,
+        their arrays updated in place."""
         self.fresh = self.measured_fresh = False
 
     def invalidate(self) -> None:
@@ -189,7 +267,7 @@ class ContactSensing:
         """A new run: the sensor starts afresh, no tare."""
         self.sensor.reset()
         self._tare[:] = 0.0
-        self._removed[1] = False
+        self._removed[1] = 0.0
 
     def summary(self) -> None:
         """Read the contact points (one PyBullet query) and sum them in one pass: the exact applied wrench
@@ -241,7 +319,7 @@ class ContactSensing:
         moment ``M_c`` about the tool's centre of mass ``c``: ``F + m g`` and ``M_c + c × (F + m g)``, minus the tool's
         inertial terms, which a real integration does not know either."""
         arm = self._arm.read()  # reads the tool joint's reaction too
-        _wrist_wrench(self._arm.tool_reaction, arm, self._tool_weight, self._tool_com_z, out)
+        _wrist_wrench(self._arm.tool_reaction, arm, self._tool_weight, self.buffer[_COM_Z], out)
         return out
 
     def reading_now(self) -> NDArray[np.float64]:
@@ -250,16 +328,11 @@ class ContactSensing:
             self.summary()
             return self.applied
         if not self.measured_fresh:
-            arm = self._arm.read()
-            if self._wrist:  # one compiled call from the tool joint's reaction to the reading
-                self.sensor.draw()
-                _wrist_reading(*self._wrist_arguments)
-            else:
+            self._arm.read()
+            if not self._wrist:  # the exact wrench is the source
                 self.summary()
-                self.sensor.measure_into(self.applied, self.measured)
-                for offset, removed in zip(self._offsets, self._removed, strict=True):
-                    if removed:  # the sensor's own offset turns with it: R_tool b (adding -(-b)); the tare too
-                        _remove_tare(self.measured, arm, offset)
+            self.sensor.draw()
+            _reading(self._arm.buffer, self.buffer, *self.sample_arguments)  # one compiled call to the reading
             self.measured_fresh = True
         return self.measured
 
@@ -279,4 +352,4 @@ class ContactSensing:
         if self.measured_fresh:  # this state's reading was sampled before the tare: it is the first tared one
             _remove_tare(self.measured, self._arm.read(), tare - self._tare)
         self._tare[:] = tare
-        self._removed[1] = bool(np.any(tare != 0.0))
+        self._removed[1] = float(np.any(tare != 0.0))

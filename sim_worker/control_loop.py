@@ -18,11 +18,15 @@ from enum import Enum
 
 import numba
 import numpy as np
+import pybullet
 from numpy.typing import NDArray
 
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
+from sim_worker.arm_model import arm_mass_matrix
 from sim_worker.contact_detection import ContactGuard
+from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL, sample, sense
 from sim_worker.plans import PhasePlan, smooth_ramp
+from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
 from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
@@ -32,8 +36,11 @@ from skills.control import (
     REFERENCE_FORCE,
     REFERENCE_TWIST,
     ROBOT_POSITION,
+    ROBOT_Q,
+    ROBOT_STATE_SIZE,
     ControlFrame,
     HybridController,
+    law_step_packed,
 )
 
 NULL_SPACE_UPDATE_STEPS = 20
@@ -94,6 +101,78 @@ def _record_row(
     for i in range(4):  # the true normal force and the normal
         row[_C_TRUE_NORMAL + i] = normal[i]
     return row[cf + 2] > min(0.5, 0.5 * f_des)
+
+
+# Layout of the loop's own state array (ControlLoop.run_plan), read and written by its compiled step: the law's output
+# (the torque first), the CF rotation of the frame in use (by rows), the torque limits the world clips to, the time
+# step, the phase code and segment of the rows.
+_S_OUT = 0
+_S_CF = _S_OUT + LAW_OUTPUT_SIZE
+_S_LIMITS = _S_CF + 9
+_S_DT = _S_LIMITS + 7
+_S_PHASE = _S_DT + 1
+_S_SEGMENT = _S_PHASE + 1
+_S_SIZE = _S_SEGMENT + 1
+_NORMAL0 = CONTACT_NORMAL.start
+_TWIST0, _TWIST1 = REFERENCE_TWIST.start, REFERENCE_TWIST.stop
+
+
+@numba.njit(cache=True)
+def _record(
+    robot, contact, reading_at, touching, state, rows, references, k, paused, n, step_count
+):  # pragma: no cover - compiled
+    """Telemetry row ``n`` of step ``step_count`` (:func:`_record_row`) from the arm state ``robot``, the contact buffer
+    ``contact`` (its reading at ``reading_at``, the true normal) and the plan's reference row ``k`` (its twist zero
+    when ``paused``); returns the law's contact flag."""
+    reference = references[k]
+    if paused:  # hold the reference: zero reference twist
+        reference = reference.copy()
+        reference[_TWIST0:_TWIST1] = 0.0
+    return _record_row(
+        robot, reference, contact[reading_at : reading_at + 6], state[_S_CF : _S_CF + 9], touching,
+        contact[_NORMAL0 : _NORMAL0 + 4], rows, n, step_count * state[_S_DT], state[_S_PHASE], state[_S_SEGMENT],
+    )  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _control(
+    robot, contact, reading_at, law_buffer, state, references, k, paused, pressing
+):  # pragma: no cover - compiled
+    """The control law of the step (:func:`law_step_packed`, into the state's output) and the world's torque limits:
+    returns the law's code and whether a torque was clipped (the torque clipped in place, as ``SimWorld.step``
+    clips what it sends)."""
+    reference = references[k]
+    if paused:
+        reference = reference.copy()
+        reference[_TWIST0:_TWIST1] = 0.0
+    out = state[_S_OUT : _S_OUT + LAW_OUTPUT_SIZE]
+    code = law_step_packed(law_buffer, robot, reference, contact[reading_at : reading_at + 6], pressing, out)
+    clipped = False
+    for j in range(7):
+        if abs(out[j]) > state[_S_LIMITS + j]:
+            clipped = True
+    if clipped:
+        for j in range(7):
+            limit = state[_S_LIMITS + j]
+            out[j] = min(max(out[j], -limit), limit)
+    return code, clipped
+
+
+@numba.njit(cache=True)
+def _record_and_control(
+    robot, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n, step_count
+):  # pragma: no cover - compiled
+    """:func:`_record`, then :func:`_control`: a step on the model and frame in use in one compiled call; returns the
+    law's contact flag, its code and whether a torque was clipped."""
+    pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused, n, step_count)
+    code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused, pressing)
+    return pressing, code, clipped
+
+
+@numba.njit(cache=True)
+def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
+    """Whether a joint of ``q`` is outside [``lower``, ``upper``] (one compiled call: four numpy calls cost ~3 µs)."""
+    return (q < lower).any() or (q > upper).any()
 
 
 class PlanEnd(Enum):
@@ -169,6 +248,12 @@ class ControlLoop:
         """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
         self.cf_rotation = np.eye(3)
         """The CF rotation of the control frame in use (world from CF)."""
+        self._handles = world.loop_handles()
+        self._state = np.zeros(_S_SIZE)
+        """The compiled step's own state (layout ``_S_*``): the law's output, the CF rotation in use, the world's torque
+        limits, the time step, the phase and segment recorded."""
+        self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
+        self._state[_S_DT] = self.dt
 
     def telemetry(self) -> Telemetry:
         """The rows recorded so far (a copy)."""
@@ -204,30 +289,46 @@ class ControlLoop:
         reference rows (``PhasePlan.reference_rows``; the follower rewrites them), built here when not given.
         Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing.
 
-        One control step: sensing (``SimWorld.sense``: the joint state and the contact points, two PyBullet
-        queries; tool pose, Jacobian and gravity/Coriolis from the arm's compiled model into the world's arm
-        state array, used without copies), the mass matrix on model-update steps, the control law (one compiled
-        call on the arm state and the plan's packed reference row, ``HybridController.step``), one telemetry
-        row, the physics step; each part is timed (``self.timing``). The loop is written for the 1 kHz budget,
-        where each numpy call on a 3- to 7-vector costs ~0.5 µs of overhead: the wrench in CF axes and the
-        telemetry row are plain float arithmetic, written into the row array in one assignment.
+        One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs
+        ~0.1-1 µs, as much as the arithmetic): the world's PyBullet calls made here directly (``SimWorld.loop_handles``:
+        ``getJointStates`` and ``getContactPoints``, the torque command and ``stepSimulation``), the arm state, the
+        contact summary and, for a sampling sensor, its reading in one compiled call from PyBullet's tuples
+        (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample`` right after the physics
+        step, as ``SimWorld.step`` samples every state), then one compiled call for the telemetry row, the law and the
+        world's torque limits (:func:`_record_and_control`). On a model-update step (the mass matrix every
+        :data:`NULL_SPACE_UPDATE_STEPS` steps) or a new control frame, the controller prepares its gains in between
+        (``HybridController.prepare``): :func:`_record`, then :func:`_control`. Each part is timed (``self.timing``).
         """
-        world = self.world
-        sense, dynamics, step = world.sense, world.dynamics, world.step
-        # The arm state and the true normal force: the world's arrays, the same every step, updated by sense().
-        robot, true_normal = world.robot_state(), world.true_normal_state()
-        controller = self.controller
-        step_into = controller.step_into
-        out = np.zeros(LAW_OUTPUT_SIZE)
+        world, handles, state = self.world, self._handles, self._state
+        client, body, joints, queried = handles.client, handles.body, handles.joints, handles.queried
+        model, arm, contact = handles.model, handles.arm, handles.contact
+        joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
+        command, step_simulation, torque_control = (
+            pybullet.setJointMotorControlArray,
+            pybullet.stepSimulation,
+            pybullet.TORQUE_CONTROL,
+        )
+        ideal = handles.ideal
+        draw, sample_arguments = handles.draw, handles.sample_arguments
+        reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
+        # Views of the arrays the compiled calls write, the same every step.
+        robot = arm[:ROBOT_STATE_SIZE]
+        q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
+        w = contact[reading_at : reading_at + 6]
+        out = state[_S_OUT : _S_OUT + LAW_OUTPUT_SIZE]
         tau = out[LAW_TAU]
+        cf_rows = state[_S_CF : _S_CF + 9].reshape(3, 3)
+        state[_S_PHASE] = PHASE_CODES[plan.phase]
+        state[_S_SEGMENT] = plan.segment
+        controller = self.controller
+        prepare, law_buffer = controller.prepare, controller.law_buffer
         perf = time.perf_counter
         dt = self.dt
-        phase_code = float(PHASE_CODES[plan.phase])
         guard_loss = plan.phase is ExecutionPhase.contact
         loss_travel = CONTACT_LOSS_TRAVEL_M
-        seg = float(plan.segment)
         ts = td = tc = tp = tt = 0.0
         batch = self.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
+        next_emit = self.emitted + batch
         realtime = self.realtime
         window = guard.window_steps
         window_threshold = guard.threshold_n * window  # on the sum of the last `window` readings
@@ -247,26 +348,38 @@ class ControlLoop:
         frame: ControlFrame | None = None
         current = single
         next_frame_step = 0  # the step at which the series' next frame is due (indexing it costs ~0.3 µs)
-        cf_rotation = np.eye(3).ravel()
         r02 = r12 = r22 = 0.0
         if follower is not None:
             single = follower.first_frame()
         next_surface = plan.next_z is not None
         p_tracked: list[float] | None = None
         step_tracked = 0
+        n, rows, capacity, step_count = self.n, self.rows, self.capacity, self.step_count
+        first_step, clipped_steps = step_count, 0
+        clipped = False
+        points = None  # the last contact points read (None: none read here)
+        touching = sampled_touching = False
+        if not ideal:  # the arm, contact and reading of the state the loop starts in (sampled once, if not yet)
+            sampled_touching = world.sense().in_contact
         try:
             k, steps = 0, plan.steps
             while k < steps:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
-                paused = should_pause is not None and should_pause()
+                paused = should_pause is not None and bool(should_pause())  # a bool for the compiled calls
                 t0 = perf()
-                q, _, p, _, w, touching = sense()
+                if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
+                    states = joint_states(body, queried, client)  # positional: keywords cost a lookup
+                    points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
+                    touching = sense(model, states, points, arm, contact)
+                else:
+                    touching = sampled_touching
                 t1 = perf()
-                update_null = self.step_count % NULL_SPACE_UPDATE_STEPS == 0
-                M = dynamics(True).mass_matrix if update_null and dynamic_null else None
-                if update_null and ((q < q_lower).any() or (q > q_upper).any()):
-                    raise ExecutionAbortError(self._joint_limit_reason(q))
-                t2 = perf()
+                update_null = step_count % NULL_SPACE_UPDATE_STEPS == 0
+                M = None
+                if update_null:
+                    M = arm_mass_matrix(model, q) if dynamic_null else None
+                    if _outside_limits(q, q_lower, q_upper):
+                        raise ExecutionAbortError(self._joint_limit_reason(q))
                 if single is not None:
                     current = single
                 elif k >= next_frame_step:
@@ -276,40 +389,59 @@ class ControlLoop:
                 if new_frame:  # a new control frame: its CF rotation by rows, for the CF wrench
                     frame = current
                     self.cf_rotation = frame.cf_rotation
-                    cf_rotation = np.ascontiguousarray(frame.cf_rotation).ravel()
+                    cf_rows[:] = frame.cf_rotation
                     r02, r12, r22 = frame.cf_z.tolist()
-                    frame_log.append((self.n, r02, r12, r22))
-                reference = references[k]
-                if paused:
-                    reference = reference.copy()
-                    reference[REFERENCE_TWIST] = 0.0
-                # One compiled call records the telemetry row (the state measured before the step, its reference and
-                # desired force, the CF wrench), one runs the law (its model and gain updates on a model step or a
-                # new frame).
-                if self.n >= self.capacity:
+                    frame_log.append((n, r02, r12, r22))
+                if n >= capacity:
+                    self.n = n
                     self._grow()
-                pressing = _record_row(
-                    robot, reference, w, cf_rotation, touching, true_normal, self.rows, self.n, self.step_count * dt,
-                    phase_code, seg,
-                )  # fmt: skip
-                self.n += 1
-                reason = step_into(frame, robot, reference, w, pressing, M, update_null, out)
+                    rows, capacity = self.rows, self.capacity
+                reason = None
+                t2 = t1  # where the row and law's time starts (after a model update)
+                if update_null or new_frame:  # the controller updates its model or gains between row and law
+                    pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused, n,
+                                       step_count)  # fmt: skip
+                    n += 1
+                    reason = prepare(frame, robot, references[k], w, M, update_null)
+                    t2 = perf()
+                    td += t2 - t1  # the model update: the mass matrix, the limit check, the controller's gains
+                    if reason is None:
+                        code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused,
+                                                 pressing)  # fmt: skip
+                else:
+                    pressing, code, clipped = _record_and_control(
+                        arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
+                        step_count,
+                    )  # fmt: skip
+                    n += 1
+                if reason is None and code:
+                    reason = controller.abort_reason(code, out, robot, references[k], w, M)
                 t3 = perf()
-                if self.n - self.emitted >= batch:
+                if n >= next_emit:
+                    self.n = n
                     self.emit()
-                t4 = perf()
+                    next_emit = self.emitted + batch
+                    t4 = perf()
+                    tt += t4 - t3
+                    t3 = t4
                 if reason is not None:
                     raise ExecutionAbortError(reason)
                 if stop_axis is not None or follower is not None:
-                    fx, fy, fz = w[:3].tolist()  # this step's reading: the step below overwrites w
-                step(tau)
-                self.step_count += 1
+                    fx, fy, fz = w[:3].tolist()  # this step's reading: a sampling sensor overwrites w below
+                command(body, joints, torque_control, forces=tau.tolist(), physicsClientId=client)
+                step_simulation(client)  # positional: PyBullet parses keywords by name on every call
+                step_count += 1
+                clipped_steps += clipped
                 t5 = perf()
+                if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
+                    states = joint_states(body, queried, client)
+                    points = contact_points(body, -1, TOOL_LINK, -2, client)
+                    draw()
+                    sampled_touching = sample(model, states, points, arm, contact, *sample_arguments)
+                    ts += perf() - t5
                 ts += t1 - t0
-                td += t2 - t1
                 tc += t3 - t2
-                tt += t4 - t3
-                tp += t5 - t4
+                tp += t5 - t3
                 if should_abort is not None and should_abort():  # every step: stops within one control cycle
                     raise ExecutionAbortError("aborted on request")
                 if touching:
@@ -326,10 +458,10 @@ class ControlLoop:
                     p_now = p.tolist()
                     velocity = [0.0, 0.0, 0.0]
                     if p_tracked is not None:
-                        span = (self.step_count - step_tracked) * dt
+                        span = (step_count - step_tracked) * dt
                         velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
                     single = follower.update(k, [fx, fy, fz], velocity, p_now, pressing, references)
-                    p_tracked, step_tracked = p_now, self.step_count
+                    p_tracked, step_tracked = p_now, step_count
                     if next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
                 if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
@@ -337,14 +469,18 @@ class ControlLoop:
                     px, py, pz = p.tolist()
                     beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
                     if beyond > loss_travel:
+                        self.step_count = step_count
                         raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
-                if realtime and self.step_count % REALTIME_CHECK_STEPS == 0:
-                    lag = self.step_count * dt - (perf() - self.wall_start)
+                if realtime and step_count % REALTIME_CHECK_STEPS == 0:
+                    lag = step_count * dt - (perf() - self.wall_start)
                     if lag > 0:
                         time.sleep(lag)
                 if not paused:
                     k += 1
         finally:
+            self.n, self.step_count = n, step_count
+            world.loop_ended(step_count - first_step, clipped_steps, clipped, points,
+                             touching if ideal else sampled_touching)  # fmt: skip
             self.touched = touched
             timing = self.timing
             timing[0] += ts

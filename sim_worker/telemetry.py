@@ -107,6 +107,8 @@ class Telemetry:
             wrench_world=self.wrench_world.tolist(),
             wrench_cf=self.wrench_cf.tolist(),
             desired_force_cf_z_n=self.desired_force.tolist(),
+            in_contact=self.in_contact.tolist(),
+            normal_force_true_n=self.normal_force_true.tolist(),
         )
 
     def samples(self, every: int = 1) -> list[TelemetrySample]:

@@ -12,10 +12,11 @@ import time
 
 import numpy as np
 
-from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase
+from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
 from sim_worker.contact_sensing import compile_contact_summaries
-from sim_worker.control_loop import _record_row
+from sim_worker.control_loop import ControlLoop, _record_row
+from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
@@ -36,8 +37,9 @@ def warm_up() -> float:
     loop's step, the wrist sensor, the orientation DMP); return the seconds it took."""
     start = time.perf_counter()
     compile_contact_summaries()
-    with SimWorld(WorldConfig()) as world:  # the arm read of the ideal sensor's world (7 joints; the wrist's reads 8)
-        world.robot_state()
+    for config in (WorldConfig(), WorldConfig(sensor=WRIST_SENSOR)):  # 7 joints read; the wrist's 8 and its sampling
+        with SimWorld(config) as world:
+            _hold(world)
     with SimWorld(WorldConfig(sensor=WRIST_SENSOR)) as world:  # the wrist sensor's compiled parts too
         world.contact_wrench()
         robot = world.robot_state()
@@ -57,6 +59,22 @@ def warm_up() -> float:
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])
     damping_matrix(np.eye(6), np.eye(6), 1.0)
     return time.perf_counter() - start
+
+
+HOLD_STEPS = 50
+"""Control steps of :func:`_hold`: past a model update (every 20), so each compiled call of a step runs."""
+
+
+def _hold(world: SimWorld) -> None:
+    """Run the control loop on ``world`` for :data:`HOLD_STEPS` steps holding the tool where it is: the loop's own
+    compiled calls (``ControlLoop.run_plan``: the arm and contact read from PyBullet's tuples, the row, the law and
+    the limits, a sampling sensor's reading)."""
+    controller = HybridController(posture=world.joint_state()[0], torque_limits=world.torque_limits)
+    frame = controller.frame(np.eye(3), np.ones(6))
+    p, q = world.tool_pose()
+    plan = PhasePlan(ExecutionPhase.free, -1, np.tile(p, (HOLD_STEPS, 1)), np.tile(q, (HOLD_STEPS, 1)),
+                     np.zeros((HOLD_STEPS, 6)), np.zeros(HOLD_STEPS), frame=frame)  # fmt: skip
+    ControlLoop(world, controller, frame, 1.0, 100, Pace.fast, True, None, None, None).run_plan(plan)
 
 
 if __name__ == "__main__":

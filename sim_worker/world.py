@@ -91,6 +91,29 @@ class Dynamics(NamedTuple):
     mass_matrix: NDArray[np.float64] | None
 
 
+class LoopHandles(NamedTuple):
+    """What a 1 kHz control loop calls directly, once per step, instead of :meth:`SimWorld.sense` and
+    :meth:`SimWorld.step` (whose caches and Python calls cost more than the step's own PyBullet calls):
+    ``client``, ``body`` the PyBullet ids; ``joints`` the torque-controlled joints, ``queried`` the joints
+    ``getJointStates`` reads (with the wrist sensor, the tool joint too); ``model`` the arm's compiled model, ``arm``
+    its :attr:`Arm.buffer`, ``contact`` the :attr:`ContactSensing.buffer` (``sim_worker.contact_sensing.sense`` and
+    ``sample`` bring them up to date), ``ideal`` whether the sensor reads the exact wrench (else it samples once per
+    simulated state: ``draw()``, then ``sample`` with ``sample_arguments``), ``torque_limits`` (7,) N·m, what
+    :meth:`SimWorld.step` clips to. A loop using them calls :meth:`SimWorld.loop_ended` when it stops."""
+
+    client: int
+    body: int
+    joints: list[int]
+    queried: list[int]
+    model: NDArray[np.float64]
+    arm: NDArray[np.float64]
+    contact: NDArray[np.float64]
+    ideal: bool
+    draw: Callable[[], None]
+    sample_arguments: tuple
+    torque_limits: NDArray[np.float64]
+
+
 class SimWorld:
     """One PyBullet DIRECT world (own client): iiwa + tool, table, optional ramp, cylinder, block and work pieces.
 
@@ -279,6 +302,35 @@ class SimWorld:
         self._invalidate()
         if not self._contact.ideal:  # the sensor samples every step, read or not (its filter runs on)
             self._contact.reading_now()
+
+    def loop_handles(self) -> LoopHandles:
+        """The arrays and ids a control loop's compiled step works on (:class:`LoopHandles`)."""
+        arm, contact = self._arm, self._contact
+        return LoopHandles(
+            self._cid, self.robot, self._joints, arm.queried, arm.model, arm.buffer, contact.buffer, contact.ideal,
+            contact.sensor.draw, contact.sample_arguments, self.torque_limits,
+        )  # fmt: skip
+
+    def loop_ended(
+        self, steps: int, clipped_steps: int, last_clipped: bool, points: tuple | None, touching: bool
+    ) -> None:
+        """A loop that stepped this world through its :meth:`loop_handles` stopped: count its ``steps``
+        (``step_count``, ``clip_count`` by ``clipped_steps``, ``last_step_clipped``) and take its last reading of the
+        contact points (``points``, ``touching``: the summary in the contact buffer; None: it read none) as this
+        world's. With the ideal sensor the caches are read again when next asked for; a sampling sensor's loop has read
+        and sampled the current state (``sample`` after each step), which must not be sampled twice."""
+        self.step_count += steps
+        self.clip_count += clipped_steps
+        if steps:
+            self.last_step_clipped = last_clipped
+        contact, arm = self._contact, self._arm
+        if points is not None:
+            contact.points, contact.touching = points, touching
+        if contact.ideal:
+            self._invalidate()
+        else:
+            arm.fresh = contact.fresh = contact.measured_fresh = True
+            arm.mass_fresh = False
 
     # -- contact and sensing ---------------------------------------------------------------------------------------
 

@@ -147,6 +147,8 @@ _G_TASK = slice(0, 12)  # F_m and F_f: the rows that change with the control fra
 _G_WRENCH = slice(12, 18)  # rows giving F_m + F_f (their sum, so that τ needs no further addition)
 _G_JOINT = slice(18, 25)  # rows giving N^T τ_0 + g + c
 _G_ROWS = 25
+LAW_GAIN_SIZE = _G_ROWS * _X_SIZE
+"""G's floats at the head of a controller's law buffer (:attr:`HybridController.law_buffer`), the law's state after."""
 
 # Layout of the robot state one control step reads (one float array, so that the compiled step takes few arguments;
 # ``sim_worker.arm_model`` fills a world's in this layout): joints, tool pose, Jacobian, gravity/Coriolis torques.
@@ -352,6 +354,14 @@ def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no c
 
 
 @numba.njit(cache=True)
+def law_step_packed(law_buffer, robot, reference, wrench, in_contact, out):  # pragma: no cover - compiled
+    """:func:`law_step` on a controller's :attr:`HybridController.law_buffer` (G by rows, then the law's state): one
+    array fewer for a compiled caller to pass."""
+    G = law_buffer[:LAW_GAIN_SIZE].reshape((_G_ROWS, _X_SIZE))
+    return law_step(G, robot, reference, wrench, law_buffer[LAW_GAIN_SIZE:], in_contact, out)
+
+
+@numba.njit(cache=True)
 def _regularized(A):  # pragma: no cover - compiled
     """Add ``_SINGULAR_DAMPING * trace(A) / n`` (relative Tikhonov term) to the diagonal of square ``A``, in place."""
     n = A.shape[0]
@@ -416,6 +426,21 @@ def _write_null_space(G, projector, kn, dn, posture):  # pragma: no cover - comp
         for j in range(7):
             G[_G_JOINT.start + i, _X_Q.start + j] = -kn * projector[i, j]
             G[_G_JOINT.start + i, _X_QD.start + j] = -dn * projector[i, j]
+
+
+@numba.njit(cache=True)
+def _null_space_rows(J, M, dynamic, G, kn, dn, posture):  # pragma: no cover - compiled
+    """:func:`_null_space_model`, then its rows of ``G`` (:func:`_write_null_space`), in one compiled call (a model
+    update every few steps); returns the projector and the apparent inertia."""
+    projector, lam = _null_space_model(J, M, dynamic)
+    _write_null_space(G, projector, kn, dn, posture)
+    return projector, lam
+
+
+@numba.njit(cache=True)
+def _all_finite(J, M):  # pragma: no cover - compiled
+    """Whether every entry of ``J`` and ``M`` is finite (one compiled call: four numpy calls cost ~3 µs)."""
+    return np.isfinite(J).all() and np.isfinite(M).all()
 
 
 @numba.njit(cache=True)
@@ -643,7 +668,10 @@ class HybridController:
         self._dn = g.nullspace_damping_nms_per_rad
         self._integral_bound = g.force_integral_limit_n / self._ki if self._ki > 0.0 else 0.0
         self.posture = np.zeros(7) if posture is None else np.asarray(posture, dtype=float).copy()
-        self._law = np.zeros(_L_SIZE)
+        self.law_buffer = np.zeros(LAW_GAIN_SIZE + _L_SIZE)
+        """G by rows (:attr:`_gain`), then the law's state (:attr:`_law`): one array, so that a loop's compiled step
+        runs the law (:func:`law_step_packed`) with one argument for both; written in place, never replaced."""
+        self._law = self.law_buffer[LAW_GAIN_SIZE:]
         """The compiled step's state and constants (layout ``_L_*``)."""
         law = self._law
         law[_L_DT] = self.dt
@@ -656,7 +684,7 @@ class HybridController:
         """The force integral ∫ S~ e_cf dt, CF coordinates (a view of the law's state)."""
         self._projector: NDArray[np.float64] | None = None
         self._model_version = 0
-        self._gain = np.zeros((_G_ROWS, _X_SIZE))
+        self._gain = self.law_buffer[:LAW_GAIN_SIZE].reshape(_G_ROWS, _X_SIZE)
         """G: [F_m; F_f; F_m + F_f; N^T τ_0 + g + c] = G x (module docstring, "Cost"), cached by parts."""
         self._gain[_G_JOINT, _X_BIAS] = _EYE7
         self._gain_frame: ControlFrame | None = None
@@ -856,14 +884,14 @@ class HybridController:
         the gain rows follow ``frame`` by themselves. The arrays as :meth:`step`. The same law as :meth:`step`
         (the same floating-point operations: the same torques to the last bit)."""
         if update_model or frame is not self._gain_frame or self._projector is None:
-            reason = self._prepare(frame, robot, reference, wrench, mass_matrix, update_model)
+            reason = self.prepare(frame, robot, reference, wrench, mass_matrix, update_model)
             if reason is not None:
                 out[LAW_TAU] = 0.0
                 return reason
         code = law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
         return None if code == LAW_OK else self.abort_reason(code, out, robot, reference, wrench, mass_matrix)
 
-    def _prepare(
+    def prepare(
         self,
         frame: ControlFrame,
         robot: NDArray[np.float64],
@@ -874,10 +902,12 @@ class HybridController:
     ) -> str | None:
         """The part of a step before the compiled law (:func:`law_step`): rebuild the null-space model when asked
         (or when there is none), the gain rows when the frame or the damping changed. Returns why the step must not
-        run (a non-finite or singular model; zero torque then), else None."""
+        run (a non-finite or singular model; zero torque then), else None. :meth:`step_into` calls it when needed; a
+        loop that runs the law in its own compiled step (:func:`law_step_packed` on :attr:`law_buffer`) calls it on a
+        model update and on a new frame (and, like :meth:`step_into`, aborts on its reason)."""
         if update_null_space or self._projector is None:
             jacobian = robot[ROBOT_JACOBIAN].reshape(6, 7)
-            if not (np.isfinite(jacobian).all() and (mass_matrix is None or np.isfinite(mass_matrix).all())):
+            if not _all_finite(jacobian, _NO_MASS_MATRIX if mass_matrix is None else mass_matrix):
                 self._projector = None
                 return self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
             try:
@@ -929,8 +959,8 @@ class HybridController:
         self._model_version += 1
         J = np.ascontiguousarray(jacobian, dtype=float)
         M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
-        self._projector, lam = _null_space_model(J, M, self._dynamic_null)
-        self._cache_null_space()
+        # N^T and the joint-torque rows of G: N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇ (plus g + c, set once)
+        self._projector, lam = _null_space_rows(J, M, self._dynamic_null, self._gain, self._kn, self._dn, self.posture)
         if (
             mass_matrix is not None
             and self._adaptive_damping
@@ -938,10 +968,6 @@ class HybridController:
         ):
             stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
             self.damping_matrix_a = _damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
-
-    def _cache_null_space(self) -> None:
-        """The joint-torque rows of G: ``N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇`` (plus ``g + c``, set once)."""
-        _write_null_space(self._gain, self._projector, self._kn, self._dn, self.posture)
 
     def null_space_torque(
         self,

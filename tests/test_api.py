@@ -403,8 +403,8 @@ def test_what_a_deletion_keeps_and_what_cannot_be_deleted(bus_client, demo):
     assert running.status_code == 202 and c.bus.started[-1][0] == running.json()["id"]
     refused = c.delete(f"/executions/{running.json()['id']}")
     assert refused.status_code == 409 and "running" in refused.text
-    trial = store.add_execution({"sweep": {"id": "sweep_0a1b", "trial": 3}}, skill_id)
-    store.update_execution(trial.id, ExecutionState.done)
+    trial = store.executions.add({"sweep": {"id": "sweep_0a1b", "trial": 3}}, skill_id)
+    store.executions.update(trial.id, ExecutionState.done)
     refused = c.delete(f"/executions/{trial.id}")
     assert refused.status_code == 409 and "trial 3 of sweep sweep_0a1b" in refused.text
     assert c.get(f"/executions/{trial.id}").status_code == 200
@@ -466,7 +466,7 @@ def test_record_through_the_bus(bus_client):
 def test_a_true_bug_is_a_logged_500_with_a_json_body(tmp_path, caplog):
     store = Store(tmp_path / "api.db")
     app = create_app(_settings(tmp_path), bus=None, store=store)
-    store.list_skills = lambda *a: 1 / 0  # type: ignore[method-assign]
+    store.skills.page = lambda *a: 1 / 0  # type: ignore[method-assign]
     with _client(app, raise_server_exceptions=False) as c:
         response = c.get("/skills")
     assert response.status_code == 500 and "ZeroDivisionError" in response.json()["detail"]
@@ -481,15 +481,15 @@ def test_store_schema_version_threads_and_newer_databases(tmp_path, demo):
 
     store = Store(tmp_path / "s.db")
     assert store.schema_version() == SCHEMA_VERSION
-    execution = store.add_execution({"x": 1}, None)
+    execution = store.executions.add({"x": 1}, None)
     batches = [_batch(execution.id, k * 0.01) for k in range(20)]
-    threads = [threading.Thread(target=store.add_telemetry, args=(execution.id, b)) for b in batches]
+    threads = [threading.Thread(target=store.telemetry.add, args=(execution.id, b)) for b in batches]
     for thread in threads:
         thread.start()
     for thread in threads:
         thread.join()
-    assert store.telemetry_counts(execution.id) == (20, 200)
-    assert np.all(np.diff(store.telemetry(execution.id)[:, 0]) > 0)
+    assert store.telemetry.counts(execution.id) == (20, 200)
+    assert np.all(np.diff(store.telemetry.rows(execution.id)[:, 0]) > 0)
     store.close()
     with sqlite3.connect(tmp_path / "s.db") as db:
         assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"

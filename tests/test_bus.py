@@ -352,7 +352,7 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
     def start_naming(worker_id: str, execution_id: str) -> StartReply:
         start = StartExecution(execution_id=execution_id, request=_request(skill), demonstration_id="demo_kept")
         client.adopt(execution_id, worker_id)  # its reports verify with the secret the client would have sent
-        secret = client.execution_secret(execution_id, worker_id)
+        secret = client.reports.execution_secret(execution_id, worker_id)
         [reply] = session.get(keys.start(worker_id), payload=start.model_dump_json(), timeout=WAIT_S, attachment=secret)
         return StartReply.model_validate_json(reply.ok.payload.to_bytes())
 
@@ -455,16 +455,16 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
     settings = BusSettings(endpoints=[endpoint], report_key=store.service_key(REPORT_KEY_NAME))
 
     def owner(execution_id: str) -> str | None:
-        row = store.execution(execution_id)  # None: another test's execution on the same workers
+        row = store.executions.get(execution_id)  # None: another test's execution on the same workers
         return None if row is None else row.worker_id
 
     first = BusClient(settings, events.on_status, events.on_telemetry, events.on_worker_lost, owner=owner)
     try:
         _wait(lambda: len(first.workers()) == 2 and not any(w.busy for w in first.workers()), what="two free workers")
-        row = store.add_execution({"skill": "inline"}, None)
+        row = store.executions.add({"skill": "inline"}, None)
         worker = first.start_execution(row.id, _request(skill, pace="realtime"))
-        store.mark_started(row.id, worker)
-        _wait(lambda: store.telemetry_counts(row.id)[1] > 200, what="telemetry stored")
+        store.executions.mark_started(row.id, worker)
+        _wait(lambda: store.telemetry.counts(row.id)[1] > 200, what="telemetry stored")
     finally:
         first.close()  # the API dies mid-run
     recorder = Recorder()  # watches the worker, stores nothing
@@ -475,17 +475,17 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
     second = BusClient(settings, events.on_status, events.on_telemetry, events.on_worker_lost, owner=owner)
     events.bus = second
     try:
-        stored_before = store.telemetry_counts(row.id)[1]
-        assert store.execution(row.id).status.value == "running"
+        stored_before = store.telemetry.counts(row.id)[1]
+        assert store.executions.get(row.id).status.value == "running"
         assert reconcile(store, second) == []  # nothing marked failed: the worker told how it ended
-        ended = _wait(lambda: (lambda r: r if r.status.value != "running" else None)(store.execution(row.id)), 15,
+        ended = _wait(lambda: (lambda r: r if r.status.value != "running" else None)(store.executions.get(row.id)), 15,
                       "the final status stored")  # fmt: skip
     finally:
         second.close()
     assert ended.status.value == "done" and ended.metrics is not None and ended.worker_id == worker
-    steps = ended.metrics["steps"]
-    assert store.telemetry_gaps(row.id, steps) == [] and store.telemetry_counts(row.id)[1] == steps > 200
-    np.testing.assert_allclose(store.telemetry(row.id)[:, 0], np.arange(steps) * DT, atol=1e-9)
+    steps = ended.metrics.steps
+    assert store.telemetry.gaps(row.id, steps) == [] and store.telemetry.counts(row.id)[1] == steps > 200
+    np.testing.assert_allclose(store.telemetry.rows(row.id)[:, 0], np.arange(steps) * DT, atol=1e-9)
     with loopback_client(create_app(api_settings(tmp_path, learn_warm_up=False), bus=None, store=store)) as c:
         view = c.get(f"/executions/{row.id}").json()
     assert view["telemetry_missing_samples"] == 0 and view["telemetry_samples"] == steps
@@ -502,7 +502,7 @@ def test_a_start_request_the_caller_gave_up_on_is_refused_not_run(client, skill)
     assert not answer.accepted and answer.code == "busy" and "expired" in answer.reason
     fresh = StartExecution(execution_id="ex-fresh", request=_request(skill), answer_by_unix_s=time.time() + 10.0)
     client.adopt("ex-fresh", "w-a")
-    secret = client.execution_secret("ex-fresh", "w-a")
+    secret = client.reports.execution_secret("ex-fresh", "w-a")
     answer = StartReply.model_validate_json(client._query_one(client.keys.start("w-a"), fresh.model_dump_json(), 10.0,
                                                               attachment=secret))  # fmt: skip
     assert answer.accepted

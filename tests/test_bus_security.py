@@ -266,7 +266,7 @@ def test_implausible_reports_are_named_and_refused():
     """A worker's own reports that cannot be true: negative counters, ``done`` without a control step, an info
     reply under another worker's key."""
     from schemas.execution import ExecutionMetrics
-    from services.bus import implausible_info, implausible_status
+    from services.bus_reports import implausible_info, implausible_status
 
     ok = ExecutionStatus(execution_id="e", worker_id="w", phase="contact", steps=10, seq=3)
     assert implausible_status(ok) is None

@@ -2,8 +2,9 @@
 Playwright) against the REAL stack (`contact-skills up`: embedded Zenoh router, the API, two PyBullet sim workers on
 127.0.0.1). Every outcome is checked against what the API stores: the lists show the stored rows, a recording made
 from the page is learned from the page, the live plot of an execution ends at the stored telemetry's last sample
-with no gap in the stream, abort stops it, two executions are followed at once through a restart of the API.
-Screenshots go to each test's tmp directory."""
+(its CF-z and true normal force, its contact) with no gap in the stream, a point plotted while the tool presses
+shows the stored true force of that very sample, abort stops it, two executions are followed at once through a
+restart of the API. Screenshots go to each test's tmp directory."""
 
 from __future__ import annotations
 
@@ -58,19 +59,26 @@ def page(browser, stack):
     assert errors == [], f"the page raised: {errors}"
 
 
+def _stored_sample(stack, execution_id: str, index: int) -> dict:
+    """Stored telemetry sample ``index`` of an execution: t s, CF-z force N, true normal force N, in contact."""
+    body = stack.http.get(f"/executions/{execution_id}/telemetry", params={"cursor": index, "limit": 1}).json()
+    return {"index": index, "t": body["t"][0], "fz": body["wrench_cf"][0][2], "ft": body["normal_force_true_n"][0],
+            "contact": body["in_contact"][0]}  # fmt: skip
+
+
 def _stored_end(stack, execution_id: str) -> dict:
-    """The last stored telemetry sample of an execution (t s, CF-z force N, its stream index)."""
+    """The last stored telemetry sample of an execution (:func:`_stored_sample`) and the execution's outcome."""
     view = stack.execution(execution_id)
-    last = view["telemetry_samples"] - 1
-    body = stack.http.get(f"/executions/{execution_id}/telemetry", params={"cursor": last}).json()
-    return {"index": last, "t": body["t"][-1], "fz": body["wrench_cf"][-1][2], "status": view["status"],
-            "verdict": view["verdict"]}  # fmt: skip
+    sample = _stored_sample(stack, execution_id, view["telemetry_samples"] - 1)
+    return {**sample, "status": view["status"], "verdict": view["verdict"]}
 
 
 def _plot_end(page, execution_id: str) -> dict:
+    """The live plot's last point (read in one go, so its fields belong to one sample)."""
     data = page.eval_on_selector(f"canvas.live-force[data-execution='{execution_id}']", "c => ({...c.dataset})")
     return {"index": int(data["lastIndex"]), "t": float(data["lastT"]), "fz": float(data["lastFz"]),
-            "max_gap": int(data["maxGap"]), "points": int(data["points"])}  # fmt: skip
+            "ft": float(data["lastFt"]), "contact": data["lastContact"] == "true", "max_gap": int(data["maxGap"]),
+            "points": int(data["points"])}  # fmt: skip
 
 
 def _more_than(stack, n: int) -> list[dict] | None:
@@ -132,6 +140,7 @@ def test_an_execution_started_from_the_page_plots_up_to_the_stored_telemetry(sta
     assert stack.execution(execution_id)["request"]["environment"]["unknown_offset"] == [0.0, 0.0, 0.01]
     assert plotted["index"] == stored["index"] and plotted["t"] == pytest.approx(stored["t"], abs=1e-9)
     assert plotted["fz"] == pytest.approx(stored["fz"], abs=1e-5)  # sent rounded to 1e-6 N
+    assert plotted["ft"] == stored["ft"] and plotted["contact"] == stored["contact"]  # sent as stored
     assert plotted["max_gap"] <= MAX_INDEX_STEP and plotted["points"] >= stored["index"] // 10
     assert stored["verdict"] in page.inner_text("section.live .final")
     page.screenshot(path=tmp_path / "execution.png", full_page=True)
@@ -142,8 +151,13 @@ def test_abort_from_the_page_stops_the_execution(stack, page, tmp_path):
     page.goto(f"{stack.url}/#/skill/{skill_id}")
     page.select_option("select[name=pace]", "realtime")
     page.click("#execute")
-    page.wait_for_selector("canvas.live-force[data-last-index]", timeout=60_000)
+    page.wait_for_selector("canvas.live-force[data-last-contact='true']", timeout=60_000)  # the tool presses
     execution_id = page.get_attribute("section.live", "data-execution")
+    pressing = _plot_end(page, execution_id)
+    stored = _stored_sample(stack, execution_id, pressing["index"])
+    assert stored["contact"] is True and stored["ft"] > 1.0  # pressing, not grazing
+    assert pressing["ft"] == stored["ft"] and pressing["t"] == stored["t"]
+    assert "in contact" in page.inner_text("section.live .live-head")
     page.click("section.live button.abort")
     page.wait_for_selector("section.live[data-ended='1']", timeout=60_000)
     stored = _stored_end(stack, execution_id)

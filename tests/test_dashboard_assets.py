@@ -1,9 +1,12 @@
 """The dashboard without a browser: its page and assets come from the API itself (offline, no outside host), unknown
 names and paths out of its folder are 404s, its views answer 404 for unknown ids; the compliant frame recovered from
-the two recorded wrenches is the rotation that made them; the live stream's decimation keeps the last sample."""
+the two recorded wrenches is the rotation that made them; the live stream's decimation keeps the last sample, and a
+column not recorded (the true force and the contact of telemetry stored before they were streamed) is sent as null,
+never as 0."""
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -70,6 +73,21 @@ def test_a_live_event_decimates_to_the_plot_rate_and_ends_with_the_last_sample()
     steps = np.diff(event["index"])
     every = round(1000 / PLOT_HZ)  # samples per plotted point at 1 kHz
     assert steps.max() == every and len(event["t"]) == -(-n // every) + 1  # one per interval, and the last
+    assert event["in_contact"] == [False] * len(event["t"]) and event["normal_force_true_n"][-1] == 0.0
+
+
+def test_a_live_event_sends_the_true_force_and_the_contact_as_stored_and_null_where_not_recorded():
+    rows = np.zeros((30, max(b for _, b in TELEMETRY_LAYOUT.values())))
+    rows[:, 0] = np.arange(30) * 0.01  # 100 Hz: every row is plotted
+    contact, true_force = TELEMETRY_LAYOUT["in_contact"][0], TELEMETRY_LAYOUT["normal_force_true_n"][0]
+    rows[10:, contact] = 1.0
+    rows[10:, true_force] = np.linspace(3.0, 15.0, 20)
+    rows[25:, contact] = rows[25:, true_force] = np.nan  # as the store reads rows stored before the columns were
+    rows[28, TELEMETRY_LAYOUT["wrench_cf"][0]] = np.nan
+    event = json.loads(json.dumps(_telemetry(rows, 0), allow_nan=False))  # what the stream sends: valid JSON
+    assert event["in_contact"] == [False] * 10 + [True] * 15 + [None] * 5
+    assert event["normal_force_true_n"][:25] == rows[:25, true_force].tolist()
+    assert event["normal_force_true_n"][25:] == [None] * 5 and event["wrench_cf"][28][0] is None
 
 
 def test_with_reads_behind_the_token_the_page_opens_and_its_data_needs_the_token(tmp_path):

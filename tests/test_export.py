@@ -44,10 +44,10 @@ def stored(tmp_path_factory):
     assert result.metrics.phase.value == "done"
     path = tmp_path_factory.mktemp("export") / "export.db"
     store = Store(path)
-    demo = store.add_demonstration(recording.demonstration)
-    execution = store.add_execution({"skill_id": None}, None)
-    assert store.add_telemetry(execution.id, result.telemetry.to_batch(execution.id))
-    yield {"path": path, "store": store, "demo": demo, "execution": store.execution(execution.id)}
+    demo = store.demonstrations.add(recording.demonstration)
+    execution = store.executions.add({"skill_id": None}, None)
+    assert store.telemetry.add(execution.id, result.telemetry.to_batch(execution.id))
+    yield {"path": path, "store": store, "demo": demo, "execution": store.executions.get(execution.id)}
     store.close()
 
 
@@ -74,7 +74,7 @@ def _stamp(header) -> int:
 
 def test_execution_mcap_holds_the_stored_telemetry(client, stored):
     execution = stored["execution"]
-    matrix = stored["store"].telemetry(execution.id)
+    matrix = stored["store"].telemetry.rows(execution.id)
     column = {name: matrix[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
     response = client.get(f"/executions/{execution.id}/telemetry", params={"format": "mcap"})
     assert response.status_code == 200 and f"{execution.id}.mcap" in response.headers["content-disposition"]
@@ -82,8 +82,10 @@ def test_execution_mcap_holds_the_stored_telemetry(client, stored):
     n = matrix.shape[0]
     scene = ("/phase", "/segment", "/joint_states", "/robot_description", "/markers")  # tests/test_foxglove.py
     assert {t: len(m) for t, m in topics.items() if t not in scene} == {
-        t: n for t in ("/tool/pose", "/reference/pose", "/wrench/world", "/wrench/cf", "/force/desired", "/tf")
-    }
+        t: n
+        for t in ("/tool/pose", "/reference/pose", "/wrench/world", "/wrench/cf", "/force/desired", "/tf",
+                  "/force/true", "/contact")
+    }  # fmt: skip
     start = round(execution.created * 1e9)
     stamps = np.array([_stamp(m.header) for _, m in topics["/tool/pose"]])
     np.testing.assert_allclose((stamps - start) * 1e-9, column["t"][:, 0], atol=1e-9)
@@ -101,6 +103,10 @@ def test_execution_mcap_holds_the_stored_telemetry(client, stored):
     np.testing.assert_array_equal(wrenches("/wrench/cf"), column["wrench_cf"])
     np.testing.assert_array_equal(wrenches("/force/desired")[:, 2], column["desired_force_cf_z_n"][:, 0])
     assert {m.header.frame_id for _, m in topics["/wrench/cf"]} == {"cf"}
+    # The simulator's truth, as in the live view: the true normal force and the contact of every sample.
+    assert [m.data for _, m in topics["/force/true"]] == column["normal_force_true_n"][:, 0].tolist()
+    assert [m.data for _, m in topics["/contact"]] == (column["in_contact"][:, 0] > 0.5).tolist()
+    assert [log for log, _ in topics["/force/true"]] == stamps.tolist()
     tf = topics["/tf"][n // 2][1].transforms
     assert [t.child_frame_id for t in tf][:2] == ["tool", "reference"] and tf[0].header.frame_id == "world"
     assert tf[0].transform.translation.x == column["tool_position"][n // 2, 0]
@@ -113,7 +119,7 @@ def test_execution_mcap_holds_the_stored_telemetry(client, stored):
 
 def test_execution_csv_and_time_window(client, stored):
     execution = stored["execution"]
-    matrix = stored["store"].telemetry(execution.id)
+    matrix = stored["store"].telemetry.rows(execution.id)
     params = {"format": "csv", "t0": 2.0, "t1": 4.0, "every": 10}
     response = client.get(f"/executions/{execution.id}/telemetry", params=params)
     assert response.status_code == 200 and response.headers["content-type"].startswith("text/csv")
@@ -141,7 +147,7 @@ def test_demonstration_mcap_is_a_bag_that_imports_to_the_same_samples(client, st
     from services.bag_import import demonstration_from_bag
 
     demo_id = stored["demo"].id
-    original = stored["store"].demonstration(demo_id).arrays()
+    original = stored["store"].demonstrations.get(demo_id).arrays()
     response = client.get(f"/demonstrations/{demo_id}/telemetry", params={"format": "mcap"})
     assert response.status_code == 200
     topics = _mcap_messages(response.content)
@@ -182,7 +188,7 @@ def test_the_export_command_fetches_from_the_api_and_converts_local_files(stored
         assert done.returncode == 0, done.stderr
         assert (
             len(_mcap_messages((tmp_path / "run.mcap").read_bytes())["/wrench/cf"])
-            == stored["store"].telemetry_counts(execution_id)[1]
+            == stored["store"].telemetry.counts(execution_id)[1]
         )
         windowed = export(stored["demo"].id, "-o", str(tmp_path / "demo.csv"), "--t0", "1", "--t1", "2")
         assert windowed.returncode == 0, windowed.stderr
@@ -192,7 +198,7 @@ def test_the_export_command_fetches_from_the_api_and_converts_local_files(stored
     finally:
         stop_process(api)
         log.close()
-    demonstration = stored["store"].demonstration(stored["demo"].id)
+    demonstration = stored["store"].demonstrations.get(stored["demo"].id)
     local = tmp_path / "demo.json"
     local.write_text(demonstration.model_dump_json())
     offline = subprocess.run(

@@ -6,7 +6,8 @@ A WebSocket client speaking Foxglove's protocol (``foxglove.websocket.v1``, whic
 ``/health`` gives, subscribes to every channel and records an execution. The messages must decode as their
 advertised ROS 2 types and agree with physics and with each other: the ``cf`` frame of ``/tf`` turns the CF wrench
 into the world wrench of the same step, the joint states put the arm's tool point where ``/tf`` says the tool is
-(forward kinematics), the URDF's meshes are served. The exported MCAP of the same run (read with the ``mcap``
+(forward kinematics), the URDF's meshes are served, ``/force/true`` and ``/contact`` are the stored telemetry's true
+normal force and contact of the same step. The exported MCAP of the same run (read with the ``mcap``
 reader) holds ``/joint_states``, the URDF and the ``cf`` frame, with the same agreement."""
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ websockets = pytest.importorskip("websockets")
 
 from test_service import RECORD, running_stack  # noqa: E402
 
-from services.dashboard.ros_scene import TF_CHILDREN  # noqa: E402
+from services.dashboard.ros_scene import TF_CHILDREN, TRUTH_TOPICS, truth_messages  # noqa: E402
 from services.dashboard.scene import LINK7_TO_FLANGE_M, LINK7_TO_TOOL_POINT_M, robot_description  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 from services.telemetry_export import execution_topics  # noqa: E402
@@ -62,7 +63,8 @@ def _typestore():
 async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str, list], bytes | None, str]:
     """Connect to the Foxglove server at ``url``, subscribe to every channel, call ``start()`` (-> execution id), and
     collect the messages until ``finished(id)`` and a second more; fetch the first mesh of the URDF. Returns the
-    advertised channels, the decoded messages per topic, the mesh and its URI."""
+    advertised channels, the decoded messages per topic (and their log times, ns, under ``"log_time:" + topic``),
+    the mesh and its URI."""
     store = _typestore()
     channels: dict[int, dict] = {}
     received: dict[str, list] = defaultdict(list)
@@ -89,9 +91,10 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
             except TimeoutError:
                 frame = None
             if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA:
-                subscription, _ = struct.unpack_from("<IQ", frame, 1)
+                subscription, log_time = struct.unpack_from("<IQ", frame, 1)
                 channel = by_subscription[subscription]
                 received[channel["topic"]].append(store.deserialize_cdr(frame[13:], channel["schemaName"]))
+                received["log_time:" + channel["topic"]].append(log_time)
             elif isinstance(frame, bytes) and frame[0] == FETCH_ASSET_RESPONSE:
                 _, status, error_length = struct.unpack_from("<IBI", frame, 1)
                 assert status == 0, frame[10 : 10 + error_length]
@@ -130,7 +133,8 @@ def _check_cf_turns_the_cf_wrench_into_the_world_wrench(tf: list, world: list, c
 
 def _check_joint_states_put_the_tool_where_tf_says(joint_states: list, tf: list) -> int:
     """Forward kinematics of every joint state (PyBullet, the simulator's iiwa) puts the tool point within 2 mm of
-    ``/tf``'s tool at that stamp. Returns how many were checked."""
+    ``/tf``'s tool at that stamp (where that ``/tf`` arrived: the server drops messages a slow client cannot take).
+    Returns how many were checked."""
     import pybullet
     import pybullet_data
 
@@ -147,6 +151,8 @@ def _check_joint_states_put_the_tool_where_tf_says(joint_states: list, tf: list)
         checked = 0
         for message in joint_states:
             assert list(message.name) == [f"lbr_iiwa_joint_{k}" for k in range(1, 8)]
+            if _stamp(message.header) not in tool:
+                continue
             for k, angle in enumerate(message.position):
                 pybullet.resetJointState(robot, k, float(angle), physicsClientId=client)
             state = pybullet.getLinkState(robot, 6, computeForwardKinematics=True, physicsClientId=client)
@@ -156,6 +162,47 @@ def _check_joint_states_put_the_tool_where_tf_says(joint_states: list, tf: list)
         return checked
     finally:
         pybullet.disconnect(client)
+
+
+def _check_truth_is_the_stored_telemetry(stack, received: dict[str, list]) -> int:
+    """Every ``/force/true`` and ``/contact`` message is the stored telemetry's true normal force (exactly) and
+    contact at the step its log time stamps (start + t); they are sent at the poses' steps (the server may drop some
+    messages of any channel for a client that lags, so the steps are compared where all were received); the tool
+    pressed (> 1 N) at some of them. Returns how many steps were checked."""
+    execution = stack.execution(received["execution"])
+    body = stack.http.get(f"/executions/{execution['id']}/telemetry").json()
+    start_ns = int(execution["created"] * 1e9)
+    stored = {start_ns + round(t * 1e9): (force, contact) for t, force, contact in
+              zip(body["t"], body["normal_force_true_n"], body["in_contact"], strict=True)}  # fmt: skip
+    forces = dict(zip(received["log_time:/force/true"], (m.data for m in received["/force/true"]), strict=True))
+    contacts = dict(zip(received["log_time:/contact"], (m.data for m in received["/contact"]), strict=True))
+    for stamp, force in forces.items():
+        assert force == stored[stamp][0]
+    for stamp, contact in contacts.items():
+        assert contact == stored[stamp][1]
+    assert len(forces.keys() & contacts.keys() & {_stamp(m.header) for m in received["/wrench/cf"]}) > 50
+    assert max(forces.values()) > 1.0 and any(contacts.values()) and not all(contacts.values())
+    return len(forces)
+
+
+def test_the_truth_messages_encode_as_rosbags_does_and_skip_what_was_not_recorded():
+    from services.store import TELEMETRY_LAYOUT
+
+    store = _typestore()
+    rows = np.zeros((6, max(b for _, b in TELEMETRY_LAYOUT.values())))
+    force, contact = TELEMETRY_LAYOUT["normal_force_true_n"][0], TELEMETRY_LAYOUT["in_contact"][0]
+    rows[:, force] = [0.0, 3.5, 14.25, 15.0, np.nan, np.nan]  # the last two: stored before the columns were streamed
+    rows[:, contact] = [0.0, 1.0, 1.0, 1.0, np.nan, np.nan]
+    stamps = np.arange(6, dtype=np.int64) * 1_000_000
+    out = truth_messages(rows, stamps)
+    assert set(out) == set(TRUTH_TOPICS)
+    for topic, (kept, payloads) in out.items():
+        assert kept.tolist() == stamps[:4].tolist()
+        values = rows[:4, force] if topic == "/force/true" else rows[:4, contact] > 0.5
+        expected = [store.serialize_cdr(store.types[TRUTH_TOPICS[topic]](data=v), TRUTH_TOPICS[topic])
+                    for v in values.tolist()]  # fmt: skip
+        assert payloads == [bytes(e) for e in expected]
+    assert truth_messages(rows[4:], stamps[4:]) == {}
 
 
 def test_the_live_server_streams_a_run_that_decodes_and_agrees_with_physics(stack, skill_id):
@@ -171,11 +218,12 @@ def test_the_live_server_streams_a_run_that_decodes_and_agrees_with_physics(stac
 
     channels, received, mesh, mesh_uri = asyncio.run(_record_live(health["foxglove_url"], start, finished))
     advertised = {c["topic"]: c for c in channels}
-    assert set(execution_topics()) | {"/execution"} <= set(advertised)
-    for topic, msgtype in execution_topics().items():
+    assert set(execution_topics()) | set(TRUTH_TOPICS) | {"/execution"} <= set(advertised)
+    for topic, msgtype in {**execution_topics(), **TRUTH_TOPICS}.items():
         assert (advertised[topic]["encoding"], advertised[topic]["schemaEncoding"]) == ("cdr", "ros2msg")
         assert advertised[topic]["schemaName"] == msgtype and received[topic], f"nothing received on {topic}"
     assert received["/execution"][-1].data == received["execution"]
+    assert _check_truth_is_the_stored_telemetry(stack, received) > 50
     children = {t.child_frame_id for m in received["/tf"] for t in m.transforms}
     assert children == set(TF_CHILDREN) and "cf" in children
     assert {t.header.frame_id for m in received["/tf"] for t in m.transforms} == {"world"}
@@ -187,7 +235,7 @@ def test_the_live_server_streams_a_run_that_decodes_and_agrees_with_physics(stac
     import pybullet_data
 
     assert mesh_uri.startswith("package://kuka_iiwa/meshes/") and mesh_uri.endswith(".stl")
-    expected = (pybullet_data.getDataPath() + "/kuka_iiwa/meshes/" + mesh_uri.rsplit("/", 1)[1])
+    expected = pybullet_data.getDataPath() + "/kuka_iiwa/meshes/" + mesh_uri.rsplit("/", 1)[1]
     assert mesh == open(expected, "rb").read()  # noqa: SIM115
 
 
@@ -236,5 +284,10 @@ def test_the_layout_users_load_shows_only_topics_the_server_and_the_export_have(
     text = json.dumps(layout["configById"])
     named = set(re.findall(r'"(/[a-z_/]+?)(?:\.[a-z_.]+)?"', text)) - {"/move_base_simple/goal", "/clicked_point",
                                                                        "/initialpose"}  # fmt: skip
-    assert named and named <= set(execution_topics()) | {"/execution"}, named - set(execution_topics())
+    served = set(execution_topics()) | set(TRUTH_TOPICS) | {"/execution"}
+    assert named and named <= served, named - served
+    # Every series on the receive time: the unstamped /force/true and /contact have no other, and a panel that mixed
+    # it with header stamps would shift them live (Foxglove's receive time is the arrival; in an MCAP the log time).
+    for panel, config in layout["configById"].items():
+        assert {path["timestampMethod"] for path in config.get("paths", [])} <= {"receiveTime"}, panel
     assert "3D!scene" in json.dumps(layout["layout"]) and "/robot_description" in text

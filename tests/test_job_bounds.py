@@ -213,7 +213,7 @@ def test_time_stamps_5e_324_apart_are_422_and_a_row_stored_before_fails_soft(sta
     store = Store(stack.log_path.parent / "service.db")  # what the code before stored: the step was never checked
     try:
         old = Demonstration.model_construct(**_steps_of_5e_324(), metadata=DemonstrationMetadata())
-        stored = store.add_demonstration(old)
+        stored = store.demonstrations.add(old)
     finally:
         store.close()
     listed = stack.http.get("/demonstrations")

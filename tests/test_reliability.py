@@ -207,8 +207,8 @@ def _assert_every_sample_once_in_order(stack: Processes, execution_id: str, trut
     assert view["telemetry_samples"] == steps and view["telemetry_missing_samples"] == 0, view
     store = Store(stack.db)
     try:
-        t = store.telemetry(execution_id)[:, 0]
-        assert store.telemetry_gaps(execution_id, steps) == []
+        t = store.telemetry.rows(execution_id)[:, 0]
+        assert store.telemetry.gaps(execution_id, steps) == []
     finally:
         store.close()
     np.testing.assert_allclose(t, np.arange(steps) * DT, atol=1e-9)  # every control step, in order, none twice
@@ -260,7 +260,7 @@ def test_replayed_and_repeated_batches_store_every_sample_once(tmp_path):
     """The store keeps each sample once, whatever overlaps arrive in whatever order, and names what is missing."""
     store = Store(tmp_path / "api.db")
     try:
-        execution = store.add_execution({"skill": "inline"}, None)
+        execution = store.executions.add({"skill": "inline"}, None)
         rows = np.arange(100)
 
         def batch(start: int, stop: int) -> TelemetryBatch:
@@ -272,18 +272,18 @@ def test_replayed_and_repeated_batches_store_every_sample_once(tmp_path):
                                   wrench_cf=[[0] * 6] * len(k), desired_force_cf_z_n=[0.0] * len(k),
                                   first_sample=start)  # fmt: skip
 
-        assert store.add_telemetry(execution.id, batch(0, 10)) == 10
-        assert store.add_telemetry(execution.id, batch(30, 50)) == 20
-        assert store.telemetry_gaps(execution.id) == [(10, 30)]
-        assert store.telemetry_gaps(execution.id, 100) == [(10, 30), (50, 100)]
-        assert store.add_telemetry(execution.id, batch(0, 10)) == 0  # the same batch again
-        assert store.add_telemetry(execution.id, batch(5, 40)) == 20  # a replay overlapping both sides
-        assert store.add_telemetry(execution.id, batch(45, 100)) == 50
-        assert store.telemetry_gaps(execution.id, 100) == []
-        assert store.telemetry_counts(execution.id)[1] == 100
-        stored = store.telemetry(execution.id)
+        assert store.telemetry.add(execution.id, batch(0, 10)) == 10
+        assert store.telemetry.add(execution.id, batch(30, 50)) == 20
+        assert store.telemetry.gaps(execution.id) == [(10, 30)]
+        assert store.telemetry.gaps(execution.id, 100) == [(10, 30), (50, 100)]
+        assert store.telemetry.add(execution.id, batch(0, 10)) == 0  # the same batch again
+        assert store.telemetry.add(execution.id, batch(5, 40)) == 20  # a replay overlapping both sides
+        assert store.telemetry.add(execution.id, batch(45, 100)) == 50
+        assert store.telemetry.gaps(execution.id, 100) == []
+        assert store.telemetry.counts(execution.id)[1] == 100
+        stored = store.telemetry.rows(execution.id)
         np.testing.assert_array_equal(stored[:, 3], rows)  # each sample once, in order
-        assert store.add_telemetry("exec_unknown", batch(0, 10)) == 0
+        assert store.telemetry.add("exec_unknown", batch(0, 10)) == 0
     finally:
         store.close()
 

@@ -18,18 +18,18 @@ HELD_S = 6.0
 
 def test_a_status_write_waits_out_a_lock_held_past_the_busy_timeout(tmp_path):
     store = Store(tmp_path / "api.db")
-    row = store.add_execution({"skill": "inline"}, None)
+    row = store.executions.add({"skill": "inline"}, None)
     other = sqlite3.connect(tmp_path / "api.db", isolation_level=None, check_same_thread=False)
     other.execute("BEGIN IMMEDIATE")  # another writer (another process, a long deletion) holds the database
     released = threading.Timer(HELD_S, lambda: other.execute("COMMIT"))
     released.start()
     started = time.monotonic()
     try:
-        stored = store.update_execution(row.id, status=ExecutionState.done, phase=ExecutionPhase.done, worker_id="w")
+        stored = store.executions.update(row.id, status=ExecutionState.done, phase=ExecutionPhase.done, worker_id="w")
         waited = time.monotonic() - started
     finally:
         released.join()
         other.close()
     assert stored and waited >= HELD_S - 0.5  # it waited for the lock rather than failing after 5 s
-    assert store.execution(row.id).status is ExecutionState.done
+    assert store.executions.get(row.id).status is ExecutionState.done
     store.close()

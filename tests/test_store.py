@@ -12,7 +12,7 @@ import pytest
 from corpus.synthetic import plane_slide
 from schemas import Demonstration
 from schemas.api import ExecutionState
-from schemas.execution import ExecutionPhase
+from schemas.execution import ExecutionMetrics, ExecutionPhase
 from services.store import Store
 
 
@@ -43,7 +43,7 @@ def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
     store = Store(tmp_path / "s.db")
     demonstration = _demonstration()
     for k in range(3):
-        store.add_execution({"n": k}, None)
+        store.executions.add({"n": k}, None)
     # One stored row no version of the service writes (a status it does not know): reading the list fails.
     raw = sqlite3.connect(tmp_path / "s.db")
     raw.execute("UPDATE executions SET status = 'lost in space' WHERE rowid = 2")
@@ -57,20 +57,20 @@ def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
 
     def reader_then_writer() -> None:
         try:
-            store.list_executions(limit=10)
+            store.executions.page(limit=10)
         except Exception as exc:
             kept.append(exc)
         done.set()
         go_on.wait(30)
         try:
-            outcome["row"] = store.add_demonstration(demonstration)
+            outcome["row"] = store.demonstrations.add(demonstration)
         except Exception as exc:
             outcome["error"] = exc
 
     thread = threading.Thread(target=reader_then_writer)
     thread.start()
     assert done.wait(30) and kept, "the corrupt row should make the read fail"
-    _in_thread(lambda: store.add_demonstration(demonstration))  # another connection writes meanwhile
+    _in_thread(lambda: store.demonstrations.add(demonstration))  # another connection writes meanwhile
     go_on.set()
     thread.join(30)
     assert "error" not in outcome, f"write after a failed read: {outcome.get('error')!r}"
@@ -81,8 +81,8 @@ def test_a_failed_read_leaves_no_transaction_open_and_writes_go_on(tmp_path):
 @pytest.mark.parametrize("offset", [0, 10**9])
 def test_large_offsets_read_nothing(tmp_path, offset):
     store = Store(tmp_path / "s.db")
-    store.add_demonstration(_demonstration())
-    assert len(store.list_demonstrations(limit=10, offset=offset)) == (1 if offset == 0 else 0)
+    store.demonstrations.add(_demonstration())
+    assert len(store.demonstrations.page(limit=10, offset=offset)) == (1 if offset == 0 else 0)
     store.close()
 
 
@@ -92,18 +92,22 @@ def test_finish_listeners_hear_each_execution_that_ends_once_and_after_the_write
     undoes nothing."""
     store = Store(tmp_path / "s.db")
     heard: list[tuple[str, str]] = []
-    store.on_finish(lambda execution_id: heard.append((execution_id, store.execution(execution_id).status.value)))
-    store.on_finish(lambda execution_id: 1 / 0)
-    a, b, c = (store.add_execution({"n": k}, None) for k in range(3))
+    store.executions.on_finish(
+        lambda execution_id: heard.append((execution_id, store.executions.get(execution_id).status.value))
+    )
+    store.executions.on_finish(lambda execution_id: 1 / 0)
+    a, b, c = (store.executions.add({"n": k}, None) for k in range(3))
     for row in (b, c):
-        store.mark_started(row.id, "worker-x")
-    store.mark_started(a.id, "worker-y")
-    assert store.update_execution(a.id, ExecutionState.running, ExecutionPhase.contact)
+        store.executions.mark_started(row.id, "worker-x")
+    store.executions.mark_started(a.id, "worker-y")
+    assert store.executions.update(a.id, ExecutionState.running, ExecutionPhase.contact)
     assert heard == []
-    assert store.update_execution(a.id, ExecutionState.done, ExecutionPhase.done, metrics={"steps": 3})
+    assert store.executions.update(
+        a.id, ExecutionState.done, ExecutionPhase.done, metrics=ExecutionMetrics.model_construct(steps=3)
+    )
     assert heard == [(a.id, "done")]  # the listener reads the committed status
-    assert not store.update_execution(a.id, ExecutionState.failed, ExecutionPhase.failed)  # finished stays finished
-    assert sorted(store.fail_active("worker worker-x was lost", "worker-x")) == sorted([b.id, c.id])
+    assert not store.executions.update(a.id, ExecutionState.failed, ExecutionPhase.failed)  # finished stays finished
+    assert sorted(store.executions.fail_active("worker worker-x was lost", "worker-x")) == sorted([b.id, c.id])
     assert sorted(heard[1:]) == sorted([(b.id, "failed"), (c.id, "failed")])
-    assert store.execution(a.id).status is ExecutionState.done
+    assert store.executions.get(a.id).status is ExecutionState.done
     store.close()

@@ -107,7 +107,7 @@ def skill_to_run(store: Store, skill_id: str | None, skill: Skill | None) -> tup
         if problems := skill_problems(skill):
             raise errors.incoherent_skill(problems)
         return skill, None
-    stored = store.skill(skill_id or "")
+    stored = store.skills.get(skill_id or "")
     if stored is None:
         raise errors.not_found("skill", str(skill_id))
     return Skill.model_validate_json(stored.skill_json), stored.demonstration_id
@@ -116,7 +116,7 @@ def skill_to_run(store: Store, skill_id: str | None, skill: Skill | None) -> tup
 def readable_demonstration(store: Store, demonstration_id: str) -> tuple[DemonstrationRow, str]:
     """The stored demonstration's row and body (JSON text): 404 for an unknown id, 409 for one stored under looser
     rules that cannot be read back."""
-    found = store.demonstration_json(demonstration_id)
+    found = store.demonstrations.json(demonstration_id)
     if found is None:
         raise errors.not_found("demonstration", demonstration_id)
     if found[0].problem is not None:
@@ -169,8 +169,18 @@ def require_token_to_read(settings: SettingsDep, known: AuthenticatedDep) -> Non
         raise errors.unauthorized()
 
 
+def require_storage_room(store: StoreDep, settings: SettingsDep) -> None:
+    """507 when the database already holds ``storage_quota_mb`` (0: no quota)."""
+    quota = int(settings.storage_quota_mb * 2**20)
+    if quota and (used := store.usage_bytes()) >= quota:
+        raise errors.storage_full(used, quota)
+
+
 TOKEN_GUARD = [Depends(require_token)]
 """``dependencies=`` of every POST/DELETE route."""
+STORING_GUARD = [*TOKEN_GUARD, Depends(require_storage_room)]
+"""``dependencies=`` of a POST that stores something new (a demonstration, skill, execution, sweep): the token, then
+room in the storage quota (a DELETE, which frees room, never needs it)."""
 READ_GUARD = [Depends(require_token_to_read)]
 """``dependencies=`` of every GET route but ``/health`` (open unless ``token_reads``)."""
 

@@ -44,6 +44,8 @@ MUTATING_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError},
 READ_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 403: {"model": ApiError}}
 """OpenAPI ``responses`` of every resource route: 401 without the token (reads too with ``token_reads``), 403 for a
 cross-origin browser request (``browser_guard``)."""
+STORING_RESPONSES: dict[int | str, dict[str, Any]] = {**MUTATING_RESPONSES, 507: {"model": ApiError}}
+"""OpenAPI ``responses`` of a route that stores something new: 507 when the database holds its quota."""
 UNAVAILABLE: dict[int | str, dict[str, Any]] = {503: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that needs the bus."""
 
@@ -73,6 +75,29 @@ def no_bus() -> HTTPException:
 def unavailable(detail: str) -> HTTPException:
     """503: no sim worker can take the request now (none connected, every one busy, the bus failed)."""
     return HTTPException(503, detail)
+
+
+def storage_full(used_bytes: int, quota_bytes: int) -> HTTPException:
+    """507: the database holds its quota (``CONTACT_SKILLS_STORAGE_QUOTA_MB``)."""
+    return HTTPException(
+        507,
+        f"the storage quota is reached: the database holds {used_bytes / 2**20:.0f} MiB of "
+        f"{quota_bytes / 2**20:.0f} MiB (CONTACT_SKILLS_STORAGE_QUOTA_MB); delete executions or demonstrations "
+        "(DELETE /executions/{id}, /demonstrations/{id}) or raise the quota",
+    )
+
+
+def stored_too_large(
+    loc: list[str | int], stored_bytes: int, brought_bytes: int, multiple: float
+) -> RequestValidationError:
+    """422 on the upload: what it would store is more than ``multiple`` times what it brought."""
+    return unprocessable(
+        loc,
+        f"importing it would store {stored_bytes / 2**20:.1f} MiB from {brought_bytes / 1024:.1f} KiB uploaded "
+        f"({stored_bytes / max(brought_bytes, 1):.0f}x; at most {multiple:g}x): its time stamps span far more samples "
+        "than it has rows (a gap, or time in the wrong unit); fix the time column or give a lower rate_hz",
+        "stored_too_large",
+    )
 
 
 def recording_timed_out(exc: TimeoutError) -> HTTPException:

@@ -21,6 +21,10 @@ from services.store import ACTIVE, Store
 
 MAX_RATE_HZ = 100_000.0
 """Highest sampling rate the service learns from (as the CSV importer's resampling limit), Hz."""
+UPLOAD_STORED_MULTIPLE = 16.0
+"""An uploaded recording (CSV, bag) stores at most this many times the bytes it brought. The real recordings store
+0.4-0.6x (KU Leuven CSVs); a row-per-sample CSV with short numbers ~7x. Past it the time stamps span far more samples
+than the file has rows (resampling would invent them)."""
 MAX_GRID_SAMPLES = 1_000_000
 """Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
 
@@ -151,9 +155,9 @@ class ClientCaps:
 
     def _active(self, kind: WorkKind, ident: str) -> bool:
         if kind is WorkKind.execution:
-            row = self.store.execution(ident)
+            row = self.store.executions.get(ident)
             return row is not None and row.status in (ExecutionState.queued, *ACTIVE)
-        sweep = self.store.sweep(ident)
+        sweep = self.store.sweeps.get(ident)
         return sweep is not None and sweep.status == SweepState.running.value
 
     def admit(self, kind: WorkKind, client: str) -> None:

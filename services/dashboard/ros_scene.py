@@ -12,6 +12,11 @@ run for an export, each new batch live) and returns, per topic, the messages of 
 - ``/markers`` (``visualization_msgs/msg/MarkerArray``): reference path, executed path, CF triads, touched surface
   (the work piece as found), every :data:`MARKER_PERIOD_S` of execution time and at the last row.
 
+:func:`truth_messages` gives, of the same rows, what the simulator knows of the contact (:data:`TRUTH_TOPICS`): the
+true normal force (``/force/true``, ``std_msgs/msg/Float64``, N) and whether the tool touches anything
+(``/contact``, ``std_msgs/msg/Bool``), one message per row; rows stored before these columns were streamed (NaN)
+give none.
+
 Stamps: ns since the epoch, ``start + t``.
 """
 
@@ -46,6 +51,11 @@ TF_TYPE, JOINT_STATE_TYPE = "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/JointStat
 STRING_TYPE, MARKER_ARRAY_TYPE = "std_msgs/msg/String", "visualization_msgs/msg/MarkerArray"
 SCENE_TOPICS = {TF: TF_TYPE, JOINT_STATES: JOINT_STATE_TYPE, ROBOT_DESCRIPTION: STRING_TYPE, MARKERS: MARKER_ARRAY_TYPE}
 """The scene's topics and their ROS 2 message types."""
+TRUE_FORCE, CONTACT = "/force/true", "/contact"
+FLOAT64_TYPE, BOOL_TYPE = "std_msgs/msg/Float64", "std_msgs/msg/Bool"
+TRUTH_TOPICS = {TRUE_FORCE: FLOAT64_TYPE, CONTACT: BOOL_TYPE}
+"""The simulator's truth about the contact (:func:`truth_messages`) and their ROS 2 message types. Unstamped
+``std_msgs`` (ROS 2 has no stamped scalar): a message's log time is its stamp."""
 TF_CHILDREN = [TOOL_FRAME, REFERENCE_FRAME, CF_FRAME, FLANGE_FRAME, ROBOT_BASE_LINK]
 JOINT_STATE_HZ = 50.0
 """Joint states per second of execution time (an IK solve each; the arm moves smoothly at this rate)."""
@@ -62,6 +72,9 @@ PLATE_SIZE_M = 0.025
 CONTACT_CODE = PHASE_CODES[ExecutionPhase.contact]
 
 _TF = tf_message(WORLD_FRAME, TF_CHILDREN)
+_FLOAT64 = CdrLayout().floats("data", 1)
+_BOOL = {value: b"\x00\x01\x00\x00" + bytes([value]) for value in (False, True)}
+"""``std_msgs/msg/Bool`` in CDR: the little-endian encapsulation header and one byte."""
 _JOINTS = CdrLayout().stamp("stamp").string("").count(len(JOINT_NAMES))
 for _name in JOINT_NAMES:
     _JOINTS.string(_name)
@@ -72,6 +85,21 @@ def _typestore():
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def truth_messages(rows: NDArray[np.float64], stamps: NDArray[np.int64]) -> dict[str, tuple[NDArray[np.int64], list]]:
+    """Per topic of :data:`TRUTH_TOPICS`: (stamps ns, CDR payloads) of ``rows`` (the store's columns) stamped
+    ``stamps``; the rows where the column is NaN (not recorded) are left out."""
+    from services.store import TELEMETRY_LAYOUT
+
+    force = rows[:, TELEMETRY_LAYOUT["normal_force_true_n"][0]]
+    contact = rows[:, TELEMETRY_LAYOUT["in_contact"][0]]
+    out: dict[str, tuple[NDArray[np.int64], list]] = {}
+    if (known := np.isfinite(force)).any():
+        out[TRUE_FORCE] = (stamps[known], _FLOAT64.messages(data=force[known]))
+    if (known := np.isfinite(contact)).any():
+        out[CONTACT] = (stamps[known], [_BOOL[bool(v > 0.5)] for v in contact[known].tolist()])
+    return out
 
 
 def message_definition(msgtype: str) -> str:

@@ -14,7 +14,7 @@ def stored_rows(store: Store, execution_id: str, cursor: int, skip_gaps: bool = 
     """The stored samples of ``execution_id`` from stream index ``cursor`` on (the store's rows), up to the first
     missing one; ``skip_gaps``: past missing ones too (the stream has ended, nothing more will come)."""
     parts, expected = [], cursor
-    for first, block in store.telemetry_blocks(execution_id, cursor):
+    for first, block in store.telemetry.blocks(execution_id, cursor):
         if first > expected and not skip_gaps:
             break
         part = block[max(0, expected - first) :]

@@ -54,10 +54,10 @@ async def get_skill_view(skill_id: str, store: StoreDep) -> SkillView:
 
 
 def _skill_view(store: Store, skill_id: str) -> SkillView:
-    row = store.skill(skill_id)
+    row = store.skills.get(skill_id)
     if row is None:
         raise errors.not_found("skill", skill_id)
-    found = store.demonstration_json(row.demonstration_id) if row.demonstration_id else None
+    found = store.demonstrations.json(row.demonstration_id) if row.demonstration_id else None
     demonstration = None
     if found is not None and found[0].problem is None:
         demonstration = Demonstration.model_validate_json(found[1])
@@ -74,7 +74,7 @@ async def get_sweep_figure(sweep_id: str, store: StoreDep, keys: KeysDep) -> Res
     along its range, one colour per controller. 404 for an unknown id."""
     from services.sweeps import sweep_view, trial_results
 
-    row = store.sweep(sweep_id)
+    row = store.sweeps.get(sweep_id)
     if row is None:
         raise errors.not_found("sweep", sweep_id)
     png = await asyncio.to_thread(lambda: sweep_png(sweep_view(store, keys, row), trial_results(store, row)))

@@ -23,6 +23,7 @@ from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
     READ_GUARD,
+    STORING_GUARD,
     TOKEN_GUARD,
     BusDep,
     ExportFormat,
@@ -35,7 +36,8 @@ from services.api.deps import (
     need_bus,
     readable_demonstration,
 )
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
+from services.api.limits import UPLOAD_STORED_MULTIPLE
 from services.api.responses import download, raw_json
 from services.demonstration_files import (
     BAGS,
@@ -45,7 +47,8 @@ from services.demonstration_files import (
     other_kind,
     unsupported_file,
 )
-from services.store import DemonstrationRow, first_problem
+from services.store import DemonstrationRow, Store, first_problem
+from services.store.demonstrations import StoredTooLarge
 
 RECORD_TIMEOUT_S = 120.0
 """How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
@@ -77,27 +80,42 @@ def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: st
     return data, name
 
 
+def _store_upload(store: Store, demonstration: Demonstration, uploaded_bytes: int) -> DemonstrationRow:
+    """Store an imported upload; a 422 on ``file`` when it would take more than :data:`UPLOAD_STORED_MULTIPLE`
+    times the bytes uploaded."""
+    multiple = UPLOAD_STORED_MULTIPLE
+    try:
+        return store.demonstrations.add(demonstration, max_bytes=int(multiple * uploaded_bytes))
+    except StoredTooLarge as exc:
+        raise errors.stored_too_large(["body", "file"], exc.stored_bytes, uploaded_bytes, multiple) from None
+
+
+def _notes(demonstration: Demonstration) -> list[str]:
+    """What the importer did (``metadata.extra.import_notes``)."""
+    return list(demonstration.metadata.extra.get("import_notes", []))
+
+
 @router.post(
     "/demonstrations",
     status_code=201,
     response_model=DemonstrationCreated,
-    responses=MUTATING_RESPONSES,
-    dependencies=TOKEN_GUARD,
+    responses=STORING_RESPONSES,
+    dependencies=STORING_GUARD,
 )
 def post_demonstration(demonstration: Demonstration, store: StoreDep) -> DemonstrationCreated:
     """Store a demonstration given as JSON (a `Demonstration`; CSV: ``POST /demonstrations/csv``).
 
     The samples must already follow the conventions (SI, quaternions [x, y, z, w], the wrench the tool applies in
     the world frame at the tool point); a field that does not is a 422 naming it. 201 with the id and summary."""
-    return _created(store.add_demonstration(demonstration))
+    return _created(store.demonstrations.add(demonstration))
 
 
 @router.post(
     "/demonstrations/csv",
     status_code=201,
     response_model=DemonstrationCreated,
-    responses=MUTATING_RESPONSES,
-    dependencies=TOKEN_GUARD,
+    responses=STORING_RESPONSES,
+    dependencies=STORING_GUARD,
 )
 def post_demonstration_csv(
     store: StoreDep,
@@ -120,16 +138,15 @@ def post_demonstration_csv(
         raise errors.csv_import_failed(exc) from None
     if file.filename:
         demonstration.metadata.source = f"csv:{file.filename}"
-    row = store.add_demonstration(demonstration)
-    return _created(row, notes=list(demonstration.metadata.extra.get("import_notes", [])))
+    return _created(_store_upload(store, demonstration, len(data)), notes=_notes(demonstration))
 
 
 @router.post(
     "/demonstrations/bag",
     status_code=201,
     response_model=DemonstrationCreated,
-    responses=MUTATING_RESPONSES,
-    dependencies=TOKEN_GUARD,
+    responses=STORING_RESPONSES,
+    dependencies=STORING_GUARD,
 )
 def post_demonstration_bag(
     store: StoreDep,
@@ -150,16 +167,15 @@ def post_demonstration_bag(
         demonstration = demonstration_from_bag_upload(data, name, options)
     except BagImportError as exc:
         raise errors.import_failed(exc) from None
-    row = store.add_demonstration(demonstration)
-    return _created(row, notes=list(demonstration.metadata.extra.get("import_notes", [])))
+    return _created(_store_upload(store, demonstration, len(data)), notes=_notes(demonstration))
 
 
 @router.post(
     "/demonstrations/record",
     status_code=201,
     response_model=DemonstrationCreated,
-    responses={**MUTATING_RESPONSES, **errors.UNAVAILABLE, 504: {"model": ApiError}},
-    dependencies=TOKEN_GUARD,
+    responses={**STORING_RESPONSES, **errors.UNAVAILABLE, 504: {"model": ApiError}},
+    dependencies=STORING_GUARD,
 )
 def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -> DemonstrationCreated:
     """Ask a sim worker to record the scripted teacher's demonstration of a scenario, and store it.
@@ -186,7 +202,7 @@ def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -
     demonstration.metadata.extra["record_request"] = request.model_dump(mode="json")
     if reply.ground_truth is not None:
         demonstration.metadata.extra["ground_truth"] = reply.ground_truth
-    row = store.add_demonstration(demonstration)
+    row = store.demonstrations.add(demonstration)
     return _created(row, extra={"ground_truth": reply.ground_truth, "worker_id": reply.worker_id})
 
 
@@ -201,7 +217,7 @@ def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0)
         DemonstrationInfo(
             id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary, problem=r.problem
         )
-        for r in store.list_demonstrations(limit, offset)
+        for r in store.demonstrations.page(limit, offset)
     ]
 
 
@@ -235,7 +251,7 @@ def delete_demonstration(demonstration_id: str, store: StoreDep, queue: QueueDep
     Skills learned from it keep their parameters and still run; their executions from now on get no path metric
     (it compares the run with the demonstration). 204 when deleted, 404 for an unknown id; needs the bearer token
     when one is set."""
-    if not store.delete_demonstration(demonstration_id):
+    if not store.demonstrations.delete(demonstration_id):
         raise errors.not_found("demonstration", demonstration_id)
     if queue is not None:
         queue.forget_demonstration(demonstration_id)

@@ -24,6 +24,7 @@ from services.api.deps import (
     EXPORT_RESPONSES,
     NEXT_CURSOR_HEADER,
     READ_GUARD,
+    STORING_GUARD,
     TOKEN_GUARD,
     BusDep,
     ClientCapsDep,
@@ -44,7 +45,7 @@ from services.api.deps import (
     need_queue,
     skill_to_run,
 )
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
 from services.api.responses import streamed
 from services.queue import ExecutionQueue
@@ -63,8 +64,8 @@ COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
 
 
 def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionView:
-    batches, samples = store.telemetry_counts(row.id)
-    position = store.queue_position(row.id) if row.status is ExecutionState.queued else None
+    batches, samples = store.telemetry.counts(row.id)
+    position = store.executions.queue_position(row.id) if row.status is ExecutionState.queued else None
     return ExecutionView(
         id=row.id,
         skill_id=row.skill_id,
@@ -72,7 +73,7 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         status=row.status,
         phase=row.phase,
         metrics=row.metrics,
-        verdict=((row.metrics or {}).get("verdict") or {}).get("verdict"),
+        verdict=row.metrics.verdict.verdict if row.metrics and row.metrics.verdict else None,
         error=row.error,
         created=row.created,
         updated=row.updated,
@@ -80,7 +81,7 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
         telemetry_batches=batches,
         telemetry_samples=samples,
         telemetry_missing_samples=(
-            max(0, row.metrics["steps"] - samples) if row.metrics and row.streams_telemetry else None
+            max(0, row.metrics.steps - samples) if row.metrics and row.streams_telemetry else None
         ),
         request=row.request,
         priority=row.priority,
@@ -89,7 +90,7 @@ def _view(row: ExecutionRow, store: Store, keys: KeyExpressions) -> ExecutionVie
 
 
 def _found(store: Store, execution_id: str) -> ExecutionRow:
-    row = store.execution(execution_id)
+    row = store.executions.get(execution_id)
     if row is None:
         raise errors.not_found("execution", execution_id)
     return row
@@ -99,8 +100,8 @@ def _found(store: Store, execution_id: str) -> ExecutionRow:
     "/executions",
     status_code=202,
     response_model=ExecutionCreated,
-    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
-    dependencies=TOKEN_GUARD,
+    responses={**ERROR_RESPONSES, **STORING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
+    dependencies=STORING_GUARD,
 )
 def post_execution(
     request: ExecutionRequest,
@@ -160,7 +161,7 @@ def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: 
 
     Each with its status (starting, running, paused, done, aborted, failed), phase, worker, metrics once
     finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them."""
-    return [_view(row, store, keys) for row in store.list_executions(limit, offset)]
+    return [_view(row, store, keys) for row in store.executions.page(limit, offset)]
 
 
 @router.get("/executions/{execution_id}", response_model=ExecutionView, responses=ERROR_RESPONSES)
@@ -187,8 +188,8 @@ def delete_execution(execution_id: str, store: StoreDep) -> Response:
     row = _found(store, execution_id)
     if sweep := row.request.get("sweep"):
         raise errors.part_of_sweep(execution_id, sweep)
-    if not store.delete_execution(execution_id, TERMINAL):
-        raise errors.still_active(execution_id, (store.execution(execution_id) or row).status.value)
+    if not store.executions.delete(execution_id, TERMINAL):
+        raise errors.still_active(execution_id, (store.executions.get(execution_id) or row).status.value)
     return Response(status_code=204)
 
 
@@ -302,7 +303,7 @@ def get_telemetry(
         raise errors.no_telemetry(execution_id, row.request.get("sweep"))
     errors.check_window(t0, t1)
     size = min(limit or settings.telemetry_page_samples, settings.telemetry_page_samples)
-    page = telemetry_page(store.telemetry_blocks(execution_id, cursor), cursor, every, t0, t1, size)
+    page = telemetry_page(store.telemetry.blocks(execution_id, cursor), cursor, every, t0, t1, size)
     headers = {} if page.next_cursor is None else {NEXT_CURSOR_HEADER: str(page.next_cursor)}
     if format is TelemetryFormat.csv:
         return streamed(execution_csv_chunks(page.rows), CSV_MEDIA_TYPE, f"{execution_id}.csv", headers)
@@ -310,6 +311,6 @@ def get_telemetry(
         mcap = execution_mcap(page.rows, row.created, execution_id).data  # a page: at most the cap
         return streamed([mcap], MCAP_MEDIA_TYPE, f"{execution_id}.mcap", headers)
     head = {"execution_id": execution_id, "every": every, "cursor": cursor, "next_cursor": page.next_cursor,
-            "n_samples": int(page.rows.shape[0]), "stored_samples": store.telemetry_counts(execution_id)[1],
+            "n_samples": int(page.rows.shape[0]), "stored_samples": store.telemetry.counts(execution_id)[1],
             "status": row.status.value}  # fmt: skip
     return streamed(execution_json_chunks(head, page.rows), "application/json", headers=headers)

@@ -35,8 +35,10 @@ PLOT_HZ = 100.0
 FINAL_WAIT_S = 3.0
 """After the final status, how long to wait for the telemetry it counts before ending the stream anyway, s."""
 SEND = ("t", "phase", "segment_index", "tool_position", "reference_position", "wrench_world", "wrench_cf",
-        "desired_force_cf_z_n")  # fmt: skip
+        "desired_force_cf_z_n", "in_contact", "normal_force_true_n")  # fmt: skip
 """The columns an event carries (poses' orientations stay in the stored telemetry)."""
+ROUND = 6
+"""Decimals sent of the vector columns (positions m, wrenches N N·m): 1 µm, 1 µN; scalars go unrounded."""
 
 LiveCursor = Annotated[int, Query(ge=0, le=MAX_OFFSET, description="The stream index to start from (an event's id).")]
 
@@ -46,22 +48,35 @@ def _event(kind: str, data: dict[str, Any], ident: int | None = None) -> str:
     return f"{head}event: {kind}\ndata: {json.dumps(data, allow_nan=False)}\n\n"
 
 
+def _column(block: np.ndarray, name: str) -> list:
+    """One column of the kept rows as JSON values: NaN (a value not recorded, e.g. the true force and the contact
+    in telemetry stored before they were streamed) as null, never as a number; ``in_contact`` as booleans."""
+    if block.shape[1] > 1:
+        block = block.round(ROUND)
+    values: list = np.where(np.isfinite(block), block, None).tolist()
+    if block.shape[1] > 1:
+        return values
+    if name == "in_contact":
+        return [None if v is None else v > 0.5 for (v,) in values]
+    return [v for (v,) in values]
+
+
 def _telemetry(rows: np.ndarray, first: int) -> dict[str, Any]:
     """The columns of ``rows`` (the store's matrix, stream index ``first`` onwards) decimated to :data:`PLOT_HZ`,
     the last row always kept; ``index``: each kept row's stream index."""
     keep = decimated(rows[:, 0], PLOT_HZ)
-    picked = np.nan_to_num(rows[keep])
+    picked = rows[keep]
     out: dict[str, Any] = {"index": (first + keep).tolist()}
     for name in SEND:
         a, b = TELEMETRY_LAYOUT[name]
-        out[name] = picked[:, a].tolist() if b - a == 1 else picked[:, a:b].round(6).tolist()
+        out[name] = _column(picked[:, a:b], name)
     return out
 
 
 def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tuple[Any, np.ndarray]:
     """The execution's row and its samples from ``cursor`` on (up to a gap still being repaired, unless
     ``skip_gaps``)."""
-    return store.execution(execution_id), stored_rows(store, execution_id, cursor, skip_gaps)
+    return store.executions.get(execution_id), stored_rows(store, execution_id, cursor, skip_gaps)
 
 
 async def _events(request: Request, store: Store, execution_id: str, cursor: int) -> AsyncIterator[str]:
@@ -85,12 +100,13 @@ async def _events(request: Request, store: Store, execution_id: str, cursor: int
             yield _event("status", {"status": row.status.value, "phase": row.phase.value, "error": row.error})
         if row.status in TERMINAL:
             final_since = final_since if final_since is not None else loop.time()
-            steps = (row.metrics or {}).get("steps")
+            steps = row.metrics.steps if row.metrics else None
             complete = not row.streams_telemetry or steps is None or cursor >= steps
             if complete or (given_up and not rows.shape[0]):
-                verdict = ((row.metrics or {}).get("verdict") or {}).get("verdict")
+                verdict = row.metrics.verdict.verdict if row.metrics and row.metrics.verdict else None
+                metrics = row.metrics.model_dump(mode="json") if row.metrics else None
                 final = {"status": row.status.value, "phase": row.phase.value, "error": row.error,
-                         "metrics": row.metrics, "verdict": verdict, "samples": cursor}  # fmt: skip
+                         "metrics": metrics, "verdict": verdict, "samples": cursor}  # fmt: skip
                 yield _event("end", final, cursor)
                 return
         await asyncio.sleep(max(0.0, next_read - loop.time()))
@@ -103,11 +119,12 @@ async def _events(request: Request, store: Store, execution_id: str, cursor: int
 def get_live(execution_id: str, request: Request, store: StoreDep, cursor: LiveCursor = 0) -> StreamingResponse:
     """An execution as it runs, as server-sent events (``text/event-stream``), for a browser: ``telemetry`` events
     (t s, phase code, segment, tool and reference positions world m, wrenches world and CF N N·m, desired CF-z force
-    N; decimated to 100 samples per s of execution time, always with the last one stored) at up to 25 per s, each
-    with the stream index to resume from as its ``id``; ``status`` when the state changes; ``end`` with the final
-    view (metrics, verdict) once it finished and its telemetry is stored. ``cursor``: where to start (0: the
+    N, whether the tool touches anything and the true normal force N, both from the simulator and null where not
+    recorded; decimated to 100 samples per s of execution time, always with the last one stored) at up to 25 per s,
+    each with the stream index to resume from as its ``id``; ``status`` when the state changes; ``end`` with the
+    final view (metrics, verdict) once it finished and its telemetry is stored. ``cursor``: where to start (0: the
     beginning; after a lost connection, the last event's id). 404 for an unknown id."""
-    if store.execution(execution_id) is None:
+    if store.executions.get(execution_id) is None:
         raise errors.not_found("execution", execution_id)
     return StreamingResponse(
         _events(request, store, execution_id, cursor),

@@ -4,13 +4,23 @@ process of ``services.learner_pool``: the event loop never waits on it), list, g
 from __future__ import annotations
 
 import asyncio
+from dataclasses import asdict
 
 from fastapi import APIRouter, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from services.api import errors
-from services.api.deps import READ_GUARD, TOKEN_GUARD, LearnersDep, Limit, Offset, StoreDep, readable_demonstration
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.deps import (
+    READ_GUARD,
+    STORING_GUARD,
+    TOKEN_GUARD,
+    LearnersDep,
+    Limit,
+    Offset,
+    StoreDep,
+    readable_demonstration,
+)
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.responses import raw_json
 from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
 
@@ -23,11 +33,11 @@ router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESP
     responses={
         201: {"model": StoredSkill},
         **ERROR_RESPONSES,
-        **MUTATING_RESPONSES,
+        **STORING_RESPONSES,
         409: {"model": ApiError},
         503: {"model": ApiError},
     },
-    dependencies=TOKEN_GUARD,
+    dependencies=STORING_GUARD,
 )
 async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersDep, http: Request) -> Response:
     """Learn a skill (slide, contour or auto) from a stored or an inline demonstration, and store it.
@@ -57,7 +67,7 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
     if outcome.kind != "ok":
         raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
     warnings = list(outcome.reasons)
-    row = await asyncio.to_thread(store.add_skill, outcome.skill_json, outcome.skill_type, stored_id, warnings)
+    row = await asyncio.to_thread(store.skills.add, outcome.skill_json, outcome.skill_type, stored_id, warnings)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
     parts |= {"learn_seconds": round(outcome.seconds, 4), "warnings": row.warnings}
     return raw_json(parts, {"skill": outcome.skill_json}, 201)
@@ -69,7 +79,7 @@ def list_skills(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list
 
     Each row: id, the demonstration it was learned from, type (slide or contour), number of segments and the
     auto selection's confidence; ``limit`` and ``offset`` page through them."""
-    return [SkillInfo(**row) for row in store.list_skills(limit, offset)]
+    return [SkillInfo(**asdict(row)) for row in store.skills.page(limit, offset)]
 
 
 @router.get("/skills/{skill_id}", responses={200: {"model": StoredSkill}, **ERROR_RESPONSES})
@@ -78,7 +88,7 @@ def get_skill(skill_id: str, store: StoreDep) -> Response:
 
     Segments with their compliant frames, DMPs (position, orientation, force), selection matrices, the force and
     the quality figures, as ``schemas.Skill``; 404 for an unknown id."""
-    row = store.skill(skill_id)
+    row = store.skills.get(skill_id)
     if row is None:
         raise errors.not_found("skill", skill_id)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created, "learn_seconds": None}
@@ -95,6 +105,6 @@ def delete_skill(skill_id: str, store: StoreDep) -> Response:
     """Delete a stored skill (executions that ran it keep their records).
 
     204 when deleted, 404 for an unknown id; needs the bearer token when one is set."""
-    if not store.delete_skill(skill_id):
+    if not store.skills.delete(skill_id):
         raise errors.not_found("skill", skill_id)
     return Response(status_code=204)

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from schemas.sweep import SweepCreated, SweepRequest, SweepState, SweepView, TrialResult
+from schemas.sweep import SweepCreated, SweepRequest, SweepView, TrialResult
 from services.api import errors
 from services.api.deps import (
     READ_GUARD,
+    STORING_GUARD,
     TOKEN_GUARD,
     ClientCapsDep,
     ClientDep,
@@ -22,7 +23,7 @@ from services.api.deps import (
     need_sweeps,
     skill_to_run,
 )
-from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES
+from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
 from services.store import Store, SweepRow
 from services.sweeps import sweep_view, trial_results
@@ -32,7 +33,7 @@ router = APIRouter(tags=["sweeps"], dependencies=READ_GUARD, responses=READ_RESP
 
 
 def _found(store: Store, sweep_id: str) -> SweepRow:
-    row = store.sweep(sweep_id)
+    row = store.sweeps.get(sweep_id)
     if row is None:
         raise errors.not_found("sweep", sweep_id)
     return row
@@ -42,8 +43,8 @@ def _found(store: Store, sweep_id: str) -> SweepRow:
     "/sweeps",
     status_code=202,
     response_model=SweepCreated,
-    responses={**ERROR_RESPONSES, **MUTATING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
-    dependencies=TOKEN_GUARD,
+    responses={**ERROR_RESPONSES, **STORING_RESPONSES, **errors.UNAVAILABLE, **TOO_MANY},
+    dependencies=STORING_GUARD,
 )
 def post_sweep(
     request: SweepRequest,
@@ -83,7 +84,7 @@ def post_sweep(
     caps.hold(WorkKind.sweep, client, row.id)
     return SweepCreated(
         id=row.id,
-        status=SweepState(row.status),
+        status=row.status,
         executions=request.trials * len(request.controllers),
         progress_key=keys.sweep_progress(row.id),
     )
@@ -95,7 +96,7 @@ def list_sweeps(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offs
 
     Each with its state, its counts (finished, succeeded, running, queued, reruns), its per-controller summary and
     sensitivity ranking, as ``GET /sweeps/{id}``; ``limit`` and ``offset`` page through them."""
-    return [sweep_view(store, keys, row) for row in store.list_sweeps(limit, offset)]
+    return [sweep_view(store, keys, row) for row in store.sweeps.page(limit, offset)]
 
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepView, responses=ERROR_RESPONSES)

@@ -205,13 +205,25 @@ async function execute(skillId, form) {
 // ------------------------------------------------------------------------------------------------ live executions
 
 const streams = new Set();   // the live streams of the page shown (closed when leaving it)
+const TRUE_COLOR = "#c62828";                    // the true normal force (the simulator's contact points)
+const PHASE_COLOR = "rgba(255,152,0,.2)";        // the controller's contact phase: a band the plot's full height
+const TOUCH_COLOR = "rgba(46,125,50,.85)";       // the tool touching: a strip along the plot's bottom
+const TOUCH_STRIP = 0.06;                        // the strip's height, a fraction of the plot's
+
+function extendBands(bands, t, on, style) {
+  // Grow the open band of `bands` to time t while `on`, open a new one when it turns on, close it when it turns off.
+  const last = bands[bands.length - 1];
+  if (on && last?.open) last.x1 = t;
+  else if (on) bands.push({ x0: t, x1: t, open: true, ...style });
+  else if (last) last.open = false;
+}
 window.__drawLog = [];        // [stream index of the last point drawn, Date.now()] per frame: the benchmark reads it
 
 class LivePanel {
   constructor(id) {
     this.id = id; this.cursor = 0; this.attempt = 0; this.closed = false; this.ended = false; this.pending = false;
-    this.t = []; this.fz = []; this.fd = []; this.fw = []; this.index = []; this.maxGap = 0;
-    this.tool = []; this.reference = []; this.contactBands = [];
+    this.t = []; this.fz = []; this.fd = []; this.fw = []; this.ft = []; this.index = []; this.maxGap = 0;
+    this.tool = []; this.reference = []; this.phaseBands = []; this.touchBands = [];
     this.head = el("div", { class: "live-head" });
     this.force = el("canvas", { class: "live-force", "data-execution": id });
     this.path = el("canvas", { class: "live-path" });
@@ -222,8 +234,11 @@ class LivePanel {
       el("h2", {}, `Execution ${id} `, command("pause"), " ", command("resume"), " ", command("abort")), this.head,
       el("div", { class: "grid2" },
         el("div", {}, this.force, el("div", { class: "legend" },
+          el("span", {}, el("i", { style: `background:${TRUE_COLOR}` }), "true normal force"),
           el("span", {}, el("i", { style: "background:#1565c0" }), "CF-z measured"), el("span", {}, el("i", { style: "background:#000" }), "desired"),
-          el("span", {}, el("i", { style: "background:#9e9e9e" }), "|F| world"), el("span", {}, el("i", { style: "background:rgba(46,125,50,.25)" }), "contact phase"))),
+          el("span", {}, el("i", { style: "background:#9e9e9e" }), "|F| world"),
+          el("span", {}, el("i", { style: `background:${TOUCH_COLOR}` }), "in contact (bottom strip)"),
+          el("span", {}, el("i", { style: `background:${PHASE_COLOR}; outline:1px solid #ff9800` }), "contact phase"))),
         el("div", {}, this.path, el("div", { class: "legend" },
           el("span", {}, el("i", { style: "background:#ff9800" }), "tool"), el("span", {}, el("i", { style: "background:#1565c0" }), "reference")))),
       this.final);
@@ -282,12 +297,11 @@ class LivePanel {
       if (this.index.length) this.maxGap = Math.max(this.maxGap, b.index[k] - this.index[this.index.length - 1]);
       this.t.push(t); this.index.push(b.index[k]);
       this.fz.push(b.wrench_cf[k][2]); this.fd.push(b.desired_force_cf_z_n[k]);
+      this.ft.push(b.normal_force_true_n[k]);   // null where not recorded: a gap in the line, not a 0
       const f = b.wrench_world[k]; this.fw.push(Math.hypot(f[0], f[1], f[2]));
       this.tool.push(b.tool_position[k]); this.reference.push(b.reference_position[k]);
-      const contact = PHASES[b.phase[k]] === "contact";
-      const last = this.contactBands[this.contactBands.length - 1];
-      if (contact && last && last.open) last.x1 = t; else if (contact) this.contactBands.push({ x0: t, x1: t, open: true, color: "rgba(46,125,50,.18)" });
-      else if (last) last.open = false;
+      extendBands(this.phaseBands, t, PHASES[b.phase[k]] === "contact", { color: PHASE_COLOR });
+      extendBands(this.touchBands, t, b.in_contact[k] === true, { color: TOUCH_COLOR, y0: 0, y1: TOUCH_STRIP });
     }
     this.latest = b;
   }
@@ -303,23 +317,31 @@ class LivePanel {
     const b = this.latest;
     const k = b ? b.t.length - 1 : -1;
     const phase = b ? PHASES[b.phase[k]] : this.status.phase;
-    const contact = b && phase === "contact" && b.wrench_cf[k][2] > 0.5 * Math.max(b.desired_force_cf_z_n[k], 1);
+    const touching = b ? b.in_contact[k] : null;   // null: not recorded (telemetry stored before it was streamed)
+    const newton = (v) => (v === null || v === undefined ? "–" : `${v.toFixed(2)} N`);
     this.head.replaceChildren(...[
       el("span", {}, "status ", badge(this.status.status)), el("span", {}, "phase ", el("b", { class: "phase" }, phase)),
       el("span", {}, "segment ", el("b", {}, b ? String(b.segment_index[k]) : "–")),
       el("span", {}, "t ", el("b", {}, n ? `${this.t[n - 1].toFixed(3)} s` : "–")),
-      el("span", {}, "CF-z ", el("b", {}, b ? `${b.wrench_cf[k][2].toFixed(2)} N` : "–"), " / desired ", el("b", {}, b ? `${b.desired_force_cf_z_n[k].toFixed(2)} N` : "–")),
-      el("span", { class: contact ? "contact-on" : "contact-off" }, contact ? "in contact" : "no contact"),
+      el("span", {}, "true ", el("b", {}, newton(b?.normal_force_true_n[k])),
+        " / CF-z ", el("b", {}, newton(b?.wrench_cf[k][2])), " / desired ", el("b", {}, newton(b?.desired_force_cf_z_n[k]))),
+      el("span", { class: touching ? "contact-on" : "contact-off" },
+        touching === null || touching === undefined ? "contact not recorded" : touching ? "in contact" : "no contact"),
       this.status.error ? el("span", { class: "failed" }, this.status.error) : null].filter(Boolean));
     linePlot(this.force, [
+      // The true force wide and under the CF-z force, the desired force dashed on top: all three stay visible
+      // where they agree (the controller's aim).
       { x: this.t, y: this.fw, color: "#9e9e9e", width: 1 },
+      { x: this.t, y: this.ft, color: TRUE_COLOR, width: 2.5 },
+      { x: this.t, y: this.fz, color: "#1565c0", width: 1 },
       { x: this.t, y: this.fd, color: "#000", dash: [6, 3], width: 1.5 },
-      { x: this.t, y: this.fz, color: "#1565c0", width: 1.2 },
-    ], { xLabel: "t s", yLabel: "N", bands: this.contactBands });
+    ], { xLabel: "t s", yLabel: "N", bands: [...this.phaseBands, ...this.touchBands] });
     this.view.set([{ points: this.reference, color: "#1565c0", width: 1 }, { points: this.tool, color: "#ff9800", width: 2 }]);
     if (n) {
       // The plot's last point, for whoever checks it against the stored telemetry (tests, the benchmark).
-      Object.assign(this.force.dataset, { lastIndex: this.index[n - 1], lastT: this.t[n - 1], lastFz: this.fz[n - 1], points: n, maxGap: this.maxGap });
+      // lastFt, lastContact: "" where not recorded.
+      Object.assign(this.force.dataset, { lastIndex: this.index[n - 1], lastT: this.t[n - 1], lastFz: this.fz[n - 1],
+        lastFt: this.ft[n - 1] ?? "", lastContact: touching ?? "", points: n, maxGap: this.maxGap });
       window.__drawLog.push([this.id, this.index[n - 1], Date.now()]);
     }
     this.root.dataset.status = this.status.status;

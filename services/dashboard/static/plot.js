@@ -42,7 +42,8 @@ function niceTicks(lo, hi, count) {
   return ticks;
 }
 
-// series: [{x: [...], y: [... | null], color, label, dash}], bands: [{x0, x1, color}] behind the lines.
+// series: [{x: [...], y: [... | null], color, label, dash}], bands: [{x0, x1, color, y0?, y1?}] behind the lines
+// (y0, y1: the band's bottom and top as fractions of the plot's height; the full height without them).
 export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "", bands = [] } = {}) {
   const { ctx, width } = sized(canvas, height);
   let [x0, x1] = [Infinity, -Infinity], [y0, y1] = [0, -Infinity];
@@ -56,16 +57,18 @@ export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "
   const X = (v) => PAD.left + ((v - x0) / (x1 - x0)) * w;
   const Y = (v) => PAD.top + (1 - (v - y0) / (y1 - y0)) * h;
   for (const b of bands) {
+    const [low, high] = [b.y0 ?? 0, b.y1 ?? 1];
     ctx.fillStyle = b.color;
-    ctx.fillRect(X(Math.max(b.x0, x0)), PAD.top, X(Math.min(b.x1, x1)) - X(Math.max(b.x0, x0)), h);
+    ctx.fillRect(X(Math.max(b.x0, x0)), PAD.top + (1 - high) * h, X(Math.min(b.x1, x1)) - X(Math.max(b.x0, x0)), (high - low) * h);
   }
   ctx.strokeStyle = "#d8dbe2"; ctx.fillStyle = "#667"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
   for (const v of niceTicks(y0, y1, 5)) {
     ctx.beginPath(); ctx.moveTo(PAD.left, Y(v)); ctx.lineTo(width - PAD.right, Y(v)); ctx.stroke();
     ctx.fillText(String(v), 4, Y(v) + 4);
   }
-  for (const v of niceTicks(x0, x1, 8)) ctx.fillText(String(v), X(v) - 8, height - 8);
-  ctx.fillText(xLabel, width - PAD.right - 40, height - 8);
+  const labelLeft = width - PAD.right - 40;   // where the x axis' label starts: no tick label runs into it
+  for (const v of niceTicks(x0, x1, 8)) if (X(v) + 8 < labelLeft) ctx.fillText(String(v), X(v) - 8, height - 8);
+  ctx.fillText(xLabel, labelLeft, height - 8);
   ctx.fillText(yLabel, PAD.left + 4, PAD.top + 10);
   for (const s of series) {
     ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.5; ctx.setLineDash(s.dash || []);

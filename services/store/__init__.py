@@ -1,0 +1,127 @@
+"""SQLite persistence (one file, stdlib ``sqlite3``): one repository per resource, mirroring the API's routes.
+
+- :mod:`services.store.database`: the file, its connections, transactions, schema versions (durability and
+  threading are described there);
+- :mod:`services.store.demonstrations`, :mod:`.skills`, :mod:`.executions` (with the queue), :mod:`.telemetry`,
+  :mod:`.sweeps`: one repository each, returning the typed rows of :mod:`services.store.rows`;
+- :class:`Store` (here): the façade that opens the database and holds the repositories, with what spans them: the
+  storage quota and the retention of finished executions.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from schemas.sweep import SweepState
+from services.store.database import SCHEMA_VERSION, Database, StoreError, new_id
+from services.store.demonstrations import DemonstrationRepository
+from services.store.executions import ACTIVE, RESTART_REASON, TERMINAL, ExecutionRepository, QueueFull
+from services.store.rows import (
+    DemonstrationRow,
+    ExecutionRow,
+    SkillRow,
+    SkillSummaryRow,
+    SweepRow,
+    SweepTrialRow,
+    first_problem,
+)
+from services.store.skills import SkillRepository
+from services.store.sweeps import SweepRepository
+from services.store.telemetry import TELEMETRY_LAYOUT, TelemetryRepository, telemetry_column, telemetry_matrix
+
+__all__ = [
+    "ACTIVE",
+    "RESTART_REASON",
+    "SCHEMA_VERSION",
+    "TELEMETRY_LAYOUT",
+    "TERMINAL",
+    "DemonstrationRow",
+    "ExecutionRow",
+    "QueueFull",
+    "Retired",
+    "SkillRow",
+    "SkillSummaryRow",
+    "Store",
+    "StoreError",
+    "SweepRow",
+    "SweepTrialRow",
+    "first_problem",
+    "new_id",
+    "telemetry_column",
+    "telemetry_matrix",
+]
+
+
+@dataclass(frozen=True)
+class Retired:
+    """What one pass of the retention deleted."""
+
+    executions: int
+    sweeps: int
+
+
+class Store:
+    """The service's database: its repositories, one per resource; safe to share between threads."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.database = Database(path)
+        self.path = self.database.path
+        self.demonstrations = DemonstrationRepository(self.database)
+        self.skills = SkillRepository(self.database)
+        self.executions = ExecutionRepository(self.database)
+        self.telemetry = TelemetryRepository(self.database)
+        self.sweeps = SweepRepository(self.database)
+
+    def usage_bytes(self) -> int:
+        """What the stored rows take in the database file, bytes: its pages in use (pages freed by deletions are
+        reused before the file grows, so they do not count; the write-ahead log does not either)."""
+        pages = self.database.one("PRAGMA page_count")
+        free = self.database.one("PRAGMA freelist_count")
+        size = self.database.one("PRAGMA page_size")
+        assert pages is not None and free is not None and size is not None
+        return (int(pages[0]) - int(free[0])) * int(size[0])
+
+    def retire(self, older_than_s: float, now: float | None = None) -> Retired:
+        """Delete what the retention setting lets go: finished executions last updated more than ``older_than_s``
+        ago, with their telemetry, except those of a sweep still running (it counts them); then finished sweeps
+        (done, cancelled) last updated that long ago, with their trials. Demonstrations and skills are kept: they
+        are what a user made, and small."""
+        cutoff = (time.time() if now is None else now) - older_than_s
+        finished = tuple(state.value for state in TERMINAL)
+        running_sweeps = "SELECT id FROM sweeps WHERE status = ?"
+        with self.database.transaction() as db:
+            old = [
+                r["id"]
+                for r in db.execute(
+                    f"SELECT id FROM executions WHERE updated < ? AND status IN ({', '.join('?' * len(finished))}) "
+                    f"AND COALESCE(json_extract(request, '$.sweep.id'), '') NOT IN ({running_sweeps})",
+                    (cutoff, *finished, SweepState.running.value),
+                ).fetchall()
+            ]
+            for execution_id in old:
+                db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+                db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
+            sweeps = [
+                r["id"]
+                for r in db.execute(
+                    "SELECT id FROM sweeps WHERE updated < ? AND status != ?", (cutoff, SweepState.running.value)
+                ).fetchall()
+            ]
+            for sweep_id in sweeps:
+                db.execute("DELETE FROM sweep_trials WHERE sweep_id = ?", (sweep_id,))
+                db.execute("DELETE FROM sweeps WHERE id = ?", (sweep_id,))
+        return Retired(executions=len(old), sweeps=len(sweeps))
+
+    def schema_version(self) -> int:
+        """The database's schema version."""
+        return self.database.schema_version()
+
+    def service_key(self, name: str, size: int = 32) -> bytes:
+        """A random key kept in the database (:meth:`Database.service_key`)."""
+        return self.database.service_key(name, size)
+
+    def close(self) -> None:
+        """Close every thread's connection."""
+        self.database.close()

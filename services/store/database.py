@@ -1,0 +1,244 @@
+"""The database under the repositories: one SQLite file, its connections, transactions and schema versions.
+
+Durability: the database runs in WAL mode with ``synchronous=NORMAL``. Every write is its own transaction and is
+committed before the repository method returns (so before the HTTP response is sent): a committed transaction is in
+the WAL file, handed to the operating system, so it survives the API process being killed (``kill -9``) at any
+moment. Only an OS crash or power cut could lose the last transactions before a checkpoint (``synchronous=FULL``
+would close that too, at an fsync per write; the telemetry writes at 20 Hz per execution make that a poor trade).
+
+Threads: one connection per thread (``threading.local``); the bus callbacks write from Zenoh threads and the REST
+routes from the thread pool. SQLite serializes the writers (``busy_timeout`` 5 s); readers never block in WAL mode.
+Every read fetches its rows and closes its cursor before anything is built from them (:meth:`Database.all`,
+:meth:`Database.one`): a cursor left open by a failed read would keep its connection in a read transaction on an old
+snapshot, and the next write on that thread would fail with "database is locked".
+
+Schema: created on open and versioned with ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a database written by
+a newer version is refused rather than misread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import secrets
+import sqlite3
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+log = logging.getLogger("contact_skills.store")
+
+SCHEMA_VERSION = 4
+"""Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
+by sample index; 4: sweeps)."""
+_SCHEMA_V1 = """
+CREATE TABLE demonstrations (
+    id TEXT PRIMARY KEY,
+    created REAL NOT NULL,
+    name TEXT NOT NULL,
+    summary TEXT NOT NULL,
+    body TEXT NOT NULL
+);
+CREATE TABLE skills (
+    id TEXT PRIMARY KEY,
+    demonstration_id TEXT,
+    created REAL NOT NULL,
+    skill_type TEXT NOT NULL,
+    skill TEXT NOT NULL
+);
+CREATE TABLE executions (
+    id TEXT PRIMARY KEY,
+    skill_id TEXT,
+    worker_id TEXT,
+    status TEXT NOT NULL,
+    phase TEXT NOT NULL,
+    request TEXT NOT NULL,
+    metrics TEXT,
+    error TEXT,
+    created REAL NOT NULL,
+    updated REAL NOT NULL
+);
+CREATE INDEX executions_by_status ON executions (status, worker_id);
+CREATE TABLE telemetry (
+    execution_id TEXT NOT NULL,
+    seq INTEGER NOT NULL,
+    received REAL NOT NULL,
+    rows INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (execution_id, seq)
+);
+"""
+
+_SCHEMA_V2 = """
+ALTER TABLE executions ADD COLUMN priority INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE executions ADD COLUMN dispatch TEXT;
+CREATE INDEX executions_queue ON executions (status, priority DESC, created, id)
+"""
+"""Version 2: an execution's queue priority, and what to send to a worker while it is queued (``dispatch``: JSON
+with the request with its skill inline, the world overrides and the demonstration id; cleared once started)."""
+
+_SCHEMA_V3 = """
+UPDATE telemetry SET seq = -1 - stream.first FROM (
+    SELECT execution_id, seq, COALESCE(SUM(rows) OVER (PARTITION BY execution_id ORDER BY seq
+        ROWS BETWEEN UNBOUNDED PRECEDING AND 1 PRECEDING), 0) AS first FROM telemetry
+) AS stream WHERE telemetry.execution_id = stream.execution_id AND telemetry.seq = stream.seq;
+UPDATE telemetry SET seq = -1 - seq
+"""
+"""Version 3: ``telemetry.seq`` is the index of the row's first sample in the execution's stream (it counted the
+received batches): the samples stored before it, in the order they were received (through negative values, so no
+two rows share a key on the way)."""
+
+_SCHEMA_V4 = """
+CREATE TABLE sweeps (
+    id TEXT PRIMARY KEY,
+    created REAL NOT NULL,
+    updated REAL NOT NULL,
+    status TEXT NOT NULL,
+    request TEXT NOT NULL,
+    spec TEXT NOT NULL
+);
+CREATE TABLE sweep_trials (
+    sweep_id TEXT NOT NULL,
+    trial INTEGER NOT NULL,
+    controller TEXT NOT NULL,
+    parameters TEXT NOT NULL,
+    execution_id TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    PRIMARY KEY (sweep_id, trial, controller)
+);
+CREATE INDEX sweeps_by_status ON sweeps (status)
+"""
+"""Version 4: robustness sweeps (``services/sweeps.py``): the request as shown and the spec (the execution request
+with the skill inline, JSON, stored once); one row per trial x controller with its drawn parameters and its latest
+execution (whose row holds the status and metrics)."""
+
+LOCKED_RETRY_S = 120.0
+"""How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
+
+
+class StoreError(RuntimeError):
+    """The database cannot be used (newer schema, not a database, closed)."""
+
+
+def new_id(prefix: str) -> str:
+    """A short random id: ``prefix`` + 12 hex digits (48 random bits)."""
+    return f"{prefix}_{secrets.token_hex(6)}"
+
+
+def _retry_locked(step: Callable[[], object], what: str) -> None:
+    """Run ``step`` (a BEGIN or a COMMIT), again while SQLite says the database is locked or busy, for up to
+    :data:`LOCKED_RETRY_S`."""
+    deadline = time.monotonic() + LOCKED_RETRY_S
+    tries = 0
+    while True:
+        try:
+            step()
+            return
+        except sqlite3.OperationalError as exc:
+            tries += 1
+            if ("locked" not in str(exc) and "busy" not in str(exc)) or time.monotonic() > deadline:
+                raise
+            log.warning("%s: database locked (try %d); retrying", what, tries)
+            time.sleep(min(0.05 * tries, 1.0))
+
+
+class Database:
+    """One SQLite file shared by the repositories (see the module docstring); safe to share between threads."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if str(path) != ":memory:":
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self._migrate()
+
+    def _connection(self) -> sqlite3.Connection:
+        if self._closed:
+            raise StoreError("the store is closed")
+        connection = getattr(self._local, "connection", None)
+        if connection is None:
+            connection = sqlite3.connect(self.path, timeout=5.0, isolation_level=None, check_same_thread=False)
+            connection.row_factory = sqlite3.Row
+            connection.execute("PRAGMA journal_mode=WAL")
+            connection.execute("PRAGMA synchronous=NORMAL")
+            connection.execute("PRAGMA busy_timeout=5000")
+            self._local.connection = connection
+            with self._lock:
+                self._connections.append(connection)
+        return connection
+
+    def all(self, sql: str, parameters: tuple = ()) -> list[sqlite3.Row]:
+        """Every row of a query; the cursor is closed before they are returned."""
+        cursor = self._connection().execute(sql, parameters)
+        try:
+            return cursor.fetchall()
+        finally:
+            cursor.close()
+
+    def one(self, sql: str, parameters: tuple = ()) -> sqlite3.Row | None:
+        """The first row of a query (or None); the cursor is closed before it is returned."""
+        cursor = self._connection().execute(sql, parameters)
+        try:
+            return cursor.fetchone()
+        finally:
+            cursor.close()
+
+    @contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """A write transaction. Taking the write lock, and committing, retry while the database is locked (each try
+        waits ``busy_timeout``, 5 s), for up to :data:`LOCKED_RETRY_S`: a status or a telemetry batch from a bus
+        thread waits for a long write (a big upload, a deletion) instead of being dropped."""
+        connection = self._connection()
+        _retry_locked(lambda: connection.execute("BEGIN IMMEDIATE"), "BEGIN")
+        try:
+            yield connection
+        except BaseException:
+            connection.execute("ROLLBACK")
+            raise
+        _retry_locked(lambda: connection.execute("COMMIT"), "COMMIT")
+
+    def _migrate(self) -> None:
+        try:
+            with self.transaction() as db:
+                version = db.execute("PRAGMA user_version").fetchone()[0]
+                if version > SCHEMA_VERSION:
+                    raise StoreError(
+                        f"{self.path}: database schema version {version} is newer than this program's "
+                        f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
+                    )
+                # not executescript: it would COMMIT the open transaction
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4)[version:]:
+                    for statement in filter(None, (s.strip() for s in script.split(";"))):
+                        db.execute(statement)
+                if version < SCHEMA_VERSION:
+                    db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a usable SQLite database ({exc})") from None
+
+    def schema_version(self) -> int:
+        """The database's schema version."""
+        row = self.one("PRAGMA user_version")
+        return int(row[0]) if row is not None else 0
+
+    def service_key(self, name: str, size: int = 32) -> bytes:
+        """A random key of ``size`` bytes kept in the database under ``name`` (made on first use, then the same for
+        every process and restart on this database): e.g. what the bus client derives each execution's secret
+        from (``services.bus.BusSettings.report_key``)."""
+        with self.transaction() as db:
+            db.execute("CREATE TABLE IF NOT EXISTS service_keys (name TEXT PRIMARY KEY, value BLOB NOT NULL)")
+            db.execute("INSERT OR IGNORE INTO service_keys VALUES (?, ?)", (name, secrets.token_bytes(size)))
+            return bytes(db.execute("SELECT value FROM service_keys WHERE name = ?", (name,)).fetchone()[0])
+
+    def close(self) -> None:
+        """Close every thread's connection (the WAL is checkpointed by the last one)."""
+        with self._lock:
+            self._closed = True
+            connections, self._connections = self._connections, []
+        for connection in connections:
+            with contextlib.suppress(sqlite3.ProgrammingError):  # another thread's, in use right now
+                connection.close()

@@ -1,0 +1,233 @@
+"""Stored executions and the execution queue: status, phase, metrics, and what a queued one will be sent."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+
+from schemas.api import ExecutionState
+from schemas.execution import ExecutionMetrics, ExecutionPhase
+from services.store.database import Database, new_id
+from services.store.rows import ExecutionRow, log
+
+ACTIVE = (ExecutionState.starting, ExecutionState.running, ExecutionState.paused)
+_ACTIVE_IN = f"status IN ({', '.join('?' * len(ACTIVE))})"
+"""SQL condition on the active statuses (their values as the parameters)."""
+TERMINAL = (ExecutionState.done, ExecutionState.aborted, ExecutionState.failed)
+RESTART_REASON = "API restarted while running; worker state unknown"
+
+
+class QueueFull(RuntimeError):  # noqa: N818 (reads as what happened)
+    """The execution queue holds its maximum."""
+
+
+class ExecutionRepository:
+    """The ``executions`` table, with the queue (``services/queue.py``) and the execution's telemetry rows when it
+    is deleted."""
+
+    def __init__(self, database: Database) -> None:
+        self.database = database
+        self._finish_listeners: list[Callable[[str], None]] = []
+
+    def on_finish(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(execution_id)`` whenever an execution that ran (or was handed to a worker) is put in a
+        terminal status (:meth:`update`, :meth:`fail_active`), after the commit, on the writing thread (a bus
+        callback): it must be quick, e.g. set an event (`services.queue`, `services.sweeps` hand the next
+        executions over at once instead of on their next poll)."""
+        self._finish_listeners.append(listener)
+
+    def _finished(self, execution_ids: list[str]) -> None:
+        for execution_id in execution_ids:
+            for listener in self._finish_listeners:
+                try:
+                    listener(execution_id)
+                except Exception:  # a listener never undoes a committed write
+                    log.exception("finish listener failed for %s", execution_id)
+
+    def add(
+        self,
+        request: dict,
+        skill_id: str | None,
+        dispatch: str | None = None,
+        priority: int = 0,
+        max_queued: int | None = None,
+    ) -> ExecutionRow:
+        """Store a new execution (``request`` as shown back): in status ``starting`` without ``dispatch``; with it
+        (what to send to a worker, JSON) in status ``queued`` at ``priority``. Raises :class:`QueueFull` when
+        ``max_queued`` are queued."""
+        now = time.time()
+        execution_id = new_id("exec")
+        status = ExecutionState.starting if dispatch is None else ExecutionState.queued
+        with self.database.transaction() as db:
+            if max_queued is not None:
+                queued = db.execute("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
+                if queued.fetchone()[0] >= max_queued:
+                    raise QueueFull(f"{max_queued} executions are already queued; try again later")
+            db.execute(
+                "INSERT INTO executions (id, skill_id, worker_id, status, phase, request, created, updated, priority, "
+                "dispatch) VALUES (?, ?, NULL, ?, ?, ?, ?, ?, ?, ?)",
+                (execution_id, skill_id, status.value, ExecutionPhase.pending.value, json.dumps(request), now, now,
+                 priority, dispatch),
+            )  # fmt: skip
+        found = self.get(execution_id)
+        assert found is not None
+        return found
+
+    def get(self, execution_id: str) -> ExecutionRow | None:
+        r = self.database.one("SELECT * FROM executions WHERE id = ?", (execution_id,))
+        return None if r is None else ExecutionRow.of(r)
+
+    def page(self, limit: int = 100, offset: int = 0) -> list[ExecutionRow]:
+        """Executions, newest first."""
+        rows = self.database.all("SELECT * FROM executions ORDER BY created DESC, id LIMIT ? OFFSET ?", (limit, offset))
+        return [ExecutionRow.of(r) for r in rows]
+
+    def active(self) -> list[ExecutionRow]:
+        """Executions in status starting, running or paused, oldest first."""
+        rows = self.database.all(
+            f"SELECT * FROM executions WHERE {_ACTIVE_IN} ORDER BY created", tuple(s.value for s in ACTIVE)
+        )
+        return [ExecutionRow.of(r) for r in rows]
+
+    def delete(self, execution_id: str, statuses: tuple[ExecutionState, ...] | None = None) -> bool:
+        """Delete an execution and its telemetry, only if it is in one of ``statuses`` when given (one that never
+        started: any status); True if deleted."""
+        condition = f" AND status IN ({', '.join('?' * len(statuses))})" if statuses else ""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                f"DELETE FROM executions WHERE id = ?{condition}", (execution_id, *(s.value for s in statuses or ()))
+            )
+            if cursor.rowcount:
+                db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+            return cursor.rowcount > 0
+
+    # ------------------------------------------------------------------ what the bus reports
+
+    def mark_started(self, execution_id: str, worker_id: str) -> None:
+        """A worker accepted the execution: record it; starting -> running (a status that came first stays); its
+        dispatch JSON is no longer needed."""
+        with self.database.transaction() as db:
+            db.execute(
+                "UPDATE executions SET worker_id = ?, updated = ?, dispatch = NULL, "
+                "status = CASE WHEN status = ? THEN ? ELSE status END WHERE id = ?",
+                (worker_id, time.time(), ExecutionState.starting.value, ExecutionState.running.value, execution_id),
+            )
+
+    def update(
+        self,
+        execution_id: str,
+        status: ExecutionState | None = None,
+        phase: ExecutionPhase | None = None,
+        worker_id: str | None = None,
+        metrics: ExecutionMetrics | None = None,
+        error: str | None = None,
+    ) -> bool:
+        """Apply a status update to an ACTIVE execution (a finished one is never changed); True if applied."""
+        sets, values = ["updated = ?"], [time.time()]
+        for column, value in (
+            ("status", status.value if status else None),
+            ("phase", phase.value if phase else None),
+            ("worker_id", worker_id),
+            ("metrics", metrics.model_dump_json() if metrics is not None else None),
+            ("error", error),
+        ):
+            if value is not None:
+                sets.append(f"{column} = ?")
+                values.append(value)
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND {_ACTIVE_IN}",
+                (*values, execution_id, *(s.value for s in ACTIVE)),
+            )
+            applied = cursor.rowcount > 0
+        if applied and status in TERMINAL:
+            self._finished([execution_id])
+        return applied
+
+    def reopen(self, execution_id: str, error: str) -> bool:
+        """failed with exactly ``error`` -> running again, the error cleared (what failed it turned out not to be the
+        run's fate: its worker came back). True if reopened."""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, error = NULL, updated = ? WHERE id = ? AND status = ? AND error = ?",
+                (ExecutionState.running.value, time.time(), execution_id, ExecutionState.failed.value, error),
+            )
+            return cursor.rowcount > 0
+
+    def fail_active(self, reason: str, worker_id: str | None = None, keep_workers: set[str] | None = None) -> list[str]:
+        """Mark active executions failed with ``reason``: those on ``worker_id`` (or all, when None) except
+        those on a worker in ``keep_workers``. Returns the ids marked."""
+        keep = keep_workers or set()
+        marked = []
+        with self.database.transaction() as db:
+            for r in db.execute(
+                f"SELECT id, worker_id FROM executions WHERE {_ACTIVE_IN}", tuple(s.value for s in ACTIVE)
+            ).fetchall():
+                if worker_id is not None and r["worker_id"] != worker_id:
+                    continue
+                if r["worker_id"] in keep:
+                    continue
+                db.execute(
+                    "UPDATE executions SET status = ?, phase = ?, error = ?, updated = ? WHERE id = ?",
+                    (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
+                )
+                marked.append(r["id"])
+        self._finished(marked)
+        return marked
+
+    # ------------------------------------------------------------------ the queue (services/queue.py)
+
+    def queued(self, limit: int = 1) -> list[tuple[ExecutionRow, str]]:
+        """The first ``limit`` queued executions in dispatch order (priority high first, then oldest first), each
+        with its dispatch JSON."""
+        rows = self.database.all(
+            "SELECT * FROM executions WHERE status = ? ORDER BY priority DESC, created, id LIMIT ?",
+            (ExecutionState.queued.value, limit),
+        )
+        return [(ExecutionRow.of(r), r["dispatch"]) for r in rows]
+
+    def queue_position(self, execution_id: str) -> int | None:
+        """How many queued executions go before this one (0: next), or None if it is not queued."""
+        r = self.database.one(
+            "SELECT (SELECT COUNT(*) FROM executions o WHERE o.status = e.status AND (o.priority > e.priority OR "
+            "(o.priority = e.priority AND (o.created < e.created OR (o.created = e.created AND o.id < e.id))))) "
+            "FROM executions e WHERE e.id = ? AND e.status = ?",
+            (execution_id, ExecutionState.queued.value),
+        )
+        return None if r is None else int(r[0])
+
+    def queued_count(self) -> int:
+        """Executions waiting in the queue."""
+        r = self.database.one("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
+        return int(r[0]) if r is not None else 0
+
+    def claim_queued(self, execution_id: str) -> bool:
+        """queued -> starting, if it is still queued (a cancel may have come first); True if claimed."""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, updated = ? WHERE id = ? AND status = ?",
+                (ExecutionState.starting.value, time.time(), execution_id, ExecutionState.queued.value),
+            )
+            return cursor.rowcount > 0
+
+    def requeue(self, execution_id: str) -> bool:
+        """starting -> queued (no worker took it after all) if it still has its dispatch JSON; it keeps its place
+        (priority, creation time). True if requeued."""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, updated = ? WHERE id = ? AND status = ? AND dispatch IS NOT NULL",
+                (ExecutionState.queued.value, time.time(), execution_id, ExecutionState.starting.value),
+            )
+            return cursor.rowcount > 0
+
+    def cancel_queued(self, execution_id: str, reason: str) -> bool:
+        """queued -> aborted with ``reason``; True if it was still queued."""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET status = ?, phase = ?, error = ?, dispatch = NULL, updated = ? "
+                "WHERE id = ? AND status = ?",
+                (ExecutionState.aborted.value, ExecutionPhase.aborted.value, reason, time.time(), execution_id,
+                 ExecutionState.queued.value),
+            )  # fmt: skip
+            return cursor.rowcount > 0

@@ -1,0 +1,199 @@
+"""Every benchmark runs: its ``--smoke`` run (the smallest that goes through the whole script) exits 0, prints its
+report with numbers computed from that run, and writes nothing into docs/ (issue 28, "benchmarks that cannot rot").
+
+The benchmarks that start a stack of their own (``contact-skills up``, a router, workers) are in
+tests/test_benchmarks_smoke_stack.py, so that ``pytest -n 2 --dist loadfile`` runs the two files side by side.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?")
+
+
+def run_smoke(script: str, timeout_s: float = 240.0) -> str:
+    """Run ``benchmarks/<script> --smoke`` as its own process; return its output after checking it exited 0, gave
+    the machine line with its load, and that no page of docs/ holds the report it printed (nothing written)."""
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--smoke"],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+    )
+    assert result.returncode == 0, f"{script} --smoke exited {result.returncode}:\n{result.stderr[-4000:]}"
+    out = result.stdout
+    machine = next((line for line in out.splitlines() if "Machine: nproc=" in line), None)
+    assert machine is not None and re.search(r"1-minute load average \d+\.\d", machine), out[-2000:]
+    report = out[out.rindex("Machine: nproc=") - 300 :]  # the report's last lines, as a write would put them
+    for page in DOCS.glob("*.md"):
+        assert report not in page.read_text(), f"{script} --smoke wrote into {page.name}"
+    return out
+
+
+def table(out: str, header: str) -> list[list[str]]:
+    """The body rows (cells, stripped) of the first markdown table in ``out`` whose header line starts with
+    ``| header``; fails when there is none or it is empty."""
+    lines = out.splitlines()
+    start = next((k for k, line in enumerate(lines) if line.startswith(f"| {header}")), None)
+    assert start is not None, f"no table headed {header!r} in:\n{out[-3000:]}"
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+    assert rows, f"table {header!r} has no rows"
+    return rows
+
+
+def numbers(cell: str) -> list[float]:
+    """The numbers in a table cell (``"1.04 / 2.7 (94 % contact)"`` -> [1.04, 2.7, 94.0])."""
+    return [float(x) for x in NUMBER.findall(cell.replace(",", ""))]
+
+
+def finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def test_learning_benchmark_smoke():
+    """Sizes and strokes tables from the run: 1 and 5 strokes of the same length, one contact segment per stroke,
+    the time per sample the learning time over the samples, the exponent the fit through them."""
+    out = run_smoke("bench_learning.py")
+    sizes = table(out, "demo | samples")
+    assert [row[0] for row in sizes] == ["slide 2 s", "contour 2 s"] and {row[1] for row in sizes} == {"2000"}
+    for row in sizes:
+        assert float(row[3]) > 0 and int(row[6]) >= 3, row  # learn ms; segments: free, contact, free at least
+    strokes = table(out, "strokes | samples")
+    assert [int(row[0]) for row in strokes] == [1, 5]
+    one, five = (int(row[1]) for row in strokes)
+    assert five == 5 * one + 4 * 150  # 4 moves of 0.6 s at 250 Hz between the strokes
+    for row in strokes:
+        count, samples, contact = (int(cell) for cell in row[:3])
+        seconds, per_sample = float(row[3]), float(row[4])
+        assert contact == count, row
+        rounding = 0.0005 / samples * 1e6 + 0.05  # µs: the seconds printed to 1 ms, the µs to 0.1
+        assert seconds > 0 and per_sample == pytest.approx(seconds / samples * 1e6, abs=rounding), row
+    assert float(strokes[0][5]) == 1.0
+    k = float(re.search(r"From 1 to 5 strokes the time per sample lies within .* µs, .* k = (\d\.\d\d)", out).group(1))
+    (n1, s1), (n5, s5) = ((int(row[1]), float(row[3])) for row in strokes)
+    assert k == pytest.approx(math.log(s5 / s1) / math.log(n5 / n1), abs=0.05)  # the fit through the two rows
+
+
+def test_toolchain_benchmark_smoke():
+    """A 5 s bag imported from MCAP and sqlite3 (every message counted), a real execution exported in three formats."""
+    out = run_smoke("bench_toolchain.py")
+    imports = table(out, "bag storage")
+    assert [row[0] for row in imports] == ["mcap", "sqlite3"]
+    for row in imports:
+        messages, samples, seconds = int(row[1]), int(row[3]), float(row[4])
+        assert messages >= 2 * 4990 and 4990 <= samples <= 5000 and seconds > 0, row  # 2 topics at 1 kHz for 5 s
+    exports = table(out, "format | samples")
+    assert [row[0] for row in exports] == ["mcap", "csv", "json"]
+    for row in exports:
+        samples, megabytes, per_sample = int(row[1]), float(row[2]), float(row[3])
+        assert samples > 1000 and megabytes * 1e6 / samples == pytest.approx(per_sample, rel=0.05, abs=1), row
+    assert "A 5 s bag at 1 kHz imports in" in out and "A 2 s execution exports as MCAP in" in out
+
+
+def test_dmp_peer_benchmark_smoke():
+    """Ours fitted and rolled out on every trajectory, the errors and times from the run (the peer itself may be
+    missing: the report says so)."""
+    out = run_smoke("bench_dmp_peer.py")
+    rows = [line for line in out.splitlines() if line.startswith("| ") and "ours" in line.lower()]
+    assert rows, out[-3000:]
+    values = [v for line in rows for cell in line.split("|")[2:] for v in numbers(cell)]
+    assert values and finite(*values) and max(values) > 0
+
+
+def test_kinesthetic_benchmark_smoke():
+    """One recording per surface learned against its truth: the sentences count the rows of the table."""
+    out = run_smoke("bench_kinesthetic.py")
+    rows = table(out, "surface (truth)")
+    assert [row[0] for row in rows] == ["flat", "tilted", "curved"] and all(row[1] == "1" for row in rows)
+    right = sum(int(row[2]) for row in rows)
+    assert f"{right} of 3 recordings got the true type" in out
+
+
+def test_corpus_benchmark_smoke():
+    """Seed 0 of every family: cases counted per family, errors finite."""
+    out = run_smoke("bench_corpus.py")
+    rows = table(out, "family")
+    assert len(rows) >= 10
+    for row in rows:
+        cases = int(row[1])
+        assert cases >= 1 and all(0 <= int(row[k]) <= cases for k in (2, 3, 4)), row
+        assert finite(*(v for cell in row[5:] for v in numbers(cell))), row
+
+
+def test_contours_benchmark_smoke():
+    """The case as taught, with every controller: a cell per controller with its force errors and contact share."""
+    out = run_smoke("bench_contours.py")
+    rows = table(out, "unknown change")
+    assert [row[0] for row in rows] == ["as taught"]
+    for cell in rows[0][1:]:
+        rms, peak, contact = numbers(cell)[:3]
+        assert 0 < rms <= peak and 0 <= contact <= 100, cell
+
+
+def test_real_skills_benchmark_smoke():
+    """The four KU Leuven trials at their surface and 2 cm higher; the sentence counts the table's rows."""
+    out = run_smoke("bench_real_skills.py")
+    rows = table(out, "trial | unknown shift")
+    assert len(rows) == 8
+    done = sum(row[2] == "done" for row in rows)
+    assert f"{done} of 8 executions finished" in out
+    worst = max(float(row[4]) for row in rows)
+    assert f"worst {worst:.2f} %" in out
+
+
+def test_work_piece_benchmark_smoke():
+    """One flat case, one cylinder, one KU Leuven trial, each learned both ways; the floor sentence from the rows."""
+    out = run_smoke("bench_work_piece.py")
+    flat = table(out, "case | learned as | ideal table")
+    assert len(flat) == 2 and flat[1][1].endswith("(forced)")
+    added = max(numbers(row[4])[0] for row in flat)
+    assert f"The measured piece adds at most {added:+.2f} % RMS" in out
+    assert len(table(out, "case | learned as | true cylinder")) == 2
+    ku = table(out, "case | learned as | measured | rebuilt")
+    assert [row[0] for row in ku] == ["contour_a_1", "contour_a_1"]
+    assert all(finite(*numbers(row[2]), *numbers(row[3])) for row in ku)
+
+
+def test_kuleuven_cad_benchmark_smoke():
+    """The ridge on one exact prism and on the KU object's pieces, and one KU Leuven trial on its CAD."""
+    out = run_smoke("bench_kuleuven_cad.py", timeout_s=400.0)
+    ridge = table(out, "geometry | convex parts")
+    assert len(ridge) == 2 and ridge[0][0] == "one exact convex prism" and int(ridge[1][1]) > 1
+    exact, pieces = float(ridge[0][3]), float(ridge[1][3])
+    assert f"holds the force to {exact:.2f} % RMS" in out and f"to {pieces:.2f} %:" in out
+    runs = table(out, "trial | work piece")
+    assert {row[0] for row in runs} == {"contour_a_1"}
+
+
+def test_kuleuven_truth_benchmark_smoke():
+    """The four recordings registered to the CAD: a row each, distances in millimetres."""
+    out = run_smoke("bench_kuleuven_truth.py")
+    rows = table(out, "trial | samples")
+    assert len(rows) == 4
+    for row in rows:
+        assert int(row[1]) > 500 and finite(*numbers(row[2])) and 0 < numbers(row[2])[0] < 50, row
+
+
+def test_control_loop_benchmark_smoke():
+    """The control loop's real-time factors, from the run. (``--smoke`` is the control loop's owner's to add.)"""
+    out = run_smoke("bench_control_loop.py", timeout_s=300.0)
+    rows = [line for line in out.splitlines() if line.startswith("| ") and ("ideal" in line or "wrist" in line)]
+    assert rows, out[-3000:]
+    values = [v for line in rows for v in numbers(line)]
+    assert finite(*values) and max(values) > 1

@@ -1,0 +1,86 @@
+"""The control loop steps its world with PyBullet directly and one compiled call per step (``SimWorld.loop_handles``),
+not through ``SimWorld.sense`` / ``SimWorld.step``: it must leave the world exactly as those would have, the same
+states, the same clipped torques counted, and a sensor that sampled every state once (its noise, delay and filter
+go on alike afterwards).
+
+No mocked physics: two worlds of the same configuration, one run by the loop, the other stepped through the world's
+own calls with the torques the loop commanded (captured as PyBullet received them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+import pytest
+
+from schemas.execution import ExecutionPhase, Pace
+from sim_worker.control_loop import ControlLoop, ExecutionAbortError
+from sim_worker.plans import PhasePlan
+from sim_worker.sensor import WRIST_SENSOR
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorldConfig
+from skills.control import HybridController
+
+STEPS = 3000
+DESCENT_STEPS = 2000
+"""The reference descends over these steps (at ~0.1 m/s, as a slow touch-down), then holds."""
+
+
+@pytest.mark.parametrize("sensor", ["ideal", "wrist"])
+@pytest.mark.parametrize(
+    ("depth_m", "abort"), [(0.2, None), (0.3, "force limit")], ids=["pressing", "aborted on the force limit"]
+)
+def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: float, abort, monkeypatch) -> None:
+    """The reference goes ``depth_m`` down from the start, into the table under the tool: the tool presses on it
+    (and, deeper, presses too hard: the loop stops before the step, with its reason)."""
+    config = WorldConfig(sensor=WRIST_SENSOR) if sensor == "wrist" else WorldConfig()
+    sent: list[list[float]] = []
+    command = pybullet.setJointMotorControlArray
+
+    def capture(*args, **kwargs):
+        if args[2] == pybullet.TORQUE_CONTROL:
+            sent.append(list(kwargs["forces"]))
+        return command(*args, **kwargs)
+
+    with SimWorld(config) as looped, SimWorld(config) as stepped:
+        controller = HybridController(posture=looped.joint_state()[0], torque_limits=looped.torque_limits)
+        frame = controller.frame(np.diag([1.0, -1.0, -1.0]), np.ones(6))
+        p, q = looped.tool_pose()
+        descent = np.minimum(np.arange(STEPS) / DESCENT_STEPS, 1.0) * depth_m
+        ref_p = p - descent[:, None] * [0.0, 0.0, 1.0]
+        twist = np.zeros((STEPS, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / config.time_step_s
+        plan = PhasePlan(ExecutionPhase.contact, 0, ref_p, np.tile(q, (STEPS, 1)), twist, np.zeros(STEPS), frame=frame)
+        loop = ControlLoop(looped, controller, frame, 1.0, 100, Pace.fast, True, None, None, None)
+        monkeypatch.setattr(pybullet, "setJointMotorControlArray", capture)
+        if abort is None:
+            loop.run_plan(plan)
+        else:
+            with pytest.raises(ExecutionAbortError, match=abort):
+                loop.run_plan(plan)
+        monkeypatch.setattr(pybullet, "setJointMotorControlArray", command)
+        touched = 0
+        for tau in sent:  # what the loop did, through the world's own calls: sense, then step
+            touched += stepped.sense().in_contact
+            stepped.step(tau)
+
+        assert looped.step_count == stepped.step_count == loop.step_count == len(sent)
+        assert len(sent) == STEPS if abort is None else len(sent) < STEPS
+        assert len(loop.telemetry()) == len(sent) + (abort is not None)  # the aborted step was recorded
+        assert touched > 0 and loop.touched  # it pressed on the table
+        assert looped.clip_count == stepped.clip_count
+        assert looped.last_step_clipped == stepped.last_step_clipped
+        np.testing.assert_array_equal(loop.telemetry().in_contact[: len(sent)].sum(), touched)
+        for world_a, world_b in ((looped, stepped), (stepped, looped)):  # either read first: the same
+            for read in ("joint_state", "tool_pose"):
+                for a, b in zip(getattr(world_a, read)(), getattr(world_b, read)(), strict=True):
+                    np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(world_a.robot_state(), world_b.robot_state())
+            np.testing.assert_array_equal(world_a.mass_matrix(), world_b.mass_matrix())
+            np.testing.assert_array_equal(world_a.true_contact_wrench(), world_b.true_contact_wrench())
+            np.testing.assert_array_equal(world_a.contact_wrench(), world_b.contact_wrench())
+            assert world_a.in_contact() == world_b.in_contact()
+        for _ in range(3):  # the sensors go on alike: each state was sampled once
+            looped.step(sent[-1])
+            stepped.step(sent[-1])
+            np.testing.assert_array_equal(looped.contact_wrench(), stepped.contact_wrench())
