@@ -111,8 +111,50 @@ def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     return touching
 
 
+@numba.njit(cache=True)
+def _contact_summary_rows(rows, arm, out):  # pragma: no cover - compiled
+    """:func:`_contact_summary` of the points as the rows of :func:`point_rows` (the same arithmetic in the same
+    order, so the same result to the bit): one compilation for any number of points."""
+    px, py, pz = arm[_POSITION], arm[_POSITION + 1], arm[_POSITION + 2]
+    fx = fy = fz = mx = my = mz = 0.0
+    nx = ny = nz = 0.0
+    touching = False
+    for c in rows:
+        fn, f1, f2 = c[0], c[1], c[2]
+        touching = touching or c[15] <= CONTACT_DISTANCE_M or fn > 0.0
+        ax = -(fn * c[3] + f1 * c[6] + f2 * c[9])
+        ay = -(fn * c[4] + f1 * c[7] + f2 * c[10])
+        az = -(fn * c[5] + f1 * c[8] + f2 * c[11])
+        rx, ry, rz = c[12] - px, c[13] - py, c[14] - pz
+        fx += ax
+        fy += ay
+        fz += az
+        mx += ry * az - rz * ay
+        my += rz * ax - rx * az
+        mz += rx * ay - ry * ax
+        nx -= fn * c[3]
+        ny -= fn * c[4]
+        nz -= fn * c[5]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    out[0], out[1], out[2], out[3], out[4], out[5] = fx, fy, fz, mx, my, mz
+    if norm > 0.0:
+        out[6], out[7], out[8], out[9] = norm, nx / norm, ny / norm, nz / norm
+    else:
+        out[6] = out[7] = out[8] = out[9] = 0.0
+    return touching
+
+
+def point_rows(points: tuple) -> NDArray[np.float64]:
+    """``getContactPoints``' tuples as rows (normal force, the two friction forces, the normal, the two friction
+    directions, the position on the tool, the distance) for :func:`_contact_summary_rows`: what a loop passes instead
+    of more than :data:`COMPILED_CONTACT_COUNTS` points, whose tuple would need a compilation of its own (seconds,
+    inside the run)."""
+    return np.array([(c[9], c[10], c[12], *c[7], *c[11], *c[13], *c[5], c[8]) for c in points])
+
+
 def _summary(points, arm, out):
-    """:func:`_contact_summary` for compiled callers, also of no points (numba cannot iterate over an empty tuple)."""
+    """:func:`_contact_summary` for compiled callers, also of no points (numba cannot iterate over an empty tuple) and
+    of points as rows (:func:`point_rows`)."""
     raise NotImplementedError("compiled only: called from compiled code")
 
 
@@ -127,6 +169,8 @@ def _summary_typed(points, arm, out):  # pragma: no cover - typing only
             return False
 
         return no_points
+    if isinstance(points, types.Array):
+        return lambda points, arm, out: _contact_summary_rows(points, arm, out)
     return lambda points, arm, out: _contact_summary(points, arm, out)
 
 
@@ -202,9 +246,9 @@ def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
     joint = (0.0, 0.0, (0.0,) * 6, 0.0)
     array, matrix = numba.typeof(np.zeros(1)), numba.typeof(np.zeros((1, 1)))
     sensor = tuple(map(numba.typeof, WrenchSensor(WorldConfig().sensor, 1e-3).state))
-    for n in range(counts + 1):
-        points = numba.typeof((point,) * n)
-        if n:
+    for n in range(counts + 2):  # and the rows of more points (point_rows)
+        points = numba.typeof((point,) * n) if n <= counts else matrix
+        if 0 < n <= counts:
             _contact_summary.compile((points, array, array))
         for joints in (7, 8):
             states = numba.typeof((joint,) * joints)
@@ -283,6 +327,8 @@ class ContactSensing:
             if previous:  # the summary of no points is zeros: written once, when the contact ends
                 self._state[:] = 0.0
             self.touching = False
+        elif len(points) > COMPILED_CONTACT_COUNTS:
+            self.touching = _contact_summary_rows(point_rows(points), self._arm.read(), self._state)
         else:
             self.touching = _contact_summary(points, self._arm.read(), self._state)
 

@@ -24,7 +24,15 @@ from numpy.typing import NDArray
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
 from sim_worker.contact_detection import ContactGuard
-from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL, sample, sense
+from sim_worker.contact_sensing import (
+    COMPILED_CONTACT_COUNTS,
+    CONTACT_APPLIED,
+    CONTACT_MEASURED,
+    CONTACT_NORMAL,
+    point_rows,
+    sample,
+    sense,
+)
 from sim_worker.plans import PhasePlan, smooth_ramp
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
@@ -370,7 +378,9 @@ class ControlLoop:
                 if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
                     states = joint_states(body, queried, client)  # positional: keywords cost a lookup
                     points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
-                    touching = sense(model, states, points, arm, contact)
+                    # more points than compiled for: as rows (a longer tuple would compile inside the run)
+                    few = len(points) <= COMPILED_CONTACT_COUNTS
+                    touching = sense(model, states, points if few else point_rows(points), arm, contact)
                 else:
                     touching = sampled_touching
                 t1 = perf()
@@ -436,8 +446,10 @@ class ControlLoop:
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
                     states = joint_states(body, queried, client)
                     points = contact_points(body, -1, TOOL_LINK, -2, client)
+                    few = len(points) <= COMPILED_CONTACT_COUNTS
                     draw()
-                    sampled_touching = sample(model, states, points, arm, contact, *sample_arguments)
+                    sampled_touching = sample(model, states, points if few else point_rows(points), arm, contact,
+                                              *sample_arguments)  # fmt: skip
                     ts += perf() - t5
                 ts += t1 - t0
                 tc += t3 - t2

@@ -84,3 +84,28 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
             looped.step(sent[-1])
             stepped.step(sent[-1])
             np.testing.assert_array_equal(looped.contact_wrench(), stepped.contact_wrench())
+
+
+def test_more_contact_points_than_compiled_for_sum_to_the_bit_as_the_tuples_do() -> None:
+    """Past ``COMPILED_CONTACT_COUNTS`` points the loop passes them as rows (``point_rows``), which compile once for
+    any number: the summary is the same, to the bit, as the tuples' (same arithmetic, same order)."""
+    from sim_worker.contact_sensing import (
+        COMPILED_CONTACT_COUNTS,
+        _contact_summary,
+        _contact_summary_rows,
+        point_rows,
+    )
+
+    rng = np.random.default_rng(7)
+    arm = rng.normal(size=64)
+
+    def point() -> tuple:
+        v = lambda: tuple(rng.normal(size=3).tolist())  # noqa: E731
+        return (0, 1, 2, -1, 3, v(), v(), v(), float(rng.normal()) * 1e-3, abs(float(rng.normal())) * 5,
+                float(rng.normal()), v(), float(rng.normal()), v())  # fmt: skip
+
+    for n in (COMPILED_CONTACT_COUNTS + 1, 17):
+        points = tuple(point() for _ in range(n))
+        from_tuples, from_rows = np.zeros(10), np.zeros(10)
+        assert _contact_summary(points, arm, from_tuples) == _contact_summary_rows(point_rows(points), arm, from_rows)
+        assert np.array_equal(from_tuples, from_rows) and np.all(np.isfinite(from_rows)) and from_rows[6] > 0
