@@ -26,12 +26,16 @@ UPLOAD_FIELD = "file"
 
 
 def _numbers_from_text(value: Any) -> Any:
-    """A form field's ``'a,b,c'`` (or a one-element list of it, as a multipart form delivers a list field) as a
-    list of number strings; anything else unchanged. Blank text is None."""
+    """A form field's ``'a,b,c'`` or ``'[a, b, c]'`` (a JSON array as text; or a one-element list of either, as a
+    multipart form delivers a list field) as a list of number strings; anything else unchanged. Blank text is
+    None."""
     if isinstance(value, list) and len(value) == 1 and isinstance(value[0], str):
         value = value[0]
     if isinstance(value, str):
-        return [part.strip() for part in value.split(",")] if value.strip() else None
+        text = value.strip()
+        if text.startswith("[") and text.endswith("]"):
+            text = text[1:-1]
+        return [part.strip() for part in text.split(",")] if text.strip() else None
     return value
 
 

@@ -170,3 +170,18 @@ def test_the_openapi_declares_the_token_where_the_api_requires_it(tmp_path, toke
                     answer = c.request(method.upper(), path)
                     assert (answer.status_code == 401) == required, (method, path, answer.status_code, required)
         assert spec["paths"]["/health"]["get"]["security"] == [{}, BEARER]  # details with the token, never refused
+
+
+def test_the_upload_forms_are_declared_as_a_form_sends_them():
+    """A form field is present or absent, never null: the upload forms declare no null alternative (a generated
+    client sent ``null`` as text, refused); a 2-number field takes ``'T0,T1'`` and a JSON array's text alike."""
+    from schemas.import_options import CsvImportOptions
+
+    components = _openapi()["components"]["schemas"]
+    for name in ("CsvImportOptions", "BagImportOptions"):
+        for field, declared in components[name]["properties"].items():
+            assert {"type": "null"} not in declared.get("anyOf", []), (name, field)
+        assert components[name]["properties"]["wrench_frame"]["$ref"].endswith("/WrenchFrame")
+    assert {"type": "null"} in components["ExecutionRequest"]["properties"]["skill_id"]["anyOf"]  # JSON keeps them
+    for text in ("0.0,0.5", "[0.0, 0.5]"):
+        assert CsvImportOptions.model_validate({"tare_window": text}).tare_window_s == (0.0, 0.5)

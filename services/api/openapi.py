@@ -6,6 +6,9 @@ operations that take them (OpenAPI links, which clients and stateful fuzzers fol
   one, POST and DELETE need it, and the GETs only with ``CONTACT_SKILLS_TOKEN_READS`` (never ``/health``, which
   shows details to a request that carries it). An operation that does not need the token declares it optional
   (``security: [{}, {"HTTPBearer": []}]``).
+- **Forms.** A multipart form field is present or absent, never null: the upload forms' options (whose models
+  allow None for "not given", as in JSON) are declared without the null alternative, so a client generated from
+  the document leaves them out instead of sending ``null`` as text.
 - **Links.** A created demonstration's ``id`` is the ``demonstration_id`` of its GET, DELETE and telemetry, and of
   ``POST /skills``; a skill's is the ``skill_id`` of its GET and DELETE and of ``POST /executions`` and ``/sweeps``;
   an execution's and a sweep's ids those of their reads and commands.
@@ -64,9 +67,40 @@ def _links(spec: dict[str, Any], parameter: str) -> dict[str, Any]:
     return links
 
 
+def _form_models(spec: dict[str, Any]) -> list[dict[str, Any]]:
+    """The component schemas the multipart request bodies are made of (their own and those they include)."""
+    components = spec.get("components", {}).get("schemas", {})
+    models = []
+    for operations in spec["paths"].values():
+        for operation in operations.values():
+            form = operation.get("requestBody", {}).get("content", {}).get("multipart/form-data")
+            if form is None:
+                continue
+            body = components.get(form["schema"].get("$ref", "").rsplit("/", 1)[-1], {})
+            models.append(body)
+            models.extend(components.get(part["$ref"].rsplit("/", 1)[-1], {}) for part in body.get("allOf", []))
+    return models
+
+
+def _without_null(field: dict[str, Any]) -> None:
+    """``field``'s schema without its null alternative (in place): ``anyOf [X, null]`` becomes ``X``."""
+    options = [option for option in field.get("anyOf", []) if option != {"type": "null"}]
+    if "anyOf" in field and len(options) < len(field["anyOf"]):
+        del field["anyOf"]
+        if len(options) == 1:
+            field.update(options[0])
+        else:
+            field["anyOf"] = options
+        if field.get("default", 0) is None:
+            del field["default"]
+
+
 def truthful_openapi(spec: dict[str, Any], settings: ServiceSettings) -> dict[str, Any]:
-    """``spec`` (FastAPI's) with each operation's security as the API applies it and the links of the module
-    docstring (changed in place, returned)."""
+    """``spec`` (FastAPI's) with each operation's security as the API applies it, the form fields and the links of
+    the module docstring (changed in place, returned)."""
+    for model in _form_models(spec):
+        for field in model.get("properties", {}).values():
+            _without_null(field)
     for path, operations in spec["paths"].items():
         for method, operation in operations.items():
             if "security" in operation:
