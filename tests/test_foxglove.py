@@ -62,9 +62,9 @@ def _typestore():
 
 async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str, list], bytes | None, str]:
     """Connect to the Foxglove server at ``url``, subscribe to every channel, call ``start()`` (-> execution id), and
-    collect the messages until ``finished(id)`` and a second more; fetch the first mesh of the URDF. Returns the
-    advertised channels, the decoded messages per topic (and their log times, ns, under ``"log_time:" + topic``),
-    the mesh and its URI."""
+    collect the messages until ``finished(id)`` and a second more; fetch the first mesh of the URDF (waited for).
+    Returns the advertised channels, the decoded messages per topic (and their log times, ns, under
+    ``"log_time:" + topic``), the mesh and its URI."""
     store = _typestore()
     channels: dict[int, dict] = {}
     received: dict[str, list] = defaultdict(list)
@@ -84,8 +84,8 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
         done_at = None
         loop = asyncio.get_running_loop()
         deadline = loop.time() + 120
-        while done_at is None or loop.time() - done_at < 1.0:
-            assert loop.time() < deadline, f"execution {execution_id} did not finish within 120 s"
+        while done_at is None or loop.time() - done_at < 1.0 or mesh is None:  # the mesh may come after the data
+            assert loop.time() < deadline, f"execution {execution_id} or its mesh did not come within 120 s"
             try:
                 frame = await asyncio.wait_for(ws.recv(), 0.5)
             except TimeoutError:

@@ -7,8 +7,8 @@ import time
 from pydantic import ValidationError
 
 from schemas.demonstration import Demonstration, DemonstrationSummary
-from services.store.database import Database, new_id
-from services.store.rows import DemonstrationRow, first_problem, log
+from services.store.database import Database, log, new_id
+from services.store.rows import DemonstrationRow, first_problem
 
 _COLUMNS = (
     "id, created, name, summary, json_extract(body, '$.metadata.source') AS source, "

@@ -8,8 +8,8 @@ from collections.abc import Callable
 
 from schemas.api import ExecutionState
 from schemas.execution import ExecutionMetrics, ExecutionPhase
-from services.store.database import Database, new_id
-from services.store.rows import ExecutionRow, log
+from services.store.database import Database, log, new_id
+from services.store.rows import ExecutionRow
 
 ACTIVE = (ExecutionState.starting, ExecutionState.running, ExecutionState.paused)
 _ACTIVE_IN = f"status IN ({', '.join('?' * len(ACTIVE))})"

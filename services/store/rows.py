@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 import sqlite3
 from dataclasses import dataclass
 from typing import Any
@@ -15,8 +14,7 @@ from schemas.demonstration import DemonstrationSummary
 from schemas.execution import ControllerKind, ExecutionMetrics, ExecutionPhase, TelemetryMode
 from schemas.skill import SkillType
 from schemas.sweep import SweepState
-
-log = logging.getLogger("contact_skills.store")
+from services.store.database import log
 
 
 def first_problem(exc: ValidationError) -> str:
