@@ -32,7 +32,6 @@ from schemas.execution import (
     Placement,
     SensorChoice,
     TelemetryBatch,
-    TelemetrySample,
     WorkPieceSource,
 )
 from schemas.skill import (
@@ -92,7 +91,6 @@ __all__ = [
     "StartExecution",
     "StartReply",
     "TelemetryBatch",
-    "TelemetrySample",
     "TypeEvidence",
     "WorkPieceSource",
     "WorkerInfo",

@@ -639,23 +639,6 @@ class ExecutionRequest(ExecutionSettings):
         return self
 
 
-class TelemetrySample(BaseModel):
-    """One control step of an execution (the row form; telemetry travels as `TelemetryBatch`)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    t: float = Field(description="Time since the execution started, s (simulated).")
-    phase: ExecutionPhase = Field(description="Execution phase at this step.")
-    segment_index: int = Field(description="Index of the skill segment being executed; -1 while settling.")
-    tool_position: Vector3 = Field(description="Measured tool point position, world, m.")
-    tool_orientation: Quaternion = Field(description="Measured tool orientation, world, [x, y, z, w].")
-    reference_position: Vector3 = Field(description="Reference tool point position, world, m.")
-    reference_orientation: Quaternion = Field(description="Reference tool orientation, world, [x, y, z, w].")
-    wrench_world: Wrench = Field(description="Measured wrench applied by the tool, world, at the tool point, N, N·m.")
-    wrench_cf: Wrench = Field(description="The same wrench in the current compliant frame (CF axes), N, N·m.")
-    desired_force_cf_z_n: float = Field(description="Desired CF-z force, N (0 in free motion).")
-
-
 class TelemetryBatch(BaseModel):
     """Consecutive telemetry samples in columns (the Zenoh telemetry payload); row k of each list is one step."""
 

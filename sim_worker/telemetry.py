@@ -8,12 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from schemas.execution import (
-    TELEMETRY_COLUMNS,
-    ExecutionPhase,
-    TelemetryBatch,
-    TelemetrySample,
-)
+from schemas.execution import TELEMETRY_COLUMNS, ExecutionPhase, TelemetryBatch
 
 _PHASES = list(ExecutionPhase)
 
@@ -34,16 +29,20 @@ class Telemetry:
     def _col(self, name: str) -> NDArray[np.float64]:
         return self.data[:, TELEMETRY_COLUMNS[name]]
 
+    def _scalar(self, name: str) -> NDArray[np.float64]:
+        """A one-column field as (N,)."""
+        return self.data[:, TELEMETRY_COLUMNS[name].start]
+
     def __len__(self) -> int:
         return int(self.data.shape[0])
 
     @property
     def t(self) -> NDArray[np.float64]:
-        return self.data[:, 0]
+        return self._scalar("t")
 
     @property
     def phase_codes(self) -> NDArray[np.int_]:
-        return self.data[:, 1].astype(int)
+        return self._scalar("phase").astype(int)
 
     @property
     def phases(self) -> list[ExecutionPhase]:
@@ -51,7 +50,7 @@ class Telemetry:
 
     @property
     def segment_index(self) -> NDArray[np.int_]:
-        return self.data[:, 2].astype(int)
+        return self._scalar("segment_index").astype(int)
 
     @property
     def tool_position(self) -> NDArray[np.float64]:
@@ -79,15 +78,15 @@ class Telemetry:
 
     @property
     def desired_force(self) -> NDArray[np.float64]:
-        return self.data[:, 29]
+        return self._scalar("desired_force_cf_z_n")
 
     @property
     def in_contact(self) -> NDArray[np.bool_]:
-        return self.data[:, 30] > 0.5
+        return self._scalar("in_contact") > 0.5
 
     @property
     def normal_force_true(self) -> NDArray[np.float64]:
-        return self.data[:, 31]
+        return self._scalar("normal_force_true_n")
 
     @property
     def contact_normal(self) -> NDArray[np.float64]:
@@ -110,23 +109,3 @@ class Telemetry:
             in_contact=self.in_contact.tolist(),
             normal_force_true_n=self.normal_force_true.tolist(),
         )
-
-    def samples(self, every: int = 1) -> list[TelemetrySample]:
-        """Return every ``every``-th row as ``schemas.TelemetrySample`` (slow: for REST answers, not the loop)."""
-        rows = range(0, len(self), max(1, int(every)))
-        phases = self.phases
-        return [
-            TelemetrySample(
-                t=float(self.t[k]),
-                phase=phases[k],
-                segment_index=int(self.segment_index[k]),
-                tool_position=self.tool_position[k].tolist(),
-                tool_orientation=self.tool_orientation[k].tolist(),
-                reference_position=self.reference_position[k].tolist(),
-                reference_orientation=self.reference_orientation[k].tolist(),
-                wrench_world=self.wrench_world[k].tolist(),
-                wrench_cf=self.wrench_cf[k].tolist(),
-                desired_force_cf_z_n=float(self.desired_force[k]),
-            )
-            for k in rows
-        ]
