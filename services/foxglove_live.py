@@ -45,6 +45,11 @@ POLL_S = 0.05
 LIVE_HZ = 100.0
 """Poses, wrenches and ``/tf`` per second of execution time (1 kHz control steps; the last of each read always)."""
 EXECUTION_TOPIC = "/execution"
+MESSAGE_BACKLOG = 8192
+"""Messages the server holds per client before it drops the oldest (the SDK's default is 1024): about 7 s of the
+live stream (eleven topics at :data:`LIVE_HZ`; joint states and markers slower), so an API that stalls a few
+seconds (a loaded machine, a learn) still sends every step once it reads the store again. A message is a few
+hundred bytes (markers a few kB)."""
 
 
 class FoxgloveLive:
@@ -107,7 +112,7 @@ class FoxgloveLive:
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=message_definition(msgtype).encode())
             self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
         options = dict(name="contact-skills", host=HOST, context=context, asset_handler=robot_asset,
-                       server_listener=_Listener(self))  # fmt: skip
+                       server_listener=_Listener(self), message_backlog_size=MESSAGE_BACKLOG)  # fmt: skip
         try:
             self.server = foxglove.start_server(port=self.port, **options)
         except RuntimeError as exc:
@@ -179,13 +184,18 @@ class FoxgloveLive:
         from services.dashboard.ros_scene import MARKERS, ROBOT_DESCRIPTION
 
         shown = rows[decimated(rows[:, 0], LIVE_HZ)]
-        for topic, (stamps, payloads) in self._messages.messages(shown, final).items():
-            for stamp, payload in zip(stamps.tolist(), payloads, strict=True):
-                self._log(topic, payload, stamp)
-            if topic == ROBOT_DESCRIPTION:
-                self._description = payloads[-1]
-            elif topic == MARKERS:
-                self._markers = payloads[-1]
+        messages = self._messages.messages(shown, final)
+        # In time order, not topic by topic: a client that lags loses the OLDEST messages of its backlog (the
+        # server's policy), so a read larger than the backlog then drops whole early steps, never a whole topic of
+        # the read (a step's /tf, wrenches and truth arrive together or not at all).
+        sent = [(topic, stamp, payload) for topic, (stamps, payloads) in messages.items()
+                for stamp, payload in zip(stamps.tolist(), payloads, strict=True)]  # fmt: skip
+        for topic, stamp, payload in sorted(sent, key=lambda message: message[1]):  # stable: topics keep their order
+            self._log(topic, payload, stamp)
+        if ROBOT_DESCRIPTION in messages:
+            self._description = messages[ROBOT_DESCRIPTION][1][-1]
+        if MARKERS in messages:
+            self._markers = messages[MARKERS][1][-1]
 
     def _log(self, topic: str, payload: bytes, stamp_ns: int) -> None:
         self._channels[topic].log(payload, log_time=int(stamp_ns))

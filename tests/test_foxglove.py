@@ -67,7 +67,7 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
     ``"log_time:" + topic``), the mesh and its URI."""
     store = _typestore()
     channels: dict[int, dict] = {}
-    received: dict[str, list] = defaultdict(list)
+    frames: list[bytes] = []
     mesh, mesh_uri = None, ""
     async with websockets.connect(url, subprotocols=PROTOCOLS, max_size=None) as ws:
         assert ws.subprotocol in PROTOCOLS
@@ -81,9 +81,18 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
         subscriptions = [{"id": k, "channelId": c["id"]} for k, c in by_subscription.items()]
         await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
         execution_id = await asyncio.to_thread(start)
-        done_at = None
+        # The receive loop only keeps frames (decoded after): a client slower than the stream loses messages (the
+        # server drops the oldest of a full backlog); the status is polled beside it, not once per frame.
+        done = asyncio.Event()
+
+        async def poll_finished() -> None:
+            while not await asyncio.to_thread(finished, execution_id):
+                await asyncio.sleep(0.25)
+            done.set()
+
+        poller = asyncio.create_task(poll_finished())
         loop = asyncio.get_running_loop()
-        deadline = loop.time() + 120
+        deadline, done_at = loop.time() + 120, None
         while done_at is None or loop.time() - done_at < 1.0 or mesh is None:  # the mesh may come after the data
             assert loop.time() < deadline, f"execution {execution_id} or its mesh did not come within 120 s"
             try:
@@ -91,19 +100,25 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
             except TimeoutError:
                 frame = None
             if isinstance(frame, bytes) and frame[0] == MESSAGE_DATA:
-                subscription, log_time = struct.unpack_from("<IQ", frame, 1)
-                channel = by_subscription[subscription]
-                received[channel["topic"]].append(store.deserialize_cdr(frame[13:], channel["schemaName"]))
-                received["log_time:" + channel["topic"]].append(log_time)
+                frames.append(frame)
+                channel = by_subscription[struct.unpack_from("<I", frame, 1)[0]]
+                if not mesh_uri and channel["topic"] == "/robot_description":
+                    description = store.deserialize_cdr(frame[13:], channel["schemaName"]).data
+                    mesh_uri = ET.fromstring(description).find(".//mesh").get("filename")
+                    await ws.send(json.dumps({"op": "fetchAsset", "uri": mesh_uri, "requestId": 7}))
             elif isinstance(frame, bytes) and frame[0] == FETCH_ASSET_RESPONSE:
                 _, status, error_length = struct.unpack_from("<IBI", frame, 1)
                 assert status == 0, frame[10 : 10 + error_length]
                 mesh = frame[10 + error_length :]
-            if done_at is None and await asyncio.to_thread(finished, execution_id):
+            if done_at is None and done.is_set():
                 done_at = loop.time()
-                description = received["/robot_description"][0].data
-                mesh_uri = ET.fromstring(description).find(".//mesh").get("filename")
-                await ws.send(json.dumps({"op": "fetchAsset", "uri": mesh_uri, "requestId": 7}))
+        await poller
+    received: dict[str, list] = defaultdict(list)
+    for frame in frames:
+        subscription, log_time = struct.unpack_from("<IQ", frame, 1)
+        channel = by_subscription[subscription]
+        received[channel["topic"]].append(store.deserialize_cdr(frame[13:], channel["schemaName"]))
+        received["log_time:" + channel["topic"]].append(log_time)
     return list(channels.values()), {"execution": execution_id, **received}, mesh, mesh_uri
 
 
