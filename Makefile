@@ -48,6 +48,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_sweeps.py
 	$(BIN)/python benchmarks/bench_dashboard.py
 	$(BIN)/python benchmarks/bench_long_run.py
+	$(BIN)/python benchmarks/bench_worker_memory.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -174,9 +174,12 @@ def _summary_typed(points, arm, out):  # pragma: no cover - typing only
     return lambda points, arm, out: _contact_summary(points, arm, out)
 
 
-COMPILED_CONTACT_COUNTS = 8
-"""Numbers of contact points :func:`compile_contact_summaries` compiles for ahead of a run (a ball on a surface has
-one, in a crease two; more bodies under the ball, e.g. overlapping work piece parts, more)."""
+COMPILED_CONTACT_COUNTS = 2
+"""Numbers of contact points :func:`compile_contact_summaries` compiles for ahead of a run: a ball on a surface has
+one, in a crease two. More (overlapping work piece parts, a mesh's coplanar triangles) go as rows
+(:func:`point_rows`, ~1 µs more per such step, to the bit the same summary). Each number compiled is ~12 MB of every
+worker's memory (the arm model is compiled into each ``sense`` and ``sample`` of either sensor): 8 of them took 147 MB,
+2 take 79 MB."""
 
 
 # Layout of :attr:`ContactSensing.buffer`: the contact summary (the applied wrench, the true normal force and normal),

@@ -20,9 +20,11 @@ from sim_worker.telemetry import Telemetry
 
 TELEMETRY_KEEP_EXECUTIONS = 16
 """Executions whose telemetry a worker keeps for replays."""
-TELEMETRY_KEEP_BYTES = 256 * 2**20
+TELEMETRY_KEEP_BYTES = 64 * 2**20
 """Most bytes of kept telemetry (35 float64 per control step: 280 kB per simulated second at 1 kHz, so the cap
-holds about 15 simulated minutes)."""
+holds about 4 simulated minutes of finished runs, and the running one whatever its length). A worker's memory
+budget (docs/BENCHMARKS.md, "A worker's memory") leaves this much to replays: 256 MB took a worker that ran many
+long skills past it."""
 
 
 class _Stream:

@@ -29,12 +29,12 @@ from skills.control import (
     damping_matrix,
     pose_error,
 )
-from skills.dmp import QuaternionDMP
+from skills.dmp import DMP, QuaternionDMP
 
 
 def warm_up() -> float:
     """Run each compiled function once on a real world (arm model, contact summary, control law, model update, the
-    loop's step, the wrist sensor, the orientation DMP); return the seconds it took."""
+    loop's step, the wrist sensor, the orientation and position DMPs' rollouts); return the seconds it took."""
     start = time.perf_counter()
     compile_contact_summaries()
     for config in (WorldConfig(), WorldConfig(sensor=WRIST_SENSOR)):  # 7 joints read; the wrist's 8 and its sampling
@@ -56,6 +56,7 @@ def warm_up() -> float:
         _record_row(robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0, 0.0, phase, 0.0)
     quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
     QuaternionDMP.fit(np.arange(11) * 0.01, quaternions).rollout(0.01)
+    DMP.fit(np.arange(11) * 0.01, np.zeros((11, 3))).rollout(0.01)
     pose_error(np.zeros(3), [0.0, 0.0, 0.0, 1.0], np.zeros(3), [0.0, 0.0, 0.0, 1.0])
     damping_matrix(np.eye(6), np.eye(6), 1.0)
     return time.perf_counter() - start

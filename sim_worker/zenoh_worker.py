@@ -44,6 +44,7 @@ import socket
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,6 +74,7 @@ from schemas.bus_security import ENV_LOGINS, BusSecurity, parse_env, report_sign
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
+from sim_worker.process_memory import bound_heap, trim_heap
 from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
 from skills.job_estimate import execution_estimate
@@ -83,7 +85,11 @@ _PHASES = list(ExecutionPhase)
 STATUS_CACHE = 200
 """Latest statuses kept for the status queryable (executions of this worker)."""
 DEMONSTRATIONS_KEPT = 4
-"""Demonstrations kept for the starts that name them (``StartExecution.demonstration_id``): ~2 MB each for 10 s."""
+"""Demonstrations kept for the starts that name them (``StartExecution.demonstration_id``), at most."""
+DEMONSTRATION_SAMPLES_KEPT = 100_000
+"""Samples of the kept demonstrations, at most (the newest is kept whatever its size): as validated models (lists
+of Python floats) a sample takes ~640 bytes, so about 64 MB; a minute at 1 kHz is 38 MB. A start naming one no
+longer kept is answered ``need_demonstration`` and the API sends it again."""
 MAX_COALESCED_ROWS = 1000
 """Most control steps sent in one telemetry message when queued batches are merged to catch up, and in one reply
 to a replay query."""
@@ -382,6 +388,7 @@ class _Run:
             final = {"phase": ExecutionPhase.failed, "error": f"{type(exc).__name__}: {exc}",
                      "message": f"failed: {type(exc).__name__}: {exc}"}  # fmt: skip
         self.worker._finish(self, final)
+        self.worlds = []  # their work pieces and skills: freed before the heap is trimmed (``_then_trim_heap``)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -653,7 +660,8 @@ class Worker:
             )
             reply("accepted")
             log.info("%s accepted (%d segments, pace %s)", execution_id, run.segments, run.request.pace)
-            run.thread = threading.Thread(target=run.run, name=f"execution-{execution_id}", daemon=True)
+            run.thread = threading.Thread(target=_then_trim_heap, args=(run.run,), name=f"execution-{execution_id}",
+                                          daemon=True)  # fmt: skip
             run.thread.start()
         except Exception as exc:
             log.exception("start query failed")
@@ -684,8 +692,11 @@ class Worker:
             kept = self._demonstrations.get(key)
             if kept is not None:
                 self._demonstrations.move_to_end(key)
-            while len(self._demonstrations) > DEMONSTRATIONS_KEPT:
-                self._demonstrations.popitem(last=False)
+            while len(self._demonstrations) > 1 and (
+                len(self._demonstrations) > DEMONSTRATIONS_KEPT
+                or sum(len(d.t) for d in self._demonstrations.values()) > DEMONSTRATION_SAMPLES_KEPT
+            ):
+                self._demonstrations.popitem(last=False)  # the least recently named first
         if kept is None:
             return None
         return start if start.demonstration is not None else start.model_copy(update={"demonstration": kept})
@@ -741,7 +752,8 @@ class Worker:
                                                         error=busy).model_dump_json())  # fmt: skip
                 return
             # Recording takes seconds: reply from a thread, keep the zenoh callback thread free.
-            threading.Thread(target=self._record, args=(query, request), name="record", daemon=True).start()
+            threading.Thread(target=_then_trim_heap, args=(self._record, query, request), name="record",
+                             daemon=True).start()  # fmt: skip
         except Exception:
             log.exception("record query failed")
             with self._lock:
@@ -777,6 +789,15 @@ class Worker:
                 self._recording = False
 
 
+def _then_trim_heap(job: Callable[..., None], *args: Any) -> None:
+    """A job thread: run ``job(*args)``, then give the heap's free pages back (``trim_heap``): once it has returned,
+    its locals (the worlds, plans and rows of an execution; a recording and its reply) are gone."""
+    try:
+        job(*args)
+    finally:
+        trim_heap()
+
+
 def _whole_estimate(estimates: list[JobEstimate]) -> JobEstimate:
     """The estimate of one execution that runs its strokes one after the other (each estimated on its own): their
     stretches of time in order, the longest phase of any."""
@@ -805,6 +826,7 @@ def _short_error(exc: BaseException) -> str:
 
 def run_worker(settings: WorkerSettings | None = None, worker_id: str | None = None) -> int:
     """Run a worker until SIGINT/SIGTERM (see the module docstring); returns the exit code (0)."""
+    bound_heap()  # before the execution and Zenoh threads allocate: one process runs job after job
     stop = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():

@@ -50,7 +50,6 @@ from typing import Literal
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import lfilter
 
 from schemas.skill import DMPParameters
 from skills.quaternions import (
@@ -184,47 +183,48 @@ def canonical_phase(t: ArrayLike, alpha_x: float, duration_s: float) -> NDArray[
 
 
 ROLLOUT_FEATURES_CACHE_BYTES = 64 * 2**20
-"""The rollout design matrices kept for reuse take at most this much memory, bytes; of the larger ones (a minute-long
-segment at 1 kHz with 300 bases is 134 MB) only the last one is kept: the three DMPs of a segment roll out one after
-the other, so they still share it, and a worker no longer holds eight of them (1.1 GB)."""
+"""The rollout design matrices kept for reuse take at most this much memory, bytes, each at most an eighth of it: a
+segment's position, orientation and force DMPs roll out one after the other on the same basis and duration, so they
+share one. A larger one (a minute-long segment at 1 kHz with 300 bases would be 134 MB) is never built: its forcing
+term is evaluated block by block (:data:`FEATURE_ROWS_PER_BLOCK` rows of Gaussians, times the weights), each DMP
+anew, which takes no longer than filling the whole matrix once (its pages are the cost) and keeps a worker's memory
+flat."""
 FEATURE_ROWS_PER_BLOCK = 4096
-"""The design matrix is evaluated this many rows at a time (each row on its own: the same numbers), so its
-temporaries stay small."""
+"""The design matrix (and, for one too large to keep, its product with the weights) is evaluated this many rows at a
+time, so its temporaries stay small. Which way a DMP's forcing term is evaluated depends only on its size, so a
+rollout is the same to the bit whatever was rolled out before; the two ways agree to round-off (BLAS rounds a
+product by the number of rows in the call)."""
 _features_cache: dict[tuple, NDArray[np.float64]] = {}
-_last_large_features: list[tuple[tuple, NDArray[np.float64]]] = []
 
 
-def _rollout_features(
-    dt: float, duration_s: float, alpha_x: float, centers: bytes, widths: bytes
-) -> NDArray[np.float64]:
-    """The design matrix :func:`forcing_features` (M - 1, n_basis) at the phases of the rollout steps
-    ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s), for the basis given as float64 bytes.
-
-    Cached (read-only) within ``ROLLOUT_FEATURES_CACHE_BYTES`` (the last larger one aside): a segment's position,
-    orientation and force DMPs share their duration and basis, so a plan that rolls out all three evaluates the
-    Gaussians once instead of three times."""
-    key = (dt, duration_s, alpha_x, centers, widths)
-    cached = _features_cache.get(key)
-    if cached is None and _last_large_features and _last_large_features[0][0] == key:
-        cached = _last_large_features[0][1]
-    if cached is not None:
-        return cached
+def _rollout_forcing_term(
+    dt: float, duration_s: float, alpha_x: float, centers: NDArray[np.float64], widths: NDArray[np.float64],
+    weights: NDArray[np.float64],
+) -> NDArray[np.float64]:  # fmt: skip
+    """The unscaled forcing term (M - 1, D) ``forcing_features(x) @ weights`` at the phases of the rollout steps
+    ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s): with a design matrix from the cache (within
+    :data:`ROLLOUT_FEATURES_CACHE_BYTES`, oldest dropped first) or, too large to keep, block by block."""
     x = canonical_phase(_rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
-    c, w = np.frombuffer(centers), np.frombuffer(widths)
-    features = np.empty((x.size, c.size))
-    for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
-        rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
-        features[rows] = forcing_features(x[rows], c, w)
-    features.flags.writeable = False
-    if features.nbytes > ROLLOUT_FEATURES_CACHE_BYTES // 8:
-        _last_large_features[:] = [(key, features)]
-        return features
-    while _features_cache and sum(f.nbytes for f in _features_cache.values()) + features.nbytes > (
-        ROLLOUT_FEATURES_CACHE_BYTES
-    ):
-        _features_cache.pop(next(iter(_features_cache)))  # the oldest first
-    _features_cache[key] = features
-    return features
+    if x.size * centers.size * 8 > ROLLOUT_FEATURES_CACHE_BYTES // 8:
+        out = np.empty((x.size, weights.shape[1]))
+        for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
+            rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
+            out[rows] = forcing_features(x[rows], centers, widths) @ weights
+        return out
+    key = (dt, duration_s, alpha_x, centers.tobytes(), widths.tobytes())
+    features = _features_cache.get(key)
+    if features is None:
+        features = np.empty((x.size, centers.size))
+        for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
+            rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
+            features[rows] = forcing_features(x[rows], centers, widths)
+        features.flags.writeable = False
+        while _features_cache and sum(f.nbytes for f in _features_cache.values()) + features.nbytes > (
+            ROLLOUT_FEATURES_CACHE_BYTES
+        ):
+            _features_cache.pop(next(iter(_features_cache)))  # the oldest first
+        _features_cache[key] = features
+    return features @ weights
 
 
 class _DMPBase:
@@ -282,10 +282,11 @@ class _DMPBase:
 
     def _rollout_forcing(self, dt: float, tau: float) -> NDArray[np.float64]:
         """The unscaled forcing term (M - 1, D) at the rollout steps ``k dt`` of a movement of ``tau`` (s): the same
-        numbers as ``forcing(phase(t[:-1], tau))``, the basis evaluated once per (dt, tau, basis)."""
-        centers = np.ascontiguousarray(self.centers, dtype=np.float64).tobytes()
-        widths = np.ascontiguousarray(self.widths, dtype=np.float64).tobytes()
-        return _rollout_features(float(dt), float(tau), float(self.alpha_x), centers, widths) @ self.weights
+        numbers as ``forcing(phase(t[:-1], tau))``, the basis evaluated once per (dt, tau, basis) where it is kept
+        (:func:`_rollout_forcing_term`)."""
+        centers = np.ascontiguousarray(self.centers, dtype=np.float64)
+        widths = np.ascontiguousarray(self.widths, dtype=np.float64)
+        return _rollout_forcing_term(float(dt), float(tau), float(self.alpha_x), centers, widths, self.weights)
 
     def _parameters(self, start: NDArray, goal: NDArray, scaling: list[bool]) -> DMPParameters:
         return DMPParameters(
@@ -466,15 +467,16 @@ class DMP(_DMPBase):
 
         with ``u_k = alpha_z beta_z g + s f(x_k)``, ``y_{-1} = y_0`` (zero start velocity). In the
         deviation ``e = y - y_0`` (input ``u - alpha_z beta_z y_0``) the initial state is zero, so
-        one ``scipy.signal.lfilter`` call per rollout evaluates it exactly. Verified against
-        :meth:`rollout_loop`; at 60 000 steps they agree to ~1e-9 m on a 0.4 m motion.
+        one linear filter per rollout evaluates it exactly (:func:`_second_order_filter`, what
+        ``scipy.signal.lfilter`` computes, to the bit). Verified against :meth:`rollout_loop`; at
+        60 000 steps they agree to ~1e-9 m on a 0.4 m motion.
         """
         t, y0, _, u, tau = self._prepare(dt, start, goal, duration_s)
         a = dt / tau
         az, bz = self.alpha_z, self.beta_z
         den = [1.0, -(2.0 - a * az - a * a * az * bz), 1.0 - a * az]
         v = np.vstack([u - az * bz * y0, np.zeros((1, self.n_dims))])  # last input never reaches y
-        e = lfilter([0.0, a * a], den, v, axis=0)
+        e = _second_order_filter(a * a, den[1], den[2], v)
         y = y0 + e
         yd = np.zeros_like(y)
         yd[1:] = np.diff(y, axis=0) / dt
@@ -680,6 +682,24 @@ class QuaternionDMP(_DMPBase):
             weights=p.weights,
             frame=p.frame,
         )
+
+
+@numba.njit(cache=True)
+def _second_order_filter(b1, a1, a2, v):  # pragma: no cover - compiled
+    """``scipy.signal.lfilter([0, b1], [1, a1, a2], v, axis=0)`` for ``v`` (N, D): the direct form II transposed
+    filter, its operations in lfilter's order (the same numbers to the bit, tests/test_dmp.py). Here, not scipy's:
+    importing ``scipy.signal`` costs every sim worker ~24 MB of memory for this one call."""
+    out = np.empty_like(v)
+    for d in range(v.shape[1]):
+        z0 = 0.0
+        z1 = 0.0
+        for n in range(v.shape[0]):
+            x = v[n, d]
+            y = z0 + 0.0 * x  # b0 = 0, as lfilter computes it
+            out[n, d] = y
+            z0 = z1 + x * b1 - y * a1
+            z1 = x * 0.0 - y * a2  # b2 = 0: lfilter pads b to the length of a
+    return out
 
 
 @numba.njit(cache=True)

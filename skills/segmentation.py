@@ -36,8 +36,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import distance_transform_edt, gaussian_filter1d, uniform_filter1d
-from sklearn.cluster import AgglomerativeClustering
-from sklearn.neighbors import kneighbors_graph
 
 from schemas.skill import BoundaryReason
 from skills.contact import ContactAnalysis, mask_runs
@@ -134,6 +132,11 @@ def _ward_cut(features: NDArray[np.float64], min_samples: int) -> int | None:
     reduced = _block_means(features, stride)
     if reduced.shape[0] < 4:
         return None
+    # Imported here: scikit-learn is ~30 MB resident, and a sim worker imports this module (through the checks of a
+    # work piece built from a demonstration) without segmenting.
+    from sklearn.cluster import AgglomerativeClustering
+    from sklearn.neighbors import kneighbors_graph
+
     # Each block is linked to its two neighbours in time, so both clusters are time intervals.
     time_index = np.arange(reduced.shape[0], dtype=float)[:, None]
     connectivity = kneighbors_graph(time_index, n_neighbors=2, include_self=False)

@@ -66,6 +66,18 @@ def finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
+def test_every_benchmark_has_a_smoke_test_and_a_line_in_make_bench():
+    """A new benchmark cannot be left out: each ``benchmarks/bench_*.py`` is smoke-run by one of the two smoke test
+    files and run in its full mode by ``make bench``."""
+    scripts = sorted(p.name for p in (ROOT / "benchmarks").glob("bench_*.py"))
+    tests = "".join((ROOT / "tests" / name).read_text() for name in ("test_benchmarks_smoke.py",
+                                                                     "test_benchmarks_smoke_stack.py"))  # fmt: skip
+    make_bench = (ROOT / "Makefile").read_text().split("\nbench:", 1)[1].split("\n\n", 1)[0]
+    assert len(scripts) > 10
+    assert [s for s in scripts if f'run_smoke("{s}"' not in tests] == []
+    assert [s for s in scripts if f"benchmarks/{s}" not in make_bench] == []
+
+
 def test_learning_benchmark_smoke():
     """Sizes and strokes tables from the run: 1 and 5 strokes of the same length, one contact segment per stroke,
     the time per sample the learning time over the samples, the exponent the fit through them."""

@@ -376,6 +376,34 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
     assert kept.steps == sent.steps and kept.true_force_rms_error_n == sent.true_force_rms_error_n
 
 
+def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded, skill, monkeypatch):
+    """A worker keeps the demonstrations starts sent within DEMONSTRATION_SAMPLES_KEPT samples in all (the least
+    recently named goes first; the newest stays whatever its size), not only within a count: a minute at 1 kHz is
+    ~38 MB of validated lists."""
+    import sim_worker.zenoh_worker as zenoh_worker
+    from schemas.bus import StartExecution
+
+    worker = zenoh_worker.Worker(worker_id="w-bounded")  # not opened: its keeping alone
+    demonstration = recorded.demonstration
+    samples = len(demonstration.t)
+    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", 2 * samples)
+
+    def start(key: str, sent: bool) -> StartExecution | None:
+        return worker._with_demonstration(StartExecution(
+            execution_id=f"ex-{key}", request=_request(skill), demonstration_id=key,
+            demonstration=demonstration if sent else None))  # fmt: skip
+
+    for key in ("d1", "d2"):
+        assert start(key, sent=True).demonstration == demonstration
+    assert start("d1", sent=False).demonstration == demonstration  # kept: d1 is now the most recently named
+    start("d3", sent=True)  # a third would exceed 2 x samples: d2, the least recently named, goes
+    assert list(worker._demonstrations) == ["d1", "d3"]
+    assert start("d2", sent=False) is None
+    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", samples // 2)
+    start("d4", sent=True)  # larger than the bound on its own: kept alone
+    assert list(worker._demonstrations) == ["d4"]
+
+
 def test_bad_requests_are_refused(client, skill):
     with pytest.raises(BusRequestError, match="unknown scenario"):
         client.start_execution("ex-bad", _request(skill, scenario="no_such_world"))

@@ -228,6 +228,43 @@ def test_lfilter_rollout_equals_loop_rollout(position_dmp, dt, kwargs):
     np.testing.assert_allclose(fast.yd, loop.yd, rtol=0, atol=1e-5)  # m/s
 
 
+def test_a_rollout_too_long_to_keep_its_basis_builds_none_and_agrees_to_round_off(
+    position_dmp, orientation_dmp, monkeypatch
+):
+    """A long segment's forcing term is evaluated block by block, its design matrix never built whole nor kept (a
+    worker's memory: a minute at 1 kHz with 300 bases would be 134 MB): the rollouts are those of the kept matrix to
+    round-off, and the same to the bit when rolled out again (which way depends on the size alone)."""
+    import skills.dmp as dmp
+
+    dt, duration = 0.001, 9.0  # 9000 steps x 50 bases: 3.6 MB, kept at the default size
+    kept = (position_dmp.rollout(dt, duration_s=duration), orientation_dmp.rollout(dt, duration_s=duration))
+    assert any(f.shape == (9000, 50) for f in dmp._features_cache.values())
+    dmp._features_cache.clear()
+    monkeypatch.setattr(dmp, "ROLLOUT_FEATURES_CACHE_BYTES", 8 * 1024 * 1024 // 8)  # 128 kB: 3.6 MB is too large
+    blocks = (position_dmp.rollout(dt, duration_s=duration), orientation_dmp.rollout(dt, duration_s=duration))
+    assert not dmp._features_cache
+    np.testing.assert_allclose(blocks[0].y, kept[0].y, rtol=0, atol=1e-12)  # m
+    np.testing.assert_allclose(blocks[1].q, kept[1].q, rtol=0, atol=1e-12)
+    again = position_dmp.rollout(dt, duration_s=duration)
+    np.testing.assert_array_equal(again.y, blocks[0].y)
+
+
+def test_the_rollout_filter_is_scipys_lfilter_to_the_bit():
+    """The position rollout's filter (compiled here, so a worker need not import ``scipy.signal``) gives exactly what
+    ``scipy.signal.lfilter`` gives, for the DMP's coefficients over steps, durations and scales."""
+    from scipy.signal import lfilter
+
+    from skills.dmp import _second_order_filter
+
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        a, az = rng.uniform(1e-4, 1e-2) / rng.uniform(0.5, 60.0), 25.0
+        den = [1.0, -(2.0 - a * az - a * a * az * az / 4), 1.0 - a * az]
+        v = rng.normal(size=(int(rng.integers(2, 5000)), int(rng.integers(1, 4)))) * rng.uniform(0.1, 1e3)
+        np.testing.assert_array_equal(_second_order_filter(a * a, den[1], den[2], v),
+                                      lfilter([0.0, a * a], den, v, axis=0))  # fmt: skip
+
+
 def test_parameters_json_round_trip_is_lossless(demo, position_dmp, orientation_dmp):
     dt = demo[0][1] - demo[0][0]
     params = position_dmp.to_parameters()
