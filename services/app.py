@@ -96,7 +96,8 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     queue = ExecutionQueue(store, bus, settings.queue_max) if bus is not None else None
     keys = KeyExpressions(settings.zenoh_prefix)
     sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
-    foxglove = FoxgloveLive.from_env(store, settings.token_reads) if bus is not None else None  # the live view
+    foxglove_port = settings.foxglove_server_port if bus is not None else None  # the live view: with a bus
+    foxglove = FoxgloveLive(store, foxglove_port) if foxglove_port is not None else None
     retention = Retention(store, settings.retention_days) if settings.retention_days > 0 else None
 
     @asynccontextmanager

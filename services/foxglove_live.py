@@ -15,16 +15,15 @@ execution at a time: the newest one running; when it ends the view keeps it unti
 and ``/tf`` at :data:`LIVE_HZ` (every n-th control step; a whole run at 1 kHz is in the export), joint states and
 markers at the scene's own rates.
 
-Configuration: ``CONTACT_SKILLS_FOXGLOVE_PORT`` (default :data:`DEFAULT_PORT`; ``0`` any free port; ``off`` no
-server). A port already taken falls back to a free one (``/health`` gives the URL, ``foxglove_url``). The protocol
-has no authentication: when the API's reads need its token (``CONTACT_SKILLS_TOKEN_READS``) the server is off unless
-the variable is set.
+Configuration: ``CONTACT_SKILLS_FOXGLOVE_PORT`` (``services.settings.ServiceSettings.foxglove_port``: default 8765;
+``0`` any free port; ``off`` no server). A port already taken falls back to a free one (``/health`` gives the URL,
+``foxglove_url``). The protocol has no authentication: when the API's reads need its token
+(``CONTACT_SKILLS_TOKEN_READS``) the server is off unless the variable is set.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import threading
 from typing import Any
 
@@ -32,13 +31,11 @@ import numpy as np
 
 from schemas.api import ExecutionState
 from services.dashboard.stream import decimated, stored_rows
+from services.settings import DEFAULT_FOXGLOVE_PORT
 from services.store import TERMINAL, Store
 
 log = logging.getLogger("contact_skills.foxglove")
 
-PORT_ENV = "CONTACT_SKILLS_FOXGLOVE_PORT"
-DEFAULT_PORT = 8765
-"""Foxglove's own default WebSocket port (what its "Open connection" dialog proposes)."""
 HOST = "127.0.0.1"
 POLL_S = 0.05
 """How often the store is read for new samples, s (20 Hz; each read sends everything new)."""
@@ -56,7 +53,7 @@ class FoxgloveLive:
     """The Foxglove WebSocket server of one API process, following ``store``'s running executions (see the module
     docstring). :meth:`start` it, :meth:`close` it; :attr:`url` is where Foxglove connects."""
 
-    def __init__(self, store: Store, port: int = DEFAULT_PORT) -> None:
+    def __init__(self, store: Store, port: int = DEFAULT_FOXGLOVE_PORT) -> None:
         self.store = store
         self.port = port
         self.server: Any = None
@@ -74,24 +71,6 @@ class FoxgloveLive:
         self._messages: Any = None
         self._description: bytes | None = None
         self._markers: bytes | None = None
-
-    @classmethod
-    def from_env(cls, store: Store, reads_need_token: bool = False) -> FoxgloveLive | None:
-        """The server ``CONTACT_SKILLS_FOXGLOVE_PORT`` asks for (None for ``off``). ``reads_need_token``: the API
-        serves reads only with its token (``CONTACT_SKILLS_TOKEN_READS``); Foxglove's protocol has no token, so the
-        server is then off unless the variable asks for it."""
-        given = os.environ.get(PORT_ENV)
-        if given is None and reads_need_token:
-            log.info("Foxglove live view off: reads need the token and %s is not set", PORT_ENV)
-            return None
-        value = (given or str(DEFAULT_PORT)).strip().lower()
-        if value in ("off", "none", "no", "false"):
-            return None
-        try:
-            port = int(value)
-        except ValueError:
-            raise ValueError(f"{PORT_ENV}={value!r}: give a port number, 0 (any free port) or off") from None
-        return cls(store, port)
 
     @property
     def url(self) -> str | None:

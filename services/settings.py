@@ -28,6 +28,7 @@
 | client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
 | storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB the database holds at most; then 507) |
 | retention_days | ``CONTACT_SKILLS_RETENTION_DAYS`` | ``0`` (keep all; > 0: older finished runs deleted) |
+| foxglove_port | ``CONTACT_SKILLS_FOXGLOVE_PORT`` | ``8765`` (the live view; ``0`` any free port; ``off``: none) |
 
 A job is one execution or recording; its budget (``schemas.job_budget``) is read from the same variables by the sim
 workers, which hold every job they are sent to it too.
@@ -56,6 +57,10 @@ DEFAULT_STORAGE_QUOTA_MB = 4096.0
 """What the database may hold, MiB. Measured: a one-minute execution's 1 kHz telemetry takes ~8.4 MB (147 bytes a
 sample), so about 120 of them fit in a GiB; a demonstration takes ~285 bytes a sample (the longest, 200 000 samples,
 ~57 MB)."""
+DEFAULT_FOXGLOVE_PORT = 8765
+"""Foxglove's own default WebSocket port (what its "Open connection" dialog proposes)."""
+FOXGLOVE_OFF = frozenset({"off", "none", "no", "false"})
+"""Values of ``foxglove_port`` that turn the live view's server off."""
 DEFAULT_TELEMETRY_PAGE_SAMPLES = 20_000
 """Most samples one ``GET /executions/{id}/telemetry`` returns (20 s at 1 kHz; ~11 MB of JSON, ~15 MB of the API's
 memory while it streams): a longer run is read page by page (``cursor``)."""
@@ -88,6 +93,7 @@ ENV_VARS: dict[str, str] = {
     "client_sweeps_max": "CONTACT_SKILLS_CLIENT_SWEEPS_MAX",
     "storage_quota_mb": "CONTACT_SKILLS_STORAGE_QUOTA_MB",
     "retention_days": "CONTACT_SKILLS_RETENTION_DAYS",
+    "foxglove_port": "CONTACT_SKILLS_FOXGLOVE_PORT",
     "instance": "CONTACT_SKILLS_INSTANCE",
 }
 """Setting name -> the environment variable that sets it."""
@@ -149,6 +155,9 @@ class ServiceSettings:
     client_sweeps_max: int = 2
     storage_quota_mb: float = DEFAULT_STORAGE_QUOTA_MB
     retention_days: float = 0.0
+    foxglove_port: str | None = None
+    """The Foxglove live view's port as given (a number, ``0`` any free one, or ``off``); None: not given
+    (:attr:`foxglove_server_port` decides)."""
     instance: str = field(default_factory=lambda: secrets.token_hex(8))
     """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
 
@@ -189,6 +198,12 @@ class ServiceSettings:
                 f"storage_quota_mb {self.storage_quota_mb}, retention_days {self.retention_days}: must be >= 0 "
                 "(0: no quota, keep all)"
             )
+        if self.foxglove_port is not None:
+            port = str(self.foxglove_port).strip().lower()
+            if port not in FOXGLOVE_OFF and not (port.isdigit() and int(port) <= 65535):
+                raise SettingsError(f"foxglove_port: {self.foxglove_port!r}: give a port number, 0 (any free port) "
+                                    "or off")  # fmt: skip
+            object.__setattr__(self, "foxglove_port", port)
         if self.token_reads and not self.token:
             raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")
         cors = self.cors_origins.split(",") if isinstance(self.cors_origins, str) else self.cors_origins
@@ -216,6 +231,14 @@ class ServiceSettings:
 
         bound = set() if self.host in ("0.0.0.0", "::", "") else {self.host.lower()}
         return frozenset(LOOPBACK_NAMES | bound | {socket.gethostname().lower()} | set(self.allowed_hosts))
+
+    @property
+    def foxglove_server_port(self) -> int | None:
+        """The port the Foxglove live view serves on (0: any free one), or None: off (``off``; or not given while
+        reads need the token, since Foxglove's protocol carries none)."""
+        if self.foxglove_port is None:
+            return None if self.token_reads else DEFAULT_FOXGLOVE_PORT
+        return None if self.foxglove_port in FOXGLOVE_OFF else int(self.foxglove_port)
 
     @property
     def max_body_bytes(self) -> int:

@@ -295,6 +295,25 @@ def test_settings_from_env_and_flags(tmp_path):
         ServiceSettings.from_env({"CONTACT_SKILLS_PORT": "eighty"})
 
 
+@pytest.mark.parametrize(
+    ("env", "served"),
+    [({}, 8765), ({"CONTACT_SKILLS_FOXGLOVE_PORT": "0"}, 0), ({"CONTACT_SKILLS_FOXGLOVE_PORT": " OFF "}, None),
+     ({"CONTACT_SKILLS_TOKEN": "t", "CONTACT_SKILLS_TOKEN_READS": "1"}, None),
+     ({"CONTACT_SKILLS_TOKEN": "t", "CONTACT_SKILLS_TOKEN_READS": "1", "CONTACT_SKILLS_FOXGLOVE_PORT": "9001"}, 9001)],
+    ids=["default", "any free port", "off", "reads need the token", "asked for despite the token"],
+)  # fmt: skip
+def test_the_foxglove_port_is_a_setting(env, served):
+    """The live view's port is read with the other settings: Foxglove's protocol has no token, so the server is off
+    while reads need one unless the variable asks for it."""
+    assert ServiceSettings.from_env(env).foxglove_server_port == served
+
+
+def test_a_bad_foxglove_port_names_the_setting():
+    for bad in ("eighty", "70000", "-1"):
+        with pytest.raises(SettingsError, match="foxglove_port"):
+            ServiceSettings.from_env({"CONTACT_SKILLS_FOXGLOVE_PORT": bad})
+
+
 def test_openapi_and_health(client):
     assert client.get("/docs").status_code == 200
     spec = client.get("/openapi.json").json()
