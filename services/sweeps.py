@@ -97,12 +97,7 @@ def _finished(row: SweepTrialRow) -> bool:
 
 def _outcome(row: SweepTrialRow, criteria: dict[str, float]) -> Outcome:
     """The judged outcome of a finished trial (``criteria``: the sweep's request, for a trial without a verdict)."""
-    return outcome(
-        row.metrics.model_dump(mode="json") if row.metrics else None,
-        row.status.value if row.status else "failed",
-        row.error,
-        criteria,
-    )
+    return outcome(row.metrics, row.status.value if row.status else "failed", row.error, criteria)
 
 
 def _counts(rows: list[SweepTrialRow], criteria: dict[str, float]) -> SweepCounts:

@@ -23,6 +23,7 @@ from schemas.execution import (
     NOMINAL_CONTACT_STIFFNESS_N_M,
     ControllerKind,
     EnvironmentChange,
+    ExecutionMetrics,
     ExecutionVerdict,
     Verdict,
     VerdictCheckName,
@@ -254,19 +255,17 @@ def failure_causes(verdict: ExecutionVerdict, phase: str, abort_reason: str | No
     return tuple(c.name.value for c in verdict.checks if not c.passed and not c.warning_only)
 
 
-def outcome(
-    metrics: Mapping[str, Any] | None, status: str, error: str | None, criteria: Mapping[str, float]
-) -> Outcome:
-    """The judged outcome of a finished trial from its execution's ``metrics`` (the stored JSON dict; None when it
-    failed before any), its ``status`` and ``error``: success is the metrics' verdict, or for metrics without one
-    (stored before verdicts; no metrics at all) :func:`legacy_success` with the sweep's ``criteria``."""
-    m = metrics or {}
-    phase = m.get("phase") or status
-    abort_reason = m.get("abort_reason") or error
-    rms, contact = m.get("true_force_rms_error_pct"), m.get("contact_ratio")
+def outcome(metrics: ExecutionMetrics | None, status: str, error: str | None, criteria: Mapping[str, float]) -> Outcome:
+    """The judged outcome of a finished trial from its execution's ``metrics`` (None when it failed before any), its
+    ``status`` and ``error``: success is the metrics' verdict, or for metrics without one (stored before verdicts;
+    no metrics at all) :func:`legacy_success` with the sweep's ``criteria``."""
+    phase = metrics.phase.value if metrics is not None else status
+    abort_reason = (metrics.abort_reason if metrics is not None else None) or error
+    rms = metrics.true_force_rms_error_pct if metrics is not None else None
+    contact = metrics.contact_ratio if metrics is not None else None
     judged: dict[str, Any]
-    if m.get("verdict") is not None:
-        verdict = ExecutionVerdict.model_validate(m["verdict"])
+    if metrics is not None and metrics.verdict is not None:
+        verdict = metrics.verdict
         judged = {
             "success": verdict.verdict is Verdict.passed,
             "reasons": tuple(verdict.reasons),
@@ -287,8 +286,8 @@ def outcome(
     return Outcome(
         phase=phase,
         true_rms_pct=rms,
-        true_max_pct=m.get("true_force_max_error_pct"),
-        touchdown_ratio=m.get("touchdown_peak_ratio"),
+        true_max_pct=metrics.true_force_max_error_pct if metrics is not None else None,
+        touchdown_ratio=metrics.touchdown_peak_ratio if metrics is not None else None,
         contact_ratio=contact,
         abort_reason=abort_reason,
         **judged,

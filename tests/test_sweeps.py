@@ -106,8 +106,8 @@ def test_sensitivity_ranks_the_parameter_that_drives_the_failures_first():
     assert drivers["touchdown"].count == sum("touchdown" in c for c in causes) and drivers["touchdown"].finished == 60
 
 
-def _verdict(*failed: VerdictCheckName, warned: tuple[VerdictCheckName, ...] = (), phase="done") -> dict:
-    """The metrics (stored JSON) of an execution whose verdict failed ``failed`` and warned about ``warned``."""
+def _verdict(*failed: VerdictCheckName, warned: tuple[VerdictCheckName, ...] = (), phase="done") -> ExecutionMetrics:
+    """The metrics of an execution whose verdict failed ``failed`` and warned about ``warned``."""
     names = [VerdictCheckName.finished, VerdictCheckName.true_force_rms, VerdictCheckName.true_force_max,
              VerdictCheckName.contact_ratio, VerdictCheckName.touchdown, VerdictCheckName.surface_found]  # fmt: skip
     checks = [
@@ -125,7 +125,7 @@ def _verdict(*failed: VerdictCheckName, warned: tuple[VerdictCheckName, ...] = (
         true_force_rms_error_pct=3.0, contact_ratio=1.0, verdict=verdict,
         abort_reason="contact lost in segment 1 at t = 4.200 s: no contact 8 mm beyond" if phase != "done" else None,
     )  # fmt: skip
-    return metrics.model_dump(mode="json")
+    return metrics
 
 
 def test_a_trial_succeeds_when_its_verdict_passes_and_its_causes_are_the_failed_checks():
@@ -144,7 +144,7 @@ def test_a_trial_succeeds_when_its_verdict_passes_and_its_causes_are_the_failed_
     assert failed.causes == ("true_force_max", "touchdown")
     assert failed.reasons == ("true_force_max msg", "touchdown msg")
     assert aborted.causes == ("aborted: contact lost in segment 1",)
-    legacy = {k: v for k, v in _verdict().items() if k != "verdict"}
+    legacy = _verdict().model_copy(update={"verdict": None})
     assert outcome(legacy, "done", None, criteria).success  # 3 % <= 10 %, in contact 100 %
     assert outcome(legacy, "done", None, {**criteria, "success_rms_pct": 2.0}).causes == ("true_force_rms",)
     assert outcome(None, "failed", "worker w1 lost", criteria).causes == ("failed: worker w1 lost",)
