@@ -237,7 +237,7 @@ class SimWorld:
 
         For a control loop: one PyBullet query each (shared with the other accessors' caches), the arrays
         returned as cached (read-only by contract, see :class:`Sensing`): the same arrays every step, and with them
-        the arrays of :meth:`robot_state` and :meth:`true_normal_state`, brought up to date in place.
+        the arrays of :meth:`robot_state` and the true normal force's, brought up to date in place.
         """
         arm, contact = self._arm, self._contact
         # The freshness flags checked here, not in the calls: at 1 kHz a call that finds its work done costs more
@@ -364,15 +364,9 @@ class SimWorld:
         direction is the normal (on one surface its normal; in a corner, e.g. a ball pressing on both planes of a
         crease, the direction the two press along together). Friction is not part of it.
         """
-        force, nx, ny, nz = self.true_normal_state().tolist()
-        return force, (nx, ny, nz)
-
-    def true_normal_state(self) -> NDArray[np.float64]:
-        """:meth:`true_normal_force` as the array (4,) ``[force, nx, ny, nz]`` of this step, for a control loop's
-        telemetry (the array itself, read-only as :class:`Sensing` and, as :meth:`robot_state`, the same array every
-        step; ground truth, not a measurement)."""
         self._contact.summary()
-        return self._contact.true_normal
+        force, nx, ny, nz = self._contact.true_normal.tolist()
+        return force, (nx, ny, nz)
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The tool's applied contact force split into its normal part and its friction part (3,) each, world frame.
