@@ -37,6 +37,7 @@ pin_blas_threads()
 
 import httpx  # noqa: E402
 
+from schemas.bus import FINAL_PHASES  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 SECTION = "bench_long_run"
@@ -46,7 +47,6 @@ FULL_MINUTES = 30.0
 SMOKE_MINUTES = 0.2
 """The smoke run: 12 s of simulated time, every step of the long one."""
 RECORD = {"scenario": "slide_flat", "seed": 0, "overrides": {"move_duration_s": 2.0}}
-FINAL = ("done", "aborted", "failed")
 LOG_MARKS = {
     "router link drops": "router link lost",
     "telemetry asked again": "asking the worker again",
@@ -142,7 +142,7 @@ def long_run(minutes: float, log_dir: Path) -> dict:
             if created.status_code != 202:
                 raise RuntimeError(f"POST /executions {body}: {created.status_code} {created.text}")
             execution_id = created.json()["id"]
-            while (view := http.get(f"/executions/{execution_id}").json())["status"] not in FINAL:
+            while (view := http.get(f"/executions/{execution_id}").json())["status"] not in FINAL_PHASES:
                 time.sleep(1.0)
             wall_s = time.monotonic() - started
             load_after = os.getloadavg()

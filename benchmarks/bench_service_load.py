@@ -37,6 +37,7 @@ pin_blas_threads()
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
+from schemas.bus import FINAL_PHASES  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 HEALTH_EVERY_S = 0.05
@@ -44,7 +45,6 @@ BASELINE_S = 15.0
 """/health is first asked for this long with no learning: its latency on the machine as loaded by others."""
 HEALTH_TARGET_P99_S = 0.100
 POLL_S = 0.25
-FINAL = ("done", "aborted", "failed")
 
 
 def _up(workers: int, tmp: str) -> tuple[list[str], str]:
@@ -146,7 +146,7 @@ def bench_queue(workers: int, executions: int) -> tuple[str, dict[str, float]]:
                     if view["worker_id"] is not None:
                         assigned.setdefault(view["id"], now)
                         ran_on[view["id"]] = view["worker_id"]
-                    if view["status"] in FINAL:
+                    if view["status"] in FINAL_PHASES:
                         finished.setdefault(view["id"], view["status"])
                         last = now
                 time.sleep(POLL_S)

@@ -30,6 +30,7 @@ pin_blas_threads()
 
 import httpx  # noqa: E402
 
+from schemas.bus import FINAL_PHASES  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 SECTION = "bench_worker_memory"
@@ -41,7 +42,6 @@ FULL_SECONDS = 55.0
 """Each demonstration's motion in contact, s: with the approach and retreat, executions of about a minute."""
 SMOKE_SECONDS = 3.0
 SCENARIOS = ("slide_flat", "slide_tilted", "contour_cylinder")
-FINAL = ("done", "aborted", "failed")
 
 
 def worker_pids(parent: int) -> list[int]:
@@ -83,7 +83,7 @@ def measure(seconds: float, scenarios: tuple[str, ...], rounds: int, work_dir: P
             skills[scenario] = _created(http.post("/skills", json=learn), scenario)
         for scenario, skill in [item for _ in range(rounds) for item in skills.items()]:
             execution = _created(http.post("/executions", json={"skill_id": skill["id"], "pace": "fast"}), scenario)
-            while (view := http.get(f"/executions/{execution['id']}").json())["status"] not in FINAL:
+            while (view := http.get(f"/executions/{execution['id']}").json())["status"] not in FINAL_PHASES:
                 time.sleep(0.5)
             now, peak = resident_mb(worker)
             rows.append({"scenario": scenario, "skill_type": skill["skill"]["skill_type"], "status": view["status"],

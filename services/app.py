@@ -36,7 +36,7 @@ from services.api.limits import ClientCaps
 from services.api.main import api_router
 from services.api.openapi import install_truthful_openapi
 from services.bus_events import BusEvents, connect_bus, reconcile
-from services.foxglove_live import FoxgloveLive
+from services.foxglove_live import live_view
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
 from services.retention import Retention
@@ -96,8 +96,7 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     queue = ExecutionQueue(store, bus, settings.queue_max) if bus is not None else None
     keys = KeyExpressions(settings.zenoh_prefix)
     sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
-    foxglove_port = settings.foxglove_server_port if bus is not None else None  # the live view: with a bus
-    foxglove = FoxgloveLive(store, foxglove_port) if foxglove_port is not None else None
+    foxglove = live_view(store, settings) if bus is not None else None  # the live view: with a bus
     retention = Retention(store, settings.retention_days) if settings.retention_days > 0 else None
 
     @asynccontextmanager

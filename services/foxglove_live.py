@@ -31,7 +31,7 @@ import numpy as np
 
 from schemas.api import ExecutionState
 from services.dashboard.stream import decimated, stored_rows
-from services.settings import DEFAULT_FOXGLOVE_PORT
+from services.settings import DEFAULT_FOXGLOVE_PORT, ServiceSettings
 from services.store import TERMINAL, Store
 
 log = logging.getLogger("contact_skills.foxglove")
@@ -47,6 +47,15 @@ MESSAGE_BACKLOG = 8192
 live stream (eleven topics at :data:`LIVE_HZ`; joint states and markers slower), so an API that stalls a few
 seconds (a loaded machine, a learn) still sends every step once it reads the store again. A message is a few
 hundred bytes (markers a few kB)."""
+
+
+def live_view(store: Store, settings: ServiceSettings) -> FoxgloveLive | None:
+    """The live view ``settings`` ask for (``foxglove_server_port``), or None, saying why in the log when the token
+    turned it off (an operator who set ``CONTACT_SKILLS_TOKEN_READS`` may wonder where it went)."""
+    port = settings.foxglove_server_port
+    if port is None and settings.foxglove_port is None:
+        log.info("Foxglove live view off: reads need the token and CONTACT_SKILLS_FOXGLOVE_PORT is not set")
+    return None if port is None else FoxgloveLive(store, port)
 
 
 class FoxgloveLive:

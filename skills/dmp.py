@@ -205,18 +205,17 @@ def _rollout_forcing_term(
     ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s): with a design matrix from the cache (within
     :data:`ROLLOUT_FEATURES_CACHE_BYTES`, oldest dropped first) or, too large to keep, block by block."""
     x = canonical_phase(_rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
+    blocks = [slice(start, start + FEATURE_ROWS_PER_BLOCK) for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK)]
     if x.size * centers.size * 8 > ROLLOUT_FEATURES_CACHE_BYTES // 8:
         out = np.empty((x.size, weights.shape[1]))
-        for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
-            rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
+        for rows in blocks:
             out[rows] = forcing_features(x[rows], centers, widths) @ weights
         return out
     key = (dt, duration_s, alpha_x, centers.tobytes(), widths.tobytes())
     features = _features_cache.get(key)
     if features is None:
         features = np.empty((x.size, centers.size))
-        for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK):
-            rows = slice(start, start + FEATURE_ROWS_PER_BLOCK)
+        for rows in blocks:
             features[rows] = forcing_features(x[rows], centers, widths)
         features.flags.writeable = False
         while _features_cache and sum(f.nbytes for f in _features_cache.values()) + features.nbytes > (
