@@ -243,7 +243,7 @@ def bare_loop(
         handles = sim.loop_handles()
         queried = handles.queried  # with the wrist sensor the project reads the tool joint's reaction with the joints
         model, arm, contact, ideal = handles.model, handles.arm, handles.contact, handles.ideal
-        draw, sample_arguments = handles.draw, handles.sample_arguments
+        draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
         # The row and law's inputs: a controller prepared for the contact frame at the start pose, holding it.
         controller = HybridController(posture=arm[ROBOT_Q])
@@ -278,7 +278,7 @@ def bare_loop(
                     touching = sense(model, states, points, arm, contact)
                 else:
                     draw()
-                    touching = sample(model, states, points, arm, contact, *sample_arguments)
+                    touching = sample(model, states, points, arm, contact, sensor)
             if model_update and k % NULL_SPACE_UPDATE_STEPS == 0:
                 M = arm_mass_matrix(model, q)
                 _outside_limits(q, lower, upper)

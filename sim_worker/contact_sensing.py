@@ -192,7 +192,8 @@ _OFFSETS = slice(22, 34)  # (2, 6) by rows
 _REMOVED = slice(34, 36)
 _WEIGHT = slice(36, 39)
 _COM_Z = 39
-_BUFFER_SIZE = 40
+_WRIST_SOURCE = 40  # 1: the reading's source is the wrist (the tool joint's reaction), else the exact wrench
+_BUFFER_SIZE = 41
 _REACTION0 = ARM_REACTION.start  # the offsets as plain ints for the compiled code (it takes no slices as globals)
 _MEASURED0, _SOURCE0, _OFFSETS0, _REMOVED0, _WEIGHT0 = (
     CONTACT_MEASURED.start, _SOURCE.start, _OFFSETS.start, _REMOVED.start, _WEIGHT.start
@@ -200,20 +201,19 @@ _MEASURED0, _SOURCE0, _OFFSETS0, _REMOVED0, _WEIGHT0 = (
 
 
 @numba.njit(cache=True)
-def _reading(
-    arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha
-):  # pragma: no cover - compiled
+def _reading(arm, contact, sensor):  # pragma: no cover - compiled
     """A non-ideal sensor's reading of this state into ``contact``'s ``CONTACT_MEASURED``, in one compiled call: the
-    source wrench (``wrist``: the tool joint's reaction, weight-compensated, :func:`_wrist_wrench`; else the exact
-    wrench of the summary), the sensor model (``sensor.measure_drawn`` with :attr:`WrenchSensor.state` after its
-    ``draw()``), then the offsets whose flag is set removed, turned with the tool (:func:`_remove_tare`). ``arm`` an
-    :attr:`Arm.buffer` of this state, ``contact`` a :attr:`ContactSensing.buffer` with this state's summary."""
+    source wrench (the wrist: the tool joint's reaction, weight-compensated, :func:`_wrist_wrench`; else the exact
+    wrench of the summary), the sensor model (``sensor.measure_drawn`` on the :attr:`WrenchSensor.buffer` ``sensor``
+    after its ``draw()``), then the offsets whose flag is set removed, turned with the tool (:func:`_remove_tare`).
+    ``arm`` an :attr:`Arm.buffer` of this state, ``contact`` a :attr:`ContactSensing.buffer` with this state's
+    summary."""
     source = contact[0:6]  # CONTACT_APPLIED
-    if wrist:
+    if contact[_WRIST_SOURCE] != 0.0:
         source = contact[_SOURCE0 : _SOURCE0 + 6]
         _wrist_wrench(arm[_REACTION0 : _REACTION0 + 6], arm, contact[_WEIGHT0 : _WEIGHT0 + 3], contact[_COM_Z], source)
     measured = contact[_MEASURED0 : _MEASURED0 + 6]
-    measure_drawn(source, measured, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
+    measure_drawn(source, measured, sensor)
     for k in range(2):
         if contact[_REMOVED0 + k] != 0.0:
             _remove_tare(measured, arm, contact[_OFFSETS0 + 6 * k : _OFFSETS0 + 6 * k + 6])
@@ -229,15 +229,12 @@ def sense(model, joint_states, points, arm, contact):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True)
-def sample(
-    model, joint_states, points, arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line,
-    counters, filtered, alpha,
-):  # fmt: skip  # pragma: no cover - compiled
-    """:func:`sense`, then the non-ideal sensor's reading (:func:`_reading`): a loop's one compiled call per
-    simulated state to bring the arm, the contact and the sensor up to date (after ``draw()``); returns whether the
-    tool touches."""
+def sample(model, joint_states, points, arm, contact, sensor):  # pragma: no cover - compiled
+    """:func:`sense`, then the non-ideal sensor's reading (:func:`_reading`; ``sensor`` its
+    :attr:`WrenchSensor.buffer`): a loop's one compiled call per simulated state to bring the arm, the contact and the
+    sensor up to date (after ``draw()``); returns whether the tool touches."""
     touching = sense(model, joint_states, points, arm, contact)
-    _reading(arm, contact, wrist, block, drawn, add_random, bias, fixed_bias, biased, line, counters, filtered, alpha)
+    _reading(arm, contact, sensor)
     return touching
 
 
@@ -248,7 +245,6 @@ def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
     point = (0, 0, 0, 0, 0, (0.0,) * 3, (0.0,) * 3, (0.0, 0.0, 1.0), 0.0, 1.0, 0.0, (1.0, 0.0, 0.0), 0.0, (0.0,) * 3)
     joint = (0.0, 0.0, (0.0,) * 6, 0.0)
     array, matrix = numba.typeof(np.zeros(1)), numba.typeof(np.zeros((1, 1)))
-    sensor = tuple(map(numba.typeof, WrenchSensor(WorldConfig().sensor, 1e-3).state))
     for n in range(counts + 2):  # and the rows of more points (point_rows)
         points = numba.typeof((point,) * n) if n <= counts else matrix
         if 0 < n <= counts:
@@ -256,7 +252,7 @@ def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
         for joints in (7, 8):
             states = numba.typeof((joint,) * joints)
             sense.compile((matrix, states, points, array, array))
-            sample.compile((matrix, states, points, array, array, numba.types.boolean, *sensor))
+            sample.compile((matrix, states, points, array, array, array))
 
 
 class ContactSensing:
@@ -269,13 +265,13 @@ class ContactSensing:
         self.sensor = WrenchSensor(config.sensor, config.time_step_s)
         self.ideal = self.sensor.ideal
         self._wrist = config.sensor.model is SensorModel.wrist
-        if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
-            pybullet.enableJointForceTorqueSensor(robot, TOOL_LINK, True, physicsClientId=client)
-        self.buffer = np.zeros(_BUFFER_SIZE)
+        buffer = self.buffer = np.zeros(_BUFFER_SIZE)
         """The contact summary, the sensor's reading and source, the offsets it removes and the tool model in one array
         (layout ``CONTACT_*``, ``_OFFSETS`` ...), so that a loop's compiled step reads them with one argument; the
         arrays below are views of it, overwritten in place."""
-        buffer = self.buffer
+        buffer[_WRIST_SOURCE] = float(self._wrist)
+        if self._wrist:  # the fixed tool joint reports the flange's force on the tool (its origin: the tool point)
+            pybullet.enableJointForceTorqueSensor(robot, TOOL_LINK, True, physicsClientId=client)
         self._offsets = buffer[_OFFSETS].reshape(2, 6)
         """What every reading has removed (6, each: force N, moment N·m, TOOL frame): the sensor's own offset, negated
         (adding it), and the tare (:meth:`set_tare`), when their flag in ``_removed`` is set (1.0)."""
@@ -301,9 +297,6 @@ class ContactSensing:
         buffer[_COM_Z] = -(0.5 * tool.shaft_length_m + tool.radius_m)
         self._tool_weight = buffer[_WEIGHT]
         self._tool_weight[:] = [tool.mass_kg * g for g in config.gravity]
-        self.sample_arguments = (self._wrist, *self.sensor.state)
-        """:func:`sample`'s and :func:`_reading`'s arguments after the arm and contact buffers: the same every step,
-        their arrays updated in place."""
         self.fresh = self.measured_fresh = False
 
     def invalidate(self) -> None:
@@ -381,7 +374,7 @@ class ContactSensing:
             if not self._wrist:  # the exact wrench is the source
                 self.summary()
             self.sensor.draw()
-            _reading(self._arm.buffer, self.buffer, *self.sample_arguments)  # one compiled call to the reading
+            _reading(self._arm.buffer, self.buffer, self.sensor.buffer)  # one compiled call to the reading
             self.measured_fresh = True
         return self.measured
 

@@ -317,7 +317,7 @@ class ControlLoop:
             pybullet.TORQUE_CONTROL,
         )
         ideal = handles.ideal
-        draw, sample_arguments = handles.draw, handles.sample_arguments
+        draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
@@ -446,10 +446,9 @@ class ControlLoop:
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
                     states = joint_states(body, queried, client)
                     points = contact_points(body, -1, TOOL_LINK, -2, client)
-                    few = len(points) <= COMPILED_CONTACT_COUNTS
+                    read = points if len(points) <= COMPILED_CONTACT_COUNTS else point_rows(points)
                     draw()
-                    sampled_touching = sample(model, states, points if few else point_rows(points), arm, contact,
-                                              *sample_arguments)  # fmt: skip
+                    sampled_touching = sample(model, states, read, arm, contact, sensor)
                     ts += perf() - t5
                 ts += t1 - t0
                 tc += t3 - t2

@@ -98,8 +98,9 @@ class LoopHandles(NamedTuple):
     ``getJointStates`` reads (with the wrist sensor, the tool joint too); ``model`` the arm's compiled model, ``arm``
     its :attr:`Arm.buffer`, ``contact`` the :attr:`ContactSensing.buffer` (``sim_worker.contact_sensing.sense`` and
     ``sample`` bring them up to date), ``ideal`` whether the sensor reads the exact wrench (else it samples once per
-    simulated state: ``draw()``, then ``sample`` with ``sample_arguments``), ``torque_limits`` (7,) N·m, what
-    :meth:`SimWorld.step` clips to. A loop using them calls :meth:`SimWorld.loop_ended` when it stops."""
+    simulated state: ``draw()``, then ``sample`` with ``sensor``, its :attr:`WrenchSensor.buffer`), ``torque_limits``
+    (7,) N·m, what :meth:`SimWorld.step` clips to. A loop using them calls :meth:`SimWorld.loop_ended` when it
+    stops."""
 
     client: int
     body: int
@@ -110,7 +111,7 @@ class LoopHandles(NamedTuple):
     contact: NDArray[np.float64]
     ideal: bool
     draw: Callable[[], None]
-    sample_arguments: tuple
+    sensor: NDArray[np.float64]
     torque_limits: NDArray[np.float64]
 
 
@@ -308,7 +309,7 @@ class SimWorld:
         arm, contact = self._arm, self._contact
         return LoopHandles(
             self._cid, self.robot, self._joints, arm.queried, arm.model, arm.buffer, contact.buffer, contact.ideal,
-            contact.sensor.draw, contact.sample_arguments, self.torque_limits,
+            contact.sensor.draw, contact.sensor.buffer, self.torque_limits,
         )  # fmt: skip
 
     def loop_ended(

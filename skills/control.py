@@ -181,7 +181,9 @@ _L_CF_Z = slice(20, 23)  # the control frame's CF z axis
 _L_AXES = slice(23, 29)  # 1 on the CF force axes the integral runs on
 _L_ERROR_PER_N = slice(29, 35)  # S~ Adg^-1 F_d,1: CF force error per N desired
 _L_ADG_INV = slice(35, 71)  # Adg^-1 by rows: the measured wrench into CF coordinates
-_L_SIZE = 71
+_L_X = slice(71, 71 + _X_SIZE)  # scratch: the step's input vector x (no allocation per step)
+_L_Y = slice(_L_X.stop, _L_X.stop + _G_ROWS)  # scratch: y = G x
+_L_SIZE = _L_Y.stop
 # Layout of a step's output: τ (7), F_m (6), F_f (6), saturated (1/0), the most saturated joint.
 LAW_TAU = slice(0, 7)
 _O_MOTION = slice(7, 13)
@@ -247,6 +249,7 @@ _X_TWIST0, _X_Q0, _X_QD0, _X_BIAS0, _X_TASK_END = _X_TWIST.start, _X_Q.start, _X
 _G_WRENCH0, _G_JOINT0, _G_TASK_END = _G_WRENCH.start, _G_JOINT.start, _G_TASK.stop
 _L_INTEGRAL0, _L_LIMITS0, _L_CF_Z0 = _L_INTEGRAL.start, _L_LIMITS.start, _L_CF_Z.start
 _L_AXES0, _L_ERROR_PER_N0, _L_ADG_INV0 = _L_AXES.start, _L_ERROR_PER_N.start, _L_ADG_INV.start
+_L_X0, _L_Y0 = _L_X.start, _L_Y.start
 _O_MOTION0 = _O_MOTION.start
 if _O_FORCE.start != _O_MOTION.stop or _G_FORCE.start != _G_MOTION.stop:  # the step copies F_m, F_f in one run
     raise AssertionError("F_m and F_f must be adjacent in G and in the output")
@@ -266,7 +269,7 @@ def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no c
     if kz != 0.0 and f_d != 0.0:  # impedance: the reference presses f_d through the spring along CF z
         shift = f_d / kz
         rpx, rpy, rpz = rpx + law[_L_CF_Z0] * shift, rpy + law[_L_CF_Z0 + 1] * shift, rpz + law[_L_CF_Z0 + 2] * shift
-    x = np.empty(_X_SIZE)
+    x = law[_L_X0 : _L_X0 + _X_SIZE]
     _pose_error_into(
         robot[_R_P], robot[_R_P + 1], robot[_R_P + 2], robot[_R_QUAT:_R_QUAT_END], rpx, rpy, rpz,
         reference[_F_QUAT:_F_QUAT_END], x,
@@ -299,7 +302,7 @@ def law_step(G, robot, reference, wrench, law, in_contact, out):  # pragma: no c
         x[_X_Q0 + j] = robot[_R_Q + j]
         x[_X_QD0 + j] = robot[_R_QD + j]
         x[_X_BIAS0 + j] = robot[_R_BIAS + j]
-    y = np.empty(_G_ROWS)
+    y = law[_L_Y0 : _L_Y0 + _G_ROWS]
     for r in range(_G_JOINT0):  # the wrench rows read the task columns only, the joint rows the joint columns and 1
         acc = 0.0
         for col in range(_X_TASK_END):
