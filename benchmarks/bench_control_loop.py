@@ -41,6 +41,7 @@ import argparse  # noqa: E402
 import os  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pybullet  # noqa: E402
@@ -68,7 +69,7 @@ from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: 
 from sim_worker.executor import execute_skill, run_skill  # noqa: E402
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
-from sim_worker.world import SimWorld  # noqa: E402
+from sim_worker.world import LoopHandles, SimWorld  # noqa: E402
 from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.control import (  # noqa: E402
     DAMPING_UPDATE_EVERY,
@@ -78,6 +79,7 @@ from skills.control import (  # noqa: E402
     ROBOT_Q,
     ROBOT_QUAT,
     ROBOT_STATE_SIZE,
+    ControlFrame,
     HybridController,
 )
 from skills.parameterize import learn_skill  # noqa: E402
@@ -227,6 +229,49 @@ the telemetry row with the control law (``control_loop._record_and_control``); t
 ``HybridController.prepare`` between the row and the law)."""
 
 
+class StepParts(NamedTuple):
+    """The project loop's per-step compiled parts' inputs in a bare loop's world (:func:`step_parts`): the world's loop
+    handles, a controller prepared for the contact frame at the start pose and holding it, the loop's state and rows."""
+
+    handles: LoopHandles
+    reading_at: int
+    controller: HybridController
+    frame: ControlFrame
+    references: np.ndarray
+    loop_state: np.ndarray
+    rows: np.ndarray
+
+
+def step_parts(sim: SimWorld, steps: int) -> StepParts:
+    """:class:`StepParts` for ``steps`` steps in ``sim`` (its arm in the state the steps start from)."""
+    handles = sim.loop_handles()
+    arm, contact = handles.arm, handles.contact
+    controller = HybridController(posture=arm[ROBOT_Q])
+    sim.robot_state()
+    frame = controller.frame(np.diag([1.0, -1.0, -1.0]), SELECTION_CONTACT)
+    references = np.zeros((steps, REFERENCE_SIZE))
+    references[:, : REFERENCE_TWIST.start] = arm[ROBOT_POSITION.start : ROBOT_QUAT.stop]
+    controller.prepare(frame, arm[:ROBOT_STATE_SIZE], references[0], contact[:6], None, True)
+    loop_state = np.zeros(_S_SIZE)
+    loop_state[_S_LIMITS : _S_LIMITS + N_JOINTS] = sim.torque_limits
+    loop_state[_S_DT] = sim.config.time_step_s
+    reading_at = CONTACT_APPLIED.start if handles.ideal else CONTACT_MEASURED.start
+    return StepParts(handles, reading_at, controller, frame, references, loop_state, np.zeros((steps, TELEMETRY_WIDTH)))
+
+
+def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> None:
+    """The project loop's model update at step ``k``, as it makes it: the mass matrix, the joint-limit check, the
+    step's row, ``HybridController.prepare``, the law."""
+    handles, reading_at, controller, loop_state = parts.handles, parts.reading_at, parts.controller, parts.loop_state
+    robot, contact = handles.arm[:ROBOT_STATE_SIZE], handles.contact
+    q = robot[ROBOT_Q]
+    M = arm_mass_matrix(handles.model, q)
+    _outside_limits(q, sim.joint_lower, sim.joint_upper)
+    pressing = _record(robot, contact, reading_at, touching, loop_state, parts.rows, parts.references, k, False, k, k)
+    controller.prepare(parts.frame, robot, parts.references[k], contact[reading_at : reading_at + 6], M, True)
+    _control(robot, contact, reading_at, controller.law_buffer, loop_state, parts.references, k, False, pressing)
+
+
 def bare_loop(
     world: ExecutionWorld, torques: list[list[float]], start: tuple, level: str = "bare"
 ) -> tuple[float, float, int]:
@@ -240,26 +285,17 @@ def bare_loop(
         joints = list(range(N_JOINTS))
         for joint, state in zip(joints, start, strict=True):
             pybullet.resetJointState(robot, joint, state[0], state[1], physicsClientId=client)
-        handles = sim.loop_handles()
+        parts = step_parts(sim, len(torques))
+        handles, reading_at, references, loop_state, rows = (
+            parts.handles, parts.reading_at, parts.references, parts.loop_state, parts.rows
+        )  # fmt: skip
         queried = handles.queried  # with the wrist sensor the project reads the tool joint's reaction with the joints
-        model, arm, contact, ideal = handles.model, handles.arm, handles.contact, handles.ideal
-        draw, sensor = handles.draw, handles.sensor
-        reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        # The row and law's inputs: a controller prepared for the contact frame at the start pose, holding it.
-        controller = HybridController(posture=arm[ROBOT_Q])
-        sim.robot_state()
-        frame = controller.frame(np.diag([1.0, -1.0, -1.0]), SELECTION_CONTACT)
-        references = np.zeros((len(torques), REFERENCE_SIZE))
-        references[:, : REFERENCE_TWIST.start] = arm[ROBOT_POSITION.start : ROBOT_QUAT.stop]
-        controller.prepare(frame, arm[:ROBOT_STATE_SIZE], references[0], contact[:6], None, True)
-        law_buffer = controller.law_buffer
-        loop_state = np.zeros(_S_SIZE)
-        loop_state[_S_LIMITS : _S_LIMITS + N_JOINTS] = sim.torque_limits
-        loop_state[_S_DT] = world.config.time_step_s
-        rows = np.zeros((len(torques), TELEMETRY_WIDTH))
-        model_update = level == "model_update"
-        arm_contact, row_law = level != "bare", level == "row_law" or model_update
-        q, lower, upper, robot_state = arm[ROBOT_Q], sim.joint_lower, sim.joint_upper, arm[:ROBOT_STATE_SIZE]
+        model, arm, contact, ideal, draw, sensor = (
+            handles.model, handles.arm, handles.contact, handles.ideal, handles.draw, handles.sensor
+        )  # fmt: skip
+        law_buffer = parts.controller.law_buffer
+        updating = level == "model_update"
+        arm_contact, row_law = level != "bare", level == "row_law" or updating
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
         command, step, torque_control = (
             pybullet.setJointMotorControlArray,
@@ -279,13 +315,8 @@ def bare_loop(
                 else:
                     draw()
                     touching = sample(model, states, points, arm, contact, sensor)
-            if model_update and k % NULL_SPACE_UPDATE_STEPS == 0:
-                M = arm_mass_matrix(model, q)
-                _outside_limits(q, lower, upper)
-                pressing = _record(robot_state, contact, reading_at, touching, loop_state, rows, references, k, False,
-                                   k, k)  # fmt: skip
-                controller.prepare(frame, robot_state, references[k], contact[reading_at : reading_at + 6], M, True)
-                _control(robot_state, contact, reading_at, law_buffer, loop_state, references, k, False, pressing)
+            if updating and k % NULL_SPACE_UPDATE_STEPS == 0:
+                model_update(sim, parts, touching, k)
             elif row_law:
                 _record_and_control(
                     arm, contact, reading_at, touching, law_buffer, loop_state, rows, references, k, False, k, k
@@ -296,10 +327,62 @@ def bare_loop(
     return 1e6 * wall / len(torques), 1e6 * cpu / len(torques), in_contact
 
 
-def floor_comparison(skill: Skill, recording, repeats: int) -> list[dict[str, float | str | int]]:
+def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tuple, calls: int) -> dict[str, float]:
+    """The ladder's parts (:data:`LADDER`) in isolation: the world of :func:`bare_loop` replayed to its first step in
+    contact, then each part called ``calls`` times back to back on that state (no physics step between: its code and
+    data stay in the CPU caches). Returns CPU µs per step by part, the best of 5 batches (the model update's, less the
+    row and law it replaces, per ``NULL_SPACE_UPDATE_STEPS`` steps)."""
+    with SimWorld(world.config) as sim:
+        client, robot = sim.client_id, sim.robot
+        for joint, state in zip(range(N_JOINTS), start, strict=True):
+            pybullet.resetJointState(robot, joint, state[0], state[1], physicsClientId=client)
+        parts = step_parts(sim, len(torques))
+        handles = parts.handles
+        for forces in torques:  # to the first state in contact: a contact point's tuple to unpack, as in a slide
+            if pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client):
+                break
+            pybullet.setJointMotorControlArray(robot, list(range(N_JOINTS)), pybullet.TORQUE_CONTROL, forces=forces,
+                                               physicsClientId=client)  # fmt: skip
+            pybullet.stepSimulation(client)
+        states = pybullet.getJointStates(robot, handles.queried, client)
+        points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
+        model, arm, contact, draw, sensor = handles.model, handles.arm, handles.contact, handles.draw, handles.sensor
+
+        def arm_and_contact() -> bool:
+            if handles.ideal:
+                return sense(model, states, points, arm, contact)
+            draw()
+            return sample(model, states, points, arm, contact, sensor)
+
+        touching = arm_and_contact()
+        law_buffer, loop_state, rows, references = (
+            parts.controller.law_buffer, parts.loop_state, parts.rows, parts.references
+        )  # fmt: skip
+        timed = {
+            "arm_contact": arm_and_contact,
+            "row_law": lambda: _record_and_control(
+                arm, contact, parts.reading_at, touching, law_buffer, loop_state, rows, references, 0, False, 0, 0
+            ),
+            "model_update": lambda: model_update(sim, parts, touching, 0),
+        }
+        costs = {}
+        for name, call in timed.items():
+            batches = []
+            for _ in range(5):
+                cpu = time.thread_time()
+                for _ in range(calls):
+                    call()
+                batches.append((time.thread_time() - cpu) / calls)
+            costs[name] = 1e6 * min(batches)
+    # As in the ladder: a model update replaces one step's row and law, once every NULL_SPACE_UPDATE_STEPS steps.
+    costs["model_update"] = (costs["model_update"] - costs["row_law"]) / NULL_SPACE_UPDATE_STEPS
+    return costs
+
+
+def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int) -> list[dict[str, float | str | int]]:
     """Per sensor: the project loop (``run_skill``, µs per step of the loop's wall and CPU time) and the bare loops of
     :data:`LADDER` replaying its torques, interleaved ``repeats`` times; medians, and whether every step was the same
-    physics."""
+    physics; and the ladder's parts in isolation (:func:`isolated_costs`, ``isolated_calls`` calls each)."""
     rows = []
     for sensor in (SensorChoice.ideal, SensorChoice.wrist):
         environment = EnvironmentChange(sensor=sensor)
@@ -334,6 +417,7 @@ def floor_comparison(skill: Skill, recording, repeats: int) -> list[dict[str, fl
                 "ratio_wall": statistics.median(p / b for p, b in zip(project_wall, bare_wall, strict=True)),
                 "ratio_cpu": statistics.median(p / b for p, b in zip(project_cpu, bare_cpu, strict=True)),
                 "ladder_cpu": {level: statistics.median(values) for level, values in ladder_cpu.items()},
+                "isolated_cpu": isolated_costs(world, torques, start, isolated_calls),
             }
         )
         row = rows[-1]
@@ -348,21 +432,29 @@ def floor_comparison(skill: Skill, recording, repeats: int) -> list[dict[str, fl
     return rows
 
 
-def floor_parts(row: dict) -> dict[str, float]:
-    """What the project adds to the bare loop per step (CPU µs), by part: from the ladder of bare loops
-    (:data:`LADDER`), and the rest of the project's loop."""
-    ladder = row["ladder_cpu"]
+PART_NAMES = {
+    "arm_contact": (
+        "arm state and contact summary, with the wrist sensor its reading (compiled, from PyBullet's tuples)"
+    ),
+    "row_law": "telemetry row, control law, torque limits (one compiled call)",
+    "model_update": (
+        f"model update every {NULL_SPACE_UPDATE_STEPS} steps (mass matrix, limits, projector, damping, gains)"
+    ),
+    "rest": "the rest of the loop body (Python: calls, timers, torque list, checks, the phases' set-up)",
+}
+"""The project's per-step parts above the bare loop, named for the tables (the first three are :data:`LADDER`'s)."""
+
+
+def floor_parts(row: dict) -> dict[str, tuple[float, float | None]]:
+    """What the project adds to the bare loop per step (CPU µs), by part (:data:`PART_NAMES`): in the loop (from the
+    ladder of bare loops, :data:`LADDER`, and the rest of the project's loop) and alone (:func:`isolated_costs`; None
+    for the rest)."""
+    ladder, alone = row["ladder_cpu"], row["isolated_cpu"]
+    levels = [*LADDER, "project"]
+    totals = {**ladder, "project": row["project_cpu"]}
     return {
-        "arm state and contact summary, with the wrist sensor its reading (compiled, from PyBullet's tuples)": (
-            ladder["arm_contact"] - ladder["bare"]
-        ),
-        "telemetry row, control law, torque limits (one compiled call)": ladder["row_law"] - ladder["arm_contact"],
-        f"model update every {NULL_SPACE_UPDATE_STEPS} steps (mass matrix, limits, projector, damping, gains)": (
-            ladder["model_update"] - ladder["row_law"]
-        ),
-        "the rest of the loop body (Python: calls, timers, torque list, checks, the phases' set-up)": (
-            row["project_cpu"] - ladder["model_update"]
-        ),
+        part: (totals[above] - totals[below], alone.get(part))
+        for part, below, above in zip(PART_NAMES, levels[:-1], levels[1:], strict=True)
     }
 
 
@@ -392,24 +484,30 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
     parts = [floor_parts(r) for r in rows]
     lines += [
         "",
-        "Where the project's µs above the bare loop go (CPU µs per step, medians: bare loops that add the project's "
-        "per-step parts one at a time, interleaved with the others, and the project loop less the last of them):",
+        "Where the project's µs above the bare loop go (CPU µs per step). In the loop: medians of bare loops that add "
+        "the project's per-step parts one at a time, interleaved with the others, and the project loop less the last "
+        "of them. Alone: the same calls back to back on one state in contact (best of 5 batches), the model update's "
+        f"less the row and law it replaces, per {NULL_SPACE_UPDATE_STEPS} steps:",
         "",
-        "| part | " + " | ".join(str(r["sensor"]) for r in rows) + " |",
-        "| --- |" + " ---: |" * len(rows),
+        "| part | " + " | ".join(f"{r['sensor']}: in the loop | {r['sensor']}: alone" for r in rows) + " |",
+        "| --- |" + " ---: | ---: |" * len(rows),
     ]
-    for name in parts[0]:
-        lines.append(f"| {name} | " + " | ".join(f"{p[name]:.1f}" for p in parts) + " |")
-    lines.append("| **project - bare** | " + " | ".join(f"{r['project_cpu'] - r['bare_cpu']:.1f}" for r in rows) + " |")
+    for part, name in PART_NAMES.items():
+        cells = [f"{p[part][0]:.1f} | " + ("–" if p[part][1] is None else f"{p[part][1]:.1f}") for p in parts]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append(
+        "| **project - bare** | " + " | ".join(f"{r['project_cpu'] - r['bare_cpu']:.1f} | " for r in rows) + " |"
+    )
     met = [r["sensor"] for r in rows if r["ratio_cpu"] <= TARGET_FLOOR_RATIO]
     readings = []
     for r, p in zip(rows, parts, strict=True):
         allowed = (TARGET_FLOOR_RATIO - 1.0) * r["bare_cpu"]
-        compiled = sum(list(p.values())[:2])
+        compiled = [part for part in p.values() if part[1] is not None]
+        in_loop, alone = sum(part[0] for part in compiled), sum(part[1] for part in compiled)
         readings.append(
             f"{r['sensor']}: {r['project_cpu'] - r['bare_cpu']:.1f} µs above a {r['bare_cpu']:.1f} µs floor where "
-            f"{TARGET_FLOOR_RATIO}x allows {allowed:.1f}, and the compiled per-step calls alone (arm, contact, row, "
-            f"law) take {compiled:.1f}"
+            f"{TARGET_FLOOR_RATIO}x allows {allowed:.1f}; the compiled parts (arm, contact, row, law, model update) "
+            f"take {in_loop:.1f} of them in the loop, {alone:.1f} alone ({in_loop / alone:.1f}x)"
         )
     lines += [
         "",
@@ -423,8 +521,10 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         "dispatch each (~0.5-1 µs of argument typing and unboxing, the tuples dearest); the model update is LAPACK "
         f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
         f"{DAMPING_UPDATE_EVERY}th time), amortized; the rest is CPython executing the loop body between the calls "
-        "and the phases' set-up. None of them can go without changing what the loop computes: the law needs the "
-        "arm's Jacobian and gravity/Coriolis of every state, and the telemetry must stay bit-identical.",
+        "and the phases' set-up. In the loop the compiled parts cost more than alone: `stepSimulation` between two "
+        "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
+        "computes: the law needs the arm's Jacobian and gravity/Coriolis of every state, the projector needs the "
+        "same LAPACK calls (another factorization rounds differently), and the telemetry must stay bit-identical.",
     ]
     return lines
 
@@ -458,7 +558,7 @@ def main() -> None:
             learned[scenario] = (recording, learn_skill(recording.demonstration, options))
 
     recording, skill = learned[FLOOR_SCENARIO]
-    floor = floor_comparison(skill, recording, args.floor_repeats)
+    floor = floor_comparison(skill, recording, args.floor_repeats, cost_calls)
     if args.floor_only:
         print("\n".join(floor_lines(floor, args.floor_repeats, os.getloadavg())))
         return
