@@ -18,11 +18,13 @@ run: $(STAMP)  # make run PORT=8001 ZENOH_PORT=7448: the HTTP and Zenoh ports (l
 
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/python -m sim_worker.warm_up  # numba: compile once here, not in every test's worker
 	$(BIN)/pytest -q -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 
 # Every benchmark in its documented (full) mode, one after the other: each rewrites its own section of
 # docs/BENCHMARKS.md (the corpus, KU Leuven truth and work-piece ones: docs/LEARNING.md; the contours one:

@@ -183,6 +183,16 @@ def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
     return (q < lower).any() or (q > upper).any()
 
 
+def compiled_entry(dispatcher: numba.core.dispatcher.Dispatcher, args: tuple) -> Callable[..., object]:
+    """The compiled specialization of the numba ``dispatcher`` for the types of ``args`` (compiled, or loaded from
+    numba's cache, when needed), called without the dispatcher: a dispatcher call types every argument and looks up
+    its overload each time, ~0.3 µs for a dozen arrays and ~0.6 µs for PyBullet's nested tuples, at 1 kHz as much as
+    the arithmetic. Only for a caller that passes arguments of exactly these types on every call: the specialization
+    reads each as its compiled type (a caller keys it by what may change, as :class:`ControlLoop` by the number of
+    contact points)."""
+    return dispatcher.compile(tuple(numba.typeof(arg) for arg in args))
+
+
 class PlanEnd(Enum):
     """How a phase plan ended (:meth:`_Execution.run_plan`)."""
 
@@ -262,6 +272,9 @@ class ControlLoop:
         limits, the time step, the phase and segment recorded."""
         self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
         self._state[_S_DT] = self.dt
+        self._sensing_entries: list[Callable[..., bool] | None] = [None] * (COMPILED_CONTACT_COUNTS + 1)
+        """By number of contact points: the compiled ``sense`` (ideal sensor) or ``sample`` of this world's state
+        tuples (:func:`compiled_entry`), once a step met that many (:meth:`_sensed_first`)."""
 
     def telemetry(self) -> Telemetry:
         """The rows recorded so far (a copy)."""
@@ -303,9 +316,11 @@ class ControlLoop:
         contact summary and, for a sampling sensor, its reading in one compiled call from PyBullet's tuples
         (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample`` right after the physics
         step, as ``SimWorld.step`` samples every state), then one compiled call for the telemetry row, the law and the
-        world's torque limits (:func:`_record_and_control`). On a model-update step (the mass matrix every
-        :data:`NULL_SPACE_UPDATE_STEPS` steps) or a new control frame, the controller prepares its gains in between
-        (``HybridController.prepare``): :func:`_record`, then :func:`_control`. Each part is timed (``self.timing``).
+        world's torque limits (:func:`_record_and_control`); both through their compiled specializations
+        (:func:`compiled_entry`: the arguments' types are the same every step). On a model-update step (the mass
+        matrix every :data:`NULL_SPACE_UPDATE_STEPS` steps) or a new control frame, the controller prepares its gains
+        in between (``HybridController.prepare``): :func:`_record`, then :func:`_control`. Each part is timed
+        (``self.timing``).
         """
         world, handles, state = self.world, self._handles, self._state
         client, body, joints, queried = handles.client, handles.body, handles.joints, handles.queried
@@ -319,6 +334,9 @@ class ControlLoop:
         ideal = handles.ideal
         draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
+        sensing_entries, sensed_first, compiled_counts = (
+            self._sensing_entries, self._sensed_first, COMPILED_CONTACT_COUNTS
+        )  # fmt: skip
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
         q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
@@ -369,6 +387,11 @@ class ControlLoop:
         touching = sampled_touching = False
         if not ideal:  # the arm, contact and reading of the state the loop starts in (sampled once, if not yet)
             sampled_touching = world.sense().in_contact
+        # The row and law's specialization: the same argument types every step (rows grow as the same type).
+        record_and_control = compiled_entry(
+            _record_and_control,
+            (arm, contact, reading_at, touching, law_buffer, state, rows, references, 0, False, n, step_count),
+        )
         try:
             k, steps = 0, plan.steps
             while k < steps:
@@ -378,9 +401,9 @@ class ControlLoop:
                 if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
                     states = joint_states(body, queried, client)  # positional: keywords cost a lookup
                     points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
-                    # more points than compiled for: as rows (a longer tuple would compile inside the run)
-                    few = len(points) <= COMPILED_CONTACT_COUNTS
-                    touching = sense(model, states, points if few else point_rows(points), arm, contact)
+                    count = len(points)
+                    entry = sensing_entries[count] if count <= compiled_counts else None
+                    touching = entry(model, states, points, arm, contact) if entry else sensed_first(states, points)
                 else:
                     touching = sampled_touching
                 t1 = perf()
@@ -419,7 +442,7 @@ class ControlLoop:
                         code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused,
                                                  pressing)  # fmt: skip
                 else:
-                    pressing, code, clipped = _record_and_control(
+                    pressing, code, clipped = record_and_control(
                         arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
                         step_count,
                     )  # fmt: skip
@@ -446,9 +469,12 @@ class ControlLoop:
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
                     states = joint_states(body, queried, client)
                     points = contact_points(body, -1, TOOL_LINK, -2, client)
-                    read = points if len(points) <= COMPILED_CONTACT_COUNTS else point_rows(points)
+                    count = len(points)
+                    entry = sensing_entries[count] if count <= compiled_counts else None
                     draw()
-                    sampled_touching = sample(model, states, read, arm, contact, sensor)
+                    sampled_touching = (
+                        entry(model, states, points, arm, contact, sensor) if entry else sensed_first(states, points)
+                    )
                     ts += perf() - t5
                 ts += t1 - t0
                 tc += t3 - t2
@@ -503,6 +529,19 @@ class ControlLoop:
             guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
             raise ExecutionAbortError(plan.exhausted_reason + guarded)
         return PlanEnd.done
+
+    def _sensed_first(self, states: tuple, points: tuple) -> bool:
+        """A step's arm state, contact summary and (a sampling sensor, after ``draw()``) reading from PyBullet's tuples
+        ``states`` and ``points`` when no specialization for this many points is kept yet: it is compiled (or loaded)
+        and kept (:attr:`_sensing_entries`); more points than compiled for (:data:`COMPILED_CONTACT_COUNTS`) go as
+        rows, whose tuple would compile inside the run. Returns whether the tool touches."""
+        handles = self._handles
+        read, extra = (sense, ()) if handles.ideal else (sample, (handles.sensor,))
+        arguments = (handles.model, states, points, handles.arm, handles.contact, *extra)
+        if len(points) > COMPILED_CONTACT_COUNTS:
+            return read(handles.model, states, point_rows(points), handles.arm, handles.contact, *extra)
+        entry = self._sensing_entries[len(points)] = compiled_entry(read, arguments)
+        return entry(*arguments)
 
     def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
         """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,

@@ -68,6 +68,8 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
         assert len(sent) == STEPS if abort is None else len(sent) < STEPS
         assert len(loop.telemetry()) == len(sent) + (abort is not None)  # the aborted step was recorded
         assert touched > 0 and loop.touched  # it pressed on the table
+        # ... through the compiled specializations kept for no contact point and for one (compiled_entry)
+        assert all(callable(entry) for entry in loop._sensing_entries[:2])
         assert looped.clip_count == stepped.clip_count
         assert looped.last_step_clipped == stepped.last_step_clipped
         np.testing.assert_array_equal(loop.telemetry().in_contact[: len(sent)].sum(), touched)
@@ -109,3 +111,19 @@ def test_more_contact_points_than_compiled_for_sum_to_the_bit_as_the_tuples_do()
         from_tuples, from_rows = np.zeros(10), np.zeros(10)
         assert _contact_summary(points, arm, from_tuples) == _contact_summary_rows(point_rows(points), arm, from_rows)
         assert np.array_equal(from_tuples, from_rows) and np.all(np.isfinite(from_rows)) and from_rows[6] > 0
+
+
+def test_a_compiled_entry_is_the_dispatchers_own_specialization_for_those_types() -> None:
+    """``compiled_entry`` hands out the specialization the dispatcher would call for these argument types (the same
+    result, without its per-call typing), and another one for other types."""
+    import numba
+
+    from sim_worker.control_loop import _outside_limits, compiled_entry
+
+    lower, upper = np.zeros(3), np.ones(3)
+    entry = compiled_entry(_outside_limits, (np.full(3, 0.5), lower, upper))
+    assert entry is _outside_limits.overloads[(numba.typeof(lower),) * 3].entry_point
+    for q in (np.full(3, 0.5), np.array([0.5, 1.5, 0.5]), np.array([-0.1, 0.5, 0.5])):
+        assert entry(q, lower, upper) == _outside_limits(q, lower, upper) == bool(np.any((q < 0) | (q > 1)))
+    integers = compiled_entry(_outside_limits, (np.zeros(3, dtype=np.int64), lower, upper))
+    assert integers is not entry and integers(np.array([0, 2, 0]), lower, upper)
