@@ -54,7 +54,8 @@ from schemas.execution import (  # noqa: E402
 )
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
-from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, sample, sense  # noqa: E402
+from sim_worker.compiled_calls import SensingEntries, compiled_entry  # noqa: E402
+from sim_worker.contact_sensing import COMPILED_CONTACT_COUNTS, CONTACT_APPLIED, CONTACT_MEASURED  # noqa: E402
 from sim_worker.control_loop import (  # noqa: E402
     _S_DT,
     _S_LIMITS,
@@ -294,6 +295,13 @@ def bare_loop(
             handles.model, handles.arm, handles.contact, handles.ideal, handles.draw, handles.sensor
         )  # fmt: skip
         law_buffer = parts.controller.law_buffer
+        # The compiled calls as the project loop makes them: their specializations, not the dispatcher.
+        sensing = SensingEntries(handles)
+        by_count, sensed_first = sensing.by_count, sensing.first
+        record_and_control = compiled_entry(
+            _record_and_control,
+            (arm, contact, reading_at, False, law_buffer, loop_state, rows, references, 0, False, 0, 0),
+        )
         updating = level == "model_update"
         arm_contact, row_law = level != "bare", level == "row_law" or updating
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
@@ -310,15 +318,19 @@ def bare_loop(
             if points:
                 in_contact += 1
             if arm_contact:
+                count = len(points)
+                entry = by_count[count] if count <= COMPILED_CONTACT_COUNTS else None
                 if ideal:
-                    touching = sense(model, states, points, arm, contact)
+                    touching = entry(model, states, points, arm, contact) if entry else sensed_first(states, points)
                 else:
                     draw()
-                    touching = sample(model, states, points, arm, contact, sensor)
+                    touching = (
+                        entry(model, states, points, arm, contact, sensor) if entry else sensed_first(states, points)
+                    )
             if updating and k % NULL_SPACE_UPDATE_STEPS == 0:
                 model_update(sim, parts, touching, k)
             elif row_law:
-                _record_and_control(
+                record_and_control(
                     arm, contact, reading_at, touching, law_buffer, loop_state, rows, references, k, False, k, k
                 )
             command(robot, joints, torque_control, forces=forces, physicsClientId=client)
@@ -347,22 +359,25 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
         states = pybullet.getJointStates(robot, handles.queried, client)
         points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
         model, arm, contact, draw, sensor = handles.model, handles.arm, handles.contact, handles.draw, handles.sensor
+        sensing = SensingEntries(handles)  # the specializations the project loop calls
+        touching = sensing.first(states, points)
+        entry = sensing.by_count[len(points)]
 
         def arm_and_contact() -> bool:
             if handles.ideal:
-                return sense(model, states, points, arm, contact)
+                return entry(model, states, points, arm, contact)
             draw()
-            return sample(model, states, points, arm, contact, sensor)
+            return entry(model, states, points, arm, contact, sensor)
 
-        touching = arm_and_contact()
         law_buffer, loop_state, rows, references = (
             parts.controller.law_buffer, parts.loop_state, parts.rows, parts.references
         )  # fmt: skip
+        row_law_arguments = (arm, contact, parts.reading_at, touching, law_buffer, loop_state, rows, references, 0,
+                             False, 0, 0)  # fmt: skip
+        record_and_control = compiled_entry(_record_and_control, row_law_arguments)
         timed = {
             "arm_contact": arm_and_contact,
-            "row_law": lambda: _record_and_control(
-                arm, contact, parts.reading_at, touching, law_buffer, loop_state, rows, references, 0, False, 0, 0
-            ),
+            "row_law": lambda: record_and_control(*row_law_arguments),
             "model_update": lambda: model_update(sim, parts, touching, 0),
         }
         costs = {}
@@ -517,8 +532,9 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         + ("Not met for either sensor. " if not met else "")
         + "; ".join(readings)
         + ". The compiled parts are the arithmetic itself (the arm's kinematics and gravity/Coriolis by recursive "
-        "Newton-Euler every step, unpacking PyBullet's tuples, the contact sum, the row, the law) and one numba "
-        "dispatch each (~0.5-1 µs of argument typing and unboxing, the tuples dearest); the model update is LAPACK "
+        "Newton-Euler every step, unpacking PyBullet's tuples, the contact sum, the row, the law), called as their "
+        "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; unboxing the "
+        "arguments stays, PyBullet's nested tuples dearest); the model update is LAPACK "
         f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
         f"{DAMPING_UPDATE_EVERY}th time), amortized; the rest is CPython executing the loop body between the calls "
         "and the phases' set-up. In the loop the compiled parts cost more than alone: `stepSimulation` between two "

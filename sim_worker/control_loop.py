@@ -23,16 +23,9 @@ from numpy.typing import NDArray
 
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
+from sim_worker.compiled_calls import SensingEntries, compiled_entry
 from sim_worker.contact_detection import ContactGuard
-from sim_worker.contact_sensing import (
-    COMPILED_CONTACT_COUNTS,
-    CONTACT_APPLIED,
-    CONTACT_MEASURED,
-    CONTACT_NORMAL,
-    point_rows,
-    sample,
-    sense,
-)
+from sim_worker.contact_sensing import COMPILED_CONTACT_COUNTS, CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
 from sim_worker.plans import PhasePlan, smooth_ramp
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
@@ -183,16 +176,6 @@ def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
     return (q < lower).any() or (q > upper).any()
 
 
-def compiled_entry(dispatcher: numba.core.dispatcher.Dispatcher, args: tuple) -> Callable[..., object]:
-    """The compiled specialization of the numba ``dispatcher`` for the types of ``args`` (compiled, or loaded from
-    numba's cache, when needed), called without the dispatcher: a dispatcher call types every argument and looks up
-    its overload each time, ~0.3 µs for a dozen arrays and ~0.6 µs for PyBullet's nested tuples, at 1 kHz as much as
-    the arithmetic. Only for a caller that passes arguments of exactly these types on every call: the specialization
-    reads each as its compiled type (a caller keys it by what may change, as :class:`ControlLoop` by the number of
-    contact points)."""
-    return dispatcher.compile(tuple(numba.typeof(arg) for arg in args))
-
-
 class PlanEnd(Enum):
     """How a phase plan ended (:meth:`_Execution.run_plan`)."""
 
@@ -272,9 +255,8 @@ class ControlLoop:
         limits, the time step, the phase and segment recorded."""
         self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
         self._state[_S_DT] = self.dt
-        self._sensing_entries: list[Callable[..., bool] | None] = [None] * (COMPILED_CONTACT_COUNTS + 1)
-        """By number of contact points: the compiled ``sense`` (ideal sensor) or ``sample`` of this world's state
-        tuples (:func:`compiled_entry`), once a step met that many (:meth:`_sensed_first`)."""
+        self.sensing = SensingEntries(self._handles)
+        """The compiled arm state, contact summary and reading of this world, by number of contact points."""
 
     def telemetry(self) -> Telemetry:
         """The rows recorded so far (a copy)."""
@@ -334,9 +316,8 @@ class ControlLoop:
         ideal = handles.ideal
         draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        sensing_entries, sensed_first, compiled_counts = (
-            self._sensing_entries, self._sensed_first, COMPILED_CONTACT_COUNTS
-        )  # fmt: skip
+        sensing_entries, sensed_first = self.sensing.by_count, self.sensing.first
+        compiled_counts = COMPILED_CONTACT_COUNTS
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
         q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
@@ -529,19 +510,6 @@ class ControlLoop:
             guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
             raise ExecutionAbortError(plan.exhausted_reason + guarded)
         return PlanEnd.done
-
-    def _sensed_first(self, states: tuple, points: tuple) -> bool:
-        """A step's arm state, contact summary and (a sampling sensor, after ``draw()``) reading from PyBullet's tuples
-        ``states`` and ``points`` when no specialization for this many points is kept yet: it is compiled (or loaded)
-        and kept (:attr:`_sensing_entries`); more points than compiled for (:data:`COMPILED_CONTACT_COUNTS`) go as
-        rows, whose tuple would compile inside the run. Returns whether the tool touches."""
-        handles = self._handles
-        read, extra = (sense, ()) if handles.ideal else (sample, (handles.sensor,))
-        arguments = (handles.model, states, points, handles.arm, handles.contact, *extra)
-        if len(points) > COMPILED_CONTACT_COUNTS:
-            return read(handles.model, states, point_rows(points), handles.arm, handles.contact, *extra)
-        entry = self._sensing_entries[len(points)] = compiled_entry(read, arguments)
-        return entry(*arguments)
 
     def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
         """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,

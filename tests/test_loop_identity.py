@@ -69,7 +69,7 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
         assert len(loop.telemetry()) == len(sent) + (abort is not None)  # the aborted step was recorded
         assert touched > 0 and loop.touched  # it pressed on the table
         # ... through the compiled specializations kept for no contact point and for one (compiled_entry)
-        assert all(callable(entry) for entry in loop._sensing_entries[:2])
+        assert all(callable(entry) for entry in loop.sensing.by_count[:2])
         assert looped.clip_count == stepped.clip_count
         assert looped.last_step_clipped == stepped.last_step_clipped
         np.testing.assert_array_equal(loop.telemetry().in_contact[: len(sent)].sum(), touched)
@@ -118,7 +118,8 @@ def test_a_compiled_entry_is_the_dispatchers_own_specialization_for_those_types(
     result, without its per-call typing), and another one for other types."""
     import numba
 
-    from sim_worker.control_loop import _outside_limits, compiled_entry
+    from sim_worker.compiled_calls import compiled_entry
+    from sim_worker.control_loop import _outside_limits
 
     lower, upper = np.zeros(3), np.ones(3)
     entry = compiled_entry(_outside_limits, (np.full(3, 0.5), lower, upper))
