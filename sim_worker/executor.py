@@ -530,7 +530,7 @@ def execute_skill(
     loop_cpu_s = time.thread_time() - cpu_start
     loop.emit(final=True)
     execution.close()
-    tel = loop.telemetry()
+    tel = loop.telemetry(copy=False)  # the loop is done
     steps = max(loop.step_count, 1)
     timing = [v * 1e6 / steps for v in loop.timing]
     total = loop_wall_s * 1e6 / steps
