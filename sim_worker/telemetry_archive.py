@@ -20,22 +20,48 @@ from sim_worker.telemetry import Telemetry
 
 TELEMETRY_KEEP_EXECUTIONS = 16
 """Executions whose telemetry a worker keeps for replays."""
-TELEMETRY_KEEP_BYTES = 64 * 2**20
+TELEMETRY_KEEP_BYTES = 32 * 2**20
 """Most bytes of kept telemetry (35 float64 per control step: 280 kB per simulated second at 1 kHz, so the cap
-holds about 4 simulated minutes of finished runs, and the running one whatever its length). A worker's memory
+holds about 2 simulated minutes of finished runs, and the running one whatever its length). A worker's memory
 budget (docs/BENCHMARKS.md, "A worker's memory") leaves this much to replays: 256 MB took a worker that ran many
-long skills past it."""
+long skills past it, and with 64 MiB one running one-minute skills peaked at 568-630 MB, around its 600 MB."""
+
+
+CONSOLIDATED_ROWS = 4096
+"""The control loop hands its rows over in batches of a few (10 by default: 2.8 kB each, in the heap); every this many
+rows a stream's loose batches become one block (1.1 MB, mapped on its own, ``sim_worker.process_memory``), so that an
+evicted execution's rows go back to the system whole instead of leaving thousands of holes in the heap, which made a
+worker's peak vary by tens of MB from run to run."""
 
 
 class _Stream:
-    """One execution's rows, in the chunks the control loop handed over."""
+    """One execution's rows: blocks of :data:`CONSOLIDATED_ROWS` and the loose batches handed over since."""
 
     def __init__(self) -> None:
         self.chunks: list[np.ndarray] = []
         self.rows = 0
+        self.loose = 0
+        """The last chunks that are loose batches (not yet one block)."""
+        self.loose_rows = 0
         self.batches = 0
         """Batches published (the next batch's ``seq``)."""
         self.finished = False
+
+    def add(self, rows: np.ndarray) -> None:
+        """Keep the next ``rows`` (a loose batch); the loose batches become one block once they hold
+        :data:`CONSOLIDATED_ROWS` rows."""
+        self.chunks.append(rows)
+        self.rows += len(rows)
+        self.loose += 1
+        self.loose_rows += len(rows)
+        if self.loose_rows >= CONSOLIDATED_ROWS:
+            self.consolidate()
+
+    def consolidate(self) -> None:
+        """The loose batches as one block (the same rows in the same order)."""
+        if self.loose > 1:
+            self.chunks[-self.loose :] = [np.concatenate(self.chunks[-self.loose :])]
+        self.loose = self.loose_rows = 0
 
     def rows_between(self, start: int, stop: int) -> np.ndarray:
         """Rows ``start`` to ``stop - 1`` (those that exist)."""
@@ -67,8 +93,7 @@ class TelemetryArchive:
             if stream is None:
                 stream = self._streams[execution_id] = _Stream()
             first = stream.rows
-            stream.chunks.append(telemetry.data)
-            stream.rows += len(telemetry)
+            stream.add(telemetry.data)
             self._bytes += telemetry.data.nbytes
             self._evict()
         return first
@@ -88,6 +113,7 @@ class TelemetryArchive:
             stream = self._streams.get(execution_id)
             if stream is not None:
                 stream.finished = True
+                stream.consolidate()
             self._evict()
 
     def rows(self, execution_id: str, start: int, stop: int) -> Telemetry | None:
