@@ -132,10 +132,10 @@ def report(figures: dict) -> str:
         f"peaked at {peak:.0f} MB: {verdict} the {BUDGET_MB:.0f} MB budget (issue 28). Of it, {idle[1]:.0f} MB "
         "before any execution (the interpreter, numpy, scipy, numba and its compiled loop, PyBullet, Zenoh).",
         f"- Then the same worker recorded a demonstration of {recording['samples']:,} samples "
-        f"(`POST /demonstrations/record`, the teacher at 1 kHz): its peak rose to {recording['mb'][1]:.0f} MB "
-        f"({recording['mb'][0]:.0f} MB resident after). A recording is not an execution: the teacher's arrays, the "
-        "validated demonstration (lists of Python floats, ~640 bytes a sample) and its JSON reply are alive at once; "
-        "the budget above is the executions'.",
+        f"(`POST /demonstrations/record`, the teacher at 1 kHz): its peak rose to {recording['mb'][1]:.0f} MB, "
+        f"{'within' if recording['mb'][1] <= BUDGET_MB else 'OVER'} the budget too ({recording['mb'][0]:.0f} MB "
+        "resident after): the teacher's signals, the validated demonstration (lists of Python floats, ~640 bytes a "
+        "sample) and its JSON reply are alive at once.",
     ]
     return "\n".join(lines) + "\n"
 

@@ -502,16 +502,11 @@ def _record(
     world.reset(q_start)
     ctrl = _Controller(world, prm, q_start)
 
-    log_t: list[float] = []
-    log_p: list[NDArray] = []
-    log_q: list[NDArray] = []
-    log_w: list[NDArray] = []
-    log_fn: list[NDArray] = []
-    log_sensor: list[NDArray] = []
-    log_c: list[bool] = []
-    log_fd: list[float] = []
-    log_nom: list[NDArray] = []
-    log_s: list[float] = []
+    # The signals of every step, over the horizon at once (a minute's lists of small arrays took ~60 MB more).
+    n_all = t_all.size
+    log_t, log_fd, log_s, log_c = np.empty(n_all), np.empty(n_all), np.empty(n_all), np.empty(n_all, bool)
+    log_p, log_fn, log_nom = np.empty((n_all, 3)), np.empty((n_all, 3)), np.empty((n_all, 3))
+    log_q, log_w, log_sensor = np.empty((n_all, 4)), np.empty((n_all, 6)), np.empty((n_all, 6))
     k = 0
 
     def run(p_d, v_d, R_d, nominal, push=None, f_des=0.0, s_val=-1.0):
@@ -525,16 +520,16 @@ def _record(
         tau = ctrl.torque(p_d + tremor[k], v_d, R_cmd, push, f_des, f_meas)
         world.step(tau)
         p, quat = world.tool_pose()
-        log_t.append(k * dt)
-        log_p.append(p)
-        log_q.append(quat)
-        log_w.append(world.true_contact_wrench())
-        log_sensor.append(world.contact_wrench())
-        log_fn.append(world.contact_forces()[0])
-        log_c.append(world.in_contact())
-        log_fd.append(f_des if push is not None else 0.0)
-        log_nom.append(nominal)
-        log_s.append(s_val)
+        log_t[k] = k * dt
+        log_p[k] = p
+        log_q[k] = quat
+        log_w[k] = world.true_contact_wrench()
+        log_sensor[k] = world.contact_wrench()
+        log_fn[k] = world.contact_forces()[0]
+        log_c[k] = world.in_contact()
+        log_fd[k] = f_des if push is not None else 0.0
+        log_nom[k] = nominal
+        log_s[k] = s_val
         k += 1
 
     zero = np.zeros(3)
@@ -555,7 +550,7 @@ def _record(
     for _ in range(max_guard):
         p_d = p_d + v_guard * dt
         run(p_d, v_guard, R0, p_d.copy())
-        if float(log_w[-1][:3] @ -n0) > prm.contact_threshold_n:
+        if float(log_w[k - 1, :3] @ -n0) > prm.contact_threshold_n:
             break
     else:
         raise RuntimeError(f"{scenario}: no contact found during the guarded approach")
@@ -569,7 +564,7 @@ def _record(
     core = slice(n_up, n_contact - n_down)
     wander[core] -= wander[core].mean()
     wander = np.clip(wander, -1.2, 1.2)
-    f_start = float(log_w[-1][:3] @ -n0)
+    f_start = float(log_w[k - 1, :3] @ -n0)
     profile = F * (1.0 + prm.force_wander * wander)
     ramp_up = np.array([_min_jerk((i + 1) / n_up) for i in range(n_up)])
     profile[:n_up] = f_start + ramp_up * (profile[:n_up] - f_start)
@@ -620,20 +615,18 @@ def _record(
         run(p_top, zero, R1, p_top)
 
     # Assemble.
-    t = np.asarray(log_t)
-    positions = np.asarray(log_p)
-    quats = quaternions_sign_continuous(np.asarray(log_q))
-    wrench_true = np.asarray(log_w)
+    t, positions, s_log = log_t[:k], log_p[:k], log_s[:k]
+    quats = quaternions_sign_continuous(log_q[:k])
+    wrench_true = log_w[:k]
     noise = noise_rng.normal(size=wrench_true.shape) * np.array(
         [prm.sensor_noise_force_n] * 3 + [prm.sensor_noise_torque_nm] * 3
     )
-    wrenches = np.asarray(log_sensor) + noise
-    in_contact = np.asarray(log_c, dtype=bool)
+    wrenches = log_sensor[:k] + noise
+    in_contact = log_c[:k]
     R_all = matrix_from_quaternion(quats)
     centres = positions - world.config.tool.radius_m * R_all[:, :, 2]
     query = geometry.query(centres)
     normals_true = -query.normal
-    s_log = np.asarray(log_s)
 
     intervals = _intervals(t, in_contact)
     segments = _truth_segments(t, in_contact, s_log, spec, geometry, normals_true, query.name)
@@ -661,10 +654,10 @@ def _record(
         segments=segments,
         in_contact=in_contact,
         normals_true=normals_true,
-        force_desired=np.asarray(log_fd),
-        path_nominal=np.asarray(log_nom),
+        force_desired=log_fd[:k],
+        path_nominal=log_nom[:k],
         wrench_true=wrench_true,
-        normal_force_true=np.asarray(log_fn),
+        normal_force_true=log_fn[:k],
         surface_names=list(query.name),
     )
 
