@@ -101,5 +101,7 @@ def test_worker_memory_benchmark_smoke():
     (idle_rss, idle_peak), (rss, peak) = ((float(row[5]), float(row[6])) for row in rows)
     assert 50 < idle_rss <= idle_peak <= peak and rss <= peak, rows
     assert int(rows[1][4].replace(",", "")) > 5000  # the telemetry stored: one sample per control step
-    recorded = re.search(r"its peak rose to (\d+) MB \((\d+) MB resident after\)", out)
-    assert recorded and float(recorded.group(2)) <= float(recorded.group(1)) and float(recorded.group(1)) >= peak
+    recorded = re.search(r"its peak rose to (\d+) MB, (within|OVER) the budget too \((\d+) MB resident after\)", out)
+    assert recorded and float(recorded.group(3)) <= float(recorded.group(1)) and float(recorded.group(1)) >= peak
+    budget = float(re.search(r"(within|OVER) the (\d+) MB budget", out).group(2))
+    assert (recorded.group(2) == "within") == (float(recorded.group(1)) <= budget)  # the verdict from the run
