@@ -173,8 +173,12 @@ class SimWorld:
         self.close()
 
     def __del__(self) -> None:
-        with contextlib.suppress(Exception):
+        # try/except, not contextlib: at interpreter exit a module's globals may already be None (a world still bound
+        # to a module global, closed or not, is collected then; "Exception ignored in __del__" would be printed).
+        try:
             self.close()
+        except Exception:  # nothing to report to from a finalizer
+            return
 
     def _invalidate(self) -> None:
         """The simulated state changed: every per-step quantity is read again when next asked for. The arm and the

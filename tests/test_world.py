@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pybullet
@@ -304,6 +307,26 @@ def test_worlds_are_independent_and_the_config_round_trips():
         assert aabb_a[1][2] == pytest.approx(0.15, abs=2e-3) and aabb_b[1][2] == pytest.approx(0.05, abs=2e-3)
         a.step(a.gravity_coriolis_torques())
         assert a.step_count == 1 and b.step_count == 0
+
+
+def test_a_world_left_to_the_interpreters_exit_is_closed_silently() -> None:
+    """A world still bound to a module global when Python exits (closed by its ``with`` block, or never closed) is
+    finalized after the modules' globals are gone: no "Exception ignored" on stderr."""
+    script = (  # a compiled function of the script's own, held with its entry, decides the order of the teardown
+        "import numba\n"
+        "from sim_worker.compiled_calls import compiled_entry\n"
+        "from sim_worker.world import SimWorld\n"
+        "@numba.njit\n"
+        "def first(model):\n"
+        "    return model[0]\n"
+        "with SimWorld() as closed:\n"
+        "    entry = compiled_entry(first, (closed.loop_handles().model,))\n"
+        "still_open = SimWorld()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "Exception ignored" not in done.stderr, done.stderr
 
 
 def test_sensor_noise_and_filter_are_off_by_default_and_seeded_when_on():
