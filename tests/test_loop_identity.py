@@ -128,3 +128,15 @@ def test_a_compiled_entry_is_the_dispatchers_own_specialization_for_those_types(
         assert entry(q, lower, upper) == _outside_limits(q, lower, upper) == bool(np.any((q < 0) | (q > 1)))
     integers = compiled_entry(_outside_limits, (np.zeros(3, dtype=np.int64), lower, upper))
     assert integers is not entry and integers(np.array([0, 2, 0]), lower, upper)
+    # Kept by a key cheaper than numba's typing, which still tells apart every type numba tells apart: a strided
+    # view, a read-only array, each gets the dispatcher's own specialization for it, not the contiguous one's.
+    assert compiled_entry(_outside_limits, (np.ones(3), np.zeros(3), np.ones(3))) is entry
+    strided, frozen = np.zeros(6)[::2], np.full(3, 2.0)
+    frozen.flags.writeable = False
+    for q in (strided, frozen):
+        other = compiled_entry(_outside_limits, (q, lower, upper))
+        assert other is not entry
+        assert (
+            other is _outside_limits.overloads[(numba.typeof(q), numba.typeof(lower), numba.typeof(upper))].entry_point
+        )
+        assert other(q, lower, upper) == bool(np.any((q < 0) | (q > 1)))
