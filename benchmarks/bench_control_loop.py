@@ -41,6 +41,7 @@ import argparse  # noqa: E402
 import os  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -65,6 +66,7 @@ from sim_worker.control_loop import (  # noqa: E402
     _outside_limits,
     _record,
     _record_and_control,
+    _record_update_and_control,
 )
 from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
 from sim_worker.executor import execute_skill, run_skill  # noqa: E402
@@ -241,6 +243,8 @@ class StepParts(NamedTuple):
     references: np.ndarray
     loop_state: np.ndarray
     rows: np.ndarray
+    mass_matrix: np.ndarray
+    record_update_and_control: Callable[..., tuple]
 
 
 def step_parts(sim: SimWorld, steps: int) -> StepParts:
@@ -257,20 +261,38 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     loop_state[_S_LIMITS : _S_LIMITS + N_JOINTS] = sim.torque_limits
     loop_state[_S_DT] = sim.config.time_step_s
     reading_at = CONTACT_APPLIED.start if handles.ideal else CONTACT_MEASURED.start
-    return StepParts(handles, reading_at, controller, frame, references, loop_state, np.zeros((steps, TELEMETRY_WIDTH)))
+    rows, mass_matrix = np.zeros((steps, TELEMETRY_WIDTH)), np.zeros((N_JOINTS, N_JOINTS))
+    record_update_and_control = compiled_entry(
+        _record_update_and_control,
+        (handles.model, True, mass_matrix, arm, contact, reading_at, False, controller.law_buffer, loop_state, rows,
+         references, 0, False, 0, 0, *controller.model_arguments()),
+    )  # fmt: skip
+    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, mass_matrix,
+                     record_update_and_control)  # fmt: skip
 
 
 def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> None:
-    """The project loop's model update at step ``k``, as it makes it: the mass matrix, the joint-limit check, the
-    step's row, ``HybridController.prepare``, the law."""
+    """The project loop's model update at step ``k``, as it makes it: the joint-limit check, then, when the update
+    does not rebuild the adaptive damping, the mass matrix, the step's row, the controller's model and the law in one
+    compiled call (``_record_update_and_control``); else the mass matrix, the row, ``HybridController.prepare``,
+    the law."""
     handles, reading_at, controller, loop_state = parts.handles, parts.reading_at, parts.controller, parts.loop_state
-    robot, contact = handles.arm[:ROBOT_STATE_SIZE], handles.contact
+    arm, contact, references, rows = handles.arm, handles.contact, parts.references, parts.rows
+    robot = arm[:ROBOT_STATE_SIZE]
     q = robot[ROBOT_Q]
-    M = arm_mass_matrix(handles.model, q)
     _outside_limits(q, sim.joint_lower, sim.joint_upper)
-    pressing = _record(robot, contact, reading_at, touching, loop_state, parts.rows, parts.references, k, False, k, k)
-    controller.prepare(parts.frame, robot, parts.references[k], contact[reading_at : reading_at + 6], M, True)
-    _control(robot, contact, reading_at, controller.law_buffer, loop_state, parts.references, k, False, pressing)
+    if not controller.damping_due(True):
+        controller.use_frame(parts.frame)
+        parts.record_update_and_control(
+            handles.model, True, parts.mass_matrix, arm, contact, reading_at, touching, controller.law_buffer,
+            loop_state, rows, references, k, False, k, k, *controller.model_arguments(),
+        )  # fmt: skip
+        controller.model_updated(parts.frame, True)
+        return
+    M = arm_mass_matrix(handles.model, q)
+    pressing = _record(robot, contact, reading_at, touching, loop_state, rows, references, k, False, k, k)
+    controller.prepare(parts.frame, robot, references[k], contact[reading_at : reading_at + 6], M, True)
+    _control(robot, contact, reading_at, controller.law_buffer, loop_state, references, k, False, pressing)
 
 
 def bare_loop(

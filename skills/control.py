@@ -440,6 +440,29 @@ def _null_space_rows(J, M, dynamic, G, kn, dn, posture):  # pragma: no cover - c
     return projector, lam
 
 
+_J0, _J1 = ROBOT_JACOBIAN.start, ROBOT_JACOBIAN.stop  # plain ints for the compiled code
+
+
+@numba.njit(cache=True)
+def model_update_packed(
+    law_buffer, robot, mass_matrix, dynamic, kn, dn, posture, projector, inertia
+):  # pragma: no cover - compiled
+    """The null-space model of a controller (:meth:`HybridController.model_arguments`: its :attr:`law_buffer`, the
+    projection, ``K_n``, ``D_n``, the posture, then where the projector and the inertia go) for the Jacobian in
+    ``robot`` (``ROBOT_*``) and ``mass_matrix`` (7, 7; (0, 0): none, the static projector), in one compiled call that
+    a loop's own compiled step can make: the null-space rows of G, the projector N^T into ``projector`` (7, 7) and
+    the apparent inertia Λ, symmetrized, into ``inertia`` (6, 6). Returns :data:`LAW_OK`, or the non-finite code
+    (a non-finite J or M: nothing written). Raises ``numpy.linalg.LinAlgError`` on a singular model."""
+    J = robot[_J0:_J1].reshape((6, 7))
+    if not _all_finite(J, mass_matrix):
+        return _NON_FINITE
+    G = law_buffer[:LAW_GAIN_SIZE].reshape((_G_ROWS, _X_SIZE))
+    rows, lam = _null_space_rows(J, mass_matrix, dynamic, G, kn, dn, posture)
+    projector[:, :] = rows
+    inertia[:, :] = 0.5 * (lam + lam.T)
+    return LAW_OK
+
+
 @numba.njit(cache=True)
 def _all_finite(J, M):  # pragma: no cover - compiled
     """Whether every entry of ``J`` and ``M`` is finite (one compiled call: four numpy calls cost ~3 µs)."""
@@ -686,6 +709,10 @@ class HybridController:
         self.integral_cf = law[_L_INTEGRAL]
         """The force integral ∫ S~ e_cf dt, CF coordinates (a view of the law's state)."""
         self._projector: NDArray[np.float64] | None = None
+        """N^T (7, 7) of the last model update (:attr:`_projector_rows`), or None while there is none."""
+        self._projector_rows = np.zeros((7, 7))
+        self._inertia = np.zeros((6, 6))
+        """Λ of the last model update, symmetrized: what the adaptive damping is rebuilt from."""
         self._model_version = 0
         self._gain = self.law_buffer[:LAW_GAIN_SIZE].reshape(_G_ROWS, _X_SIZE)
         """G: [F_m; F_f; F_m + F_f; N^T τ_0 + g + c] = G x (module docstring, "Cost"), cached by parts."""
@@ -907,20 +934,65 @@ class HybridController:
         (or when there is none), the gain rows when the frame or the damping changed. Returns why the step must not
         run (a non-finite or singular model; zero torque then), else None. :meth:`step_into` calls it when needed; a
         loop that runs the law in its own compiled step (:func:`law_step_packed` on :attr:`law_buffer`) calls it on a
-        model update and on a new frame (and, like :meth:`step_into`, aborts on its reason)."""
+        model update and on a new frame (and, like :meth:`step_into`, aborts on its reason); or, on a model update
+        that does not rebuild the damping (:meth:`damping_due`), makes :func:`model_update_packed` itself in its
+        compiled step (:meth:`model_arguments`, then :meth:`use_frame` and :meth:`model_updated`)."""
         if update_null_space or self._projector is None:
-            jacobian = robot[ROBOT_JACOBIAN].reshape(6, 7)
-            if not _all_finite(jacobian, _NO_MASS_MATRIX if mass_matrix is None else mass_matrix):
+            M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+            try:
+                code = model_update_packed(self.law_buffer, robot, M, *self.model_arguments())
+            except np.linalg.LinAlgError as exc:
+                return self.singular_model_reason(exc)
+            if code != LAW_OK:  # non-finite J or M
                 self._projector = None
                 return self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
+            reason = self.model_updated(frame, mass_matrix is not None)
+            if reason is not None:
+                return reason
+        self.use_frame(frame)
+        return None
+
+    def model_arguments(self) -> tuple:
+        """The arguments of :func:`model_update_packed` after the law buffer, the robot state and the mass matrix: the
+        projection (dynamic or not), ``K_n``, ``D_n``, the posture, and the arrays the projector and the inertia are
+        written to (this controller's own: a model update is then :meth:`model_updated`)."""
+        return self._dynamic_null, self._kn, self._dn, self.posture, self._projector_rows, self._inertia
+
+    def damping_due(self, with_mass_matrix: bool) -> bool:
+        """Whether the next model update rebuilds the adaptive damping (a damping ratio, a mass matrix, and no damping
+        yet or every :data:`DAMPING_UPDATE_EVERY`-th update): :meth:`model_updated` does it, in Python, not in the
+        loop's compiled step."""
+        return (
+            with_mass_matrix
+            and self._adaptive_damping
+            and (self.damping_matrix_a is None or (self._model_version + 1) % DAMPING_UPDATE_EVERY == 0)
+        )
+
+    def model_updated(self, frame: ControlFrame, with_mass_matrix: bool) -> str | None:
+        """Take the model :func:`model_update_packed` just wrote into :meth:`model_arguments`' arrays, and rebuild the
+        damping from its inertia when due (:meth:`damping_due`, the stiffness turned into A by ``frame``). Returns
+        why the step must not run (a singular inertia), else None."""
+        due = self.damping_due(with_mass_matrix)
+        self._model_version += 1
+        self._projector = self._projector_rows
+        if due:
+            stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
             try:
-                self._update_model(jacobian, mass_matrix, frame)
+                self.damping_matrix_a = _damping_matrix(stiffness_a, self._inertia, self.gains.damping_ratio)
             except np.linalg.LinAlgError as exc:
-                self._projector = None
-                return f"singular robot model: {exc}"
+                return self.singular_model_reason(exc)
+        return None
+
+    def use_frame(self, frame: ControlFrame) -> None:
+        """Make the gain rows of ``frame`` with the damping in use (rebuilt only when the frame or the damping
+        matrix changed since the last time)."""
         if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
             self._cache_frame(frame)
-        return None
+
+    def singular_model_reason(self, error: np.linalg.LinAlgError) -> str:
+        """Why a step must not run after ``error`` in a model update (the model is rebuilt on the next step)."""
+        self._projector = None
+        return f"singular robot model: {error}"
 
     def abort_reason(
         self,
@@ -955,23 +1027,6 @@ class HybridController:
         _write_frame(self._gain, self._law, frame.task_gain, left, D, right, frame.law_rows)
         self._gain_frame, self._gain_damping = frame, self.damping_matrix_a
 
-    def _update_model(
-        self, jacobian: NDArray[np.float64], mass_matrix: NDArray[np.float64] | None, frame: ControlFrame
-    ) -> None:
-        """Rebuild the null-space projector and (damping ratio) the damping from the apparent inertia."""
-        self._model_version += 1
-        J = np.ascontiguousarray(jacobian, dtype=float)
-        M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
-        # N^T and the joint-torque rows of G: N^T τ_0 = N^T K_n q_0 - K_n N^T q - D_n N^T q̇ (plus g + c, set once)
-        self._projector, lam = _null_space_rows(J, M, self._dynamic_null, self._gain, self._kn, self._dn, self.posture)
-        if (
-            mass_matrix is not None
-            and self._adaptive_damping
-            and (self.damping_matrix_a is None or self._model_version % DAMPING_UPDATE_EVERY == 0)
-        ):
-            stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
-            self.damping_matrix_a = _damping_matrix(stiffness_a, 0.5 * (lam + lam.T), self.gains.damping_ratio)
-
     def null_space_torque(
         self,
         jacobian: NDArray[np.float64],
@@ -980,9 +1035,14 @@ class HybridController:
         mass_matrix: NDArray[np.float64] | None,
     ) -> NDArray[np.float64]:
         """Return ``N^T τ_0`` with ``τ_0 = K_n (q_0 - q) - D_n q̇`` (see the module docstring); rebuilds N^T."""
-        self._update_model(jacobian, mass_matrix, self.frame(np.eye(3), [1.0] * 6))
+        robot = np.zeros(ROBOT_STATE_SIZE)
+        robot[ROBOT_JACOBIAN] = np.asarray(jacobian, dtype=float).ravel()
+        M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+        if model_update_packed(self.law_buffer, robot, M, *self.model_arguments()) != LAW_OK:
+            raise ValueError("non-finite jacobian or mass_matrix")
+        self.model_updated(self.frame(np.eye(3), [1.0] * 6), mass_matrix is not None)
         tau0 = self._kn * (self.posture - q) - self._dn * qd
-        return self._projector @ tau0
+        return self._projector_rows @ tau0
 
     @staticmethod
     def _non_finite_reason(values: dict[str, object]) -> str:

@@ -14,7 +14,7 @@ import pybullet
 import pytest
 
 from schemas.execution import ExecutionPhase, Pace
-from sim_worker.control_loop import ControlLoop, ExecutionAbortError
+from sim_worker.control_loop import NULL_SPACE_UPDATE_STEPS, ControlLoop, ExecutionAbortError
 from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
@@ -86,6 +86,27 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
             looped.step(sent[-1])
             stepped.step(sent[-1])
             np.testing.assert_array_equal(looped.contact_wrench(), stepped.contact_wrench())
+
+
+@pytest.mark.parametrize("updates_done", [1, 4], ids=["inside the compiled step", "with the damping, in Python"])
+def test_a_non_finite_arm_state_on_a_model_update_stops_the_loop_before_its_torque(updates_done: int) -> None:
+    """A model update makes the null-space model inside the loop's compiled step, except the one in five that also
+    rebuilds the adaptive damping (``HybridController.prepare``): either way a non-finite Jacobian stops the loop
+    with the same reason, the step recorded and no torque commanded."""
+    steps = NULL_SPACE_UPDATE_STEPS * updates_done  # the next step makes the next model update
+    with SimWorld() as world:
+        controller = HybridController(posture=world.joint_state()[0], torque_limits=world.torque_limits)
+        frame = controller.frame(np.diag([1.0, -1.0, -1.0]), np.ones(6))
+        p, q = world.tool_pose()
+        plan = PhasePlan(ExecutionPhase.free, 0, np.tile(p, (steps, 1)), np.tile(q, (steps, 1)),
+                         np.zeros((steps, 6)), np.zeros(steps), frame=frame)  # fmt: skip
+        loop = ControlLoop(world, controller, frame, 1.0, 100, Pace.fast, True, None, None, None)
+        loop.run_plan(plan)
+        assert controller.damping_due(True) == (updates_done == 4)
+        pybullet.resetJointState(world.robot, 3, float("nan"), 0.0, physicsClientId=world.client_id)
+        with pytest.raises(ExecutionAbortError, match=r"non-finite value \(NaN or inf\) in jacobian, q,"):
+            loop.run_plan(plan)
+        assert loop.step_count == steps and len(loop.telemetry()) == steps + 1
 
 
 def test_more_contact_points_than_compiled_for_sum_to_the_bit_as_the_tuples_do() -> None:
