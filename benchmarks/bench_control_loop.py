@@ -228,8 +228,7 @@ LADDER = ("bare", "arm_contact", "row_law", "model_update")
 """The bare loops, each adding one of the project's per-step parts to the four PyBullet calls: none; the arm state and
 contact summary from PyBullet's tuples (``contact_sensing.sense``; with the wrist sensor ``sample``, its reading too);
 the telemetry row with the control law (``control_loop._record_and_control``); the model update every
-``NULL_SPACE_UPDATE_STEPS`` steps as the project loop makes it (the mass matrix, the joint-limit check,
-``HybridController.prepare`` between the row and the law)."""
+``NULL_SPACE_UPDATE_STEPS`` steps as the project loop makes it (:func:`model_update`)."""
 
 
 class StepParts(NamedTuple):
@@ -558,7 +557,8 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; unboxing the "
         "arguments stays, PyBullet's nested tuples dearest); the model update is LAPACK "
         f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
-        f"{DAMPING_UPDATE_EVERY}th time), amortized; the rest is CPython executing the loop body between the calls "
+        f"{DAMPING_UPDATE_EVERY}th time), amortized, and one compiled call with its step's row and law but on the "
+        "damping's updates; the rest is CPython executing the loop body between the calls "
         "and the phases' set-up. In the loop the compiled parts cost more than alone: `stepSimulation` between two "
         "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
         "computes: the law needs the arm's Jacobian and gravity/Coriolis of every state, the projector needs the "
@@ -689,13 +689,15 @@ def main() -> None:
             "sampling sensor's reading too, right after the physics step)"
         ),
         "dynamics": (
-            f"model update every {NULL_SPACE_UPDATE_STEPS} steps and on a new control frame: the mass matrix (compiled "
-            "arm model), the joint-limit check, the step's row and `HybridController.prepare` (projector, damping "
-            f"every {DAMPING_UPDATE_EVERY}th update, the gain rows)"
+            f"model update every {NULL_SPACE_UPDATE_STEPS} steps and on a new control frame: the joint-limit check, "
+            "then the mass matrix (compiled arm model), the step's row, the null-space model and the law in one "
+            "compiled call (`control_loop._record_update_and_control`); on a new frame and on every "
+            f"{DAMPING_UPDATE_EVERY}th update (the adaptive damping) the row and `HybridController.prepare` "
+            "(projector, damping, the gain rows)"
         ),
         "control_law": (
             "telemetry row, control law and torque limits: one compiled call (`control_loop._record_and_control`; "
-            "the law alone on a model-update step)"
+            "the law alone after `prepare`)"
         ),
         "telemetry": "telemetry batch hand-off",
         "other": "other (timers, guarded-approach and abort checks; IK and DMP rollouts of the phase plans)",
