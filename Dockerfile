@@ -45,7 +45,7 @@ WORKDIR /home/cskills
 ENV NUMBA_CACHE_DIR=/home/cskills/.cache/numba
 RUN python -m sim_worker.warm_up
 ENV CONTACT_SKILLS_DB=/data/contact_skills.db
-EXPOSE 8000
+EXPOSE 8000 8765
 
 ENTRYPOINT ["contact-skills"]
 CMD ["api", "--host", "0.0.0.0"]

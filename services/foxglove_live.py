@@ -1,5 +1,6 @@
 """The live execution in Foxglove: a Foxglove WebSocket server (protocol ``foxglove.websocket.v1``, the
-``foxglove-sdk`` package) in the API process, on loopback, streaming the execution that runs.
+``foxglove-sdk`` package) in the API process, on the API's own bind address (loopback by default; in docker-compose
+the container's interfaces, published on the host's loopback), streaming the execution that runs.
 
 What it streams is what the exported MCAP holds (``services.telemetry_export.ExecutionMessages``: the same topics,
 ROS 2 message types, CDR, built by the same code), so a recorded run looks in Foxglove as the live one did: poses,
@@ -36,7 +37,9 @@ from services.store import TERMINAL, Store
 
 log = logging.getLogger("contact_skills.foxglove")
 
-HOST = "127.0.0.1"
+LOOPBACK = "127.0.0.1"
+LOOPBACK_OF_ALL = {"0.0.0.0": LOOPBACK, "": LOOPBACK, "::": "::1"}
+"""The loopback address a client on this machine connects to when the server listens on all interfaces."""
 POLL_S = 0.05
 """How often the store is read for new samples, s (20 Hz; each read sends everything new)."""
 LIVE_HZ = 100.0
@@ -49,22 +52,31 @@ seconds (a loaded machine, a learn) still sends every step once it reads the sto
 hundred bytes (markers a few kB)."""
 
 
+def client_url(host: str, port: int) -> str:
+    """``ws://HOST:PORT`` of a server listening on ``host``: on all interfaces, the loopback address (a local client's;
+    a container's port published on the host's loopback maps to it as well)."""
+    host = LOOPBACK_OF_ALL.get(host, host)
+    return f"ws://{f'[{host}]' if ':' in host else host}:{port}"
+
+
 def live_view(store: Store, settings: ServiceSettings) -> FoxgloveLive | None:
     """The live view ``settings`` ask for (``foxglove_server_port``), or None, saying why in the log when the token
     turned it off (an operator who set ``CONTACT_SKILLS_TOKEN_READS`` may wonder where it went)."""
     port = settings.foxglove_server_port
     if port is None and settings.foxglove_port is None:
         log.info("Foxglove live view off: reads need the token and CONTACT_SKILLS_FOXGLOVE_PORT is not set")
-    return None if port is None else FoxgloveLive(store, port)
+    return None if port is None else FoxgloveLive(store, port, settings.host)
 
 
 class FoxgloveLive:
     """The Foxglove WebSocket server of one API process, following ``store``'s running executions (see the module
-    docstring). :meth:`start` it, :meth:`close` it; :attr:`url` is where Foxglove connects."""
+    docstring). :meth:`start` it, :meth:`close` it; :attr:`url` is where Foxglove connects. ``host``: the address
+    to listen on, the API's (``ServiceSettings.host``)."""
 
-    def __init__(self, store: Store, port: int = DEFAULT_FOXGLOVE_PORT) -> None:
+    def __init__(self, store: Store, port: int = DEFAULT_FOXGLOVE_PORT, host: str = LOOPBACK) -> None:
         self.store = store
         self.port = port
+        self.host = host
         self.server: Any = None
         self._context: Any = None
         self._channels: dict[str, Any] = {}
@@ -83,11 +95,11 @@ class FoxgloveLive:
 
     @property
     def url(self) -> str | None:
-        """``ws://127.0.0.1:PORT`` while serving, else None."""
-        return None if self.server is None else f"ws://{HOST}:{self.server.port}"
+        """Where a client connects while serving (:func:`client_url`), else None."""
+        return None if self.server is None else client_url(self.host, self.server.port)
 
     def start(self) -> None:
-        """Serve on loopback (falling back to a free port when :attr:`port` is taken) and start following."""
+        """Serve on :attr:`host` (falling back to a free port when :attr:`port` is taken) and start following."""
         import foxglove
 
         from services.dashboard.ros_scene import message_definition
@@ -99,7 +111,7 @@ class FoxgloveLive:
         for topic, msgtype in topics.items():
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=message_definition(msgtype).encode())
             self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
-        options = dict(name="contact-skills", host=HOST, context=context, asset_handler=robot_asset,
+        options = dict(name="contact-skills", host=self.host, context=context, asset_handler=robot_asset,
                        server_listener=_Listener(self), message_backlog_size=MESSAGE_BACKLOG)  # fmt: skip
         try:
             self.server = foxglove.start_server(port=self.port, **options)

@@ -17,7 +17,7 @@ yaml = pytest.importorskip("yaml")
 from cli.main import build_parser  # noqa: E402
 from schemas import bus as bus_contract  # noqa: E402
 from schemas import bus_security  # noqa: E402
-from services.settings import DEFAULT_PORT, ENV_VARS  # noqa: E402
+from services.settings import DEFAULT_FOXGLOVE_PORT, DEFAULT_PORT, ENV_VARS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 COMPOSE = yaml.safe_load((REPO / "docker-compose.yml").read_text())
@@ -79,6 +79,10 @@ def test_environment_variables_are_read_by_the_settings():
 def test_ports_match_the_defaults():
     api_ports = COMPOSE["services"]["api"]["ports"]
     assert any(p.endswith(f":{DEFAULT_PORT}") and p.startswith("127.0.0.1:") for p in api_ports)
+    # the Foxglove live view listens where the API does (0.0.0.0 in the container), published on the host's loopback
+    assert f"127.0.0.1:{DEFAULT_FOXGLOVE_PORT}:{DEFAULT_FOXGLOVE_PORT}" in api_ports
+    assert re.search(rf"^EXPOSE\s+.*\b{DEFAULT_FOXGLOVE_PORT}\b", DOCKERFILE, re.MULTILINE)
+    assert SECURE["services"]["api"]["environment"]["CONTACT_SKILLS_TOKEN_READS"] == "true"  # there it is off
     assert str(DEFAULT_PORT) in COMPOSE["services"]["api"]["environment"]["CONTACT_SKILLS_PORT"]
     router_port = bus_contract.DEFAULT_ENDPOINT.rsplit(":", 1)[1]
     assert router_port == "7447"

@@ -274,6 +274,33 @@ def test_the_exported_mcap_holds_joint_states_the_urdf_and_the_cf_frame(stack, s
     assert _check_joint_states_put_the_tool_where_tf_says(topics["/joint_states"], topics["/tf"]) > 100
 
 
+def test_the_live_view_listens_where_the_api_does_and_names_a_loopback_url_for_all_interfaces(tmp_path) -> None:
+    """The Foxglove server binds the API's address (``ServiceSettings.host``): loopback by default, the container's
+    interfaces in docker-compose, whose published port then reaches it from the host. A second loopback address shows
+    it is the API's, not a fixed one; on all interfaces the URL names the loopback address a local client uses."""
+    import socket
+
+    from services.foxglove_live import client_url, live_view
+    from services.settings import ServiceSettings
+    from services.store import Store
+
+    store = Store(tmp_path / "api.db")
+    view = live_view(store, ServiceSettings(host="127.0.0.2", foxglove_port="0"))
+    assert view is not None and view.url is None
+    view.start()
+    try:
+        port = view.server.port
+        assert view.url == f"ws://127.0.0.2:{port}"
+        with socket.create_connection(("127.0.0.2", port), timeout=5):
+            pass
+        with pytest.raises(OSError), socket.create_connection(("127.0.0.1", port), timeout=5):
+            pass  # not on the default loopback address: the API's own
+    finally:
+        view.close()
+    # on every interface (not bound in a test): the URL a local client uses
+    assert client_url("0.0.0.0", 8765) == "ws://127.0.0.1:8765" and client_url("::", 8765) == "ws://[::1]:8765"
+
+
 def test_the_urdf_foxglove_draws_is_the_simulators_arm_and_tool():
     """``services`` may not import the simulator (tests/test_layers.py): its copy of the tool geometry is held equal
     here, and the arm's joints are the simulator's."""
