@@ -500,7 +500,7 @@ class Client:
             return self._request("GET", f"/demonstrations/{record_id}/telemetry", params=params).content
         if not record_id.startswith("exec_"):
             raise ValueError(f"{record_id!r} is not a demonstration (demo_...) or an execution (exec_...) id")
-        from services.store import telemetry_matrix
+        from schemas.telemetry_rows import telemetry_matrix
         from services.telemetry_export import execution_csv, execution_json_chunks, execution_mcap
 
         kind = TelemetryFormat(format)

@@ -43,9 +43,10 @@ import numpy as np
 
 from schemas.demonstration import Demonstration
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
+from schemas.telemetry_rows import telemetry_column
 from services.cdr import pose_stamped, tf_message, wrench_stamped
 from services.dashboard.scene import CF_FRAME, TOOL_FRAME, WORLD_FRAME
-from services.store import TELEMETRY_LAYOUT, telemetry_column
+from services.store import TELEMETRY_LAYOUT
 
 PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
 MCAP_MEDIA_TYPE = "application/octet-stream"

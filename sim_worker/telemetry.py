@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas.execution import TELEMETRY_COLUMNS, ExecutionPhase, TelemetryBatch
+from schemas.telemetry_rows import telemetry_batch
 
 _PHASES = list(ExecutionPhase)
 
@@ -93,19 +94,5 @@ class Telemetry:
         return self._col("contact_normal")
 
     def to_batch(self, execution_id: str = "") -> TelemetryBatch:
-        """Return the rows as the columnar wire payload (``schemas.TelemetryBatch``)."""
-        return TelemetryBatch(
-            execution_id=execution_id,
-            t=self.t.tolist(),
-            phase=self.phases,
-            segment_index=self.segment_index.tolist(),
-            tool_position=self.tool_position.tolist(),
-            tool_orientation=self.tool_orientation.tolist(),
-            reference_position=self.reference_position.tolist(),
-            reference_orientation=self.reference_orientation.tolist(),
-            wrench_world=self.wrench_world.tolist(),
-            wrench_cf=self.wrench_cf.tolist(),
-            desired_force_cf_z_n=self.desired_force.tolist(),
-            in_contact=self.in_contact.tolist(),
-            normal_force_true_n=self.normal_force_true.tolist(),
-        )
+        """Return the rows as the columnar wire payload (``schemas.TelemetryBatch``: the streamed columns)."""
+        return telemetry_batch(self.data, execution_id)

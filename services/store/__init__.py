@@ -29,7 +29,7 @@ from services.store.rows import (
 )
 from services.store.skills import SkillRepository
 from services.store.sweeps import SweepRepository
-from services.store.telemetry import TELEMETRY_LAYOUT, TelemetryRepository, telemetry_column, telemetry_matrix
+from services.store.telemetry import TELEMETRY_LAYOUT, TelemetryRepository
 
 __all__ = [
     "ACTIVE",
@@ -49,8 +49,6 @@ __all__ = [
     "SweepTrialRow",
     "first_problem",
     "new_id",
-    "telemetry_column",
-    "telemetry_matrix",
 ]
 
 

@@ -13,13 +13,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from schemas.execution import (
-    PHASE_CODES,
-    STREAMED_TELEMETRY_COLUMNS,
-    STREAMED_TELEMETRY_WIDTH,
-    ExecutionPhase,
-    TelemetryBatch,
-)
+from schemas.execution import STREAMED_TELEMETRY_COLUMNS, STREAMED_TELEMETRY_WIDTH, TelemetryBatch
+from schemas.telemetry_rows import telemetry_matrix
 from services.store.database import Database
 
 TELEMETRY_LAYOUT: dict[str, tuple[int, int]] = {
@@ -31,36 +26,6 @@ TELEMETRY_READ_SAMPLES = 8192
 """Telemetry samples read per query by :meth:`TelemetryRepository.blocks` (~2 MB; more when one block holds more)."""
 _TELEMETRY_END = "SELECT COALESCE(MAX(seq + rows), 0) FROM telemetry WHERE execution_id = ?"
 """One past the last stored sample of an execution."""
-_PHASES_BY_CODE = {code: phase for phase, code in PHASE_CODES.items()}
-
-
-def telemetry_matrix(batch: TelemetryBatch) -> np.ndarray:
-    """The columns of ``batch`` as one (rows, :data:`STREAMED_TELEMETRY_WIDTH`) float64 matrix."""
-    n = len(batch.t)
-    matrix = np.full((n, STREAMED_TELEMETRY_WIDTH), np.nan)  # NaN: a column the batch does not carry
-    for name, (a, b) in TELEMETRY_LAYOUT.items():
-        values = getattr(batch, name)
-        if name == "phase":
-            values = [PHASE_CODES[ExecutionPhase(p)] for p in values]
-        if len(values) or n == 0:
-            matrix[:, a:b] = np.asarray(values, dtype=float).reshape(n, b - a)
-    return matrix
-
-
-def telemetry_column(matrix: np.ndarray, name: str) -> list:
-    """The inverse of :func:`telemetry_matrix` for one `TelemetryBatch` field of the stored ``matrix`` rows: a list
-    (phases as names)."""
-    a, b = TELEMETRY_LAYOUT[name]
-    block = matrix[:, a:b]
-    if name == "phase":
-        return [_PHASES_BY_CODE.get(int(code), ExecutionPhase.failed).value for code in block[:, 0]]
-    if name == "segment_index":
-        return block[:, 0].astype(int).tolist()
-    if np.isnan(block).all() and block.size:
-        return []  # a column not recorded (telemetry stored before it was streamed)
-    if name == "in_contact":
-        return (block[:, 0] > 0.5).tolist()
-    return block[:, 0].tolist() if b - a == 1 else block.tolist()
 
 
 def _stored_rows(data: bytes, n: int) -> np.ndarray:
