@@ -158,6 +158,11 @@ class VerdictCheckName(StrEnum):
     not_relocated = "not_relocated"
     """No contour was relocated where its touch-down found the part (``follow_surface_normal``; relocated: a warning
     naming the part's move, which the run believed)."""
+    skill_checks = "skill_checks"
+    """The skill passes its own checks against its demonstration (``Skill.checks``). A failed one is a warning; it
+    fails the verdict where the work piece carries the mistake, so that the run cannot show it wrong: one rebuilt from
+    what the skill learned, or one measured from its demonstration when a check of the recording itself failed (its
+    wrench's sign, its sensor offset)."""
 
 
 class ExecutionTolerances(BaseModel):

@@ -245,6 +245,7 @@ class CheckName(StrEnum):
     plane_vs_force = "plane_vs_force"
     stroke_strength = "stroke_strength"
     force_outside_contact = "force_outside_contact"
+    friction_along_motion = "friction_along_motion"
     sensor_offset = "sensor_offset"
     type_evidence = "type_evidence"
 

@@ -494,6 +494,7 @@ def execute_skill(
     should_abort: Callable[[], bool] | None = None,
     should_pause: Callable[[], bool] | None = None,
     demonstration: Demonstration | None = None,
+    work_piece: str | None = None,
 ) -> ExecutionResult:
     """Execute ``skill`` in ``world_config`` and return metrics and telemetry (:func:`run_skill` chooses the world).
 
@@ -505,7 +506,9 @@ def execute_skill(
     ``should_pause()`` is polled before every control step; while True the controller holds the current
     reference (zero reference twist, desired force held) and the loop keeps running (simulated time and
     telemetry go on; the plan does not advance). With pace ``fast`` the caller should throttle while paused.
-    ``demonstration``, if given, is the path the path metric compares with (else the nominal DMP path).
+    ``demonstration``, if given, is the path the path metric compares with (else the nominal DMP path);
+    ``work_piece`` where the world's work piece came from (``ExecutionWorld.source``: one rebuilt from the skill
+    cannot show it wrong, and the verdict says so).
     Never raises for a failed execution: the metrics say ``aborted`` / ``failed`` and why.
     """
     settings = settings or ExecutionSettings()
@@ -549,6 +552,7 @@ def execute_skill(
         frame_log=loop.frame_log,
         contact_guard=execution.guard if execution.geometry else None,  # (a skill without contact guards nothing)
         surface_window_m=execution.surface_window_m(),
+        work_piece=work_piece,
     )
     metrics = compute_metrics(skill, tel, settings, phase, reason, loop_wall_s, log, demonstration, execution.dt)
     return ExecutionResult(
@@ -580,6 +584,7 @@ def run_skill(
         should_abort=should_abort,
         should_pause=should_pause,
         demonstration=world.demonstration,
+        work_piece=world.source,
     )
     result.metrics = result.metrics.model_copy(update={"work_piece": world.source, "placement": world.placement})
     return result

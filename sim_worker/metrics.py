@@ -27,11 +27,13 @@ from schemas.execution import (
     Verdict,
     VerdictCheck,
     VerdictCheckName,
+    WorkPieceSource,
 )
-from schemas.skill import Segment, SegmentKind, Skill
+from schemas.skill import Segment, SegmentKind, Skill, SkillCheck
 from sim_worker.contact_detection import ContactGuard
 from sim_worker.plans import contact_geometry
 from sim_worker.telemetry import Telemetry
+from skills import skill_checks
 from skills.dmp import DMP
 
 STEADY_CONTACT_DELAY_S = 0.2
@@ -221,6 +223,8 @@ class ExecutionLog:
     """Per contour relocated where its touch-down found the part, the part's move (m, world)."""
     surface_window_m: float = 0.02
     """How far from where it was taught a surface may be found, m."""
+    work_piece: str | None = None
+    """Where the world's work piece came from, when it was resolved for the skill (``ExecutionWorld.source``)."""
 
 
 def _bounded_check(name: VerdictCheckName, value: float | None, limit: float, what: str, upper: bool) -> VerdictCheck:
@@ -234,11 +238,17 @@ def _bounded_check(name: VerdictCheckName, value: float | None, limit: float, wh
 
 
 def execution_verdict(
-    metrics: ExecutionMetrics, tolerances: ExecutionTolerances, log: ExecutionLog, contact_expected: bool
+    metrics: ExecutionMetrics,
+    tolerances: ExecutionTolerances,
+    log: ExecutionLog,
+    contact_expected: bool,
+    skill_failed: list[SkillCheck] | None = None,
 ) -> ExecutionVerdict:
     """Pass or fail: ``metrics`` against ``tolerances``; a surface found outside its window is a warning. A skill with
     a contact segment that ran to its end without a measured steady contact fails (nothing was pressed); an aborted
-    run fails on that alone (its other checks are listed where they were measured)."""
+    run fails on that alone (its other checks are listed where they were measured). The skill's own failed checks
+    (``skill_failed``) are a warning, and fail the verdict where the work piece carries their finding
+    (:func:`_skill_checks_check`)."""
     finished = metrics.phase is ExecutionPhase.done
     reason = "ran every segment" if finished else f"{metrics.phase.value}: {metrics.abort_reason}"
     checks = [VerdictCheck(name=VerdictCheckName.finished, passed=finished, message=reason)]
@@ -280,10 +290,40 @@ def execution_verdict(
                 name=name.not_relocated, passed=False, warning_only=True, value=moved, limit=0.0, message=message
             )
         )
+    if skill_failed:
+        checks.append(_skill_checks_check(skill_failed, log.work_piece))
     failed = [c.message for c in checks if not c.passed and not c.warning_only]
     warnings = [c.message for c in checks if not c.passed and c.warning_only]
     verdict = Verdict.failed if failed else Verdict.passed
     return ExecutionVerdict(verdict=verdict, reasons=failed, warnings=warnings, checks=checks)
+
+
+def _skill_checks_check(failed: list[SkillCheck], work_piece: str | None) -> VerdictCheck:
+    """The verdict's check of the skill's own ``failed`` checks against its demonstration: a warning, or a failure
+    where the work piece carries what they found wrong, so that the run would confirm it: one rebuilt from what the
+    skill learned (every check), or one measured from its demonstration (the checks of the recording itself,
+    ``skill_checks.RECORDING_CHECKS``)."""
+    names = ", ".join(dict.fromkeys(c.name.value for c in failed))
+    message = f"the skill fails {len(failed)} of its checks against its demonstration ({names}): {failed[0].message}"
+    if work_piece == WorkPieceSource.rebuilt:
+        carried = "was rebuilt from what the skill learned"
+    elif work_piece == WorkPieceSource.measured and any(c.name in skill_checks.RECORDING_CHECKS for c in failed):
+        carried = "was measured from the same recording"
+    else:
+        carried = None
+    if carried is not None:
+        message += (
+            f"; this work piece {carried}, so the run cannot show it wrong (fix the recording's import, or run the "
+            "skill on a work piece of known shape)"
+        )
+    return VerdictCheck(
+        name=VerdictCheckName.skill_checks,
+        passed=False,
+        warning_only=carried is None,
+        value=float(len(failed)),
+        limit=0.0,
+        message=message,
+    )
 
 
 def compute_metrics(
@@ -344,7 +384,8 @@ def compute_metrics(
         **metrics,
     )
     contact_expected = any(s.kind is SegmentKind.contact for s in skill.segments)
-    result.verdict = execution_verdict(result, settings.tolerances, log, contact_expected)
+    skill_failed = [c for c in skill.checks if not c.passed]
+    result.verdict = execution_verdict(result, settings.tolerances, log, contact_expected, skill_failed)
     return result
 
 

@@ -255,12 +255,14 @@ def _checks(
     """Return the skill's checks against what the demonstration measured (`skills.skill_checks`); the import's
     sensor-offset uncertainty (N) is checked where it fitted one."""
     checks, presses, free = [], {}, np.zeros(len(r.t), dtype=bool)
+    in_contact = []
     for item in learned:
         segment = item.segment
         rows = slice(segment.start_index, segment.end_index)
         if segment.kind is SegmentKind.free:
             free[rows] = True
             continue
+        in_contact.append(rows)
         f, v = r.forces[rows], r.velocities[rows]
         free_of_friction = blended_friction_free(f, v, friction_coefficient(f, v), normals=item.cf_z)
         checks.append(skill_checks.force_along_cf(segment.index, free_of_friction, item.learned_force_n))
@@ -273,6 +275,12 @@ def _checks(
     checks.extend(skill_checks.stroke_strength(presses))
     weakest = min(presses.values())
     checks.append(skill_checks.force_outside_contact(r.forces, r.velocities, free, weakest, r.contact.rate_hz))
+    checks.append(
+        skill_checks.friction_along_motion(
+            np.concatenate([r.forces[rows] for rows in in_contact]),
+            np.concatenate([r.velocities[rows] for rows in in_contact]),
+        )
+    )
     if offset_uncertainty_n is not None:
         checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))

@@ -20,6 +20,13 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   already free).
 - ``force_outside_contact`` (skill) — the largest press held in a free segment without moving
   along it (a stroke the contact analysis missed), against the weakest contact segment's press.
+- ``friction_along_motion`` (skill) — the sign of the friction in the contact segments: the tool drags the surface
+  along its motion, so the force it applies leans TOWARDS its sliding velocity. The median lean (the force along the
+  motion over the force across it, signed) where the tool slides faster than ``skills.friction.FAST_SLIDING_M_S``
+  (leaning at most ``FRICTION_CONE_MAX``: more is settling or a push) must not be below ``-FRICTION_SIGN_LIMIT``.
+  Leaning against the motion, the wrench was recorded with the other sign (the sensor's reaction) or in another
+  frame, and every CF z would point out of the surface. A rolling tool leans little either way; no sliding, no
+  verdict (passed).
 - ``sensor_offset`` (skill, where the import fitted the offset) — its uncertainty (the hand's slow
   wander it cannot tell apart, `skills.tare`) against the weakest contact's press: beyond
   ``OFFSET_SHARE_LIMIT`` forces, and a straight stroke's tilt, are uncertain by more than the tolerance.
@@ -41,7 +48,7 @@ from schemas.skill import CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask
-from skills.friction import FrictionFree, unit_rows
+from skills.friction import FAST_SLIDING_M_S, FRICTION_CONE_MAX, FrictionFree, unit_rows
 from skills.segmentation import BRUSH_FRACTION
 from skills.selection import MIXED_CONFIDENCE, SkillClassification
 
@@ -68,6 +75,13 @@ OUTSIDE_PRESS_FRACTION = 0.5
 
 OFFSET_SHARE_LIMIT = 0.05
 """The sensor offset's uncertainty may be at most this fraction of the weakest contact's press (the force tolerance)."""
+
+FRICTION_SIGN_LIMIT = 0.01
+"""The contact's median lean to the motion may be at most this far AGAINST it (tan of the angle; 0.01 is 0.6°)."""
+
+RECORDING_CHECKS = frozenset({CheckName.friction_along_motion, CheckName.sensor_offset})
+"""The checks of the recording itself (its wrench's sign and frame, its sensor offset), not of what was learned from
+it: a work piece measured from the same recording carries what they find wrong."""
 
 AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
 """A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
@@ -244,6 +258,44 @@ def force_outside_contact(
         message=f"free segments hold at most {worst:.1f} N for {HELD_PRESS_S:.1f} s without moving along it, "
         f"{100 * share:.0f} % of the weakest contact's press"
         + ("" if passed else ": a stroke the contact analysis missed?"),
+    )
+
+
+def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> SkillCheck:
+    """Check that the force the tool applies in contact leans towards its motion, as friction makes it: ``forces``
+    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment. Judged where the tool slides faster
+    than ``FAST_SLIDING_M_S`` and the force leans at most ``FRICTION_CONE_MAX`` either way (more moves the tool along
+    its press: settling, a push), as ``skills.friction`` measures the friction coefficient."""
+    speed = np.linalg.norm(velocities, axis=1)
+    direction = unit_rows(velocities)
+    along = np.sum(forces * direction, axis=1)
+    across = np.linalg.norm(forces - along[:, None] * direction, axis=1)
+    leans = along / np.maximum(across, 1e-12)
+    sliding = (speed > FAST_SLIDING_M_S) & (across > 0.0) & (np.abs(leans) <= FRICTION_CONE_MAX)
+    lean = float(np.median(leans[sliding])) if sliding.any() else 0.0
+    passed = lean >= -FRICTION_SIGN_LIMIT
+    if not sliding.any():
+        message = "no contact sample slides: the friction's sign is not judged"
+    else:
+        side = "towards" if lean >= 0 else "against"
+        message = (
+            f"the applied force leans {abs(np.degrees(np.arctan(lean))):.1f} deg {side} the tool's motion (median "
+            f"over {int(sliding.sum())} sliding contact samples)"
+        )
+    if not passed:
+        message += (
+            ": friction drags the surface ALONG the motion, so the wrench looks recorded with the other sign (what "
+            "the sensor measures on the tool, not what the tool applies) or in another frame, and CF z points out of "
+            "the surface"
+        )
+    return SkillCheck(
+        name=CheckName.friction_along_motion,
+        segment=None,
+        passed=passed,
+        value=lean,
+        limit=-FRICTION_SIGN_LIMIT,
+        unit="ratio",
+        message=message,
     )
 
 

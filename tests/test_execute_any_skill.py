@@ -15,6 +15,7 @@ from conftest import KULEUVEN_DATA
 
 from corpus import kinesthetic
 from schemas import EnvironmentChange, ExecutionSettings, Skill
+from schemas.execution import Verdict
 from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
 from sim_worker.execution_world import execution_world
@@ -86,6 +87,35 @@ def test_kuleuven_trials_execute_on_their_rebuilt_contour(trial: str) -> None:
     assert metrics.force_rms_error_pct <= 10.0 and metrics.contact_ratio >= 0.95, metrics
     assert metrics.true_force_rms_error_pct <= 12.0
     assert metrics.cf_normal_angle_deg < 6.0  # the strip follows the learned normal
+
+
+def test_a_skill_failing_its_recordings_check_cannot_pass_on_a_work_piece_made_from_that_recording() -> None:
+    """contour_a_1 read with the sensor's sign taken for the tool's (its world-frame columns): the skill presses out
+    of the surface it learned, and a work piece rebuilt from it, or measured from the same recording, carries the
+    mistake. On the rebuilt piece the run is within every tolerance, as it was before the friction check: only the
+    skill's failed check fails the verdict, saying why. A failed check of what was learned, not of the recording,
+    leaves a measured piece a fair test: a warning there."""
+    options = {**KU_IMPORT, "wrench_convention": "applied-by-tool", "wrench_frame": "world"}
+    demo = demonstration_from_csv(KULEUVEN_DATA / "contour_a_1.csv", CsvImportOptions(**options))
+    skill = learn_skill(demo)
+    assert [c.name.value for c in skill.checks if not c.passed] == ["friction_along_motion"]
+    rebuilt = run_skill(execution_world(skill), ExecutionSettings()).metrics
+    assert rebuilt.work_piece == "rebuilt" and rebuilt.verdict.verdict is Verdict.failed
+    [reason] = rebuilt.verdict.reasons  # the run itself: within its tolerances
+    assert reason.startswith("the skill fails 1 of its checks against its demonstration (friction_along_motion)")
+    assert "rebuilt from what the skill learned, so the run cannot show it wrong" in reason
+    measured = run_skill(execution_world(skill, demonstration=demo), ExecutionSettings()).metrics
+    assert measured.work_piece == "measured" and measured.verdict.verdict is Verdict.failed
+    assert any("measured from the same recording, so the run cannot" in r for r in measured.verdict.reasons)
+    learned_wrong = skill.model_copy(
+        update={
+            "checks": [c.model_copy(update={"passed": c.name.value == "friction_along_motion"}) for c in skill.checks]
+        }
+    )  # every check of what was learned failed, the recording's passed: the measured piece can show them wrong
+    warned = execution_world(learned_wrong, demonstration=demo)
+    verdict = run_skill(warned, ExecutionSettings()).metrics.verdict
+    assert not any("skill fails" in r for r in verdict.reasons)
+    assert any(w.startswith(f"the skill fails {len(skill.checks) - 1} of its checks") for w in verdict.warnings)
 
 
 # ------------------------------------------------------------------------------------------- kinesthetic slides

@@ -22,7 +22,7 @@ from corpus.families import corpus_cases, human_case, planar_edge_case, plane_ca
 from corpus.scoring import Score, score
 from schemas import Demonstration, LearnOptions, Skill, SkillType
 from schemas.import_options import BagImportOptions, CsvImportOptions
-from schemas.skill import CheckName, SegmentKind
+from schemas.skill import CheckName, SegmentKind, SkillCheck
 from services.csv_import import demonstration_from_csv
 from skills import skill_checks
 from skills.friction import friction_free
@@ -50,6 +50,10 @@ def contacts(skill: Skill) -> list:
 
 def failed(skill: Skill) -> list[str]:
     return [f"{c.name.value}: {c.message}" for c in skill.checks if not c.passed]
+
+
+def friction_check(skill: Skill) -> SkillCheck:
+    return next(c for c in skill.checks if c.name is CheckName.friction_along_motion)
 
 
 # --------------------------------------------------------------------------- the failures, each against its truth
@@ -189,6 +193,58 @@ def test_strict_learning_refuses_a_skill_that_fails_its_checks_and_says_which() 
         learn_skill(demonstration, LearnOptions(strict=True))
     assert refused.value.field == "strict" and [c.name for c in refused.value.checks] == [CheckName.type_evidence]
     assert "mixed evidence" in refused.value.reason
+
+
+@pytest.mark.parametrize("trial", ["contour_a_1", "contour_b_2"])
+def test_a_real_recording_read_with_the_sensors_sign_is_caught_by_its_friction(trial: str) -> None:
+    """The KU Leuven file holds what the sensor measured on the tool. Read as the wrench the tool applies, every
+    other check passed (a contour pressing out of its surface, at confidence 0.99), and a work piece rebuilt from it
+    ran to a verdict of pass. The friction tells: the tool drags the surface along its motion, so the force it
+    applies leans towards the motion (a rolling tool, a few degrees), and the flipped one leans against it."""
+    from services.datasets import kuleuven_file
+
+    def read(convention: str) -> Demonstration:
+        options = {"quaternion_order": "wxyz", "wrench_convention": convention, "wrench_frame": "world"}
+        return demonstration_from_csv(kuleuven_file(f"{trial}.csv"), CsvImportOptions(**options))
+
+    right, flipped = learn_skill(read("measured-on-tool")), learn_skill(read("applied-by-tool"))
+    assert failed(right) == [] and friction_check(right).value > skill_checks.FRICTION_SIGN_LIMIT
+    assert [c.name for c in flipped.checks if not c.passed] == [CheckName.friction_along_motion]
+    lean = friction_check(flipped)
+    assert lean.value < -skill_checks.FRICTION_SIGN_LIMIT and "other sign" in lean.message
+    assert lean.value == pytest.approx(-friction_check(right).value, abs=0.005)  # the same lean, mirrored
+    with pytest.raises(SkillCheckError) as refused:
+        learn_skill(read("applied-by-tool"), LearnOptions(strict=True))
+    assert [c.name for c in refused.value.checks] == [CheckName.friction_along_motion]
+
+
+@pytest.mark.parametrize("kind", ["human-straight", "human-zigzag", "human-cylinder"])
+def test_a_hand_guided_recording_read_with_the_other_wrench_sign_is_caught(kind: str) -> None:
+    """The corpus's hand-guided recordings (a wrist sensor's file: its reaction, in the tool frame) read with the
+    other convention: each skill fails the friction check, read as written each passes it with its friction."""
+    case = human_case(kind)
+    right = learn_skill(case.demonstration(read_csv))
+    flipped = learn_skill(
+        case.demonstration(lambda text, options: read_csv(text, {**options, "wrench_convention": "applied-by-tool"}))
+    )
+    assert friction_check(right).passed and friction_check(right).value > 0.1  # the corpus's friction: mu >= 0.1
+    assert not friction_check(flipped).passed and friction_check(flipped).value < -0.1
+
+
+def test_the_friction_check_judges_only_sliding_contact() -> None:
+    """A press held still, or moving only along the press (settling), says nothing about the friction's sign: the
+    check passes without a verdict; sliding with the force leaning against the motion fails it."""
+    n = 400
+    press = np.tile([0.0, 0.0, -10.0], (n, 1))
+    still = skill_checks.friction_along_motion(press, np.zeros((n, 3)))
+    settling = skill_checks.friction_along_motion(press, np.tile([0.0, 0.0, -0.05], (n, 1)))
+    for check in (still, settling):
+        assert check.passed and "not judged" in check.message
+    sliding, friction = np.tile([0.05, 0.0, 0.0], (n, 1)), np.array([3.0, 0.0, 0.0])
+    dragging = skill_checks.friction_along_motion(press + friction, sliding)
+    pushed = skill_checks.friction_along_motion(press - friction, sliding)
+    assert dragging.passed and dragging.value == pytest.approx(0.3)
+    assert not pushed.passed and pushed.value == pytest.approx(-0.3)
 
 
 # --------------------------------------------------------------------------- the real contours against their CAD
