@@ -41,7 +41,8 @@ import argparse  # noqa: E402
 import os  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
+from collections.abc import Callable, Iterator  # noqa: E402
+from contextlib import contextmanager  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -224,6 +225,8 @@ def captured_torques(world: ExecutionWorld, settings: ExecutionSettings) -> tupl
     return torques, start[0], int(result.telemetry.in_contact.sum())
 
 
+AFTERMATH_SETTLED = 5
+"""Steps after a model update from which a step's parts count as settled (:func:`update_aftermath`)."""
 LADDER = ("bare", "arm_contact", "row_law", "model_update")
 """The bare loops, each adding one of the project's per-step parts to the four PyBullet calls: none; the arm state and
 contact summary from PyBullet's tuples (``contact_sensing.sense``; with the wrist sensor ``sample``, its reading too);
@@ -243,6 +246,7 @@ class StepParts(NamedTuple):
     loop_state: np.ndarray
     rows: np.ndarray
     mass_matrix: np.ndarray
+    record_and_control: Callable[..., tuple]
     record_update_and_control: Callable[..., tuple]
 
 
@@ -261,13 +265,28 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     loop_state[_S_DT] = sim.config.time_step_s
     reading_at = CONTACT_APPLIED.start if handles.ideal else CONTACT_MEASURED.start
     rows, mass_matrix = np.zeros((steps, TELEMETRY_WIDTH)), np.zeros((N_JOINTS, N_JOINTS))
+    # The compiled calls as the project loop makes them: their specializations, not the dispatcher.
+    law_buffer = controller.law_buffer
+    record_and_control = compiled_entry(
+        _record_and_control, (arm, contact, reading_at, False, law_buffer, loop_state, rows, references, 0, False, 0, 0)
+    )
     record_update_and_control = compiled_entry(
         _record_update_and_control,
-        (handles.model, True, mass_matrix, arm, contact, reading_at, False, controller.law_buffer, loop_state, rows,
+        (handles.model, True, mass_matrix, arm, contact, reading_at, False, law_buffer, loop_state, rows,
          references, 0, False, 0, 0, *controller.model_arguments()),
     )  # fmt: skip
     return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, mass_matrix,
-                     record_update_and_control)  # fmt: skip
+                     record_and_control, record_update_and_control)  # fmt: skip
+
+
+@contextmanager
+def replayed_world(world: ExecutionWorld, start: tuple) -> Iterator[SimWorld]:
+    """A new world as the project builds ``world``'s, its arm put in the captured ``start`` state (joint positions
+    and velocities), for a bare loop to replay the project's torques from."""
+    with SimWorld(world.config) as sim:
+        for joint, state in zip(range(N_JOINTS), start, strict=True):
+            pybullet.resetJointState(sim.robot, joint, state[0], state[1], physicsClientId=sim.client_id)
+        yield sim
 
 
 def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> None:
@@ -302,11 +321,9 @@ def bare_loop(
     :data:`LADDER`) the project's compiled per-step parts on top, computed and not used (the torques stay the replayed
     ones, so the physics stays the same). Returns µs per step by wall time and by the thread's CPU time, and the steps
     that began in contact (contact points reported)."""
-    with SimWorld(world.config) as sim:
+    with replayed_world(world, start) as sim:
         client, robot = sim.client_id, sim.robot
         joints = list(range(N_JOINTS))
-        for joint, state in zip(joints, start, strict=True):
-            pybullet.resetJointState(robot, joint, state[0], state[1], physicsClientId=client)
         parts = step_parts(sim, len(torques))
         handles, reading_at, references, loop_state, rows = (
             parts.handles, parts.reading_at, parts.references, parts.loop_state, parts.rows
@@ -315,14 +332,9 @@ def bare_loop(
         model, arm, contact, ideal, draw, sensor = (
             handles.model, handles.arm, handles.contact, handles.ideal, handles.draw, handles.sensor
         )  # fmt: skip
-        law_buffer = parts.controller.law_buffer
-        # The compiled calls as the project loop makes them: their specializations, not the dispatcher.
+        law_buffer, record_and_control = parts.controller.law_buffer, parts.record_and_control
         sensing = SensingEntries(handles)
         by_count, sensed_first = sensing.by_count, sensing.first
-        record_and_control = compiled_entry(
-            _record_and_control,
-            (arm, contact, reading_at, False, law_buffer, loop_state, rows, references, 0, False, 0, 0),
-        )
         updating = level == "model_update"
         arm_contact, row_law = level != "bare", level == "row_law" or updating
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
@@ -365,10 +377,8 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
     contact, then each part called ``calls`` times back to back on that state (no physics step between: its code and
     data stay in the CPU caches). Returns CPU µs per step by part, the best of 5 batches (the model update's, less the
     row and law it replaces, per ``NULL_SPACE_UPDATE_STEPS`` steps)."""
-    with SimWorld(world.config) as sim:
+    with replayed_world(world, start) as sim:
         client, robot = sim.client_id, sim.robot
-        for joint, state in zip(range(N_JOINTS), start, strict=True):
-            pybullet.resetJointState(robot, joint, state[0], state[1], physicsClientId=client)
         parts = step_parts(sim, len(torques))
         handles = parts.handles
         for forces in torques:  # to the first state in contact: a contact point's tuple to unpack, as in a slide
@@ -395,7 +405,7 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
         )  # fmt: skip
         row_law_arguments = (arm, contact, parts.reading_at, touching, law_buffer, loop_state, rows, references, 0,
                              False, 0, 0)  # fmt: skip
-        record_and_control = compiled_entry(_record_and_control, row_law_arguments)
+        record_and_control = parts.record_and_control
         timed = {
             "arm_contact": arm_and_contact,
             "row_law": lambda: record_and_control(*row_law_arguments),
@@ -413,6 +423,50 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
     # As in the ladder: a model update replaces one step's row and law, once every NULL_SPACE_UPDATE_STEPS steps.
     costs["model_update"] = (costs["model_update"] - costs["row_law"]) / NULL_SPACE_UPDATE_STEPS
     return costs
+
+
+def update_aftermath(world: ExecutionWorld, torques: list[list[float]], start: tuple) -> dict[str, float]:
+    """The model update's cost in the loop, in its parts: one bare loop with the project's per-step parts (the ladder's
+    last level), each part of each step timed (wall clock; the timers cost every step the same). Returns µs per model
+    update: ``own``, its step's compiled call less a row-and-law step's; ``physics`` and ``sensing``, how much longer
+    the physics step right after it and the next step's arm state and contact summary take than those of steps
+    ``AFTERMATH_SETTLED`` or more steps after an update (their code and data evicted by the update's LAPACK)."""
+    perf = time.perf_counter_ns
+    with replayed_world(world, start) as sim:
+        client, robot = sim.client_id, sim.robot
+        joints = list(range(N_JOINTS))
+        parts = step_parts(sim, len(torques))
+        handles, law_buffer, loop_state = parts.handles, parts.controller.law_buffer, parts.loop_state
+        sensing = SensingEntries(handles)
+        extra = () if handles.ideal else (handles.sensor,)
+        times = np.zeros((len(torques), 3))  # sensing, compiled step, physics: ns
+        for k, forces in enumerate(torques):
+            t0 = perf()
+            states = pybullet.getJointStates(robot, handles.queried, client)
+            points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
+            entry = sensing.by_count[len(points)] if len(points) <= COMPILED_CONTACT_COUNTS else None
+            if not handles.ideal:
+                handles.draw()
+            arguments = (handles.model, states, points, handles.arm, handles.contact, *extra)
+            touching = entry(*arguments) if entry else sensing.first(states, points)
+            t1 = perf()
+            if k % NULL_SPACE_UPDATE_STEPS == 0:
+                model_update(sim, parts, touching, k)
+            else:
+                parts.record_and_control(handles.arm, handles.contact, parts.reading_at, touching, law_buffer,
+                                         loop_state, parts.rows, parts.references, k, False, k, k)  # fmt: skip
+            t2 = perf()
+            pybullet.setJointMotorControlArray(robot, joints, pybullet.TORQUE_CONTROL, forces=forces,
+                                               physicsClientId=client)  # fmt: skip
+            pybullet.stepSimulation(client)
+            times[k] = t1 - t0, t2 - t1, perf() - t2
+    since = np.arange(len(torques)) % NULL_SPACE_UPDATE_STEPS
+    settled = times[since >= AFTERMATH_SETTLED].mean(axis=0)
+    return {
+        "own": 1e-3 * (times[since == 0, 1].mean() - settled[1]),
+        "physics": 1e-3 * (times[since == 0, 2].mean() - settled[2]),
+        "sensing": 1e-3 * (times[since == 1, 0].mean() - settled[0]),
+    }
 
 
 def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int) -> list[dict[str, float | str | int]]:
@@ -454,6 +508,7 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
                 "ratio_cpu": statistics.median(p / b for p, b in zip(project_cpu, bare_cpu, strict=True)),
                 "ladder_cpu": {level: statistics.median(values) for level, values in ladder_cpu.items()},
                 "isolated_cpu": isolated_costs(world, torques, start, isolated_calls),
+                "aftermath": update_aftermath(world, torques, start),
             }
         )
         row = rows[-1]
@@ -563,8 +618,22 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
         "computes: the law needs the arm's Jacobian and gravity/Coriolis of every state, the projector needs the "
         "same LAPACK calls (another factorization rounds differently), and the telemetry must stay bit-identical.",
+        "- The model update's cost in the loop, per update, from one more bare loop with every part of every step "
+        f"timed ({'; '.join(_aftermath_reading(r) for r in rows)}): the update's LAPACK in turn evicts PyBullet's "
+        "code and data, which the next steps take back.",
     ]
     return lines
+
+
+def _aftermath_reading(row: dict) -> str:
+    """One sensor's :func:`update_aftermath` in words."""
+    a = row["aftermath"]
+    total = a["own"] + a["physics"] + a["sensing"]
+    return (
+        f"{row['sensor']}: its own call {a['own']:.1f} µs more than a row-and-law step, the physics step right after "
+        f"it {a['physics']:+.1f} µs and the next step's sensing {a['sensing']:+.1f} µs against settled steps, "
+        f"{total:.1f} µs in all, {total / NULL_SPACE_UPDATE_STEPS:.1f} per step"
+    )
 
 
 def main() -> None:

@@ -209,3 +209,13 @@ def test_control_loop_benchmark_smoke():
     assert rows, out[-3000:]
     values = [v for line in rows for v in numbers(line)]
     assert finite(*values) and max(values) > 1
+    # The model update's cost in its parts, per sensor, from the run: its own call costs more than a row-and-law step
+    # (the mass matrix and the projector's LAPACK), and the parts add up to the total printed.
+    parts = re.findall(
+        r"(ideal|wrist): its own call (-?[\d.]+) µs more than a row-and-law step, the physics step right after it "
+        r"([+-][\d.]+) µs and the next step's sensing ([+-][\d.]+) µs against settled steps, ([\d.]+) µs in all",
+        out,
+    )
+    assert [p[0] for p in parts] == ["ideal", "wrist"], out[-3000:]
+    for _, own, physics, sensing, total in parts:
+        assert float(own) > 0 and abs(float(own) + float(physics) + float(sensing) - float(total)) < 0.15
