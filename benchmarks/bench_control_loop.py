@@ -67,7 +67,6 @@ from sim_worker.control_loop import (  # noqa: E402
     _outside_limits,
     _record,
     _record_and_control,
-    _record_update_and_control,
 )
 from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
 from sim_worker.executor import execute_skill, run_skill  # noqa: E402
@@ -77,6 +76,7 @@ from sim_worker.world import LoopHandles, SimWorld  # noqa: E402
 from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.control import (  # noqa: E402
     DAMPING_UPDATE_EVERY,
+    NO_MASS_MATRIX,
     REFERENCE_SIZE,
     REFERENCE_TWIST,
     ROBOT_POSITION,
@@ -85,6 +85,7 @@ from skills.control import (  # noqa: E402
     ROBOT_STATE_SIZE,
     ControlFrame,
     HybridController,
+    model_update_packed,
 )
 from skills.parameterize import learn_skill  # noqa: E402
 
@@ -245,9 +246,9 @@ class StepParts(NamedTuple):
     references: np.ndarray
     loop_state: np.ndarray
     rows: np.ndarray
-    mass_matrix: np.ndarray
     record_and_control: Callable[..., tuple]
-    record_update_and_control: Callable[..., tuple]
+    mass_of: Callable[..., np.ndarray]
+    update_model: Callable[..., int]
 
 
 def step_parts(sim: SimWorld, steps: int) -> StepParts:
@@ -264,19 +265,16 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     loop_state[_S_LIMITS : _S_LIMITS + N_JOINTS] = sim.torque_limits
     loop_state[_S_DT] = sim.config.time_step_s
     reading_at = CONTACT_APPLIED.start if handles.ideal else CONTACT_MEASURED.start
-    rows, mass_matrix = np.zeros((steps, TELEMETRY_WIDTH)), np.zeros((N_JOINTS, N_JOINTS))
+    rows = np.zeros((steps, TELEMETRY_WIDTH))
     # The compiled calls as the project loop makes them: their specializations, not the dispatcher.
     law_buffer = controller.law_buffer
     record_and_control = compiled_entry(
         _record_and_control, (arm, contact, reading_at, False, law_buffer, loop_state, rows, references, 0, False, 0, 0)
     )
-    record_update_and_control = compiled_entry(
-        _record_update_and_control,
-        (handles.model, True, mass_matrix, arm, contact, reading_at, False, law_buffer, loop_state, rows,
-         references, 0, False, 0, 0, *controller.model_arguments()),
-    )  # fmt: skip
-    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, mass_matrix,
-                     record_and_control, record_update_and_control)  # fmt: skip
+    mass_of = compiled_entry(arm_mass_matrix, (handles.model, arm[ROBOT_Q]))
+    update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *controller.model_arguments()))
+    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, record_and_control, mass_of,
+                     update_model)  # fmt: skip
 
 
 @contextmanager
@@ -291,8 +289,8 @@ def replayed_world(world: ExecutionWorld, start: tuple) -> Iterator[SimWorld]:
 
 def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> None:
     """The project loop's model update at step ``k``, as it makes it: the joint-limit check, then, when the update
-    does not rebuild the adaptive damping, the mass matrix, the step's row, the controller's model and the law in one
-    compiled call (``_record_update_and_control``); else the mass matrix, the row, ``HybridController.prepare``,
+    does not rebuild the adaptive damping, the mass matrix and the controller's null-space model in two compiled
+    calls before the step's row and law (one call); else the mass matrix, the row, ``HybridController.prepare``,
     the law."""
     handles, reading_at, controller, loop_state = parts.handles, parts.reading_at, parts.controller, parts.loop_state
     arm, contact, references, rows = handles.arm, handles.contact, parts.references, parts.rows
@@ -301,11 +299,11 @@ def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> Non
     _outside_limits(q, sim.joint_lower, sim.joint_upper)
     if not controller.damping_due(True):
         controller.use_frame(parts.frame)
-        parts.record_update_and_control(
-            handles.model, True, parts.mass_matrix, arm, contact, reading_at, touching, controller.law_buffer,
-            loop_state, rows, references, k, False, k, k, *controller.model_arguments(),
-        )  # fmt: skip
+        M = parts.mass_of(handles.model, q)
+        parts.update_model(controller.law_buffer, arm, M, *controller.model_arguments())
         controller.model_updated(parts.frame, True)
+        parts.record_and_control(arm, contact, reading_at, touching, controller.law_buffer, loop_state, rows,
+                                 references, k, False, k, k)  # fmt: skip
         return
     M = arm_mass_matrix(handles.model, q)
     pressing = _record(robot, contact, reading_at, touching, loop_state, rows, references, k, False, k, k)
@@ -612,7 +610,7 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; unboxing the "
         "arguments stays, PyBullet's nested tuples dearest); the model update is LAPACK "
         f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
-        f"{DAMPING_UPDATE_EVERY}th time), amortized, and one compiled call with its step's row and law but on the "
+        f"{DAMPING_UPDATE_EVERY}th time), amortized, in compiled calls with no Python between them but on the "
         "damping's updates; the rest is CPython executing the loop body between the calls "
         "and the phases' set-up. In the loop the compiled parts cost more than alone: `stepSimulation` between two "
         "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
@@ -759,10 +757,9 @@ def main() -> None:
         ),
         "dynamics": (
             f"model update every {NULL_SPACE_UPDATE_STEPS} steps and on a new control frame: the joint-limit check, "
-            "then the mass matrix (compiled arm model), the step's row, the null-space model and the law in one "
-            "compiled call (`control_loop._record_update_and_control`); on a new frame and on every "
-            f"{DAMPING_UPDATE_EVERY}th update (the adaptive damping) the row and `HybridController.prepare` "
-            "(projector, damping, the gain rows)"
+            "the mass matrix (compiled arm model) and the null-space model (`skills.control.model_update_packed`) in "
+            f"compiled calls; on a new frame and on every {DAMPING_UPDATE_EVERY}th update (the adaptive damping) the "
+            "row and `HybridController.prepare` (projector, damping, the gain rows)"
         ),
         "control_law": (
             "telemetry row, control law and torque limits: one compiled call (`control_loop._record_and_control`; "

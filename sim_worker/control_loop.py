@@ -35,6 +35,7 @@ from skills.control import (
     LAW_OK,
     LAW_OUTPUT_SIZE,
     LAW_TAU,
+    NO_MASS_MATRIX,
     REFERENCE_FORCE,
     REFERENCE_TWIST,
     ROBOT_POSITION,
@@ -69,7 +70,6 @@ _C_WRENCH, _C_WRENCH_CF = TELEMETRY_COLUMNS["wrench_world"].start, TELEMETRY_COL
 _C_DESIRED, _C_CONTACT = TELEMETRY_COLUMNS["desired_force_cf_z_n"].start, TELEMETRY_COLUMNS["in_contact"].start
 _C_TRUE_NORMAL = TELEMETRY_COLUMNS["normal_force_true_n"].start  # force then the normal (3)
 _R_POSE = ROBOT_POSITION.start  # position then quaternion
-_R_Q = ROBOT_Q.start
 
 
 @numba.njit(cache=True)
@@ -174,29 +174,6 @@ def _record_and_control(
 
 
 @numba.njit(cache=True)
-def _record_update_and_control(
-    model, with_mass, mass_matrix, robot, contact, reading_at, touching, law_buffer, state, rows, references, k,
-    paused, n, step_count, dynamic, kn, dn, posture, projector, inertia,
-):  # fmt: skip  # pragma: no cover - compiled
-    """A model-update step in one compiled call: the mass matrix (``with_mass``; into ``mass_matrix`` (7, 7)),
-    :func:`_record`, the controller's null-space model (``model_update_packed`` on the law buffer, with the rest of
-    :meth:`HybridController.model_arguments`), then :func:`_control`. Returns the model's code (``LAW_OK``: the law
-    ran), the law's contact flag, its code and whether a torque was clipped. Raises ``LinAlgError`` as the model
-    does (after the row)."""
-    q = robot[_R_Q : _R_Q + 7]
-    M = np.zeros((0, 0))
-    if with_mass:
-        M = arm_mass_matrix(model, q)
-        mass_matrix[:, :] = M
-    pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused, n, step_count)
-    status = model_update_packed(law_buffer, robot, M, dynamic, kn, dn, posture, projector, inertia)
-    if status != LAW_OK:
-        return status, pressing, 0, False
-    code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused, pressing)
-    return status, pressing, code, clipped
-
-
-@numba.njit(cache=True)
 def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
     """Whether a joint of ``q`` is outside [``lower``, ``upper``] (one compiled call: four numpy calls cost ~3 µs)."""
     return (q < lower).any() or (q > upper).any()
@@ -281,8 +258,6 @@ class ControlLoop:
         limits, the time step, the phase and segment recorded."""
         self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
         self._state[_S_DT] = self.dt
-        self._mass_matrix = np.zeros((7, 7))
-        """The mass matrix of the last model update that computed one in the compiled step (for an abort's reason)."""
         self.sensing = SensingEntries(self._handles)
         """The compiled arm state, contact summary and reading of this world, by number of contact points."""
 
@@ -330,12 +305,13 @@ class ControlLoop:
         (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample`` right after the physics
         step, as ``SimWorld.step`` samples every state), then one compiled call for the telemetry row, the law and the
         world's torque limits (:func:`_record_and_control`); both through their compiled specializations
-        (:func:`compiled_entry`: the arguments' types are the same every step). A model-update step (every
-        :data:`NULL_SPACE_UPDATE_STEPS` steps) is one compiled call too, the mass matrix and the controller's
-        null-space model between row and law (:func:`_record_update_and_control`), except the one in
+        (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
+        :data:`NULL_SPACE_UPDATE_STEPS` steps) makes the mass matrix and the controller's null-space model in two more
+        compiled calls before them (``skills.control.model_update_packed``, with no Python between: a third one fusing
+        all of them costs every worker ~9 MB of compiled code for ~1 µs per update), except the one in
         ``DAMPING_UPDATE_EVERY`` that also rebuilds the adaptive damping: there, as on a new control frame, the
         controller prepares its model and gains in Python (``HybridController.prepare``) between :func:`_record` and
-        :func:`_control`. Each part is timed (``self.timing``; a model-update step's whole call as the dynamics).
+        :func:`_control`. Each part is timed (``self.timing``).
         """
         world, handles, state = self.world, self._handles, self._state
         client, body, joints, queried = handles.client, handles.body, handles.joints, handles.queried
@@ -364,7 +340,6 @@ class ControlLoop:
         prepare, law_buffer = controller.prepare, controller.law_buffer
         damping_due, use_frame, model_updated = controller.damping_due, controller.use_frame, controller.model_updated
         model_arguments = controller.model_arguments()
-        mass_matrix = self._mass_matrix
         perf = time.perf_counter
         dt = self.dt
         guard_loss = plan.phase is ExecutionPhase.contact
@@ -409,11 +384,8 @@ class ControlLoop:
             _record_and_control,
             (arm, contact, reading_at, touching, law_buffer, state, rows, references, 0, False, n, step_count),
         )
-        record_update_and_control = compiled_entry(
-            _record_update_and_control,
-            (model, dynamic_null, mass_matrix, arm, contact, reading_at, touching, law_buffer, state, rows,
-             references, 0, False, n, step_count, *model_arguments),
-        )  # fmt: skip
+        mass_of = compiled_entry(arm_mass_matrix, (model, q))
+        update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *model_arguments))
         try:
             k, steps = 0, plan.steps
             while k < steps:
@@ -450,25 +422,29 @@ class ControlLoop:
                     rows, capacity = self.rows, self.capacity
                 reason = M = None
                 t2 = t1  # where the row and law's time starts (after a model update)
-                if update_null and not damping_due(dynamic_null):  # the model update inside the compiled step
+                if update_null and not damping_due(dynamic_null):  # the model in compiled calls, no Python between
                     use_frame(frame)
+                    M = mass_of(model, q) if dynamic_null else None
                     try:
-                        status, pressing, code, clipped = record_update_and_control(
-                            model, dynamic_null, mass_matrix, arm, contact, reading_at, touching, law_buffer, state,
-                            rows, references, k, paused, n, step_count, *model_arguments,
-                        )  # fmt: skip
-                    except np.linalg.LinAlgError as exc:  # after the row
-                        status, code, reason = LAW_OK, 0, controller.singular_model_reason(exc)
-                    n += 1
-                    M = mass_matrix if dynamic_null else None
-                    if reason is None:
+                        status = update_model(law_buffer, arm, NO_MASS_MATRIX if M is None else M, *model_arguments)
                         reason = (
                             model_updated(frame, dynamic_null)
                             if status == LAW_OK
                             else controller.abort_reason(status, out, robot, references[k], w, M)
                         )
+                    except np.linalg.LinAlgError as exc:
+                        reason = controller.singular_model_reason(exc)
                     t2 = perf()
-                    td += t2 - t1  # the model update step: the mass matrix, the row, the model, the law
+                    td += t2 - t1  # the model update: the mass matrix, the controller's null-space model
+                    if reason is None:
+                        pressing, code, clipped = record_and_control(
+                            arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
+                            step_count,
+                        )  # fmt: skip
+                    else:  # the step is recorded, its law not run
+                        pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused,
+                                           n, step_count)  # fmt: skip
+                    n += 1
                 elif update_null or new_frame:  # the controller updates its model or gains between row and law
                     if update_null and dynamic_null:
                         M = arm_mass_matrix(model, q)

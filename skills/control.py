@@ -126,7 +126,8 @@ _SINGULAR_DAMPING = 1e-6
 """Relative Tikhonov term of the task-space inverses in the null-space projector."""
 _EYE6 = np.eye(6)
 _EYE7 = np.eye(7)
-_NO_MASS_MATRIX = np.zeros((0, 0))
+NO_MASS_MATRIX = np.zeros((0, 0))
+"""The mass matrix argument of the compiled model update when there is none (the static null-space projector)."""
 
 # Layout of the law's per-step input vector x (see the module docstring, "Cost") and of the gain matrix G.
 _X_POSE = slice(0, 6)  # e_p: pose error (m, rad)
@@ -938,7 +939,7 @@ class HybridController:
         that does not rebuild the damping (:meth:`damping_due`), makes :func:`model_update_packed` itself in its
         compiled step (:meth:`model_arguments`, then :meth:`use_frame` and :meth:`model_updated`)."""
         if update_null_space or self._projector is None:
-            M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+            M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
             try:
                 code = model_update_packed(self.law_buffer, robot, M, *self.model_arguments())
             except np.linalg.LinAlgError as exc:
@@ -1037,7 +1038,7 @@ class HybridController:
         """Return ``N^T τ_0`` with ``τ_0 = K_n (q_0 - q) - D_n q̇`` (see the module docstring); rebuilds N^T."""
         robot = np.zeros(ROBOT_STATE_SIZE)
         robot[ROBOT_JACOBIAN] = np.asarray(jacobian, dtype=float).ravel()
-        M = _NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+        M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
         if model_update_packed(self.law_buffer, robot, M, *self.model_arguments()) != LAW_OK:
             raise ValueError("non-finite jacobian or mass_matrix")
         self.model_updated(self.frame(np.eye(3), [1.0] * 6), mass_matrix is not None)
