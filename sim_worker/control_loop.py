@@ -427,11 +427,10 @@ class ControlLoop:
                     M = mass_of(model, q) if dynamic_null else None
                     try:
                         status = update_model(law_buffer, arm, NO_MASS_MATRIX if M is None else M, *model_arguments)
-                        reason = (
-                            model_updated(frame, dynamic_null)
-                            if status == LAW_OK
-                            else controller.abort_reason(status, out, robot, references[k], w, M)
-                        )
+                        if status == LAW_OK:
+                            model_updated(frame, dynamic_null)  # (the damping is not due: no LAPACK here)
+                        else:
+                            reason = controller.abort_reason(status, out, robot, references[k], w, M)
                     except np.linalg.LinAlgError as exc:
                         reason = controller.singular_model_reason(exc)
                     t2 = perf()

@@ -936,22 +936,30 @@ class HybridController:
         run (a non-finite or singular model; zero torque then), else None. :meth:`step_into` calls it when needed; a
         loop that runs the law in its own compiled step (:func:`law_step_packed` on :attr:`law_buffer`) calls it on a
         model update and on a new frame (and, like :meth:`step_into`, aborts on its reason); or, on a model update
-        that does not rebuild the damping (:meth:`damping_due`), makes :func:`model_update_packed` itself in its
-        compiled step (:meth:`model_arguments`, then :meth:`use_frame` and :meth:`model_updated`)."""
+        that does not rebuild the damping (:meth:`damping_due`), calls :func:`model_update_packed` itself
+        (:meth:`model_arguments`), then :meth:`model_updated` and :meth:`use_frame`."""
         if update_null_space or self._projector is None:
-            M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
             try:
-                code = model_update_packed(self.law_buffer, robot, M, *self.model_arguments())
+                code = self._update_model(frame, robot, mass_matrix)
             except np.linalg.LinAlgError as exc:
                 return self.singular_model_reason(exc)
             if code != LAW_OK:  # non-finite J or M
                 self._projector = None
                 return self._non_finite_reason(_named_inputs(robot, reference, wrench, mass_matrix))
-            reason = self.model_updated(frame, mass_matrix is not None)
-            if reason is not None:
-                return reason
         self.use_frame(frame)
         return None
+
+    def _update_model(
+        self, frame: ControlFrame, robot: NDArray[np.float64], mass_matrix: NDArray[np.float64] | None
+    ) -> int:
+        """:func:`model_update_packed` on this controller's arrays for the Jacobian in ``robot`` and ``mass_matrix``
+        (None: the static projector), then :meth:`model_updated`; returns the kernel's code (nothing taken unless
+        ``LAW_OK``). Raises ``numpy.linalg.LinAlgError`` on a singular model."""
+        M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
+        code = model_update_packed(self.law_buffer, robot, M, *self.model_arguments())
+        if code == LAW_OK:
+            self.model_updated(frame, mass_matrix is not None)
+        return code
 
     def model_arguments(self) -> tuple:
         """The arguments of :func:`model_update_packed` after the law buffer, the robot state and the mass matrix: the
@@ -969,20 +977,16 @@ class HybridController:
             and (self.damping_matrix_a is None or (self._model_version + 1) % DAMPING_UPDATE_EVERY == 0)
         )
 
-    def model_updated(self, frame: ControlFrame, with_mass_matrix: bool) -> str | None:
+    def model_updated(self, frame: ControlFrame, with_mass_matrix: bool) -> None:
         """Take the model :func:`model_update_packed` just wrote into :meth:`model_arguments`' arrays, and rebuild the
-        damping from its inertia when due (:meth:`damping_due`, the stiffness turned into A by ``frame``). Returns
-        why the step must not run (a singular inertia), else None."""
+        damping from its inertia when due (:meth:`damping_due`, the stiffness turned into A by ``frame``). Raises
+        ``numpy.linalg.LinAlgError`` on a singular inertia."""
         due = self.damping_due(with_mass_matrix)
         self._model_version += 1
         self._projector = self._projector_rows
         if due:
             stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
-            try:
-                self.damping_matrix_a = _damping_matrix(stiffness_a, self._inertia, self.gains.damping_ratio)
-            except np.linalg.LinAlgError as exc:
-                return self.singular_model_reason(exc)
-        return None
+            self.damping_matrix_a = _damping_matrix(stiffness_a, self._inertia, self.gains.damping_ratio)
 
     def use_frame(self, frame: ControlFrame) -> None:
         """Make the gain rows of ``frame`` with the damping in use (rebuilt only when the frame or the damping
@@ -1038,10 +1042,8 @@ class HybridController:
         """Return ``N^T τ_0`` with ``τ_0 = K_n (q_0 - q) - D_n q̇`` (see the module docstring); rebuilds N^T."""
         robot = np.zeros(ROBOT_STATE_SIZE)
         robot[ROBOT_JACOBIAN] = np.asarray(jacobian, dtype=float).ravel()
-        M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
-        if model_update_packed(self.law_buffer, robot, M, *self.model_arguments()) != LAW_OK:
+        if self._update_model(self.frame(np.eye(3), [1.0] * 6), robot, mass_matrix) != LAW_OK:
             raise ValueError("non-finite jacobian or mass_matrix")
-        self.model_updated(self.frame(np.eye(3), [1.0] * 6), mass_matrix is not None)
         tau0 = self._kn * (self.posture - q) - self._dn * qd
         return self._projector_rows @ tau0
 

@@ -50,12 +50,24 @@ def unit_rows(vectors: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.where(norm > 1e-12, vectors / np.maximum(norm, 1e-12), 0.0)
 
 
+def friction_leans(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return per sample the force along the velocity over the force across it (N,): tan of the force's lean to the
+    motion, positive TOWARDS it (friction applied by the tool on the surface leans so)."""
+    direction = unit_rows(velocities)
+    along = np.sum(forces * direction, axis=1, keepdims=True)
+    across = np.linalg.norm(forces - along * direction, axis=1)
+    return along[:, 0] / np.maximum(across, 1e-12)
+
+
+def sliding_fast(leans: NDArray[np.float64], speed: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """The samples (N,) that slide faster than ``FAST_SLIDING_M_S`` (``speed`` m/s) leaning at most
+    ``FRICTION_CONE_MAX`` either way (``leans``, :func:`friction_leans`): where the lean is friction's."""
+    return (speed > FAST_SLIDING_M_S) & (np.abs(leans) <= FRICTION_CONE_MAX)
+
+
 def _removal_ratios(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> NDArray[np.float64]:
     """Return per sample |force along the velocity| / |force across it| (N,): tan of the force's lean to the motion."""
-    direction = unit_rows(velocities)
-    along = np.abs(np.sum(forces * direction, axis=1))
-    across = np.linalg.norm(forces - np.sum(forces * direction, axis=1, keepdims=True) * direction, axis=1)
-    return along / np.maximum(across, 1e-12)
+    return np.abs(friction_leans(forces, velocities))
 
 
 def friction_coefficient(
@@ -72,7 +84,7 @@ def friction_coefficient(
 def _median_fast_lean(ratios: NDArray[np.float64], speed: NDArray[np.float64], mask: NDArray[np.bool_] | None) -> float:
     """The median of the leans ``ratios`` (N,) where the tool moves faster than ``FAST_SLIDING_M_S`` (``speed`` (N,)
     m/s) within ``mask``, leaning less than ``FRICTION_CONE_MAX``; 0 when there are none."""
-    fast = (speed > FAST_SLIDING_M_S) & (ratios <= FRICTION_CONE_MAX)
+    fast = sliding_fast(ratios, speed)
     if mask is not None:
         fast &= mask
     return float(np.median(ratios[fast])) if fast.any() else 0.0

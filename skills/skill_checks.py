@@ -48,7 +48,7 @@ from schemas.skill import CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask
-from skills.friction import FAST_SLIDING_M_S, FRICTION_CONE_MAX, FrictionFree, unit_rows
+from skills.friction import FrictionFree, friction_leans, sliding_fast, unit_rows
 from skills.segmentation import BRUSH_FRACTION
 from skills.selection import MIXED_CONFIDENCE, SkillClassification
 
@@ -263,15 +263,11 @@ def force_outside_contact(
 
 def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> SkillCheck:
     """Check that the force the tool applies in contact leans towards its motion, as friction makes it: ``forces``
-    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment. Judged where the tool slides faster
-    than ``FAST_SLIDING_M_S`` and the force leans at most ``FRICTION_CONE_MAX`` either way (more moves the tool along
-    its press: settling, a push), as ``skills.friction`` measures the friction coefficient."""
-    speed = np.linalg.norm(velocities, axis=1)
-    direction = unit_rows(velocities)
-    along = np.sum(forces * direction, axis=1)
-    across = np.linalg.norm(forces - along[:, None] * direction, axis=1)
-    leans = along / np.maximum(across, 1e-12)
-    sliding = (speed > FAST_SLIDING_M_S) & (across > 0.0) & (np.abs(leans) <= FRICTION_CONE_MAX)
+    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment. Judged where friction's lean is
+    measured (``skills.friction.sliding_fast``: fast sliding, leaning within the friction cone either way; more moves
+    the tool along its press: settling, a push)."""
+    leans = friction_leans(forces, velocities)
+    sliding = sliding_fast(leans, np.linalg.norm(velocities, axis=1))
     lean = float(np.median(leans[sliding])) if sliding.any() else 0.0
     passed = lean >= -FRICTION_SIGN_LIMIT
     if not sliding.any():
