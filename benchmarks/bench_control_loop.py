@@ -56,8 +56,8 @@ from schemas.execution import (  # noqa: E402
 )
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
-from sim_worker.compiled_calls import SensingEntries, compiled_entry  # noqa: E402
-from sim_worker.contact_sensing import COMPILED_CONTACT_COUNTS, CONTACT_APPLIED, CONTACT_MEASURED  # noqa: E402
+from sim_worker.compiled_calls import compiled_entry  # noqa: E402
+from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, sample, sense  # noqa: E402
 from sim_worker.control_loop import (  # noqa: E402
     _S_DT,
     _S_LIMITS,
@@ -246,6 +246,7 @@ class StepParts(NamedTuple):
     references: np.ndarray
     loop_state: np.ndarray
     rows: np.ndarray
+    read_state: Callable[..., bool]
     record_and_control: Callable[..., tuple]
     mass_of: Callable[..., np.ndarray]
     update_model: Callable[..., int]
@@ -273,8 +274,12 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     )
     mass_of = compiled_entry(arm_mass_matrix, (handles.model, arm[ROBOT_Q]))
     update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *controller.model_arguments()))
-    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, record_and_control, mass_of,
-                     update_model)  # fmt: skip
+    if handles.ideal:
+        read_state = compiled_entry(sense, (handles.model, 0, 0, arm, contact))
+    else:
+        read_state = compiled_entry(sample, (handles.model, 0, 0, arm, contact, handles.sensor))
+    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, read_state,
+                     record_and_control, mass_of, update_model)  # fmt: skip
 
 
 @contextmanager
@@ -331,8 +336,7 @@ def bare_loop(
             handles.model, handles.arm, handles.contact, handles.ideal, handles.draw, handles.sensor
         )  # fmt: skip
         law_buffer, record_and_control = parts.controller.law_buffer, parts.record_and_control
-        sensing = SensingEntries(handles)
-        by_count, sensed_first = sensing.by_count, sensing.first
+        read_state = parts.read_state
         updating = level == "model_update"
         arm_contact, row_law = level != "bare", level == "row_law" or updating
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
@@ -349,15 +353,11 @@ def bare_loop(
             if points:
                 in_contact += 1
             if arm_contact:
-                count = len(points)
-                entry = by_count[count] if count <= COMPILED_CONTACT_COUNTS else None
                 if ideal:
-                    touching = entry(model, states, points, arm, contact) if entry else sensed_first(states, points)
+                    touching = read_state(model, id(states), id(points), arm, contact)
                 else:
                     draw()
-                    touching = (
-                        entry(model, states, points, arm, contact, sensor) if entry else sensed_first(states, points)
-                    )
+                    touching = read_state(model, id(states), id(points), arm, contact, sensor)
             if updating and k % NULL_SPACE_UPDATE_STEPS == 0:
                 model_update(sim, parts, touching, k)
             elif row_law:
@@ -388,15 +388,16 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
         states = pybullet.getJointStates(robot, handles.queried, client)
         points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
         model, arm, contact, draw, sensor = handles.model, handles.arm, handles.contact, handles.draw, handles.sensor
-        sensing = SensingEntries(handles)  # the specializations the project loop calls
-        touching = sensing.first(states, points)
-        entry = sensing.by_count[len(points)]
+        read_state = parts.read_state  # the specialization the project loop calls
+        states_at, points_at = id(states), id(points)
 
         def arm_and_contact() -> bool:
             if handles.ideal:
-                return entry(model, states, points, arm, contact)
+                return read_state(model, states_at, points_at, arm, contact)
             draw()
-            return entry(model, states, points, arm, contact, sensor)
+            return read_state(model, states_at, points_at, arm, contact, sensor)
+
+        touching = arm_and_contact()
 
         law_buffer, loop_state, rows, references = (
             parts.controller.law_buffer, parts.loop_state, parts.rows, parts.references
@@ -435,18 +436,16 @@ def update_aftermath(world: ExecutionWorld, torques: list[list[float]], start: t
         joints = list(range(N_JOINTS))
         parts = step_parts(sim, len(torques))
         handles, law_buffer, loop_state = parts.handles, parts.controller.law_buffer, parts.loop_state
-        sensing = SensingEntries(handles)
+        read_state = parts.read_state
         extra = () if handles.ideal else (handles.sensor,)
         times = np.zeros((len(torques), 3))  # sensing, compiled step, physics: ns
         for k, forces in enumerate(torques):
             t0 = perf()
             states = pybullet.getJointStates(robot, handles.queried, client)
             points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
-            entry = sensing.by_count[len(points)] if len(points) <= COMPILED_CONTACT_COUNTS else None
             if not handles.ideal:
                 handles.draw()
-            arguments = (handles.model, states, points, handles.arm, handles.contact, *extra)
-            touching = entry(*arguments) if entry else sensing.first(states, points)
+            touching = read_state(handles.model, id(states), id(points), handles.arm, handles.contact, *extra)
             t1 = perf()
             if k % NULL_SPACE_UPDATE_STEPS == 0:
                 model_update(sim, parts, touching, k)
@@ -606,9 +605,10 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         + ("Not met for either sensor. " if not met else "")
         + "; ".join(readings)
         + ". The compiled parts are the arithmetic itself (the arm's kinematics and gravity/Coriolis by recursive "
-        "Newton-Euler every step, unpacking PyBullet's tuples, the contact sum, the row, the law), called as their "
-        "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; unboxing the "
-        "arguments stays, PyBullet's nested tuples dearest); the model update is LAPACK "
+        "Newton-Euler every step, reading PyBullet's tuples, the contact sum, the row, the law), called as their "
+        "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; the arrays' "
+        "unboxing stays; PyBullet's tuples are read in place by their addresses, only the floats a step needs, "
+        "`sim_worker/python_tuples.py`); the model update is LAPACK "
         f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
         f"{DAMPING_UPDATE_EVERY}th time), amortized, in compiled calls with no Python between them but on the "
         "damping's updates; the rest is CPython executing the loop body between the calls "

@@ -28,6 +28,7 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
+from sim_worker.python_tuples import tuple_float, tuple_item, tuple_length
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK
 from skills.control import (
     ROBOT_BIAS,
@@ -317,17 +318,18 @@ def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # pragma: no cover - compiled
-    """:func:`arm_state` with ``g + c`` straight from ``getJointStates``' tuples (one compiled call, no Python list
-    per step): the positions and velocities of the first 7 joints into ``state``; an 8th joint's (the tool joint's,
-    wrist sensor) reaction force and moment into ``reaction`` (6,)."""
+    """:func:`arm_state` with ``g + c`` straight from ``getJointStates``' tuple at the address ``joint_states``
+    (``sim_worker.python_tuples``: read in place, no Python list per step): the positions and velocities of the first 7
+    joints into ``state``; an 8th joint's (the tool joint's, wrist sensor) reaction force and moment into ``reaction``
+    (6,)."""
     for j in range(N_JOINTS):
-        joint = joint_states[j]
-        state[j] = joint[0]
-        state[N_JOINTS + j] = joint[1]
-    for j in range(N_JOINTS, len(joint_states)):
-        tool = joint_states[j][2]
+        joint = tuple_item(joint_states, j)
+        state[j] = tuple_float(joint, 0)
+        state[N_JOINTS + j] = tuple_float(joint, 1)
+    for j in range(N_JOINTS, tuple_length(joint_states)):
+        tool = tuple_item(tuple_item(joint_states, j), 2)
         for i in range(6):
-            reaction[i] = tool[i]
+            reaction[i] = tuple_float(tool, i)
     arm_state(model, state, work, True)
 
 
@@ -339,8 +341,9 @@ _REACTION, _WORK = ARM_REACTION.start, ARM_REACTION.stop
 
 @numba.njit(cache=True)
 def read_arm(model, joint_states, buffer):  # pragma: no cover - compiled
-    """:func:`arm_state_from_joint_states` into an :attr:`Arm.buffer` (the arm state, the reaction, the scratch space
-    of its layout): the arm's one compiled call per simulated state, callable from another compiled step."""
+    """:func:`arm_state_from_joint_states` (``joint_states``: the tuple's address) into an :attr:`Arm.buffer` (the arm
+    state, the reaction, the scratch space of its layout): the arm's one compiled call per simulated state, callable
+    from another compiled step."""
     arm_state_from_joint_states(model, joint_states, buffer[:ROBOT_STATE_SIZE], buffer[_WORK:], buffer[_REACTION:_WORK])
 
 
@@ -420,7 +423,7 @@ class Arm:
         if not self.fresh:
             # positional arguments: PyBullet parses keywords by name on every call
             states = pybullet.getJointStates(self._body, self.queried, self._client)
-            read_arm(self.model, states, self.buffer)
+            read_arm(self.model, id(states), self.buffer)  # read in place (sim_worker.python_tuples)
             self.fresh = True
         return self.state
 

@@ -26,11 +26,10 @@ from typing import Any
 import numba
 import numpy as np
 import pybullet
-from numba.core import types
-from numba.extending import overload
 from numpy.typing import ArrayLike, NDArray
 
 from sim_worker.arm_model import ARM_REACTION, Arm, read_arm
+from sim_worker.python_tuples import tuple_float, tuple_item, tuple_length, tuple_vector3
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
 from sim_worker.world_config import SensorModel, WorldConfig
@@ -76,32 +75,36 @@ def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _contact_summary(points, arm, out):  # pragma: no cover - compiled
-    """Sum ``getContactPoints``' tuples (the tool as body A) in one pass, straight from PyBullet's result: into
-    ``out`` (10,) the wrench the tool applies (6,: force N, moment N·m about the tool point in ``arm``, world frame)
-    and the force along the true surface normal (N) with that unit normal (3,; zeros without normal force); returns
-    whether the tool touches (a point at or below :data:`CONTACT_DISTANCE_M`, or carrying force). One compilation
-    per number of points (a tuple's length is its type; :func:`compile_contact_summaries`)."""
+    """Sum ``getContactPoints``' tuple (the tool as body A) at the address ``points`` in one pass, read in place
+    (``sim_worker.python_tuples``; any number of points, none included): into ``out`` (10,) the wrench the tool
+    applies (6,: force N, moment N·m about the tool point in ``arm``, world frame) and the force along the true
+    surface normal (N) with that unit normal (3,; zeros without normal force); returns whether the tool touches (a
+    point at or below :data:`CONTACT_DISTANCE_M`, or carrying force)."""
     px, py, pz = arm[_POSITION], arm[_POSITION + 1], arm[_POSITION + 2]
     fx = fy = fz = mx = my = mz = 0.0
     nx = ny = nz = 0.0
     touching = False
-    for c in points:
-        fn, f1, f2 = c[9], c[10], c[12]
-        n, d1, d2, r = c[7], c[11], c[13], c[5]
-        touching = touching or c[8] <= CONTACT_DISTANCE_M or fn > 0.0
-        ax = -(fn * n[0] + f1 * d1[0] + f2 * d2[0])
-        ay = -(fn * n[1] + f1 * d1[1] + f2 * d2[1])
-        az = -(fn * n[2] + f1 * d1[2] + f2 * d2[2])
-        rx, ry, rz = r[0] - px, r[1] - py, r[2] - pz
+    for i in range(tuple_length(points)):
+        c = tuple_item(points, i)
+        fn, f1, f2 = tuple_float(c, 9), tuple_float(c, 10), tuple_float(c, 12)
+        n0, n1, n2 = tuple_vector3(c, 7)
+        d10, d11, d12 = tuple_vector3(c, 11)
+        d20, d21, d22 = tuple_vector3(c, 13)
+        r0, r1, r2 = tuple_vector3(c, 5)
+        touching = touching or tuple_float(c, 8) <= CONTACT_DISTANCE_M or fn > 0.0
+        ax = -(fn * n0 + f1 * d10 + f2 * d20)
+        ay = -(fn * n1 + f1 * d11 + f2 * d21)
+        az = -(fn * n2 + f1 * d12 + f2 * d22)
+        rx, ry, rz = r0 - px, r1 - py, r2 - pz
         fx += ax
         fy += ay
         fz += az
         mx += ry * az - rz * ay
         my += rz * ax - rx * az
         mz += rx * ay - ry * ax
-        nx -= fn * n[0]
-        ny -= fn * n[1]
-        nz -= fn * n[2]
+        nx -= fn * n0
+        ny -= fn * n1
+        nz -= fn * n2
     norm = math.sqrt(nx * nx + ny * ny + nz * nz)
     out[0], out[1], out[2], out[3], out[4], out[5] = fx, fy, fz, mx, my, mz
     if norm > 0.0:
@@ -109,77 +112,6 @@ def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     else:
         out[6] = out[7] = out[8] = out[9] = 0.0
     return touching
-
-
-@numba.njit(cache=True)
-def _contact_summary_rows(rows, arm, out):  # pragma: no cover - compiled
-    """:func:`_contact_summary` of the points as the rows of :func:`point_rows` (the same arithmetic in the same
-    order, so the same result to the bit): one compilation for any number of points."""
-    px, py, pz = arm[_POSITION], arm[_POSITION + 1], arm[_POSITION + 2]
-    fx = fy = fz = mx = my = mz = 0.0
-    nx = ny = nz = 0.0
-    touching = False
-    for c in rows:
-        fn, f1, f2 = c[0], c[1], c[2]
-        touching = touching or c[15] <= CONTACT_DISTANCE_M or fn > 0.0
-        ax = -(fn * c[3] + f1 * c[6] + f2 * c[9])
-        ay = -(fn * c[4] + f1 * c[7] + f2 * c[10])
-        az = -(fn * c[5] + f1 * c[8] + f2 * c[11])
-        rx, ry, rz = c[12] - px, c[13] - py, c[14] - pz
-        fx += ax
-        fy += ay
-        fz += az
-        mx += ry * az - rz * ay
-        my += rz * ax - rx * az
-        mz += rx * ay - ry * ax
-        nx -= fn * c[3]
-        ny -= fn * c[4]
-        nz -= fn * c[5]
-    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-    out[0], out[1], out[2], out[3], out[4], out[5] = fx, fy, fz, mx, my, mz
-    if norm > 0.0:
-        out[6], out[7], out[8], out[9] = norm, nx / norm, ny / norm, nz / norm
-    else:
-        out[6] = out[7] = out[8] = out[9] = 0.0
-    return touching
-
-
-def point_rows(points: tuple) -> NDArray[np.float64]:
-    """``getContactPoints``' tuples as rows (normal force, the two friction forces, the normal, the two friction
-    directions, the position on the tool, the distance) for :func:`_contact_summary_rows`: what a loop passes instead
-    of more than :data:`COMPILED_CONTACT_COUNTS` points, whose tuple would need a compilation of its own (seconds,
-    inside the run)."""
-    return np.array([(c[9], c[10], c[12], *c[7], *c[11], *c[13], *c[5], c[8]) for c in points])
-
-
-def _summary(points, arm, out):
-    """:func:`_contact_summary` for compiled callers, also of no points (numba cannot iterate over an empty tuple) and
-    of points as rows (:func:`point_rows`)."""
-    raise NotImplementedError("compiled only: called from compiled code")
-
-
-@overload(_summary)
-def _summary_typed(points, arm, out):  # pragma: no cover - typing only
-    """The implementation of :func:`_summary` for the type of ``points``: an empty tuple writes the summary of no
-    points (zeros, not touching)."""
-    if isinstance(points, types.BaseTuple) and len(points) == 0:
-
-        def no_points(points, arm, out):
-            out[:10] = 0.0
-            return False
-
-        return no_points
-    if isinstance(points, types.Array):
-        return lambda points, arm, out: _contact_summary_rows(points, arm, out)
-    return lambda points, arm, out: _contact_summary(points, arm, out)
-
-
-COMPILED_CONTACT_COUNTS = 2
-"""Numbers of contact points :func:`compile_contact_summaries` compiles for ahead of a run: a ball on a surface has
-one, in a crease two. More (overlapping work piece parts, a mesh's coplanar triangles) go as rows
-(:func:`point_rows`, ~1 µs more per such step, to the bit the same summary). Each number compiled is ~12 MB of every
-worker's memory (the arm model is compiled into each ``sense`` and ``sample`` of either sensor): 8 of them took 147 MB,
-2 take 79 MB."""
 
 
 # Layout of :attr:`ContactSensing.buffer`: the contact summary (the applied wrench, the true normal force and normal),
@@ -223,9 +155,10 @@ def _reading(arm, contact, sensor):  # pragma: no cover - compiled
 def sense(model, joint_states, points, arm, contact):  # pragma: no cover - compiled
     """The arm state (:func:`read_arm` into the :attr:`Arm.buffer` ``arm``) and the contact summary
     (:func:`_contact_summary` into the :attr:`ContactSensing.buffer` ``contact``) of this state from PyBullet's
-    ``getJointStates`` and ``getContactPoints`` tuples; returns whether the tool touches."""
+    ``getJointStates`` and ``getContactPoints`` tuples at the addresses ``joint_states`` and ``points`` (``id()`` of
+    tuples the caller holds: ``sim_worker.python_tuples``); returns whether the tool touches."""
     read_arm(model, joint_states, arm)
-    return _summary(points, arm, contact)
+    return _contact_summary(points, arm, contact)
 
 
 @numba.njit(cache=True)
@@ -236,23 +169,6 @@ def sample(model, joint_states, points, arm, contact, sensor):  # pragma: no cov
     touching = sense(model, joint_states, points, arm, contact)
     _reading(arm, contact, sensor)
     return touching
-
-
-def compile_contact_summaries(counts: int = COMPILED_CONTACT_COUNTS) -> None:
-    """Compile (or load from numba's cache) what takes ``getContactPoints``' tuples, for 0 to ``counts`` contact points
-    (:func:`_contact_summary`, and :func:`sense` and :func:`sample` with the arm's joint states of either sensor, 7 or
-    8 joints), with tuples typed as PyBullet returns them, so that no run compiles in its loop. Typed, not run."""
-    point = (0, 0, 0, 0, 0, (0.0,) * 3, (0.0,) * 3, (0.0, 0.0, 1.0), 0.0, 1.0, 0.0, (1.0, 0.0, 0.0), 0.0, (0.0,) * 3)
-    joint = (0.0, 0.0, (0.0,) * 6, 0.0)
-    array, matrix = numba.typeof(np.zeros(1)), numba.typeof(np.zeros((1, 1)))
-    for n in range(counts + 2):  # and the rows of more points (point_rows)
-        points = numba.typeof((point,) * n) if n <= counts else matrix
-        if 0 < n <= counts:
-            _contact_summary.compile((points, array, array))
-        for joints in (7, 8):
-            states = numba.typeof((joint,) * joints)
-            sense.compile((matrix, states, points, array, array))
-            sample.compile((matrix, states, points, array, array, array))
 
 
 class ContactSensing:
@@ -323,10 +239,8 @@ class ContactSensing:
             if previous:  # the summary of no points is zeros: written once, when the contact ends
                 self._state[:] = 0.0
             self.touching = False
-        elif len(points) > COMPILED_CONTACT_COUNTS:
-            self.touching = _contact_summary_rows(point_rows(points), self._arm.read(), self._state)
         else:
-            self.touching = _contact_summary(points, self._arm.read(), self._state)
+            self.touching = _contact_summary(id(points), self._arm.read(), self._state)
 
     def contacts(self, names: dict[int, str]) -> list[dict[str, Any]]:
         """The tool's contact points: body name (``names``: by body id), position on the tool (m, world), the normal

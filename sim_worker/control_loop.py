@@ -23,9 +23,9 @@ from numpy.typing import NDArray
 
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
-from sim_worker.compiled_calls import SensingEntries, compiled_entry
+from sim_worker.compiled_calls import compiled_entry
 from sim_worker.contact_detection import ContactGuard
-from sim_worker.contact_sensing import COMPILED_CONTACT_COUNTS, CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
+from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL, sample, sense
 from sim_worker.plans import PhasePlan, smooth_ramp
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
@@ -258,8 +258,6 @@ class ControlLoop:
         limits, the time step, the phase and segment recorded."""
         self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
         self._state[_S_DT] = self.dt
-        self.sensing = SensingEntries(self._handles)
-        """The compiled arm state, contact summary and reading of this world, by number of contact points."""
 
     def telemetry(self, copy: bool = True) -> Telemetry:
         """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
@@ -298,14 +296,14 @@ class ControlLoop:
         reference rows (``PhasePlan.reference_rows``; the follower rewrites them), built here when not given.
         Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing.
 
-        One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs
-        ~0.1-1 µs, as much as the arithmetic): the world's PyBullet calls made here directly (``SimWorld.loop_handles``:
+        One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs ~0.1-1
+        µs, as much as the arithmetic): the world's PyBullet calls made here directly (``SimWorld.loop_handles``:
         ``getJointStates`` and ``getContactPoints``, the torque command and ``stepSimulation``), the arm state, the
-        contact summary and, for a sampling sensor, its reading in one compiled call from PyBullet's tuples
-        (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample`` right after the physics
-        step, as ``SimWorld.step`` samples every state), then one compiled call for the telemetry row, the law and the
-        world's torque limits (:func:`_record_and_control`); both through their compiled specializations
-        (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
+        contact summary and, for a sampling sensor, its reading in one compiled call from PyBullet's tuples, read in
+        place by their addresses (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample``
+        right after the physics step, as ``SimWorld.step`` samples every state), then one compiled call for the
+        telemetry row, the law and the world's torque limits (:func:`_record_and_control`); both through their compiled
+        specializations (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
         :data:`NULL_SPACE_UPDATE_STEPS` steps) makes the mass matrix and the controller's null-space model in two more
         compiled calls before them (``skills.control.model_update_packed``, with no Python between: a third one fusing
         all of them costs every worker ~9 MB of compiled code for ~1 µs per update), except the one in
@@ -325,8 +323,13 @@ class ControlLoop:
         ideal = handles.ideal
         draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        sensing_entries, sensed_first = self.sensing.by_count, self.sensing.first
-        compiled_counts = COMPILED_CONTACT_COUNTS
+        # The arm state, contact summary and (a sampling sensor) reading: one compiled specialization for any number of
+        # contact points, PyBullet's tuples read in place by their addresses (sim_worker.python_tuples)
+        address = id
+        if ideal:
+            read_state = compiled_entry(sense, (model, 0, 0, arm, contact))
+        else:
+            read_state = compiled_entry(sample, (model, 0, 0, arm, contact, sensor))
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
         q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
@@ -395,9 +398,7 @@ class ControlLoop:
                 if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
                     states = joint_states(body, queried, client)  # positional: keywords cost a lookup
                     points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
-                    count = len(points)
-                    entry = sensing_entries[count] if count <= compiled_counts else None
-                    touching = entry(model, states, points, arm, contact) if entry else sensed_first(states, points)
+                    touching = read_state(model, address(states), address(points), arm, contact)
                 else:
                     touching = sampled_touching
                 t1 = perf()
@@ -484,12 +485,8 @@ class ControlLoop:
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
                     states = joint_states(body, queried, client)
                     points = contact_points(body, -1, TOOL_LINK, -2, client)
-                    count = len(points)
-                    entry = sensing_entries[count] if count <= compiled_counts else None
                     draw()
-                    sampled_touching = (
-                        entry(model, states, points, arm, contact, sensor) if entry else sensed_first(states, points)
-                    )
+                    sampled_touching = read_state(model, address(states), address(points), arm, contact, sensor)
                     ts += perf() - t5
                 ts += t1 - t0
                 tc += t3 - t2

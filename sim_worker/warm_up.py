@@ -14,7 +14,6 @@ import numpy as np
 
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
-from sim_worker.contact_sensing import compile_contact_summaries
 from sim_worker.control_loop import ControlLoop, _record_row
 from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
@@ -36,7 +35,6 @@ def warm_up() -> float:
     """Run each compiled function once on a real world (arm model, contact summary, control law, model update, the
     loop's step, the wrist sensor, the orientation and position DMPs' rollouts); return the seconds it took."""
     start = time.perf_counter()
-    compile_contact_summaries()
     for config in (WorldConfig(), WorldConfig(sensor=WRIST_SENSOR)):  # 7 joints read; the wrist's 8 and its sampling
         with SimWorld(config) as world:
             _hold(world)

@@ -68,8 +68,6 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
         assert len(sent) == STEPS if abort is None else len(sent) < STEPS
         assert len(loop.telemetry()) == len(sent) + (abort is not None)  # the aborted step was recorded
         assert touched > 0 and loop.touched  # it pressed on the table
-        # ... through the compiled specializations kept for no contact point and for one (compiled_entry)
-        assert all(callable(entry) for entry in loop.sensing.by_count[:2])
         assert looped.clip_count == stepped.clip_count
         assert looped.last_step_clipped == stepped.last_step_clipped
         np.testing.assert_array_equal(loop.telemetry().in_contact[: len(sent)].sum(), touched)
@@ -107,31 +105,6 @@ def test_a_non_finite_arm_state_on_a_model_update_stops_the_loop_before_its_torq
         with pytest.raises(ExecutionAbortError, match=r"non-finite value \(NaN or inf\) in jacobian, q,"):
             loop.run_plan(plan)
         assert loop.step_count == steps and len(loop.telemetry()) == steps + 1
-
-
-def test_more_contact_points_than_compiled_for_sum_to_the_bit_as_the_tuples_do() -> None:
-    """Past ``COMPILED_CONTACT_COUNTS`` points the loop passes them as rows (``point_rows``), which compile once for
-    any number: the summary is the same, to the bit, as the tuples' (same arithmetic, same order)."""
-    from sim_worker.contact_sensing import (
-        COMPILED_CONTACT_COUNTS,
-        _contact_summary,
-        _contact_summary_rows,
-        point_rows,
-    )
-
-    rng = np.random.default_rng(7)
-    arm = rng.normal(size=64)
-
-    def point() -> tuple:
-        v = lambda: tuple(rng.normal(size=3).tolist())  # noqa: E731
-        return (0, 1, 2, -1, 3, v(), v(), v(), float(rng.normal()) * 1e-3, abs(float(rng.normal())) * 5,
-                float(rng.normal()), v(), float(rng.normal()), v())  # fmt: skip
-
-    for n in (COMPILED_CONTACT_COUNTS + 1, 17):
-        points = tuple(point() for _ in range(n))
-        from_tuples, from_rows = np.zeros(10), np.zeros(10)
-        assert _contact_summary(points, arm, from_tuples) == _contact_summary_rows(point_rows(points), arm, from_rows)
-        assert np.array_equal(from_tuples, from_rows) and np.all(np.isfinite(from_rows)) and from_rows[6] > 0
 
 
 def test_a_compiled_entry_is_the_dispatchers_own_specialization_for_those_types() -> None:
