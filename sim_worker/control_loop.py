@@ -3,7 +3,7 @@ stepped in the simulated world (``sim_worker.executor`` sequences the phases; ``
 
 :class:`ControlLoop` owns what every phase shares: the world and the controller, the telemetry rows (one float row
 per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, handed to ``on_sample`` in batches), the step count, the
-per-part timing, the control frames the controller took, and what the last guarded phase found. A phase ends at
+the control frames the controller took, and what the last guarded phase found. A phase ends at
 its last step, on contact (guarded), on the next surface (a follower), or by an exception: an abort with its reason
 (force, torque or joint limit, non-finite values, ``should_abort()``) or a contact lost (pressing into nothing).
 World frame, SI units (docs/CONVENTIONS.md).
@@ -241,7 +241,6 @@ class ControlLoop:
         """Rows recorded."""
         self.emitted = 0
         self.step_count = 0
-        self.timing = [0.0] * 5  # sensing, dynamics, control law, physics step, telemetry (s, summed)
         self.wall_start = time.perf_counter()
         """When the loop began (the realtime pace follows the wall clock from here), s."""
         self.found_force: float | None = None
@@ -309,7 +308,7 @@ class ControlLoop:
         all of them costs every worker ~9 MB of compiled code for ~1 µs per update), except the one in
         ``DAMPING_UPDATE_EVERY`` that also rebuilds the adaptive damping: there, as on a new control frame, the
         controller prepares its model and gains in Python (``HybridController.prepare``) between :func:`_record` and
-        :func:`_control`. Each part is timed (``self.timing``).
+        :func:`_control`.
         """
         world, handles, state = self.world, self._handles, self._state
         client, body, joints, queried = handles.client, handles.body, handles.joints, handles.queried
@@ -347,7 +346,6 @@ class ControlLoop:
         dt = self.dt
         guard_loss = plan.phase is ExecutionPhase.contact
         loss_travel = CONTACT_LOSS_TRAVEL_M
-        ts = td = tc = tp = tt = 0.0
         batch = self.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
         next_emit = self.emitted + batch
         realtime = self.realtime
@@ -394,14 +392,12 @@ class ControlLoop:
             while k < steps:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
                 paused = should_pause is not None and bool(should_pause())  # a bool for the compiled calls
-                t0 = perf()
                 if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
                     states = joint_states(body, queried, client)  # positional: keywords cost a lookup
                     points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
                     touching = read_state(model, address(states), address(points), arm, contact)
                 else:
                     touching = sampled_touching
-                t1 = perf()
                 update_null = step_count % NULL_SPACE_UPDATE_STEPS == 0
                 if update_null and _outside_limits(q, q_lower, q_upper):
                     raise ExecutionAbortError(self._joint_limit_reason(q))
@@ -422,7 +418,6 @@ class ControlLoop:
                     self._grow()
                     rows, capacity = self.rows, self.capacity
                 reason = M = None
-                t2 = t1  # where the row and law's time starts (after a model update)
                 if update_null and not damping_due(dynamic_null):  # the model in compiled calls, no Python between
                     use_frame(frame)
                     M = mass_of(model, q) if dynamic_null else None
@@ -434,8 +429,6 @@ class ControlLoop:
                             reason = controller.abort_reason(status, out, robot, references[k], w, M)
                     except np.linalg.LinAlgError as exc:
                         reason = controller.singular_model_reason(exc)
-                    t2 = perf()
-                    td += t2 - t1  # the model update: the mass matrix, the controller's null-space model
                     if reason is None:
                         pressing, code, clipped = record_and_control(
                             arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
@@ -452,8 +445,6 @@ class ControlLoop:
                                        step_count)  # fmt: skip
                     n += 1
                     reason = prepare(frame, robot, references[k], w, M, update_null)
-                    t2 = perf()
-                    td += t2 - t1  # the model update: the mass matrix, the controller's model, damping and gains
                     if reason is None:
                         code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused,
                                                  pressing)  # fmt: skip
@@ -465,14 +456,10 @@ class ControlLoop:
                     n += 1
                 if reason is None and code:
                     reason = controller.abort_reason(code, out, robot, references[k], w, M)
-                t3 = perf()
                 if n >= next_emit:
                     self.n = n
                     self.emit()
                     next_emit = self.emitted + batch
-                    t4 = perf()
-                    tt += t4 - t3
-                    t3 = t4
                 if reason is not None:
                     raise ExecutionAbortError(reason)
                 if stop_axis is not None or follower is not None:
@@ -481,16 +468,11 @@ class ControlLoop:
                 step_simulation(client)  # positional: PyBullet parses keywords by name on every call
                 step_count += 1
                 clipped_steps += clipped
-                t5 = perf()
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
                     states = joint_states(body, queried, client)
                     points = contact_points(body, -1, TOOL_LINK, -2, client)
                     draw()
                     sampled_touching = read_state(model, address(states), address(points), arm, contact, sensor)
-                    ts += perf() - t5
-                ts += t1 - t0
-                tc += t3 - t2
-                tp += t5 - t3
                 if should_abort is not None and should_abort():  # every step: stops within one control cycle
                     raise ExecutionAbortError("aborted on request")
                 if touching:
@@ -531,12 +513,6 @@ class ControlLoop:
             world.loop_ended(step_count - first_step, clipped_steps, clipped, points,
                              touching if ideal else sampled_touching)  # fmt: skip
             self.touched = touched
-            timing = self.timing
-            timing[0] += ts
-            timing[1] += td
-            timing[2] += tc
-            timing[3] += tp
-            timing[4] += tt
         if plan.exhausted_reason is not None:
             guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
             raise ExecutionAbortError(plan.exhausted_reason + guarded)

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -127,8 +127,6 @@ class ExecutionResult:
     """Wall time of the control loop, s."""
     loop_cpu_s: float = 0.0
     """CPU time of the control loop's thread, s (on a loaded machine the wall time also counts other processes')."""
-    timings_us: dict[str, float] = field(default_factory=dict)
-    """Mean per-step wall time of the loop's parts, µs (physics, sensing, dynamics, control, telemetry, ...)."""
 
     @property
     def phase(self) -> ExecutionPhase:
@@ -534,18 +532,6 @@ def execute_skill(
     loop.emit(final=True)
     execution.close()
     tel = loop.telemetry(copy=False)  # the loop is done
-    steps = max(loop.step_count, 1)
-    timing = [v * 1e6 / steps for v in loop.timing]
-    total = loop_wall_s * 1e6 / steps
-    timings = {
-        "sensing": float(timing[0]),
-        "dynamics": float(timing[1]),
-        "control_law": float(timing[2]),
-        "telemetry": float(timing[4]),
-        "physics_step": float(timing[3]),
-        "total": float(total),
-    }
-    timings["other"] = max(0.0, total - sum(v for k, v in timings.items() if k != "total"))
     log = ExecutionLog(
         contact_offsets_m=execution.contact_offsets,
         relocations_m=execution.relocations,
@@ -562,7 +548,6 @@ def execute_skill(
         setup_s=setup_s,
         loop_wall_s=loop_wall_s,
         loop_cpu_s=loop_cpu_s,
-        timings_us=timings,
     )
 
 
