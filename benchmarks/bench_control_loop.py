@@ -532,7 +532,7 @@ PART_NAMES = {
     "model_update": (
         f"model update every {NULL_SPACE_UPDATE_STEPS} steps (mass matrix, limits, projector, damping, gains)"
     ),
-    "rest": "the rest of the loop body (Python: calls, timers, torque list, checks, the phases' set-up)",
+    "rest": "the rest of the loop body (Python: calls, torque list, checks, the phases' set-up)",
 }
 """The project's per-step parts above the bare loop, named for the tables (the first three are :data:`LADDER`'s)."""
 
@@ -692,11 +692,11 @@ def main() -> None:
               f"({min(rtfs):.1f}-{max(rtfs):.1f}), {wall_us_per_step(best):.0f} µs/step wall, {cpu_us:.0f} µs/step "
               f"CPU, {m.phase.value}, f_z RMS {m.force_rms_error_pct or float('nan'):.2f} %", flush=True)  # fmt: skip
 
-    scenario, _, controller, _ = runs[0]  # PyBullet's share in the first row's execution
-    recording, skill = learned[scenario]
-    settings = ExecutionSettings(controller=controller, pace="fast")
+    shared_scenario, _, shared_controller, _ = runs[0]  # PyBullet's share in the first row's execution
+    recording, skill = learned[shared_scenario]
+    settings = ExecutionSettings(controller=shared_controller, pace="fast")
     share, share_total = pybullet_share(skill, recording.world_config, settings)
-    wrist_world = execution_world(skill, scenario=scenario, demonstration=recording.demonstration)
+    wrist_world = execution_world(skill, scenario=shared_scenario, demonstration=recording.demonstration)
     wrist_share, wrist_total = pybullet_share(wrist_world.skill, wrist_world.config, settings)
     with SimWorld(WorldConfig()) as world:
         world_costs = world.measure_costs(cost_calls)
@@ -741,10 +741,10 @@ def main() -> None:
     simulator = sum(share.values())
     lines += [
         "",
-        f"PyBullet's own share of a step ({scenario}, {controller.value}; each PyBullet call of one more execution "
-        f"timed on its own, µs per control step; those executions, the project's loop slowed by the timers around "
-        f"each call, took {share_total:.1f} µs per step with the ideal sensor, {wrist_total:.1f} with the wrist "
-        "sensor: not a floor, which is the bare loop's column above):",
+        f"PyBullet's own share of a step ({shared_scenario}, {shared_controller.value}; each PyBullet call of one "
+        "more execution timed on its own, µs per control step; those executions, the project's loop slowed by the "
+        f"timers around each call, took {share_total:.1f} µs per step with the ideal sensor, {wrist_total:.1f} with "
+        "the wrist sensor: not a floor, which is the bare loop's column above):",
         "",
         "| PyBullet call | µs / step, ideal sensor | µs / step, wrist sensor |",
         "| --- | ---: | ---: |",
@@ -776,7 +776,7 @@ def main() -> None:
         "",
         f"- Target: real-time factor >= {TARGET_RTF:.0f} on one core, i.e. <= {1e3 / TARGET_RTF:.0f} µs per step. "
         f"Median over the rows {median_rtf:.1f} by wall time: {verdict}; {median_cpu_rtf:.1f} by CPU time: "
-        f"{verdict_cpu}. PyBullet's own calls take {simulator:.0f} µs of the {total:.0f} µs step ({scenario}; "
+        f"{verdict_cpu}. PyBullet's own calls take {simulator:.0f} µs of the {total:.0f} µs step ({shared_scenario}; "
         f"`stepSimulation` alone {share['stepSimulation']:.0f} µs): with no Python work at all the loop could not "
         f"exceed {1e3 / simulator:.0f}x. The other ~{python_side:.0f} µs are the interpreter (the loop's glue, the "
         "calls into the compiled arm model, contact summary and law, the telemetry row, the phase plans) and, "
