@@ -45,6 +45,7 @@ from collections.abc import Callable, Iterator  # noqa: E402
 from contextlib import contextmanager  # noqa: E402
 from typing import NamedTuple  # noqa: E402
 
+import numba  # noqa: E402
 import numpy as np  # noqa: E402
 import pybullet  # noqa: E402
 
@@ -233,6 +234,10 @@ def captured_torques(world: ExecutionWorld, settings: ExecutionSettings) -> tupl
 AFTERMATH_SETTLED = 5
 """Steps after a model update from which a step's parts count as settled (:func:`update_aftermath`)."""
 LADDER = ("bare", "arm_contact", "row_law", "model_update")
+CALLS = "calls"
+"""One more bare loop beside the ladder: the project's two per-step compiled calls with their arguments, into compiled
+functions that do nothing (:func:`_read_nothing`, :func:`_control_nothing`): what crossing from Python into compiled
+code costs in the loop, whatever the code computes."""
 """The bare loops, each adding one of the project's per-step parts to the four PyBullet calls: none; the arm state and
 contact summary from PyBullet's tuples (``contact_sensing.sense``; with the wrist sensor ``sample``, its reading too);
 the telemetry row with the control law (``control_loop._record_and_control``); the model update every
@@ -286,6 +291,42 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
                      record_and_control, mass_of, update_model)  # fmt: skip
 
 
+@numba.njit(cache=True)
+def _read_nothing(model, joint_states, points, arm, contact):  # pragma: no cover - compiled
+    """``contact_sensing.sense``'s arguments, nothing done: whether the tool touches, False."""
+    return False
+
+
+@numba.njit(cache=True)
+def _sample_nothing(model, joint_states, points, arm, contact, sensor):  # pragma: no cover - compiled
+    """``contact_sensing.sample``'s arguments, nothing done."""
+    return False
+
+
+@numba.njit(cache=True)
+def _control_nothing(
+    robot, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n, step_count
+):  # pragma: no cover - compiled
+    """``control_loop._record_and_control``'s arguments and results' types, nothing done."""
+    return False, 0, False
+
+
+def _nothing_entries(parts: StepParts) -> tuple[Callable[..., bool], Callable[..., tuple]]:
+    """The specializations of :func:`_read_nothing` (or :func:`_sample_nothing`) and :func:`_control_nothing` for the
+    argument types of ``parts``' own two per-step calls."""
+    h, controller = parts.handles, parts.controller
+    if h.ideal:
+        read = compiled_entry(_read_nothing, (h.model, 0, 0, h.arm, h.contact))
+    else:
+        read = compiled_entry(_sample_nothing, (h.model, 0, 0, h.arm, h.contact, h.sensor))
+    control = compiled_entry(
+        _control_nothing,
+        (h.arm, h.contact, parts.reading_at, False, controller.law_buffer, parts.loop_state, parts.rows,
+         parts.references, 0, False, 0, 0),
+    )  # fmt: skip
+    return read, control
+
+
 @contextmanager
 def replayed_world(world: ExecutionWorld, start: tuple) -> Iterator[SimWorld]:
     """A new world as the project builds ``world``'s, its arm put in the captured ``start`` state (joint positions
@@ -325,7 +366,8 @@ def bare_loop(
 ) -> tuple[float, float, int]:
     """The floor: the same world (built as the project builds it), the arm put in the captured start state, then per
     step the project loop's four PyBullet calls and nothing else, replaying ``torques``; with ``level`` (one of
-    :data:`LADDER`) the project's compiled per-step parts on top, computed and not used (the torques stay the replayed
+    :data:`LADDER`, or :data:`CALLS`: the calls into functions that do nothing) the project's compiled per-step parts
+    on top, computed and not used (the torques stay the replayed
     ones, so the physics stays the same). Returns µs per step by wall time and by the thread's CPU time, and the steps
     that began in contact (contact points reported)."""
     with replayed_world(world, start) as sim:
@@ -342,7 +384,10 @@ def bare_loop(
         law_buffer, record_and_control = parts.controller.law_buffer, parts.record_and_control
         read_state = parts.read_state
         updating = level == "model_update"
-        arm_contact, row_law = level != "bare", level == "row_law" or updating
+        arm_contact, row_law = level not in ("bare", CALLS), level == "row_law" or updating
+        if level == CALLS:  # the same calls with the same arguments, into functions that do nothing
+            read_state, record_and_control = _nothing_entries(parts)
+            arm_contact = row_law = True
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
         command, step, torque_control = (
             pybullet.setJointMotorControlArray,
@@ -481,15 +526,15 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
         world = execution_world(skill, environment, scenario=FLOOR_SCENARIO, demonstration=recording.demonstration)
         torques, start, project_contact = captured_torques(world, settings)
         project_wall, project_cpu = [], []
-        ladder_wall: dict[str, list[float]] = {level: [] for level in LADDER}
-        ladder_cpu: dict[str, list[float]] = {level: [] for level in LADDER}
+        ladder_wall: dict[str, list[float]] = {level: [] for level in (*LADDER, CALLS)}
+        ladder_cpu: dict[str, list[float]] = {level: [] for level in (*LADDER, CALLS)}
         contact_steps = set()
         for _ in range(repeats):
             result = run_skill(world, settings)
             steps = max(result.metrics.steps, 1)
             project_wall.append(1e6 * result.loop_wall_s / steps)
             project_cpu.append(1e6 * result.loop_cpu_s / steps)
-            for level in LADDER:
+            for level in (*LADDER, CALLS):
                 wall, cpu, in_contact = bare_loop(world, torques, start, level)
                 ladder_wall[level].append(wall)
                 ladder_cpu[level].append(cpu)
@@ -620,11 +665,25 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
         "computes: the law needs the arm's Jacobian and gravity/Coriolis of every state, the projector needs the "
         "same LAPACK calls (another factorization rounds differently), and the telemetry must stay bit-identical.",
+        "- The calls themselves: one more bare loop makes the project's two per-step compiled calls with the same "
+        "arguments (with the wrist sensor its `draw()` too), into compiled functions that do nothing "
+        f"({'; '.join(_calls_reading(r, p) for r, p in zip(rows, parts, strict=True))}): that much of the compiled "
+        "parts' time in the loop is crossing from Python into compiled code (the argument tuple, the arrays' "
+        "unboxing, the results' boxing, cold after each physics step), whatever the code computes; only fewer calls "
+        "per step could remove it.",
         "- The model update's cost in the loop, per update, from one more bare loop with every part of every step "
         f"timed ({'; '.join(_aftermath_reading(r) for r in rows)}): the update's LAPACK in turn evicts PyBullet's "
         "code and data, which the next steps take back.",
     ]
     return lines
+
+
+def _calls_reading(row: dict, parts: dict[str, tuple[float, float | None]]) -> str:
+    """One sensor's cost of the per-step calls alone (:data:`CALLS`) beside the compiled parts' in the loop, in
+    words."""
+    calls = row["ladder_cpu"][CALLS] - row["ladder_cpu"]["bare"]
+    in_loop = parts["arm_contact"][0] + parts["row_law"][0]
+    return f"{row['sensor']}: {calls:.1f} µs per step above the bare loop, of the {in_loop:.1f} µs the two calls take"
 
 
 def _aftermath_reading(row: dict) -> str:
