@@ -316,6 +316,10 @@ def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
         )
 
 
+_JOINT_POSITION, _JOINT_VELOCITY, _JOINT_REACTION = 0, 1, 2
+"""Fields of a ``getJointStates`` joint (PyBullet's documented order; the applied motor torque, 3, is not read)."""
+
+
 @numba.njit(cache=True)
 def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # pragma: no cover - compiled
     """:func:`arm_state` with ``g + c`` straight from ``getJointStates``' tuple at the address ``joint_states``
@@ -324,10 +328,10 @@ def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # 
     (6,)."""
     for j in range(N_JOINTS):
         joint = tuple_item(joint_states, j)
-        state[j] = tuple_float(joint, 0)
-        state[N_JOINTS + j] = tuple_float(joint, 1)
+        state[j] = tuple_float(joint, _JOINT_POSITION)
+        state[N_JOINTS + j] = tuple_float(joint, _JOINT_VELOCITY)
     for j in range(N_JOINTS, tuple_length(joint_states)):
-        tool = tuple_item(tuple_item(joint_states, j), 2)
+        tool = tuple_item(tuple_item(joint_states, j), _JOINT_REACTION)
         for i in range(6):
             reaction[i] = tuple_float(tool, i)
     arm_state(model, state, work, True)

@@ -73,6 +73,12 @@ def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
         wrench[3 + i] -= r[3 * i] * tare[3] + r[3 * i + 1] * tare[4] + r[3 * i + 2] * tare[5]
 
 
+# Fields of a ``getContactPoints`` point (PyBullet's documented order): the position on the tool (body A), the normal
+# on the environment (B, pointing to the tool), the distance, the normal force, the two friction forces and directions.
+_ON_TOOL, _NORMAL, _DISTANCE, _NORMAL_FORCE = 5, 7, 8, 9
+_FRICTION_1, _FRICTION_DIR_1, _FRICTION_2, _FRICTION_DIR_2 = 10, 11, 12, 13
+
+
 @numba.njit(cache=True)
 def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     """Sum ``getContactPoints``' tuple (the tool as body A) at the address ``points`` in one pass, read in place
@@ -86,12 +92,12 @@ def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     touching = False
     for i in range(tuple_length(points)):
         c = tuple_item(points, i)
-        fn, f1, f2 = tuple_float(c, 9), tuple_float(c, 10), tuple_float(c, 12)
-        n0, n1, n2 = tuple_vector3(c, 7)
-        d10, d11, d12 = tuple_vector3(c, 11)
-        d20, d21, d22 = tuple_vector3(c, 13)
-        r0, r1, r2 = tuple_vector3(c, 5)
-        touching = touching or tuple_float(c, 8) <= CONTACT_DISTANCE_M or fn > 0.0
+        fn, f1, f2 = tuple_float(c, _NORMAL_FORCE), tuple_float(c, _FRICTION_1), tuple_float(c, _FRICTION_2)
+        n0, n1, n2 = tuple_vector3(c, _NORMAL)
+        d10, d11, d12 = tuple_vector3(c, _FRICTION_DIR_1)
+        d20, d21, d22 = tuple_vector3(c, _FRICTION_DIR_2)
+        r0, r1, r2 = tuple_vector3(c, _ON_TOOL)
+        touching = touching or tuple_float(c, _DISTANCE) <= CONTACT_DISTANCE_M or fn > 0.0
         ax = -(fn * n0 + f1 * d10 + f2 * d20)
         ay = -(fn * n1 + f1 * d11 + f2 * d21)
         az = -(fn * n2 + f1 * d12 + f2 * d22)
