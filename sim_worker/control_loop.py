@@ -3,9 +3,9 @@ stepped in the simulated world (``sim_worker.executor`` sequences the phases; ``
 
 :class:`ControlLoop` owns what every phase shares: the world and the controller, the telemetry rows (one float row
 per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, handed to ``on_sample`` in batches), the step count, the
-the control frames the controller took, and what the last guarded phase found. A phase ends at
-its last step, on contact (guarded), on the next surface (a follower), or by an exception: an abort with its reason
-(force, torque or joint limit, non-finite values, ``should_abort()``) or a contact lost (pressing into nothing).
+control frames the controller took, and what the last guarded phase found. A phase ends at its last step, on contact
+(guarded), on the next surface (a follower), or by an exception: an abort with its reason (force, torque or joint
+limit, non-finite values, ``should_abort()``) or a contact lost (pressing into nothing).
 World frame, SI units (docs/CONVENTIONS.md).
 """
 
