@@ -6,11 +6,12 @@ call, and compiles once per tuple type: ``getJointStates`` of 7 joints is 70 flo
 worker's memory, per number). Passed as its address instead (``id(t)``: CPython's object address), the tuple is read
 in place, only the floats the step needs, for any length, by one compiled function.
 
-Contract: the caller holds a reference to the tuple for the whole call (a local variable does), and the call runs
-with the GIL held (numba's default). A read that does not match the tuple's layout cannot crash or return garbage
-silently: an index out of range or a value of another type makes CPython's ``PyTuple_GetItem`` / ``PyFloat_AsDouble``
-set an exception (their results, 0 and -1.0, pass through the reads below), and CPython raises it as a
-``SystemError`` ("returned a result with an exception set") when the compiled function returns to Python.
+Contract: the caller holds a reference to the tuple for the whole call (a local variable does; the address of a
+temporary, ``f(id(g()))``, dangles as soon as ``id`` returns), and the call runs with the GIL held (numba's default). A
+read that does not match the tuple's layout cannot crash or return garbage silently: an index out of range or a value of
+another type makes CPython's ``PyTuple_GetItem`` / ``PyFloat_AsDouble`` set an exception (their results, 0 and -1.0,
+pass through the reads below), and CPython raises it as a ``SystemError`` ("returned a result with an exception set")
+when the compiled function returns to Python.
 """
 
 from __future__ import annotations

@@ -85,5 +85,6 @@ def test_the_arm_read_in_place_is_the_arm_pybullet_reports() -> None:
         assert buffer[:N_JOINTS].tolist() == [s[0] for s in states[:N_JOINTS]] == q.tolist()
         assert buffer[N_JOINTS : 2 * N_JOINTS].tolist() == [s[1] for s in states[:N_JOINTS]]
         np.testing.assert_array_equal(buffer[:ROBOT_STATE_SIZE], world.robot_state())  # the model on them
+        listed = list(states)  # held while read: the address of a temporary would dangle
         with pytest.raises(SystemError):
-            read_arm(handles.model, id(list(states)), buffer)
+            read_arm(handles.model, id(listed), buffer)
