@@ -115,7 +115,7 @@ def demonstration_from_samples(
     if convention == WrenchConvention.measured_on_tool:
         wrenches = preprocess.wrenches_applied_by_tool(wrenches)
         notes.append("wrench measured on the tool: negated to the wrench the tool applies")
-    notes.extend(_direction_hint(wrenches, convention))
+    notes.extend(_direction_hint(wrenches, convention, frame))
     offset, offset_frame, uncertainty, tare_report = None, None, None, {"method": "none"}
     if given is not None:
         offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
@@ -248,11 +248,13 @@ UPWARD_FORCE_HINT = 0.5
 """World z of the stronger half of the forces' mean direction above which the import notes ask to check the sign."""
 
 
-def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention) -> list[str]:
+def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention, frame: WrenchFrame) -> list[str]:
     """A note when the applied force points mostly UP in the world: pressing on a table or a part points down.
 
-    Not an error (a wall or a ceiling is possible), but a reaction imported as applied-by-tool
-    looks exactly like this.
+    Not an error (a wall or a ceiling is possible), but a reaction imported as applied-by-tool looks exactly like
+    this; so does a wrench given in the tool frame (``frame``) turned into the world with orientations read in the
+    wrong quaternion order (on the KU Leuven contours read so, three of four learn a contour pressing up that passes
+    every check of the skill), which the note then names too.
     """
     forces = wrenches[:, :3]
     magnitude = np.linalg.norm(forces, axis=1)
@@ -260,9 +262,16 @@ def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention) -> list[
     if np.linalg.norm(strong) == 0 or strong[2] / np.linalg.norm(strong) <= UPWARD_FORCE_HINT:
         return []
     flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
+    turned = (
+        "; it was turned into the world with the tool orientations, so check the quaternion order "
+        "(--quaternion-order) and the wrench frame (--wrench-frame) too"
+        if frame == WrenchFrame.tool
+        else ""
+    )
     return [
         f"check the wrench sign: the applied force points mostly UP in the world (mean direction z = "
         f"{strong[2] / np.linalg.norm(strong):+.2f}); if the file holds the other convention pass --wrench {flip}"
+        + turned
     ]
 
 

@@ -132,6 +132,27 @@ def test_real_reaction_imported_as_applied_gets_a_sign_hint(real):
     assert not any("check the wrench sign" in note for note in right)
 
 
+def test_real_tool_frame_wrench_read_with_the_wrong_quaternion_order_gets_a_hint_naming_it(real):
+    """Read with the quaternion order wrong (the columns mapped w, x, y, z as x, y, z, w), the tool-frame wrench is
+    turned into the world wrongly and presses UP on three of the four trials: the note names the quaternion order and
+    the wrench frame beside the sign. A world-frame wrench read with the wrong sign gets the sign hint alone."""
+    wrong_order = {"wrench_convention": "measured-on-tool", "wrench_frame": "tool",
+                   "columns": "qx=tcp_qw,qy=tcp_qx,qz=tcp_qy,qw=tcp_qz"}  # fmt: skip
+    hinted = []
+    for name in TRIALS:
+        notes = demonstration_from_csv(DATA / f"{name}.csv", CsvImportOptions(**wrong_order)).metadata.extra
+        hint = [note for note in notes["import_notes"] if "check the wrench sign" in note]
+        if hint:
+            assert "--quaternion-order" in hint[0] and "--wrench-frame" in hint[0]
+            hinted.append(name)
+        right = real[name]["tool"].metadata.extra["import_notes"]
+        assert not any("check the wrench sign" in note for note in right)
+    assert hinted == ["contour_a_2", "contour_b_1", "contour_b_2"]
+    sign_only = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="world"))
+    hint = [note for note in sign_only.metadata.extra["import_notes"] if "check the wrench sign" in note]
+    assert hint and "--quaternion-order" not in hint[0]
+
+
 def test_real_position_path_matches_the_readme(real):
     for name in TRIALS:
         p = np.asarray(real[name]["tool"].positions)
