@@ -57,8 +57,8 @@ from schemas.execution import (  # noqa: E402
 )
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
-from sim_worker.compiled_calls import compiled_entry  # noqa: E402
-from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, sample, sense  # noqa: E402
+from sim_worker.compiled_calls import compiled_entry, state_reader  # noqa: E402
+from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED  # noqa: E402
 from sim_worker.control_loop import (  # noqa: E402
     _S_DT,
     _S_LIMITS,
@@ -234,14 +234,14 @@ def captured_torques(world: ExecutionWorld, settings: ExecutionSettings) -> tupl
 AFTERMATH_SETTLED = 5
 """Steps after a model update from which a step's parts count as settled (:func:`update_aftermath`)."""
 LADDER = ("bare", "arm_contact", "row_law", "model_update")
-CALLS = "calls"
-"""One more bare loop beside the ladder: the project's two per-step compiled calls with their arguments, into compiled
-functions that do nothing (:func:`_read_nothing`, :func:`_control_nothing`): what crossing from Python into compiled
-code costs in the loop, whatever the code computes."""
 """The bare loops, each adding one of the project's per-step parts to the four PyBullet calls: none; the arm state and
 contact summary from PyBullet's tuples (``contact_sensing.sense``; with the wrist sensor ``sample``, its reading too);
 the telemetry row with the control law (``control_loop._record_and_control``); the model update every
 ``NULL_SPACE_UPDATE_STEPS`` steps as the project loop makes it (:func:`model_update`)."""
+CALLS = "calls"
+"""One more bare loop beside the ladder: the project's two per-step compiled calls with their arguments, into compiled
+functions that do nothing (:func:`_read_nothing`, :func:`_control_nothing`): what crossing from Python into compiled
+code costs in the loop, whatever the code computes."""
 
 
 class StepParts(NamedTuple):
@@ -283,11 +283,7 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     )
     mass_of = compiled_entry(arm_mass_matrix, (handles.model, arm[ROBOT_Q]))
     update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *controller.model_arguments()))
-    if handles.ideal:
-        read_state = compiled_entry(sense, (handles.model, 0, 0, arm, contact))
-    else:
-        read_state = compiled_entry(sample, (handles.model, 0, 0, arm, contact, handles.sensor))
-    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, read_state,
+    return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, state_reader(handles),
                      record_and_control, mass_of, update_model)  # fmt: skip
 
 
@@ -366,10 +362,9 @@ def bare_loop(
 ) -> tuple[float, float, int]:
     """The floor: the same world (built as the project builds it), the arm put in the captured start state, then per
     step the project loop's four PyBullet calls and nothing else, replaying ``torques``; with ``level`` (one of
-    :data:`LADDER`, or :data:`CALLS`: the calls into functions that do nothing) the project's compiled per-step parts
-    on top, computed and not used (the torques stay the replayed
-    ones, so the physics stays the same). Returns µs per step by wall time and by the thread's CPU time, and the steps
-    that began in contact (contact points reported)."""
+    :data:`LADDER`, or :data:`CALLS`: the calls into functions that do nothing) the project's compiled per-step parts on
+    top, computed and not used (the torques stay the replayed ones, so the physics stays the same). Returns µs per step
+    by wall time and by the thread's CPU time, and the steps that began in contact (contact points reported)."""
     with replayed_world(world, start) as sim:
         client, robot = sim.client_id, sim.robot
         joints = list(range(N_JOINTS))
@@ -384,10 +379,9 @@ def bare_loop(
         law_buffer, record_and_control = parts.controller.law_buffer, parts.record_and_control
         read_state = parts.read_state
         updating = level == "model_update"
-        arm_contact, row_law = level not in ("bare", CALLS), level == "row_law" or updating
+        arm_contact, row_law = level != "bare", level in ("row_law", CALLS) or updating
         if level == CALLS:  # the same calls with the same arguments, into functions that do nothing
             read_state, record_and_control = _nothing_entries(parts)
-            arm_contact = row_law = True
         joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
         command, step, torque_control = (
             pybullet.setJointMotorControlArray,
@@ -531,9 +525,8 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
         contact_steps = set()
         for _ in range(repeats):
             result = run_skill(world, settings)
-            steps = max(result.metrics.steps, 1)
-            project_wall.append(1e6 * result.loop_wall_s / steps)
-            project_cpu.append(1e6 * result.loop_cpu_s / steps)
+            project_wall.append(wall_us_per_step(result))
+            project_cpu.append(1e6 * result.loop_cpu_s / max(result.metrics.steps, 1))
             for level in (*LADDER, CALLS):
                 wall, cpu, in_contact = bare_loop(world, torques, start, level)
                 ladder_wall[level].append(wall)

@@ -15,6 +15,9 @@ import numba
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
+from sim_worker.contact_sensing import sample, sense
+from sim_worker.world import LoopHandles
+
 _ENTRIES: dict[tuple, Callable[..., object]] = {}
 """Specializations handed out, by dispatcher and :func:`_type_key` of each argument (as many as type combinations)."""
 _SCALARS = (bool, int, float)
@@ -43,3 +46,12 @@ def compiled_entry(dispatcher: Dispatcher, args: tuple) -> Callable[..., object]
     if entry is None:
         entry = _ENTRIES[key] = dispatcher.compile(tuple(numba.typeof(arg) for arg in args))
     return entry
+
+
+def state_reader(handles: LoopHandles) -> Callable[..., bool]:
+    """The compiled call that brings a loop's arm state, contact summary and (a sampling sensor) reading up to date from
+    PyBullet's tuples by their addresses: ``sense(model, id(states), id(points), arm, contact)`` for the ideal sensor,
+    else ``sample(..., sensor)`` (after ``draw()``); one specialization for any number of contact points."""
+    if handles.ideal:
+        return compiled_entry(sense, (handles.model, 0, 0, handles.arm, handles.contact))
+    return compiled_entry(sample, (handles.model, 0, 0, handles.arm, handles.contact, handles.sensor))

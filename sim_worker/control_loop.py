@@ -23,9 +23,9 @@ from numpy.typing import NDArray
 
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
-from sim_worker.compiled_calls import compiled_entry
+from sim_worker.compiled_calls import compiled_entry, state_reader
 from sim_worker.contact_detection import ContactGuard
-from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL, sample, sense
+from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
 from sim_worker.plans import PhasePlan, smooth_ramp
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
@@ -322,13 +322,7 @@ class ControlLoop:
         ideal = handles.ideal
         draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        # The arm state, contact summary and (a sampling sensor) reading: one compiled specialization for any number of
-        # contact points, PyBullet's tuples read in place by their addresses (sim_worker.python_tuples)
-        address = id
-        if ideal:
-            read_state = compiled_entry(sense, (model, 0, 0, arm, contact))
-        else:
-            read_state = compiled_entry(sample, (model, 0, 0, arm, contact, sensor))
+        read_state, address = state_reader(handles), id  # PyBullet's tuples read in place (sim_worker.python_tuples)
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
         q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
