@@ -11,16 +11,15 @@ cylinder; seed 0), pins the process to one CPU, and executes each skill with ``p
 Jacobian and gravity/Coriolis from the compiled arm model every step, mass matrix every
 ``NULL_SPACE_UPDATE_STEPS``), the control law (``skills.control``, compiled) and the telemetry record.
 Reported: the real-time factor (simulated time over the loop's wall time, and over its thread's CPU
-time, which a loaded machine disturbs less; medians of the repeats), the loop's own per-step timers
-(µs), PyBullet's own share of a step (every PyBullet call of one execution timed individually: the
-floor no Python-side work can go below) and, for reference, the per-call cost of the world's queries
-(``SimWorld.measure_costs``) and of the control law alone. Beside it, the floor: a BARE loop this script builds
-itself, making the same four PyBullet calls per step as the project's loop (``getJointStates``, ``getContactPoints``,
-``setJointMotorControlArray``, ``stepSimulation``) in the same world, replaying the exact torques one project execution
-commanded from the same start state (so every step is the same physics: the contact steps are counted and must agree),
-timed interleaved with project executions, for the ideal and the wrist sensor: µs per step side by side and their
-ratio; and bare loops that add the project's per-step parts one at a time (:data:`LADDER`), which say where the
-project's µs above the floor go. The load average is printed with the table. The force / path
+time, which a loaded machine disturbs less; medians of the repeats) and, for reference, the per-call cost of the
+world's queries (``SimWorld.measure_costs``) and of the control law alone. Beside it, the floor: BARE loops this
+script builds itself, making only the project loop's four PyBullet calls per step (``getJointStates``,
+``getContactPoints``, ``setJointMotorControlArray``, ``stepSimulation``) through PyBullet's Python API, and the same
+calls' C functions from compiled code as the project makes them, in the same world, replaying the exact torques one
+project execution commanded from the same start state (so every step is the same physics: the contact steps are
+counted and must agree), timed interleaved with project executions, for the ideal and the wrist sensor: µs per step
+side by side and their ratios; and bare loops that add the project's per-step parts one at a time (:data:`LADDER`),
+which say where the project's µs above the floor go. The load average is printed with the table. The force / path
 measures of the same runs are reported too (ours and the two baselines in the same run). Writes its
 section of docs/BENCHMARKS.md between ``<!-- bench_control_loop:start -->`` and
 ``<!-- bench_control_loop:end -->``.
@@ -56,8 +55,10 @@ from schemas.execution import (  # noqa: E402
     SensorChoice,
 )
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
+from sim_worker import control_loop  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
-from sim_worker.compiled_calls import compiled_entry, state_reader  # noqa: E402
+from sim_worker.bullet_client import read_contact_rows, read_joint_rows  # noqa: E402
+from sim_worker.compiled_calls import compiled_entry, state_reader, stepper  # noqa: E402
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED  # noqa: E402
 from sim_worker.control_loop import (  # noqa: E402
     _S_DT,
@@ -108,19 +109,6 @@ RUNS = (
 the control law's own view), ``wrist`` as a worker runs a request by default (``execution_world``: the wrist sensor
 with its weight compensation, noise, drift, 2 ms delay and 200 Hz filter; the joint force/torque sensor of the tool
 joint makes PyBullet's step dearer too)."""
-PYBULLET_CALLS = (
-    "stepSimulation",
-    "getJointState",
-    "setJointMotorControlArray",
-    "getJointStates",
-    "getLinkState",
-    "getMatrixFromQuaternion",
-    "getContactPoints",
-    "calculateJacobian",
-    "calculateInverseDynamics",
-    "calculateMassMatrix",
-)
-"""The PyBullet functions the control loop calls (``sim_worker.world``)."""
 FLOOR_SCENARIO = "slide_flat"
 """The skill the project loop is compared with the bare PyBullet loop on (settle, free motion, touch-down, slide)."""
 TARGET_FLOOR_RATIO = 1.3
@@ -180,68 +168,51 @@ def control_law_cost(repeats: int = 20000) -> dict[str, float]:
     return {"step (model cached)": cached, "step + model update (projector, Λ, damping every 5th)": update}
 
 
-def pybullet_share(
-    skill: Skill, world_config: WorldConfig, settings: ExecutionSettings
-) -> tuple[dict[str, float], float]:
-    """Execute once with every call of :data:`PYBULLET_CALLS` timed; return µs per control step per function
-    (over the whole execution: the start pose's IK adds a few calls) and the loop's µs per step."""
-    spent = dict.fromkeys(PYBULLET_CALLS, 0)
-    originals = {name: getattr(pybullet, name) for name in PYBULLET_CALLS}
-
-    def timed(name, function):
-        def call(*args, **kwargs):
-            start = time.perf_counter_ns()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                spent[name] += time.perf_counter_ns() - start
-
-        return call
-
-    try:
-        for name, function in originals.items():
-            setattr(pybullet, name, timed(name, function))
-        result = execute_skill(skill, world_config, settings)
-    finally:
-        for name, function in originals.items():
-            setattr(pybullet, name, function)
-    steps = max(result.metrics.steps, 1)
-    return {name: ns / 1e3 / steps for name, ns in spent.items()}, wall_us_per_step(result)
-
-
 def captured_torques(world: ExecutionWorld, settings: ExecutionSettings) -> tuple[list[list[float]], tuple, int]:
-    """Execute once, capturing every torque command (N·m, as sent to PyBullet) and the joint states (PyBullet's
-    tuples) at the first one; and the steps the telemetry records in contact."""
+    """Execute once, capturing every torque command of the loop (N·m, as sent to PyBullet) and the joint states
+    (PyBullet's tuples) at the first one; and the steps the telemetry records in contact."""
     torques: list[list[float]] = []
     start: list[tuple] = []
-    original = pybullet.setJointMotorControlArray
+    original = control_loop.stepper
 
-    def capture(body, joints, mode, *args, **kwargs):
-        if mode == pybullet.TORQUE_CONTROL:
+    def capturing(handles: LoopHandles) -> Callable[[np.ndarray, np.ndarray], None]:
+        advance, bullet = original(handles), handles.bullet
+
+        def capture(ids: np.ndarray, tau: np.ndarray) -> None:
             if not torques:
-                start.append(pybullet.getJointStates(body, joints, physicsClientId=kwargs["physicsClientId"]))
-            torques.append(list(kwargs["forces"]))
-        return original(body, joints, mode, *args, **kwargs)
+                start.append(pybullet.getJointStates(bullet.body, list(range(N_JOINTS)), bullet.client_id))
+            torques.append(tau.tolist())
+            advance(ids, tau)
 
-    pybullet.setJointMotorControlArray = capture
+        return capture
+
+    control_loop.stepper = capturing
     try:
         result = run_skill(world, settings)
     finally:
-        pybullet.setJointMotorControlArray = original
+        control_loop.stepper = original
     return torques, start[0], int(result.telemetry.in_contact.sum())
 
 
 AFTERMATH_SETTLED = 5
 """Steps after a model update from which a step's parts count as settled (:func:`update_aftermath`)."""
-LADDER = ("bare", "arm_contact", "row_law", "model_update")
-"""The bare loops, each adding one of the project's per-step parts to the four PyBullet calls: none; the arm state and
-contact summary from PyBullet's tuples (``contact_sensing.sense``; with the wrist sensor ``sample``, its reading too);
-the telemetry row with the control law (``control_loop._record_and_control``); the model update every
-``NULL_SPACE_UPDATE_STEPS`` steps as the project loop makes it (:func:`model_update`)."""
-CALLS = "calls"
-"""One more bare loop beside the ladder: the project's two per-step compiled calls with their arguments, into compiled
-functions that do nothing (:func:`_read_nothing`, :func:`_control_nothing`): what crossing from Python into compiled
-code costs in the loop, whatever the code computes."""
+LADDER = ("bare", "bare_c_api", "arm_contact", "row_law", "model_update")
+"""The bare loops: the four PyBullet calls per step through PyBullet's Python API (the issue's floor); the same calls
+from compiled code through its C API as the project makes them (``sim_worker.bullet_client``: the joint states and
+contact points in one compiled call, the torque command and physics step in another; the C-API floor); then the
+project's per-step parts added one at a time: the arm state and contact summary with the queries
+(``contact_sensing.sense_client``; with the wrist sensor ``sample_client``, its reading too); the telemetry row with
+the control law (``control_loop._record_and_control``); the model update every ``NULL_SPACE_UPDATE_STEPS`` steps as
+the project loop makes it (:func:`model_update`)."""
+BARE_LEVELS = ("bare", "bare_c_api")
+"""The ladder's levels that compute nothing of the project's (their steps in contact are counted: the same physics)."""
+
+
+@numba.njit(cache=True)
+def _query(ids, joint_rows):  # pragma: no cover - compiled
+    """The project loop's two PyBullet queries from compiled code, nothing computed: the number of contact points."""
+    read_joint_rows(ids, joint_rows)
+    return read_contact_rows(ids).shape[0]
 
 
 class StepParts(NamedTuple):
@@ -256,6 +227,7 @@ class StepParts(NamedTuple):
     loop_state: np.ndarray
     rows: np.ndarray
     read_state: Callable[..., bool]
+    advance: Callable[..., None]
     record_and_control: Callable[..., tuple]
     mass_of: Callable[..., np.ndarray]
     update_model: Callable[..., int]
@@ -284,43 +256,7 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     mass_of = compiled_entry(arm_mass_matrix, (handles.model, arm[ROBOT_Q]))
     update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *controller.model_arguments()))
     return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, state_reader(handles),
-                     record_and_control, mass_of, update_model)  # fmt: skip
-
-
-@numba.njit(cache=True)
-def _read_nothing(model, joint_states, points, arm, contact):  # pragma: no cover - compiled
-    """``contact_sensing.sense``'s arguments, nothing done: whether the tool touches, False."""
-    return False
-
-
-@numba.njit(cache=True)
-def _sample_nothing(model, joint_states, points, arm, contact, sensor):  # pragma: no cover - compiled
-    """``contact_sensing.sample``'s arguments, nothing done."""
-    return False
-
-
-@numba.njit(cache=True)
-def _control_nothing(
-    robot, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n, step_count
-):  # pragma: no cover - compiled
-    """``control_loop._record_and_control``'s arguments and results' types, nothing done."""
-    return False, 0, False
-
-
-def _nothing_entries(parts: StepParts) -> tuple[Callable[..., bool], Callable[..., tuple]]:
-    """The specializations of :func:`_read_nothing` (or :func:`_sample_nothing`) and :func:`_control_nothing` for the
-    argument types of ``parts``' own two per-step calls."""
-    h, controller = parts.handles, parts.controller
-    if h.ideal:
-        read = compiled_entry(_read_nothing, (h.model, 0, 0, h.arm, h.contact))
-    else:
-        read = compiled_entry(_sample_nothing, (h.model, 0, 0, h.arm, h.contact, h.sensor))
-    control = compiled_entry(
-        _control_nothing,
-        (h.arm, h.contact, parts.reading_at, False, controller.law_buffer, parts.loop_state, parts.rows,
-         parts.references, 0, False, 0, 0),
-    )  # fmt: skip
-    return read, control
+                     stepper(handles), record_and_control, mass_of, update_model)  # fmt: skip
 
 
 @contextmanager
@@ -360,11 +296,11 @@ def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> Non
 def bare_loop(
     world: ExecutionWorld, torques: list[list[float]], start: tuple, level: str = "bare"
 ) -> tuple[float, float, int]:
-    """The floor: the same world (built as the project builds it), the arm put in the captured start state, then per
-    step the project loop's four PyBullet calls and nothing else, replaying ``torques``; with ``level`` (one of
-    :data:`LADDER`, or :data:`CALLS`: the calls into functions that do nothing) the project's compiled per-step parts on
-    top, computed and not used (the torques stay the replayed ones, so the physics stays the same). Returns µs per step
-    by wall time and by the thread's CPU time, and the steps that began in contact (contact points reported)."""
+    """A level of :data:`LADDER` in the same world (built as the project builds it), the arm put in the captured start
+    state, replaying ``torques``: the four PyBullet calls per step through its Python API (``bare``) or as the project
+    makes them from compiled code, with the project's compiled per-step parts on top (computed and not used: the
+    torques stay the replayed ones, so the physics stays the same). Returns µs per step by wall time and by the
+    thread's CPU time, and the steps that began with contact points reported (0 above the bare levels: not counted)."""
     with replayed_world(world, start) as sim:
         client, robot = sim.client_id, sim.robot
         joints = list(range(N_JOINTS))
@@ -372,43 +308,48 @@ def bare_loop(
         handles, reading_at, references, loop_state, rows = (
             parts.handles, parts.reading_at, parts.references, parts.loop_state, parts.rows
         )  # fmt: skip
-        queried = handles.queried  # with the wrist sensor the project reads the tool joint's reaction with the joints
+        queried = handles.bullet.queried  # with the wrist sensor the tool joint's reaction is read with the joints
+        ids, joint_rows = handles.bullet.ids, handles.bullet.joint_rows
         model, arm, contact, ideal, draw, sensor = (
             handles.model, handles.arm, handles.contact, handles.ideal, handles.draw, handles.sensor
         )  # fmt: skip
         law_buffer, record_and_control = parts.controller.law_buffer, parts.record_and_control
-        read_state = parts.read_state
+        read_state, advance = parts.read_state, parts.advance
+        query = compiled_entry(_query, (ids, joint_rows))
         updating = level == "model_update"
-        arm_contact, row_law = level != "bare", level in ("row_law", CALLS) or updating
-        if level == CALLS:  # the same calls with the same arguments, into functions that do nothing
-            read_state, record_and_control = _nothing_entries(parts)
-        joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
-        command, step, torque_control = (
-            pybullet.setJointMotorControlArray,
-            pybullet.stepSimulation,
-            pybullet.TORQUE_CONTROL,
-        )
-        touching, in_contact = False, 0
+        row_law = level == "row_law" or updating
+        in_contact = 0
         wall, cpu = time.perf_counter(), time.thread_time()
-        for k, forces in enumerate(torques):  # each call as the project makes it (positional where PyBullet allows)
-            states = joint_states(robot, queried, client)
-            points = contact_points(robot, -1, TOOL_LINK, -2, client)
-            if points:
-                in_contact += 1
-            if arm_contact:
+        if level == "bare":  # each call as the project made them through Python (positional where PyBullet allows)
+            joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
+            command, step, torque_control = (
+                pybullet.setJointMotorControlArray, pybullet.stepSimulation, pybullet.TORQUE_CONTROL
+            )  # fmt: skip
+            for forces in torques:
+                joint_states(robot, queried, client)
+                if contact_points(robot, -1, TOOL_LINK, -2, client):
+                    in_contact += 1
+                command(robot, joints, torque_control, forces=forces, physicsClientId=client)
+                step(client)
+        elif level == "bare_c_api":
+            for forces in list(np.array(torques)):
+                if query(ids, joint_rows):
+                    in_contact += 1
+                advance(ids, forces)
+        else:
+            for k, forces in enumerate(list(np.array(torques))):
                 if ideal:
-                    touching = read_state(model, id(states), id(points), arm, contact)
+                    touching = read_state(ids, model, joint_rows, arm, contact)
                 else:
                     draw()
-                    touching = read_state(model, id(states), id(points), arm, contact, sensor)
-            if updating and k % NULL_SPACE_UPDATE_STEPS == 0:
-                model_update(sim, parts, touching, k)
-            elif row_law:
-                record_and_control(
-                    arm, contact, reading_at, touching, law_buffer, loop_state, rows, references, k, False, k, k
-                )
-            command(robot, joints, torque_control, forces=forces, physicsClientId=client)
-            step(client)
+                    touching = read_state(ids, model, joint_rows, arm, contact, sensor)
+                if updating and k % NULL_SPACE_UPDATE_STEPS == 0:
+                    model_update(sim, parts, touching, k)
+                elif row_law:
+                    record_and_control(
+                        arm, contact, reading_at, touching, law_buffer, loop_state, rows, references, k, False, k, k
+                    )
+                advance(ids, forces)
         wall, cpu = time.perf_counter() - wall, time.thread_time() - cpu
     return 1e6 * wall / len(torques), 1e6 * cpu / len(torques), in_contact
 
@@ -416,8 +357,9 @@ def bare_loop(
 def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tuple, calls: int) -> dict[str, float]:
     """The ladder's parts (:data:`LADDER`) in isolation: the world of :func:`bare_loop` replayed to its first step in
     contact, then each part called ``calls`` times back to back on that state (no physics step between: its code and
-    data stay in the CPU caches). Returns CPU µs per step by part, the best of 5 batches (the model update's, less the
-    row and law it replaces, per ``NULL_SPACE_UPDATE_STEPS`` steps)."""
+    data stay in the CPU caches). Returns CPU µs per step by part, the best of 5 batches (the arm state and contact
+    summary's less the queries alone; the model update's less the row and law it replaces, per
+    ``NULL_SPACE_UPDATE_STEPS`` steps)."""
     with replayed_world(world, start) as sim:
         client, robot = sim.client_id, sim.robot
         parts = step_parts(sim, len(torques))
@@ -428,17 +370,16 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
             pybullet.setJointMotorControlArray(robot, list(range(N_JOINTS)), pybullet.TORQUE_CONTROL, forces=forces,
                                                physicsClientId=client)  # fmt: skip
             pybullet.stepSimulation(client)
-        states = pybullet.getJointStates(robot, handles.queried, client)
-        points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
         model, arm, contact, draw, sensor = handles.model, handles.arm, handles.contact, handles.draw, handles.sensor
+        ids, joint_rows = handles.bullet.ids, handles.bullet.joint_rows
         read_state = parts.read_state  # the specialization the project loop calls
-        states_at, points_at = id(states), id(points)
+        query = compiled_entry(_query, (ids, joint_rows))
 
         def arm_and_contact() -> bool:
             if handles.ideal:
-                return read_state(model, states_at, points_at, arm, contact)
+                return read_state(ids, model, joint_rows, arm, contact)
             draw()
-            return read_state(model, states_at, points_at, arm, contact, sensor)
+            return read_state(ids, model, joint_rows, arm, contact, sensor)
 
         touching = arm_and_contact()
 
@@ -449,6 +390,7 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
                              False, 0, 0)  # fmt: skip
         record_and_control = parts.record_and_control
         timed = {
+            "queries": lambda: query(ids, joint_rows),
             "arm_contact": arm_and_contact,
             "row_law": lambda: record_and_control(*row_law_arguments),
             "model_update": lambda: model_update(sim, parts, touching, 0),
@@ -462,7 +404,9 @@ def isolated_costs(world: ExecutionWorld, torques: list[list[float]], start: tup
                     call()
                 batches.append((time.thread_time() - cpu) / calls)
             costs[name] = 1e6 * min(batches)
-    # As in the ladder: a model update replaces one step's row and law, once every NULL_SPACE_UPDATE_STEPS steps.
+    # As in the ladder: the arm state and contact summary above the queries they make; a model update replaces one
+    # step's row and law, once every NULL_SPACE_UPDATE_STEPS steps.
+    costs["arm_contact"] -= costs.pop("queries")
     costs["model_update"] = (costs["model_update"] - costs["row_law"]) / NULL_SPACE_UPDATE_STEPS
     return costs
 
@@ -475,20 +419,17 @@ def update_aftermath(world: ExecutionWorld, torques: list[list[float]], start: t
     ``AFTERMATH_SETTLED`` or more steps after an update (their code and data evicted by the update's LAPACK)."""
     perf = time.perf_counter_ns
     with replayed_world(world, start) as sim:
-        client, robot = sim.client_id, sim.robot
-        joints = list(range(N_JOINTS))
         parts = step_parts(sim, len(torques))
         handles, law_buffer, loop_state = parts.handles, parts.controller.law_buffer, parts.loop_state
-        read_state = parts.read_state
+        read_state, advance = parts.read_state, parts.advance
+        ids, joint_rows = handles.bullet.ids, handles.bullet.joint_rows
         extra = () if handles.ideal else (handles.sensor,)
         times = np.zeros((len(torques), 3))  # sensing, compiled step, physics: ns
-        for k, forces in enumerate(torques):
+        for k, forces in enumerate(list(np.array(torques))):
             t0 = perf()
-            states = pybullet.getJointStates(robot, handles.queried, client)
-            points = pybullet.getContactPoints(robot, -1, TOOL_LINK, -2, client)
             if not handles.ideal:
                 handles.draw()
-            touching = read_state(handles.model, id(states), id(points), handles.arm, handles.contact, *extra)
+            touching = read_state(ids, handles.model, joint_rows, handles.arm, handles.contact, *extra)
             t1 = perf()
             if k % NULL_SPACE_UPDATE_STEPS == 0:
                 model_update(sim, parts, touching, k)
@@ -496,9 +437,7 @@ def update_aftermath(world: ExecutionWorld, torques: list[list[float]], start: t
                 parts.record_and_control(handles.arm, handles.contact, parts.reading_at, touching, law_buffer,
                                          loop_state, parts.rows, parts.references, k, False, k, k)  # fmt: skip
             t2 = perf()
-            pybullet.setJointMotorControlArray(robot, joints, pybullet.TORQUE_CONTROL, forces=forces,
-                                               physicsClientId=client)  # fmt: skip
-            pybullet.stepSimulation(client)
+            advance(ids, forces)
             times[k] = t1 - t0, t2 - t1, perf() - t2
     since = np.arange(len(torques)) % NULL_SPACE_UPDATE_STEPS
     settled = times[since >= AFTERMATH_SETTLED].mean(axis=0)
@@ -520,19 +459,21 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
         world = execution_world(skill, environment, scenario=FLOOR_SCENARIO, demonstration=recording.demonstration)
         torques, start, project_contact = captured_torques(world, settings)
         project_wall, project_cpu = [], []
-        ladder_wall: dict[str, list[float]] = {level: [] for level in (*LADDER, CALLS)}
-        ladder_cpu: dict[str, list[float]] = {level: [] for level in (*LADDER, CALLS)}
+        ladder_wall: dict[str, list[float]] = {level: [] for level in LADDER}
+        ladder_cpu: dict[str, list[float]] = {level: [] for level in LADDER}
         contact_steps = set()
         for _ in range(repeats):
             result = run_skill(world, settings)
             project_wall.append(wall_us_per_step(result))
             project_cpu.append(1e6 * result.loop_cpu_s / max(result.metrics.steps, 1))
-            for level in (*LADDER, CALLS):
+            for level in LADDER:
                 wall, cpu, in_contact = bare_loop(world, torques, start, level)
                 ladder_wall[level].append(wall)
                 ladder_cpu[level].append(cpu)
-                contact_steps.add(in_contact)
+                if level in BARE_LEVELS:
+                    contact_steps.add(in_contact)
         bare_wall, bare_cpu = ladder_wall["bare"], ladder_cpu["bare"]
+        c_api_cpu = ladder_cpu["bare_c_api"]
         rows.append(
             {
                 "sensor": sensor.value,
@@ -545,6 +486,8 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
                 "bare_cpu": statistics.median(bare_cpu),
                 "ratio_wall": statistics.median(p / b for p, b in zip(project_wall, bare_wall, strict=True)),
                 "ratio_cpu": statistics.median(p / b for p, b in zip(project_cpu, bare_cpu, strict=True)),
+                "c_api_cpu": statistics.median(c_api_cpu),
+                "ratio_c_api": statistics.median(p / b for p, b in zip(project_cpu, c_api_cpu, strict=True)),
                 "ladder_cpu": {level: statistics.median(values) for level, values in ladder_cpu.items()},
                 "isolated_cpu": isolated_costs(world, torques, start, isolated_calls),
                 "aftermath": update_aftermath(world, torques, start),
@@ -563,24 +506,23 @@ def floor_comparison(skill: Skill, recording, repeats: int, isolated_calls: int)
 
 
 PART_NAMES = {
-    "arm_contact": (
-        "arm state and contact summary, with the wrist sensor its reading (compiled, from PyBullet's tuples)"
-    ),
+    "arm_contact": "arm state and contact summary, with the wrist sensor its reading (compiled, from the queries)",
     "row_law": "telemetry row, control law, torque limits (one compiled call)",
     "model_update": (
         f"model update every {NULL_SPACE_UPDATE_STEPS} steps (mass matrix, limits, projector, damping, gains)"
     ),
-    "rest": "the rest of the loop body (Python: calls, torque list, checks, the phases' set-up)",
+    "rest": "the rest of the loop body (Python: the calls, checks, the phases' set-up)",
 }
-"""The project's per-step parts above the bare loop, named for the tables (the first three are :data:`LADDER`'s)."""
+"""The project's per-step parts above the C-API bare loop, named for the tables (the first three are
+:data:`LADDER`'s)."""
 
 
 def floor_parts(row: dict) -> dict[str, tuple[float, float | None]]:
-    """What the project adds to the bare loop per step (CPU µs), by part (:data:`PART_NAMES`): in the loop (from the
-    ladder of bare loops, :data:`LADDER`, and the rest of the project's loop) and alone (:func:`isolated_costs`; None
-    for the rest)."""
+    """What the project adds to the C-API bare loop per step (CPU µs), by part (:data:`PART_NAMES`): in the loop (from
+    the ladder of bare loops, :data:`LADDER`, and the rest of the project's loop) and alone (:func:`isolated_costs`;
+    None for the rest)."""
     ladder, alone = row["ladder_cpu"], row["isolated_cpu"]
-    levels = [*LADDER, "project"]
+    levels = [*LADDER[1:], "project"]
     totals = {**ladder, "project": row["project_cpu"]}
     return {
         part: (totals[above] - totals[below], alone.get(part))
@@ -593,31 +535,34 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
     lines = [
         "",
         f"The project loop beside the floor ({FLOOR_SCENARIO}, hybrid_cf, `run_skill` as a worker runs it): a bare "
-        "loop built by this benchmark makes only the project loop's four PyBullet calls per step (`getJointStates`, "
-        "with the wrist sensor of the arm's joints and the tool joint; `getContactPoints` of the tool; "
-        "`setJointMotorControlArray`; `stepSimulation`) in the same world, from the same start state, replaying the "
+        "loop built by this benchmark makes only the project loop's four PyBullet calls per step through PyBullet's "
+        "Python API (`getJointStates`, with the wrist sensor of the arm's joints and the tool joint; "
+        "`getContactPoints` of the tool; `setJointMotorControlArray`; `stepSimulation`: the issue's floor), another "
+        "makes the same calls' C functions from compiled code as the project loop does (`sim_worker/bullet_client.py`: "
+        "the C-API floor, the project's own), both in the same world, from the same start state, replaying the "
         "torques one project execution commanded: the same physics step by step (the steps in contact agree, column "
-        f"'same physics'). {repeats} project executions interleaved with {repeats} bare loops per sensor, medians; "
-        "the ratio is the median of the pairs' ratios. The project's µs cover its whole loop (as the table above, the "
-        f"phases' set-up included). Load average (1, 5, 15 min) at the end: {_load(load)}.",
+        f"'same physics'). {repeats} project executions interleaved with {repeats} bare loops of each kind per "
+        "sensor, medians; a ratio is the median of the pairs' ratios. The project's µs cover its whole loop (as the "
+        f"table above, the phases' set-up included). Load average (1, 5, 15 min) at the end: {_load(load)}.",
         "",
         "| sensor | steps (in contact) | same physics | project µs / step | bare loop µs / step | ratio | "
-        "project CPU µs / step | bare CPU µs / step | ratio (CPU) |",
-        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "project CPU µs / step | bare CPU µs / step | ratio (CPU) | C-API bare CPU µs / step | ratio to it (CPU) |",
+        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         lines.append(
             f"| {r['sensor']} | {r['steps']} ({r['contact_steps']}) | {'yes' if r['same_physics'] else 'NO'} | "
             f"{r['project_wall']:.1f} | {r['bare_wall']:.1f} | {r['ratio_wall']:.2f} | {r['project_cpu']:.1f} | "
-            f"{r['bare_cpu']:.1f} | {r['ratio_cpu']:.2f} |"
+            f"{r['bare_cpu']:.1f} | {r['ratio_cpu']:.2f} | {r['c_api_cpu']:.1f} | {r['ratio_c_api']:.2f} |"
         )
     parts = [floor_parts(r) for r in rows]
     lines += [
         "",
-        "Where the project's µs above the bare loop go (CPU µs per step). In the loop: medians of bare loops that add "
-        "the project's per-step parts one at a time, interleaved with the others, and the project loop less the last "
-        "of them. Alone: the same calls back to back on one state in contact (best of 5 batches), the model update's "
-        f"less the row and law it replaces, per {NULL_SPACE_UPDATE_STEPS} steps:",
+        "Where the project's µs above the C-API bare loop go (CPU µs per step). In the loop: medians of bare loops "
+        "that add the project's per-step parts one at a time, interleaved with the others, and the project loop less "
+        "the last of them. Alone: the same calls back to back on one state in contact (best of 5 batches; the arm "
+        "state and contact summary's less the two queries alone), the model update's less the row and law it "
+        f"replaces, per {NULL_SPACE_UPDATE_STEPS} steps:",
         "",
         "| part | " + " | ".join(f"{r['sensor']}: in the loop | {r['sensor']}: alone" for r in rows) + " |",
         "| --- |" + " ---: | ---: |" * len(rows),
@@ -626,57 +571,46 @@ def floor_lines(rows: list[dict[str, float | str | int]], repeats: int, load: tu
         cells = [f"{p[part][0]:.1f} | " + ("–" if p[part][1] is None else f"{p[part][1]:.1f}") for p in parts]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines.append(
-        "| **project - bare** | " + " | ".join(f"{r['project_cpu'] - r['bare_cpu']:.1f} | " for r in rows) + " |"
+        "| **project - C-API bare** | " + " | ".join(f"{r['project_cpu'] - r['c_api_cpu']:.1f} | " for r in rows) + " |"
+    )
+    lines.append(
+        "| PyBullet's Python API (the bare loop less the C-API one; the project does not pay it) | "
+        + " | ".join(f"{r['bare_cpu'] - r['c_api_cpu']:.1f} | " for r in rows)
+        + " |"
     )
     met = [r["sensor"] for r in rows if r["ratio_cpu"] <= TARGET_FLOOR_RATIO]
     readings = []
     for r, p in zip(rows, parts, strict=True):
-        allowed = (TARGET_FLOOR_RATIO - 1.0) * r["bare_cpu"]
         compiled = [part for part in p.values() if part[1] is not None]
         in_loop, alone = sum(part[0] for part in compiled), sum(part[1] for part in compiled)
         readings.append(
-            f"{r['sensor']}: {r['project_cpu'] - r['bare_cpu']:.1f} µs above a {r['bare_cpu']:.1f} µs floor where "
-            f"{TARGET_FLOOR_RATIO}x allows {allowed:.1f}; the compiled parts (arm, contact, row, law, model update) "
-            f"take {in_loop:.1f} of them in the loop, {alone:.1f} alone ({in_loop / alone:.1f}x)"
+            f"{r['sensor']}: {r['ratio_cpu']:.2f}x the Python-API bare loop, {r['ratio_c_api']:.2f}x the C-API one "
+            f"({r['project_cpu'] - r['c_api_cpu']:.1f} µs above its {r['c_api_cpu']:.1f}); the compiled parts (arm, "
+            f"contact, row, law, model update) take {in_loop:.1f} µs of them in the loop, {alone:.1f} alone"
         )
     lines += [
         "",
-        f"- Target (issue 28): the project loop within {TARGET_FLOOR_RATIO}x of the bare loop for both sensors. "
-        + (f"Met by CPU time for: {', '.join(map(str, met))}." if len(met) == len(rows) else "")
-        + (f"Met by CPU time for {', '.join(map(str, met))} only. " if met and len(met) < len(rows) else "")
-        + ("Not met for either sensor. " if not met else "")
+        f"- Target (issue 28): the project loop within {TARGET_FLOOR_RATIO}x of the bare PyBullet loop for both "
+        "sensors. By CPU time against the Python-API bare loop: "
+        + (f"met for {', '.join(map(str, met))}" if met else "not met")
+        + (" only" if met and len(met) < len(rows) else "")
+        + ". "
         + "; ".join(readings)
-        + ". The compiled parts are the arithmetic itself (the arm's kinematics and gravity/Coriolis by recursive "
-        "Newton-Euler every step, reading PyBullet's tuples, the contact sum, the row, the law), called as their "
-        "compiled specializations (`sim_worker/compiled_calls.py`: no dispatcher typing per call; the arrays' "
-        "unboxing stays; PyBullet's tuples are read in place by their addresses, only the floats a step needs, "
-        "`sim_worker/python_tuples.py`); the model update is LAPACK "
-        f"(the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's eigen-decomposition every "
-        f"{DAMPING_UPDATE_EVERY}th time), amortized, in compiled calls with no Python between them but on the "
-        "damping's updates; the rest is CPython executing the loop body between the calls "
-        "and the phases' set-up. In the loop the compiled parts cost more than alone: `stepSimulation` between two "
-        "steps evicts their code and data from the CPU caches. None of them can go without changing what the loop "
-        "computes: the law needs the arm's Jacobian and gravity/Coriolis of every state, the projector needs the "
-        "same LAPACK calls (another factorization rounds differently), and the telemetry must stay bit-identical.",
-        "- The calls themselves: one more bare loop makes the project's two per-step compiled calls with the same "
-        "arguments (with the wrist sensor its `draw()` too), into compiled functions that do nothing "
-        f"({'; '.join(_calls_reading(r, p) for r, p in zip(rows, parts, strict=True))}): that much of the compiled "
-        "parts' time in the loop is crossing from Python into compiled code (the argument tuple, the arrays' "
-        "unboxing, the results' boxing, cold after each physics step), whatever the code computes; only fewer calls "
-        "per step could remove it.",
+        + ". Against the C-API loop, the stricter floor, the ratio is what the project's own work costs: the "
+        "arithmetic itself (the arm's kinematics and gravity/Coriolis by recursive Newton-Euler every step, the "
+        "contact sum, the row, the law), called as compiled specializations (`sim_worker/compiled_calls.py`); the "
+        f"model update's LAPACK (the projector every {NULL_SPACE_UPDATE_STEPS} steps, the adaptive damping's "
+        f"eigen-decomposition every {DAMPING_UPDATE_EVERY}th time), in compiled calls with no Python between them but "
+        "on the damping's updates; CPython executing the loop body between the calls and the phases' set-up. In the "
+        "loop the compiled parts cost more than alone: `stepSimulation` between two steps evicts their code and data "
+        "from the CPU caches. None of them can go without changing what the loop computes: the law needs the arm's "
+        "Jacobian and gravity/Coriolis of every state, the projector needs the same LAPACK calls (another "
+        "factorization rounds differently), and the telemetry must stay bit-identical.",
         "- The model update's cost in the loop, per update, from one more bare loop with every part of every step "
         f"timed ({'; '.join(_aftermath_reading(r) for r in rows)}): the update's LAPACK in turn evicts PyBullet's "
         "code and data, which the next steps take back.",
     ]
     return lines
-
-
-def _calls_reading(row: dict, parts: dict[str, tuple[float, float | None]]) -> str:
-    """One sensor's cost of the per-step calls alone (:data:`CALLS`) beside the compiled parts' in the loop, in
-    words."""
-    calls = row["ladder_cpu"][CALLS] - row["ladder_cpu"]["bare"]
-    in_loop = parts["arm_contact"][0] + parts["row_law"][0]
-    return f"{row['sensor']}: {calls:.1f} µs per step above the bare loop, of the {in_loop:.1f} µs the two calls take"
 
 
 def _aftermath_reading(row: dict) -> str:
@@ -744,12 +678,6 @@ def main() -> None:
               f"({min(rtfs):.1f}-{max(rtfs):.1f}), {wall_us_per_step(best):.0f} µs/step wall, {cpu_us:.0f} µs/step "
               f"CPU, {m.phase.value}, f_z RMS {m.force_rms_error_pct or float('nan'):.2f} %", flush=True)  # fmt: skip
 
-    shared_scenario, _, shared_controller, _ = runs[0]  # PyBullet's share in the first row's execution
-    recording, skill = learned[shared_scenario]
-    settings = ExecutionSettings(controller=shared_controller, pace="fast")
-    share, share_total = pybullet_share(skill, recording.world_config, settings)
-    wrist_world = execution_world(skill, scenario=shared_scenario, demonstration=recording.demonstration)
-    wrist_share, wrist_total = pybullet_share(wrist_world.skill, wrist_world.config, settings)
     with SimWorld(WorldConfig()) as world:
         world_costs = world.measure_costs(cost_calls)
     law = control_law_cost(law_repeats)
@@ -790,21 +718,6 @@ def main() -> None:
             f"{cpu_us:.0f} ({1e3 / cpu_us:.1f}) | {rms} | {worst} | {ratio} | {path} | {m.peak_force_n:.1f} N |"
         )
     lines += floor_lines(floor, args.floor_repeats, load_after)
-    simulator = sum(share.values())
-    lines += [
-        "",
-        f"PyBullet's own share of a step ({shared_scenario}, {shared_controller.value}; each PyBullet call of one "
-        "more execution timed on its own, µs per control step; those executions, the project's loop slowed by the "
-        f"timers around each call, took {share_total:.1f} µs per step with the ideal sensor, {wrist_total:.1f} with "
-        "the wrist sensor: not a floor, which is the bare loop's column above):",
-        "",
-        "| PyBullet call | µs / step, ideal sensor | µs / step, wrist sensor |",
-        "| --- | ---: | ---: |",
-    ]
-    for name, value in sorted(share.items(), key=lambda item: -item[1] - wrist_share[item[0]]):
-        if value or wrist_share[name]:
-            lines.append(f"| `{name}` | {value:.1f} | {wrist_share[name]:.1f} |")
-    lines.append(f"| **all PyBullet calls** | {simulator:.1f} | {sum(wrist_share.values()):.1f} |")
     lines += [
         "",
         "Per-call costs for reference (µs, mean; `SimWorld.measure_costs` on a free arm, and the control law alone):",
@@ -820,25 +733,23 @@ def main() -> None:
     median_cpu_rtf = statistics.median(1e3 / r[6] for r in rows)
     verdict = "MET" if median_rtf >= TARGET_RTF else "NOT MET"
     verdict_cpu = "MET" if median_cpu_rtf >= TARGET_RTF else "NOT MET"
-    total = wall_us_per_step(rows[0][-1])  # the first row: PyBullet's share was measured in its execution
-    python_side = total - simulator
+    ideal_floor = next(r for r in floor if r["sensor"] == SensorChoice.ideal.value)
+    simulator, total = ideal_floor["c_api_cpu"], ideal_floor["project_cpu"]
     at_target = [f"{r[0]} {r[1].value} {r[2]}" for r in rows if r[3] >= TARGET_RTF]
     below = [f"{r[0]} {r[1].value} {r[2]} {r[3]:.1f}x" for r in rows if r[3] < TARGET_RTF]
     lines += [
         "",
         f"- Target: real-time factor >= {TARGET_RTF:.0f} on one core, i.e. <= {1e3 / TARGET_RTF:.0f} µs per step. "
         f"Median over the rows {median_rtf:.1f} by wall time: {verdict}; {median_cpu_rtf:.1f} by CPU time: "
-        f"{verdict_cpu}. PyBullet's own calls take {simulator:.0f} µs of the {total:.0f} µs step ({shared_scenario}; "
-        f"`stepSimulation` alone {share['stepSimulation']:.0f} µs): with no Python work at all the loop could not "
-        f"exceed {1e3 / simulator:.0f}x. The other ~{python_side:.0f} µs are the interpreter (the loop's glue, the "
-        "calls into the compiled arm model, contact summary and law, the telemetry row, the phase plans) and, "
-        "on a loaded machine, time the loop waited for the CPU (compare the CPU column). "
+        f"{verdict_cpu}. PyBullet's own calls, made as the project makes them (the C-API bare loop above), take "
+        f"{simulator:.1f} of the project's {total:.1f} CPU µs per step ({FLOOR_SCENARIO}, ideal sensor): with no other "
+        f"work the loop could not exceed {1e3 / simulator:.0f}x by CPU time. "
         f"Rows at or above the target: {len(at_target)} of {len(rows)}"
         + (f" ({', '.join(at_target)})" if at_target else "")
         + (f"; below it: {', '.join(below)}." if below else "."),
-        "- Per step the loop makes four PyBullet calls with either sensor (`getJointStates`, `getContactPoints`, "
-        "`setJointMotorControlArray`, `stepSimulation`; with the wrist sensor `getJointStates` reads the tool "
-        "joint's reaction together with the arm's joints); "
+        "- Per step the loop makes what PyBullet's four Python functions `getJointStates`, `getContactPoints`, "
+        "`setJointMotorControlArray` and `stepSimulation` would make, through PyBullet's C API from compiled code "
+        "(`sim_worker/bullet_client.py`; with the wrist sensor the joint states include the tool joint's reaction); "
         "the tool pose, Jacobian, gravity/Coriolis torques and "
         "mass matrix come from the arm's compiled model (`sim_worker/arm_model.py`, equal to PyBullet's "
         "`getLinkState` / `calculateJacobian` / `calculateInverseDynamics` / `calculateMassMatrix` to round-off, "

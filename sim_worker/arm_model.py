@@ -28,7 +28,7 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
-from sim_worker.python_tuples import tuple_float, tuple_item, tuple_length
+from sim_worker.bullet_client import BulletClient
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK
 from skills.control import (
     ROBOT_BIAS,
@@ -316,24 +316,17 @@ def arm_state(model, state, work, with_bias):  # pragma: no cover - compiled
         )
 
 
-_JOINT_POSITION, _JOINT_VELOCITY, _JOINT_REACTION = 0, 1, 2
-"""Fields of a ``getJointStates`` joint (PyBullet's documented order; the applied motor torque, 3, is not read)."""
-
-
 @numba.njit(cache=True)
-def arm_state_from_joint_states(model, joint_states, state, work, reaction):  # pragma: no cover - compiled
-    """:func:`arm_state` with ``g + c`` straight from ``getJointStates``' tuple at the address ``joint_states``
-    (``sim_worker.python_tuples``: read in place, no Python list per step): the positions and velocities of the first 7
-    joints into ``state``; an 8th joint's (the tool joint's, wrist sensor) reaction force and moment into ``reaction``
-    (6,)."""
+def arm_state_from_joint_rows(model, joint_rows, state, work, reaction):  # pragma: no cover - compiled
+    """:func:`arm_state` with ``g + c`` from joint rows (``sim_worker.bullet_client.JOINT_ROW``: PyBullet's
+    ``b3JointSensorState``, written there by its C API): the positions and velocities of the first 7 joints into
+    ``state``; an 8th joint's (the tool joint's, wrist sensor) reaction force and moment into ``reaction`` (6,)."""
     for j in range(N_JOINTS):
-        joint = tuple_item(joint_states, j)
-        state[j] = tuple_float(joint, _JOINT_POSITION)
-        state[N_JOINTS + j] = tuple_float(joint, _JOINT_VELOCITY)
-    for j in range(N_JOINTS, tuple_length(joint_states)):
-        tool = tuple_item(tuple_item(joint_states, j), _JOINT_REACTION)
+        state[j] = joint_rows[j, 0]
+        state[N_JOINTS + j] = joint_rows[j, 1]
+    for j in range(N_JOINTS, joint_rows.shape[0]):
         for i in range(6):
-            reaction[i] = tuple_float(tool, i)
+            reaction[i] = joint_rows[j, 2 + i]
     arm_state(model, state, work, True)
 
 
@@ -344,11 +337,11 @@ _REACTION, _WORK = ARM_REACTION.start, ARM_REACTION.stop
 
 
 @numba.njit(cache=True)
-def read_arm(model, joint_states, buffer):  # pragma: no cover - compiled
-    """:func:`arm_state_from_joint_states` (``joint_states``: the tuple's address) into an :attr:`Arm.buffer` (the arm
+def read_arm(model, joint_rows, buffer):  # pragma: no cover - compiled
+    """:func:`arm_state_from_joint_rows` into an :attr:`Arm.buffer` (the arm
     state, the reaction, the scratch space of its layout): the arm's one compiled call per simulated state, callable
     from another compiled step."""
-    arm_state_from_joint_states(model, joint_states, buffer[:ROBOT_STATE_SIZE], buffer[_WORK:], buffer[_REACTION:_WORK])
+    arm_state_from_joint_rows(model, joint_rows, buffer[:ROBOT_STATE_SIZE], buffer[_WORK:], buffer[_REACTION:_WORK])
 
 
 @numba.njit(cache=True)
@@ -412,6 +405,8 @@ class Arm:
         self.queried = [*self._joints, TOOL_LINK] if read_tool_reaction else self._joints
         """The joints read each step (``getJointStates``): the arm's, and the tool joint's reaction with the wrist
         sensor (one query)."""
+        self.bullet = BulletClient(client, body, self.queried, TOOL_LINK)
+        """The arm's PyBullet queries and torque command, made from compiled code (``sim_worker.bullet_client``)."""
         self.tool_reaction = self.buffer[ARM_REACTION]
         """The tool joint's reaction of this state (force on the tool N, moment N·m; tool frame), wrist sensor only."""
         self._mass = np.zeros((N_JOINTS, N_JOINTS))
@@ -423,11 +418,9 @@ class Arm:
 
     def read(self) -> NDArray[np.float64]:
         """This state's arm state (``skills.control.ROBOT_*`` layout): joints (one PyBullet query), then in one
-        compiled call from its tuples the tool pose, Jacobian, gravity/Coriolis (the compiled model)."""
+        compiled call from its joint rows the tool pose, Jacobian, gravity/Coriolis (the compiled model)."""
         if not self.fresh:
-            # positional arguments: PyBullet parses keywords by name on every call
-            states = pybullet.getJointStates(self._body, self.queried, self._client)
-            read_arm(self.model, id(states), self.buffer)  # read in place (sim_worker.python_tuples)
+            read_arm(self.model, self.bullet.read_joints(), self.buffer)
             self.fresh = True
         return self.state
 

@@ -2,7 +2,7 @@
 
 A numba dispatcher call types every argument and looks up the overload for those types on every call: ~0.3 µs for a
 dozen arrays, as much as the arithmetic it calls. A loop whose arguments keep their types calls the specialization
-itself (:func:`compiled_entry`; PyBullet's tuples go as their addresses, ``sim_worker.python_tuples``). It is looked
+itself (:func:`compiled_entry`; PyBullet is called from compiled code, ``sim_worker.bullet_client``). It is looked
 up once per phase, not once per execution: ``numba.typeof`` on a dozen arrays costs ~0.2 ms, so each specialization is
 kept by a key that is cheaper to build.
 """
@@ -15,7 +15,8 @@ import numba
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
-from sim_worker.contact_sensing import sample, sense
+from sim_worker.bullet_client import send_torques_and_step
+from sim_worker.contact_sensing import sample, sample_client, sense, sense_client
 from sim_worker.world import LoopHandles
 
 _ENTRIES: dict[tuple, Callable[..., object]] = {}
@@ -49,9 +50,32 @@ def compiled_entry(dispatcher: Dispatcher, args: tuple) -> Callable[..., object]
 
 
 def state_reader(handles: LoopHandles) -> Callable[..., bool]:
-    """The compiled call that brings a loop's arm state, contact summary and (a sampling sensor) reading up to date from
-    PyBullet's tuples by their addresses: ``sense(model, id(states), id(points), arm, contact)`` for the ideal sensor,
-    else ``sample(..., sensor)`` (after ``draw()``); one specialization for any number of contact points."""
-    if handles.ideal:
-        return compiled_entry(sense, (handles.model, 0, 0, handles.arm, handles.contact))
-    return compiled_entry(sample, (handles.model, 0, 0, handles.arm, handles.contact, handles.sensor))
+    """The call that brings a loop's arm state, contact summary and (a sampling sensor) reading up to date from the
+    state PyBullet's client holds: ``read(ids, model, joint_rows, arm, contact)`` for the ideal sensor, else
+    ``read(..., sensor)`` (after ``draw()``), ``ids`` and ``joint_rows`` the :class:`BulletClient`'s; returns whether
+    the tool touches. The compiled ``sense_client`` / ``sample_client`` (PyBullet's C API), or where PyBullet's client
+    cannot be reached from compiled code the same through its Python API."""
+    bullet = handles.bullet
+    if bullet.compiled:
+        sensor = () if handles.ideal else (handles.sensor,)
+        arguments = (bullet.ids, handles.model, bullet.joint_rows, handles.arm, handles.contact, *sensor)
+        return compiled_entry(sense_client if handles.ideal else sample_client, arguments)
+
+    def read(_ids: np.ndarray, model: np.ndarray, _rows: np.ndarray, *buffers: np.ndarray) -> bool:
+        return (sense if handles.ideal else sample)(model, bullet.read_joints(), bullet.read_contacts(), *buffers)
+
+    return read
+
+
+def stepper(handles: LoopHandles) -> Callable[[np.ndarray, np.ndarray], None]:
+    """The call that sends a loop's torques and steps the physics, ``advance(ids, torques)`` (``ids`` the
+    :class:`BulletClient`'s, ``torques`` (7,) N·m): the compiled ``send_torques_and_step``, or its Python API
+    equivalent (:func:`state_reader`)."""
+    bullet = handles.bullet
+    if bullet.compiled:
+        return compiled_entry(send_torques_and_step, (bullet.ids, handles.torque_limits))
+
+    def advance(_ids: np.ndarray, torques: np.ndarray) -> None:
+        bullet.send_torques_and_step(torques)
+
+    return advance

@@ -29,7 +29,20 @@ import pybullet
 from numpy.typing import ArrayLike, NDArray
 
 from sim_worker.arm_model import ARM_REACTION, Arm, read_arm
-from sim_worker.python_tuples import tuple_float, tuple_item, tuple_length, tuple_vector3
+from sim_worker.bullet_client import (
+    CONTACT_DISTANCE,
+    CONTACT_FRICTION_1,
+    CONTACT_FRICTION_2,
+    CONTACT_FRICTION_DIRECTION_1,
+    CONTACT_FRICTION_DIRECTION_2,
+    CONTACT_NORMAL_FORCE,
+    CONTACT_NORMAL_ON_B,
+    CONTACT_ON_A,
+    CONTACT_ROW,
+    contact_bodies,
+    read_contact_rows,
+    read_joint_rows,
+)
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
 from sim_worker.world_config import SensorModel, WorldConfig
@@ -39,6 +52,12 @@ CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
 _ROTATION = ROBOT_ROTATION.start
 _POSITION = ROBOT_POSITION.start
+# The contact rows' columns as plain ints for the compiled code (the position on the tool, body A; the normal on the
+# environment, B, pointing to the tool; the two friction forces on the tool and their directions).
+_ON_TOOL, _NORMAL = CONTACT_ON_A.start, CONTACT_NORMAL_ON_B.start
+_DISTANCE, _NORMAL_FORCE = CONTACT_DISTANCE, CONTACT_NORMAL_FORCE
+_FRICTION_1, _FRICTION_2 = CONTACT_FRICTION_1, CONTACT_FRICTION_2
+_FRICTION_DIR_1, _FRICTION_DIR_2 = CONTACT_FRICTION_DIRECTION_1.start, CONTACT_FRICTION_DIRECTION_2.start
 
 
 @numba.njit(cache=True)
@@ -73,31 +92,24 @@ def _remove_tare(wrench, arm, tare):  # pragma: no cover - compiled
         wrench[3 + i] -= r[3 * i] * tare[3] + r[3 * i + 1] * tare[4] + r[3 * i + 2] * tare[5]
 
 
-# Fields of a ``getContactPoints`` point (PyBullet's documented order): the position on the tool (body A), the normal
-# on the environment (B, pointing to the tool), the distance, the normal force, the two friction forces and directions.
-_ON_TOOL, _NORMAL, _DISTANCE, _NORMAL_FORCE = 5, 7, 8, 9
-_FRICTION_1, _FRICTION_DIR_1, _FRICTION_2, _FRICTION_DIR_2 = 10, 11, 12, 13
-
-
 @numba.njit(cache=True)
 def _contact_summary(points, arm, out):  # pragma: no cover - compiled
-    """Sum ``getContactPoints``' tuple (the tool as body A) at the address ``points`` in one pass, read in place
-    (``sim_worker.python_tuples``; any number of points, none included): into ``out`` (10,) the wrench the tool
-    applies (6,: force N, moment N·m about the tool point in ``arm``, world frame) and the force along the true
-    surface normal (N) with that unit normal (3,; zeros without normal force); returns whether the tool touches (a
-    point at or below :data:`CONTACT_DISTANCE_M`, or carrying force)."""
+    """Sum the tool's contact rows ``points`` (m, ``bullet_client.CONTACT_ROW``: PyBullet's contact points with the
+    tool as body A, any number) in one pass: into ``out`` (10,) the wrench the tool applies (6,: force N, moment N·m
+    about the tool point in ``arm``, world frame) and the force along the true surface normal (N) with that unit
+    normal (3,; zeros without normal force); returns whether the tool touches (a point at or below
+    :data:`CONTACT_DISTANCE_M`, or carrying force)."""
     px, py, pz = arm[_POSITION], arm[_POSITION + 1], arm[_POSITION + 2]
     fx = fy = fz = mx = my = mz = 0.0
     nx = ny = nz = 0.0
     touching = False
-    for i in range(tuple_length(points)):
-        c = tuple_item(points, i)
-        fn, f1, f2 = tuple_float(c, _NORMAL_FORCE), tuple_float(c, _FRICTION_1), tuple_float(c, _FRICTION_2)
-        n0, n1, n2 = tuple_vector3(c, _NORMAL)
-        d10, d11, d12 = tuple_vector3(c, _FRICTION_DIR_1)
-        d20, d21, d22 = tuple_vector3(c, _FRICTION_DIR_2)
-        r0, r1, r2 = tuple_vector3(c, _ON_TOOL)
-        touching = touching or tuple_float(c, _DISTANCE) <= CONTACT_DISTANCE_M or fn > 0.0
+    for c in points:
+        fn, f1, f2 = c[_NORMAL_FORCE], c[_FRICTION_1], c[_FRICTION_2]
+        n0, n1, n2 = c[_NORMAL], c[_NORMAL + 1], c[_NORMAL + 2]
+        d10, d11, d12 = c[_FRICTION_DIR_1], c[_FRICTION_DIR_1 + 1], c[_FRICTION_DIR_1 + 2]
+        d20, d21, d22 = c[_FRICTION_DIR_2], c[_FRICTION_DIR_2 + 1], c[_FRICTION_DIR_2 + 2]
+        r0, r1, r2 = c[_ON_TOOL], c[_ON_TOOL + 1], c[_ON_TOOL + 2]
+        touching = touching or c[_DISTANCE] <= CONTACT_DISTANCE_M or fn > 0.0
         ax = -(fn * n0 + f1 * d10 + f2 * d20)
         ay = -(fn * n1 + f1 * d11 + f2 * d21)
         az = -(fn * n2 + f1 * d12 + f2 * d22)
@@ -158,23 +170,37 @@ def _reading(arm, contact, sensor):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def sense(model, joint_states, points, arm, contact):  # pragma: no cover - compiled
+def sense(model, joint_rows, points, arm, contact):  # pragma: no cover - compiled
     """The arm state (:func:`read_arm` into the :attr:`Arm.buffer` ``arm``) and the contact summary
-    (:func:`_contact_summary` into the :attr:`ContactSensing.buffer` ``contact``) of this state from PyBullet's
-    ``getJointStates`` and ``getContactPoints`` tuples at the addresses ``joint_states`` and ``points`` (``id()`` of
-    tuples the caller holds: ``sim_worker.python_tuples``); returns whether the tool touches."""
-    read_arm(model, joint_states, arm)
+    (:func:`_contact_summary` into the :attr:`ContactSensing.buffer` ``contact``) of this state from its joint rows and
+    the tool's contact rows (``sim_worker.bullet_client``); returns whether the tool touches."""
+    read_arm(model, joint_rows, arm)
     return _contact_summary(points, arm, contact)
 
 
 @numba.njit(cache=True)
-def sample(model, joint_states, points, arm, contact, sensor):  # pragma: no cover - compiled
+def sample(model, joint_rows, points, arm, contact, sensor):  # pragma: no cover - compiled
     """:func:`sense`, then the non-ideal sensor's reading (:func:`_reading`; ``sensor`` its
-    :attr:`WrenchSensor.buffer`): a loop's one compiled call per simulated state to bring the arm, the contact and the
-    sensor up to date (after ``draw()``); returns whether the tool touches."""
-    touching = sense(model, joint_states, points, arm, contact)
+    :attr:`WrenchSensor.buffer`, after its ``draw()``); returns whether the tool touches."""
+    touching = sense(model, joint_rows, points, arm, contact)
     _reading(arm, contact, sensor)
     return touching
+
+
+@numba.njit(cache=True)
+def sense_client(ids, model, joint_rows, arm, contact):  # pragma: no cover - compiled
+    """:func:`sense` of the state PyBullet's client holds, queried through its C API (``bullet_client.read_joint_rows``
+    into ``joint_rows``, ``read_contact_rows``; ``ids`` the :attr:`BulletClient.ids`): a control loop's one compiled
+    call per simulated state."""
+    read_joint_rows(ids, joint_rows)
+    return sense(model, joint_rows, read_contact_rows(ids), arm, contact)
+
+
+@numba.njit(cache=True)
+def sample_client(ids, model, joint_rows, arm, contact, sensor):  # pragma: no cover - compiled
+    """:func:`sample` of the state PyBullet's client holds (:func:`sense_client`), after the sensor's ``draw()``."""
+    read_joint_rows(ids, joint_rows)
+    return sample(model, joint_rows, read_contact_rows(ids), arm, contact, sensor)
 
 
 class ContactSensing:
@@ -211,7 +237,8 @@ class ContactSensing:
         """The sensor's reading this step (a non-ideal sensor's; the ideal one reads :attr:`applied`)."""
         self.reading = self.applied if self.ideal else self.measured
         """The array the controller reads."""
-        self.points: tuple = ()
+        self.points = np.zeros((0, CONTACT_ROW))
+        """This state's contact rows of the tool (``bullet_client.CONTACT_ROW``), after :meth:`summary`."""
         self.touching = False
         tool = config.tool
         # The tool model the weight is compensated with: its centre of mass on the tool axis (tool frame, m), its weight
@@ -237,16 +264,9 @@ class ContactSensing:
         next state (nothing to do when this state's are read)."""
         if self.fresh:
             return
-        previous = self.points
-        # positional arguments (bodyA, bodyB, linkIndexA, linkIndexB: -1 and -2 are "any"): keywords cost a lookup
-        points = self.points = pybullet.getContactPoints(self._robot, -1, TOOL_LINK, -2, self._client)
+        self.points = self._arm.bullet.read_contacts()
+        self.touching = _contact_summary(self.points, self._arm.read(), self._state)
         self.fresh = True
-        if not points:
-            if previous:  # the summary of no points is zeros: written once, when the contact ends
-                self._state[:] = 0.0
-            self.touching = False
-        else:
-            self.touching = _contact_summary(id(points), self._arm.read(), self._state)
 
     def contacts(self, names: dict[int, str]) -> list[dict[str, Any]]:
         """The tool's contact points: body name (``names``: by body id), position on the tool (m, world), the normal
@@ -254,23 +274,24 @@ class ContactSensing:
         self.summary()
         return [
             {
-                "body": names.get(c[2], str(c[2])),
-                "position": np.asarray(c[5]),
-                "normal_into_environment": -np.asarray(c[7]),
-                "normal_force_n": c[9],
-                "distance_m": c[8],
+                "body": names.get(int(body), str(body)),
+                "position": c[CONTACT_ON_A].copy(),
+                "normal_into_environment": -c[CONTACT_NORMAL_ON_B],
+                "normal_force_n": float(c[CONTACT_NORMAL_FORCE]),
+                "distance_m": float(c[CONTACT_DISTANCE]),
             }
-            for c in self.points
+            for c, body in zip(self.points, contact_bodies(self.points), strict=True)
         ]
 
     def contact_forces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The applied contact force's normal part and friction part (3,) each, N, world frame."""
         self.summary()
-        normal = np.zeros(3)
-        friction = np.zeros(3)
-        for c in self.points:
-            normal -= c[9] * np.asarray(c[7])
-            friction -= c[10] * np.asarray(c[11]) + c[12] * np.asarray(c[13])
+        c = self.points
+        normal = -(c[:, [CONTACT_NORMAL_FORCE]] * c[:, CONTACT_NORMAL_ON_B]).sum(axis=0)
+        friction = -(
+            c[:, [CONTACT_FRICTION_1]] * c[:, CONTACT_FRICTION_DIRECTION_1]
+            + c[:, [CONTACT_FRICTION_2]] * c[:, CONTACT_FRICTION_DIRECTION_2]
+        ).sum(axis=0)
         return normal, friction
 
     def wrist_wrench_into(self, out: NDArray[np.float64]) -> NDArray[np.float64]:

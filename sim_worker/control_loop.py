@@ -18,16 +18,14 @@ from enum import Enum
 
 import numba
 import numpy as np
-import pybullet
 from numpy.typing import NDArray
 
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
-from sim_worker.compiled_calls import compiled_entry, state_reader
+from sim_worker.compiled_calls import compiled_entry, state_reader, stepper
 from sim_worker.contact_detection import ContactGuard
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
 from sim_worker.plans import PhasePlan, smooth_ramp
-from sim_worker.robot_model import TOOL_LINK
 from sim_worker.surface_following import SurfaceFollower
 from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
@@ -296,13 +294,14 @@ class ControlLoop:
         Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing.
 
         One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs ~0.1-1
-        µs, as much as the arithmetic): the world's PyBullet calls made here directly (``SimWorld.loop_handles``:
-        ``getJointStates`` and ``getContactPoints``, the torque command and ``stepSimulation``), the arm state, the
-        contact summary and, for a sampling sensor, its reading in one compiled call from PyBullet's tuples, read in
-        place by their addresses (``contact_sensing.sense`` at the top of the step; with a sampling sensor ``sample``
-        right after the physics step, as ``SimWorld.step`` samples every state), then one compiled call for the
-        telemetry row, the law and the world's torque limits (:func:`_record_and_control`); both through their compiled
-        specializations (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
+        µs, as much as the arithmetic): the world's PyBullet calls made from compiled code through its C API
+        (``SimWorld.loop_handles``, ``sim_worker.bullet_client``): the joint states and contact points with the arm
+        state, the contact summary and, for a sampling sensor, its reading in one compiled call
+        (``contact_sensing.sense_client`` at the top of the step; with a sampling sensor ``sample_client`` right after
+        the physics step, as ``SimWorld.step`` samples every state), one compiled call for the telemetry row, the law
+        and the world's torque limits (:func:`_record_and_control`), and one for the torque command and the physics
+        step (``bullet_client.send_torques_and_step``); all through their compiled specializations
+        (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
         :data:`NULL_SPACE_UPDATE_STEPS` steps) makes the mass matrix and the controller's null-space model in two more
         compiled calls before them (``skills.control.model_update_packed``, with no Python between: a third one fusing
         all of them costs every worker ~9 MB of compiled code for ~1 µs per update), except the one in
@@ -311,18 +310,12 @@ class ControlLoop:
         :func:`_control`.
         """
         world, handles, state = self.world, self._handles, self._state
-        client, body, joints, queried = handles.client, handles.body, handles.joints, handles.queried
+        ids, joint_rows = handles.bullet.ids, handles.bullet.joint_rows
         model, arm, contact = handles.model, handles.arm, handles.contact
-        joint_states, contact_points = pybullet.getJointStates, pybullet.getContactPoints
-        command, step_simulation, torque_control = (
-            pybullet.setJointMotorControlArray,
-            pybullet.stepSimulation,
-            pybullet.TORQUE_CONTROL,
-        )
         ideal = handles.ideal
         draw, sensor = handles.draw, handles.sensor
         reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        read_state, address = state_reader(handles), id  # PyBullet's tuples read in place (sim_worker.python_tuples)
+        read_state, advance = state_reader(handles), stepper(handles)  # PyBullet from compiled code
         # Views of the arrays the compiled calls write, the same every step.
         robot = arm[:ROBOT_STATE_SIZE]
         q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
@@ -370,7 +363,6 @@ class ControlLoop:
         n, rows, capacity, step_count = self.n, self.rows, self.capacity, self.step_count
         first_step, clipped_steps = step_count, 0
         clipped = False
-        points = None  # the last contact points read (None: none read here)
         touching = sampled_touching = False
         if not ideal:  # the arm, contact and reading of the state the loop starts in (sampled once, if not yet)
             sampled_touching = world.sense().in_contact
@@ -386,12 +378,8 @@ class ControlLoop:
             while k < steps:
                 # Paused: hold the current reference (zero reference twist), keep controlling, do not advance.
                 paused = should_pause is not None and bool(should_pause())  # a bool for the compiled calls
-                if ideal:  # this state's arm and contact (a sampling sensor read them after the last step)
-                    states = joint_states(body, queried, client)  # positional: keywords cost a lookup
-                    points = contact_points(body, -1, TOOL_LINK, -2, client)  # -1, -2: any body, any link
-                    touching = read_state(model, address(states), address(points), arm, contact)
-                else:
-                    touching = sampled_touching
+                # This state's arm and contact (a sampling sensor read them after the last step).
+                touching = read_state(ids, model, joint_rows, arm, contact) if ideal else sampled_touching
                 update_null = step_count % NULL_SPACE_UPDATE_STEPS == 0
                 if update_null and _outside_limits(q, q_lower, q_upper):
                     raise ExecutionAbortError(self._joint_limit_reason(q))
@@ -458,15 +446,12 @@ class ControlLoop:
                     raise ExecutionAbortError(reason)
                 if stop_axis is not None or follower is not None:
                     fx, fy, fz = w[:3].tolist()  # this step's reading: a sampling sensor overwrites w below
-                command(body, joints, torque_control, forces=tau.tolist(), physicsClientId=client)
-                step_simulation(client)  # positional: PyBullet parses keywords by name on every call
+                advance(ids, tau)
                 step_count += 1
                 clipped_steps += clipped
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
-                    states = joint_states(body, queried, client)
-                    points = contact_points(body, -1, TOOL_LINK, -2, client)
                     draw()
-                    sampled_touching = read_state(model, address(states), address(points), arm, contact, sensor)
+                    sampled_touching = read_state(ids, model, joint_rows, arm, contact, sensor)
                 if should_abort is not None and should_abort():  # every step: stops within one control cycle
                     raise ExecutionAbortError("aborted on request")
                 if touching:
@@ -504,8 +489,7 @@ class ControlLoop:
                     k += 1
         finally:
             self.n, self.step_count = n, step_count
-            world.loop_ended(step_count - first_step, clipped_steps, clipped, points,
-                             touching if ideal else sampled_touching)  # fmt: skip
+            world.loop_ended(step_count - first_step, clipped_steps, clipped)
             self.touched = touched
         if plan.exhausted_reason is not None:
             guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"

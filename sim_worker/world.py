@@ -31,7 +31,6 @@ Geometry for ground truth
 from __future__ import annotations
 
 import contextlib
-import operator
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ import pybullet
 from numpy.typing import ArrayLike, NDArray
 
 from sim_worker.arm_model import Arm, inverse_kinematics
+from sim_worker.bullet_client import BulletClient
 from sim_worker.contact_sensing import ContactSensing
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
@@ -93,19 +93,15 @@ class Dynamics(NamedTuple):
 
 class LoopHandles(NamedTuple):
     """What a 1 kHz control loop calls directly, once per step, instead of :meth:`SimWorld.sense` and
-    :meth:`SimWorld.step` (whose caches and Python calls cost more than the step's own PyBullet calls):
-    ``client``, ``body`` the PyBullet ids; ``joints`` the torque-controlled joints, ``queried`` the joints
-    ``getJointStates`` reads (with the wrist sensor, the tool joint too); ``model`` the arm's compiled model, ``arm``
-    its :attr:`Arm.buffer`, ``contact`` the :attr:`ContactSensing.buffer` (``sim_worker.contact_sensing.sense`` and
-    ``sample`` bring them up to date), ``ideal`` whether the sensor reads the exact wrench (else it samples once per
-    simulated state: ``draw()``, then ``sample`` with ``sensor``, its :attr:`WrenchSensor.buffer`), ``torque_limits``
-    (7,) N·m, what :meth:`SimWorld.step` clips to. A loop using them calls :meth:`SimWorld.loop_ended` when it
-    stops."""
+    :meth:`SimWorld.step` (whose caches and Python calls cost more than the step's own PyBullet calls): ``bullet`` the
+    arm's PyBullet queries and torque command from compiled code (``sim_worker.bullet_client``); ``model`` the arm's
+    compiled model, ``arm`` its :attr:`Arm.buffer`, ``contact`` the :attr:`ContactSensing.buffer`
+    (``sim_worker.contact_sensing.sense_client`` and ``sample_client`` bring them up to date), ``ideal`` whether the
+    sensor reads the exact wrench (else it samples once per simulated state: ``draw()``, then ``sample_client`` with
+    ``sensor``, its :attr:`WrenchSensor.buffer`), ``torque_limits`` (7,) N·m, what :meth:`SimWorld.step` clips to. A
+    loop using them calls :meth:`SimWorld.loop_ended` when it stops."""
 
-    client: int
-    body: int
-    joints: list[int]
-    queried: list[int]
+    bullet: BulletClient
     model: NDArray[np.float64]
     arm: NDArray[np.float64]
     contact: NDArray[np.float64]
@@ -135,7 +131,6 @@ class SimWorld:
         self.robot, self.joint_lower, self.joint_upper = loaded.body, loaded.joint_lower, loaded.joint_upper
         self._joints = list(range(N_JOINTS))
         self.torque_limits = np.asarray(c.torque_limits_nm, dtype=float)
-        self._torque_limits_list = self.torque_limits.tolist()
         self._arm = Arm(cid, self.robot, c.gravity, read_tool_reaction=c.sensor.model is SensorModel.wrist)
         self.bodies: dict[str, int] = build_environment(cid, self.geometry)
         self._contact = ContactSensing(cid, self.robot, c, self._arm)
@@ -292,17 +287,16 @@ class SimWorld:
 
         Sets ``last_step_clipped`` (and counts ``clip_count``) when any torque was clipped.
         """
-        forces = torque.tolist() if isinstance(torque, np.ndarray) else [float(v) for v in torque]
-        clipped = any(map(operator.gt, map(abs, forces), self._torque_limits_list))  # C loops: ~4x a generator
+        forces = np.array(torque, dtype=float)  # a copy: clipped in place
+        if forces.shape != (N_JOINTS,):
+            raise ValueError(f"torque: expected {N_JOINTS} joint torques (N·m), got shape {forces.shape}")
+        limits = self.torque_limits
+        clipped = bool((np.abs(forces) > limits).any())
         if clipped:
-            limits = self.torque_limits
-            forces = np.clip(forces, -limits, limits).tolist()
+            np.clip(forces, -limits, limits, out=forces)
             self.clip_count += 1
         self.last_step_clipped = clipped
-        pybullet.setJointMotorControlArray(
-            self.robot, self._joints, pybullet.TORQUE_CONTROL, forces=forces, physicsClientId=self._cid
-        )
-        pybullet.stepSimulation(self._cid)  # positional: PyBullet parses keywords by name on every call
+        self._arm.bullet.send_torques_and_step(forces)
         self.step_count += 1
         self._invalidate()
         if not self._contact.ideal:  # the sensor samples every step, read or not (its filter runs on)
@@ -312,30 +306,26 @@ class SimWorld:
         """The arrays and ids a control loop's compiled step works on (:class:`LoopHandles`)."""
         arm, contact = self._arm, self._contact
         return LoopHandles(
-            self._cid, self.robot, self._joints, arm.queried, arm.model, arm.buffer, contact.buffer, contact.ideal,
-            contact.sensor.draw, contact.sensor.buffer, self.torque_limits,
+            arm.bullet, arm.model, arm.buffer, contact.buffer, contact.ideal, contact.sensor.draw,
+            contact.sensor.buffer, self.torque_limits,
         )  # fmt: skip
 
-    def loop_ended(
-        self, steps: int, clipped_steps: int, last_clipped: bool, points: tuple | None, touching: bool
-    ) -> None:
+    def loop_ended(self, steps: int, clipped_steps: int, last_clipped: bool) -> None:
         """A loop that stepped this world through its :meth:`loop_handles` stopped: count its ``steps``
-        (``step_count``, ``clip_count`` by ``clipped_steps``, ``last_step_clipped``) and take its last reading of the
-        contact points (``points``, ``touching``: the summary in the contact buffer; None: it read none) as this
-        world's. With the ideal sensor the caches are read again when next asked for; a sampling sensor's loop has read
-        and sampled the current state (``sample`` after each step), which must not be sampled twice."""
+        (``step_count``, ``clip_count`` by ``clipped_steps``, ``last_step_clipped``). With the ideal sensor the caches
+        are read again when next asked for; a sampling sensor's loop has read and sampled the current state (its
+        ``sample_client`` after each step), which must not be sampled twice: only the contact points are read again
+        (the same state, the same summary)."""
         self.step_count += steps
         self.clip_count += clipped_steps
         if steps:
             self.last_step_clipped = last_clipped
         contact, arm = self._contact, self._arm
-        if points is not None:
-            contact.points, contact.touching = points, touching
         if contact.ideal:
             self._invalidate()
         else:
-            arm.fresh = contact.fresh = contact.measured_fresh = True
-            arm.mass_fresh = False
+            arm.fresh = contact.measured_fresh = True
+            contact.fresh = arm.mass_fresh = False
 
     # -- contact and sensing ---------------------------------------------------------------------------------------
 

@@ -1,10 +1,10 @@
-"""The control loop steps its world with PyBullet directly and one compiled call per step (``SimWorld.loop_handles``),
-not through ``SimWorld.sense`` / ``SimWorld.step``: it must leave the world exactly as those would have, the same
-states, the same clipped torques counted, and a sensor that sampled every state once (its noise, delay and filter
-go on alike afterwards).
+"""The control loop steps its world through PyBullet's C API from compiled calls (``SimWorld.loop_handles``,
+``sim_worker.bullet_client``), not through ``SimWorld.sense`` / ``SimWorld.step``: it must leave the world exactly as
+those would have, the same states, the same clipped torques counted, and a sensor that sampled every state once (its
+noise, delay and filter go on alike afterwards).
 
 No mocked physics: two worlds of the same configuration, one run by the loop, the other stepped through the world's
-own calls with the torques the loop commanded (captured as PyBullet received them).
+own calls, through PyBullet's Python API, with the torques the loop commanded (captured as it sent them).
 """
 
 from __future__ import annotations
@@ -14,12 +14,21 @@ import pybullet
 import pytest
 
 from schemas.execution import ExecutionPhase, Pace
+from sim_worker import control_loop
+from sim_worker.bullet_client import BulletClient
 from sim_worker.control_loop import NULL_SPACE_UPDATE_STEPS, ControlLoop, ExecutionAbortError
 from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
 from skills.control import HybridController
+
+
+def through_python(world: SimWorld) -> None:
+    """``world``'s arm queried and driven through PyBullet's Python API (``BulletClient`` not compiled)."""
+    bullet = world.loop_handles().bullet
+    world._arm.bullet = BulletClient(bullet.client_id, bullet.body, bullet.queried, bullet.link, compiled=False)
+
 
 STEPS = 3000
 DESCENT_STEPS = 2000
@@ -34,15 +43,21 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
     """The reference goes ``depth_m`` down from the start, into the table under the tool: the tool presses on it
     (and, deeper, presses too hard: the loop stops before the step, with its reason)."""
     config = WorldConfig(sensor=WRIST_SENSOR) if sensor == "wrist" else WorldConfig()
-    sent: list[list[float]] = []
-    command = pybullet.setJointMotorControlArray
+    sent: list[np.ndarray] = []
+    stepper = control_loop.stepper
 
-    def capture(*args, **kwargs):
-        if args[2] == pybullet.TORQUE_CONTROL:
-            sent.append(list(kwargs["forces"]))
-        return command(*args, **kwargs)
+    def capturing(handles):
+        advance = stepper(handles)
+
+        def capture(ids, tau):
+            sent.append(tau.copy())
+            advance(ids, tau)
+
+        return capture
 
     with SimWorld(config) as looped, SimWorld(config) as stepped:
+        through_python(stepped)
+        assert looped.loop_handles().bullet.compiled
         controller = HybridController(posture=looped.joint_state()[0], torque_limits=looped.torque_limits)
         frame = controller.frame(np.diag([1.0, -1.0, -1.0]), np.ones(6))
         p, q = looped.tool_pose()
@@ -52,13 +67,13 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
         twist[1:, :3] = np.diff(ref_p, axis=0) / config.time_step_s
         plan = PhasePlan(ExecutionPhase.contact, 0, ref_p, np.tile(q, (STEPS, 1)), twist, np.zeros(STEPS), frame=frame)
         loop = ControlLoop(looped, controller, frame, 1.0, 100, Pace.fast, True, None, None, None)
-        monkeypatch.setattr(pybullet, "setJointMotorControlArray", capture)
+        monkeypatch.setattr(control_loop, "stepper", capturing)
         if abort is None:
             loop.run_plan(plan)
         else:
             with pytest.raises(ExecutionAbortError, match=abort):
                 loop.run_plan(plan)
-        monkeypatch.setattr(pybullet, "setJointMotorControlArray", command)
+        monkeypatch.setattr(control_loop, "stepper", stepper)
         touched = 0
         for tau in sent:  # what the loop did, through the world's own calls: sense, then step
             touched += stepped.sense().in_contact
