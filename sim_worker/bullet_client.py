@@ -107,68 +107,67 @@ _ELF_SYMBOL = np.dtype(
 """An ELF64 symbol (``Elf64_Sym``)."""
 
 
-def _elf_symbol_value(path: str, name: str) -> int | None:
-    """The value (the address relative to the library's load address) of symbol ``name`` in the ELF symbol table
-    (``.symtab``) of the shared library at ``path``; None when it is not an ELF64 file or has no such symbol."""
+def _elf_symbols(path: str, names: Sequence[str]) -> dict[str, tuple[int, int]]:
+    """The value (the address relative to the library's load address) and size (bytes) of each symbol of ``names``
+    found in the ELF symbol table (``.symtab``) of the shared library at ``path``; none when it is not an ELF64 file or
+    has no symbol table."""
     with open(path, "rb") as file:
         header = file.read(64)
         if header[:5] != b"\x7fELF\x02":
-            return None
+            return {}
         (section_offset,) = struct.unpack_from("<Q", header, 0x28)
         entry_size, entries = struct.unpack_from("<HH", header, 0x3A)
         file.seek(section_offset)
-        sections = np.frombuffer(
-            file.read(entry_size * entries),
-            dtype=_ELF_SECTION,
-        )  # fmt: skip
+        sections = np.frombuffer(file.read(entry_size * entries), dtype=_ELF_SECTION)
         tables = sections[sections["type"] == 2]  # SHT_SYMTAB
         if len(tables) == 0:
-            return None
+            return {}
         table, strings = tables[0], sections[int(tables[0]["link"])]
         file.seek(int(table["offset"]))
-        symbols = np.frombuffer(
-            file.read(int(table["size"])),
-            dtype=[
-                ("name", "<u4"),
-                ("info", "u1"),
-                ("other", "u1"),
-                ("shndx", "<u2"),
-                ("value", "<u8"),
-                ("size", "<u8"),
-            ],
-        )
+        symbols = np.frombuffer(file.read(int(table["size"])), dtype=_ELF_SYMBOL)
         file.seek(int(strings["offset"]))
-        names = file.read(int(strings["size"]))
-    key = b"\0" + name.encode() + b"\0"
-    at = names.find(key)
-    while at >= 0:
-        hits = symbols["value"][symbols["name"] == at + 1]
-        if len(hits):
-            return int(hits[0])
-        at = names.find(key, at + 1)
-    return None
+        text = file.read(int(strings["size"]))
+    found = {}
+    for name in names:
+        key = b"\0" + name.encode() + b"\0"
+        at = text.find(key)
+        while at >= 0 and name not in found:
+            hits = symbols[symbols["name"] == at + 1]
+            if len(hits):
+                found[name] = (int(hits[0]["value"]), int(hits[0]["size"]))
+            at = text.find(key, at + 1)
+    return found
+
+
+_TABLE = "sPhysicsClients1"
 
 
 @functools.cache
-def _client_table() -> int:
-    """The address of PyBullet's table of client handles (``sPhysicsClients1``) in this process; 0 when it cannot be
-    found."""
+def _client_table() -> tuple[int, int]:
+    """The address of PyBullet's table of client handles (``sPhysicsClients1``, one pointer per client id) in this
+    process and its number of entries; (0, 0) when it cannot be found. The library's load address is taken from every
+    C function used (its address in the process less its value in the file): they must all agree, or the file on disk
+    is not the library loaded."""
     library = _library()
     path = pybullet.__file__
     if library is None or not Path(path).is_file():
-        return 0
-    table, anchor = _elf_symbol_value(path, "sPhysicsClients1"), _elf_symbol_value(path, "b3CanSubmitCommand")
-    if table is None or anchor is None:
-        return 0
-    return ctypes.cast(library.b3CanSubmitCommand, ctypes.c_void_p).value - anchor + table
+        return 0, 0
+    symbols = _elf_symbols(path, [_TABLE, *_FUNCTIONS])
+    if len(symbols) != len(_FUNCTIONS) + 1:
+        return 0, 0
+    bases = {ctypes.cast(getattr(library, name), ctypes.c_void_p).value - symbols[name][0] for name in _FUNCTIONS}
+    if len(bases) != 1:
+        return 0, 0
+    value, size = symbols[_TABLE]
+    return bases.pop() + value, size // 8
 
 
 def client_slot(client_id: int) -> int:
     """The address where PyBullet keeps the handle of its Python client ``client_id`` (read on every compiled call, as
     PyBullet's own functions read it: 0 once the client disconnects); 0 when it cannot be found or the handle found
     does not answer as the client (its number of bodies)."""
-    table = _client_table()
-    if not table:
+    table, entries = _client_table()
+    if not 0 <= client_id < entries:
         return 0
     slot = table + 8 * client_id
     handle = ctypes.c_int64.from_address(slot).value

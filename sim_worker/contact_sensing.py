@@ -52,11 +52,10 @@ CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""
 _ROTATION = ROBOT_ROTATION.start
 _POSITION = ROBOT_POSITION.start
-# The contact rows' columns as plain ints for the compiled code (the position on the tool, body A; the normal on the
-# environment, B, pointing to the tool; the two friction forces on the tool and their directions).
+# The first columns of the contact rows' vectors as plain ints for the compiled code (it takes no slices as globals):
+# the position on the tool (body A), the normal on the environment (B, pointing to the tool), the two friction
+# directions (their forces on the tool).
 _ON_TOOL, _NORMAL = CONTACT_ON_A.start, CONTACT_NORMAL_ON_B.start
-_DISTANCE, _NORMAL_FORCE = CONTACT_DISTANCE, CONTACT_NORMAL_FORCE
-_FRICTION_1, _FRICTION_2 = CONTACT_FRICTION_1, CONTACT_FRICTION_2
 _FRICTION_DIR_1, _FRICTION_DIR_2 = CONTACT_FRICTION_DIRECTION_1.start, CONTACT_FRICTION_DIRECTION_2.start
 
 
@@ -104,12 +103,12 @@ def _contact_summary(points, arm, out):  # pragma: no cover - compiled
     nx = ny = nz = 0.0
     touching = False
     for c in points:
-        fn, f1, f2 = c[_NORMAL_FORCE], c[_FRICTION_1], c[_FRICTION_2]
+        fn, f1, f2 = c[CONTACT_NORMAL_FORCE], c[CONTACT_FRICTION_1], c[CONTACT_FRICTION_2]
         n0, n1, n2 = c[_NORMAL], c[_NORMAL + 1], c[_NORMAL + 2]
         d10, d11, d12 = c[_FRICTION_DIR_1], c[_FRICTION_DIR_1 + 1], c[_FRICTION_DIR_1 + 2]
         d20, d21, d22 = c[_FRICTION_DIR_2], c[_FRICTION_DIR_2 + 1], c[_FRICTION_DIR_2 + 2]
         r0, r1, r2 = c[_ON_TOOL], c[_ON_TOOL + 1], c[_ON_TOOL + 2]
-        touching = touching or c[_DISTANCE] <= CONTACT_DISTANCE_M or fn > 0.0
+        touching = touching or c[CONTACT_DISTANCE] <= CONTACT_DISTANCE_M or fn > 0.0
         ax = -(fn * n0 + f1 * d10 + f2 * d20)
         ay = -(fn * n1 + f1 * d11 + f2 * d21)
         az = -(fn * n2 + f1 * d12 + f2 * d22)
@@ -209,7 +208,7 @@ class ContactSensing:
     :attr:`true_normal` (4,) views of one summary array, :attr:`measured` (6,) the non-ideal sensor's reading."""
 
     def __init__(self, client: int, robot: int, config: WorldConfig, arm: Arm) -> None:
-        self._client, self._robot, self._arm = client, robot, arm
+        self._arm = arm
         self.sensor = WrenchSensor(config.sensor, config.time_step_s)
         self.ideal = self.sensor.ideal
         self._wrist = config.sensor.model is SensorModel.wrist

@@ -129,7 +129,6 @@ class SimWorld:
         )
         loaded = load_robot(cid, c, max(work_piece_layers(self.geometry).values(), default=1))
         self.robot, self.joint_lower, self.joint_upper = loaded.body, loaded.joint_lower, loaded.joint_upper
-        self._joints = list(range(N_JOINTS))
         self.torque_limits = np.asarray(c.torque_limits_nm, dtype=float)
         self._arm = Arm(cid, self.robot, c.gravity, read_tool_reaction=c.sensor.model is SensorModel.wrist)
         self.bodies: dict[str, int] = build_environment(cid, self.geometry)

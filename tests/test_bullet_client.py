@@ -89,3 +89,4 @@ def test_a_closed_client_is_an_error_not_a_crash() -> None:
             call()
     assert client_slot(bullet.client_id) == 0  # no handle there any more
     assert client_slot(1023) == 0  # never connected
+    assert client_slot(1024) == client_slot(-1) == 0  # beyond PyBullet's table: not read

@@ -101,6 +101,33 @@ def test_the_loop_leaves_the_world_as_its_own_calls_would(sensor: str, depth_m: 
             np.testing.assert_array_equal(looped.contact_wrench(), stepped.contact_wrench())
 
 
+@pytest.mark.parametrize("sensor", ["ideal", "wrist"])
+def test_the_loop_through_pybullets_python_api_records_the_same_telemetry(sensor: str) -> None:
+    """Where PyBullet's client cannot be reached from compiled code, the loop calls the same queries and step through
+    PyBullet's Python API (``compiled_calls.state_reader`` / ``stepper``'s fallbacks): the same run, row for row."""
+    config = WorldConfig(sensor=WRIST_SENSOR) if sensor == "wrist" else WorldConfig()
+    telemetry = []
+    for compiled in (True, False):
+        with SimWorld(config) as world:
+            if not compiled:
+                through_python(world)
+            assert world.loop_handles().bullet.compiled == compiled
+            controller = HybridController(posture=world.joint_state()[0], torque_limits=world.torque_limits)
+            frame = controller.frame(np.diag([1.0, -1.0, -1.0]), np.ones(6))
+            p, q = world.tool_pose()
+            descent = np.minimum(np.arange(STEPS) / DESCENT_STEPS, 1.0) * 0.2
+            ref_p = p - descent[:, None] * [0.0, 0.0, 1.0]
+            twist = np.zeros((STEPS, 6))
+            twist[1:, :3] = np.diff(ref_p, axis=0) / config.time_step_s
+            plan = PhasePlan(ExecutionPhase.contact, 0, ref_p, np.tile(q, (STEPS, 1)), twist, np.zeros(STEPS),
+                             frame=frame)  # fmt: skip
+            loop = ControlLoop(world, controller, frame, 1.0, 100, Pace.fast, True, None, None, None)
+            loop.run_plan(plan)
+            telemetry.append(loop.telemetry().data)
+            assert loop.touched  # it pressed on the table
+    np.testing.assert_array_equal(telemetry[0], telemetry[1])
+
+
 @pytest.mark.parametrize("updates_done", [1, 4], ids=["inside the compiled step", "with the damping, in Python"])
 def test_a_non_finite_arm_state_on_a_model_update_stops_the_loop_before_its_torque(updates_done: int) -> None:
     """A model update makes the null-space model inside the loop's compiled step, except the one in five that also
