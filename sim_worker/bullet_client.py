@@ -9,9 +9,10 @@ same order with the same arguments (pybullet 3.2.7's ``pybullet.c``), write stra
 physics and every number read are the same, bit for bit (tests/test_bullet_client.py).
 
 The table is a static array of PyBullet's module, not exported: its address is found in the library's ELF symbol table
-(PyBullet's Linux wheels keep it) relative to an exported function, and the client found there is checked against the
-Python module's own answer (``b3GetNumBodies``). Where this cannot be done (another platform, a stripped build) the
-same functions run through PyBullet's Python API (:class:`BulletClient` ``compiled`` False): slower, same results.
+(PyBullet's Linux wheels keep it) relative to the exported functions (every one used must give the same load address),
+and the client found there is checked against the Python module's own answer (``b3GetNumBodies``). Where this cannot be
+done (another platform, a stripped build) the same functions run through PyBullet's Python API (:class:`BulletClient`
+``compiled`` False): slower, same results.
 
 Layouts (pybullet 3.2.7, x86-64): ``b3JointSensorState`` 9 doubles (position, velocity, the reaction force and
 moment (6), the motor torque), a :data:`JOINT_ROW` row; ``b3ContactPointData`` 176 bytes, five ints then 19 doubles,
@@ -80,20 +81,35 @@ def _library() -> ctypes.CDLL | None:
     """PyBullet's shared library (the one its module was loaded from), its functions made known to the JIT linker by
     name (numba's cached code names them, so each process registers their addresses before any is loaded); None when
     one is missing."""
-    library = ctypes.CDLL(pybullet.__file__)
     try:
+        library = ctypes.CDLL(pybullet.__file__)
         for name in _FUNCTIONS:
             llvm.add_symbol(name, ctypes.cast(getattr(library, name), ctypes.c_void_p).value)
-    except AttributeError:
+    except (OSError, AttributeError):  # not a loadable file, or a build without one of them
         return None
     return library
 
 
 _library()
-_can_submit, _num_bodies, _submit, _status_type, _request_state, _joint_state, _request_contacts, _filter_body, \
-    _filter_link, _contact_information, _control_command, _set_torque, _step_command = (
-        types.ExternalFunction(name, signature) for name, signature in _FUNCTIONS.items()
-    )  # fmt: skip
+
+
+def _external(name: str) -> types.ExternalFunction:
+    """The C function ``name`` of :data:`_FUNCTIONS` as compiled code calls it (by name: linked when loaded)."""
+    return types.ExternalFunction(name, _FUNCTIONS[name])
+
+
+_can_submit = _external("b3CanSubmitCommand")
+_submit = _external("b3SubmitClientCommandAndWaitStatus")
+_status_type = _external("b3GetStatusType")
+_request_state = _external("b3RequestActualStateCommandInit")
+_joint_state = _external("b3GetJointState")
+_request_contacts = _external("b3InitRequestContactPointInformation")
+_filter_body = _external("b3SetContactFilterBodyA")
+_filter_link = _external("b3SetContactFilterLinkA")
+_contact_information = _external("b3GetContactPointInformation")
+_control_command = _external("b3JointControlCommandInit2")
+_set_torque = _external("b3JointControlSetDesiredForceTorque")
+_step_command = _external("b3InitStepSimulationCommand")
 
 
 _ELF_SECTION = np.dtype(
@@ -222,6 +238,8 @@ def _handle(ids):  # pragma: no cover - compiled
 def read_joint_rows(ids, rows):  # pragma: no cover - compiled
     """The joints' states into ``rows`` (n, :data:`JOINT_ROW`), C-contiguous, n the joints read: ``getJointStates``'
     C calls (``b3RequestActualStateCommandInit``, ``b3GetJointState`` per joint) writing into the rows themselves."""
+    if rows.shape[0] != ids[_COUNT] or rows.shape[1] != JOINT_ROW or not rows.flags.c_contiguous:
+        raise ValueError("joint rows: expected a C-contiguous (joints read, 9) array")
     handle = _handle(ids)
     status = _submit(handle, _request_state(handle, ids[_BODY]))
     if _status_type(status) != _STATE_COMPLETED:
@@ -253,6 +271,8 @@ def read_contact_rows(ids):  # pragma: no cover - compiled
 def send_torques_and_step(ids, torques):  # pragma: no cover - compiled
     """``setJointMotorControlArray`` in TORQUE_CONTROL with ``torques`` (7,) N·m, then ``stepSimulation``: their C
     calls (one torque command by velocity index, one physics step)."""
+    if torques.shape[0] != _TORQUE_JOINTS:
+        raise ValueError("torques: expected 7 joint torques (N·m)")
     handle = _handle(ids)
     command = _control_command(handle, ids[_BODY], _TORQUE_CONTROL)
     dofs = _JOINTS + ids[_COUNT]

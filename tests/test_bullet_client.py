@@ -53,6 +53,10 @@ def test_joint_and_contact_rows_are_pybullets_own_numbers(config: WorldConfig) -
         assert contact.shape == (len(points), CONTACT_ROW)
         np.testing.assert_array_equal(contact, expected)  # the ints too, as they lie in the C struct
         assert list(contact_bodies(contact)) == [p[2] for p in points] == [world.bodies["table"]] * len(points)
+        with pytest.raises(ValueError, match="joint rows"):  # never written beyond the array it is given
+            read_joint_rows(bullet.ids, rows[:-1])
+        with pytest.raises(ValueError, match="torques"):
+            send_torques_and_step(bullet.ids, np.zeros(N_JOINTS - 1))
         # The Python fallback fills the same rows.
         slow = BulletClient(bullet.client_id, bullet.body, bullet.queried, bullet.link, compiled=False)
         assert not slow.compiled
