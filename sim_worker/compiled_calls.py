@@ -72,7 +72,7 @@ def stepper(handles: LoopHandles) -> Callable[[np.ndarray, np.ndarray], None]:
     :class:`BulletClient`'s, ``torques`` (7,) N·m): the compiled ``send_torques_and_step``, or its Python API
     equivalent (:func:`state_reader`)."""
     bullet = handles.bullet
-    if bullet.compiled:
+    if bullet.compiled:  # the torques' type: a C-contiguous float64 vector, as the torque limits and the law's output
         return compiled_entry(send_torques_and_step, (bullet.ids, handles.torque_limits))
 
     def advance(_ids: np.ndarray, torques: np.ndarray) -> None:
