@@ -89,7 +89,8 @@ def compliant_frame_axes(demonstration: Demonstration | DemonstrationArrays, seg
     t = segment.t_start + np.asarray(frames.t, dtype=float)
     z_world = matrix_from_quaternion(np.asarray(frames.orientations, dtype=float))[..., :, 2].reshape(-1, 3)
     first, last = np.searchsorted(a.t, [t[0], t[-1]])  # the samples around the segment's frames
-    window = slice(max(first - 1, 0), min(last + 1, a.t.size))
+    end = min(max(last + 1, 2), a.t.size)
+    window = slice(max(min(first - 1, end - 2), 0), end)  # at least two: a slide's one frame at the first sample
     orientations = quaternions_sign_continuous(a.orientations[window])
     R_tool = matrix_from_quaternion(quaternions_slerp(t, a.t[window], orientations))
     z_tool = np.einsum("nji,nj->ni", R_tool.reshape(-1, 3, 3), np.broadcast_to(z_world, (t.size, 3)))

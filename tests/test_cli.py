@@ -222,6 +222,29 @@ def test_learn_a_file_without_time_column_at_a_given_rate(tmp_path):
     assert code == 2 and "rate and dt disagree" in stderr
 
 
+def test_learn_a_slide_recorded_from_its_first_contact_sample(tmp_path):
+    """A recording cut to its contact (as the KU Leuven files are) starts in contact: its slide's one compliant frame
+    sits at the first sample. `learn` prints its summary (it once failed there, reading the tool's orientation from a
+    single sample) and the CF z it prints is the true normal, in the world and in the tool."""
+    d = plane_slide(normal=(0.0, 0.3, -1.0), rate_hz=200.0)
+    rows = (d.t >= d.contact_on_s + 0.3) & (d.t <= d.contact_off_s - 0.3)  # in contact from the first row to the last
+    table = np.column_stack([d.t[rows] - d.t[rows][0], d.positions[rows], d.orientations[rows], d.wrenches[rows]])
+    path = tmp_path / "cut.csv"
+    np.savetxt(path, table, delimiter=",", header="t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz", comments="", fmt="%.10g")
+    code, stdout, stderr = _run(["learn", str(path), "--type", "slide", "-o", str(tmp_path / "s.json")])
+    assert code == 0, stderr
+    skill = Skill.model_validate_json((tmp_path / "s.json").read_text())
+    [contact] = [s for s in skill.segments if s.kind.value == "contact"]
+    assert contact.t_start == 0.0 and len(contact.compliant_frames.t) == 1
+    normal = d.normals[0]
+    printed = next(line for line in stdout.splitlines() if "CF normal (z) in world" in line)
+    world = np.array([float(x) for x in printed.split("[")[1].rstrip("]").split(",")])
+    assert _angle_deg(world, normal) < 1.5, printed
+    axes = compliant_frame_axes(demonstration_from_csv(path), contact)
+    tool = matrix_from_quaternion(d.orientations[rows][0]).T @ normal
+    assert axes.t.size == 1 and _angle_deg(axes.z_tool[0], tool) < 1.5
+
+
 def test_help_is_light():
     """`contact-skills --help` imports no numeric or plotting library."""
     code = (
