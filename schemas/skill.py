@@ -246,6 +246,7 @@ class CheckName(StrEnum):
     stroke_strength = "stroke_strength"
     force_outside_contact = "force_outside_contact"
     friction_along_motion = "friction_along_motion"
+    press_direction = "press_direction"
     sensor_offset = "sensor_offset"
     type_evidence = "type_evidence"
 

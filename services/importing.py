@@ -21,13 +21,15 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from schemas import Demonstration, DemonstrationMetadata, WrenchConvention, WrenchFrame
+from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
 from schemas.import_options import ImportOptions
 from services.demonstration_files import DemonstrationFile, path_kind, unsupported_file
-from skills import preprocess
+from skills import preprocess, skill_checks
 from skills import tare as tare_module
+from skills.compliant_frames import tool_velocities
 from skills.contact import analyse_contact
+from skills.quaternions import matrix_from_quaternion
 
 MAX_PROBLEMS_LISTED = 10
 """At most this many problems are listed in one error (the count of the rest is given)."""
@@ -115,7 +117,7 @@ def demonstration_from_samples(
     if convention == WrenchConvention.measured_on_tool:
         wrenches = preprocess.wrenches_applied_by_tool(wrenches)
         notes.append("wrench measured on the tool: negated to the wrench the tool applies")
-    notes.extend(_direction_hint(wrenches, convention, frame))
+    notes.extend(_direction_hint(recording, wrenches, options, frame, metadata.quaternion_order_on_import))
     offset, offset_frame, uncertainty, tare_report = None, None, None, {"method": "none"}
     if given is not None:
         offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
@@ -244,35 +246,81 @@ class RecordingSamples:
     """True: the rows were taken as samples at a given rate (no time column), not resampled."""
 
 
-UPWARD_FORCE_HINT = 0.5
-"""World z of the stronger half of the forces' mean direction above which the import notes ask to check the sign."""
-
-
-def _direction_hint(wrenches: np.ndarray, convention: WrenchConvention, frame: WrenchFrame) -> list[str]:
-    """A note when the applied force points mostly UP in the world: pressing on a table or a part points down.
-
-    Not an error (a wall or a ceiling is possible), but a reaction imported as applied-by-tool looks exactly like
-    this; so does a wrench given in the tool frame (``frame``) turned into the world with orientations read in the
-    wrong quaternion order (on the KU Leuven contours read so, three of four learn a contour pressing up that passes
-    every check of the skill), which the note then names too.
+def _direction_hint(
+    recording: RecordingSamples,
+    wrenches: np.ndarray,
+    options: ImportOptions,
+    frame: WrenchFrame,
+    order: QuaternionOrder,
+) -> list[str]:
+    """A note when the applied force (``wrenches``: world, applied by the tool, as imported) points UP in the world
+    (`skills.skill_checks.press_elevation_deg` above ``UPWARD_PRESS_LIMIT_DEG``): pressing on a table, a part or a wall
+    points down or sideways. Not an error (work done from below is possible), but a reaction read as applied-by-tool,
+    a tool-frame wrench read as a world one or the reverse, and a tool-frame wrench turned with quaternions read in the
+    other ``order`` all look like this, and can still learn a skill that passes every check but the skill's own
+    ``press_direction``. The note says which other readings of the file (sign, frame, quaternion order, and the sign
+    with either) press down (as far below the horizontal as the limit is above) AND lean towards the tool's motion
+    as friction makes it (`skills.skill_checks.leans_with_friction`, over the stronger half of the samples), with
+    their numbers: the one to import it with, unless the tool worked from below. Several may: a tool held straight
+    down looks alike in both quaternion orders.
     """
     forces = wrenches[:, :3]
-    magnitude = np.linalg.norm(forces, axis=1)
-    strong = forces[magnitude >= np.median(magnitude)].mean(axis=0)
-    if np.linalg.norm(strong) == 0 or strong[2] / np.linalg.norm(strong) <= UPWARD_FORCE_HINT:
+    elevation = skill_checks.press_elevation_deg(forces)
+    if elevation <= skill_checks.UPWARD_PRESS_LIMIT_DEG:
         return []
-    flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
-    turned = (
-        "; it was turned into the world with the tool orientations, so check the quaternion order "
-        "(--quaternion-order) and the wrench frame (--wrench-frame) too"
-        if frame == WrenchFrame.tool
-        else ""
+    magnitude = np.linalg.norm(forces, axis=1)
+    pressed = magnitude >= np.median(magnitude)  # where the tool presses: the lean of free space's noise says nothing
+    velocities = tool_velocities(recording.positions, recording.rate_hz)[pressed]
+    readings = _other_readings(forces, recording.orientations, options.wrench_convention, frame, order)
+    sentences = []
+    for flags, alternative in ((flags, alternative[pressed]) for flags, alternative in readings):
+        down = skill_checks.press_elevation_deg(alternative)
+        lean, samples = skill_checks.median_friction_lean(alternative, velocities)
+        if down < -skill_checks.UPWARD_PRESS_LIMIT_DEG and skill_checks.leans_with_friction(lean):
+            sentences.append(
+                f"read with {flags} it presses {-down:.0f} deg below the horizontal and "
+                + skill_checks.lean_sentence(lean, samples).removeprefix("the applied force ")
+            )
+    found = (
+        "; ".join(sentences) + ": import it so unless the tool worked from below"
+        if sentences
+        else "no other reading of its sign, frame or quaternion order presses down leaning as friction makes it"
     )
     return [
-        f"check the wrench sign: the applied force points mostly UP in the world (mean direction z = "
-        f"{strong[2] / np.linalg.norm(strong):+.2f}); if the file holds the other convention pass --wrench {flip}"
-        + turned
+        f"check how the wrench is read: the force the tool applies points {elevation:.0f} deg above the horizontal in "
+        f"the world, where pressing on a table, a part or a wall points down or sideways; {found}"
     ]
+
+
+def _other_readings(
+    forces: np.ndarray,
+    orientations: np.ndarray,
+    convention: WrenchConvention,
+    frame: WrenchFrame,
+    order: QuaternionOrder,
+) -> list[tuple[str, np.ndarray]]:
+    """The other readings of a file's forces as the import would turn them (world, applied by the tool) from
+    ``forces`` (N, 3) N as it turned them, each with the options that give it: the other sign; the other frame (tool
+    <-> world: ``orientations`` (N, 4) turn them); for a tool-frame wrench, the quaternions in the other component
+    order (``order`` is the one read); and the other sign with each of those."""
+    flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
+    R = matrix_from_quaternion(orientations)
+    if frame == WrenchFrame.world:
+        others = [("--wrench-frame tool", np.einsum("nij,nj->ni", R, forces))]
+    else:
+        in_tool = np.einsum("nji,nj->ni", R, forces)
+        other = QuaternionOrder.wxyz if order == QuaternionOrder.xyzw else QuaternionOrder.xyzw
+        # The file's components, read in the other order: scalar-last as read -> rolled one place either way.
+        reordered = np.roll(orientations, -1 if other == QuaternionOrder.wxyz else 1, axis=1)
+        others = [
+            ("--wrench-frame world", in_tool),
+            (
+                f"--quaternion-order {other.value} (--columns for named ones)",
+                np.einsum("nij,nj->ni", matrix_from_quaternion(reordered), in_tool),
+            ),
+        ]
+    signed = [(f"--wrench {flip} {flags}", -alternative) for flags, alternative in others]
+    return [(f"--wrench {flip}", -forces), *others, *signed]
 
 
 def validation_problems(exc: ValidationError) -> list[str]:

@@ -275,12 +275,10 @@ def _checks(
     checks.extend(skill_checks.stroke_strength(presses))
     weakest = min(presses.values())
     checks.append(skill_checks.force_outside_contact(r.forces, r.velocities, free, weakest, r.contact.rate_hz))
-    checks.append(
-        skill_checks.friction_along_motion(
-            np.concatenate([r.forces[rows] for rows in in_contact]),
-            np.concatenate([r.velocities[rows] for rows in in_contact]),
-        )
-    )
+    contact_forces = np.concatenate([r.forces[rows] for rows in in_contact])
+    contact_velocities = np.concatenate([r.velocities[rows] for rows in in_contact])
+    checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities))
+    checks.append(skill_checks.press_direction(contact_forces))
     if offset_uncertainty_n is not None:
         checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))

@@ -27,6 +27,12 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   Leaning against the motion, the wrench was recorded with the other sign (the sensor's reaction) or in another
   frame, and every CF z would point out of the surface. A rolling tool leans little either way; no sliding, no
   verdict (passed).
+- ``press_direction`` (skill) — the direction the tool pressed in its contact segments (the mean of the stronger
+  half of their forces): at most ``UPWARD_PRESS_LIMIT_DEG`` above the horizontal. Pressing on a table, a part or a
+  wall points down or sideways; a wrench read with the other sign, in the other frame or turned with orientations in
+  the wrong quaternion order often points up, and can still pass every other check (on the KU Leuven contours, a
+  tool-frame wrench read as a world one learns a contour or a slide that does). Work done from below fails it too:
+  a warning, not a refusal, unless strict.
 - ``sensor_offset`` (skill, where the import fitted the offset) — its uncertainty (the hand's slow
   wander it cannot tell apart, `skills.tare`) against the weakest contact's press: beyond
   ``OFFSET_SHARE_LIMIT`` forces, and a straight stroke's tilt, are uncertain by more than the tolerance.
@@ -79,7 +85,10 @@ OFFSET_SHARE_LIMIT = 0.05
 FRICTION_SIGN_LIMIT = 0.01
 """The contact's median lean to the motion may be at most this far AGAINST it (tan of the angle; 0.01 is 0.6°)."""
 
-RECORDING_CHECKS = frozenset({CheckName.friction_along_motion, CheckName.sensor_offset})
+UPWARD_PRESS_LIMIT_DEG = 30.0
+"""The force the tool applies in contact may point at most this far above the horizontal, deg (world z up)."""
+
+RECORDING_CHECKS = frozenset({CheckName.friction_along_motion, CheckName.press_direction, CheckName.sensor_offset})
 """The checks of the recording itself (its wrench's sign and frame, its sensor offset), not of what was learned from
 it: a work piece measured from the same recording carries what they find wrong."""
 
@@ -261,23 +270,39 @@ def force_outside_contact(
     )
 
 
-def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> SkillCheck:
-    """Check that the force the tool applies in contact leans towards its motion, as friction makes it: ``forces``
-    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment. Judged where friction's lean is
-    measured (``skills.friction.sliding_fast``: fast sliding, leaning within the friction cone either way; more moves
-    the tool along its press: settling, a push)."""
+def median_friction_lean(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> tuple[float, int]:
+    """Return the median lean of ``forces`` (N, 3) N towards the motion (``velocities`` (N, 3) m/s; tan of the angle,
+    positive TOWARDS it, `skills.friction.friction_leans`) where friction's lean is measured
+    (`skills.friction.sliding_fast`: fast sliding, leaning within the friction cone either way; more moves the tool
+    along its press: settling, a push), and the number of those samples (0: no verdict, the lean is 0)."""
     leans = friction_leans(forces, velocities)
     sliding = sliding_fast(leans, np.linalg.norm(velocities, axis=1))
-    lean = float(np.median(leans[sliding])) if sliding.any() else 0.0
-    passed = lean >= -FRICTION_SIGN_LIMIT
-    if not sliding.any():
-        message = "no contact sample slides: the friction's sign is not judged"
-    else:
-        side = "towards" if lean >= 0 else "against"
-        message = (
-            f"the applied force leans {abs(np.degrees(np.arctan(lean))):.1f} deg {side} the tool's motion (median "
-            f"over {int(sliding.sum())} sliding contact samples)"
-        )
+    return (float(np.median(leans[sliding])) if sliding.any() else 0.0), int(sliding.sum())
+
+
+def leans_with_friction(lean: float) -> bool:
+    """Whether a median lean (`median_friction_lean`) is friction's as the tool applies it: not against the motion by
+    more than ``FRICTION_SIGN_LIMIT``."""
+    return lean >= -FRICTION_SIGN_LIMIT
+
+
+def lean_sentence(lean: float, samples: int) -> str:
+    """``the applied force leans 1.3 deg towards the tool's motion (median over 969 sliding contact samples)``."""
+    if samples == 0:
+        return "no contact sample slides: the friction's sign is not judged"
+    side = "towards" if lean >= 0 else "against"
+    return (
+        f"the applied force leans {abs(np.degrees(np.arctan(lean))):.1f} deg {side} the tool's motion (median over "
+        f"{samples} sliding contact samples)"
+    )
+
+
+def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> SkillCheck:
+    """Check that the force the tool applies in contact leans towards its motion, as friction makes it: ``forces``
+    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment (`median_friction_lean`)."""
+    lean, samples = median_friction_lean(forces, velocities)
+    passed = leans_with_friction(lean)
+    message = lean_sentence(lean, samples)
     if not passed:
         message += (
             ": friction drags the surface ALONG the motion, so the wrench looks recorded with the other sign (what "
@@ -291,6 +316,40 @@ def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.fl
         value=lean,
         limit=-FRICTION_SIGN_LIMIT,
         unit="ratio",
+        message=message,
+    )
+
+
+def press_elevation_deg(forces: NDArray[np.float64]) -> float:
+    """Return how far above the world's horizontal (deg, + up, world z up) the tool pressed: the direction of the mean
+    of the stronger half of ``forces`` (N, 3) N (applied by the tool, world), where the press is (a recording's
+    free-space samples and a contact's light touches are the weaker half); 0 when they sum to nothing."""
+    magnitude = np.linalg.norm(forces, axis=1)
+    mean = forces[magnitude >= np.median(magnitude)].mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    return float(np.degrees(np.arcsin(np.clip(mean[2] / norm, -1.0, 1.0)))) if norm > 0 else 0.0
+
+
+def press_direction(forces: NDArray[np.float64]) -> SkillCheck:
+    """Check that the tool pressed down or sideways in its contact segments (``forces`` (N, 3) N, world, applied by the
+    tool, their samples): at most ``UPWARD_PRESS_LIMIT_DEG`` above the horizontal (`press_elevation_deg`)."""
+    elevation = press_elevation_deg(forces)
+    passed = elevation <= UPWARD_PRESS_LIMIT_DEG
+    side = "above" if elevation >= 0 else "below"
+    message = f"the tool pressed {abs(elevation):.0f} deg {side} the horizontal in its contact"
+    if not passed:
+        message += (
+            f" (more than {UPWARD_PRESS_LIMIT_DEG:.0f} deg up): pressing on a table, a part or a wall points down or "
+            "sideways, so unless the tool worked from below, the wrench was read with the other sign, in the other "
+            "frame or with the quaternions in the other order (the import notes say which reading presses down)"
+        )
+    return SkillCheck(
+        name=CheckName.press_direction,
+        segment=None,
+        passed=passed,
+        value=elevation,
+        limit=UPWARD_PRESS_LIMIT_DEG,
+        unit="deg",
         message=message,
     )
 

@@ -17,6 +17,10 @@ from services.local_processes import free_port
 KULEUVEN_DATA = repository_data_directory() / "kuleuven_contour"
 """The KU Leuven contour recordings vendored in the repository (``data/kuleuven_contour``, MIT licence)."""
 
+README_CF_Z_TOOL = (0.03, 0.65, 0.77)
+"""The KU Leuven README's contact force direction in the TCP frame (measured on the tool, the middle of its ranges),
+negated: the direction the tool applies, which a contour's CF z follows (not unit)."""
+
 
 class LiveApi:
     """``app`` served by uvicorn on a free loopback port, in a thread of this process (``with LiveApi(app) as api``:

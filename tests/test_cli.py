@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import KULEUVEN_DATA
+from conftest import KULEUVEN_DATA, README_CF_Z_TOOL
 
 from cli.main import main
 from corpus.synthetic import plane_slide
@@ -27,8 +27,6 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
 KULEUVEN_ARGS = ["--quaternion-order", "wxyz", "--wrench", "measured-on-tool", "--wrench-frame", "tool"]
-README_CF_Z_TOOL = -np.array([-0.03, -0.65, -0.77])  # the README's measured-on-tool direction, negated
-"""Applied-by-tool contact force direction in the TCP frame, middle of the README's ranges."""
 
 
 def _run(argv: list[str]) -> tuple[int, str, str]:
@@ -87,7 +85,7 @@ def test_cf_z_in_the_tool_frame_is_nearly_constant_across_trials(learned):
     means = {name: _mean_cf_z_in_tool(demo, skill) for name, (demo, skill, _) in learned.items()}
     for name, z in means.items():
         assert abs(z[0]) < 0.1 and 0.55 < z[1] < 0.76 and 0.66 < z[2] < 0.86, (name, z)
-        assert _angle_deg(z, README_CF_Z_TOOL) < 6.0, (name, z)
+        assert _angle_deg(z, np.array(README_CF_Z_TOOL)) < 6.0, (name, z)
     spread = max(_angle_deg(a, b) for a in means.values() for b in means.values())
     assert spread < 6.0, means
     for demo, skill, _ in learned.values():  # within a trial the CF z wanders only a little in the tool frame

@@ -125,32 +125,39 @@ def test_real_metadata_records_the_conversions(real, name):
     assert "no free-space part" in notes and "event-driven log" in notes and "resampled to 200 Hz" in notes
 
 
+HINT = "check how the wrench is read"
+
+
+def hints(demonstration) -> list[str]:
+    return [note for note in demonstration.metadata.extra["import_notes"] if note.startswith(HINT)]
+
+
 def test_real_reaction_imported_as_applied_gets_a_sign_hint(real):
-    wrong = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="tool"))
-    assert any("check the wrench sign" in note for note in wrong.metadata.extra["import_notes"])
-    right = real["contour_a_1"]["tool"].metadata.extra["import_notes"]
-    assert not any("check the wrench sign" in note for note in right)
+    """The sensor's reaction read as the wrench the tool applies presses UP; the note names the other sign, the one
+    reading that presses down leaning towards the motion as friction makes it."""
+    [hint] = hints(demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="tool")))
+    assert "read with --wrench measured-on-tool it presses" in hint and "below the horizontal" in hint, hint
+    assert "--wrench-frame world it" not in hint and "--quaternion-order" not in hint, hint
+    assert hints(real["contour_a_1"]["tool"]) == []
 
 
 def test_real_tool_frame_wrench_read_with_the_wrong_quaternion_order_gets_a_hint_naming_it(real):
     """Read with the quaternion order wrong (the columns mapped w, x, y, z as x, y, z, w), the tool-frame wrench is
-    turned into the world wrongly and presses UP on three of the four trials: the note names the quaternion order and
-    the wrench frame beside the sign. A world-frame wrench read with the wrong sign gets the sign hint alone."""
+    turned into the world wrongly and presses UP on three of the four trials: the note names the other quaternion
+    order, which presses down leaning with friction, and not the other sign. A world-frame wrench read with the
+    wrong sign gets a note naming the sign alone."""
     wrong_order = {"wrench_convention": "measured-on-tool", "wrench_frame": "tool",
                    "columns": "qx=tcp_qw,qy=tcp_qx,qz=tcp_qy,qw=tcp_qz"}  # fmt: skip
     hinted = []
     for name in TRIALS:
-        notes = demonstration_from_csv(DATA / f"{name}.csv", CsvImportOptions(**wrong_order)).metadata.extra
-        hint = [note for note in notes["import_notes"] if "check the wrench sign" in note]
+        hint = hints(demonstration_from_csv(DATA / f"{name}.csv", CsvImportOptions(**wrong_order)))
         if hint:
-            assert "--quaternion-order" in hint[0] and "--wrench-frame" in hint[0]
+            assert "read with --quaternion-order wxyz (--columns for named ones) it presses" in hint[0], hint
             hinted.append(name)
-        right = real[name]["tool"].metadata.extra["import_notes"]
-        assert not any("check the wrench sign" in note for note in right)
+        assert hints(real[name]["tool"]) == []
     assert hinted == ["contour_a_2", "contour_b_1", "contour_b_2"]
-    sign_only = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="world"))
-    hint = [note for note in sign_only.metadata.extra["import_notes"] if "check the wrench sign" in note]
-    assert hint and "--quaternion-order" not in hint[0]
+    [hint] = hints(demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(wrench_frame="world")))
+    assert "read with --wrench measured-on-tool it presses" in hint and "--quaternion-order" not in hint, hint
 
 
 def test_real_position_path_matches_the_readme(real):

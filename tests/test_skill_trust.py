@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import README_CF_Z_TOOL
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbag_files import storage_file, write_bag
@@ -209,13 +210,83 @@ def test_a_real_recording_read_with_the_sensors_sign_is_caught_by_its_friction(t
 
     right, flipped = learn_skill(read("measured-on-tool")), learn_skill(read("applied-by-tool"))
     assert failed(right) == [] and friction_check(right).value > skill_checks.FRICTION_SIGN_LIMIT
-    assert [c.name for c in flipped.checks if not c.passed] == [CheckName.friction_along_motion]
+    assert [c.name for c in flipped.checks if not c.passed] == [
+        CheckName.friction_along_motion,
+        CheckName.press_direction,
+    ]
     lean = friction_check(flipped)
     assert lean.value < -skill_checks.FRICTION_SIGN_LIMIT and "other sign" in lean.message
     assert lean.value == pytest.approx(-friction_check(right).value, abs=0.005)  # the same lean, mirrored
     with pytest.raises(SkillCheckError) as refused:
         learn_skill(read("applied-by-tool"), LearnOptions(strict=True))
-    assert [c.name for c in refused.value.checks] == [CheckName.friction_along_motion]
+    assert [c.name for c in refused.value.checks] == [CheckName.friction_along_motion, CheckName.press_direction]
+
+
+def tool_columns_only(trial: str) -> str:
+    """The KU Leuven ``trial`` with its tool-frame wrench alone, its columns named as most loggers name them (``t, x,
+    y, z, qw, qx, qy, qz, fx .. mz``): nothing in the file says which frame the wrench is in."""
+    from services.datasets import kuleuven_file
+
+    rows = [line.split(",") for line in kuleuven_file(f"{trial}.csv").read_text().splitlines()]
+    keep = [rows[0].index(name) for name in ("t", "tcp_x", "tcp_y", "tcp_z", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz",
+                                             "fx_tcp", "fy_tcp", "fz_tcp", "mx_tcp", "my_tcp", "mz_tcp")]  # fmt: skip
+    header = "t,x,y,z,qw,qx,qy,qz,fx,fy,fz,mx,my,mz"
+    return "\n".join([header, *(",".join(row[k] for k in keep) for row in rows[1:])]) + "\n"
+
+
+def press_check(skill: Skill) -> SkillCheck:
+    return next(c for c in skill.checks if c.name is CheckName.press_direction)
+
+
+@pytest.mark.parametrize("trial", ["contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2"])
+def test_a_real_tool_frame_wrench_read_as_a_world_one_is_caught_by_its_press_direction(trial: str) -> None:
+    """A file whose columns do not say the wrench's frame is read as a world-frame one. The KU Leuven wrench is in the
+    tool frame: read as a world one it presses 45-49 deg UP, leans 21-27 deg towards the motion (friction's side, so
+    the friction check passes), and learned a contour or a slide that passed every check at confidence up to 0.99.
+    The press direction fails, and the import's note names the reading that presses down leaning as friction makes
+    it: ``--wrench-frame tool``, not the other sign (which leans against the motion). So read, the skill passes every
+    check and its CF z is the README's direction in the tool frame."""
+    text = tool_columns_only(trial)
+    wrong = read_csv(text, {"wrench_convention": "measured-on-tool"})
+    skill = learn_skill(wrong)
+    failing = [c.name for c in skill.checks if not c.passed]  # contour_b_1's type is also uncertain: type_evidence
+    assert CheckName.press_direction in failing and set(failing) <= {CheckName.press_direction, CheckName.type_evidence}
+    assert press_check(skill).value > skill_checks.UPWARD_PRESS_LIMIT_DEG and "from below" in press_check(skill).message
+    [hint] = [note for note in wrong.metadata.extra["import_notes"] if note.startswith("check how the wrench is read")]
+    assert "read with --wrench-frame tool it presses" in hint and "read with --wrench applied-by-tool" not in hint, hint
+    right = read_csv(text, {"wrench_convention": "measured-on-tool", "wrench_frame": "tool"})
+    assert not any(note.startswith("check how") for note in right.metadata.extra["import_notes"])
+    skill = learn_skill(right)
+    assert failed(skill) == [] and press_check(skill).value < -50.0
+    [segment] = contacts(skill)
+    frames = np.asarray(segment.compliant_frames.orientations)
+    from services.figures import compliant_frame_axes
+
+    z_tool, readme = compliant_frame_axes(right, segment).mean_tool, np.array(README_CF_Z_TOOL)
+    assert len(frames) > 1 and np.degrees(np.arccos(z_tool @ readme / np.linalg.norm(readme))) < 8.0
+
+
+def test_a_tool_pressing_up_fails_the_press_direction_even_when_it_truly_did() -> None:
+    """The check's limit, stated: a slide truly pressed on the underside of a plate (normal up) is read right, and
+    still fails ``press_direction`` (a warning; strict learning refuses it). The import cannot tell it from a
+    misread file either, and says that no other reading of the file presses down with friction's lean."""
+    from corpus.synthetic import plane_slide
+
+    d = plane_slide(normal=(0.0, 0.2, 1.0), seed=3)
+    demo = Demonstration.from_arrays(d.t, d.positions, d.orientations, d.wrenches)
+    skill = learn_skill(demo)
+    assert [c.name for c in skill.checks if not c.passed] == [CheckName.press_direction]
+    [segment] = contacts(skill)
+    assert press_check(skill).value > 60.0  # the normal is 79 deg up, the friction along the path tilts the press
+    z = np.asarray(segment.compliant_frames.orientations[0])
+    from skills.quaternions import matrix_from_quaternion
+
+    assert matrix_from_quaternion(z)[:, 2] @ d.normals[0] > np.cos(np.radians(1.0))  # learned right all the same
+    rows = np.column_stack([d.t, d.positions, d.orientations, d.wrenches])
+    text = "t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz\n" + "\n".join(",".join(f"{v:.9g}" for v in row) for row in rows)
+    notes = read_csv(text, {"tare": False}).metadata.extra["import_notes"]
+    [hint] = [note for note in notes if note.startswith("check how the wrench is read")]
+    assert "no other reading" in hint, hint
 
 
 @pytest.mark.parametrize("kind", ["human-straight", "human-zigzag", "human-cylinder"])
