@@ -127,6 +127,15 @@ class DemonstrationMetadata(BaseModel):
         description="Frame of force_offset_removed: 'tool' (the sensor frame: estimated over the free-space "
         "stretches, or given for a tool-frame file) or 'world' (given for a world-frame file).",
     )
+    unmeasured_intervals_s: list[tuple[float, float]] = Field(
+        default_factory=list,
+        description="Intervals (start, end), s on the demonstration's time axis, where the importer found no "
+        "measurement of the pose or of the wrench for much longer than usual (a tracker that lost the tool, a "
+        "stalled logger): the samples there were interpolated, not measured. A skill whose contact crosses one "
+        "fails its unmeasured_contact check.",
+        max_length=100_000,
+        examples=[[[2.0, 2.5]]],
+    )
     extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
 
 

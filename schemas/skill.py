@@ -247,6 +247,7 @@ class CheckName(StrEnum):
     force_outside_contact = "force_outside_contact"
     friction_along_motion = "friction_along_motion"
     press_direction = "press_direction"
+    unmeasured_contact = "unmeasured_contact"
     sensor_offset = "sensor_offset"
     type_evidence = "type_evidence"
 

@@ -497,6 +497,7 @@ def _imported(path: Path, shown: str, options: BagImportOptions) -> Demonstratio
             f"({poses.stamps_ns.size} samples), header stamps, world frame '{poses.world}'",
             *resampled.notes,
         ],
+        unmeasured_s=resampled.unmeasured - resampled.t[0],
     )
     return demonstration_from_samples(
         recording,

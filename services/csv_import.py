@@ -517,6 +517,7 @@ def demonstration_from_csv(
             wrenches=resampled.wrenches,
             rate_hz=resampled.rate_hz,
             notes=resampled.notes,
+            unmeasured_s=resampled.unmeasured,
         )
     return demonstration_from_samples(
         recording,

@@ -168,6 +168,7 @@ def demonstration_from_samples(
             "force_offset_removed": None if offset is None else offset.tolist(),
             "force_offset_frame": offset_frame,
             "force_offset_uncertainty_n": uncertainty,
+            "unmeasured_intervals_s": [] if recording.unmeasured_s is None else recording.unmeasured_s.tolist(),
             "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
         }
     )
@@ -244,6 +245,8 @@ class RecordingSamples:
     notes: list[str]
     fixed_rate: bool = False
     """True: the rows were taken as samples at a given rate (no time column), not resampled."""
+    unmeasured_s: np.ndarray | None = None
+    """(K, 2) start and end, s on ``t``'s axis, of the gaps in the measurements the grid interpolates over."""
 
 
 def _direction_hint(

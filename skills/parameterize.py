@@ -37,7 +37,7 @@ from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
 from skills.force_profile import cf_z_forces, constant_force
 from skills.friction import blended_friction_free, friction_coefficient
-from skills.preprocess import resampled_recording
+from skills.preprocess import MAX_GAP_S, merged_intervals, resampled_recording, unmeasured_intervals
 from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
 from skills.segmentation import SegmentBounds, segment_demonstration
 from skills.selection import SkillClassification, classify_skill
@@ -47,9 +47,6 @@ UNIFORM_TOLERANCE = 0.01
 
 MAX_RATE_HZ = 100_000.0
 """Highest sampling rate learned from, Hz (a force sensor at 10 kHz is plausible; 200 MHz is a unit error)."""
-
-MAX_GAP_S = 1.0
-"""Longest gap between two time stamps, s: across a longer one the motion is unknown, not interpolable."""
 
 MAX_SAMPLES = 1_000_000
 """Most samples of the uniform grid learned from (about 17 minutes at 1 kHz)."""
@@ -251,9 +248,11 @@ def _checks(
     skill_type: SkillType,
     auto: bool,
     offset_uncertainty_n: float | None,
+    unmeasured: NDArray[np.float64],
 ) -> list[SkillCheck]:
     """Return the skill's checks against what the demonstration measured (`skills.skill_checks`); the import's
-    sensor-offset uncertainty (N) is checked where it fitted one."""
+    sensor-offset uncertainty (N) is checked where it fitted one, and the contact segments against the intervals
+    (K, 2) s without measurement (the import's gaps, the demonstration's own)."""
     checks, presses, free = [], {}, np.zeros(len(r.t), dtype=bool)
     in_contact = []
     for item in learned:
@@ -279,6 +278,10 @@ def _checks(
     contact_velocities = np.concatenate([r.velocities[rows] for rows in in_contact])
     checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities))
     checks.append(skill_checks.press_direction(contact_forces))
+    contact_spans = [
+        (item.segment.t_start, item.segment.t_end) for item in learned if item.segment.kind is not SegmentKind.free
+    ]
+    checks.append(skill_checks.unmeasured_contact(contact_spans, unmeasured))
     if offset_uncertainty_n is not None:
         checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))
@@ -351,7 +354,12 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
         bounds = segment_demonstration(positions, forces, contact, False, options.min_segment_duration_s)
     learned = [_segment(k, b, skill_type, r, options) for k, b in enumerate(bounds)]
     uncertainty = demonstration.metadata.force_offset_uncertainty_n
-    checks = _checks(learned, r, classification, skill_type, auto, uncertainty)
+    unmeasured = merged_intervals(
+        np.concatenate(
+            [np.reshape(demonstration.metadata.unmeasured_intervals_s, (-1, 2)), unmeasured_intervals(demonstration.t)]
+        )
+    )
+    checks = _checks(learned, r, classification, skill_type, auto, uncertainty, unmeasured)
     failed = [check for check in checks if not check.passed]
     if options.strict and failed:
         raise SkillCheckError(failed)

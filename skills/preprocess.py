@@ -43,6 +43,14 @@ HOLD_FACTOR = 4.0
 """A group unchanged for longer than this times its median update interval really was constant
 (a robot standing still, a sensor reading exactly 0): the rows of such a hold are kept as samples,
 so interpolation does not ramp across it. Shorter repeats are event-log repeats and are dropped."""
+GAP_FACTOR = 5.0
+"""A channel group with no measurement for longer than this times its median update interval (and than
+:data:`MIN_GAP_S`) has a gap: the resampled samples across it are interpolated, not measured (a tracker that lost
+the tool, a logger that stalled). The KU Leuven logs' longest interval is 2.7 times their median."""
+MIN_GAP_S = 0.1
+"""Shortest gap, s: a few missed updates of a fast stream are what resampling is for."""
+MAX_GAP_S = 1.0
+"""Longest gap, s: across a longer one the motion is unknown, not interpolable (the recording is refused there)."""
 MAX_QUATERNION_NORM_DEVIATION = 0.1
 """Quaternions whose norm is further than this from 1 are rejected (wrong columns?), closer ones renormalized."""
 DEFAULT_RATE_SIGNIFICANT_DIGITS = 3
@@ -196,7 +204,9 @@ def channel_group_samples(
     run_rows = np.diff(np.append(starts, t.size))
     between = durations[:-1][durations[:-1] > 0]
     typical = float(np.median(between)) if between.size else 0.0
-    hold = (durations > hold_factor * typical) & (run_rows > 1) & (typical > 0)
+    # A hold is logged: its rows span it (a run whose rows stop before a stretch without rows is a gap, not a hold).
+    logged = t[np.append(starts[1:], t.size) - 1] - t[starts]
+    hold = (logged > hold_factor * typical) & (run_rows > 1) & (typical > 0)
     if starts.size == 1:  # never changes: constant over the whole log
         hold[:] = True
     kept_mask = changed | hold[np.cumsum(changed) - 1]
@@ -274,6 +284,8 @@ class ResampledRecording:
     n_rows_out_of_order: int
     n_duplicate_stamps: int = 0
     """Rows (in order) whose time stamp equals the previous row's."""
+    unmeasured: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    """(K, 2) start and end, s, of the gaps of either group within the grid (:func:`unmeasured_intervals`)."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -342,6 +354,49 @@ def stream_samples(t: ArrayLike, values: ArrayLike, quaternion_columns: slice | 
     )
 
 
+def unmeasured_intervals(t: ArrayLike) -> NDArray[np.float64]:
+    """Return the gaps of one channel group's measurement times ``t`` (M,) s, increasing: (K, 2) start and end (s)
+    of each interval between consecutive measurements longer than :data:`GAP_FACTOR` times the median interval and
+    than :data:`MIN_GAP_S`."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 3:
+        return np.zeros((0, 2))
+    steps = np.diff(t)
+    gap = steps > max(GAP_FACTOR * float(np.median(steps)), MIN_GAP_S)
+    return np.column_stack([t[:-1][gap], t[1:][gap]])
+
+
+def merged_intervals(intervals: ArrayLike) -> NDArray[np.float64]:
+    """Return the union of (K, 2) [start, end] intervals (s) as sorted, disjoint (J, 2) intervals."""
+    intervals = np.asarray(intervals, dtype=float).reshape(-1, 2)
+    if intervals.shape[0] == 0:
+        return intervals
+    intervals = intervals[np.argsort(intervals[:, 0])]
+    reach = np.maximum.accumulate(intervals[:, 1])
+    starts = np.r_[True, intervals[1:, 0] > reach[:-1]]  # an interval starting after all before it ended
+    ends = np.r_[starts[1:], True]
+    return np.column_stack([intervals[starts, 0], reach[ends]])
+
+
+def _gaps_within(groups: tuple[GroupSamples, GroupSamples], t_start: float, t_end: float) -> NDArray[np.float64]:
+    """The gaps of either group (pose, wrench) within [t_start, t_end] s, merged; raises ValueError naming the group
+    and the interval when one is longer than :data:`MAX_GAP_S`."""
+    found = []
+    for group, name in zip(groups, ("pose", "wrench"), strict=True):
+        gaps = unmeasured_intervals(group.t)
+        gaps = np.clip(gaps, t_start, t_end)
+        gaps = gaps[gaps[:, 1] > gaps[:, 0]]
+        lengths = gaps[:, 1] - gaps[:, 0]
+        if lengths.size and lengths.max() > MAX_GAP_S:
+            a, b = gaps[int(np.argmax(lengths))]
+            raise ValueError(
+                f"the {name} has no measurement for {b - a:.2f} s ({a:.6g}-{b:.6g} s), longer than {MAX_GAP_S:g} s: "
+                "the motion there is unknown, not interpolable; cut or split the recording there"
+            )
+        found.append(gaps)
+    return merged_intervals(np.concatenate(found))
+
+
 def recording_from_groups(
     pose: GroupSamples,
     wrench: GroupSamples,
@@ -372,6 +427,7 @@ def recording_from_groups(
             f"{t_end - t_start:.6g} s at {rate_hz:g} Hz would be {wanted:.4g} samples, more than {max_samples}: "
             "choose a lower rate"
         )
+    unmeasured = _gaps_within((pose, wrench), t_start, t_end)
     grid = uniform_time_grid(t_start, t_end, rate_hz)
 
     q_measured = quaternions_sign_continuous(pose.values[:, 3:7])
@@ -385,6 +441,7 @@ def recording_from_groups(
         wrench=wrench,
         n_rows_out_of_order=n_rows_out_of_order,
         n_duplicate_stamps=n_duplicate_stamps,
+        unmeasured=unmeasured,
     )
     result.notes.extend(_resampling_notes(result))
     return result
@@ -417,4 +474,12 @@ def _resampling_notes(r: ResampledRecording) -> list[str]:
         notes.append(f"{merged} samples sharing a time stamp with the previous one were averaged into it")
     if r.n_rows_out_of_order:
         notes.append(f"{r.n_rows_out_of_order} rows stamped earlier than a previous row were dropped")
+    if r.unmeasured.shape[0]:
+        lengths = r.unmeasured[:, 1] - r.unmeasured[:, 0]
+        where = ", ".join(f"{a:.6g}-{b:.6g} s" for a, b in r.unmeasured[:5])
+        more = f" and {lengths.size - 5} more" if lengths.size > 5 else ""
+        notes.append(
+            f"no measurement of the pose or the wrench for {lengths.sum():.2f} s in {lengths.size} gap(s) ({where}"
+            f"{more}): the samples there are interpolated, not measured"
+        )
     return notes

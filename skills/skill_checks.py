@@ -33,6 +33,10 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   the wrong quaternion order often points up, and can still pass every other check (on the KU Leuven contours, a
   tool-frame wrench read as a world one learns a contour or a slide that does). Work done from below fails it too:
   a warning, not a refusal, unless strict.
+- ``unmeasured_contact`` (skill) — the time the contact segments spend in gaps of the recording, where neither the pose
+  nor the wrench was measured for longer than `skills.preprocess.GAP_FACTOR` times its usual interval (a tracker
+  that lost the tool, a stalled logger; the import's ``unmeasured_intervals_s`` and the demonstration's own): any is
+  a failure, for the skill follows an interpolation there, not the demonstration.
 - ``sensor_offset`` (skill, where the import fitted the offset) — its uncertainty (the hand's slow
   wander it cannot tell apart, `skills.tare`) against the weakest contact's press: beyond
   ``OFFSET_SHARE_LIMIT`` forces, and a straight stroke's tilt, are uncertain by more than the tolerance.
@@ -88,7 +92,9 @@ FRICTION_SIGN_LIMIT = 0.01
 UPWARD_PRESS_LIMIT_DEG = 30.0
 """The force the tool applies in contact may point at most this far above the horizontal, deg (world z up)."""
 
-RECORDING_CHECKS = frozenset({CheckName.friction_along_motion, CheckName.press_direction, CheckName.sensor_offset})
+RECORDING_CHECKS = frozenset(
+    {CheckName.friction_along_motion, CheckName.press_direction, CheckName.unmeasured_contact, CheckName.sensor_offset}
+)
 """The checks of the recording itself (its wrench's sign and frame, its sensor offset), not of what was learned from
 it: a work piece measured from the same recording carries what they find wrong."""
 
@@ -350,6 +356,35 @@ def press_direction(forces: NDArray[np.float64]) -> SkillCheck:
         value=elevation,
         limit=UPWARD_PRESS_LIMIT_DEG,
         unit="deg",
+        message=message,
+    )
+
+
+def unmeasured_contact(contact_spans: list[tuple[float, float]], unmeasured: NDArray[np.float64]) -> SkillCheck:
+    """Check the contact segments (``contact_spans``: their start and end, s) against the recording's gaps
+    (``unmeasured`` (K, 2) start and end, s, disjoint): the seconds of contact no measurement covers, at most 0."""
+    spans = np.asarray(contact_spans, dtype=float).reshape(-1, 1, 2)
+    overlap = np.minimum(spans[..., 1], unmeasured[:, 1]) - np.maximum(spans[..., 0], unmeasured[:, 0])  # (S, K)
+    inside = np.clip(overlap, 0.0, None)
+    total = float(inside.sum())
+    passed = total <= 0.0
+    if passed:
+        message = f"every contact segment was measured throughout ({unmeasured.shape[0]} gap(s) in the recording)"
+    else:
+        hit = unmeasured[(inside > 0).any(axis=0)]
+        where = ", ".join(f"{a:.6g}-{b:.6g} s" for a, b in hit[:5])
+        message = (
+            f"the contact segments spend {total:.2f} s in {hit.shape[0]} gap(s) of the recording ({where}) where the "
+            "pose or the wrench went unmeasured: the skill follows an interpolation there, not the demonstration "
+            "(record again, or cut the recording at the gap)"
+        )
+    return SkillCheck(
+        name=CheckName.unmeasured_contact,
+        segment=None,
+        passed=passed,
+        value=total,
+        limit=0.0,
+        unit="s",
         message=message,
     )
 

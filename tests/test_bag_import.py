@@ -338,3 +338,25 @@ def test_one_options_model_for_the_command_line_and_the_forms():
         assert from_cli == model.model_validate(shared_form | form)
         assert from_cli.tare_window_s == (0.0, 0.5) and from_cli.force_offset == (1.0, 2.0, 3.0)
     assert from_cli.dt_s == 0.004 and BagImportOptions(**TF_PAIR).tf_frames == ("world", "tool")
+
+
+def test_a_bag_with_a_stretch_of_no_messages_records_the_gap_on_the_demonstrations_time_axis(tmp_path):
+    """0.5 s of no message on either topic in the middle of the contact: the import notes it and records it relative
+    to the demonstration's first sample, as its segments are; the skill fails ``unmeasured_contact`` for it."""
+    from skills.parameterize import learn_skill
+
+    truth = _slide()
+    middle = 0.5 * (truth.contact_on_s + truth.contact_off_s)
+    keep = (truth.t < middle) | (truth.t > middle + 0.5)
+    bag = write_bag(tmp_path / "gap", truth.t[keep], truth.positions[keep], truth.orientations[keep],
+                    truth.wrenches[keep])  # fmt: skip
+    demo = demonstration_from_bag(bag, BagImportOptions(**MEASURED, tool_frame="tool", tare=False))
+    [[start, end]] = demo.metadata.unmeasured_intervals_s
+    t_kept = truth.t[keep] - truth.t[1]  # the demonstration starts at the first pose, one wrench sample in
+    last_pose_before = t_kept[1::POSE_EVERY][t_kept[1::POSE_EVERY] < middle - truth.t[1]][-1]
+    assert start == pytest.approx(last_pose_before, abs=1e-6) and end > middle + 0.5 - truth.t[1]
+    assert any(
+        note.startswith("no measurement of the pose or the wrench") for note in demo.metadata.extra["import_notes"]
+    )
+    [check] = [c for c in learn_skill(demo).checks if c.name.value == "unmeasured_contact"]
+    assert not check.passed and check.value == pytest.approx(end - start)

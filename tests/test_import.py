@@ -533,3 +533,74 @@ def test_a_too_long_csv_is_refused_before_it_is_parsed(tmp_path):
         f.truncate(csv_import.MAX_CSV_BYTES + 1)  # a sparse file: nothing written, its size is what is checked
     with pytest.raises(CsvImportError, match="MB, larger than the 400 MB a recording"):
         demonstration_from_csv(huge)
+
+
+# --------------------------------------------------------------------------- gaps: stretches without measurement
+
+
+def test_gaps_are_intervals_much_longer_than_the_usual_and_merge_into_disjoint_ones():
+    t = np.r_[np.arange(0.0, 1.0, 0.01), np.arange(1.3, 2.0, 0.01), 2.05, 2.5]
+    gaps = preprocess.unmeasured_intervals(t)
+    np.testing.assert_allclose(gaps, [[0.99, 1.3], [2.05, 2.5]])  # 0.06 s is 6 intervals but under MIN_GAP_S
+    assert preprocess.unmeasured_intervals(np.arange(0.0, 5.0, 0.035)).shape == (0, 2)
+    merged = preprocess.merged_intervals([[3.0, 4.0], [0.0, 1.0], [0.5, 2.0], [1.5, 1.8], [4.0, 4.5]])
+    np.testing.assert_allclose(merged, [[0.0, 2.0], [3.0, 4.5]])
+    assert preprocess.merged_intervals(np.zeros((0, 2))).shape == (0, 2)
+
+
+def test_a_value_repeated_up_to_a_stretch_without_rows_is_no_hold():
+    """An event log's repeats stop where its rows stop: the value before a stretch with no rows at all was not held
+    through it (a hold's repeated rows span the hold)."""
+    t = np.r_[np.arange(0.0, 1.0, 0.01), np.arange(1.5, 2.0, 0.01)]
+    values = np.repeat(np.arange(t.size // 5, dtype=float), 5)[: t.size, None]  # a new value every 5 rows
+    values = np.vstack([values, np.full((t.size - values.shape[0], 1), values[-1, 0])])
+    group = preprocess.channel_group_samples(t, values)
+    assert group.n_holds == 0
+    np.testing.assert_allclose(preprocess.unmeasured_intervals(group.t), [[0.95, 1.5]], atol=1e-9)
+
+
+def _without_rows(name: str, t0: float, t1: float) -> str:
+    """The KU Leuven file ``name`` with its rows from ``t0`` to ``t1`` s left out, as a tracker and a logger that
+    stalled together would leave it."""
+    lines = (DATA / f"{name}.csv").read_text().splitlines()
+    kept = [line for line in lines[1:] if not t0 <= float(line.split(",", 1)[0]) <= t1]
+    return "\n".join([lines[0], *kept]) + "\n"
+
+
+def test_a_real_recording_with_a_gap_says_so_and_its_skill_fails_its_unmeasured_contact_check():
+    """0.3 s of contour_a_1 left out: the import resamples across it as before, and now notes it, records it in the
+    metadata, and the skill (whose contact crosses it) fails ``unmeasured_contact`` and nothing else; without the
+    gap it passes. Over 1 s the motion is unknown: the import refuses it, naming the channel and the stretch (the
+    learner refuses the same gap in a JSON demonstration)."""
+    from skills.parameterize import learn_skill
+
+    options = CsvImportOptions(**KULEUVEN, wrench_frame="tool")
+    gapped = demonstration_from_csv(_without_rows("contour_a_1", 2.0, 2.3), options)
+    [[start, end]] = gapped.metadata.unmeasured_intervals_s
+    assert 1.95 < start < 2.0 and 2.3 < end < 2.35, (start, end)  # the last pose before, the first wrench after
+    notes = " | ".join(gapped.metadata.extra["import_notes"])
+    assert "no measurement of the pose or the wrench for 0.31 s in 1 gap(s)" in notes and "holds" not in notes
+    skill = learn_skill(gapped)
+    assert [c.name.value for c in skill.checks if not c.passed] == ["unmeasured_contact"]
+    [check] = [c for c in skill.checks if c.name.value == "unmeasured_contact"]
+    assert check.value == pytest.approx(end - start) and "interpolation" in check.message
+    whole = demonstration_from_csv(DATA / "contour_a_1.csv", options)
+    assert whole.metadata.unmeasured_intervals_s == []
+    assert all(c.passed for c in learn_skill(whole).checks)
+    with pytest.raises(CsvImportError, match=r"the pose has no measurement for 1\.2\d s \(1\.99\d*-3\.2\d* s\)"):
+        demonstration_from_csv(_without_rows("contour_a_1", 2.0, 3.2), options)
+
+
+def test_a_json_demonstration_with_a_gap_in_contact_fails_the_check():
+    """A Demonstration sent as JSON carries its own time stamps: a stretch of them missing is a gap the same way."""
+    from corpus.synthetic import plane_slide
+    from skills.parameterize import learn_skill
+
+    d = plane_slide(rate_hz=200.0)
+    middle = 0.5 * (d.contact_on_s + d.contact_off_s)
+    keep = (d.t < middle) | (d.t > middle + 0.4)
+    demo = Demonstration.from_arrays(d.t[keep], d.positions[keep], d.orientations[keep], d.wrenches[keep])
+    [check] = [c for c in learn_skill(demo).checks if c.name.value == "unmeasured_contact"]
+    assert not check.passed and check.value == pytest.approx(np.diff(d.t[keep]).max(), abs=1e-9)  # 0.4 s and a step
+    whole = Demonstration.from_arrays(d.t, d.positions, d.orientations, d.wrenches)
+    assert all(c.passed for c in learn_skill(whole).checks if c.name.value == "unmeasured_contact")

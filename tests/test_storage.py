@@ -52,12 +52,19 @@ def test_a_storing_post_past_the_quota_gets_507_and_a_delete_makes_room_again(tm
 
 
 def test_a_csv_whose_stamps_span_far_more_samples_than_rows_is_refused_naming_the_file(client):
-    # 20 rows 1 ms apart, then one 150 s later: resampled at 1 kHz that is 150 000 samples (~33 MB) from ~1 KB
+    header = "t,x,y,z,qx,qy,qz,qw,fx,fy,fz,tx,ty,tz\n"
+    # 20 rows 1 ms apart, then one 150 s later: a gap no resampling may fill, refused as such
     rows = [f"{k * 0.001:.3f},0.5,0.0,0.2,0,0,0,1,0,0,-5,0,0,0" for k in range(20)] + [
         "150.0,0.5,0,0.2,0,0,0,1,0,0,-5,0,0,0"
     ]
-    text = "t,x,y,z,qx,qy,qz,qw,fx,fy,fz,tx,ty,tz\n" + "\n".join(rows) + "\n"
-    response = client.post("/demonstrations/csv", files={"file": ("gap.csv", text.encode())})
+    response = client.post("/demonstrations/csv", files={"file": ("gap.csv", (header + "\n".join(rows)).encode())})
+    assert response.status_code == 422, response.text
+    (problem,) = response.json()["detail"]
+    assert problem["loc"] == ["body", "file"] and "no measurement for 149.98 s (0.019-150 s)" in problem["msg"], problem
+    # 301 rows 0.5 s apart resampled at 1 kHz: 150 000 samples (~33 MB) from ~15 KB
+    rows = [f"{k * 0.5:.1f},0.5,0.0,0.2,0,0,0,1,0,0,-5,0,0,0" for k in range(301)]
+    text = header + "\n".join(rows) + "\n"
+    response = client.post("/demonstrations/csv", files={"file": ("slow.csv", text.encode())}, data={"rate": "1000"})
     assert response.status_code == 422, response.text
     (problem,) = response.json()["detail"]
     assert problem["loc"] == ["body", "file"] and problem["type"] == "stored_too_large"
