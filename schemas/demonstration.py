@@ -139,6 +139,14 @@ class DemonstrationMetadata(BaseModel):
     extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
 
 
+def _stamp_unit_hint(stamp: float) -> str:
+    """`` (nanoseconds since 1970, ...)`` when ``stamp`` read in ms, µs or ns is a date of the last decades."""
+    for unit, per_second in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)):
+        if 1e8 <= abs(stamp) / per_second <= MAX_TIME_S:
+            return f" (in {unit} since 1970, as ROS and Unix stamps are? time stamps are in s)"
+    return ""
+
+
 class Demonstration(BaseModel):
     """One demonstration: N samples of time, tool pose and applied wrench.
 
@@ -194,7 +202,8 @@ class Demonstration(BaseModel):
         if array.size < MIN_DEMONSTRATION_SAMPLES:
             raise ValueError(f"needs at least {MIN_DEMONSTRATION_SAMPLES} samples to learn from, got {array.size}")
         finite_rows(array[:, None], "time stamp")
-        bounded_rows(array[:, None], MAX_TIME_S, "time stamp", "s")
+        beyond = array[np.abs(array) > MAX_TIME_S]
+        bounded_rows(array[:, None], MAX_TIME_S, "time stamp", "s", _stamp_unit_hint(beyond[0]) if beyond.size else "")
         strictly_increasing(array, MIN_TIME_STEP_S)
         if array[-1] - array[0] > MAX_DURATION_S:
             raise ValueError(

@@ -604,3 +604,12 @@ def test_a_json_demonstration_with_a_gap_in_contact_fails_the_check():
     assert not check.passed and check.value == pytest.approx(np.diff(d.t[keep]).max(), abs=1e-9)  # 0.4 s and a step
     whole = Demonstration.from_arrays(d.t, d.positions, d.orientations, d.wrenches)
     assert all(c.passed for c in learn_skill(whole).checks if c.name.value == "unmeasured_contact")
+
+
+@pytest.mark.parametrize(("per_second", "unit"), [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_epoch_stamps_in_another_unit_are_refused_naming_it(per_second: float, unit: str):
+    """A logger's stamps since 1970 in ms, µs or ns (ROS's are ns) read as seconds: refused, the unit named."""
+    t = (1.7e9 + np.arange(100) * 0.01) * per_second
+    rows = "\n".join(f"{stamp:.0f},0.5,0,0.2,0,0,0,1,0,0,-5,0,0,0" for stamp in t)
+    with pytest.raises(DemonstrationImportError, match=f"beyond the plausible ±1e\\+10 s \\(in {unit} since 1970"):
+        demonstration_from_csv("t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz\n" + rows)
