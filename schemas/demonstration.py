@@ -138,6 +138,17 @@ class DemonstrationMetadata(BaseModel):
     )
     extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
 
+    @field_validator("unmeasured_intervals_s")
+    @classmethod
+    def _intervals_are_finite_and_ordered(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        array = np.asarray(value, dtype=float).reshape(-1, 2)
+        if array.size:
+            finite_rows(array, "interval")
+            backwards = np.flatnonzero(array[:, 1] < array[:, 0])
+            if backwards.size:
+                raise ValueError(f"interval {backwards[0]} ends before it starts")
+        return value
+
 
 def _stamp_unit_hint(stamp: float) -> str:
     """`` (nanoseconds since 1970, ...)`` when ``stamp`` read in ms, µs or ns is a date of the last decades."""

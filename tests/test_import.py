@@ -613,3 +613,15 @@ def test_epoch_stamps_in_another_unit_are_refused_naming_it(per_second: float, u
     rows = "\n".join(f"{stamp:.0f},0.5,0,0.2,0,0,0,1,0,0,-5,0,0,0" for stamp in t)
     with pytest.raises(DemonstrationImportError, match=f"beyond the plausible ±1e\\+10 s \\(in {unit} since 1970"):
         demonstration_from_csv("t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz\n" + rows)
+
+
+def test_a_demonstrations_gaps_must_be_finite_intervals_in_order():
+    from schemas import DemonstrationMetadata
+
+    assert DemonstrationMetadata(unmeasured_intervals_s=[(1.0, 1.5)]).unmeasured_intervals_s == [(1.0, 1.5)]
+    for bad, reason in (
+        ([(1.0, float("nan"))], "interval 0 is not finite"),
+        ([(0.0, 0.1), (2.0, 1.0)], "interval 1 ends before"),
+    ):
+        with pytest.raises(ValidationError, match=reason):
+            DemonstrationMetadata(unmeasured_intervals_s=bad)
