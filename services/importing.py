@@ -276,9 +276,9 @@ def _direction_hint(
     velocities = tool_velocities(recording.positions, recording.rate_hz)[pressed]
     readings = _other_readings(forces, recording.orientations, options.wrench_convention, frame, order)
     sentences = []
-    for flags, alternative in ((flags, alternative[pressed]) for flags, alternative in readings):
+    for flags, alternative in readings:
         down = skill_checks.press_elevation_deg(alternative)
-        lean, samples = skill_checks.median_friction_lean(alternative, velocities)
+        lean, samples = skill_checks.median_friction_lean(alternative[pressed], velocities)
         if down < -skill_checks.UPWARD_PRESS_LIMIT_DEG and skill_checks.leans_with_friction(lean):
             sentences.append(
                 f"read with {flags} it presses {-down:.0f} deg below the horizontal and "

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
-from schemas.demonstration import Demonstration, DemonstrationSummary
+from schemas.demonstration import Demonstration, DemonstrationArrays, DemonstrationSummary
 from schemas.skill import (
     SELECTION_CONTACT,
     SELECTION_FREE,
@@ -61,11 +61,11 @@ class LearningError(ValueError):
         self.reason = reason
 
 
-def uniform_arrays(demonstration: Demonstration) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Return (t, positions, quaternions, wrenches) of ``demonstration`` on the uniform grid the learner works on
-    (s, m, scalar-last sign-continuous quaternions, N and N·m applied, world): the grid a skill's sample indices
-    refer to."""
-    a = demonstration.arrays()
+def uniform_arrays(demonstration: Demonstration | DemonstrationArrays) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Return (t, positions, quaternions, wrenches) of ``demonstration`` (or its ``arrays()``, converted once by a
+    caller that reads them too) on the uniform grid the learner works on (s, m, scalar-last sign-continuous
+    quaternions, N and N·m applied, world): the grid a skill's sample indices refer to."""
+    a = demonstration.arrays() if isinstance(demonstration, Demonstration) else demonstration
     steps = np.diff(a.t)
     median_step = float(np.median(steps))
     if 1.0 / median_step > MAX_RATE_HZ:
@@ -254,7 +254,7 @@ def _checks(
     sensor-offset uncertainty (N) is checked where it fitted one, and the contact segments against the intervals
     (K, 2) s without measurement (the import's gaps, the demonstration's own)."""
     checks, presses, free = [], {}, np.zeros(len(r.t), dtype=bool)
-    in_contact = []
+    in_contact, contact_spans = [], []
     for item in learned:
         segment = item.segment
         rows = slice(segment.start_index, segment.end_index)
@@ -262,6 +262,7 @@ def _checks(
             free[rows] = True
             continue
         in_contact.append(rows)
+        contact_spans.append((segment.t_start, segment.t_end))
         f, v = r.forces[rows], r.velocities[rows]
         free_of_friction = blended_friction_free(f, v, friction_coefficient(f, v), normals=item.cf_z)
         checks.append(skill_checks.force_along_cf(segment.index, free_of_friction, item.learned_force_n))
@@ -278,9 +279,6 @@ def _checks(
     contact_velocities = np.concatenate([r.velocities[rows] for rows in in_contact])
     checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities))
     checks.append(skill_checks.press_direction(contact_forces))
-    contact_spans = [
-        (item.segment.t_start, item.segment.t_end) for item in learned if item.segment.kind is not SegmentKind.free
-    ]
     checks.append(skill_checks.unmeasured_contact(contact_spans, unmeasured))
     if offset_uncertainty_n is not None:
         checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
@@ -305,7 +303,8 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     (a `LearningError`) when ``options.strict`` and the skill fails any of its checks.
     """
     options = options or LearnOptions()
-    t, positions, quaternions, wrenches = uniform_arrays(demonstration)
+    recorded = demonstration.arrays()
+    t, positions, quaternions, wrenches = uniform_arrays(recorded)
     forces = wrenches[:, :3]
     contact = analyse_contact(t, positions, forces, options.contact_force_threshold_n)
     if not contact.intervals:
@@ -356,7 +355,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     uncertainty = demonstration.metadata.force_offset_uncertainty_n
     unmeasured = merged_intervals(
         np.concatenate(
-            [np.reshape(demonstration.metadata.unmeasured_intervals_s, (-1, 2)), unmeasured_intervals(demonstration.t)]
+            [np.reshape(demonstration.metadata.unmeasured_intervals_s, (-1, 2)), unmeasured_intervals(recorded.t)]
         )
     )
     checks = _checks(learned, r, classification, skill_type, auto, uncertainty, unmeasured)
