@@ -27,7 +27,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 # Every benchmark in its documented (full) mode, one after the other: each rewrites its own section of
-# docs/BENCHMARKS.md (the corpus, KU Leuven truth and work-piece ones: docs/LEARNING.md; the contours one:
+# docs/BENCHMARKS.md (the corpus, force-source, KU Leuven truth and work-piece ones: docs/LEARNING.md; the contours one:
 # docs/RESULTS.md) with the machine and its load. Long on 2 shared cores: run it on a quiet machine.
 # make test runs each one's --smoke instead (tests/test_benchmarks_smoke*.py).
 bench: $(STAMP)
@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_learning.py
 	$(BIN)/python benchmarks/bench_kinesthetic.py
 	$(BIN)/python benchmarks/bench_corpus.py
+	$(BIN)/python benchmarks/bench_learning_sources.py
 	$(BIN)/python benchmarks/bench_kuleuven_truth.py
 	$(BIN)/python benchmarks/bench_work_piece.py
 	$(BIN)/python benchmarks/bench_real_skills.py

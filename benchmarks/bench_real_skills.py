@@ -23,6 +23,7 @@ pin_blas_threads()
 from schemas import ExecutionSettings  # noqa: E402
 from schemas.import_options import CsvImportOptions  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
+from services.datasets import KULEUVEN_IMPORT  # noqa: E402
 from sim_worker.execution_world import execution_world  # noqa: E402
 from sim_worker.executor import run_skill  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
@@ -30,7 +31,7 @@ from skills.parameterize import learn_skill  # noqa: E402
 SECTION = "real-skills"
 COMMAND = ".venv/bin/python benchmarks/bench_real_skills.py"
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
-IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
+IMPORT = KULEUVEN_IMPORT
 
 
 def _rows() -> list[dict]:

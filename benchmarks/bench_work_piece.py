@@ -34,6 +34,7 @@ from schemas import EnvironmentChange, ExecutionSettings, LearnOptions  # noqa: 
 from schemas.execution import ExecutionMetrics  # noqa: E402
 from schemas.import_options import CsvImportOptions  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
+from services.datasets import KULEUVEN_IMPORT  # noqa: E402
 from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
 from sim_worker.executor import run_skill  # noqa: E402
 from sim_worker.geometry import WorldGeometry  # noqa: E402
@@ -47,7 +48,7 @@ FLAT_CASES = (("straight", 1), ("straight", 2), ("circle", 1), ("zigzag", 1))
 """Flat plane cases (shape, seed) of `corpus.families.plane_case`."""
 CYLINDER_RADII_M = (0.05, 0.08, 0.15, 0.30)
 KU_TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
-KU_IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
+KU_IMPORT = KULEUVEN_IMPORT
 
 
 @dataclass(frozen=True)

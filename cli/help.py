@@ -12,7 +12,7 @@ EXAMPLES: dict[str, list[str]] = {
     "learn": [
         "contact-skills learn scratch/slide_tilted.csv -o scratch/skill.json --figure scratch/learn.png",
         "contact-skills learn data/kuleuven_contour/contour_a_1.csv --quaternion-order wxyz --wrench measured-on-tool "
-        "--wrench-frame tool -o scratch/contour.json",
+        "--wrench-frame tool --no-tare -o scratch/contour.json",
         "contact-skills learn scratch/wipe.csv --rate 100 --quaternion-order wxyz --wrench measured-on-tool "
         "--wrench-frame tool -o scratch/wipe.json",
         "contact-skills learn demo.mcap --wrench measured-on-tool --tool-frame tool -o scratch/skill.json",

@@ -25,6 +25,9 @@ WINDING_WINDOW_S = 0.1
 """Half width of a winding cut's window around the moment the winding crosses a multiple of 360 deg, s."""
 WINDING_MIN_REMAINDER_TURNS = 0.25
 """A winding cut is made only if at least this many turns of winding remain after it."""
+UNSTEADY_PRESS_FRACTION = 0.3
+"""An unsteady segment's ``force_n`` is the mean true normal force over its samples pressing above this fraction of
+its largest true normal force (the ramps' feet left out)."""
 CsvReader = Callable[[str, dict[str, object]], Demonstration]
 """Reads a recording's CSV text with its import options (``services.csv_import``, which the corpus may not import)."""
 
@@ -36,13 +39,16 @@ class TruthSegment:
     ``start_window`` / ``end_window`` (lo, hi) s: where the boundary may lie (lo == hi for a touch-down, where
     the normal force starts to rise, or a lift-off, where it has fallen to zero). ``normal`` the inward unit
     normal of the plane (slide cases; None for contours), world. ``force_n`` the mean true normal force over
-    the segment's plateau (between its ramps), N.
+    the segment's plateau (between its ramps), N; for an unsteady segment the mean true normal force over the
+    samples of its span that press above `UNSTEADY_PRESS_FRACTION` of its largest. ``steady``: False where the
+    press was not steady (a ramp, a wobble), so the skill must reproduce the force profile, not a constant.
     """
 
     start_window: tuple[float, float]
     end_window: tuple[float, float]
     normal: NDArray[np.float64] | None
     force_n: float
+    steady: bool = True
 
     @property
     def span(self) -> tuple[float, float]:
@@ -170,14 +176,16 @@ def merged(windows: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return out
 
 
-def truth_segments(case: Assembled, slide: bool) -> list[TruthSegment]:
+def truth_segments(case: Assembled, slide: bool, steady: bool = True) -> list[TruthSegment]:
     """The contact segments a learner should produce from ``case`` (the segment rules, docs in corpus/families.py).
 
     Per stroke contact (touch-down to lift-off): boundaries at force dips (`dip_windows`; every dip in the corpus
     lies between strokes that go another way or press another surface) and full turns of winding
     (`winding_windows`), windows that overlap joined. The
     heading is taken on the noise-free path across the contact's mean normal. ``slide``: each segment carries
-    the mean inward normal over its plateau (a plane's normal).
+    the mean inward normal over its plateau (a plane's normal). ``steady`` False: the press was not steady (a
+    ramp, a wobble), every segment is marked so and its ``force_n`` is taken over its pressing samples
+    (`TruthSegment`).
     """
     segments = []
     for c in range(int(case.contact_id.max()) + 1):
@@ -196,12 +204,18 @@ def truth_segments(case: Assembled, slide: bool) -> list[TruthSegment]:
             if slide:
                 normal = case.normals[plateau].mean(axis=0)
                 normal /= np.linalg.norm(normal)
+            force = case.normal_force[plateau].mean()
+            if not steady:
+                # No plateau to average: the profile's pressing part, over the span the scoring scores.
+                spanned = case.normal_force[rows[(t >= 0.5 * sum(start)) & (t <= 0.5 * sum(end))]]
+                force = spanned[spanned > UNSTEADY_PRESS_FRACTION * spanned.max()].mean()
             segments.append(
                 TruthSegment(
                     start_window=(float(start[0]), float(start[1])),
                     end_window=(float(end[0]), float(end[1])),
                     normal=normal,
-                    force_n=float(case.normal_force[plateau].mean()),
+                    force_n=float(force),
+                    steady=steady,
                 )
             )
     return segments
@@ -215,9 +229,10 @@ def analytic_case(
     parameters: dict[str, float],
     rng: np.random.Generator,
     noise_n: float = 0.2,
+    steady: bool = True,
 ) -> CorpusCase:
     """The `CorpusCase` of an analytic demonstration; its sensor reads the true wrench plus Gaussian noise
-    (``noise_n`` N on the forces, 2 % of it in N·m on the moments)."""
+    (``noise_n`` N on the forces, 2 % of it in N·m on the moments). ``steady``: see `truth_segments`."""
     sensed = case.wrenches + rng.normal(0.0, noise_n, case.wrenches.shape) * np.repeat([1.0, 0.02], 3)
     return CorpusCase(
         name=name,
@@ -230,7 +245,7 @@ def analytic_case(
         in_contact=case.touching,
         normals=case.normals,
         normal_force_n=case.normal_force,
-        segments=truth_segments(case, skill_type == "slide"),
+        segments=truth_segments(case, skill_type == "slide", steady),
         parameters=parameters,
         sensed_wrenches=sensed,
     )

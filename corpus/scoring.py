@@ -18,11 +18,16 @@ are left out). The metrics:
   sample (the nearest one in time if none does), its frames slerped at the time since its start and clamped at
   their ends (`skills.compliant_frames.compliant_frame_rotations`).
 - ``force_error``: slide truth: for every learned contact segment, ``|force − force_n| / force_n`` against its
-  matched truth segment, where ``force`` is its ``force_constant_n`` (or the mean of its force DMP rollout); the
-  largest. Contour truth: the RMS over the scored samples of (the learned force − the true normal force), divided
-  by the mean of the truth segments' ``force_n``; the learned force is the force DMP of the segment holding the
-  sample (as for the normal), rolled out at the skill's sample rate and interpolated at the time since its start
-  (held at its ends), or its ``force_constant_n``.
+  matched truth segment, where ``force`` is its ``force_constant_n``; the largest. A learned segment matched to an
+  UNSTEADY truth segment (``steady`` False: a ramp, a wobble, no single plateau; its ``force_n`` is the mean true
+  normal force over its samples pressing above 30 % of its largest, `corpus.case.UNSTEADY_PRESS_FRACTION`), or one
+  that learned a profile (a force DMP), is judged by its profile instead: the RMS, over that truth segment's scored
+  samples the learned segment holds (all of them if it holds none), of (the learned force − the true normal
+  force), divided by the truth segment's ``force_n``. Contour truth: the RMS over the scored samples of (the
+  learned force − the true normal force), divided by the mean of the truth segments' ``force_n``. The learned force
+  is the force DMP of the segment holding the sample (as for the normal), rolled out at the skill's sample rate and
+  interpolated at the time since its start (held at its ends), or its ``force_constant_n``; the RMS weighs the
+  samples by their time steps.
 
 Without any learned contact segment every error is infinite.
 """
@@ -41,7 +46,8 @@ from skills.compliant_frames import compliant_frame_rotations
 from skills.dmp import DMP
 
 PRESSING_FRACTION = 0.3
-"""A contour sample is scored where the true normal force exceeds this fraction of its segment's plateau."""
+"""A sample is scored (contours, unsteady slides) where the true normal force exceeds this fraction of its
+segment's ``force_n``."""
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,7 @@ class Score:
     normal_error_deg: float
     """deg."""
     force_error: float
-    """Relative to the true plateau force."""
+    """Relative to the truth's ``force_n`` (the plateau force, or an unsteady press's mean pressing force)."""
 
 
 def _gap(t0: NDArray, t1: NDArray, lo: NDArray, hi: NDArray) -> NDArray:
@@ -107,24 +113,51 @@ def _boundary_error(learned: list[Segment], truth: list[TruthSegment]) -> float:
     return float(np.max(np.min(_gap(bounds, bounds, windows[None, :, 0], windows[None, :, 1]), axis=0)))
 
 
-def _slide_errors(learned: list[Segment], case: CorpusCase, rate_hz: float) -> tuple[float, float]:
-    """(normal error deg, force error) against plane truth: the worst learned segment."""
-    truth = [case.segments[j] for j in _matched(learned, case.segments)]
-    normals = [_cf_z(s, np.asarray(s.compliant_frames.t)).mean(axis=0) for s in learned]
-    forces = [_force(s, np.linspace(0.0, s.t_end - s.t_start, 100), rate_hz).mean() for s in learned]
-    angles = _angle_deg(np.array(normals), np.array([s.normal for s in truth]))
-    true_forces = np.array([s.force_n for s in truth])
-    return float(angles.max()), float(np.max(np.abs(np.array(forces) - true_forces) / true_forces))
-
-
-def _contour_errors(learned: list[Segment], case: CorpusCase, rate_hz: float) -> tuple[float, float]:
-    """(time-weighted mean normal error deg, relative RMS force error) over the scored samples."""
+def _scored(case: CorpusCase) -> tuple[NDArray[np.int_], NDArray[np.int_]]:
+    """The scored samples (module docstring) and the truth segment whose span holds each."""
     spans = np.array([s.span for s in case.segments])
     plateau = np.array([s.force_n for s in case.segments])
     inside = (case.t[:, None] >= spans[:, 0]) & (case.t[:, None] <= spans[:, 1])
     owner = np.argmax(inside, axis=1)
     scored = case.in_contact & inside.any(axis=1) & (case.normal_force_n > PRESSING_FRACTION * plateau[owner])
     rows = np.flatnonzero(scored)
+    return rows, owner[rows]
+
+
+def _profile_error(segment: Segment, case: CorpusCase, rows: NDArray[np.int_], rate_hz: float) -> float:
+    """Time-weighted RMS (N) of ``segment``'s force minus the true normal force at the samples ``rows``."""
+    learned = _force(segment, case.t[rows] - segment.t_start, rate_hz)
+    weights = np.gradient(case.t)[rows]
+    return float(np.sqrt(np.sum(weights * (learned - case.normal_force_n[rows]) ** 2) / np.sum(weights)))
+
+
+def _slide_errors(learned: list[Segment], case: CorpusCase, rate_hz: float) -> tuple[float, float]:
+    """(normal error deg, force error) against plane truth: the worst learned segment."""
+    matched = _matched(learned, case.segments)
+    truth = [case.segments[j] for j in matched]
+    normals = [_cf_z(s, np.asarray(s.compliant_frames.t)).mean(axis=0) for s in learned]
+    forces = [_force(s, np.linspace(0.0, s.t_end - s.t_start, 100), rate_hz).mean() for s in learned]
+    angles = _angle_deg(np.array(normals), np.array([s.normal for s in truth]))
+    true_forces = np.array([s.force_n for s in truth])
+    force_errors = np.abs(np.array(forces) - true_forces) / true_forces
+    profiled = [not t.steady or s.force_dmp is not None for s, t in zip(learned, truth, strict=True)]
+    if any(profiled):
+        # An unsteady press has no plateau to match a constant against, and a learned profile is more than its mean:
+        # the profile is judged against the true press instead.
+        rows, owner = _scored(case)
+        holder = _holder(learned, case.t[rows])
+        for k, (segment, j) in enumerate(zip(learned, matched, strict=True)):
+            if profiled[k]:
+                mine = rows[(owner == j) & (holder == k)]
+                mine = mine if mine.size else rows[owner == j]
+                force_errors[k] = _profile_error(segment, case, mine, rate_hz) / case.segments[j].force_n
+    return float(angles.max()), float(np.max(force_errors))
+
+
+def _contour_errors(learned: list[Segment], case: CorpusCase, rate_hz: float) -> tuple[float, float]:
+    """(time-weighted mean normal error deg, relative RMS force error) over the scored samples."""
+    plateau = np.array([s.force_n for s in case.segments])
+    rows, _ = _scored(case)
     holder = _holder(learned, case.t[rows])
     angles = np.empty(rows.size)
     forces = np.empty(rows.size)

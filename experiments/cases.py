@@ -62,6 +62,7 @@ KULEUVEN_FORM = {
     "quaternion_order": KULEUVEN_IMPORT["quaternion_order"],
     "wrench": KULEUVEN_IMPORT["wrench_convention"],
     "wrench_frame": KULEUVEN_IMPORT["wrench_frame"],
+    "tare": KULEUVEN_IMPORT["tare"],
 }
 """The KU Leuven import options as the form fields of ``POST /demonstrations/csv``."""
 

@@ -16,6 +16,7 @@ from schemas.demonstration import (
     DemonstrationMetadata,
     DemonstrationSummary,
     QuaternionOrder,
+    TareMethod,
     WrenchConvention,
     WrenchFrame,
 )
@@ -90,6 +91,7 @@ __all__ = [
     "SkillTypeRequest",
     "StartExecution",
     "StartReply",
+    "TareMethod",
     "TelemetryBatch",
     "TypeEvidence",
     "WorkPieceSource",

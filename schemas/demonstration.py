@@ -89,6 +89,21 @@ class QuaternionOrder(StrEnum):
     wxyz = "wxyz"
 
 
+class TareMethod(StrEnum):
+    """How the sensor's offset was dealt with on import (docs/IMPORTING.md, step 5)."""
+
+    free_space = "free-space"
+    """Fitted over the recording's free-space stretches (with a tool's weight where the orientations told it)."""
+    given = "given"
+    """Subtracted as the user gave it (``--force-offset``) or as the file reads over a window (``--tare-window``)."""
+    off = "off"
+    """Not touched: the user said the file is compensated (``--no-tare``)."""
+    impossible = "impossible"
+    """Asked for, but the recording has no free space to fit it over: an offset or a tool's weight may remain."""
+    none = "none"
+    """No recording file: the demonstration was given as applied wrenches (JSON, the simulator's teacher)."""
+
+
 class DemonstrationMetadata(BaseModel):
     """Where a demonstration came from and how it was converted on import."""
 
@@ -121,6 +136,18 @@ class DemonstrationMetadata(BaseModel):
         ge=0,
         description="95 % uncertainty (two standard errors, N) of the force offset fitted over the free-space "
         "stretches (what a hand's slow wander may have left in it); None when no offset was fitted.",
+    )
+    world_force_removed: Vector3 | None = Field(
+        None,
+        description="A force constant in the world (N, applied-by-tool convention) removed with the sensor offset: a "
+        "tool weight nobody compensated (it reads as m·g UP: the arm holds the tool up), or the offset of a wrench "
+        "estimated from an arm's joint torques; fitted where the tool was held in different orientations in free "
+        "space. None when none was told apart.",
+    )
+    tare: TareMethod = Field(
+        TareMethod.none,
+        description="How the sensor offset was dealt with on import; 'impossible' (no free space to fit it over) "
+        "fails the skill's sensor_offset check.",
     )
     force_offset_frame: Literal["tool", "world"] | None = Field(
         None,

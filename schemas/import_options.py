@@ -75,8 +75,10 @@ class ImportOptions(BaseModel):
     tare: bool = Field(
         True,
         description="Whether the wrist sensor's offset is removed, fitted in the sensor (tool) frame over every "
-        "free-space stretch together with the hand's push on the arm (default true); false (--no-tare on the "
-        "command line) keeps the wrench as recorded.",
+        "free-space stretch together with the hand's push on the arm and, where the tool was held in different "
+        "orientations in the air, an uncompensated tool weight (default true; a recording with no free space "
+        "keeps an unknown offset, and its skill's sensor_offset check fails); false (--no-tare on the command "
+        "line) declares the file compensated and keeps the wrench as recorded.",
     )
     tare_window_s: Annotated[tuple[float, float] | None, BeforeValidator(_numbers_from_text)] = Field(
         None,

@@ -154,6 +154,17 @@ class SegmentQuality(BaseModel):
         description="Slide contact segments: 10th, 50th and 90th percentile of the demonstrated CF-z force over the "
         "segment (ramps included), N: the measured profile the constant stands for.",
     )
+    press_spread: float | None = Field(
+        None,
+        description="Slide contact segments: the 10th-90th percentile spread of the pressed CF-z force over the body "
+        "of the segment (its ramps left out), over its median; above 0.5 the press was not steady and the segment "
+        "keeps its force profile.",
+    )
+    press_trend: float | None = Field(
+        None,
+        description="Slide contact segments: how much the press's linear trend changes it over the body of the "
+        "segment, over its median (+ rising); beyond ±0.5 the press ramped and the segment keeps its force profile.",
+    )
 
 
 class Segment(BaseModel):
@@ -182,10 +193,12 @@ class Segment(BaseModel):
     )
     orientation_dmp: DMPParameters = Field(description="Tool orientation in world (quaternion DMP).")
     force_dmp: DMPParameters | None = Field(
-        None, description="Contour contact segments: the CF-z force magnitude profile, N."
+        None,
+        description="Contour contact segments, and slide ones whose press was not steady (a ramp, a wobble): the "
+        "CF-z force profile, N.",
     )
     force_constant_n: float | None = Field(
-        None, description="Slide contact segments: the constant CF-z force to apply, N."
+        None, description="Slide contact segments whose press was steady: the constant CF-z force to apply, N."
     )
     quality: SegmentQuality
 
@@ -240,6 +253,7 @@ class CheckName(StrEnum):
     """The checks a learned skill carries (docs/LEARNING.md, "Every skill checks itself")."""
 
     force_along_cf = "force_along_cf"
+    press_profile = "press_profile"
     cf_z_vs_force = "cf_z_vs_force"
     plane_conditioning = "plane_conditioning"
     plane_vs_force = "plane_vs_force"

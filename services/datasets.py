@@ -10,9 +10,15 @@ from pathlib import Path
 DATA_ENV = "CONTACT_SKILLS_DATA"
 """Environment variable: a data directory (holding ``kuleuven_contour/``) to use instead of the repository's."""
 
-KULEUVEN_IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
+KULEUVEN_IMPORT = {
+    "quaternion_order": "wxyz",
+    "wrench_convention": "measured-on-tool",
+    "wrench_frame": "tool",
+    "tare": False,
+}
 """Import options of the KU Leuven recordings for ``services.csv_import.demonstration_from_csv`` (scalar-first
-quaternions, the sensor's reaction in the TCP frame)."""
+quaternions, the sensor's reaction in the TCP frame, already compensated: the authors' calibration removed the tool's
+weight, and the files, all contact, hold no free space to fit an offset over)."""
 
 
 def repository_data_directory() -> Path:

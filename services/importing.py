@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, TareMethod, WrenchConvention, WrenchFrame
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
 from schemas.import_options import ImportOptions
 from services.demonstration_files import DemonstrationFile, path_kind, unsupported_file
 from skills import preprocess, skill_checks
 from skills import tare as tare_module
 from skills.compliant_frames import tool_velocities
-from skills.contact import analyse_contact
+from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion
 
 MAX_PROBLEMS_LISTED = 10
@@ -107,7 +107,12 @@ def demonstration_from_samples(
     """
     frame, convention, tare = wrench_frame, options.wrench_convention, options.tare
     notes = [*recording.notes, *notes]
-    wrenches = recording.wrenches
+    wrenches, spikes = preprocess.despiked(recording.wrenches)
+    if spikes:
+        notes.append(
+            f"{spikes} single-sample spike(s) in the wrench (a sample far off its neighbours while they agree) "
+            "replaced by the median of their neighbours"
+        )
     given = _given_offset(recording, options.tare_window_s, options.force_offset, error)
     if given is not None:
         wrenches = wrenches - given.offset
@@ -117,32 +122,32 @@ def demonstration_from_samples(
     if convention == WrenchConvention.measured_on_tool:
         wrenches = preprocess.wrenches_applied_by_tool(wrenches)
         notes.append("wrench measured on the tool: negated to the wrench the tool applies")
-    notes.extend(_direction_hint(recording, wrenches, options, frame, metadata.quaternion_order_on_import))
     offset, offset_frame, uncertainty, tare_report = None, None, None, {"method": "none"}
+    world_force, method = None, TareMethod.off
     if given is not None:
         offset, offset_frame, tare_report = given.offset, frame.value, {"method": given.method}
+        method = TareMethod.given
         notes.append(given.note)
     elif tare:
-        estimate = _free_space_offset(recording, wrenches)
+        estimate = (
+            tare_module.fitted_sensor_offset(recording.t, recording.positions, recording.orientations, wrenches)
+            if recording.t.size >= MIN_DEMONSTRATION_SAMPLES
+            else None
+        )
         if estimate is None:
+            method = TareMethod.impossible
             notes.append(
-                f"no free-space part of at least {tare_module.MIN_FREE_S} s found: no sensor offset removed "
-                "(--tare-window or --force-offset set one)"
+                f"no free-space part of at least {tare_module.MIN_FREE_S} s found: no sensor offset removed, and any "
+                "offset or uncompensated tool weight stays in the forces (the skill's sensor_offset check fails; "
+                "--no-tare if the file is already compensated, --tare-window or --force-offset set one)"
             )
         else:
-            wrenches = tare_module.wrenches_without_offset(recording.orientations, wrenches, estimate.wrench)
+            method = TareMethod.free_space
+            wrenches = estimate.removed_from(recording.orientations, wrenches)
             sign = -1.0 if convention == WrenchConvention.measured_on_tool else 1.0
             offset, offset_frame, uncertainty = sign * estimate.wrench, "tool", estimate.uncertainty_n
-            where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in estimate.stretches[:6])
-            more = f" and {len(estimate.stretches) - 6} more" if len(estimate.stretches) > 6 else ""
-            force = ", ".join(f"{v:+.2f}" for v in offset[:3])
-            notes.append(
-                f"sensor offset removed: [{force}] N (±{estimate.uncertainty_n:.2f} N) in the sensor (tool) frame as "
-                "the file reads it, fitted over "
-                f"{estimate.samples} free-space samples ({where}{more}) with the hand's push on the arm "
-                f"(damping {estimate.arm_damping_n_s_m:.1f} N·s/m, mass {estimate.arm_mass_kg:.1f} kg, "
-                f"friction {estimate.arm_friction_n:.1f} N)"
-            )
+            world_force = estimate.world_force
+            notes.append(_tare_note(estimate, offset))
             tare_report = {
                 "method": "free-space fit",
                 "stretches_s": [list(s) for s in estimate.stretches],
@@ -151,9 +156,16 @@ def demonstration_from_samples(
                 "arm_damping_n_s_m": estimate.arm_damping_n_s_m,
                 "arm_mass_kg": estimate.arm_mass_kg,
                 "arm_friction_n": estimate.arm_friction_n,
+                "orientation_span_deg": estimate.orientation_span_deg,
+                "world_force_n": None if world_force is None else world_force.tolist(),
+                "tool_mass_kg": estimate.tool_mass_kg,
+                "world_force_centre_m": None
+                if estimate.world_force_centre is None
+                else estimate.world_force_centre.tolist(),
             }
     else:
-        notes.append("tare off: no sensor offset removed")
+        notes.append("tare off: no sensor offset removed (the file is taken as compensated)")
+    notes.extend(_direction_hint(recording, wrenches, options, frame, metadata.quaternion_order_on_import))
     if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
         remedy = "record longer" if recording.fixed_rate else "record longer, or pass a higher rate"
         raise error(
@@ -168,6 +180,8 @@ def demonstration_from_samples(
             "force_offset_removed": None if offset is None else offset.tolist(),
             "force_offset_frame": offset_frame,
             "force_offset_uncertainty_n": uncertainty,
+            "world_force_removed": None if world_force is None else world_force.tolist(),
+            "tare": method,
             "unmeasured_intervals_s": [] if recording.unmeasured_s is None else recording.unmeasured_s.tolist(),
             "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
         }
@@ -176,6 +190,33 @@ def demonstration_from_samples(
         return Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches, metadata)
     except ValidationError as exc:
         raise error(validation_problems(exc)) from None
+
+
+def _tare_note(estimate: tare_module.SensorOffset, offset: np.ndarray) -> str:
+    """The import note of a free-space tare: the offset as the file reads it (``offset`` (6,), sensor frame), its
+    uncertainty, where it was fitted, the hand's push and, where told apart, the force constant in the world."""
+    where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in estimate.stretches[:6])
+    more = f" and {len(estimate.stretches) - 6} more" if len(estimate.stretches) > 6 else ""
+    force = ", ".join(f"{v:+.2f}" for v in offset[:3])
+    note = (
+        f"sensor offset removed: [{force}] N (±{estimate.uncertainty_n:.2f} N) in the sensor (tool) frame as the file "
+        f"reads it, fitted over {estimate.samples} free-space samples ({where}{more}) with the hand's push on the arm "
+        f"(damping {estimate.arm_damping_n_s_m:.1f} N·s/m, mass {estimate.arm_mass_kg:.1f} kg, friction "
+        f"{estimate.arm_friction_n:.1f} N)"
+    )
+    if estimate.world_force is None:
+        return (
+            note + f"; the tool was held within {estimate.orientation_span_deg:.0f} deg in free space, too little to "
+            "tell a tool's weight from the offset"
+        )
+    shown = ", ".join(f"{v:+.2f}" for v in estimate.world_force)
+    note += f", and a force constant in the world removed with it: [{shown}] N (applied by the tool)"
+    mass = estimate.tool_mass_kg
+    if mass is not None and mass > 0.05 and estimate.world_force[2] > 0.8 * np.linalg.norm(estimate.world_force):
+        centre = estimate.world_force_centre
+        at = "" if centre is None else f", its centre {1000 * centre[2]:+.0f} mm along the tool z from the tool point"
+        note += f": an uncompensated tool weight of {mass:.2f} kg{at}"
+    return note
 
 
 @dataclass(frozen=True)
@@ -218,18 +259,6 @@ def _given_offset(
     return _GivenOffset(offset, "window", note)
 
 
-def _free_space_offset(recording: RecordingSamples, wrenches: np.ndarray) -> tare_module.SensorOffset | None:
-    """Estimate the sensor offset over the free-space stretches of an (untared) world-frame applied wrench."""
-    t = recording.t
-    if t.size < MIN_DEMONSTRATION_SAMPLES:
-        return None
-    contact = analyse_contact(t, recording.positions, wrenches[:, :3])
-    if not contact.intervals:
-        return None
-    free = tare_module.free_space_mask(contact.rate_hz, contact.in_contact)
-    return tare_module.sensor_offset_in_free_space(t, recording.positions, recording.orientations, wrenches, free)
-
-
 @dataclass(frozen=True)
 class RecordingSamples:
     """A recording on its uniform time grid (what the steps after the time step need): ``t`` (N,) s, ``positions``
@@ -263,9 +292,11 @@ def _direction_hint(
     other ``order`` all look like this, and can still learn a skill that passes every check but the skill's own
     ``press_direction``. The note says which other readings of the file (sign, frame, quaternion order, and the sign
     with either) press down (as far below the horizontal as the limit is above) AND lean towards the tool's motion
-    as friction makes it (`skills.skill_checks.leans_with_friction`, over the stronger half of the samples), with
-    their numbers: the one to import it with, unless the tool worked from below. Several may: a tool held straight
-    down looks alike in both quaternion orders.
+    as friction makes it (`skills.skill_checks.leans_with_friction`, over the stronger half of the samples) AND learn
+    a skill that passes every check (`_failed_checks_read_so`: a reading is advised only when learning with it is
+    tried first and clean), with their numbers: the one to import it with, unless the tool worked from below. Several
+    may: a tool held straight down looks alike in both quaternion orders. Judged on the wrench as tared (an
+    uncompensated tool weight, which reads as a force UP, is gone where the free space showed it).
     """
     forces = wrenches[:, :3]
     elevation = skill_checks.press_elevation_deg(forces)
@@ -280,19 +311,38 @@ def _direction_hint(
         down = skill_checks.press_elevation_deg(alternative)
         lean, samples = skill_checks.median_friction_lean(alternative[pressed], velocities)
         if down < -skill_checks.UPWARD_PRESS_LIMIT_DEG and skill_checks.leans_with_friction(lean):
+            failed = _failed_checks_read_so(recording, alternative)
+            if failed:
+                continue  # it presses down, but the skill learned so would still be warned: no advice to give
             sentences.append(
-                f"read with {flags} it presses {-down:.0f} deg below the horizontal and "
+                f"read with {flags} it presses {-down:.0f} deg below the horizontal, "
                 + skill_checks.lean_sentence(lean, samples).removeprefix("the applied force ")
+                + ", and the skill learned so passes every check"
             )
     found = (
         "; ".join(sentences) + ": import it so unless the tool worked from below"
         if sentences
-        else "no other reading of its sign, frame or quaternion order presses down leaning as friction makes it"
+        else "no other reading of its sign, frame or quaternion order learns a skill that presses down and passes "
+        "every check (an uncompensated tool weight, which reads as a force UP, needs free space in a few "
+        "orientations to be removed)"
     )
     return [
         f"check how the wrench is read: the force the tool applies points {elevation:.0f} deg above the horizontal in "
         f"the world, where pressing on a table, a part or a wall points down or sideways; {found}"
     ]
+
+
+def _failed_checks_read_so(recording: RecordingSamples, forces: np.ndarray) -> list[str]:
+    """The checks a skill learned from ``recording`` with its forces read as ``forces`` (N, 3) N (world, applied by
+    the tool) fails (``["no skill"]`` when none can be learned): a reading is advised only when learning with it
+    passes every check."""
+    wrenches = np.concatenate([forces, np.zeros_like(forces)], axis=1)
+    try:
+        demonstration = Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches)
+        skill = learn_skill(demonstration)
+    except (ValueError, ValidationError):
+        return ["no skill"]
+    return [check.name.value for check in skill.checks if not check.passed]
 
 
 def _other_readings(

@@ -27,20 +27,15 @@ from skills.frames import rotation_from_vectors
 from skills.friction import blended_friction_free, friction_coefficient, friction_free, unit_rows
 from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
 from skills.surface import pressed_surface
-
-FORCE_NORMAL_STD_DEG = 5.0
-"""How far the friction-free force may point from the surface normal, deg: a hand leaning across the motion.
-
-It weighs the force against the path's geometry (`slide_frame`)."""
-
-DEPTH_NOISE_MIN_M = 3.0e-4
-"""Least depth noise (m) a contact path's plane fit is credited with: tremor and a part's unevenness."""
+from skills.surface_geometry import DEPTH_NOISE_MIN_M, FORCE_SIGMA_MIN_DEG, FRICTION_CONE_DEG
 
 PLANE_FORCE_TOLERANCE_DEG = 15.0
-"""Largest angle (deg) between the plane a path spans and the friction-free force for that plane to be the surface.
+"""Largest angle (deg) between the plane a single path spans and the friction-free force for that plane to be the
+surface, where the contact covers no area (a line, a circle, a curve: the plane is one candidate among many).
 
-A hand leans across the motion by up to ~12° (real contour trials), friction is removed; beyond it the
-path is drawn on something else (an edge's curve in its own plane), and the force decides."""
+A hand leans across the motion by up to ~12° (real contour trials), friction is removed; beyond it the path was
+drawn on something else (an edge's curve in its own plane), and the force decides. Where the contact covers an area
+the plane IS the surface, and the force only bounds it, by the friction cone (`skills.surface_geometry`)."""
 
 CONTOUR_FORCE_SMOOTHING_S = 0.1
 """Standard deviation of the zero-phase Gaussian smoothing of the force for contour frames, s.
@@ -64,7 +59,7 @@ class NormalSource(StrEnum):
     force = "force"
     """The path is (nearly) a line: the friction-free force decides the tilt about it."""
     force_over_plane = "force over plane"
-    """The path spans a plane the force does not press on (beyond ``PLANE_FORCE_TOLERANCE_DEG``): the force."""
+    """The path spans a plane the force does not press on (beyond its limit, see `slide_frame`): the force."""
 
 
 @dataclass(frozen=True)
@@ -77,7 +72,9 @@ class PlaneFit:
     ``equal_width_m`` the width at which the path's plane and the force are equally sure of that
     tilt;
     ``plane_force_angle_deg`` the angle between the plane the path spans and the force (None: the
-    path is too narrow to span one); ``source`` what decided CF z; ``force_samples`` how many sliding
+    path is too narrow to span one) and ``plane_force_limit_deg`` how far it may be (the friction cone where the
+    contact covers an area, else a hand's lean); ``force_sigma_deg`` the force direction's uncertainty it was
+    weighed with; ``source`` what decided CF z; ``force_samples`` how many sliding
     samples gave the force normal (0: the mean force stood in for it).
     """
 
@@ -88,6 +85,8 @@ class PlaneFit:
     across_width_m: float
     equal_width_m: float
     plane_force_angle_deg: float | None
+    plane_force_limit_deg: float
+    force_sigma_deg: float
     source: NormalSource
     force_samples: int
 
@@ -125,23 +124,33 @@ def _force_normal(
 
 
 def slide_frame(
-    positions: NDArray[np.float64], forces: NDArray[np.float64], directions: NDArray[np.float64] | None = None
+    positions: NDArray[np.float64],
+    forces: NDArray[np.float64],
+    directions: NDArray[np.float64] | None = None,
+    *,
+    force_sigma_deg: float = FORCE_SIGMA_MIN_DEG,
+    area: bool = False,
+    segment_positions: NDArray[np.float64] | None = None,
 ) -> PlaneFit:
-    """Return the slide CF of one contact segment from ALL its evidence: the path's geometry and the force.
+    """Return the slide CF of one contact segment from ALL the evidence of its surface: geometry and force.
 
-    ``positions`` (N, 3) m, ``forces`` (N, 3) N applied, ``directions`` (N, 3) the friction-free
-    force directions per sample (`skills.contact`, zero where unknown; None: from the mean force).
+    ``positions`` (N, 3) m, ``forces`` (N, 3) N applied, ``directions`` (N, 3) the friction-free force directions
+    per sample (`skills.contact`, zero where unknown; None: from the mean force) of every contact segment on the
+    segment's surface, pooled (`skills.surface_evidence`); ``segment_positions`` (M, 3) m the segment's own path
+    (default ``positions``), which gives CF x and the origin.
 
-    A path lies in the surface it slides on, so the surface's tilt along a direction the path spans
-    widely is known from the geometry; across a straight stroke it is not (a line lies in every
-    plane that contains it), and there the friction-free force decides. So, in the basis (e1 along
-    the path's main direction, e2 across it, both across the force normal), the pressed surface
-    (`skills.surface`: plane plus a pad's sink with the press) gives the geometric tilt per axis,
-    each weighted by ``width² / (width² + w0²)``, with ``w0`` the width at which geometry and force
-    are equally sure (depth noise / ``FORCE_NORMAL_STD_DEG``). Where the plane the path spans is
-    more than ``PLANE_FORCE_TOLERANCE_DEG`` from the force, the path was drawn on something else
-    and the force decides alone. z is signed along the applied force; x is the path's main
-    direction in the plane, pointing the way the tool travelled.
+    A path lies in the surface it slides on, so the surface's tilt along a direction the path spans widely is
+    known from the geometry; across a straight stroke it is not (a line lies in every plane that contains it),
+    and there the friction-free force decides. So, in the basis (e1 along the path's main direction, e2 across
+    it, both across the force normal), the pressed surface (`skills.surface`: plane plus a pad's sink with the
+    press) gives the geometric tilt per axis, each weighted by ``width² / (width² + w0²)``, with ``w0`` the width
+    at which geometry and force are equally sure (depth noise over the tangent of ``force_sigma_deg``, the force
+    direction's uncertainty as measured against the geometry). Where the plane the path spans is farther from
+    the force than it may be, the path was drawn on something else and the force decides alone: for a path that
+    covers an AREA of its surface (``area``) the plane is the surface and the force only bounds it by the friction
+    cone (`skills.surface_geometry.FRICTION_CONE_DEG`); for a single line or curve, by
+    ``PLANE_FORCE_TOLERANCE_DEG``. z is signed along the applied force; x is the segment's main direction in the
+    plane, pointing the way the tool travelled.
     """
     centroid = positions.mean(axis=0)
     centred = positions - centroid
@@ -151,29 +160,37 @@ def slide_frame(
     basis = np.column_stack([e1, np.cross(force_normal, e1)])
     surface = pressed_surface(positions, forces @ force_normal, force_normal, basis=basis)
     widths = (centred @ basis).std(axis=0)
-    equal_width = max(surface.residual_rms_m, DEPTH_NOISE_MIN_M) / np.radians(FORCE_NORMAL_STD_DEG)
+    equal_width = max(surface.residual_rms_m, DEPTH_NOISE_MIN_M) / np.tan(np.radians(force_sigma_deg))
     weights = widths**2 / (widths**2 + equal_width**2)
     plane_normal = unit_rows(force_normal - basis @ surface.slope)
     plane_force_angle = float(np.degrees(np.arccos(np.clip(plane_normal @ force_normal, -1.0, 1.0))))
     spans_plane = bool(widths[1] >= equal_width)
-    if spans_plane and plane_force_angle > PLANE_FORCE_TOLERANCE_DEG:
+    tolerance = FRICTION_CONE_DEG if area else PLANE_FORCE_TOLERANCE_DEG
+    if spans_plane and plane_force_angle > tolerance:
         normal, source = force_normal, NormalSource.force_over_plane
     else:
         normal = unit_rows(force_normal - basis @ (weights * surface.slope))
         source = NormalSource.plane if spans_plane else NormalSource.force
     if np.dot(normal, forces.mean(axis=0)) < 0:
         normal = -normal
-    motion = e1 if np.dot(e1, positions[-1] - positions[0]) >= 0 else -e1
+    own = positions if segment_positions is None else segment_positions
+    own_centroid = own.mean(axis=0)
+    own_centred = own - own_centroid
+    in_plane = own_centred - np.outer(own_centred @ normal, normal)
+    motion = np.linalg.svd(in_plane, full_matrices=False)[2][0] if len(own) > 1 else e1
+    motion = motion if np.dot(motion, own[-1] - own[0]) >= 0 else -motion
     rotation = frame_from_z_and_x(normal, motion)
     residual = centred @ normal
     return PlaneFit(
         rotation=rotation,
-        origin=centroid,
+        origin=own_centroid,
         residual_rms_m=float(np.sqrt(np.mean(residual**2))),
         force_normal=force_normal,
         across_width_m=float(widths[1]),
         equal_width_m=float(equal_width),
         plane_force_angle_deg=plane_force_angle if spans_plane else None,
+        plane_force_limit_deg=tolerance,
+        force_sigma_deg=force_sigma_deg,
         source=source,
         force_samples=force_samples,
     )
@@ -231,7 +248,11 @@ def weighted_smoothing(
 
 
 def contour_normals(
-    forces: NDArray[np.float64], velocities: NDArray[np.float64], rate_hz: float, segment: slice
+    forces: NDArray[np.float64],
+    velocities: NDArray[np.float64],
+    rate_hz: float,
+    segment: slice,
+    estimate: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Return the unit surface normals (M, 3) into the surface along the contour contact ``segment``.
 
@@ -242,14 +263,21 @@ def contour_normals(
     force back by the segment's friction angle, which needs no normal speed, so a tool settling onto
     the surface while it starts to slide turns nothing; the second, knowing the normal, removes all
     of the force along the velocity where the tool slides (friction, and whatever else drags along
-    the motion) and keeps the first's turn where it settles (`blended_friction_free`).
+    the motion) and keeps the first's turn where it settles (`blended_friction_free`). ``estimate`` (M, 3) unit:
+    a better normal than the first pass's (the surface's geometry, `skills.surface_evidence`) to tell sliding
+    from settling by: a force that errs along the motion would otherwise make the motion look like settling.
     """
     rows = np.zeros(len(forces), dtype=bool)
     rows[segment] = True
     sigma = CONTOUR_FORCE_SMOOTHING_S * rate_hz
     mu = friction_coefficient(forces, velocities, rows)
-    turned_back = friction_free(forces, velocities, mu)
-    estimate = weighted_smoothing(turned_back.forces, turned_back.weights * rows, sigma)
+    if estimate is None:
+        turned_back = friction_free(forces, velocities, mu)
+        estimate = weighted_smoothing(turned_back.forces, turned_back.weights * rows, sigma)
+    else:
+        full = np.zeros_like(forces)
+        full[segment] = estimate
+        estimate = full
     blended = blended_friction_free(forces, velocities, mu, normals=estimate)
     return unit_rows(weighted_smoothing(blended.forces, blended.weights * rows, sigma)[segment])
 
@@ -260,18 +288,21 @@ def contour_frames(
     rate_hz: float,
     segment: slice,
     velocities: NDArray[np.float64] | None = None,
+    normals: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Return per-sample world-from-CF rotations (M, 3, 3) of the contour contact ``segment``.
 
     ``positions`` (N, 3) m, ``forces`` (N, 3) N and ``velocities`` (N, 3) m/s (default:
-    `tool_velocities` of the positions) are the whole demonstration. z_k is the surface normal of
-    `contour_normals`. The reference frame has z along the segment's
-    mean normal and x along the dominant motion; each sample's frame is that reference turned by
-    the Möller-Hughes minimal rotation from the mean normal to z_k.
+    `tool_velocities` of the positions) are the whole demonstration. z_k is ``normals`` (M, 3) (unit, into the
+    surface: the segment's fused normals, `skills.surface_evidence`) where given, else the force's
+    `contour_normals`. The reference frame has z along the segment's mean normal and x along the dominant motion;
+    each sample's frame is that reference turned by the Möller-Hughes minimal rotation from the mean normal to z_k.
     """
-    if velocities is None:
-        velocities = tool_velocities(positions, rate_hz)
-    z = contour_normals(forces, velocities, rate_hz, segment)
+    if normals is None:
+        if velocities is None:
+            velocities = tool_velocities(positions, rate_hz)
+        normals = contour_normals(forces, velocities, rate_hz, segment)
+    z = normals
     mean_direction = z.mean(axis=0)
     mean_direction /= np.linalg.norm(mean_direction)
     path = positions[segment]

@@ -38,8 +38,9 @@ FAST_SLIDING_M_S = 0.02
 SETTLING_SINE = float(np.sin(np.radians(20.0)))
 """A velocity this far out of the surface (sine of its elevation) is settling: friction is turned back, not removed."""
 
-FRICTION_CONE_MAX = 0.7
-"""Largest ratio of the force along the motion to the force across it that counts as friction (mu <= 0.7).
+FRICTION_CONE_MAX = 1.0
+"""Largest ratio of the force along the motion to the force across it that counts as friction (mu <= 1: a rubber
+pad on a dry part reaches 0.9, where every fast sample leaned past the 0.7 this once was and nothing was measured).
 
 A larger one is a push that moves the tool (a hand in free space, a tool settling along its press)."""
 

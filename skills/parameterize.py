@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d
+from scipy.ndimage import distance_transform_edt, gaussian_filter1d
 
-from schemas.demonstration import Demonstration, DemonstrationArrays, DemonstrationSummary
+from schemas.demonstration import Demonstration, DemonstrationArrays, DemonstrationSummary, TareMethod
 from schemas.skill import (
     SELECTION_CONTACT,
     SELECTION_FREE,
@@ -35,18 +35,31 @@ from skills import skill_checks
 from skills.compliant_frames import PlaneFit, contour_frames, slide_frame, tool_velocities
 from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
-from skills.force_profile import cf_z_forces, constant_force
-from skills.friction import blended_friction_free, friction_coefficient
+from skills.force_profile import cf_z_forces, constant_force, press_steadiness
+from skills.friction import blended_friction_free, friction_coefficient, unit_rows
 from skills.preprocess import MAX_GAP_S, merged_intervals, resampled_recording, unmeasured_intervals
-from skills.quaternions import quaternion_angle_between, quaternion_from_matrix, quaternions_sign_continuous
+from skills.quaternions import (
+    matrix_from_quaternion,
+    quaternion_angle_between,
+    quaternion_from_matrix,
+    quaternions_sign_continuous,
+)
 from skills.segmentation import SegmentBounds, segment_demonstration
 from skills.selection import SkillClassification, classify_skill
+from skills.surface_evidence import SurfaceEvidence, surface_evidence
 
 UNIFORM_TOLERANCE = 0.01
 """Largest relative deviation of a time step from the median step for a grid to count as uniform."""
 
 MAX_RATE_HZ = 100_000.0
 """Highest sampling rate learned from, Hz (a force sensor at 10 kHz is plausible; 200 MHz is a unit error)."""
+
+UNSTEADY_BASIS_PER_SECOND = 40.0
+"""Force DMP bases per second of a slide segment whose press was not steady: 25 ms apart, a 3 Hz wobble keeps 97 %
+of its amplitude through the fit's smoothing (`_basis_resolution`)."""
+
+PROFILE_FLOOR = 0.3
+"""A slide's force profile presses at least this fraction of its 90th percentile (its feet are the approach's)."""
 
 MAX_SAMPLES = 1_000_000
 """Most samples of the uniform grid learned from (about 17 minutes at 1 kHz)."""
@@ -131,7 +144,7 @@ def _decimated_indices(n: int, most: int) -> NDArray[np.int_]:
 
 @dataclass(frozen=True)
 class _Recording:
-    """The demonstration on its uniform grid (world, SI) and its contact analysis."""
+    """The demonstration on its uniform grid (world, SI), its contact analysis and the normals of its surfaces."""
 
     t: NDArray[np.float64]
     positions: NDArray[np.float64]
@@ -139,16 +152,40 @@ class _Recording:
     forces: NDArray[np.float64]
     velocities: NDArray[np.float64]
     contact: ContactAnalysis
+    surfaces: SurfaceEvidence
 
 
 @dataclass(frozen=True)
 class _Learned:
-    """A segment and what its checks compare: per sample CF z (M, 3) and the force learned along it (M,) N."""
+    """A segment and what its checks compare: per sample CF z (M, 3), the force learned along it (M,) N and the
+    force measured along it (M,) N."""
 
     segment: Segment
     cf_z: NDArray[np.float64] | None = None
     learned_force_n: NDArray[np.float64] | None = None
     plane: PlaneFit | None = None
+    measured_force_n: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class _ForceProfile:
+    """A contact segment's CF-z force as a DMP, its rollout at every sample (M,) N and its RMS against the data (N)."""
+
+    dmp: DMP
+    learned_n: NDArray[np.float64]
+    rms_n: float
+
+
+def _force_profile(
+    t_seg: NDArray[np.float64], f_z: NDArray[np.float64], fit: slice, stride: int, n_basis: int, rate_hz: float
+) -> _ForceProfile:
+    """Fit the CF-z force ``f_z`` (M,) N of a segment (times ``t_seg`` (M,) s from its start) as a 1-D force DMP on
+    the strided grid ``fit`` (every ``stride`` samples) with ``n_basis`` bases."""
+    dmp = DMP.fit(t_seg[fit], _basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")
+    rollout = dmp.rollout(stride / rate_hz).y[:, 0]
+    n = min(len(rollout), len(f_z[fit]))
+    learned = np.interp(t_seg, np.arange(len(rollout)) * stride / rate_hz, rollout)
+    return _ForceProfile(dmp, learned, _rms(rollout[:n] - f_z[fit][:n]))
 
 
 def _segment(
@@ -185,11 +222,20 @@ def _segment(
 
     rate_hz = r.contact.rate_hz
     if skill_type is SkillType.slide:
-        plane = slide_frame(p_seg, f_seg, r.contact.directions[rows])
+        plane = _pooled_plane(bounds, r)
         in_plane = ((p_seg - plane.origin) @ plane.rotation)[:, :2]
         position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], in_plane[fit], q_seg[fit], n_basis, "cf")
         f_z = cf_z_forces(f_seg, plane.rotation[:, 2])
+        steadiness = press_steadiness(f_z, rate_hz)
         force = constant_force(f_z, rate_hz)
+        profile = None
+        if not steadiness.steady:
+            # A press that wobbles (3 Hz) needs bases closer than the motion's: their smoothing would halve it.
+            force_basis = min(options.max_basis, max(n_basis, round(UNSTEADY_BASIS_PER_SECOND * float(t_seg[-1]))))
+            # Its touch-down and lift-off feet are the approach's and the retreat's to make (as for a constant): a
+            # profile asking ~0 N at its ends lets the tool leave the surface it is meant to press.
+            pressed = np.maximum(f_z, PROFILE_FLOOR * np.percentile(f_z, 90))
+            profile = _force_profile(t_seg, pressed, fit, stride, force_basis, rate_hz)
         slide = Segment(
             kind=SegmentKind.contact,
             selection=list(SELECTION_CONTACT),
@@ -200,26 +246,28 @@ def _segment(
             ),
             position_dmp=position_dmp.to_parameters(),
             orientation_dmp=orientation_dmp.to_parameters(),
-            force_constant_n=force.value_n,
+            force_constant_n=force.value_n if profile is None else None,
+            force_dmp=None if profile is None else profile.dmp.to_parameters(),
             quality=SegmentQuality(
                 position_rms_m=p_rms,
                 orientation_rms_rad=q_rms,
-                force_rms_n=_rms(f_z[force.region] - force.value_n),
+                force_rms_n=_rms(f_z[force.region] - force.value_n) if profile is None else profile.rms_n,
                 plane_residual_rms_m=plane.residual_rms_m,
                 force_std_low_variance_n=force.std_n,
                 force_measured_percentiles_n=np.percentile(f_z, [10, 50, 90]).tolist(),
+                press_spread=steadiness.spread,
+                press_trend=steadiness.trend,
             ),
             **common,
         )
         cf_z = np.broadcast_to(plane.rotation[:, 2], p_seg.shape)
-        return _Learned(slide, cf_z, np.full(len(p_seg), force.value_n), plane)
+        learned = np.full(len(p_seg), force.value_n) if profile is None else profile.learned_n
+        return _Learned(slide, cf_z, learned, plane, f_z)
 
-    rotations = contour_frames(r.positions, r.forces, rate_hz, rows, r.velocities)
+    rotations = contour_frames(r.positions, r.forces, rate_hz, rows, normals=_contour_normals(rows, r))
     f_z = cf_z_forces(f_seg, rotations[:, :, 2])
     position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
-    force_dmp = DMP.fit(t_seg[fit], _basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")
-    f_rollout = force_dmp.rollout(stride / rate_hz).y[:, 0]
-    n = min(len(f_rollout), len(f_z[fit]))
+    profile = _force_profile(t_seg, f_z, fit, stride, n_basis, rate_hz)
     keep = _decimated_indices(len(t_seg), options.contour_frames_max)
     contour = Segment(
         kind=SegmentKind.contact,
@@ -231,14 +279,47 @@ def _segment(
         ),
         position_dmp=position_dmp.to_parameters(),
         orientation_dmp=orientation_dmp.to_parameters(),
-        force_dmp=force_dmp.to_parameters(),
-        quality=SegmentQuality(
-            position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=_rms(f_rollout[:n] - f_z[fit][:n])
-        ),
+        force_dmp=profile.dmp.to_parameters(),
+        quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=profile.rms_n),
         **common,
     )
-    learned_force = np.interp(t_seg, np.arange(len(f_rollout)) * stride / rate_hz, f_rollout)
-    return _Learned(contour, rotations[:, :, 2], learned_force)
+    return _Learned(contour, rotations[:, :, 2], profile.learned_n, None, f_z)
+
+
+def _pooled_plane(bounds: SegmentBounds, r: _Recording) -> PlaneFit:
+    """The slide CF of a contact segment from its surface (`skills.surface_evidence`): its own positions where they
+    span a plane (an uneven part's local plane), else those of every contact segment on the same surface, pooled
+    (strokes side by side, each a line); weighed against the force with the force direction's uncertainty measured
+    on that surface, and bounded by the friction cone where the contact covers an area of it."""
+    rows = slice(bounds.start, bounds.end)
+    surface = r.surfaces.group(bounds.start, bounds.end)
+    if surface is None:
+        return slide_frame(r.positions[rows], r.forces[rows], r.contact.directions[rows])
+    evidence = {"force_sigma_deg": surface.force_sigma_deg, "area": surface.is_area}
+    own = slide_frame(r.positions[rows], r.forces[rows], r.contact.directions[rows], **evidence)
+    if own.across_width_m >= own.equal_width_m or len(surface.segments) == 1:
+        return own
+    pooled = surface.rows
+    return slide_frame(
+        r.positions[pooled],
+        r.forces[pooled],
+        r.contact.directions[pooled],
+        segment_positions=r.positions[rows],
+        **evidence,
+    )
+
+
+def _contour_normals(rows: slice, r: _Recording) -> NDArray[np.float64] | None:
+    """The fused normals (M, 3) of a contour segment's samples (`skills.surface_evidence`), the force's where a
+    sample lies on no surface of the slide segmentation (none at all: None, the force's alone)."""
+    normals = r.surfaces.normals[rows]
+    known = np.linalg.norm(normals, axis=1) > 0.5
+    if not known.any():
+        return None
+    if known.all():
+        return normals
+    nearest = distance_transform_edt(~known, return_distances=False, return_indices=True)[0]
+    return normals[nearest]
 
 
 def _checks(
@@ -247,6 +328,7 @@ def _checks(
     classification: SkillClassification | None,
     skill_type: SkillType,
     auto: bool,
+    tare: TareMethod,
     offset_uncertainty_n: float | None,
     unmeasured: NDArray[np.float64],
 ) -> list[SkillCheck]:
@@ -266,22 +348,28 @@ def _checks(
         f, v = r.forces[rows], r.velocities[rows]
         free_of_friction = blended_friction_free(f, v, friction_coefficient(f, v), normals=item.cf_z)
         checks.append(skill_checks.force_along_cf(segment.index, free_of_friction, item.learned_force_n))
+        checks.append(skill_checks.press_profile(segment.index, item.measured_force_n, item.learned_force_n))
+        limit = skill_checks.PLANE_FORCE_TOLERANCE_DEG if item.plane is None else item.plane.plane_force_limit_deg
         checks.append(
-            skill_checks.cf_z_vs_force(segment.index, free_of_friction, item.cf_z, skill_type, r.contact.rate_hz)
+            skill_checks.cf_z_vs_force(segment.index, free_of_friction, item.cf_z, skill_type, r.contact.rate_hz, limit)
         )
         if item.plane is not None:
-            checks.extend(skill_checks.plane_checks(segment.index, item.plane))
+            tool_axis = unit_rows(matrix_from_quaternion(r.quaternions[rows])[:, :, 2].mean(axis=0))
+            checks.extend(skill_checks.plane_checks(segment.index, item.plane, tool_axis))
         presses[segment.index] = float(np.percentile(np.linalg.norm(f, axis=1), 90))
     checks.extend(skill_checks.stroke_strength(presses))
     weakest = min(presses.values())
     checks.append(skill_checks.force_outside_contact(r.forces, r.velocities, free, weakest, r.contact.rate_hz))
     contact_forces = np.concatenate([r.forces[rows] for rows in in_contact])
     contact_velocities = np.concatenate([r.velocities[rows] for rows in in_contact])
-    checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities))
+    contacts = [item.segment for item in learned if item.segment.kind is SegmentKind.contact]
+    areas = [r.surfaces.group(segment.start_index, segment.end_index) for segment in contacts]
+    geometry_decides = all(surface is not None and surface.is_area for surface in areas)
+    checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities, geometry_decides))
     checks.append(skill_checks.press_direction(contact_forces))
     checks.append(skill_checks.unmeasured_contact(contact_spans, unmeasured))
-    if offset_uncertainty_n is not None:
-        checks.append(skill_checks.sensor_offset(offset_uncertainty_n, weakest))
+    if tare is not TareMethod.none:
+        checks.append(skill_checks.sensor_offset(tare, offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))
     return checks
 
@@ -312,18 +400,22 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
             "wrenches",
             "the tool never touches anything (no force pressing on a surface), so there is no contact skill",
         )
-    r = _Recording(t, positions, quaternions, forces, tool_velocities(positions, contact.rate_hz), contact)
     slide_segments = segment_demonstration(positions, forces, contact, True, options.min_segment_duration_s)
     if not any(s.contact for s in slide_segments):
         raise LearningError(
             "wrenches",
             f"contact lasts less than the shortest segment ({options.min_segment_duration_s} s)",
         )
+    velocities = tool_velocities(positions, contact.rate_hz)
+    surfaces = surface_evidence(positions, forces, velocities, contact, slide_segments)
+    r = _Recording(t, positions, quaternions, forces, velocities, contact, surfaces)
 
     auto = options.skill_type is SkillTypeRequest.auto
     try:
+        sliding = np.linalg.norm(contact.directions, axis=1, keepdims=True) > 0.5
+        shares = [surfaces.group(s.start, s.end).area_share for s in slide_segments if s.contact]
         classification = classify_skill(
-            positions, forces, contact.directions, quaternions, slide_segments, contact.rate_hz
+            positions, forces, surfaces.normals * sliding, quaternions, slide_segments, contact.rate_hz, shares
         )
     except ValueError as exc:
         if auto:
@@ -358,7 +450,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
             [np.reshape(demonstration.metadata.unmeasured_intervals_s, (-1, 2)), unmeasured_intervals(recorded.t)]
         )
     )
-    checks = _checks(learned, r, classification, skill_type, auto, uncertainty, unmeasured)
+    checks = _checks(learned, r, classification, skill_type, auto, demonstration.metadata.tare, uncertainty, unmeasured)
     failed = [check for check in checks if not check.passed]
     if options.strict and failed:
         raise SkillCheckError(failed)

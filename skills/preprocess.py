@@ -483,3 +483,43 @@ def _resampling_notes(r: ResampledRecording) -> list[str]:
             f"{more}): the samples there are interpolated, not measured"
         )
     return notes
+
+
+# --------------------------------------------------------------------------- sensor artefacts
+SPIKE_NOISE_FACTOR = 8.0
+"""A wrench sample further than this many noise standard deviations (and than ``SPIKE_MIN``) from the median of its
+neighbours, while those neighbours agree with it, is a spike: one sample of an electrical glitch, not a force."""
+SPIKE_MIN = 3.0
+"""Least size of a spike, N (or N·m on the moment channels): a real press changes over several samples."""
+SPIKE_RANGE_SHARE = 2.0
+"""...and at least this multiple of the channel's own range (the 98th percentile of its distance from its median):
+at 100 Hz a tool's touch-down or a hand turning a weighed tool lasts one sample too, and is a few newtons; a glitch
+is far larger than what was pressed."""
+SPIKE_HALF_WINDOW = 2
+"""A spike is judged against the median of this many samples on either side of it."""
+
+
+def despiked(values: ArrayLike) -> tuple[NDArray[np.float64], int]:
+    """Return the samples (N, C) with single-sample spikes replaced by the median of their neighbours, and how many
+    samples were replaced. Per channel: a sample further from the median of its ``SPIKE_HALF_WINDOW`` neighbours on
+    either side than ``SPIKE_NOISE_FACTOR`` noise standard deviations (the channel's sample-to-sample median absolute
+    deviation), than ``SPIKE_MIN`` and than ``SPIKE_RANGE_SHARE`` of the channel's range, whose two direct neighbours
+    both lie within that of the median: a press rising fast moves its neighbours too, a glitch does not."""
+    values = np.array(values, dtype=float, copy=True)
+    n = values.shape[0]
+    k = SPIKE_HALF_WINDOW
+    if n < 2 * k + 1:
+        return values, 0
+    windows = np.lib.stride_tricks.sliding_window_view(np.pad(values, ((k, k), (0, 0)), mode="edge"), 2 * k + 1, 0)
+    neighbours = np.delete(windows, k, axis=-1)  # (N, C, 2k): the sample itself left out
+    median = np.median(neighbours, axis=-1)
+    noise = 1.4826 * np.median(np.abs(np.diff(values, axis=0)), axis=0) / np.sqrt(2.0)
+    spread = np.percentile(np.abs(values - np.median(values, axis=0)), 98, axis=0)
+    limit = np.maximum(np.maximum(SPIKE_NOISE_FACTOR * noise, SPIKE_MIN), SPIKE_RANGE_SHARE * spread)
+    off = np.abs(values - median) > limit
+    calm = np.ones_like(off)
+    calm[1:] &= np.abs(values[:-1] - median[1:]) <= limit
+    calm[:-1] &= np.abs(values[1:] - median[:-1]) <= limit
+    spikes = off & calm
+    values[spikes] = median[spikes]
+    return values, int(spikes.any(axis=1).sum())

@@ -2,30 +2,36 @@
 
 A slide presses on planes: one normal per plane. A contour follows a curved surface: its normal
 turns along the path. The evidence, measured per plane candidate (each slide segment: a stroke,
-or the part of one between creases), all free of friction (which turns the applied force with the
-wiping direction on any surface):
+or the part of one between creases), from the normals of `skills.surface_evidence` — the contact
+geometry where the contact covers an area of its surface (passes side by side), the friction-free
+force where it does not (a line, a single curve), so that a force direction that wobbles over a
+plane (a hand, a wrench estimated from joint torques) is not taken for curvature:
 
-- **turning** (both ways) — the angular range of the friction-free normal along the segment: the
-  largest angle between the mean normals of its consecutive parts of ``TURNING_WINDOW_S`` (a curve
+- **turning** (both ways) — the angular range of the normal along the segment: the largest angle
+  between the mean normals of its consecutive parts of ``TURNING_WINDOW_S`` (3 to 6 parts; a curve
   may turn out and back). Hand-wiped planes: up to ~9° (a hand leans, tremor); curved parts: 22-95°;
   the real KU Leuven contours 27-35°.
 - **tool following** (towards contour only) — the share of that turning the tool's own rotation
   takes up: the normal's turning seen in the TOOL frame against the world frame. A person who
   follows a curved surface turns the tool with it (the KU Leuven trials: 40-80 %); on a plane the
   tool wobbles on its own (0 %). A tool that does not turn proves nothing (a ball tip need not).
-- **planarity** (mostly towards contour) — how far the contact positions leave the best pressed
-  plane (`skills.surface`, tilt from the mean normal at most ``MAX_PLANE_TILT_DEG``): a path that
-  leaves every plane is on a curve, and counts fully. A path IN one plane proves little: an edge is
-  traced as a planar curve while the normal turns along it (the real contour trials lie within
-  ~6 mm of one). It counts towards slide at a quarter of the steepness and at most
-  ``PLANARITY_SLIDE_CAP`` (odds 4.5:1), so it can tip a turning near even odds (a simulator's
-  misdirected friction turns a plane's normal by up to ~16°) but never outweighs a clear one.
+- **planarity** — how far the contact positions leave a pressed plane (`skills.surface`). Towards
+  contour: a path that leaves every plane the force could press on (tilted from the mean normal by up
+  to the friction cone, μ 0.9) is on a curve, and counts fully. Towards slide: a path in the plane the
+  force presses on (tilted by at most a hand's lean, ``PRESSED_PLANE_TILT_DEG``; where the contact covers
+  an AREA of its surface, any plane in the friction cone: the geometry then shows the surface itself)
+  proves little — an edge is traced as a planar curve while its normal turns — so it counts at a quarter
+  of the steepness and at most ``PLANARITY_SLIDE_CAP``: it can tip a turning near even odds (a
+  simulator's misdirected friction turns a plane's normal by up to ~16°), never outweigh a clear one.
+  Neither bound fits a plane to the force and then judges the force by it: a flat path pressed with a
+  13° lean leaves the hand's-lean plane, not the friction cone's, so it counts as no curve.
 
 Each gives log-odds for contour; a segment's log-odds are their sum, and the skill's the mean
-over segments weighted by duration. Confidence = max(p, 1 − p). Below ``MIXED_CONFIDENCE`` the
-evidence is MIXED: then contour is chosen, because its frames follow the measured force at every
-sample, which is right on a plane as on a curve, while one slide plane is wrong on a curve; the
-reason says so. Segments too short or too still to measure carry no evidence.
+over segments weighted by duration. Confidence = max(p, 1 − p); the more likely type is chosen.
+Below ``MIXED_CONFIDENCE`` the evidence is MIXED: the reason says so and the skill's
+``type_evidence`` check warns (contour frames are not right on a plane by default: on real wipes
+recorded with an estimated wrench they were 12-22° off). Segments too short or too still to measure
+carry no evidence.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from numpy.typing import NDArray
 from skills.quaternions import matrix_from_quaternion
 from skills.segmentation import SegmentBounds
 from skills.surface import pressed_surface
+from skills.surface_geometry import AREA_SHARE, FRICTION_CONE_DEG
 
 TURNING_AT_EVEN_ODDS_DEG = 18.0
 """Turning of the normal within a segment (deg) at which slide and contour are equally likely.
@@ -63,28 +70,36 @@ FOLLOWING_LOG_ODDS = 2.0
 TURNING_WINDOW_S = 0.75
 """Duration of the consecutive parts whose mean normals are compared for the turning, s (2 to 6 parts)."""
 
-MAX_PLANE_TILT_DEG = 8.0
-"""Largest tilt (deg) of a fitted plane from the mean friction-free normal: that normal's uncertainty."""
+PRESSED_PLANE_TILT_DEG = 8.0
+"""Largest tilt (deg) from the mean normal of the plane a path counts as pressed in, towards slide: a hand's lean."""
+
+MIN_TURNING_PARTS = 3
+"""Fewest consecutive parts the turning compares: a quick wipe of 1.2 s still shows most of its turn."""
 
 MIN_MEASURED_SAMPLES = 10
 """A segment needs at least this many samples moving in contact to be measured."""
 
 MIXED_CONFIDENCE = 0.75
-"""Below this confidence the evidence is reported as mixed and contour is chosen (see the module docstring)."""
+"""Below this confidence the evidence is reported as mixed (see the module docstring)."""
 
 
 @dataclass(frozen=True)
 class SegmentGeometry:
     """What one slide segment's contact looks like.
 
-    ``plane_rms_m`` planarity residual (m); ``turning_deg`` the friction-free normal's turning in
-    the world (deg); ``tool_turning_deg`` the same in the tool frame (deg); ``duration_s`` (s).
+    ``plane_rms_m`` the residual (m) about the plane the force presses on (module docstring, towards slide);
+    ``curved_rms_m`` about the best plane in the friction cone (towards contour); ``turning_deg`` the normal's
+    turning in the world (deg); ``tool_turning_deg`` the same in the tool frame (deg); ``duration_s`` (s);
+    ``area_share`` (0-1) how much of the segment's surface the contact covers as an area
+    (`skills.surface_evidence.SurfaceGroup.area_share`).
     """
 
     plane_rms_m: float
+    curved_rms_m: float
     turning_deg: float
     tool_turning_deg: float
     duration_s: float
+    area_share: float = 0.0
 
     @property
     def following(self) -> float:
@@ -95,11 +110,12 @@ class SegmentGeometry:
 
     def log_odds_contour(self) -> NDArray[np.float64]:
         """Return the log-odds for contour from (turning, tool following, planarity)."""
+        curved_ratio = np.log(max(self.curved_rms_m, 1e-6) / PLANE_RMS_AT_EVEN_ODDS_M)
         plane_ratio = np.log(max(self.plane_rms_m, 1e-6) / PLANE_RMS_AT_EVEN_ODDS_M)
         planarity = (
-            STEEPNESS * plane_ratio
-            if plane_ratio > 0
-            else max(PLANARITY_SLIDE_STEEPNESS * plane_ratio, -PLANARITY_SLIDE_CAP)
+            STEEPNESS * curved_ratio
+            if curved_ratio > 0
+            else max(PLANARITY_SLIDE_STEEPNESS * min(plane_ratio, 0.0), -PLANARITY_SLIDE_CAP)
         )
         return np.array(
             [
@@ -134,9 +150,9 @@ class SkillClassification:
 def _turning_deg(directions: NDArray[np.float64], rate_hz: float) -> float:
     """Return the largest angle (deg) between the mean unit ``directions`` (M, 3) of consecutive parts.
 
-    The parts last ``TURNING_WINDOW_S`` (of the samples given; 2 to 6 parts).
+    The parts last ``TURNING_WINDOW_S`` (of the samples given; ``MIN_TURNING_PARTS`` to 6 parts).
     """
-    parts = int(np.clip(round(len(directions) / rate_hz / TURNING_WINDOW_S), 2, 6))
+    parts = int(np.clip(round(len(directions) / rate_hz / TURNING_WINDOW_S), MIN_TURNING_PARTS, 6))
     means = np.array([part.mean(axis=0) for part in np.array_split(directions, min(parts, len(directions)))])
     means /= np.linalg.norm(means, axis=1, keepdims=True)
     return float(np.degrees(np.arccos(np.clip(np.min(means @ means.T), -1.0, 1.0))))
@@ -145,47 +161,61 @@ def _turning_deg(directions: NDArray[np.float64], rate_hz: float) -> float:
 def segment_geometry(
     positions: NDArray[np.float64],
     forces: NDArray[np.float64],
-    directions: NDArray[np.float64],
+    normals: NDArray[np.float64],
     quaternions: NDArray[np.float64],
     segment: SegmentBounds,
     rate_hz: float,
+    area_share: float = 0.0,
 ) -> SegmentGeometry | None:
     """Return planarity, turning and the tool's turning of one contact segment, or None when too few samples move.
 
-    ``positions`` (N, 3) m; ``forces`` (N, 3) N applied; ``directions`` (N, 3) friction-free
-    normals (zero where unknown); ``quaternions`` (N, 4) world-from-tool, scalar-last.
+    ``positions`` (N, 3) m; ``forces`` (N, 3) N applied; ``normals`` (N, 3) unit normals into the surface where
+    the tool slides (`skills.surface_evidence`; zero where unknown); ``quaternions`` (N, 4) world-from-tool,
+    scalar-last; ``area_share`` of the segment's surface (`SegmentGeometry`).
     """
     rows = slice(segment.start, segment.end)
-    p, d = positions[rows], directions[rows]
+    p, d = positions[rows], normals[rows]
     valid = np.flatnonzero(np.linalg.norm(d, axis=1) > 0.5)
     if valid.size < MIN_MEASURED_SAMPLES:
         return None
     normal = d[valid].mean(axis=0)
     normal /= np.linalg.norm(normal)
-    surface = pressed_surface(p[valid], forces[rows][valid] @ normal, normal, max_tilt_deg=MAX_PLANE_TILT_DEG)
+    press = forces[rows][valid] @ normal
+    curved = pressed_surface(p[valid], press, normal, max_tilt_deg=FRICTION_CONE_DEG).residual_rms_m
+    if area_share >= AREA_SHARE:
+        planar = curved  # the geometry shows the surface itself: any plane the force could press on
+    else:
+        planar = pressed_surface(p[valid], press, normal, max_tilt_deg=PRESSED_PLANE_TILT_DEG).residual_rms_m
     in_tool = np.einsum("nji,nj->ni", matrix_from_quaternion(quaternions[rows][valid]), d[valid])
     return SegmentGeometry(
-        plane_rms_m=surface.residual_rms_m,
+        plane_rms_m=planar,
+        curved_rms_m=curved,
         turning_deg=_turning_deg(d[valid], rate_hz),
         tool_turning_deg=_turning_deg(in_tool, rate_hz),
         duration_s=(segment.end - segment.start) / rate_hz,
+        area_share=area_share,
     )
 
 
 def classify_skill(
     positions: NDArray[np.float64],
     forces: NDArray[np.float64],
-    directions: NDArray[np.float64],
+    normals: NDArray[np.float64],
     quaternions: NDArray[np.float64],
     slide_segments: list[SegmentBounds],
     rate_hz: float,
+    area_shares: list[float] | None = None,
 ) -> SkillClassification:
-    """Classify from the contact geometry of the slide segmentation's contact segments (arrays as `segment_geometry`).
+    """Classify from the contact geometry of the slide segmentation's contact segments (arrays as `segment_geometry`;
+    ``area_shares`` one per contact segment, default 0).
 
     Raises ValueError when no contact segment has enough moving samples to be measured.
     """
+    contacts = [s for s in slide_segments if s.contact]
+    shares = area_shares or [0.0] * len(contacts)
     candidates = [
-        segment_geometry(positions, forces, directions, quaternions, s, rate_hz) for s in slide_segments if s.contact
+        segment_geometry(positions, forces, normals, quaternions, s, rate_hz, share)
+        for s, share in zip(contacts, shares, strict=True)
     ]
     measured = [g for g in candidates if g is not None]
     if not measured:
@@ -195,21 +225,18 @@ def classify_skill(
     p_contour = float(1.0 / (1.0 + np.exp(-log_odds.sum())))
     confidence = max(p_contour, 1.0 - p_contour)
     mixed = confidence < MIXED_CONFIDENCE
-    is_slide = p_contour < 0.5 and not mixed
+    is_slide = p_contour < 0.5
     turning = max(g.turning_deg for g in measured)
     following = max(g.following for g in measured)
     rms_mm = max(g.plane_rms_m for g in measured) * 1000.0
     facts = (
-        f"the friction-free normal turns up to {turning:.1f} deg within a stroke (even odds at "
+        f"the normal turns up to {turning:.1f} deg within a stroke (even odds at "
         f"{TURNING_AT_EVEN_ODDS_DEG:.0f} deg), the tool turns with {100 * following:.0f} % of it, and the contact "
         f"leaves its best pressed plane by up to {rms_mm:.1f} mm RMS, over {len(measured)} plane candidate(s)"
     )
     if mixed:
-        leaning = "contour" if p_contour >= 0.5 else "slide"
-        reason = (
-            f"mixed evidence (leaning {leaning}): {facts}; contour chosen because its frames follow the measured force "
-            "at every sample, right on a plane as on a curve, while one slide plane is wrong on a curve"
-        )
+        chosen = "slide" if is_slide else "contour"
+        reason = f"mixed evidence, {chosen} the more likely: {facts}"
     else:
         reason = f"{'planar' if is_slide else 'curved'}: {facts}"
     return SkillClassification(

@@ -7,12 +7,19 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   against the force the tool really pressed with (the friction-free force's magnitude), over the
   segment's plateau (`skills.force_profile.plateau_mask`): their ratio within
   ``FORCE_RATIO_LIMITS``. A CF z 90° off learns ~0 N where 10 N were pressed: this check catches it.
+- ``press_profile`` (per contact segment) — the force the skill will press with over time against the press the
+  demonstration measured along the same CF z, sample by sample over the body of the segment (its ramps left out,
+  `skills.force_profile.press_body`): their RMS difference over the mean press at most ``PRESS_PROFILE_LIMIT``. A
+  constant learned for a press that ramped or wobbled fails it.
 - ``cf_z_vs_force`` (per contact segment) — the angle between CF z and the friction-free force
   direction: a slide's against the segment's mean (a hand leans: ``PLANE_FORCE_TOLERANCE_DEG``), a
   contour's per sample over ``CHECK_SMOOTHING_S``, its 95th percentile (``CONTOUR_FORCE_ANGLE_LIMIT_DEG``).
-- ``plane_conditioning`` (slide contact segments) — the path's width across its main direction:
-  a plane that wide decides CF z; a narrower path (a straight stroke) leaves it to the force, which
-  needs sliding samples. It fails only when neither holds.
+- ``plane_conditioning`` (slide contact segments) — the path's width across its main direction (its surface's,
+  where strokes side by side are pooled): a plane that wide decides CF z's tilt. A narrower path (a straight
+  stroke) leaves the tilt about it to the force, and only one independent thing sees that tilt: the tool's axis
+  (the pose), which a hand holds about square to what it presses on. Where the two disagree about the line by more
+  than ``TOOL_AXIS_AGREEMENT_DEG`` (a side force fixed in the tool, a disc grinder's cut, tilts the force 14-19°),
+  it fails, saying how exposed the tilt is; where the tool never slid, nothing confirms the mean force.
 - ``plane_vs_force`` (slide contact segments) — the angle between the plane the path spans and the
   friction-free force: beyond ``PLANE_FORCE_TOLERANCE_DEG`` the path was drawn on something else.
 - ``stroke_strength`` (per contact segment) — its press against the strongest segment's: below
@@ -37,9 +44,11 @@ warning on every interface, and strict learning refuses the skill. The checks (d
   nor the wrench was measured for longer than `skills.preprocess.GAP_FACTOR` times its usual interval (a tracker
   that lost the tool, a stalled logger; the import's ``unmeasured_intervals_s`` and the demonstration's own): any is
   a failure, for the skill follows an interpolation there, not the demonstration.
-- ``sensor_offset`` (skill, where the import fitted the offset) — its uncertainty (the hand's slow
-  wander it cannot tell apart, `skills.tare`) against the weakest contact's press: beyond
-  ``OFFSET_SHARE_LIMIT`` forces, and a straight stroke's tilt, are uncertain by more than the tolerance.
+- ``sensor_offset`` (skill, recordings imported from a file) — the offset's uncertainty (the hand's slow wander
+  the fit cannot tell apart, `skills.tare`) against the weakest contact's press: beyond ``OFFSET_SHARE_LIMIT``
+  forces, and a straight stroke's tilt, are uncertain by more than the tolerance. A recording with no free space
+  to fit it over fails (an offset or a tool's weight of unknown size stays in), never skipped; one the user gave
+  the offset for (or declared compensated) passes as given.
 - ``type_evidence`` (skill) — the probability of the chosen type from `skills.selection`'s
   evidence: at least ``MIXED_CONFIDENCE`` for `auto`; a forced type fails only where the evidence
   is clearly against it.
@@ -54,16 +63,21 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
+from schemas.demonstration import TareMethod
 from schemas.skill import CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
-from skills.force_profile import plateau_mask
+from skills.force_profile import plateau_mask, press_body
 from skills.friction import FrictionFree, friction_leans, sliding_fast, unit_rows
 from skills.segmentation import BRUSH_FRACTION
 from skills.selection import MIXED_CONFIDENCE, SkillClassification
 
 FORCE_RATIO_LIMITS = (0.9, 1.1)
 """The learned force along CF z may be this fraction of the pressed force (0.9 = cos 26°; the plateau's swings)."""
+
+PRESS_PROFILE_LIMIT = 0.25
+"""Largest RMS difference between the learned and the measured press over the body of a segment, over the mean press
+(a hand's slow ±20 % swing about a constant leaves 0.14; a constant for a 2 -> 20 N ramp 0.4)."""
 
 CONTOUR_FORCE_ANGLE_LIMIT_DEG = 5.0
 """Largest 95th percentile of a contour CF z's angle to the friction-free force, deg (its noise and tremor)."""
@@ -88,6 +102,11 @@ OFFSET_SHARE_LIMIT = 0.05
 
 FRICTION_SIGN_LIMIT = 0.01
 """The contact's median lean to the motion may be at most this far AGAINST it (tan of the angle; 0.01 is 0.6°)."""
+
+TOOL_AXIS_AGREEMENT_DEG = 10.0
+"""Where a straight stroke leaves CF z's tilt about it to the force, the tool's axis (from the pose, not the wrench)
+must lie within this (deg) of it about the line: a hand holds a tool about square to what it presses on, a hand's
+lean tilts the force by up to ~5°, a powered tool's side force fixed in the tool by 14-19°."""
 
 UPWARD_PRESS_LIMIT_DEG = 30.0
 """The force the tool applies in contact may point at most this far above the horizontal, deg (world z up)."""
@@ -135,18 +154,52 @@ def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.f
     )
 
 
+def press_profile(index: int, measured_n: NDArray[np.float64], learned_n: NDArray[np.float64]) -> SkillCheck:
+    """Check the learned force (M,) N against the measured press along CF z (M,) N of one contact segment, over its
+    body (`skills.force_profile.press_body`)."""
+    body = press_body(measured_n)
+    measured, learned = measured_n[body], learned_n[body]
+    mean = max(float(np.mean(measured)), 1e-9)
+    share = float(np.sqrt(np.mean((learned - measured) ** 2))) / mean
+    passed = share <= PRESS_PROFILE_LIMIT
+    message = (
+        f"segment {index}: the learned force follows the measured press within {100 * share:.0f} % RMS of its mean "
+        f"({mean:.1f} N)"
+    )
+    if not passed:
+        message += (
+            f", more than {100 * PRESS_PROFILE_LIMIT:.0f} %: the press was not what the skill will press (a ramp or a "
+            "wobble learned as one value?)"
+        )
+    return SkillCheck(
+        name=CheckName.press_profile,
+        segment=index,
+        passed=passed,
+        value=share,
+        limit=PRESS_PROFILE_LIMIT,
+        unit="ratio",
+        message=message,
+    )
+
+
 def cf_z_vs_force(
-    index: int, free: FrictionFree, cf_z: NDArray[np.float64], skill_type: SkillType, rate_hz: float
+    index: int,
+    free: FrictionFree,
+    cf_z: NDArray[np.float64],
+    skill_type: SkillType,
+    rate_hz: float,
+    slide_limit_deg: float = PLANE_FORCE_TOLERANCE_DEG,
 ) -> SkillCheck:
     """Check CF z (M, 3) against the friction-free force (`skills.friction`) of one contact segment sampled at
-    ``rate_hz`` (see the module docstring)."""
+    ``rate_hz`` (see the module docstring); a slide's CF z may be ``slide_limit_deg`` from the mean force (its
+    plane's limit: the friction cone where its contact covers an area, `skills.compliant_frames.slide_frame`)."""
     press = np.linalg.norm(free.forces, axis=1)
     trusted = (free.weights >= TRUSTED_WEIGHT) & plateau_mask(press)
     if trusted.sum() < 2:
         trusted = plateau_mask(press)
     if skill_type is SkillType.slide:
         mean_direction = unit_rows(free.forces[trusted].mean(axis=0))
-        value, limit = float(_angles_deg(cf_z[0], mean_direction)), PLANE_FORCE_TOLERANCE_DEG
+        value, limit = float(_angles_deg(cf_z[0], mean_direction)), slide_limit_deg
         what = "the mean friction-free force"
     else:
         reference = reference_directions(free, rate_hz)
@@ -166,18 +219,40 @@ def cf_z_vs_force(
     )
 
 
-def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
-    """Return the ``plane_conditioning`` and ``plane_vs_force`` checks of one slide contact segment."""
+def tilt_about_line_deg(cf_z: NDArray[np.float64], direction: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
+    """Return the angle (deg) between unit ``cf_z`` (3,) and ``axis`` (3,) about the line along unit ``direction`` (3,):
+    both projected on the plane across the line (``axis`` signed towards ``cf_z``)."""
+    across_z = unit_rows(cf_z - np.dot(cf_z, direction) * direction)
+    across_axis = unit_rows(axis - np.dot(axis, direction) * direction)
+    across_axis = across_axis if np.dot(across_axis, across_z) >= 0 else -across_axis
+    return float(_angles_deg(across_z, across_axis))
+
+
+def plane_checks(index: int, plane: PlaneFit, tool_axis: NDArray[np.float64]) -> list[SkillCheck]:
+    """Return the ``plane_conditioning`` and ``plane_vs_force`` checks of one slide contact segment; ``tool_axis``
+    (3,) unit, the segment's mean tool z axis in the world (the pose's, independent of the wrench)."""
     width_mm = 1000.0 * plane.across_width_m
     if plane.across_width_m >= plane.equal_width_m:
         conditioning = f"the path spans {width_mm:.1f} mm across its main direction: the plane decides CF z's tilt"
         conditioned = True
     elif plane.force_samples > 0:
+        cf_z, line = plane.rotation[:, 2], plane.rotation[:, 0]
+        held = tilt_about_line_deg(cf_z, line, tool_axis)
+        conditioned = held <= TOOL_AXIS_AGREEMENT_DEG
         conditioning = (
-            f"the path is a line ({width_mm:.2f} mm across its main direction): the friction-free force of "
-            f"{plane.force_samples} sliding samples decides CF z's tilt about it"
+            f"the path is a line ({width_mm:.2f} mm across its main direction): CF z's tilt about it is the "
+            f"friction-free force's ({plane.force_samples} sliding samples), and the tool's axis, held "
+            f"{held:.1f} deg from it about the line, "
         )
-        conditioned = True
+        if conditioned:
+            conditioning += "agrees (a hand holds a tool about square to what it presses on)"
+        else:
+            conditioning += (
+                f"does not (more than {TOOL_AXIS_AGREEMENT_DEG:.0f} deg): nothing else sees that tilt, and a side "
+                "force fixed in the tool (a grinder's cut) or a hand's steady lean tilts it unseen, by as much as it "
+                "leans; wipe across the line as well (or along a second line on the same surface) to let the surface "
+                "decide"
+            )
     else:
         conditioning = (
             f"the path is a line ({width_mm:.2f} mm across its main direction) and the tool never slid: CF z is the "
@@ -195,8 +270,8 @@ def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
             message=f"segment {index}: {conditioning}",
         )
     ]
-    angle = plane.plane_force_angle_deg
-    passed = angle is None or angle <= PLANE_FORCE_TOLERANCE_DEG
+    angle, limit = plane.plane_force_angle_deg, plane.plane_force_limit_deg
+    passed = angle is None or angle <= limit
     if angle is None:
         message = f"segment {index}: the path spans no plane to compare with the force"
     elif passed:
@@ -204,8 +279,7 @@ def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
     else:
         message = (
             f"segment {index}: the path lies in a plane {angle:.0f} deg from the force pressing on it (more than "
-            f"{PLANE_FORCE_TOLERANCE_DEG:.0f} deg): it was drawn on something else, e.g. a curved edge; CF z follows "
-            "the force"
+            f"{limit:.0f} deg): it was drawn on something else, e.g. a curved edge; CF z follows the force"
         )
     checks.append(
         SkillCheck(
@@ -213,7 +287,7 @@ def plane_checks(index: int, plane: PlaneFit) -> list[SkillCheck]:
             segment=index,
             passed=passed,
             value=0.0 if angle is None else angle,
-            limit=PLANE_FORCE_TOLERANCE_DEG,
+            limit=limit,
             unit="deg",
             message=message,
         )
@@ -303,17 +377,41 @@ def lean_sentence(lean: float, samples: int) -> str:
     )
 
 
-def friction_along_motion(forces: NDArray[np.float64], velocities: NDArray[np.float64]) -> SkillCheck:
+def friction_along_motion(
+    forces: NDArray[np.float64], velocities: NDArray[np.float64], geometry_decides: bool = False
+) -> SkillCheck:
     """Check that the force the tool applies in contact leans towards its motion, as friction makes it: ``forces``
-    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment (`median_friction_lean`)."""
+    (N, 3) N and ``velocities`` (N, 3) m/s, the samples of every contact segment (`median_friction_lean`).
+
+    The message names the likely cause by what the other sign would do: where the force presses down or sideways
+    (`press_elevation_deg` below the horizontal), the other sign would press UP, so the sign is not it — something
+    else drags against the motion in the wrench (an arm's joint friction in a wrench estimated from joint torques, a
+    hand on the arm). Such a drag matters where the force's direction decides a normal; where the contact geometry
+    decided every one (``geometry_decides``: every contact covers an area of its surface) it is reported, not failed.
+    """
     lean, samples = median_friction_lean(forces, velocities)
     passed = leans_with_friction(lean)
     message = lean_sentence(lean, samples)
-    if not passed:
+    pressing_up = press_elevation_deg(forces) > 0.0
+    if not passed and not pressing_up and geometry_decides:
+        passed = True
+        message += (
+            ": something in the wrench drags against the motion (an arm's joint friction in a wrench estimated from "
+            "joint torques, a hand on the arm), not the sign (the tool presses down); the contact's geometry decided "
+            "every normal, so the force's direction decides none"
+        )
+    elif not passed and pressing_up:
         message += (
             ": friction drags the surface ALONG the motion, so the wrench looks recorded with the other sign (what "
             "the sensor measures on the tool, not what the tool applies) or in another frame, and CF z points out of "
             "the surface"
+        )
+    elif not passed:
+        message += (
+            ": friction drags the surface ALONG the motion, so something else in the wrench pulls against it (an "
+            "arm's joint friction in a wrench estimated from joint torques, a hand on the arm); the tool presses "
+            "down, so the other sign is not the cause — the force's direction is suspect wherever it alone decides "
+            "a normal"
         )
     return SkillCheck(
         name=CheckName.friction_along_motion,
@@ -389,8 +487,34 @@ def unmeasured_contact(contact_spans: list[tuple[float, float]], unmeasured: NDA
     )
 
 
-def sensor_offset(uncertainty_n: float, weakest_press_n: float) -> SkillCheck:
-    """Check the import's sensor-offset uncertainty (N, `skills.tare`) against the weakest contact's press (N)."""
+def sensor_offset(method: TareMethod, uncertainty_n: float | None, weakest_press_n: float) -> SkillCheck:
+    """Check how well the import knew the sensor's offset (``method``, `skills.tare`; ``uncertainty_n`` N where it
+    fitted one) against the weakest contact's press (N). A recording with no free space to fit it over fails: an
+    offset or a tool's weight of unknown size may be in every force (never skipped)."""
+    if method is TareMethod.impossible:
+        return SkillCheck(
+            name=CheckName.sensor_offset,
+            segment=None,
+            passed=False,
+            value=1.0,  # unknown: as large as the press, for all the recording tells (JSON holds no infinity)
+            limit=OFFSET_SHARE_LIMIT,
+            unit="ratio",
+            message="the recording has no free space to fit the sensor's offset over: an offset or an uncompensated "
+            "tool weight of unknown size may be in every force, and in a straight stroke's tilt (record a rest in the "
+            "air before and after the strokes, in a few orientations; or import with --no-tare if the file is "
+            "already compensated, --force-offset if the offset is known)",
+        )
+    if uncertainty_n is None:
+        taken = "compensated as the file came (--no-tare)" if method is TareMethod.off else "as given"
+        return SkillCheck(
+            name=CheckName.sensor_offset,
+            segment=None,
+            passed=True,
+            value=0.0,
+            limit=OFFSET_SHARE_LIMIT,
+            unit="ratio",
+            message=f"the sensor offset is taken {taken}, not estimated",
+        )
     share = uncertainty_n / max(weakest_press_n, 1e-9)
     passed = share <= OFFSET_SHARE_LIMIT
     tilt = float(np.degrees(np.arctan(share)))

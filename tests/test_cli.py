@@ -19,14 +19,14 @@ from corpus.synthetic import plane_slide
 from schemas import Demonstration, Skill
 from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
-from services.datasets import DATA_ENV, kuleuven_recordings
+from services.datasets import DATA_ENV, KULEUVEN_IMPORT, kuleuven_recordings
 from services.figures import compliant_frame_axes, forces_in_compliant_frames
 from skills.quaternions import matrix_from_quaternion
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
-KULEUVEN_ARGS = ["--quaternion-order", "wxyz", "--wrench", "measured-on-tool", "--wrench-frame", "tool"]
+KULEUVEN_ARGS = ["--quaternion-order", "wxyz", "--wrench", "measured-on-tool", "--wrench-frame", "tool", "--no-tare"]
 
 
 def _run(argv: list[str]) -> tuple[int, str, str]:
@@ -54,7 +54,7 @@ def learned(tmp_path_factory) -> dict[str, tuple[Demonstration, Skill, str]]:
         code, stdout, stderr = _run(["learn", str(path), "--type", "contour", *KULEUVEN_ARGS, "-o", str(out / name)])
         assert code == 0, stderr
         skill = Skill.model_validate_json((out / name).read_text())
-        demo = demonstration_from_csv(path, CsvImportOptions(wrench_convention="measured-on-tool", wrench_frame="tool"))
+        demo = demonstration_from_csv(path, CsvImportOptions(**KULEUVEN_IMPORT))
         results[name] = (demo, skill, stdout)
     return results
 

@@ -18,6 +18,7 @@ from schemas import EnvironmentChange, ExecutionSettings, Skill
 from schemas.execution import Verdict
 from schemas.import_options import CsvImportOptions
 from services.csv_import import demonstration_from_csv
+from services.datasets import KULEUVEN_IMPORT
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
@@ -29,8 +30,8 @@ from skills.placement import placed_skill, skill_tool_path, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion
 from skills.skill_checks import RECORDING_CHECKS
 
-KU_IMPORT = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "wrench_frame": "tool"}
-KINESTHETIC_IMPORT = {"rate_hz": 100.0, **KU_IMPORT}
+KU_IMPORT = KULEUVEN_IMPORT
+KINESTHETIC_IMPORT = {"rate_hz": 100.0, **KU_IMPORT, "tare": True}  # a wrist sensor's offset, fitted in free space
 
 
 def ku_skill(trial: str) -> Skill:

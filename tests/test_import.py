@@ -23,7 +23,7 @@ from skills.quaternions import quaternion_angle_between
 
 DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
-KULEUVEN = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool"}
+KULEUVEN = {"quaternion_order": "wxyz", "wrench_convention": "measured-on-tool", "tare": False}  # compensated files
 
 
 # --------------------------------------------------------------------------- the real recordings
@@ -119,10 +119,10 @@ def test_real_metadata_records_the_conversions(real, name):
     assert meta.quaternion_order_on_import == "wxyz"
     assert meta.wrench_convention_on_import == "measured-on-tool"
     assert meta.wrench_frame_on_import == "tool"
-    assert meta.force_offset_removed is None  # the files are cut to the contact part
+    assert meta.force_offset_removed is None and meta.tare == "off"  # compensated by the authors' calibration
     assert meta.extra["columns"]["fx"] == "fx_tcp" and real[name]["world"].metadata.extra["columns"]["fx"] == "fx_w"
     notes = " | ".join(meta.extra["import_notes"])
-    assert "no free-space part" in notes and "event-driven log" in notes and "resampled to 200 Hz" in notes
+    assert "tare off" in notes and "event-driven log" in notes and "resampled to 200 Hz" in notes
 
 
 HINT = "check how the wrench is read"
@@ -337,12 +337,21 @@ def test_given_offset_and_tare_window_act_on_the_file_columns():
         demonstration_from_csv(text, CsvImportOptions(**REAL_FORMAT, force_offset=[1.0, 2.0]))
 
 
-def test_no_free_space_no_offset(real):
-    """The KU Leuven files are cut to the contact: there is no free space to fit an offset over."""
-    for frames in real.values():
-        demo = frames["tool"]
-        assert demo.metadata.force_offset_removed is None
-        assert "no free-space part" in " ".join(demo.metadata.extra["import_notes"])
+def test_no_free_space_means_an_unknown_offset_and_a_failed_check() -> None:
+    """The KU Leuven files are cut to the contact: imported asking for a tare there is no free space to fit it over.
+    Nothing is removed, the metadata says the tare was impossible, and the skill's sensor_offset check FAILS (an
+    offset or a tool's weight of unknown size may be in every force) instead of being skipped; with --no-tare (the
+    files are compensated) it passes, as given."""
+    from skills.parameterize import learn_skill
+
+    asked = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(**{**KULEUVEN, "tare": True}))
+    assert asked.metadata.force_offset_removed is None and asked.metadata.tare == "impossible"
+    assert "no free-space part" in " ".join(asked.metadata.extra["import_notes"])
+    [check] = [c for c in learn_skill(asked).checks if c.name.value == "sensor_offset"]
+    assert not check.passed and "no free space" in check.message and "--no-tare" in check.message
+    declared = demonstration_from_csv(DATA / "contour_a_1.csv", CsvImportOptions(**KULEUVEN))
+    [check] = [c for c in learn_skill(declared).checks if c.name.value == "sensor_offset"]
+    assert check.passed and "--no-tare" in check.message
 
 
 def test_column_spec_and_common_names():

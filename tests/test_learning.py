@@ -121,7 +121,7 @@ def test_auto_selection_picks_the_right_skill(kind: str, expected: str) -> None:
 def test_a_short_gentle_arc_with_a_tool_that_does_not_turn_is_mixed_and_learned_as_contour() -> None:
     """16 cm of a 30 cm radius, the tool held still: the normal turns 24° (near even odds), the path leaves its
     plane by 2.4 mm (like a hand-wiped plane) and the tool does not follow. The evidence is mixed, so `auto`
-    says so and picks contour (its frames follow the force at every sample), and the skill's type check warns.
+    says so, picks the more likely type (contour, by a little), and the skill's type check warns.
     """
     demo = synthetic.cylinder_contour(radius_m=0.3, arc_deg=30.0, seed=2)
     held_still = np.tile(demo.orientations[0], (demo.t.size, 1))

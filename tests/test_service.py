@@ -277,7 +277,7 @@ def test_a_skill_learned_from_an_uploaded_real_recording_executes(stack):
     environment.placement."""
     stack.workers(2)
     path = REPO / "data" / "kuleuven_contour" / "contour_a_2.csv"
-    options = {"quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool"}
+    options = {"quaternion_order": "wxyz", "wrench": "measured-on-tool", "wrench_frame": "tool", "tare": "false"}
     with path.open("rb") as f:
         response = stack.http.post("/demonstrations/csv", files={"file": (path.name, f, "text/csv")}, data=options)
     assert response.status_code == 201, response.text
