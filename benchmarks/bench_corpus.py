@@ -60,7 +60,9 @@ def _worst_median(values: list[float], fmt: str) -> str:
     return f"{fmt.format(max(values))} / {fmt.format(statistics.median(values))}"
 
 
-def _within(case: CorpusCase, s: Score) -> bool:
+def within(case: CorpusCase, s: Score) -> bool:
+    """Whether a score is within every tolerance (the type, one segment per stroke, the normal, force and boundary
+    tolerances above)."""
     return (
         s.type_right
         and s.strokes_right
@@ -96,7 +98,7 @@ def build_report(seeds: list[int]) -> str:
         kind = group[0][0].skill_type
         rows.append(
             f"| {family} ({kind}) | {len(group)} | {sum(s.type_right for s in scores)} | "
-            f"{sum(s.strokes_right for s in scores)} | {sum(_within(c, s) for c, s, _ in group)} | "
+            f"{sum(s.strokes_right for s in scores)} | {sum(within(c, s) for c, s, _ in group)} | "
             f"{_worst_median([s.boundary_error_s for s in scores], '{:.2f}')} | "
             f"{_worst_median([s.normal_error_deg for s in scores], '{:.1f}')} | "
             f"{_worst_median([100 * s.force_error for s in scores], '{:.1f}')} | "
@@ -120,7 +122,7 @@ def build_report(seeds: list[int]) -> str:
             + " | " + " / ".join("–" if c is None else f"{100 * c.force_error:.1f}" for c in cells) + " |"
         )  # fmt: skip
     total = sum(len(group) for group in by_family.values())
-    within = sum(_within(c, s) for group in by_family.values() for c, s, _ in group)
+    within = sum(within(c, s) for group in by_family.values() for c, s, _ in group)
     wrong_confident = [
         c.name
         for group in by_family.values()
@@ -128,14 +130,14 @@ def build_report(seeds: list[int]) -> str:
         if not s.type_right and k.auto_selection is not None and k.auto_selection.confidence >= 0.8
     ]
     analytic = [(c, s) for group in by_family.values() for c, s, _ in group if c.recording is None]
-    outside = [(c, k) for group in by_family.values() for c, s, k in group if not _within(c, s)]
+    outside = [(c, k) for group in by_family.values() for c, s, k in group if not within(c, s)]
     silent = [c.name for c, k in outside if not k.warnings()]
     per_10s = 10.0 * learning_s / max(learned_samples / 1000.0, 1e-9)
     sentences = [
         f"{within} of {total} cases are within every tolerance (type right, one segment per stroke or pass, normals "
         f"within {TOLERANCES['slide']:.0f}° for slides and {TOLERANCES['contour']:.0f}° for contours, forces within "
         f"{100 * FORCE_TOLERANCE:.0f} %, boundaries within {BOUNDARY_TOLERANCE_S} s); "
-        f"{sum(_within(c, s) for c, s in analytic)} of the {len(analytic)} analytic ones.",
+        f"{sum(within(c, s) for c, s in analytic)} of the {len(analytic)} analytic ones.",
         f"{len(wrong_confident)} cases got a wrong type with confidence >= 0.8"
         + (f" ({', '.join(wrong_confident)})." if wrong_confident else "."),
         f"{len(outside)} cases fall outside a tolerance; {len(outside) - len(silent)} of them say so with a warning, "

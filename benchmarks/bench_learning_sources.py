@@ -10,8 +10,9 @@ pose, a world offset, a direction error that turns with the arm's configuration,
 uncompensated weight (with and without free space), a powered tool's side force fixed in the tool, friction up to
 μ 0.9, presses that ramp or wobble, a quick wipe over a drum, wipes covering a curved part, a helix, sensor
 artefacts. Every case is learned with ``skill_type=auto`` from its recording file (or samples) and scored by
-`corpus.scoring.score` against its truth, then sorted four ways: RIGHT (type, one segment per stroke, normal within
-3° (slide) / 5° (contour), force within 5 %, boundaries within 0.2 s) with no check failed, right but WARNED, WRONG
+`corpus.scoring.score` against its truth, then sorted four ways: RIGHT (within the corpus's tolerances,
+`bench_corpus.within`: type, one segment per stroke, normal within 3° (slide) / 5° (contour), force within 5 %,
+boundaries within 0.2 s) with no check failed, right but WARNED, WRONG
 and warned, and CONFIDENTLY WRONG (outside a tolerance with every check passed: what the product must never be).
 
 The split, stated honestly: the learner was tuned while looking at seeds 0-4 of the `force_sources` and
@@ -37,42 +38,21 @@ pin_blas_threads()
 
 import numpy as np  # noqa: E402
 
+from benchmarks.bench_corpus import read_csv, within  # noqa: E402
 from corpus.case import CorpusCase  # noqa: E402
 from corpus.force_sources import force_source_cases  # noqa: E402
 from corpus.holdout import holdout_cases  # noqa: E402
 from corpus.press_and_path import press_and_path_cases  # noqa: E402
 from corpus.scoring import Score, score  # noqa: E402
-from schemas import Demonstration, Skill  # noqa: E402
-from schemas.import_options import CsvImportOptions  # noqa: E402
-from services.csv_import import demonstration_from_csv  # noqa: E402
+from schemas import Skill  # noqa: E402
 from skills.compliant_frames import compliant_frame_rotations  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 
 SECTION = "sources"
 COMMAND = ".venv/bin/python benchmarks/bench_learning_sources.py"
-TOLERANCES = {"slide": 3.0, "contour": 5.0}
-"""Normal error tolerance per type, deg (slides: the worst segment; contours: time-weighted mean)."""
-FORCE_TOLERANCE = 0.05
-BOUNDARY_TOLERANCE_S = 0.2
 OUTCOMES = ("right", "right, warned", "wrong, warned", "confidently wrong", "refused")
 WIPE_FAMILIES = ("lwr-wipe-patch", "lwr-wipe-strip", "lwr-wipe-curved", "lwr-circle")
 """The families like the real kinesthetic wipes on a torque-sensing arm: their CF z against the surface normal."""
-
-
-def read_csv(text: str, options: dict[str, object]) -> Demonstration:
-    """A case's file, imported with the options it comes with."""
-    return demonstration_from_csv(text, CsvImportOptions(**options))
-
-
-def within(case: CorpusCase, s: Score) -> bool:
-    """Whether a score is within every tolerance (module docstring)."""
-    return (
-        s.type_right
-        and s.strokes_right
-        and s.normal_error_deg < TOLERANCES[case.skill_type]
-        and s.force_error < FORCE_TOLERANCE
-        and s.boundary_error_s < BOUNDARY_TOLERANCE_S
-    )
 
 
 def outcome(case: CorpusCase, skill: Skill | None, s: Score | None) -> str:

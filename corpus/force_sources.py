@@ -339,6 +339,48 @@ def _arm_log_text(stamps: NDArray, fine: Assembled, flange: NDArray, on_robot: N
     return text.getvalue()
 
 
+def wipe_lanes(rng: np.random.Generator, shape: WipeArea) -> tuple[float, int]:
+    """Draw a wipe's width (m) within ``shape`` and as many lanes as keep them 8-12 mm apart across it."""
+    width = rng.uniform(*shape.width_m)
+    fits = [n for n in shape.lanes if LANE_SPACING_M[0] <= width / (n - 1) <= LANE_SPACING_M[1] + 1e-9]
+    return width, int(rng.choice(fits))
+
+
+def wipe_draws(
+    rng: np.random.Generator, shape: WipeArea, width: float, lanes: int, tilt_deg: float
+) -> dict[str, float]:
+    """A wipe's parameters (`lwr_wipe_case`): the part's ``tilt_deg``, the press (8-20 N, ramps 0.3-0.8 s), friction
+    μ 0.2-0.5, a stiff pad, the cruise speed, the area's ``width`` (m) and ``lanes``, and 1 to a few contacts."""
+    return {
+        "tilt_deg": tilt_deg,
+        "force_n": rng.uniform(8.0, 20.0),
+        "ramp_s": rng.uniform(0.3, 0.8),
+        "friction": rng.uniform(0.2, 0.5),
+        "pad_stiffness_n_m": rng.uniform(1.5e4, 3e4),
+        "cruise_m_s": rng.uniform(*shape.cruise_m_s),
+        "length_m": shape.length_m,
+        "width_m": width,
+        "lanes": float(lanes),
+        "lane_spacing_m": width / (lanes - 1),
+        "contacts": float(rng.integers(1, min(shape.most_contacts, lanes) + 1)),
+    }
+
+
+def arm_draws(rng: np.random.Generator, turn_deg: tuple[float, float]) -> dict[str, float]:
+    """The arm's own numbers of an estimated-wrench recording: ``flange_offset_m`` (L, m), ``offset_n`` (N),
+    ``direction_turn_deg`` (in ``turn_deg``) and ``direction_constant_deg`` (deg), ``joint_friction_n`` (N),
+    ``noise_n`` (N), ``rate_hz``."""
+    return {
+        "flange_offset_m": rng.uniform(0.10, 0.20),
+        "offset_n": rng.uniform(2.0, 4.0),
+        "direction_turn_deg": rng.uniform(*turn_deg),
+        "direction_constant_deg": rng.uniform(-10.0, 10.0),
+        "joint_friction_n": rng.uniform(1.5, 4.0),
+        "noise_n": rng.uniform(0.3, 0.5),
+        "rate_hz": LWR_RATE_HZ,
+    }
+
+
 def lwr_wipe_case(seed: int = 0, area: str = "patch") -> CorpusCase:
     """A kinesthetic wipe covering a flat ``area`` (``patch`` or ``strip``, `WIPE_AREAS`) recorded by a
     torque-sensing arm's log (see the module docstring for its numbers); slide, family ``lwr-wipe-<area>``.
@@ -360,30 +402,9 @@ def lwr_wipe_case(seed: int = 0, area: str = "patch") -> CorpusCase:
     rng = np.random.default_rng([seed, 300, tuple(WIPE_AREAS).index(area)])
     shape = WIPE_AREAS[area]
     dt = 1.0 / FINE_RATE_HZ
-    width = rng.uniform(*shape.width_m)
-    # As many lanes as keep them 8-12 mm apart across the width (within the area's lane counts).
-    fits = [n for n in shape.lanes if LANE_SPACING_M[0] <= width / (n - 1) <= LANE_SPACING_M[1] + 1e-9]
-    lanes = int(rng.choice(fits))
-    params: dict[str, float] = {
-        "tilt_deg": rng.uniform(0.0, 15.0),
-        "force_n": rng.uniform(8.0, 20.0),
-        "ramp_s": rng.uniform(0.3, 0.8),
-        "friction": rng.uniform(0.2, 0.5),
-        "pad_stiffness_n_m": rng.uniform(1.5e4, 3e4),
-        "cruise_m_s": rng.uniform(*shape.cruise_m_s),
-        "length_m": shape.length_m,
-        "width_m": width,
-        "lanes": float(lanes),
-        "lane_spacing_m": width / (lanes - 1),
-        "contacts": float(rng.integers(1, min(shape.most_contacts, lanes) + 1)),
-        "flange_offset_m": rng.uniform(0.10, 0.20),
-        "offset_n": rng.uniform(2.0, 4.0),
-        "direction_turn_deg": rng.uniform(28.0, 32.0),
-        "direction_constant_deg": rng.uniform(-10.0, 10.0),
-        "joint_friction_n": rng.uniform(1.5, 4.0),
-        "noise_n": rng.uniform(0.3, 0.5),
-        "rate_hz": LWR_RATE_HZ,
-    }
+    width, lanes = wipe_lanes(rng, shape)
+    tilt = rng.uniform(0.0, 15.0)
+    params = {**wipe_draws(rng, shape, width, lanes, tilt), **arm_draws(rng, (28.0, 32.0))}
     plane = tilted_plane(params["tilt_deg"], rng)
     contacts = _wipe_contacts(
         plane, shape.length_m, width, lanes, int(params["contacts"]), params["cruise_m_s"], params["force_n"],

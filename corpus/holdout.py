@@ -110,7 +110,6 @@ from corpus.families import plane_stroke
 from corpus.force_sources import (
     GRAVITY,
     JOINT_FRICTION_SPEED_M_S,
-    LANE_SPACING_M,
     LWR_COLUMNS,
     LWR_JITTER_PERIODS,
     LWR_RATE_HZ,
@@ -118,7 +117,10 @@ from corpus.force_sources import (
     ArmEstimateRecording,
     _through_the_air,
     _wipe_contacts,
+    arm_draws,
     friction_free_turn_deg,
+    wipe_draws,
+    wipe_lanes,
     wipe_passes,
 )
 from corpus.kinesthetic import OperatorModel, operator_forces
@@ -374,21 +376,6 @@ def _case(
     )
 
 
-def _arm_draws(rng: np.random.Generator, turn_deg: tuple[float, float]) -> dict[str, float]:
-    """The arm's own numbers, as `corpus.force_sources.lwr_wipe_case` draws them: ``flange_offset_m`` (L, m),
-    ``offset_n`` (N), ``direction_turn_deg`` (in ``turn_deg``) and ``direction_constant_deg`` (deg),
-    ``joint_friction_n`` (N), ``noise_n`` (N), ``rate_hz``."""
-    return {
-        "flange_offset_m": rng.uniform(0.10, 0.20),
-        "offset_n": rng.uniform(2.0, 4.0),
-        "direction_turn_deg": rng.uniform(*turn_deg),
-        "direction_constant_deg": rng.uniform(-10.0, 10.0),
-        "joint_friction_n": rng.uniform(1.5, 4.0),
-        "noise_n": rng.uniform(0.3, 0.5),
-        "rate_hz": LWR_RATE_HZ,
-    }
-
-
 def _arm_estimate_case(
     name: str,
     family: str,
@@ -474,23 +461,9 @@ def lwr_wipe_curved_case(seed: int = 0) -> CorpusCase:
     contacts' whole extent across the axis, deg)."""
     rng = _rng(seed, "lwr-wipe-curved")
     shape = WIPE_AREAS["strip"]
-    width = rng.uniform(*shape.width_m)
-    fits = [n for n in shape.lanes if LANE_SPACING_M[0] <= width / (n - 1) <= LANE_SPACING_M[1] + 1e-9]
-    lanes = int(rng.choice(fits))
-    params: dict[str, float] = {
-        "tilt_deg": float(rng.uniform(0.0, 15.0) * rng.choice([-1.0, 1.0])),
-        "force_n": rng.uniform(8.0, 20.0),
-        "ramp_s": rng.uniform(0.3, 0.8),
-        "friction": rng.uniform(0.2, 0.5),
-        "pad_stiffness_n_m": rng.uniform(1.5e4, 3e4),
-        "cruise_m_s": rng.uniform(*shape.cruise_m_s),
-        "length_m": shape.length_m,
-        "width_m": width,
-        "lanes": float(lanes),
-        "lane_spacing_m": width / (lanes - 1),
-        "contacts": float(rng.integers(1, min(shape.most_contacts, lanes) + 1)),
-        **_arm_draws(rng, (28.0, 32.0)),
-    }
+    width, lanes = wipe_lanes(rng, shape)
+    tilt = float(rng.uniform(0.0, 15.0) * rng.choice([-1.0, 1.0]))
+    params = {**wipe_draws(rng, shape, width, lanes, tilt), **arm_draws(rng, (28.0, 32.0))}
     where = rng.uniform()  # where the radius lies in its range, which the contacts' extent sets
     axis = rotated(np.array([1.0, 0.0, 0.0]), UP, rng.uniform(-np.pi, np.pi))
     middle = np.array([0.5 + rng.uniform(-0.05, 0.05), rng.uniform(-0.1, 0.1), 0.15])
@@ -686,7 +659,7 @@ def lwr_circle_case(seed: int = 0) -> CorpusCase:
         "friction": rng.uniform(0.2, 0.5),
         "pad_stiffness_n_m": rng.uniform(1.5e4, 3e4),
         "cruise_m_s": rng.uniform(0.05, 0.08),
-        **_arm_draws(rng, (22.0, 28.0)),
+        **arm_draws(rng, (22.0, 28.0)),
     }
     plane = tilted_plane(params["tilt_deg"], rng)
     radius = params["circle_radius_m"]

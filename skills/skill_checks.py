@@ -492,42 +492,31 @@ def sensor_offset(method: TareMethod, uncertainty_n: float | None, weakest_press
     fitted one) against the weakest contact's press (N). A recording with no free space to fit it over fails: an
     offset or a tool's weight of unknown size may be in every force (never skipped)."""
     if method is TareMethod.impossible:
-        return SkillCheck(
-            name=CheckName.sensor_offset,
-            segment=None,
-            passed=False,
-            value=1.0,  # unknown: as large as the press, for all the recording tells (JSON holds no infinity)
-            limit=OFFSET_SHARE_LIMIT,
-            unit="ratio",
-            message="the recording has no free space to fit the sensor's offset over: an offset or an uncompensated "
-            "tool weight of unknown size may be in every force, and in a straight stroke's tilt (record a rest in the "
-            "air before and after the strokes, in a few orientations; or import with --no-tare if the file is "
-            "already compensated, --force-offset if the offset is known)",
+        # Unknown: as large as the press, for all the recording tells (JSON holds no infinity).
+        passed, share = False, 1.0
+        message = (
+            "the recording has no free space to fit the sensor's offset over: an offset or an uncompensated tool "
+            "weight of unknown size may be in every force, and in a straight stroke's tilt (record a rest in the air "
+            "before and after the strokes, in a few orientations; or import with --no-tare if the file is already "
+            "compensated, --force-offset if the offset is known)"
         )
-    if uncertainty_n is None:
+    elif uncertainty_n is None:
+        passed, share = True, 0.0
         taken = "compensated as the file came (--no-tare)" if method is TareMethod.off else "as given"
-        return SkillCheck(
-            name=CheckName.sensor_offset,
-            segment=None,
-            passed=True,
-            value=0.0,
-            limit=OFFSET_SHARE_LIMIT,
-            unit="ratio",
-            message=f"the sensor offset is taken {taken}, not estimated",
+        message = f"the sensor offset is taken {taken}, not estimated"
+    else:
+        share = uncertainty_n / max(weakest_press_n, 1e-9)
+        passed = share <= OFFSET_SHARE_LIMIT
+        message = (
+            f"the sensor offset removed on import is known to ±{uncertainty_n:.2f} N, {100 * share:.1f} % of the "
+            "weakest contact's press"
         )
-    share = uncertainty_n / max(weakest_press_n, 1e-9)
-    passed = share <= OFFSET_SHARE_LIMIT
-    tilt = float(np.degrees(np.arctan(share)))
-    message = (
-        f"the sensor offset removed on import is known to ±{uncertainty_n:.2f} N, {100 * share:.1f} % of the weakest "
-        f"contact's press"
-    )
-    if not passed:
-        message += (
-            f": learned forces may be off by as much, and the tilt of a straight stroke's CF z (which only the "
-            f"force decides) by {tilt:.1f} deg; a longer free-space rest before and after the strokes (or "
-            "--tare-window) pins the offset down"
-        )
+        if not passed:
+            message += (
+                f": learned forces may be off by as much, and the tilt of a straight stroke's CF z (which only the "
+                f"force decides) by {float(np.degrees(np.arctan(share))):.1f} deg; a longer free-space rest before "
+                "and after the strokes (or --tare-window) pins the offset down"
+            )
     return SkillCheck(
         name=CheckName.sensor_offset,
         segment=None,

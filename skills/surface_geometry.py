@@ -44,6 +44,12 @@ DECIMATION_M = 0.002
 """The positions a local plane is fitted to are taken every this many metres of path (m): a resting tool's
 thousand samples at one point would otherwise outweigh the path around it."""
 
+NEIGHBOURS_MAX = 96
+"""Most neighbours a local plane is fitted to, the nearest first (the work is bounded by this times the positions)."""
+
+CENTRES_PER_CHUNK = 2048
+"""Local planes fitted at a time (the memory is bounded by this times ``NEIGHBOURS_MAX``)."""
+
 DEPTH_NOISE_MIN_M = 3.0e-4
 """Least depth scatter (m) a local plane is credited with: tremor and a part's unevenness."""
 
@@ -137,47 +143,55 @@ def local_geometry(
 
     ``force_normals`` (N, 3) unit (the friction-free force's direction: the frame the tilt is measured in),
     ``press`` (N,) N the force along them (a pad sinks with it). Around each position taken every ``DECIMATION_M``
-    of path, its neighbours within ``radius_m`` (any pass, Gaussian weights of ``radius_m / 2``) are put in the
-    frame (s along the path, l across it, h along the force normal): the lateral offset a single pass's curve
-    explains (l on 1, s, s²) is taken out, what is left is the WIDTH, and the depth fitted on (1, s, s², what is
-    left, press) gives the TILT across. Each sample takes the fit of the nearest such position along the path.
-    Only the positions where the tool SLIDES (``sliding`` (N,), default all) are fitted: a tool settling onto the
-    surface moves across its path and into the surface at once, which would look like a tilted plane.
+    of path (one per ``DECIMATION_M`` cube: a pass retraced a hundred times adds nothing the first did not show),
+    its nearest ``NEIGHBOURS_MAX`` neighbours within ``radius_m`` (any pass, Gaussian weights of ``radius_m / 2``)
+    are put in the frame (s along the path, l across it, h along the force normal): the lateral offset a single
+    pass's curve explains (l on 1, s, s²) is taken out, what is left is the WIDTH, and the depth fitted on (1, s, s²,
+    what is left, press) gives the TILT across. Each sample takes the fit of the nearest such position. Only the
+    positions where the tool SLIDES (``sliding`` (N,), default all) are fitted: a tool settling onto the surface moves
+    across its path and into the surface at once, which would look like a tilted plane. The work is bounded by the
+    positions kept times ``NEIGHBOURS_MAX``, done ``CENTRES_PER_CHUNK`` at a time.
     """
     usable = np.flatnonzero(sliding) if sliding is not None and sliding.sum() >= 2 else np.arange(len(positions))
     kept = usable[arc_decimated(positions[usable])]
+    _, first = np.unique(np.floor(positions[kept] / DECIMATION_M).astype(np.int64), axis=0, return_index=True)
+    kept = kept[np.sort(first)]
     points, normal = positions[kept], force_normals[kept]
     count = len(points)
-    tangent = np.gradient(points, axis=0) if count > 1 else np.zeros_like(points)
-    tangent = unit_rows(tangent - np.sum(tangent * normal, axis=1, keepdims=True) * normal)
+    heading = np.gradient(positions, axis=0)[kept] if len(positions) > 1 else np.zeros_like(points)
+    tangent = unit_rows(heading - np.sum(heading * normal, axis=1, keepdims=True) * normal)
     across = unit_rows(np.cross(normal, tangent))
     tree = cKDTree(points)
-    pairs = tree.sparse_distance_matrix(tree, radius_m, output_type="coo_matrix")
-    # sparse_distance_matrix leaves out zero distances: each position is its own neighbour too.
-    rows = np.concatenate([pairs.row, np.arange(count)])
-    cols = np.concatenate([pairs.col, np.arange(count)])
-    distance = np.concatenate([pairs.data, np.zeros(count)])
-    weight = np.exp(-0.5 * (distance / (0.5 * radius_m)) ** 2)
-    offset = points[cols] - points[rows]
-    s = np.sum(offset * tangent[rows], axis=1)
-    lateral = np.sum(offset * across[rows], axis=1)
-    depth = np.sum(offset * normal[rows], axis=1)
-    curve = np.column_stack([np.ones_like(s), s, s * s])
-    left = lateral - np.sum(curve * _weighted_fit(rows, weight, curve, lateral, count)[rows], axis=1)
-    total = np.bincount(rows, weight, minlength=count)
-    width = np.sqrt(np.bincount(rows, weight * left**2, minlength=count) / total)
-    squeeze = press[kept][cols] - press[kept][rows]
-    surface = np.column_stack([curve, left, squeeze])
-    coefficients = _weighted_fit(rows, weight, surface, depth, count)
-    residual = depth - np.sum(surface * coefficients[rows], axis=1)
-    scatter = np.sqrt(np.bincount(rows, weight * residual**2, minlength=count) / total)
-    mean_s = np.bincount(rows, weight * s, minlength=count) / total
-    length = np.sqrt(np.maximum(np.bincount(rows, weight * s * s, minlength=count) / total - mean_s**2, 0.0))
-    # Each sample takes the fit of the nearest kept position along the path.
-    index = np.arange(positions.shape[0])
-    nearest = np.clip(np.searchsorted(kept, index), 0, count - 1)
-    before = np.clip(nearest - 1, 0, None)
-    nearest = np.where(np.abs(kept[before] - index) < np.abs(kept[nearest] - index), before, nearest)
+    fits = [np.zeros((count, k)) for k in (5, 1, 1, 1)]  # coefficients, width, scatter, length
+    neighbours = min(NEIGHBOURS_MAX, count)
+    for start in range(0, count, CENTRES_PER_CHUNK):
+        centres = np.arange(start, min(count, start + CENTRES_PER_CHUNK))
+        distance, found = tree.query(points[centres], k=neighbours, distance_upper_bound=radius_m)
+        distance, found = distance.reshape(len(centres), -1), found.reshape(len(centres), -1)
+        valid = np.isfinite(distance)
+        rows = np.repeat(np.arange(len(centres)), valid.sum(axis=1))  # chunk-local centre of each pair
+        cols = found[valid]
+        weight = np.exp(-0.5 * (distance[valid] / (0.5 * radius_m)) ** 2)
+        at = centres[rows]
+        offset = points[cols] - points[at]
+        s = np.sum(offset * tangent[at], axis=1)
+        lateral = np.sum(offset * across[at], axis=1)
+        depth = np.sum(offset * normal[at], axis=1)
+        curve = np.column_stack([np.ones_like(s), s, s * s])
+        n = len(centres)
+        left = lateral - np.sum(curve * _weighted_fit(rows, weight, curve, lateral, n)[rows], axis=1)
+        total = np.bincount(rows, weight, minlength=n)
+        surface = np.column_stack([curve, left, press[kept][cols] - press[kept][at]])
+        coefficients = _weighted_fit(rows, weight, surface, depth, n)
+        residual = depth - np.sum(surface * coefficients[rows], axis=1)
+        mean_s = np.bincount(rows, weight * s, minlength=n) / total
+        fits[0][centres] = coefficients
+        fits[1][centres, 0] = np.sqrt(np.bincount(rows, weight * left**2, minlength=n) / total)
+        fits[2][centres, 0] = np.sqrt(np.bincount(rows, weight * residual**2, minlength=n) / total)
+        spread = np.bincount(rows, weight * s * s, minlength=n) / total - mean_s**2
+        fits[3][centres, 0] = np.sqrt(np.maximum(spread, 0.0))
+    coefficients, width, scatter, length = fits[0], fits[1][:, 0], fits[2][:, 0], fits[3][:, 0]
+    nearest = tree.query(positions)[1]  # each sample takes the fit of the nearest kept position
     return LocalGeometry(
         tilts=coefficients[nearest, 3],
         across=across[nearest],
