@@ -122,7 +122,7 @@ def build_report(seeds: list[int]) -> str:
             + " | " + " / ".join("–" if c is None else f"{100 * c.force_error:.1f}" for c in cells) + " |"
         )  # fmt: skip
     total = sum(len(group) for group in by_family.values())
-    within = sum(within(c, s) for group in by_family.values() for c, s, _ in group)
+    inside = sum(within(c, s) for group in by_family.values() for c, s, _ in group)
     wrong_confident = [
         c.name
         for group in by_family.values()
@@ -134,7 +134,7 @@ def build_report(seeds: list[int]) -> str:
     silent = [c.name for c, k in outside if not k.warnings()]
     per_10s = 10.0 * learning_s / max(learned_samples / 1000.0, 1e-9)
     sentences = [
-        f"{within} of {total} cases are within every tolerance (type right, one segment per stroke or pass, normals "
+        f"{inside} of {total} cases are within every tolerance (type right, one segment per stroke or pass, normals "
         f"within {TOLERANCES['slide']:.0f}° for slides and {TOLERANCES['contour']:.0f}° for contours, forces within "
         f"{100 * FORCE_TOLERANCE:.0f} %, boundaries within {BOUNDARY_TOLERANCE_S} s); "
         f"{sum(within(c, s) for c, s in analytic)} of the {len(analytic)} analytic ones.",

@@ -233,11 +233,12 @@ class AutoSelection(BaseModel):
     confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
     mixed: bool = Field(
         False,
-        description="The evidence is mixed (confidence below 0.75): contour was chosen, whose frames follow the "
-        "measured force at every sample (right on a plane as on a curve).",
+        description="The evidence is mixed (confidence below 0.75): the more likely type was chosen, and the skill's "
+        "type_evidence check warns.",
     )
     turning_within_planes_deg: float = Field(
-        description="Largest turn of the friction-free normal within one slide segment, deg (planes: a few)."
+        description="Largest turn of the normal within one slide segment, deg (planes: a few): the contact's geometry "
+        "where it covers an area, the friction-free force where it does not."
     )
     tool_following: float | None = Field(
         None, description="Largest share (0-1) of that turning the tool's own rotation followed (contours: 0.4-0.9)."

@@ -15,7 +15,7 @@ world-from-CF matrices whose columns are the CF axes in world.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import numpy as np
@@ -130,14 +130,13 @@ def slide_frame(
     *,
     force_sigma_deg: float = FORCE_SIGMA_MIN_DEG,
     area: bool = False,
-    segment_positions: NDArray[np.float64] | None = None,
 ) -> PlaneFit:
     """Return the slide CF of one contact segment from ALL the evidence of its surface: geometry and force.
 
     ``positions`` (N, 3) m, ``forces`` (N, 3) N applied, ``directions`` (N, 3) the friction-free force directions
-    per sample (`skills.contact`, zero where unknown; None: from the mean force) of every contact segment on the
-    segment's surface, pooled (`skills.surface_evidence`); ``segment_positions`` (M, 3) m the segment's own path
-    (default ``positions``), which gives CF x and the origin.
+    per sample (`skills.contact`, zero where unknown; None: from the mean force): a segment's own, or those of every
+    contact segment on its surface, pooled (`skills.surface_evidence`; `plane_along` then gives each segment its
+    own CF x and origin).
 
     A path lies in the surface it slides on, so the surface's tilt along a direction the path spans widely is
     known from the geometry; across a straight stroke it is not (a line lies in every plane that contains it),
@@ -173,18 +172,10 @@ def slide_frame(
         source = NormalSource.plane if spans_plane else NormalSource.force
     if np.dot(normal, forces.mean(axis=0)) < 0:
         normal = -normal
-    own = positions if segment_positions is None else segment_positions
-    own_centroid = own.mean(axis=0)
-    own_centred = own - own_centroid
-    in_plane = own_centred - np.outer(own_centred @ normal, normal)
-    motion = np.linalg.svd(in_plane, full_matrices=False)[2][0] if len(own) > 1 else e1
-    motion = motion if np.dot(motion, own[-1] - own[0]) >= 0 else -motion
-    rotation = frame_from_z_and_x(normal, motion)
-    residual = centred @ normal
-    return PlaneFit(
-        rotation=rotation,
-        origin=own_centroid,
-        residual_rms_m=float(np.sqrt(np.mean(residual**2))),
+    fit = PlaneFit(
+        rotation=frame_from_z_and_x(normal, e1),
+        origin=centroid,
+        residual_rms_m=float(np.sqrt(np.mean((centred @ normal) ** 2))),
         force_normal=force_normal,
         across_width_m=float(widths[1]),
         equal_width_m=float(equal_width),
@@ -194,6 +185,19 @@ def slide_frame(
         source=source,
         force_samples=force_samples,
     )
+    return plane_along(fit, positions)
+
+
+def plane_along(fit: PlaneFit, positions: NDArray[np.float64]) -> PlaneFit:
+    """Return the slide CF ``fit`` with its x along the main direction of ``positions`` (M, 3) m in its plane,
+    pointing the way they travelled, and its origin at their centroid (a segment on a pooled surface)."""
+    normal = fit.rotation[:, 2]
+    centroid = positions.mean(axis=0)
+    centred = positions - centroid
+    in_plane = centred - np.outer(centred @ normal, normal)
+    motion = np.linalg.svd(in_plane, full_matrices=False)[2][0] if len(positions) > 1 else fit.rotation[:, 0]
+    motion = motion if np.dot(motion, positions[-1] - positions[0]) >= 0 else -motion
+    return replace(fit, rotation=frame_from_z_and_x(normal, motion), origin=centroid)
 
 
 def tool_velocities(positions: NDArray[np.float64], rate_hz: float) -> NDArray[np.float64]:

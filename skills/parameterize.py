@@ -8,7 +8,7 @@ All in the world frame unless stated; slide positions are learned in their CF x-
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,7 +32,7 @@ from schemas.skill import (
     TypeEvidence,
 )
 from skills import skill_checks
-from skills.compliant_frames import PlaneFit, contour_frames, slide_frame, tool_velocities
+from skills.compliant_frames import PlaneFit, contour_frames, plane_along, slide_frame, tool_velocities
 from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, QuaternionDMP
 from skills.force_profile import cf_z_forces, constant_force, press_steadiness
@@ -153,6 +153,8 @@ class _Recording:
     velocities: NDArray[np.float64]
     contact: ContactAnalysis
     surfaces: SurfaceEvidence
+    pooled_planes: dict[int, PlaneFit] = field(default_factory=dict)
+    """The slide CF fitted to each pooled surface (by `SurfaceGroup.index`), once for all its segments."""
 
 
 @dataclass(frozen=True)
@@ -299,14 +301,12 @@ def _pooled_plane(bounds: SegmentBounds, r: _Recording) -> PlaneFit:
     own = slide_frame(r.positions[rows], r.forces[rows], r.contact.directions[rows], **evidence)
     if own.across_width_m >= own.equal_width_m or len(surface.segments) == 1:
         return own
-    pooled = surface.rows
-    return slide_frame(
-        r.positions[pooled],
-        r.forces[pooled],
-        r.contact.directions[pooled],
-        segment_positions=r.positions[rows],
-        **evidence,
-    )
+    if surface.index not in r.pooled_planes:
+        pooled = surface.rows
+        r.pooled_planes[surface.index] = slide_frame(
+            r.positions[pooled], r.forces[pooled], r.contact.directions[pooled], **evidence
+        )
+    return plane_along(r.pooled_planes[surface.index], r.positions[rows])
 
 
 def _contour_normals(rows: slice, r: _Recording) -> NDArray[np.float64] | None:

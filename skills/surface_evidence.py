@@ -39,12 +39,14 @@ FORCE_NORMAL_RATE_HZ = 200.0
 class SurfaceGroup:
     """One surface and the contact segments that press on it.
 
-    ``segments`` the slide segmentation's contact segments on it, in time order; ``rows`` (M,) their samples;
+    ``index`` its place in `SurfaceEvidence.groups`; ``segments`` the slide segmentation's contact segments on it, in
+    time order; ``rows`` (M,) their samples;
     ``force_sigma_deg`` the uncertainty of the force's direction measured against its geometry (the prior where
     nothing measured it: ``sure_samples`` 0); ``area_share`` the share of its samples where the geometry outweighs
     the force (`AREA_WEIGHT`).
     """
 
+    index: int
     segments: list[SegmentBounds]
     rows: NDArray[np.int_]
     force_sigma_deg: float
@@ -151,6 +153,7 @@ def surface_evidence(
         normals[rows], weights[rows], group_of[rows] = fused.normals, fused.weights, g
         groups.append(
             SurfaceGroup(
+                index=g,
                 segments=[contacts[k] for k in members],
                 rows=rows,
                 force_sigma_deg=fused.force_sigma_deg,

@@ -75,6 +75,9 @@ AREA_WEIGHT = 0.5
 AREA_SHARE = 0.5
 """A surface is an area (its plane seen by geometry, the force only bounding it) when this share of its samples is."""
 
+QUADRIC_POINTS = 2000
+"""Most positions a pooling test fits its quadric to (evenly taken: a surface, not every sample)."""
+
 POOL_NORMAL_DEG = 25.0
 """Two contact segments whose mean friction-free normals differ by more than this (deg) press different surfaces."""
 
@@ -288,7 +291,9 @@ def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.fl
 
 def quadric_residual_m(positions: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
     """Return the RMS depth (m) of ``positions`` (N, 3) m about the best quadric height field over the plane across
-    unit ``normal`` (a plane bent along both axes: what a cylinder or sphere of a part looks like over a stroke)."""
+    unit ``normal`` (a plane bent along both axes: what a cylinder or sphere of a part looks like over a stroke), over
+    at most ``QUADRIC_POINTS`` of them, evenly taken."""
+    positions = positions[:: max(1, len(positions) // QUADRIC_POINTS)]
     basis = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
     centred = positions - positions.mean(axis=0)
     u, w = (centred @ basis).T
@@ -307,25 +312,25 @@ def surface_groups(
     ``spans`` the contact segments' sample ranges of ``positions`` (N, 3) m; ``normals`` their mean friction-free
     normals (unit; None where unknown: never pooled). Segments are taken in time order; each joins the first group
     whose normal is within ``POOL_NORMAL_DEG`` of its own, whose union with it leaves its best quadric
-    (`quadric_residual_m` about the union's mean normal) by little more than the worse of the two alone
-    (``POOL_RESIDUAL_FACTOR``, ``POOL_RESIDUAL_M``), and whose union's best plane (where the union spans one) is
-    within ``POOL_NORMAL_DEG`` of the force: strokes side by side on one part, not two faces of a fold or two tables
-    at different heights.
+    (`quadric_residual_m` about the union's mean normal) by little more than the worse of the two alone (each about
+    its own normal; ``POOL_RESIDUAL_FACTOR``, ``POOL_RESIDUAL_M``), and whose union's best plane (where the union spans
+    one) is within ``POOL_NORMAL_DEG`` of the force: strokes side by side on one part, not two faces of a fold or two
+    tables at different heights.
     """
     members = [positions[s][arc_decimated(positions[s])] for s in spans]
     groups: list[list[int]] = []
     group_normals: list[NDArray[np.float64] | None] = []
+    residuals: list[float] = []  # each group's quadric residual about its own normal, kept as it grows
     for k, normal in enumerate(normals):
+        own = quadric_residual_m(members[k], normal) if normal is not None else 0.0
         for g, group in enumerate(groups):
             known = group_normals[g]
             if normal is None or known is None or _angles_deg(normal, known) > POOL_NORMAL_DEG:
                 continue
-            alone = [np.concatenate([members[j] for j in group]), members[k]]
-            union = np.concatenate(alone)
-            weights = np.array([len(group), 1.0])
-            union_normal = unit_rows(weights[0] * known + weights[1] * normal)
-            worst = max(quadric_residual_m(points, union_normal) for points in alone)
-            if quadric_residual_m(union, union_normal) > POOL_RESIDUAL_FACTOR * worst + POOL_RESIDUAL_M:
+            union = np.concatenate([*(members[j] for j in group), members[k]])
+            union_normal = unit_rows(len(group) * known + normal)
+            residual = quadric_residual_m(union, union_normal)
+            if residual > POOL_RESIDUAL_FACTOR * max(residuals[g], own) + POOL_RESIDUAL_M:
                 continue
             singular, plane = np.linalg.svd(union - union.mean(axis=0), full_matrices=False)[1:]
             spans_plane = singular[1] > 10.0 * max(singular[2], DEPTH_NOISE_MIN_M * np.sqrt(len(union)))
@@ -335,8 +340,10 @@ def surface_groups(
                 continue
             group.append(k)
             group_normals[g] = unit_rows(sum(normals[j] for j in group))
+            residuals[g] = residual
             break
         else:
             groups.append([k])
             group_normals.append(normal)
+            residuals.append(own)
     return groups
