@@ -332,13 +332,22 @@ def _direction_hint(
     ]
 
 
+HINT_SAMPLES = 20_000
+"""Most samples a reading the import's note tries is learned from (`_failed_checks_read_so`)."""
+
+
 def _failed_checks_read_so(recording: RecordingSamples, forces: np.ndarray) -> list[str]:
     """The checks a skill learned from ``recording`` with its forces read as ``forces`` (N, 3) N (world, applied by
     the tool) fails (``["no skill"]`` when none can be learned): a reading is advised only when learning with it
     passes every check."""
     wrenches = np.concatenate([forces, np.zeros_like(forces)], axis=1)
+    # Learning each reading is the import's work: on a long recording it is done on every k-th sample (the checks
+    # judge directions and shares, which a 20 000-sample copy shows as well), so the note costs a bounded time.
+    step = -(-recording.t.size // HINT_SAMPLES)
     try:
-        demonstration = Demonstration.from_arrays(recording.t, recording.positions, recording.orientations, wrenches)
+        demonstration = Demonstration.from_arrays(
+            recording.t[::step], recording.positions[::step], recording.orientations[::step], wrenches[::step]
+        )
         skill = learn_skill(demonstration)
     except (ValueError, ValidationError):
         return ["no skill"]

@@ -234,9 +234,11 @@ def default_rate_hz(*groups: GroupSamples) -> float:
 
 
 def uniform_time_grid(t_start: float, t_end: float, rate_hz: float) -> NDArray[np.float64]:
-    """Return time stamps (s) ``t_start + k / rate_hz``, ``k = 0, 1, ...``, up to ``t_end`` (inclusive, 1e-9 s)."""
+    """Return time stamps (s) ``t_start + k / rate_hz``, ``k = 0, 1, ...``, up to ``t_end`` (inclusive, 1e-9 s), never
+    past it: in floating point ``1.899 + 9701 / 1000`` is 11.600000000000001, beyond a last stamp of 11.6, and the
+    position interpolation there was NaN (a recording that did not start at 0 crashed its import)."""
     n = int(np.floor((t_end - t_start) * rate_hz + 1e-9)) + 1
-    return t_start + np.arange(n) / rate_hz
+    return np.minimum(t_start + np.arange(n) / rate_hz, t_end)
 
 
 def positions_resampled(

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import KULEUVEN_DATA
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
@@ -634,3 +636,38 @@ def test_a_demonstrations_gaps_must_be_finite_intervals_in_order():
     ):
         with pytest.raises(ValidationError, match=reason):
             DemonstrationMetadata(unmeasured_intervals_s=bad)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    start=st.floats(min_value=0.0, max_value=1.8e9, allow_nan=False),
+    rows=st.integers(min_value=60, max_value=3000),
+    rate=st.floats(min_value=50.0, max_value=1000.0),
+    jitter=st.floats(min_value=0.0, max_value=0.3),
+    seed=st.integers(min_value=0, max_value=2**16),
+)
+@example(start=1.899, rows=9702, rate=1000.0, jitter=0.0, seed=0)  # the README's recording, shifted
+@example(start=2.998, rows=150, rate=1000.0, jitter=0.0, seed=0)
+@example(start=100.123, rows=801, rate=1000.0, jitter=0.0, seed=0)
+def test_a_recording_imports_whatever_its_first_stamp_rows_rate_and_jitter(
+    start: float, rows: int, rate: float, jitter: float, seed: int
+) -> None:
+    """Property (issue 41): a CSV whose clock does not start at 0 imports like one that does — the README's own
+    recording shifted to start at 1.899 s once gave a LinAlgError (its uniform grid ended at 11.600000000000001,
+    past the last stamp 11.6, where the positions' interpolation is NaN), and 101-201 rows a false "row 100 is not
+    finite". Stamps up to Unix-epoch seconds, 60-3000 rows, 50-1000 Hz, jitter up to 0.3 periods: every sample of
+    the result is finite and the grid never passes the last stamp."""
+    rng = np.random.default_rng(seed)
+    nominal = np.arange(rows) / rate
+    nominal[1:-1] += rng.uniform(-jitter, jitter, rows - 2) / rate
+    positions, q, wrenches = _truth(nominal)
+    wrenches[:, 2] *= -1.0  # pressing down: a force pointing up would have the import try its other readings
+    stamps = start + nominal
+    values = np.column_stack([positions, q, wrenches])
+    # Stamps as loggers write them, to the microsecond: 1.899 + 9.701 is then exactly the last stamp, 11.600000.
+    lines = (f"{stamp:.6f}," + ",".join(f"{v:.9g}" for v in row) for stamp, row in zip(stamps, values, strict=True))
+    text = ",".join(HEADER) + "\n" + "\n".join(lines) + "\n"
+    demo = demonstration_from_csv(text, CsvImportOptions(tare=False))
+    a = demo.arrays()
+    assert np.all(np.isfinite(a.positions)) and np.all(np.isfinite(a.wrenches))
+    assert a.t[-1] <= stamps[-1] + 1e-6 * max(1.0, stamps[-1]) and len(a.t) >= rows // 2
