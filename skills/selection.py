@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from skills.quaternions import matrix_from_quaternion
 from skills.segmentation import SegmentBounds
@@ -79,6 +80,18 @@ MIN_TURNING_PARTS = 3
 MIN_MEASURED_SAMPLES = 10
 """A segment needs at least this many samples moving in contact to be measured."""
 
+REPEAT_RADIUS_M = 0.003
+"""Two samples of different passes within this (m) lie at the same place of the surface."""
+
+REPEAT_MIN_ARC_M = 0.03
+"""Two samples farther apart than this along the path (m) belong to different passes."""
+
+REPEAT_SHARE = 0.3
+"""A path that comes back to where it was over at least this share of it shows whether its normal repeats."""
+
+REPEAT_SAMPLES = 2000
+"""Most samples of a segment the repetition is judged on (evenly taken)."""
+
 MIXED_CONFIDENCE = 0.75
 """Below this confidence the evidence is reported as mixed (see the module docstring)."""
 
@@ -100,6 +113,16 @@ class SegmentGeometry:
     tool_turning_deg: float
     duration_s: float
     area_share: float = 0.0
+    repeat_share: float = 0.0
+    repeat_disagreement_deg: float = 0.0
+
+    @property
+    def repeating_turning_deg(self) -> float:
+        """The turning that repeats (deg): where the path comes back to where it was (``REPEAT_SHARE`` of it), the
+        part of the turning the normals at the same place on different passes do not disagree by; else all of it."""
+        if self.repeat_share < REPEAT_SHARE:
+            return self.turning_deg
+        return self.turning_deg * float(np.clip(1.0 - self.repeat_disagreement_deg / max(self.turning_deg, 1e-9), 0, 1))
 
     @property
     def following(self) -> float:
@@ -119,7 +142,7 @@ class SegmentGeometry:
         )
         return np.array(
             [
-                STEEPNESS * np.log(max(self.turning_deg, 1e-3) / TURNING_AT_EVEN_ODDS_DEG),
+                STEEPNESS * np.log(max(self.repeating_turning_deg, 1e-3) / TURNING_AT_EVEN_ODDS_DEG),
                 FOLLOWING_LOG_ODDS * self.following,
                 planarity,
             ]
@@ -187,6 +210,8 @@ def segment_geometry(
     else:
         planar = pressed_surface(p[valid], press, normal, max_tilt_deg=PRESSED_PLANE_TILT_DEG).residual_rms_m
     in_tool = np.einsum("nji,nj->ni", matrix_from_quaternion(quaternions[rows][valid]), d[valid])
+    arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))))[valid]
+    repeats, disagreement = repeated_normals(p[valid], d[valid], arc)
     return SegmentGeometry(
         plane_rms_m=planar,
         curved_rms_m=curved,
@@ -194,7 +219,32 @@ def segment_geometry(
         tool_turning_deg=_turning_deg(in_tool, rate_hz),
         duration_s=(segment.end - segment.start) / rate_hz,
         area_share=area_share,
+        repeat_share=repeats,
+        repeat_disagreement_deg=disagreement,
     )
+
+
+def repeated_normals(
+    positions: NDArray[np.float64], normals: NDArray[np.float64], arc_m: NDArray[np.float64]
+) -> tuple[float, float]:
+    """Return how much of a path comes back to where it was (the share of its samples with a sample of ANOTHER pass
+    within ``REPEAT_RADIUS_M``: farther than ``REPEAT_MIN_ARC_M`` along the path) and how far the normals there
+    disagree (deg, median over such pairs; 0 without any). ``positions`` (M, 3) m, unit ``normals`` (M, 3) and the
+    distance travelled ``arc_m`` (M,) m, of one segment's measured samples (at most ``REPEAT_SAMPLES`` evenly
+    taken). A surface's normal is the same at the same place on every pass; a hand's wobble, or an error that
+    follows the motion, is not."""
+    taken = np.unique(np.linspace(0, len(positions) - 1, min(len(positions), REPEAT_SAMPLES)).round().astype(int))
+    p, n, arc = positions[taken], normals[taken], arc_m[taken]
+    pairs = cKDTree(p).query_pairs(REPEAT_RADIUS_M, output_type="ndarray")
+    if pairs.size == 0:
+        return 0.0, 0.0
+    other_pass = np.abs(arc[pairs[:, 0]] - arc[pairs[:, 1]]) > REPEAT_MIN_ARC_M
+    pairs = pairs[other_pass]
+    if pairs.size == 0:
+        return 0.0, 0.0
+    share = len(np.unique(pairs)) / len(p)
+    angles = np.degrees(np.arccos(np.clip(np.sum(n[pairs[:, 0]] * n[pairs[:, 1]], axis=1), -1.0, 1.0)))
+    return float(share), float(np.median(angles))
 
 
 def classify_skill(
@@ -229,8 +279,15 @@ def classify_skill(
     turning = max(g.turning_deg for g in measured)
     following = max(g.following for g in measured)
     rms_mm = max(g.plane_rms_m for g in measured) * 1000.0
+    repeating = [g for g in measured if g.repeat_share >= REPEAT_SHARE]
+    repeats = (
+        f" ({max(g.repeating_turning_deg for g in repeating):.1f} deg of it repeating at the same place on other "
+        "passes)"
+        if repeating
+        else ""
+    )
     facts = (
-        f"the normal turns up to {turning:.1f} deg within a stroke (even odds at "
+        f"the normal turns up to {turning:.1f} deg within a stroke{repeats} (even odds at "
         f"{TURNING_AT_EVEN_ODDS_DEG:.0f} deg), the tool turns with {100 * following:.0f} % of it, and the contact "
         f"leaves its best pressed plane by up to {rms_mm:.1f} mm RMS, over {len(measured)} plane candidate(s)"
     )

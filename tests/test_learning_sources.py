@@ -156,3 +156,27 @@ def test_a_glitch_is_despiked_and_a_fast_press_is_not() -> None:
     cleaned, count = despiked(glitched)
     assert count == 1 and abs(cleaned[120, 0] - 15.0) < 1.0
     np.testing.assert_array_equal(np.delete(cleaned, 120, axis=0), np.delete(values, 120, axis=0))
+
+
+def test_only_a_turning_that_repeats_at_the_same_place_is_curvature() -> None:
+    """Three passes round one circle whose normal turns with the place (a rim): the normals at the same place agree,
+    and all the turning counts. Three passes along one line whose force leans ±15° with the direction of travel (a
+    hand pushing sideways as it wipes): at the same place the normals disagree by 30°, so that turning is no
+    curvature."""
+    from skills.selection import SegmentGeometry, repeated_normals
+
+    angle = np.linspace(0.0, 3 * 2 * np.pi, 3000)
+    rim = np.column_stack([0.06 * np.cos(angle), 0.06 * np.sin(angle), np.zeros_like(angle)])
+    inward = np.column_stack([-np.cos(angle), -np.sin(angle), -np.ones_like(angle)]) / np.sqrt(2.0)
+    arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(rim, axis=0), axis=1))))
+    share, disagreement = repeated_normals(rim, inward, arc)
+    assert share > 0.6 and disagreement < 3.0  # within 3 mm on a 6 cm rim the normal turns up to 2.9°
+    x = 0.075 * (1 - np.cos(np.linspace(0.0, 3 * np.pi, 3000)))  # there, back, there again
+    line = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    lean = np.radians(15.0) * np.sign(np.gradient(x))
+    leaning = np.column_stack([np.zeros_like(x), np.sin(lean), -np.cos(lean)])
+    arc = np.concatenate(([0.0], np.cumsum(np.abs(np.diff(x)))))
+    share, disagreement = repeated_normals(line, leaning, arc)
+    assert share > 0.6 and disagreement == pytest.approx(30.0, abs=1.0)
+    wobbling = SegmentGeometry(0.0, 0.0, 30.0, 30.0, 3.0, repeat_share=share, repeat_disagreement_deg=disagreement)
+    assert wobbling.repeating_turning_deg < 1.0
