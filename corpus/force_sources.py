@@ -506,6 +506,24 @@ def _rest_axes(normal: NDArray[np.float64], e_u: NDArray[np.float64], rng: np.ra
     return [rotated(normal, rotated(e_u, normal, phase + 2 * np.pi * k / 3), cone) for k in range(3)]
 
 
+def tool_centre(rng: np.random.Generator, params: dict[str, float]) -> dict[str, float]:
+    """The tool's centre of mass (``tool_com_x/y/z``, m, tool frame from the tool point): ``com_from_sensor_m``
+    along tool z from the sensor, which sits ``sensor_to_tool_point_m`` behind the tool point, and up to 1 cm
+    aside."""
+    aside = rng.uniform(0.0, 0.01) * rotated(np.array([1.0, 0.0, 0.0]), UP, rng.uniform(-np.pi, np.pi))
+    com = aside + (params["com_from_sensor_m"] - params["sensor_to_tool_point_m"]) * UP
+    return {f"tool_com_{x}": float(v) for x, v in zip("xyz", com, strict=True)}
+
+
+def carried_weight(orientations: NDArray[np.float64], params: dict[str, float]) -> NDArray[np.float64]:
+    """The wrench (N, 6) N and N·m, world, applied-by-tool terms, an uncompensated tool weight adds to what the sensor
+    carries at world-from-tool ``orientations`` (N, 4): the sensor holds the tool up against gravity, so it carries
+    -m g (up) and its moment about the tool point (``tool_mass_kg``, ``tool_com_x/y/z`` of ``params``)."""
+    lift = -params["tool_mass_kg"] * GRAVITY
+    lever = matrix_from_quaternion(orientations) @ np.array([params[f"tool_com_{x}"] for x in "xyz"])
+    return np.hstack([np.broadcast_to(lift, lever.shape), np.cross(lever, lift)])
+
+
 def tool_weight_case(seed: int = 0, free_space: bool = True) -> CorpusCase:
     """A zig-zag on a 30-40 deg slope recorded by a wrist sensor that does not compensate the tool's 0.4-0.6 kg
     (see the module docstring); slide. Family ``tool-weight`` (``free_space``: two zig-zags, rests in the air at
@@ -534,9 +552,7 @@ def tool_weight_case(seed: int = 0, free_space: bool = True) -> CorpusCase:
         "sensor_to_tool_point_m": rng.uniform(0.12, 0.18),
         "com_from_sensor_m": rng.uniform(0.03, 0.08),
     }
-    aside = rng.uniform(0.0, 0.01) * rotated(np.array([1.0, 0.0, 0.0]), UP, rng.uniform(-np.pi, np.pi))
-    com = aside + (params["com_from_sensor_m"] - params["sensor_to_tool_point_m"]) * UP
-    params |= {f"tool_com_{x}": float(v) for x, v in zip("xyz", com, strict=True)}
+    params |= tool_centre(rng, params)
     plane = tilted_plane(params["tilt_deg"], rng)
     force, ramp, cruise = params["force_n"], params["ramp_s"], params["cruise_m_s"]
     first = plane_stroke(plane, "zigzag", rng, dt, force, ramp, cruise)
@@ -548,10 +564,7 @@ def tool_weight_case(seed: int = 0, free_space: bool = True) -> CorpusCase:
     else:
         pieces = [first]  # touch-down to lift-off: no air at all
     fine = assemble(pieces, dt, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
-    # The sensor holds the tool up against gravity: it carries -m g (up) and its moment about the tool point.
-    lift = -params["tool_mass_kg"] * GRAVITY
-    lever = matrix_from_quaternion(fine.orientations) @ com
-    weight = np.hstack([np.broadcast_to(lift, lever.shape), np.cross(lever, lift)])
+    weight = carried_weight(fine.orientations, params)
     operator = OperatorModel(rng.uniform(3.0, 5.0), rng.uniform(15.0, 25.0), rng.uniform(1.0, 2.0))
     rate = float(rng.choice([100.0, 125.0, 200.0, 250.0]))
     family = "tool-weight" if free_space else "tool-weight-no-free"

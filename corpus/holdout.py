@@ -108,7 +108,6 @@ from corpus.build import (
 from corpus.case import CorpusCase, truth_segments
 from corpus.families import plane_stroke
 from corpus.force_sources import (
-    GRAVITY,
     JOINT_FRICTION_SPEED_M_S,
     LWR_COLUMNS,
     LWR_JITTER_PERIODS,
@@ -118,7 +117,9 @@ from corpus.force_sources import (
     _through_the_air,
     _wipe_contacts,
     arm_draws,
+    carried_weight,
     friction_free_turn_deg,
+    tool_centre,
     wipe_draws,
     wipe_lanes,
     wipe_passes,
@@ -551,9 +552,7 @@ def tool_weight_line_case(seed: int = 0) -> CorpusCase:
         "sensor_to_tool_point_m": rng.uniform(0.12, 0.18),
         "com_from_sensor_m": rng.uniform(0.03, 0.08),
     }
-    aside = rng.uniform(0.0, 0.01) * rotated(np.array([1.0, 0.0, 0.0]), UP, rng.uniform(-np.pi, np.pi))
-    com = aside + (params["com_from_sensor_m"] - params["sensor_to_tool_point_m"]) * UP
-    params |= {f"tool_com_{x}": float(v) for x, v in zip("xyz", com, strict=True)}
+    params |= tool_centre(rng, params)
     plane = tilted_plane(params["tilt_deg"], rng)
     stroke = _straight_stroke(plane, params["length_m"], params["cruise_m_s"], params["force_n"], params["ramp_s"], rng)
     held = _rest_axes(stroke.normals[0], plane.e_u, rng)
@@ -565,10 +564,7 @@ def tool_weight_line_case(seed: int = 0) -> CorpusCase:
     move = transfer(first, start, held[1], rng.uniform(0.6, 0.9), _FINE_DT, 0.01)
     pieces = [rest(first, held[0], rng.uniform(1.2, 1.5), _FINE_DT), move, *pieces]
     fine = assemble(pieces, _FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
-    # The sensor holds the tool up against gravity: it carries -m g (up) and its moment about the tool point.
-    lift = -params["tool_mass_kg"] * GRAVITY
-    lever = matrix_from_quaternion(fine.orientations) @ com
-    weight = np.hstack([np.broadcast_to(lift, lever.shape), np.cross(lever, lift)])
+    weight = carried_weight(fine.orientations, params)
     operator = OperatorModel(rng.uniform(3.0, 5.0), rng.uniform(15.0, 25.0), rng.uniform(1.0, 2.0))
     rate = float(rng.choice([100.0, 125.0, 200.0, 250.0]))
     sensed = replace(fine, wrenches=fine.wrenches + weight)
