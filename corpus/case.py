@@ -249,3 +249,32 @@ def analytic_case(
         parameters=parameters,
         sensed_wrenches=sensed,
     )
+
+
+def sampled_case(
+    name: str,
+    family: str,
+    skill_type: str,
+    fine: Assembled,
+    samples: NDArray[np.int_],
+    parameters: dict[str, float],
+    recording: CsvRecording,
+) -> CorpusCase:
+    """The `CorpusCase` of a recording FILE made from the assembled demonstration ``fine``: the truth at its samples
+    ``samples`` (indices into ``fine``: the file's nominal sample times), the truth segments found on the fine
+    grid."""
+    return CorpusCase(
+        name=name,
+        family=family,
+        skill_type=skill_type,
+        t=fine.t[samples],
+        positions=fine.positions[samples],
+        orientations=fine.orientations[samples],
+        wrenches=fine.wrenches[samples],
+        in_contact=fine.touching[samples],
+        normals=fine.normals[samples],
+        normal_force_n=fine.normal_force[samples],
+        segments=truth_segments(fine, skill_type == "slide"),
+        parameters=parameters,
+        recording=recording,
+    )

@@ -81,7 +81,7 @@ from corpus.build import (
     timed,
     transfer,
 )
-from corpus.case import CorpusCase, CsvRecording, truth_segments
+from corpus.case import CorpusCase, CsvRecording, sampled_case
 from corpus.families import cylinder_case, plane_stroke
 from corpus.kinesthetic import OperatorModel, operator_forces
 from corpus.recording import FINE_RATE_HZ, recorded_case
@@ -479,21 +479,7 @@ def lwr_wipe_case(seed: int = 0, area: str = "patch") -> CorpusCase:
         direction_errors=direction_errors[samples],
         joint_friction=joint_friction[samples],
     )
-    return CorpusCase(
-        name=name,
-        family=f"lwr-wipe-{area}",
-        skill_type="slide",
-        t=t,
-        positions=tip,
-        orientations=fine.orientations[samples],
-        wrenches=fine.wrenches[samples],
-        in_contact=fine.touching[samples],
-        normals=fine.normals[samples],
-        normal_force_n=fine.normal_force[samples],
-        segments=truth_segments(fine, True),
-        parameters=params,
-        recording=recording,
-    )
+    return sampled_case(name, f"lwr-wipe-{area}", "slide", fine, samples, params, recording)
 
 
 # --------------------------------------------------------------------------- an uncompensated tool weight

@@ -105,7 +105,7 @@ from corpus.build import (
     timed,
     transfer,
 )
-from corpus.case import CorpusCase, truth_segments
+from corpus.case import CorpusCase, sampled_case
 from corpus.families import plane_stroke
 from corpus.force_sources import (
     JOINT_FRICTION_SPEED_M_S,
@@ -360,21 +360,7 @@ def _case(
 ) -> CorpusCase:
     """The slide `CorpusCase` of ``fine`` at its ``samples`` (the truth at the tool point), recorded as
     ``recording``; one truth segment per contact (`corpus.case.truth_segments`, found on the fine grid)."""
-    return CorpusCase(
-        name=name,
-        family=family,
-        skill_type="slide",
-        t=fine.t[samples],
-        positions=fine.positions[samples],
-        orientations=fine.orientations[samples],
-        wrenches=fine.wrenches[samples],
-        in_contact=fine.touching[samples],
-        normals=fine.normals[samples],
-        normal_force_n=fine.normal_force[samples],
-        segments=truth_segments(fine, True),
-        parameters=params,
-        recording=recording,
-    )
+    return sampled_case(name, family, "slide", fine, samples, params, recording)
 
 
 def _arm_estimate_case(

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.interpolate import interp1d
 
 from corpus.build import Assembled
-from corpus.case import CorpusCase, CsvRecording, truth_segments
+from corpus.case import CorpusCase, CsvRecording, sampled_case
 from corpus.kinesthetic import OperatorModel, operator_forces, random_wrist_sensor, wrist_sensor_samples
 from skills.quaternions import quaternions_slerp
 
@@ -95,18 +95,5 @@ def recorded_case(
         sensor_offset=sensor.offset,
         hand_forces=hand[samples],
     )
-    return CorpusCase(
-        name=name,
-        family=family,
-        skill_type=skill_type,
-        t=fine.t[samples],
-        positions=fine.positions[samples],
-        orientations=fine.orientations[samples],
-        wrenches=fine.wrenches[samples],
-        in_contact=fine.touching[samples],
-        normals=fine.normals[samples],
-        normal_force_n=fine.normal_force[samples],
-        segments=truth_segments(fine, skill_type == "slide"),
-        parameters={**parameters, "rate_hz": rate_hz, "irregular": float(irregular)},
-        recording=recording,
-    )
+    parameters = {**parameters, "rate_hz": rate_hz, "irregular": float(irregular)}
+    return sampled_case(name, family, skill_type, fine, samples, parameters, recording)
