@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
+from test_corpus_force_sources import rests
 
 from corpus import holdout
 from corpus.case import CorpusCase
@@ -293,22 +294,6 @@ def test_the_curved_wipe_turns_its_true_normal_5_to_14_deg_and_lies_on_a_cylinde
 
 
 # --------------------------------------------------------------------------- the tool weight over one line
-
-
-def rests(case: CorpusCase) -> list[slice]:
-    """Stretches of at least 0.8 s in free space where the tool point stays within 4 mm, less 0.3 s at each end."""
-    rate = round(case.parameters["rate_hz"])
-    window = round(0.5 * rate)
-    still = np.array(
-        [
-            np.ptp(case.positions[max(0, k - window // 2) : k + window // 2 + 1], axis=0).max() < 4e-3
-            for k in range(case.t.size)
-        ]
-    )
-    mask = still & ~case.in_contact
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
-    trim = round(0.3 * rate)
-    return [slice(a + trim, b - trim) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= 0.8 * rate]
 
 
 @pytest.mark.parametrize("seed", SEEDS)
