@@ -309,9 +309,7 @@ def fitted_sensor_offset(
         offset = sensor_offset_in_free_space(t, positions, orientations, wrenches, free)
         if offset is None:
             continue
-        tared = wrenches_without_offset(
-            orientations, wrenches, offset.wrench, offset.world_force, offset.world_force_centre
-        )
+        tared = offset.removed_from(orientations, wrenches)
         again = analyse_contact(t, positions, tared[:, :3])
         if not again.intervals:
             continue
@@ -321,12 +319,12 @@ def fitted_sensor_offset(
             )
             or offset
         )
-        tared = wrenches_without_offset(
-            orientations, wrenches, refit.wrench, refit.world_force, refit.world_force_centre
-        )
+        tared = refit.removed_from(orientations, wrenches)
         share = implausible_contact_share(t, positions, tared[:, :3], again.in_contact) + (SETTLED_MARGIN if k else 0.0)
         if best is None or share < best[0]:
             best = (share, refit)
+        if k == 0 and share <= SETTLED_MARGIN:
+            break  # no other candidate can be clearly better than taking nothing out: none is tried
     return None if best is None else best[1]
 
 
