@@ -180,3 +180,20 @@ def test_only_a_turning_that_repeats_at_the_same_place_is_curvature() -> None:
     assert share > 0.6 and disagreement == pytest.approx(30.0, abs=1.0)
     wobbling = SegmentGeometry(0.0, 0.0, 30.0, 30.0, 3.0, repeat_share=share, repeat_disagreement_deg=disagreement)
     assert wobbling.repeating_turning_deg < 1.0
+
+
+def test_a_ramped_press_learned_as_its_profile_is_pressed_so_in_pybullet() -> None:
+    """The learned ramp executed on the work piece measured from the demonstration (real PyBullet, the default
+    controller and wrist sensor): the true contact force along the true normal follows the learned profile within 5 %
+    RMS and the verdict passes, so the robot presses 2 -> 20 N where the person did, not a constant 14.7 N."""
+    from schemas import ExecutionSettings
+    from sim_worker.execution_world import execution_world
+    from sim_worker.executor import run_skill
+
+    case = ramp_press_case(0)
+    demonstration, skill = learned(case)
+    [segment] = [s for s in skill.segments if s.kind.value == "contact"]
+    assert segment.force_dmp is not None and segment.force_constant_n is None
+    metrics = run_skill(execution_world(skill, demonstration=demonstration), ExecutionSettings()).metrics
+    assert metrics.work_piece == "measured" and metrics.true_force_rms_error_pct < 5.0
+    assert metrics.verdict is not None and metrics.verdict.verdict.value == "pass"
