@@ -42,6 +42,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_real_skills.py
 	$(BIN)/python benchmarks/bench_kuleuven_cad.py
 	$(BIN)/python benchmarks/bench_contours.py
+	$(BIN)/python benchmarks/bench_verdicts.py
 	$(BIN)/python benchmarks/bench_toolchain.py
 	$(BIN)/python benchmarks/bench_dmp_peer.py
 	$(BIN)/python benchmarks/bench_control_loop.py --repeats 5

@@ -176,7 +176,7 @@ def _metrics_lines(status) -> list[str]:
 def exit_code(done: bool, metrics) -> int:
     """0 when an execution ran every segment (``done``) and passed its verdict (``metrics``, may be None); else why
     not (``EXIT_*``)."""
-    from schemas.execution import Verdict
+    from schemas.verdict import Verdict
 
     if not done:
         return EXIT_ENDED_EARLY

@@ -152,10 +152,26 @@ def _print_execution(result) -> None:
               f"({m.force_max_error_pct:.2f} %)")  # fmt: skip
     if m.touchdown_peak_n is not None:
         settle = f", settled within 5 % after {m.settle_time_s:.2f} s" if m.settle_time_s is not None else ""
-        print(f"  touch-down peak {m.touchdown_peak_n:.2f} N ({m.touchdown_peak_ratio or 0:.2f} x the target){settle}")
+        asked = m.touchdown_contact_force_ratio
+        asked_text = f", {asked:.2f} x the force asked at contact" if asked is not None else ""
+        print(f"  touch-down peak {m.touchdown_peak_n:.2f} N ({m.touchdown_peak_ratio or 0:.2f} x the press that "
+              f"followed{asked_text}){settle}")  # fmt: skip
     if m.cf_normal_angle_deg is not None:
         print(f"  CF z (as the controller used it) vs true surface normal: mean {m.cf_normal_angle_deg:.2f} deg, "
               f"max {m.cf_normal_angle_max_deg:.2f} deg")  # fmt: skip
+    for s in m.surfaces_pressed:
+        line = (
+            f"  segment {s.segment} pressed normals {s.normal_error_deg:.1f} deg from the taught ones (median), "
+            f"{s.touchdown_normal_error_deg:.1f} at touch-down, {s.final_normal_error_deg:.1f} at its end"
+        )
+        if s.region_coverage is not None and s.pressed_region_deg and s.taught_region_deg:
+            (a, b), (c, d) = s.pressed_region_deg, s.taught_region_deg
+            line += f"; over {a:+.0f}..{b:+.0f} of {c:+.0f}..{d:+.0f} deg taught ({100 * s.region_coverage:.0f} %)"
+        if s.crease_deg is not None and s.crease_turn_deg is not None:
+            line += f"; turned {s.crease_turn_deg:.1f} deg across the {s.crease_deg:.0f} deg crease"
+        print(line)
+    if m.exit_collision_n is not None:
+        print(f"  exit collision: the way out hit the part at {m.exit_collision_n:.2f} N")
     if m.path_rms_m is not None:
         print(f"  path RMS (CF x-y) {m.path_rms_m * 1e3:.2f} mm; contact ratio {m.contact_ratio * 100:.2f} %")
     for found in m.contact_found_offsets_m:

@@ -12,8 +12,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Demonstration, DemonstrationSummary
-from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch, Verdict
+from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.skill import LearnOptions, Skill
+from schemas.verdict import Verdict
 
 
 class ExecutionState(StrEnum):

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Quaternion, Vector3, Wrench
 from schemas.skill import Skill
+from schemas.verdict import ExecutionTolerances, ExecutionVerdict, SurfacePressed
 
 
 def _triple(low: float, high: float) -> type[list[float]]:
@@ -134,95 +135,6 @@ class SurfaceWindowAction(StrEnum):
     """Go on (the force is still measured); the verdict carries a warning naming the distance."""
     abort = "abort"
     """Stop there: retract and abort with the distance in the reason (the part is not where the skill expects it)."""
-
-
-class Verdict(StrEnum):
-    """Whether an execution did what its skill asked, within the tolerances (:class:`ExecutionTolerances`)."""
-
-    passed = "pass"
-    failed = "fail"
-
-
-class VerdictCheckName(StrEnum):
-    """The checks of a verdict (:class:`VerdictCheck`)."""
-
-    finished = "finished"
-    """The execution ran every segment (not aborted, not failed)."""
-    true_force_rms = "true_force_rms"
-    true_force_max = "true_force_max"
-    contact_ratio = "contact_ratio"
-    touchdown = "touchdown"
-    surface_found = "surface_found"
-    """Every guarded approach found the surface within the expected window of where it was taught (outside it: a
-    warning, or an abort with ``surface_outside_window: abort``)."""
-    not_relocated = "not_relocated"
-    """No contour was relocated where its touch-down found the part (``follow_surface_normal``; relocated: a warning
-    naming the part's move, which the run believed)."""
-    skill_checks = "skill_checks"
-    """The skill passes its own checks against its demonstration (``Skill.checks``). A failed one is a warning; it
-    fails the verdict where the work piece carries the mistake, so that the run cannot show it wrong: one rebuilt from
-    what the skill learned, or one measured from its demonstration when a check of the recording itself failed (its
-    wrench's sign, its sensor offset)."""
-
-
-class ExecutionTolerances(BaseModel):
-    """What an execution must achieve to pass its verdict (errors of the TRUE normal force, over the steady contact
-    including crease passages and segment switches)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    true_force_rms_pct: float = Field(
-        10.0, gt=0, le=1000, description="Largest RMS error of the true normal force, % of the reference force."
-    )
-    true_force_max_pct: float = Field(
-        50.0, gt=0, le=1000, description="Largest error of the true normal force at a steady step, % of the reference."
-    )
-    contact_ratio: float = Field(
-        0.97, ge=0, le=1, description="Smallest share of the contact phase spent touching the surface."
-    )
-    touchdown_ratio: float = Field(
-        1.5, gt=0, le=100, description="Largest touch-down peak over the first desired force (1 = no overshoot)."
-    )
-    surface_window_m: float | None = Field(
-        None,
-        gt=0,
-        le=0.5,
-        description="How far from where it was taught a guarded approach may find the surface, m (along CF z, "
-        "either way); default: the approach's slow zone, approach_slow_distance_m (at least 5 mm): beyond it the "
-        "tool met the surface faster than the touch-down speed, or met another surface.",
-    )
-
-
-class VerdictCheck(BaseModel):
-    """One check of a verdict: the measured value against its limit."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    name: VerdictCheckName
-    passed: bool
-    warning_only: bool = Field(False, description="A failure is a warning and does not fail the verdict.")
-    value: float | None = Field(None, description="The measured value (unit of the limit; None: not measured).")
-    limit: float | None = Field(None, description="The tolerance it is held to.")
-    message: str = Field(description="What was measured against what, in words.")
-
-
-class ExecutionVerdict(BaseModel):
-    """Pass or fail, and why: every check of the execution against its tolerances."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    verdict: Verdict
-    reasons: list[str] = Field(default_factory=list, description="The failed checks' messages (empty on pass).")
-    warnings: list[str] = Field(
-        default_factory=list, description="What held the execution to less than it expected, without failing it."
-    )
-    checks: list[VerdictCheck] = Field(default_factory=list)
-
-    def lines(self) -> list[str]:
-        """The verdict in words: ``verdict: pass (5 checks)`` or ``verdict: FAIL``, then one line per reason and
-        warning."""
-        head = f"verdict: pass ({len(self.checks)} checks)" if self.verdict is Verdict.passed else "verdict: FAIL"
-        return [head, *(f"  - {reason}" for reason in self.reasons), *(f"  WARNING: {w}" for w in self.warnings)]
 
 
 class ControllerGains(BaseModel):
@@ -550,14 +462,15 @@ class ExecutionSettings(BaseModel):
     pace: Pace = Field(
         Pace.fast, description="realtime: simulated time follows the wall clock; fast: as fast as possible."
     )
-    follow_surface_normal: bool = Field(
-        False,
+    follow_surface_normal: bool | None = Field(
+        None,
         description="hybrid_cf: every contact phase follows the surface it meets: the CF z turns towards the normal "
         "estimated online from the applied force without its friction part (contours: within 75 deg of the taught "
         "one; slides: 40 deg), a contour's path is re-anchored where the surface was found and kept on it (relocated "
         "when the touch-down presses on a normal taught elsewhere on its path), and consecutive contact segments "
-        "switch where the next surface is met. Off: the paper's fixed CF (docs/EXECUTION.md, 'Following the "
-        "surface': what it costs where the part is as taught).",
+        "switch where the next surface is met. Off: the paper's fixed CF. Default (null): on for a skill whose "
+        "contact segments are all slides, off for one with a contour, as measured over moved, tilted, resized, "
+        "swapped and missing parts (docs/EXECUTION.md, 'Following the surface, or not').",
     )
     tare_sensor: bool = Field(
         True,
@@ -816,7 +729,19 @@ class ExecutionMetrics(BaseModel):
         "(the impact of the guarded approach and the force ramp).",
     )
     touchdown_peak_ratio: float | None = Field(
-        None, description="The touch-down peak over the first desired force of its contact segment (1 = no overshoot)."
+        None,
+        description="The largest touch-down peak over the press that follows it (the desired force where its steady "
+        "contact starts; 1 = no overshoot): what the touchdown check holds to its tolerance.",
+    )
+    touchdown_contact_force_ratio: float | None = Field(
+        None,
+        description="The largest touch-down peak over the force its contact segment asks at contact (the first "
+        "desired force; a contour's profile may start far below its press), reported beside the checked ratio.",
+    )
+    exit_collision_n: float | None = Field(
+        None,
+        description="Largest true normal force where a free segment after a contact hit the part on the way out, N "
+        "(None: no hit).",
     )
     settle_time_s: float | None = Field(
         None,
@@ -830,6 +755,11 @@ class ExecutionMetrics(BaseModel):
     )
     cf_normal_angle_max_deg: float | None = Field(
         None, description="Largest angle between the CF z the controller used and the true surface normal, deg."
+    )
+    surfaces_pressed: list[SurfacePressed] = Field(
+        default_factory=list,
+        description="Per contact segment that touched: where it pressed against where it was taught, told by the "
+        "surface normals (docs/EXECUTION.md).",
     )
     transition_true_force_max_error_n: float | None = Field(
         None,

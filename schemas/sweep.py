@@ -34,9 +34,9 @@ from schemas.execution import (
     ControllerKind,
     ExecutionMetrics,
     ExecutionSettings,
-    Verdict,
 )
 from schemas.skill import Skill
+from schemas.verdict import Verdict
 
 MAX_TRIALS = 2000
 """Most trials of one sweep (each runs once per controller)."""

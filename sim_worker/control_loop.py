@@ -514,16 +514,16 @@ class ControlLoop:
             f"CF z (an edge or a hole?); {retracted}"
         )
 
-    def retract(self) -> None:
-        """Back off ``CONTACT_LOSS_RETRACT_M`` along -CF z (the frame in use) from the current pose with motion control
-        on every axis."""
+    def retract(self, axis: NDArray[np.float64] | None = None, segment: int = -1) -> None:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit; default: CF z of the frame in use) from
+        the current pose with motion control on every axis (recorded as a retreat of ``segment``)."""
         p, q = self.world.tool_pose()
-        z = self.cf_rotation[:, 2]
+        z = self.cf_rotation[:, 2] if axis is None else axis
         n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
         ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * z
         twist = np.zeros((n, 6))
         twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
-        plan = PhasePlan(ExecutionPhase.retreat, -1, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
+        plan = PhasePlan(ExecutionPhase.retreat, segment, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
                          frame=self.identity_frame)  # fmt: skip
         self.controller.reset_integral()
         self.run_plan(plan)

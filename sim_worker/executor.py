@@ -87,7 +87,7 @@ from skills.control import (
     HybridController,
 )
 from skills.dmp import DMP
-from skills.job_estimate import SURFACE_WINDOW_MIN_M, TARE_HOLD_S
+from skills.job_estimate import LIFT_OFF_M, LIFT_OFF_S, SURFACE_WINDOW_MIN_M, TARE_HOLD_S
 from skills.normal_tracking import SurfaceNormalTracker
 from skills.quaternions import matrix_from_quaternion
 
@@ -104,6 +104,13 @@ CONTACT_LOSS_TRAVEL_M = 0.01
 CONTACT_LOSS_RETRACT_M = 0.05
 """How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
 CONTACT_LOSS_RETRACT_S = 1.0
+LIFT_OFF_SPEED_M_S = 1.5 * LIFT_OFF_M / LIFT_OFF_S
+"""The lift-off's mean speed (away from the surface: no impact to plan for; ``PhasePlanner.transfer`` takes
+1.5 × the distance over the speed), m/s; the confirming touch lifts at it too."""
+CONFIRM_LIFT_M = 0.01
+"""Before a contour is relocated, the tool lifts this far off where it touched down and touches down again, m."""
+RELOCATION_AGREEMENT_M = 0.01
+"""... and the second touch must find the part moved as the first did within this, m."""
 RELOCATION_SAMPLES = 101
 """Places along a contour whose taught normal a touch-down's pressing direction is matched against (``_relocated``)."""
 RELOCATION_MIN_FORCE_N = 0.5
@@ -167,6 +174,20 @@ def shifted_world_config(config: WorldConfig, offset: list[float] | NDArray[np.f
     return config.replace(table={"center_xy": (cx + d[0], cy + d[1]), "height_m": config.table.height_m + d[2]})
 
 
+def follows_surface(skill: Skill, settings: ExecutionSettings) -> bool:
+    """Whether an execution of ``skill`` follows the surface it finds (``hybrid_cf`` only): as
+    ``settings.follow_surface_normal`` says, by default where every contact segment is a slide (one compliant frame).
+    Measured (``benchmarks/bench_verdicts.py``): following costs slides nothing and holds a tilted part the fixed frame
+    cannot; a contour re-anchored where a moved part was met covers less of its taught region than the fixed frames
+    do, so contours keep them unless asked."""
+    if ControllerKind(settings.controller) is not ControllerKind.hybrid_cf:
+        return False
+    if settings.follow_surface_normal is not None:
+        return settings.follow_surface_normal
+    frames = [s.compliant_frames for s in skill.segments if s.kind is SegmentKind.contact]
+    return all(f is not None and len(f.t) == 1 for f in frames)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # The executor
 # ---------------------------------------------------------------------------------------------------------------
@@ -207,13 +228,19 @@ class _Execution:
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         self._selection = {s.index: s.selection for s in skill.segments}
-        self.follows_surface = settings.follow_surface_normal and self.kind is ControllerKind.hybrid_cf
+        self.follows_surface = follows_surface(skill, settings)
         """Contact phases follow the surface found (``sim_worker.surface_following``)."""
         self._tracker: SurfaceNormalTracker | None = None
         """The surface normal tracked over the current contact run (with ``follows_surface``)."""
         self.impacts = ImpactPlanner(self.world, settings, self.contact_threshold, self.dt)
         self.contact_offsets: list[float] = []
+        self.next_surface_found: dict[int, bool] = {}
+        """Following the surface: per contact segment entered across a crease, whether its surface was met."""
+        self.exit_axis: NDArray[np.float64] | None = None
+        """The normal the tool lifted off along after its last contact: the way out is guarded along it."""
         self.relocations: list[list[float]] = []
+        self.unconfirmed_relocations: list[list[float]] = []
+        """The moves of the part a touch-down suggested and a second touch did not confirm (m, world)."""
         """The offsets (m, world) by which contours were found moved and relocated (``_relocated``)."""
         self.loop = ControlLoop(
             self.world,
@@ -291,20 +318,16 @@ class _Execution:
             plan.quick_steps,
         )
 
-    def _relocated(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> bool:
-        """Whether a contour that follows the surface was met at another place of its path than its start, and was
-        relocated: the direction the tool presses in at the end of the touch-down's force ramp (the normal lies within
-        the friction cone about it) is farther than the friction angle from the taught normal at the start and within
-        it of the taught normal somewhere else along the path. The part then moved by ``p - p_taught(s*)`` (``s*``
-        the place whose taught normal matches: the same tool point on a part that translated); the force ``press_n``
-        (N) is released, the tool retracts, and the plans are rebuilt with that offset added to the known one
-        (``self.offset``). The caller moves to the new pre-contact point and touches down again."""
+    def _touch_shift(self, segment: Segment) -> NDArray[np.float64] | None:
+        """How far the part moved, from the touch-down just made (``relocation_offset``): the direction the tool
+        presses in over the last ``RELOCATION_AVERAGE_S`` (the normal lies within the friction cone about it) farther
+        than the friction angle from the taught normal at the start and within it of the taught normal somewhere else
+        along the path ``s*``: the part moved by ``p - p_taught(s*)``. None: met where taught, a press too light to
+        tell, or a move beyond the approach's reach."""
         geo = self.geometry[segment.index]
-        if not self.follows_surface or geo.t.size < 2 or self._tracker is None:
-            return False
         force = self.loop.recent(RELOCATION_AVERAGE_S).wrench_world[:, :3].mean(axis=0)
-        if float(np.linalg.norm(force)) < RELOCATION_MIN_FORCE_N:
-            return False
+        if self._tracker is None or float(np.linalg.norm(force)) < RELOCATION_MIN_FORCE_N:
+            return None
         fractions = np.linspace(0.0, 1.0, RELOCATION_SAMPLES)
         path = DMP.from_parameters(segment.position_dmp).rollout(self.dt).y + self.offset
         shift = relocation_offset(
@@ -314,22 +337,84 @@ class _Execution:
             self.world.tool_pose()[0],
             self._tracker.static_cone_rad,
         )
-        if shift is None:
-            return False
-        if float(np.linalg.norm(shift)) > self.settings.approach_max_distance_m:
-            return False
-        release_s = self.settings.gains.force_release_s
+        if shift is None or float(np.linalg.norm(shift)) > self.settings.approach_max_distance_m:
+            return None
+        return shift
+
+    def _release(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> None:
+        """Ramp the force ``press_n`` (N) down to zero over ``force_release_s``, the tool held where it is."""
         p = self.world.tool_pose()[0]
-        release = self.planner.hold(
-            segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, self.loop.cf_rotation
+        release_s = self.settings.gains.force_release_s
+        self._run(
+            self.planner.hold(segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, self.loop.cf_rotation)
         )
-        self._run(release)
+
+    def _touch_again(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> None:
+        """A second touch where the first one was: release ``press_n`` (N), lift ``CONFIRM_LIFT_M`` off along the
+        direction pressed, approach again at the touch-down speed and ramp back to ``press_n``."""
+        self._release(segment, press_n, ref_q)
+        z = self.loop.cf_rotation[:, 2].copy()
+        p, q = self.world.tool_pose()
+        self._run(
+            self.planner.transfer(
+                segment.index, p, q, p - CONFIRM_LIFT_M * z, ref_q, None, ExecutionPhase.approach, LIFT_OFF_SPEED_M_S
+            )
+        )
+        speed = self.impacts.touchdown_speed(segment, self.geometry[segment.index].first_rotation[:, 2])
+        self.loop.touched = False
+        self._run(self.planner.approach(segment, self.world.tool_pose()[0], ref_q, speed, fast=False))
+        found = float(np.clip(self.loop.found_force or 0.0, 0.0, press_n))
+        ramp = self.planner.hold(
+            segment,
+            ExecutionPhase.approach,
+            self.world.tool_pose()[0],
+            found,
+            press_n,
+            self.settings.gains.force_ramp_s,
+            ref_q,
+            self.geometry[segment.index].first_rotation,
+        )
+        ramp.follows_surface = self.follows_surface
+        self._run(ramp)
+
+    def _relocated(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> bool:
+        """Whether a contour that follows the surface was met at another place of its path than its start
+        (:meth:`_touch_shift`), CONFIRMED by a second touch there (:meth:`_touch_again`) whose shift agrees within
+        ``RELOCATION_AGREEMENT_M``, and was relocated: the force ``press_n`` (N) is released, the tool retracts, and
+        the plans are rebuilt with the mean of the two shifts added to the known offset (``self.offset``). The caller
+        moves to the new pre-contact point and touches down again. Not confirmed: the contour goes on from the
+        second touch, and the log keeps the shift it did not believe (the verdict warns)."""
+        geo = self.geometry[segment.index]
+        if not self.follows_surface or geo.t.size < 2:
+            return False
+        first = self._touch_shift(segment)
+        if first is None:
+            return False
+        self._touch_again(segment, press_n, ref_q)
+        second = self._touch_shift(segment)
+        if second is None or float(np.linalg.norm(second - first)) > RELOCATION_AGREEMENT_M:
+            self.unconfirmed_relocations.append(first.tolist())
+            return False
+        shift = 0.5 * (first + second)
+        self._release(segment, press_n, ref_q)
         self.loop.retract()
         self.offset = self.offset + shift
         self.relocations.append(shift.tolist())
         self.planner = PhasePlanner(self.skill, self.settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         return True
+
+    def _lift_off(self, segment_index: int, ref_q: NDArray[np.float64]) -> None:
+        """Lift the tool off the surface along the normal it last pressed along (the CF z in use: the found one when
+        following the surface) by ``LIFT_OFF_M`` over ``LIFT_OFF_S``, before the way out; the way out is then
+        guarded along that normal (``self.exit_axis``): a hit there is an exit collision, not a touch-down."""
+        z = self.loop.cf_rotation[:, 2].copy()
+        p, q = self.world.tool_pose()
+        lift = self.planner.transfer(
+            segment_index, p, q, p - LIFT_OFF_M * z, ref_q, None, ExecutionPhase.retreat, LIFT_OFF_SPEED_M_S
+        )
+        self._run(lift)
+        self.exit_axis = z
 
     def _record_contact_offset(self, segment: Segment) -> None:
         """Record where the surface was found along CF z from where it was taught; outside the expected window,
@@ -386,8 +471,17 @@ class _Execution:
                     found_early = self._run(plan, self._free_guard(plan)) is PlanEnd.contact
                 else:
                     goal = np.asarray(segment.position_dmp.goal, float) + self.offset
-                    plan = planner.free(segment, *tool_pose(), goal, None)
-                    found_early = self._run(plan) is PlanEnd.contact
+                    exit_axis = self.exit_axis if i > 0 and segments[i - 1].kind is SegmentKind.contact else None
+                    if exit_axis is not None:  # the way out as taught from where the contact ended, not to a goal
+                        # fixed in the world: a part found moved or tilted would put that goal in the part
+                        dmp = segment.position_dmp
+                        goal = tool_pose()[0] + np.asarray(dmp.goal, float) - np.asarray(dmp.start, float)
+                    plan = planner.free(segment, *tool_pose(), goal, exit_axis)
+                    if exit_axis is None:
+                        found_early = self._run(plan) is PlanEnd.contact
+                    elif self._run(plan, self._free_guard(plan)) is PlanEnd.contact:  # hit the part on the way out:
+                        self.loop.retract(exit_axis, segment.index)  # back off the way it lifted; the way out ends
+                        found_early = False
                 last_ref_q = plan.ref_q[-1]
                 continue
             # Contact segment.
@@ -451,7 +545,9 @@ class _Execution:
                 carry = planner.extension(segment, tool_pose()[0], plan, crease_out, window)
                 carry.next_z = plan.next_z
                 carry.quick_steps = np.ones(carry.steps, dtype=bool)
-                self._run(carry)
+                end = self._run(carry)
+            if plan.next_z is not None:
+                self.next_surface_found[nxt.index] = end is PlanEnd.next_surface
             in_contact_run = True
             f_last = float(plan.force[-1])
             last_ref_q = plan.ref_q[-1]
@@ -471,6 +567,7 @@ class _Execution:
                 )
                 release.follows_surface = self.follows_surface
                 self._run(release)
+                self._lift_off(segment.index, last_ref_q)
                 in_contact_run = False
                 f_last = None
 
@@ -535,10 +632,12 @@ def execute_skill(
     log = ExecutionLog(
         contact_offsets_m=execution.contact_offsets,
         relocations_m=execution.relocations,
+        unconfirmed_relocations_m=execution.unconfirmed_relocations,
         frame_log=loop.frame_log,
         contact_guard=execution.guard if execution.geometry else None,  # (a skill without contact guards nothing)
         surface_window_m=execution.surface_window_m(),
         work_piece=work_piece,
+        next_surface_found=execution.next_surface_found,
     )
     metrics = compute_metrics(skill, tel, settings, phase, reason, loop_wall_s, log, demonstration, execution.dt)
     return ExecutionResult(

@@ -22,18 +22,21 @@ from schemas.execution import (
     ExecutionMetrics,
     ExecutionPhase,
     ExecutionSettings,
-    ExecutionTolerances,
-    ExecutionVerdict,
-    Verdict,
-    VerdictCheck,
-    VerdictCheckName,
     WorkPieceSource,
 )
 from schemas.skill import Segment, SegmentKind, Skill, SkillCheck
+from schemas.verdict import (
+    ExecutionTolerances,
+    ExecutionVerdict,
+    SurfacePressed,
+    Verdict,
+    VerdictCheck,
+    VerdictCheckName,
+)
 from sim_worker.contact_detection import ContactGuard
 from sim_worker.plans import contact_geometry
 from sim_worker.telemetry import Telemetry
-from skills import skill_checks
+from skills import pressed_normals, skill_checks
 from skills.dmp import DMP
 
 STEADY_CONTACT_DELAY_S = 0.2
@@ -163,26 +166,49 @@ def used_cf_z(frame_log: list[tuple[int, float, float, float]], rows: int) -> ND
     return z
 
 
-def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt: float) -> dict[str, float]:
-    """Touch-down peak (N, and over the first desired force) and the longest settle time (s) over the touch-downs.
+def _exit_rows(skill: Skill, tel: Telemetry) -> NDArray[np.bool_]:
+    """Rows of the free segments on the way out of a contact: after a contact segment, and not leading into another
+    one (a free segment that leads into a contact may meet its surface early: a touch-down), with the retreat that
+    backs off a hit there."""
+    segments = skill.segments
+    exits = [
+        s.index
+        for k, s in enumerate(segments)
+        if s.kind is SegmentKind.free
+        and any(p.kind is SegmentKind.contact for p in segments[:k])
+        and not (k + 1 < len(segments) and segments[k + 1].kind is SegmentKind.contact)
+    ]
+    moving = np.isin(tel.phase_codes, [PHASE_CODES[ExecutionPhase.free], PHASE_CODES[ExecutionPhase.retreat]])
+    return moving & np.isin(tel.segment_index, exits)
+
+
+def _touchdowns(
+    tel: Telemetry, steady: NDArray[np.bool_], exits: NDArray[np.bool_], reference: float, dt: float
+) -> dict[str, float]:
+    """Touch-down peak (N, over the press that followed and over the force asked at contact) and the longest settle
+    time (s) over the touch-downs.
 
     A touch-down starts at the first row touching a surface (true normal force > 0) after ``TOUCHDOWN_DEBOUNCE_S``
-    out of contact, in ANY phase (a surface met early, in a free segment, too), outside the steady contact; it ends
-    where its steady contact starts, or where the tool leaves the surface (a touch that bounced off). Its ratio is
-    over the desired force where the next steady contact starts (without one, the reference force). Its settle time
-    is from the first touch until the true normal force stays within ``SETTLED_BAND`` of the reference of the desired
-    force for ``SETTLED_HOLD_S``."""
+    out of contact, in ANY phase (a surface met early, in a free segment, too) but on the way out of a contact
+    (``exits``: an exit collision, not a touch-down), outside the steady contact; it ends where its steady contact
+    starts, or where the tool leaves the surface (a touch that bounced off). Its ratio is over the desired force
+    where the next steady contact starts (without one, the reference force), and, reported beside it, over the
+    desired force where the next contact phase starts (the force asked at contact). Its settle time is from the first
+    touch until the true normal force stays within ``SETTLED_BAND`` of the reference of the desired force for
+    ``SETTLED_HOLD_S``."""
     if len(tel) == 0:  # failed before its first step
         return {}
     touching = tel.normal_force_true > 0.0
+    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
+    contact_starts = _run_starts(contact)
     debounce = max(1, round(TOUCHDOWN_DEBOUNCE_S / dt))
     free_before = np.convolve(~touching, np.ones(debounce), mode="full")[: len(tel)] >= debounce  # up to this row
-    starts = np.flatnonzero(touching & ~steady & np.r_[True, free_before[:-1]])
+    starts = np.flatnonzero(touching & ~steady & ~exits & np.r_[True, free_before[:-1]])
     steady_starts = _run_starts(steady)
     leaves = np.flatnonzero(free_before) - (debounce - 1)  # where a stretch out of contact of `debounce` rows starts
     error = np.abs(tel.normal_force_true - tel.desired_force)
     hold = max(1, round(SETTLED_HOLD_S / dt))
-    peaks, ratios, settles = [], [], []
+    peaks, ratios, asked_ratios, settles = [], [], [], []
     for begin in starts:
         later = steady_starts[steady_starts > begin]
         left = leaves[leaves > begin]
@@ -193,6 +219,9 @@ def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt:
         target = float(tel.desired_force[steady_start]) if steady_start < len(tel) else reference
         if target > 0:
             ratios.append(peaks[-1] / target)
+        asked = contact_starts[contact_starts >= begin]
+        if asked.size and tel.desired_force[asked[0]] > 0:
+            asked_ratios.append(peaks[-1] / float(tel.desired_force[asked[0]]))
         if steady_start > lift or steady_start >= len(tel):
             continue  # left the surface before any steady contact: it did not settle
         outside = error[begin:] > SETTLED_BAND * max(reference, 1e-9)
@@ -204,8 +233,98 @@ def _touchdowns(tel: Telemetry, steady: NDArray[np.bool_], reference: float, dt:
         result["touchdown_peak_n"] = max(peaks)
     if ratios:
         result["touchdown_peak_ratio"] = max(ratios)
+    if asked_ratios:
+        result["touchdown_contact_force_ratio"] = max(asked_ratios)
     if settles:
         result["settle_time_s"] = max(settles)
+    return result
+
+
+CREASE_MIN_DEG = 15.0
+"""A switch between contact segments whose taught normals differ by less than this is not held to its crease: a
+normal learned from a short or an estimated-wrench recording can be that far off (docs/LEARNING.md), and a surface
+within it of the taught one is pressed as taught (a flat table learned as two slides 8° apart is one surface), deg."""
+PRESSED_NORMAL_WINDOW_S = 0.1
+"""A touch-down's and a contact's final normal are the mean normal pressed over this long, s."""
+CREASE_SIDE_S = 0.2
+"""Across a switch between contact segments, the normal pressed on either side is the mean over a slide's rows
+outside the transition window, or over this long of a contour's next to that window, s."""
+
+
+def _mean_normal(normals: NDArray[np.float64]) -> NDArray[np.float64]:
+    return pressed_normals.unit_mean(normals)
+
+
+def surfaces_pressed(
+    skill: Skill, tel: Telemetry, offset: NDArray[np.float64], next_found: dict[int, bool] | None = None
+) -> list[SurfacePressed]:
+    """Where each contact segment pressed against where it was taught (``schemas.verdict.SurfacePressed``): the true
+    contact normals of its contact-phase rows that touched against the taught CF z at the same share of the segment
+    (world, unit, into the surface). ``next_found``: per segment entered across a crease while following the surface,
+    whether the next surface was met."""
+    contact = tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]
+    touching = contact & (tel.normal_force_true > 0.0)
+    result: list[SurfacePressed] = []
+    previous: tuple[Segment, NDArray[np.bool_]] | None = None
+    for k, segment in enumerate(skill.segments):
+        if segment.kind is not SegmentKind.contact:
+            previous = None
+            continue
+        in_segment = contact & (tel.segment_index == segment.index)
+        rows = touching & (tel.segment_index == segment.index)
+        if rows.sum() < 2:
+            previous = None
+            continue
+        geo = contact_geometry(segment, offset)
+        t_first, t_last = tel.t[in_segment][[0, -1]]
+        t, pressed = tel.t[rows], tel.contact_normal[rows]
+        taught = geo.rotations_at(np.clip((t - t_first) / max(t_last - t_first, 1e-9), 0.0, 1.0))[:, :, 2]
+        errors = pressed_normals.angles_deg(pressed, taught)
+        first, last = t <= t[0] + PRESSED_NORMAL_WINDOW_S, t >= t[-1] - PRESSED_NORMAL_WINDOW_S
+        fields: dict = {
+            "segment": segment.index,
+            "normal_error_deg": float(np.median(errors)),
+            "normal_error_max_deg": float(np.percentile(errors, 95)),
+            "touchdown_normal_error_deg": float(
+                pressed_normals.angles_deg(_mean_normal(pressed[first]), _mean_normal(taught[first]))
+            ),
+            "final_normal_error_deg": float(
+                pressed_normals.angles_deg(_mean_normal(pressed[last]), _mean_normal(taught[last]))
+            ),
+        }
+        if geo.t.size > 1 and (plane := pressed_normals.turn_plane(geo.rotations[:, :, 2])) is not None:
+            taught_span = plane.taught_span_deg
+            pressed_span = pressed_normals.pressed_span_deg(plane, pressed)
+            fields |= {
+                "taught_region_deg": taught_span,
+                "pressed_region_deg": pressed_span,
+                "region_coverage": pressed_normals.region_coverage(taught_span, pressed_span),
+            }
+        if previous is not None and previous[0].index == skill.segments[k - 1].index:
+            before_segment, before_rows = previous
+            before_geo = contact_geometry(before_segment, offset)
+            switch = t_first
+            before = before_rows & (tel.t < switch - TRANSITION_WINDOW_S)
+            if before_geo.t.size > 1:  # a contour's normal turns: the one just before the switch
+                before &= tel.t >= switch - TRANSITION_WINDOW_S - CREASE_SIDE_S
+            after = rows & (tel.t > switch + TRANSITION_WINDOW_S)
+            if geo.t.size > 1:
+                after &= tel.t <= switch + TRANSITION_WINDOW_S + CREASE_SIDE_S
+            before = before if before.sum() >= 2 else before_rows
+            after = after if after.sum() >= 2 else rows
+            taught_before = before_geo.rotations[-1][:, 2]
+            taught_after = geo.rotations_at(np.zeros(1))[0][:, 2]
+            fields["crease_deg"] = float(pressed_normals.angles_deg(taught_before, taught_after))
+            fields["crease_turn_deg"] = pressed_normals.crease_turn_deg(
+                _mean_normal(tel.contact_normal[before]),
+                _mean_normal(tel.contact_normal[after]),
+                taught_before,
+                taught_after,
+            )
+            if next_found is not None and segment.index in next_found:
+                fields["next_surface_found"] = next_found[segment.index]
+        result.append(SurfacePressed(**fields))
+        previous = (segment, rows)
     return result
 
 
@@ -221,10 +340,14 @@ class ExecutionLog:
     contact_guard: ContactGuard | None = None
     relocations_m: list[list[float]] = field(default_factory=list)
     """Per contour relocated where its touch-down found the part, the part's move (m, world)."""
+    unconfirmed_relocations_m: list[list[float]] = field(default_factory=list)
+    """Per move of the part a touch-down suggested and a second touch did not confirm (m, world): not relocated."""
     surface_window_m: float = 0.02
     """How far from where it was taught a surface may be found, m."""
     work_piece: str | None = None
     """Where the world's work piece came from, when it was resolved for the skill (``ExecutionWorld.source``)."""
+    next_surface_found: dict[int, bool] = field(default_factory=dict)
+    """Following the surface: per contact segment entered across a crease, whether the next surface was met."""
 
 
 def _bounded_check(name: VerdictCheckName, value: float | None, limit: float, what: str, upper: bool) -> VerdictCheck:
@@ -263,6 +386,29 @@ def execution_verdict(
         due = contact_expected and finished and check is not name.touchdown  # a run that pressed must measure it
         if value is not None or due:
             checks.append(_bounded_check(check, value, limit, what, upper))
+    touchdown = next((c for c in checks if c.name is name.touchdown), None)
+    if touchdown is not None and m.touchdown_contact_force_ratio is not None:
+        asked = m.touchdown_contact_force_ratio
+        touchdown.message += f" (target: the press that followed; over the force asked at contact: {asked:.3g})"
+    checks += _where_pressed_checks(m, t)
+    if m.exit_collision_n is not None:
+        message = (
+            f"exit collision: on the way out of the contact the tool hit the part at {m.exit_collision_n:.1f} N (the "
+            "way out, as taught from where the contact ended, runs into the part where it is now)"
+        )
+        checks.append(
+            VerdictCheck(name=name.exit_collision, passed=False, value=m.exit_collision_n, limit=0.0, message=message)
+        )
+    if log.work_piece in (WorkPieceSource.measured, WorkPieceSource.rebuilt):
+        if log.work_piece == WorkPieceSource.measured:
+            basis = "measured from the skill's own recording: the run confirms that recording"
+        else:
+            basis = "rebuilt from what the skill learned: the run confirms the skill with itself"
+        message = (
+            f"judged on a work piece {basis}, not the skill on the real part (run it on a work piece of known shape, "
+            "such as its CAD, to judge that)"
+        )
+        checks.append(VerdictCheck(name=name.judged_on, passed=False, warning_only=True, message=message))
     if log.contact_offsets_m:
         worst = max(log.contact_offsets_m, key=abs)
         inside = abs(worst) <= log.surface_window_m
@@ -282,12 +428,28 @@ def execution_verdict(
         moved = float(np.linalg.norm(move))
         where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
         message = (
-            "contour relocated: its touch-down pressed on a normal taught elsewhere on its path, so the part was "
-            f"taken as moved by ({where}) mm and the contour ran there"
+            "contour relocated: its touch-down, and a second touch there, pressed on a normal taught elsewhere on its "
+            f"path, so the part was taken as moved by ({where}) mm and the contour ran there"
         )
         checks.append(
             VerdictCheck(
                 name=name.not_relocated, passed=False, warning_only=True, value=moved, limit=0.0, message=message
+            )
+        )
+    for move in log.unconfirmed_relocations_m:
+        where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
+        message = (
+            f"a touch-down pressed on a normal taught elsewhere on the contour (the part moved by ({where}) mm?), "
+            "a second touch there did not confirm it: not relocated"
+        )
+        checks.append(
+            VerdictCheck(
+                name=name.not_relocated,
+                passed=False,
+                warning_only=True,
+                value=float(np.linalg.norm(move)),
+                limit=0.0,
+                message=message,
             )
         )
     if skill_failed:
@@ -296,6 +458,76 @@ def execution_verdict(
     warnings = [c.message for c in checks if not c.passed and c.warning_only]
     verdict = Verdict.failed if failed else Verdict.passed
     return ExecutionVerdict(verdict=verdict, reasons=failed, warnings=warnings, checks=checks)
+
+
+def _crease_not_met(s: SurfacePressed) -> bool:
+    """Across the switch into ``s``'s segment, a taught crease of at least ``CREASE_MIN_DEG`` turned the normal
+    pressed less than half its way."""
+    if s.crease_deg is None or s.crease_turn_deg is None or s.crease_deg < CREASE_MIN_DEG:
+        return False
+    return s.crease_turn_deg < 0.5 * s.crease_deg
+
+
+def _where_pressed_checks(m: ExecutionMetrics, t: ExecutionTolerances) -> list[VerdictCheck]:
+    """The checks of where each contact segment pressed (``m.surfaces_pressed``): its touch-down and final normals
+    within ``t.normal_cone_deg`` of the taught ones and a crease met as taught (within half its angle) — one
+    ``surface_pressed`` check per segment —, a contour's taught region covered (``region_covered``), and, following
+    the surface, every next surface met (``next_surface``)."""
+    name, checks = VerdictCheckName, []
+    for s in m.surfaces_pressed:
+        where = f"segment {s.segment}"
+        problems = [
+            f"its {when} normal lies {angle:.0f}° from the taught one (beyond the {t.normal_cone_deg:.0f}° friction "
+            "cone: another surface or another place of the part)"
+            for when, angle in (("touch-down", s.touchdown_normal_error_deg), ("final", s.final_normal_error_deg))
+            if angle > t.normal_cone_deg
+        ]
+        worst = max(s.touchdown_normal_error_deg, s.final_normal_error_deg)
+        if _crease_not_met(s):
+            problems.append(
+                f"across the switch the normal pressed turned {s.crease_turn_deg:.0f}° where the taught crease turns "
+                f"it {s.crease_deg:.0f}° (less than half): the next surface is not where it was taught, or not there"
+            )
+        message = f"{where} pressed the surface it was taught on (normals within {worst:.0f}° at touch-down and end)"
+        if problems:
+            message = f"{where}: " + "; ".join(problems)
+        checks.append(
+            VerdictCheck(
+                name=name.surface_pressed, passed=not problems, value=worst, limit=t.normal_cone_deg, message=message
+            )
+        )
+        if s.region_coverage is not None and s.taught_region_deg and s.pressed_region_deg:
+            covered = s.region_coverage >= t.region_coverage
+            (a, b), (c, d) = s.pressed_region_deg, s.taught_region_deg
+            message = (
+                f"{where} pressed normals over {a:+.0f}..{b:+.0f}° of the {c:+.0f}..{d:+.0f}° it was taught on: "
+                f"{100 * s.region_coverage:.0f} % of its region {'≥' if covered else '<'} "
+                f"{100 * t.region_coverage:.0f} %"
+            )
+            checks.append(
+                VerdictCheck(
+                    name=name.region_covered,
+                    passed=covered,
+                    value=s.region_coverage,
+                    limit=t.region_coverage,
+                    message=message,
+                )
+            )
+        if s.next_surface_found is False:  # the extension past the taught crease ran out before it was met
+            missed = _crease_not_met(s)
+            if missed:
+                message = (
+                    f"next surface not found: segment {s.segment}'s surface ({s.crease_deg or 0:.0f}° from the "
+                    "previous one) was never met, not past the taught crease nor after it"
+                )
+            else:
+                message = (
+                    f"segment {s.segment}'s surface was met only after the extension past the taught crease ran out "
+                    f"(the normal then turned {s.crease_turn_deg or 0:.0f}° of the taught {s.crease_deg or 0:.0f}°): "
+                    "the crease is farther than taught"
+                )
+            checks.append(VerdictCheck(name=name.next_surface, passed=False, warning_only=not missed, message=message))
+    return checks
 
 
 def _skill_checks_check(failed: list[SkillCheck], work_piece: str | None) -> VerdictCheck:
@@ -363,7 +595,11 @@ def compute_metrics(
             cosine = np.clip(np.sum(cf_z * tel.contact_normal[touching], axis=1), -1.0, 1.0)
             angles = np.degrees(np.arccos(cosine))
             metrics |= {"cf_normal_angle_deg": float(angles.mean()), "cf_normal_angle_max_deg": float(angles.max())}
-    metrics |= _touchdowns(tel, steady, reference, dt)
+    exits = _exit_rows(skill, tel)
+    metrics |= _touchdowns(tel, steady, exits, reference, dt)
+    if (exits & (tel.normal_force_true > 0.0)).any():
+        metrics["exit_collision_n"] = float(tel.normal_force_true[exits].max())
+    surfaces = surfaces_pressed(skill, tel, offset, log.next_surface_found)
     if log.contact_guard is not None:
         metrics["contact_threshold_n"] = log.contact_guard.threshold_n
         metrics["contact_persistence_steps"] = log.contact_guard.window_steps
@@ -380,6 +616,7 @@ def compute_metrics(
         contact_found_offsets_m=log.contact_offsets_m,
         contour_relocations_m=log.relocations_m,
         steady_contact_s=float(steady.sum() * dt),
+        surfaces_pressed=surfaces,
         abort_reason=abort_reason,
         **metrics,
     )

@@ -368,13 +368,17 @@ class PhasePlanner:
         q: NDArray,
         goal: NDArray[np.float64],
         goal_q: NDArray[np.float64],
-        stop_axis: NDArray[np.float64],
+        stop_axis: NDArray[np.float64] | None,
+        phase: ExecutionPhase = ExecutionPhase.free,
+        speed_m_s: float | None = None,
     ) -> PhasePlan:
         """A straight move in free space from the tool pose ``(p, q)`` to ``(goal, goal_q)`` (m, world; scalar-last
-        quaternions) at the approach speed on average (smoothstep in time, at least 0.5 s), guarded along
-        ``stop_axis``: to the pre-contact point of a relocated contour."""
+        quaternions) at ``speed_m_s`` (default: the approach speed) on average (smoothstep in time, at least 0.5 s),
+        guarded along ``stop_axis`` if given: to the pre-contact point of a relocated contour, or off the surface
+        before the way out (``phase`` retreat)."""
         distance = float(np.linalg.norm(goal - p))
-        n = max(round(0.5 / self.dt), math.ceil(1.5 * distance / self.settings.approach_speed_m_s / self.dt))
+        speed = speed_m_s if speed_m_s is not None else self.settings.approach_speed_m_s
+        n = max(round(0.5 / self.dt), math.ceil(1.5 * distance / speed / self.dt))
         x = smooth_ramp(0.0, 1.0, n)
         ref_p = p + x[:, None] * (goal - p)
         quats = quaternions_sign_continuous(np.stack((q, goal_q)))
@@ -382,7 +386,7 @@ class PhasePlanner:
         twist = np.zeros((n, 6))
         twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
         return PhasePlan(
-            ExecutionPhase.free,
+            phase,
             segment_index,
             ref_p,
             ref_q,

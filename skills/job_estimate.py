@@ -3,13 +3,13 @@
 The phases follow ``sim_worker.executor``: the settle at the start pose (with the tare's hold), then per segment a
 free motion, or before a contact run the tare's hold, the guarded approach (at ``approach_speed_m_s`` until
 ``approach_slow_distance_m`` before the taught contact point, then at the touch-down speed), the force ramp, the
-contact segments and the force release. Each guarded approach is counted until the surface at the far end of its
-expected window (``tolerances.surface_window_m``); its references are allocated for its whole
+contact segments, the force release and the lift-off. Each guarded approach is counted until the surface at the far
+end of its expected window (``tolerances.surface_window_m``); its references are allocated for its whole
 ``approach_max_distance_m``, the job's longest phase. A default touch-down speed depends on the world's pad and
 the arm's pose (the worker's business): it is counted at its slowest, :data:`TOUCHDOWN_SPEED_MIN_M_S`. Not counted,
 and cut by the worker's step budget at run time: pauses, creases passed slowly (or a crease found later than taught,
 followed to it), a surface found beyond its window, a contour relocated where its part was found
-(``follow_surface_normal``: one more retract, transfer and approach).
+(``follow_surface_normal``: a second touch, then one more retract, transfer and approach).
 """
 
 from __future__ import annotations
@@ -25,6 +25,11 @@ before each later guarded approach) and the wrist sensor is tared with its mean 
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less). The executor's and the
 estimate's."""
+LIFT_OFF_M = 0.02
+"""After a contact run the tool lifts off this far along the normal it pressed along, before its way out, m. The
+executor's and the estimate's."""
+LIFT_OFF_S = 0.5
+"""... over this long, s."""
 SURFACE_WINDOW_MIN_M = 0.005
 """The window around the taught surface where a guarded approach expects it is at least this wide each way, m. The
 executor's and the estimate's."""
@@ -70,6 +75,7 @@ def execution_estimate(skill: Skill, settings: ExecutionSettings, time_step_s: f
                 what=f"the force release ({release:g} s)", field="gains.force_release_s", simulated_s=release
             )
             parts.append(part)
+            parts.append(JobPart(what=f"the lift-off ({LIFT_OFF_S:g} s)", field="skill", simulated_s=LIFT_OFF_S))
             in_contact_run = False
     return JobEstimate(
         kind="execution",

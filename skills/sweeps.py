@@ -24,9 +24,6 @@ from schemas.execution import (
     ControllerKind,
     EnvironmentChange,
     ExecutionMetrics,
-    ExecutionVerdict,
-    Verdict,
-    VerdictCheckName,
     WorkPieceSource,
 )
 from schemas.skill import Skill
@@ -40,6 +37,7 @@ from schemas.sweep import (
     Sensitivity,
     SweepParameter,
 )
+from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheckName
 from skills.frames import matrix_from_axis_angle
 
 SEED_STRIDE = 1_000_003

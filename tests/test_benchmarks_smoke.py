@@ -185,6 +185,15 @@ def test_contours_benchmark_smoke():
         assert 0 < rms <= peak and 0 <= contact <= 100, cell
 
 
+def test_verdicts_benchmark_smoke():
+    """The flat-table slide as taught, fixed and following: the counts row and a table row, both settings judged."""
+    out = run_smoke("bench_verdicts.py")
+    (counts,) = table(out, "group")
+    assert counts[0] == "tuned" and numbers(counts[1])[0] == 2, counts
+    (row,) = table(out, "skill")
+    assert row[:3] == ["slide_flat", "as taught", "tuned"] and all("pass" in cell for cell in row[3:]), row
+
+
 def test_real_skills_benchmark_smoke():
     """The four KU Leuven trials at their surface and 2 cm higher; the sentence counts the table's rows."""
     out = run_smoke("bench_real_skills.py")

@@ -25,8 +25,9 @@ from waiting import wait_for  # noqa: E402
 
 from corpus.synthetic import plane_slide  # noqa: E402
 from schemas import Demonstration  # noqa: E402
-from schemas.execution import ControllerKind, ExecutionPhase, Pace, Verdict  # noqa: E402
+from schemas.execution import ControllerKind, ExecutionPhase, Pace  # noqa: E402
 from schemas.sweep import ParameterRange, SweepParameter, SweepState  # noqa: E402
+from schemas.verdict import Verdict  # noqa: E402
 from services.client import (  # noqa: E402
     Client,
     ConflictError,

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from experiments.contour_stress import CASES, COLUMNS, CONTOUR, CREASE, StressCase, run_case, stress_skills
-from schemas.execution import PHASE_CODES, ExecutionPhase, Verdict
+from schemas.execution import PHASE_CODES, ExecutionPhase
+from schemas.verdict import Verdict
 
 FOLLOWING, PAPER = COLUMNS[0], COLUMNS[1]
 _CASES = {c.name: c for c in CASES}

@@ -15,8 +15,8 @@ from conftest import KULEUVEN_DATA
 
 from corpus import kinesthetic
 from schemas import EnvironmentChange, ExecutionSettings, Skill
-from schemas.execution import Verdict
 from schemas.import_options import CsvImportOptions
+from schemas.verdict import Verdict
 from services.csv_import import demonstration_from_csv
 from services.datasets import KULEUVEN_IMPORT
 from sim_worker.execution_world import execution_world
@@ -147,7 +147,8 @@ def test_kinesthetic_slides_execute_on_the_rebuilt_plane(kinesthetic_slides, sce
     metrics = run_skill(world, settings).metrics
     assert metrics.phase.value == "done", metrics.abort_reason
     assert metrics.force_rms_error_pct <= 3.0 and metrics.contact_ratio >= 0.99, metrics
-    assert metrics.true_force_rms_error_pct <= 3.0 and metrics.cf_normal_angle_deg < 1.0
+    # Slides follow the surface by default: the CF follows the normal estimated from the force, within a few degrees.
+    assert metrics.true_force_rms_error_pct <= 3.0 and metrics.cf_normal_angle_deg < 3.0
 
 
 def test_the_same_skill_runs_in_the_true_world_it_was_recorded_in(kinesthetic_slides) -> None:

@@ -273,7 +273,7 @@ def test_cli_simulate_prints_metrics_and_writes_the_figure(slide_flat, tmp_path,
     assert code == 0, out
     assert "controller hybrid_cf: done" in out
     assert "guarded approach: surface found -20." in out  # the table 2 cm higher, found along CF z (down)
-    assert "verdict: pass (6 checks)" in out
+    assert "verdict: pass (7 checks)" in out
     assert figure.stat().st_size > 10_000
     # Met 7.5 cm early by the free segment, a stiff table: it runs to the end, its verdict fails (exit 4) and says why.
     stiff = ["--unknown-offset", "0", "0", "0.075", "--contact-stiffness", "3e5"]

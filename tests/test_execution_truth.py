@@ -21,9 +21,8 @@ from schemas.execution import (
     ExecutionPhase,
     ExecutionSettings,
     SurfaceWindowAction,
-    Verdict,
-    VerdictCheckName,
 )
+from schemas.verdict import Verdict, VerdictCheckName
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import ExecutionResult, execute_skill, run_skill
 from sim_worker.teacher import record_demonstration

@@ -23,16 +23,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from schemas.execution import (
-    ExecutionMetrics,
-    ExecutionPhase,
-    ExecutionSettings,
-    ExecutionVerdict,
-    Verdict,
-    VerdictCheck,
-    VerdictCheckName,
-)
+from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.sweep import ParameterRange, Sampler, SweepParameter
+from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheck, VerdictCheckName
 from skills.sweeps import Outcome, cause_drivers, controller_summary, outcome, sensitivity, trial_parameters
 
 P = SweepParameter
@@ -175,11 +168,15 @@ def plain(short_slide):
     return _metrics(short_slide, sensor="ideal")
 
 
-def _metrics(skill, tare_sensor: bool = True, **environment):
+def _metrics(skill, tare_sensor: bool = True, follow_surface_normal: bool = False, **environment):
+    """The metrics of ``skill`` run in the changed ``environment``, with the paper's fixed frame unless asked: these
+    tests compare what a change does to the TRUE surface and force against an unchanged run, CF for CF."""
     from sim_worker.execution_world import execution_world
     from sim_worker.executor import run_skill
 
-    settings = ExecutionSettings(environment=environment, tare_sensor=tare_sensor)
+    settings = ExecutionSettings(
+        environment=environment, tare_sensor=tare_sensor, follow_surface_normal=follow_surface_normal
+    )
     return run_skill(execution_world(skill, settings.environment), settings).metrics
 
 
@@ -545,7 +542,8 @@ def test_a_sweep_survives_a_killed_worker_and_repeats_with_its_seed(stack, skill
     first = stack.execution(killed["execution_id"])
     assert first["status"] == "failed" and "lost" in first["error"] and killed_worker in first["error"]
     assert again["attempts"] == 2 and again["execution_id"] != killed["execution_id"]
-    assert stack.execution(again["execution_id"])["worker_id"] != killed_worker
+    rerun_by = stack.execution(again["execution_id"])["worker_id"]  # another worker, or the killed one restarted
+    assert rerun_by != killed_worker or stack.worker_pids()[killed_worker] != workers[killed_worker]
     assert again["status"] in ("done", "aborted") and again["metrics"]["steps"] > 0
     # A physical abort is a result, not a reason to run again.
     aborted = [t for t in trials if t["status"] == "aborted"]
