@@ -58,6 +58,10 @@ def _counts(runs: list[Judgement]) -> str:
     return f"| {len(runs)} | {done} | {false_pass} | {false_fail} | {named} of {len(failed)} |"
 
 
+def _names(names: list[str]) -> str:
+    return " · ".join(f"“{n}”" for n in names) or "none"
+
+
 def _following_sentences(runs: list[Judgement]) -> list[str]:
     """Following against the fixed frames, like with like (the same perturbation), per kind of skill."""
     lines = []
@@ -84,7 +88,7 @@ def _following_sentences(runs: list[Judgement]) -> list[str]:
         lines.append(
             f"- {kind.capitalize()}, {len(both)} perturbations: the job done {done[False]} times with the fixed "
             f"frames, {done[True]} times following{cost}. Only following did it: "
-            f"{', '.join(only[True]) or 'none'}; only the fixed frames: {', '.join(only[False]) or 'none'}."
+            f"{_names(only[True])}; only the fixed frames: {_names(only[False])}."
         )
     return lines
 
