@@ -32,6 +32,7 @@ from scipy.spatial import ConvexHull
 
 from schemas import ExecutionSettings
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, Placement
+from schemas.verdict import VerdictCheckName
 from services.datasets import kuleuven_recordings
 from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth
 from sim_worker.cad_work_piece import CONVEX_MARGIN_M, cad_world_config, crease_pieces, crease_side_faces
@@ -308,12 +309,23 @@ def _deg(values: NDArray[np.float64]) -> str:
     return f"{np.degrees(np.median(values)):.1f} / {np.degrees(values.max()):.1f}"
 
 
+def _verdict(m: ExecutionMetrics) -> str:
+    """The verdict, its failed checks, and what it was judged on when that confirms the recording only."""
+    if m.verdict is None:
+        return "—"
+    failed = sorted({c.name.value for c in m.verdict.checks if not c.passed and not c.warning_only})
+    text = "pass" if not failed else "fail: " + ", ".join(failed)
+    if any(c.name is VerdictCheckName.judged_on for c in m.verdict.checks):
+        text += " (confirms the recording only)"
+    return text
+
+
 def execution_table(trials: list[CadTrial]) -> list[str]:
     """A markdown table of every execution of ``trials`` (one row each)."""
     lines = [
         "| trial | work piece | CF x-y stiffness (N/m) | final | true RMS (%) | true max (%) | CF-z RMS (%) | "
-        "contact (%) | CF-normal angle (°) | ball on one face (%) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "contact (%) | CF-normal angle (°) | ball on one face (%) | verdict |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for trial in trials:
         for run in trial.runs:
@@ -322,7 +334,7 @@ def execution_table(trials: list[CadTrial]) -> list[str]:
             lines.append(
                 f"| {trial.trial} | {run.work_piece} | {run.lateral_stiffness_n_per_m:.0f} | {m.phase.value} | "
                 f"{m.true_force_rms_error_pct:.2f} | {m.true_force_max_error_pct:.1f} | {m.force_rms_error_pct:.2f} | "
-                f"{100 * m.contact_ratio:.2f} | {m.cf_normal_angle_deg:.1f} | {face} |"
+                f"{100 * m.contact_ratio:.2f} | {m.cf_normal_angle_deg:.1f} | {face} | {_verdict(m)} |"
             )
     return lines
 

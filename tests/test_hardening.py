@@ -106,9 +106,9 @@ def _csv(rows: int, span_s: float, header: str = "t,x,y,z,qx,qy,qz,qw,fx,fy,fz",
 def test_a_3_kb_csv_cannot_ask_for_millions_of_samples(client):
     data = _csv(60, 30.0)
     assert len(data) < 3500
-    started = time.perf_counter()
+    cpu = time.process_time()  # (the API runs in this process; CPU time, which other processes' load leaves alone)
     response = client.post("/demonstrations/csv", files={"file": ("tiny.csv", data)}, data={"rate": "100000"})
-    assert time.perf_counter() - started < 5.0
+    assert time.process_time() - cpu < 2.0  # refused before resampling: 3 M samples would take far longer
     assert _names(response, "rate") and "200000" in response.text, response.text
 
 
@@ -245,27 +245,26 @@ async def _never() -> bool:
 
 
 def test_the_pool_kills_a_job_past_its_budget_and_replaces_the_process():
-    pool = LearnerPool(processes=1, time_budget_s=4.0)  # the quick learn must fit even on a loaded machine
+    # The quick learn (~0.3 s alone) must fit even on a loaded machine; the slow one takes ~13 s on a free core.
+    pool = LearnerPool(processes=1, time_budget_s=8.0)
     options = json.dumps(SLOW_OPTIONS)
     demonstration = _slow_demonstration_json()
 
-    async def scenario() -> tuple[float, int]:
+    async def scenario() -> int:
         quick = await pool.learn(_demo_as_json(), "{}", _never)
         assert quick.kind == "ok" and quick.skill_type == "slide"
         first_pid = pool.pids()[0]
-        started = time.perf_counter()
-        with pytest.raises(LearningTimedOut, match="budget of 4 s"):
+        with pytest.raises(LearningTimedOut, match="budget of 8 s"):  # killed at its budget, not run to its end
             await pool.learn(demonstration, options, _never)
-        elapsed = time.perf_counter() - started
         again = await pool.learn(_demo_as_json(), "{}", _never)
         assert again.kind == "ok" and pool.pids()[0] != first_pid
-        return elapsed, pool.stats.restarted
+        return pool.stats.restarted
 
     try:
-        elapsed, restarted = asyncio.run(scenario())
+        restarted = asyncio.run(scenario())
     finally:
         pool.close()
-    assert elapsed < 10.0 and restarted == 1
+    assert restarted == 1
 
 
 def _demo_as_json() -> str:
@@ -280,10 +279,9 @@ def test_the_pool_cancels_a_job_whose_client_is_gone():
         return time.monotonic() > gone_after
 
     try:
-        started = time.perf_counter()
-        with pytest.raises(LearningCancelled):
+        with pytest.raises(LearningCancelled):  # (not a result: the learn was stopped, not run to its end)
             asyncio.run(pool.learn(_slow_demonstration_json(), json.dumps(SLOW_OPTIONS), gone))
-        assert time.perf_counter() - started < 5.0 and pool.stats.cancelled == 1 and pool.pids() == []
+        assert pool.stats.cancelled == 1 and pool.stats.completed == 0 and pool.pids() == []
     finally:
         pool.close()
 
@@ -296,7 +294,7 @@ def test_an_abandoned_learn_stops_and_health_answers_meanwhile(tmp_path):
             http.post("/skills", json=body, timeout=httpx.Timeout(30, read=2.0))
         health = http.get("/health", timeout=5).json()  # the event loop is free while the learner computes
         assert health["learning"]["running"] <= 1
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 120  # a hang guard, not a timing: `completed == 0` below tells a stopped learn
         while (learning := http.get("/health").json()["learning"])["cancelled"] < 1 or learning["running"]:
             assert time.monotonic() < deadline, f"the abandoned learn kept computing: {learning}"
             time.sleep(0.2)
