@@ -240,6 +240,8 @@ def _touchdowns(
     return result
 
 
+REGION_SAMPLES = 501
+"""A contour's taught normals are sampled this many times, evenly in time, for its region."""
 CREASE_MIN_DEG = 15.0
 """A switch between contact segments whose taught normals differ by less than this is not held to its crease: a
 normal learned from a short or an estimated-wrench recording can be that far off (docs/LEARNING.md), and a surface
@@ -292,9 +294,10 @@ def surfaces_pressed(
                 pressed_normals.angles_deg(_mean_normal(pressed[last]), _mean_normal(taught[last]))
             ),
         }
-        if geo.t.size > 1 and (plane := pressed_normals.turn_plane(geo.rotations[:, :, 2])) is not None:
-            taught_span = plane.taught_span_deg
-            pressed_span = pressed_normals.pressed_span_deg(plane, pressed)
+        taught_path = geo.rotations_at(np.linspace(0.0, 1.0, REGION_SAMPLES))[:, :, 2] if geo.t.size > 1 else None
+        if taught_path is not None and (plane := pressed_normals.turn_plane(taught_path)) is not None:
+            taught_span = pressed_normals.span_deg(plane, taught_path, trim_pct=0.0)
+            pressed_span = pressed_normals.span_deg(plane, pressed)
             fields |= {
                 "taught_region_deg": taught_span,
                 "pressed_region_deg": pressed_span,
