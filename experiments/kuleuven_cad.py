@@ -53,8 +53,13 @@ from skills.registration import (
     normal_cones_at,
 )
 
-LATERAL_STIFFNESS_N_PER_M = 6000.0
-"""The CF x and y stiffness of the second execution on the CAD, N/m (the default is 3000 N/m, see the module)."""
+LATERAL_STIFFNESS_N_PER_M = 10000.0
+"""The CF x and y stiffness of the second execution on the CAD, N/m (the default is 3000 N/m): 3 × the largest
+``F / r`` (33 N on the 10 mm ball). A lateral spring ``K`` against the crease's negative stiffness ``F / r`` holds the
+ball ``x = K x_ref / (K - F / r)`` off the crease when its taught path lies ``x_ref`` off it (up to 2.7 mm on these
+recordings); its contact normal then leans ``asin(x / r)`` from the CF z, and the force along it grows by ``1 / cos``
+of that lean: within 10 % needs ``x`` under 4 mm, ``K`` at least 3 ``F / r``. (6000 N/m, 2-3 × ``F / r``, held three
+of the four within 10 %: contour_b_2 ran at 15.5 %.)"""
 ON_FACE_DEG = 2.0
 """The ball presses on one face of the crease when the true contact normal lies within this of that face's normal
 (across the crease), deg."""
@@ -412,7 +417,11 @@ def cad_result_lines(trials: list[CadTrial] | None = None) -> list[str]:
         "forces): the rebuilt strip, flat across the path, hides that. On the crease the contact normal points from "
         "the edge to the ball's centre, not along the learned CF z: it leans about 6° per millimetre the ball sits off "
         f"the line the CF z passes through, and the skill's path (the demonstration's) lies across the true crease by "
-        f"{path_spread}.",
+        f"{path_spread}. What must be modelled is that pair: the lateral spring K against the crease's negative "
+        "stiffness F / r holds the ball K x_ref / (K - F / r) off the crease when its path lies x_ref off it, and the "
+        "force along the leaning normal grows by 1 / cos of the lean; K at least 3 F / r keeps it within 10 % for "
+        f"x_ref up to 2.7 mm ({stiffer} is 3 × the largest F / r, 33 N on the 10 mm ball). The default 3000 N/m is "
+        "about F / r itself: the ball rolls onto a face.",
         "",
         *gap_table(trials),
         "",
