@@ -85,7 +85,7 @@ class Column:
 
 COLUMNS: tuple[Column, ...] = (
     Column("hybrid_cf following", {"controller": ControllerKind.hybrid_cf, "follow_surface_normal": True}),
-    Column("hybrid_cf (paper)", {"controller": ControllerKind.hybrid_cf}),
+    Column("hybrid_cf (paper)", {"controller": ControllerKind.hybrid_cf, "follow_surface_normal": False}),
     Column("hybrid_world_z", {"controller": ControllerKind.hybrid_world_z}),
     Column("impedance_found_surface", {"controller": ControllerKind.impedance_found_surface}),
     Column("impedance", {"controller": ControllerKind.impedance}),
