@@ -239,9 +239,9 @@ class _Execution:
         self.exit_axis: NDArray[np.float64] | None = None
         """The normal the tool lifted off along after its last contact: the way out is guarded along it."""
         self.relocations: list[list[float]] = []
+        """The offsets (m, world) by which contours were found moved and relocated (``_relocated``)."""
         self.unconfirmed_relocations: list[list[float]] = []
         """The moves of the part a touch-down suggested and a second touch did not confirm (m, world)."""
-        """The offsets (m, world) by which contours were found moved and relocated (``_relocated``)."""
         self.loop = ControlLoop(
             self.world,
             self.controller,
@@ -363,6 +363,11 @@ class _Execution:
         speed = self.impacts.touchdown_speed(segment, self.geometry[segment.index].first_rotation[:, 2])
         self.loop.touched = False
         self._run(self.planner.approach(segment, self.world.tool_pose()[0], ref_q, speed, fast=False))
+        self._ramp_up(segment, press_n, ref_q)
+
+    def _ramp_up(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> None:
+        """After a touch-down: ramp the desired force from the force found (never from an impact above the target)
+        to ``press_n`` (N) over ``force_ramp_s``, the tool held where it touched, in the segment's first frame."""
         found = float(np.clip(self.loop.found_force or 0.0, 0.0, press_n))
         ramp = self.planner.hold(
             segment,
@@ -503,20 +508,8 @@ class _Execution:
                     if self.follows_surface:  # a new contact run: the normal is tracked from the learned one
                         track = contour_tracker if self.geometry[segment.index].t.size > 1 else slide_tracker
                         self._tracker = track(first_cf[:, 2], self.dt)
-                    f_found = self.loop.found_force if self.loop.found_force is not None else 0.0
                     f_first = first_force(segment)
-                    ramp = planner.hold(  # from the target, never from an impact above it
-                        segment,
-                        ExecutionPhase.approach,
-                        tool_pose()[0],
-                        float(np.clip(f_found, 0.0, f_first)),
-                        f_first,
-                        s.gains.force_ramp_s,
-                        last_ref_q,
-                        first_cf,
-                    )
-                    ramp.follows_surface = self.follows_surface
-                    self._run(ramp)
+                    self._ramp_up(segment, f_first, last_ref_q)
                     if attempt or not self._relocated(segment, f_first, last_ref_q):
                         break
                     planner = self.planner
