@@ -14,6 +14,7 @@ Both read the budget from the same environment variables (:data:`ENV_JOB_MAX_SIM
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import Literal
 
@@ -137,6 +138,8 @@ class JobEstimate(BaseModel):
 
     def describe(self) -> str:
         """The job's size in words."""
+        if self.simulated_s >= sys.maxsize:
+            return f"the {self.kind} would never end"
         size = (
             f"{self.simulated_s:,.0f} s of simulated time ({self.steps:,} control steps of {self.time_step_s:g} s; "
             f"about {_bytes(self.worker_memory_bytes)} of worker memory"
@@ -168,13 +171,16 @@ class JobEstimate(BaseModel):
             found.setdefault(
                 phase.field,
                 f"{phase.what} allocates its {phase_steps:,} control steps of references before it runs "
-                f"({phase.simulated_s:,.0f} s), more than {limit}",
+                f"({_seconds(phase.simulated_s)}), more than {limit}",
             )
         return list(found.items())
 
 
 def _steps(simulated_s: float, time_step_s: float) -> int:
-    return round(simulated_s / time_step_s)
+    """Control steps of ``simulated_s`` (s) at ``time_step_s`` (s), saturating at ``sys.maxsize``: a speed of 5e-324 m/s
+    makes a phase last forever, and its job is refused naming it, never an overflow."""
+    steps = simulated_s / time_step_s
+    return round(steps) if steps < sys.maxsize else sys.maxsize
 
 
 def _name_longest(found: dict[str, str], parts: list[JobPart], excess_s: float, over: str) -> None:
@@ -183,8 +189,13 @@ def _name_longest(found: dict[str, str], parts: list[JobPart], excess_s: float, 
     for part in sorted(parts, key=lambda p: p.simulated_s, reverse=True):
         if excess_s <= 0:
             return
-        found.setdefault(part.field, f"{part.what} takes {part.simulated_s:,.0f} s: {over}")
+        found.setdefault(part.field, f"{part.what} takes {_seconds(part.simulated_s)}: {over}")
         excess_s -= part.simulated_s
+
+
+def _seconds(simulated_s: float) -> str:
+    """A simulated time in words: ``8,000 s``, or ``forever`` (a speed so small that the phase never ends)."""
+    return f"{simulated_s:,.0f} s" if simulated_s < sys.maxsize else "forever"
 
 
 def _bytes(n: int) -> str:

@@ -267,3 +267,15 @@ def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_w
     env = {job_budget.ENV_JOB_MAX_SIMULATED_S: "60", job_budget.ENV_JOB_MAX_STEPS: "5000"}
     assert ServiceSettings.from_env(env).job_budget == job_budget.JobBudget.from_env(env)
     assert ServiceSettings().job_budget == job_budget.JobBudget()
+
+
+def test_a_speed_of_5e_324_is_a_job_that_never_ends_422_naming_it_not_an_overflow(stack, skill):
+    """The probe's 5e-324 m/s approach (and touch-down) speed made the estimate divide to infinity and the API answer
+    500: the phase takes forever, the job is refused naming the speed, and a sane request still runs."""
+    for field in ("approach_speed_m_s", "touchdown_speed_m_s"):
+        response = stack.http.post("/executions", json={"skill_id": skill["id"], field: 5e-324})
+        named = {entry["loc"][-1]: entry for entry in _detail(response)}
+        entry = named[field]  # (with it, what the longest parts imply is named too)
+        assert entry["type"] == "job_budget" and "takes forever" in entry["msg"], entry
+        assert "would never end" in entry["msg"], entry["msg"]
+    assert stack.http.get("/health").status_code == 200
