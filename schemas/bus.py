@@ -44,6 +44,7 @@ from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
 from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus contract is imported from here
 from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
+from schemas.numbers import WholeNumber
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
@@ -241,7 +242,7 @@ class RecordRequest(BaseModel):
     scenario: str = Field(
         max_length=64, description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"]
     )
-    seed: int = Field(
+    seed: WholeNumber = Field(
         0, ge=0, le=2**32 - 1, description="Seed of the human-like imperfection; same seed, same recording."
     )
     overrides: dict[str, Any] = Field(

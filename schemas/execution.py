@@ -15,6 +15,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Quaternion, Vector3, Wrench
+from schemas.numbers import WholeNumber
 from schemas.skill import Skill
 from schemas.verdict import ExecutionTolerances, ExecutionVerdict, SurfacePressed
 
@@ -360,7 +361,7 @@ class EnvironmentChange(BaseModel):
         description="White noise of each sensor force axis, standard deviation, N (default: the sensor's own, "
         "0.06 N for the wrist sensor, 0 for the ideal one).",
     )
-    noise_seed: int | None = Field(
+    noise_seed: WholeNumber | None = Field(
         None,
         ge=0,
         le=2**32 - 1,
@@ -499,7 +500,7 @@ class ExecutionSettings(BaseModel):
         description="A paused execution that is not resumed within this time is aborted (reason 'paused for "
         "longer than pause_timeout_s'), so a forgotten pause never holds a worker, s.",
     )
-    telemetry_batch: int = Field(
+    telemetry_batch: WholeNumber = Field(
         10,
         ge=1,
         le=10000,
@@ -542,7 +543,7 @@ class ExecutionRequest(ExecutionSettings):
         examples=["slide_flat"],
     )
 
-    priority: int = Field(
+    priority: WholeNumber = Field(
         0,
         ge=-100,
         le=100,

@@ -14,6 +14,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.demonstration import MAX_DURATION_S, DemonstrationSummary, Quaternion, Vector3
+from schemas.numbers import WholeNumber
 
 SELECTION_CONTACT: list[float] = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
 """Selection diagonal in CF for slide and contour contact segments: force control along CF z."""
@@ -316,7 +317,7 @@ class LearnOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
-    n_basis: int = Field(50, ge=2, le=500, description="Fewest DMP basis functions per dimension and segment.")
+    n_basis: WholeNumber = Field(50, ge=2, le=500, description="Fewest DMP basis functions per dimension and segment.")
     basis_per_second: float = Field(
         15.0,
         ge=0,
@@ -324,8 +325,10 @@ class LearnOptions(BaseModel):
         description="More basis functions for long segments: at least this many per second of segment "
         "(denser bases fit faster detail but make the rollout depend on its time step).",
     )
-    max_basis: int = Field(300, ge=2, le=MAX_BASIS, description="Most basis functions per dimension and segment.")
-    max_fit_samples: int = Field(
+    max_basis: WholeNumber = Field(
+        300, ge=2, le=MAX_BASIS, description="Most basis functions per dimension and segment."
+    )
+    max_fit_samples: WholeNumber = Field(
         10_000,
         ge=100,
         le=100_000,
@@ -340,7 +343,7 @@ class LearnOptions(BaseModel):
         "robust peak. Contact boundaries are then found from the surface and the touch level.",
     )
     min_segment_duration_s: float = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
-    contour_frames_max: int = Field(
+    contour_frames_max: WholeNumber = Field(
         500, ge=2, le=MAX_FRAMES, description="Most compliant frames stored per contour segment (decimated evenly)."
     )
     strict: bool = Field(

@@ -35,6 +35,7 @@ from schemas.execution import (
     ExecutionMetrics,
     ExecutionSettings,
 )
+from schemas.numbers import WholeNumber
 from schemas.skill import Skill
 from schemas.verdict import Verdict
 
@@ -243,8 +244,10 @@ class SweepRequest(BaseModel):
         min_length=1,
         description="The parameters to vary and their ranges; the others stay as in `settings.environment`.",
     )
-    trials: int = Field(20, ge=1, le=MAX_TRIALS, description="Number of sampled trials (N).")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of the sampler and of each trial's sensor noise.")
+    trials: WholeNumber = Field(20, ge=1, le=MAX_TRIALS, description="Number of sampled trials (N).")
+    seed: WholeNumber = Field(
+        0, ge=0, le=2**32 - 1, description="Seed of the sampler and of each trial's sensor noise."
+    )
     sampler: Sampler = Field(Sampler.lhs, description="Latin hypercube or scrambled Sobol.")
     success_rms_pct: float = Field(
         10.0,
@@ -274,7 +277,7 @@ class SweepRequest(BaseModel):
         "GET /executions/{id}/telemetry served). Default false: telemetry 'none', nothing published, stored or "
         "kept (cheaper: docs/BENCHMARKS.md, bench_sweeps); every metric and the success rates are the same.",
     )
-    priority: int = Field(
+    priority: WholeNumber = Field(
         SWEEP_PRIORITY,
         ge=-100,
         le=-1,

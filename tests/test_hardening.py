@@ -311,3 +311,13 @@ def test_a_learn_past_the_memory_budget_is_422_and_the_next_one_learns(tmp_path,
         assert "memory budget of 64 MiB" in response.text and "CONTACT_SKILLS_LEARN_MEMORY_MB" in response.text
     with _client(create_app(_settings(tmp_path, learn_processes=1, learn_memory_mb=1024), bus=None)) as c:
         assert c.post("/skills", json={"demonstration": demo}).status_code == 201
+
+
+def test_a_boolean_is_not_a_seed_or_a_count(client, demo):
+    """``"seed": false`` was taken as seed 0, ``"n_basis": true`` as 1 basis function: a 422 naming the field."""
+    response = client.post("/demonstrations/record", json={"scenario": "slide_flat", "seed": False})
+    assert _names(response, "seed") and "not a boolean" in response.text, response.text
+    response = client.post("/skills", json={"demonstration": demo, "n_basis": True})
+    assert _names(response, "n_basis") and "not a boolean" in response.text, response.text
+    response = client.post("/demonstrations/record", json={"scenario": "slide_flat", "seed": 7})
+    assert response.status_code != 422, response.text  # a number is still a number (no bus here: 503)
