@@ -36,6 +36,7 @@ from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
+from sim_worker.metrics import exit_rows
 from sim_worker.teacher import TeacherRecording, record_demonstration
 from sim_worker.telemetry import Telemetry
 from sim_worker.world_config import WorldConfig
@@ -316,14 +317,7 @@ def judge_run(
                     f"segment {index}: {low:+.0f}..{high:+.0f}° of the {body}, taught "
                     f"{region[0]:+.0f}..{region[1]:+.0f}° ({100 * covered:.0f} %)"
                 )
-    contact_seen = np.cumsum(tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]) > 0
-    free = (tel.phase_codes == PHASE_CODES[ExecutionPhase.free]) & contact_seen
-    entered = {
-        s.index
-        for k, s in enumerate(teaching.skill.segments[:-1])
-        if teaching.skill.segments[k + 1].kind is SegmentKind.contact
-    }
-    way_out = free & ~np.isin(tel.segment_index, list(entered))
+    way_out = exit_rows(teaching.skill, tel)
     if way_out.any() and tel.normal_force_true[way_out].max() > EXIT_HIT_N:
         faults[Fault.exit_hit] = f"the way out hit the part at {tel.normal_force_true[way_out].max():.1f} N"
     return faults

@@ -166,7 +166,7 @@ def used_cf_z(frame_log: list[tuple[int, float, float, float]], rows: int) -> ND
     return z
 
 
-def _exit_rows(skill: Skill, tel: Telemetry) -> NDArray[np.bool_]:
+def exit_rows(skill: Skill, tel: Telemetry) -> NDArray[np.bool_]:
     """Rows of the free segments on the way out of a contact: after a contact segment, and not leading into another
     one (a free segment that leads into a contact may meet its surface early: a touch-down), with the retreat that
     backs off a hit there."""
@@ -253,10 +253,6 @@ CREASE_SIDE_S = 0.2
 outside the transition window, or over this long of a contour's next to that window, s."""
 
 
-def _mean_normal(normals: NDArray[np.float64]) -> NDArray[np.float64]:
-    return pressed_normals.unit_mean(normals)
-
-
 def surfaces_pressed(
     skill: Skill, tel: Telemetry, offset: NDArray[np.float64], next_found: dict[int, bool] | None = None
 ) -> list[SurfacePressed]:
@@ -287,12 +283,8 @@ def surfaces_pressed(
             "segment": segment.index,
             "normal_error_deg": float(np.median(errors)),
             "normal_error_max_deg": float(np.percentile(errors, 95)),
-            "touchdown_normal_error_deg": float(
-                pressed_normals.angles_deg(_mean_normal(pressed[first]), _mean_normal(taught[first]))
-            ),
-            "final_normal_error_deg": float(
-                pressed_normals.angles_deg(_mean_normal(pressed[last]), _mean_normal(taught[last]))
-            ),
+            "touchdown_normal_error_deg": pressed_normals.mean_angle_deg(pressed[first], taught[first]),
+            "final_normal_error_deg": pressed_normals.mean_angle_deg(pressed[last], taught[last]),
         }
         taught_path = geo.rotations_at(np.linspace(0.0, 1.0, REGION_SAMPLES))[:, :, 2] if geo.t.size > 1 else None
         if taught_path is not None and (plane := pressed_normals.turn_plane(taught_path)) is not None:
@@ -319,8 +311,8 @@ def surfaces_pressed(
             taught_after = geo.rotations_at(np.zeros(1))[0][:, 2]
             fields["crease_deg"] = float(pressed_normals.angles_deg(taught_before, taught_after))
             fields["crease_turn_deg"] = pressed_normals.crease_turn_deg(
-                _mean_normal(tel.contact_normal[before]),
-                _mean_normal(tel.contact_normal[after]),
+                pressed_normals.unit_mean(tel.contact_normal[before]),
+                pressed_normals.unit_mean(tel.contact_normal[after]),
                 taught_before,
                 taught_after,
             )
@@ -428,31 +420,19 @@ def execution_verdict(
             )
         )
     for move in log.relocations_m:
-        moved = float(np.linalg.norm(move))
-        where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
-        message = (
-            "contour relocated: its touch-down, and a second touch there, pressed on a normal taught elsewhere on its "
-            f"path, so the part was taken as moved by ({where}) mm and the contour ran there"
-        )
         checks.append(
-            VerdictCheck(
-                name=name.not_relocated, passed=False, warning_only=True, value=moved, limit=0.0, message=message
+            _relocation_check(
+                move,
+                "contour relocated: its touch-down, and a second touch there, pressed on a normal taught elsewhere on "
+                "its path, so the part was taken as moved by ({}) mm and the contour ran there",
             )
         )
     for move in log.unconfirmed_relocations_m:
-        where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
-        message = (
-            f"a touch-down pressed on a normal taught elsewhere on the contour (the part moved by ({where}) mm?), "
-            "a second touch there did not confirm it: not relocated"
-        )
         checks.append(
-            VerdictCheck(
-                name=name.not_relocated,
-                passed=False,
-                warning_only=True,
-                value=float(np.linalg.norm(move)),
-                limit=0.0,
-                message=message,
+            _relocation_check(
+                move,
+                "a touch-down pressed on a normal taught elsewhere on the contour (the part moved by ({}) mm?), a "
+                "second touch there did not confirm it: not relocated",
             )
         )
     if skill_failed:
@@ -461,6 +441,19 @@ def execution_verdict(
     warnings = [c.message for c in checks if not c.passed and c.warning_only]
     verdict = Verdict.failed if failed else Verdict.passed
     return ExecutionVerdict(verdict=verdict, reasons=failed, warnings=warnings, checks=checks)
+
+
+def _relocation_check(move: list[float], message: str) -> VerdictCheck:
+    """The warning of a contour's part found moved by ``move`` (m, world), ``message`` holding ``{}`` for it in mm."""
+    where = ", ".join(f"{v * 1e3:+.0f}" for v in move)
+    return VerdictCheck(
+        name=VerdictCheckName.not_relocated,
+        passed=False,
+        warning_only=True,
+        value=float(np.linalg.norm(move)),
+        limit=0.0,
+        message=message.format(where),
+    )
 
 
 def _crease_not_met(s: SurfacePressed) -> bool:
@@ -598,7 +591,7 @@ def compute_metrics(
             cosine = np.clip(np.sum(cf_z * tel.contact_normal[touching], axis=1), -1.0, 1.0)
             angles = np.degrees(np.arccos(cosine))
             metrics |= {"cf_normal_angle_deg": float(angles.mean()), "cf_normal_angle_max_deg": float(angles.max())}
-    exits = _exit_rows(skill, tel)
+    exits = exit_rows(skill, tel)
     metrics |= _touchdowns(tel, steady, exits, reference, dt)
     if (exits & (tel.normal_force_true > 0.0)).any():
         metrics["exit_collision_n"] = float(tel.normal_force_true[exits].max())
@@ -632,9 +625,10 @@ def compute_metrics(
 def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics:
     """The metrics of one execution run one stroke at a time (``strokes``, each its own run, in order): time, steps and
     real-time factor over all of them; each RMS error over their steady contact together (weighted by its length);
-    the largest max error, touch-down and CF angle; the contact ratio and mean CF angle weighted by steady contact;
-    the first phase and abort reason that is not ``done``; a verdict that fails when one stroke's fails (its reasons
-    prefixed with the stroke). ``strokes`` keeps each one's own metrics."""
+    the largest max error, touch-down, exit collision and CF angle; the contact ratio and mean CF angle weighted by
+    steady contact; every stroke's surfaces pressed, in order; the first phase and abort reason that is not ``done``;
+    a verdict that fails when one stroke's fails (its reasons prefixed with the stroke). ``strokes`` keeps each one's
+    own metrics."""
     if len(strokes) == 1:
         return strokes[0]
     weights = np.array([m.steady_contact_s for m in strokes])
@@ -662,7 +656,7 @@ def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics
             "force_max_error_n", "force_max_error_pct", "true_force_max_error_n", "true_force_max_error_pct",
             "force_reference_n", "touchdown_peak_n", "touchdown_peak_ratio", "settle_time_s",
             "cf_normal_angle_max_deg", "transition_true_force_max_error_n", "transition_true_force_max_error_pct",
-            "contact_threshold_n", "contact_persistence_steps",
+            "contact_threshold_n", "contact_persistence_steps", "touchdown_contact_force_ratio", "exit_collision_n",
         )
     }  # fmt: skip
     for name in ("contact_ratio", "cf_normal_angle_deg"):  # shares and means: weighted by steady contact
@@ -687,6 +681,7 @@ def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics
         peak_force_n=max(m.peak_force_n for m in strokes),
         contact_found_offsets_m=[o for m in strokes for o in m.contact_found_offsets_m],
         contour_relocations_m=[o for m in strokes for o in m.contour_relocations_m],
+        surfaces_pressed=[s for m in strokes for s in m.surfaces_pressed],
         steady_contact_s=float(weights.sum()),
         work_piece=strokes[0].work_piece,
         verdict=verdict,

@@ -38,6 +38,12 @@ def angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
 
 
+def mean_angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """The angle between the mean directions (:func:`unit_mean`) of the unit vectors ``a`` and ``b`` ((N, 3) each),
+    deg."""
+    return float(angles_deg(unit_mean(a), unit_mean(b)))
+
+
 def crease_turn_deg(
     pressed_before: NDArray[np.float64],
     pressed_after: NDArray[np.float64],

@@ -308,6 +308,9 @@ def test_a_skill_no_placement_reaches_runs_one_stroke_at_a_time_on_the_service(c
         np.sqrt(sum(s.steady_contact_s * s.true_force_rms_error_pct**2 for s in m.strokes) / m.steady_contact_s)
     )
     assert max(s.true_force_rms_error_pct for s in m.strokes) < 3.0
+    # where each stroke pressed is kept in the combined metrics, one contact segment per stroke
+    assert [s.segment for s in m.surfaces_pressed] == [p.segment for s in m.strokes for p in s.surfaces_pressed]
+    assert len(m.surfaces_pressed) == 2
     telemetry = client.execution(view.id).telemetry()
     assert len(telemetry) == m.steps and np.all(np.diff(telemetry.t) > 0)  # one run in time, no restart
     contact_segments = sorted(set(telemetry.segment_index[telemetry.phase == "contact"].tolist()))
