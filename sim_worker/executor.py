@@ -475,11 +475,12 @@ class _Execution:
                     self.loop.touched = False
                     found_early = self._run(plan, self._free_guard(plan)) is PlanEnd.contact
                 else:
-                    goal = np.asarray(segment.position_dmp.goal, float) + self.offset
+                    dmp = segment.position_dmp
                     exit_axis = self.exit_axis if i > 0 and segments[i - 1].kind is SegmentKind.contact else None
-                    if exit_axis is not None:  # the way out as taught from where the contact ended, not to a goal
-                        # fixed in the world: a part found moved or tilted would put that goal in the part
-                        dmp = segment.position_dmp
+                    if exit_axis is None:
+                        goal = np.asarray(dmp.goal, float) + self.offset
+                    else:  # the way out as taught from where the contact ended, not to a goal fixed in the world (a
+                        # part found moved or tilted would put that goal in the part)
                         goal = tool_pose()[0] + np.asarray(dmp.goal, float) - np.asarray(dmp.start, float)
                     plan = planner.free(segment, *tool_pose(), goal, exit_axis)
                     if exit_axis is None:
