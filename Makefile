@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench clean browser
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,11 +16,19 @@ run: $(STAMP)  # make run PORT=8001 ZENOH_PORT=7448: the HTTP and Zenoh ports (l
 	$(BIN)/python -m sim_worker.warm_up
 	$(BIN)/contact-skills up $(if $(PORT),--port $(PORT)) $(if $(ZENOH_PORT),--zenoh-port $(ZENOH_PORT))
 
-test: $(STAMP)
+# The dashboard's browser tests drive Debian's Chromium (tests/test_dashboard.py): installed here where this user can
+# (root with apt-get); elsewhere the line below says how, and those tests skip (CI sets CONTACT_SKILLS_REQUIRE_BROWSER=1:
+# there they fail instead).
+browser:
+	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null \
+	  && { apt-get install -y -qq chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium >/dev/null; }; }; } \
+	  || echo "chromium is not installed (as root: apt-get install chromium): the dashboard's browser tests skip"
+
+test: $(STAMP) browser
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/python -m sim_worker.warm_up  # numba: compile once here, not in every test's worker
-	$(BIN)/pytest -q -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
+	$(BIN)/pytest -q -rs -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
