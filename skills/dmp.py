@@ -146,13 +146,19 @@ def _check_time(t: ArrayLike, n_samples: int) -> tuple[NDArray[np.float64], floa
         raise ValueError(f"too few samples: {n_samples} (a DMP needs at least {MIN_SAMPLES})")
     if not np.all(np.isfinite(t)):
         raise ValueError("t contains NaN or inf")
-    steps = np.diff(t)
-    if np.any(steps <= 0):
+    if np.any(np.diff(t) <= 0):
         raise ValueError("t must be strictly increasing")
-    dt = (t[-1] - t[0]) / (n_samples - 1)
-    if np.max(np.abs(steps - dt)) > UNIFORM_GRID_RTOL * dt:
+    dt = uniform_grid_step(t)
+    if dt is None:
         raise ValueError("t must be sampled uniformly (resample the demonstration first)")
-    return t, float(dt)
+    return t, dt
+
+
+def uniform_grid_step(t: NDArray[np.float64]) -> float | None:
+    """The step (s) of the increasing time stamps ``t`` (s) when every step is their mean step within
+    :data:`UNIFORM_GRID_RTOL`, else None: the one test of "uniform" (the learner resamples what fails it)."""
+    dt = float(t[-1] - t[0]) / (t.size - 1)
+    return dt if float(np.max(np.abs(np.diff(t) - dt))) <= UNIFORM_GRID_RTOL * dt else None
 
 
 def _fit_weights(features: NDArray[np.float64], targets: NDArray[np.float64]) -> NDArray[np.float64]:

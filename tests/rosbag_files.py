@@ -81,11 +81,13 @@ def write_bag(
     second_wrench_topic: bool = False,
     pose_every: int = POSE_EVERY,
     seed: int = 0,
+    stamp_base_ns: int = STAMP_BASE_NS,
 ) -> Path:
     """Write the truth (``t`` s, ``positions`` m, ``orientations`` [x, y, z, w], ``wrenches`` applied by the tool at
     the tool point in the world) as a bag at ``path``: a rosbag2 directory (``storage`` 'mcap' or 'sqlite3') or a
     ROS 1 bag file (``storage`` 'ros1', ``path`` with the suffix ``.bag`` added if it has none); see the module
-    docstring for what it holds (``pose_every``: the pose at 1/pose_every of the wrench rate); returns the bag."""
+    docstring for what it holds (``pose_every``: the pose at 1/pose_every of the wrench rate; ``t`` = 0 is stamped
+    ``stamp_base_ns`` ns since the epoch); returns the bag."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     typestore = get_typestore(Stores.ROS1_NOETIC if storage == "ros1" else Stores.ROS2_HUMBLE)
@@ -93,7 +95,7 @@ def write_bag(
         typestore.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_MESSAGE))
     types = typestore.types
     rng = np.random.default_rng(seed)
-    stamps = STAMP_BASE_NS + np.round(np.asarray(t) * 1e9).astype(np.int64)
+    stamps = stamp_base_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
     tool = Rotation.from_quat(orientations)
     measured = -np.asarray(wrenches, dtype=float)  # the sensor's reaction
     if wrench_frame in ("tool", "ft_sensor"):

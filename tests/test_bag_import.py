@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 from rosbag_files import POSE_EVERY, STAMP_BASE_NS, storage_file, write_bag
 
 pytest.importorskip("rosbags")
@@ -360,3 +362,41 @@ def test_a_bag_with_a_stretch_of_no_messages_records_the_gap_on_the_demonstratio
     )
     [check] = [c for c in learn_skill(demo).checks if c.name.value == "unmeasured_contact"]
     assert not check.passed and check.value == pytest.approx(end - start)
+
+
+@settings(
+    max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+)
+@given(
+    storage=st.sampled_from(["mcap", "ros1"]),
+    start_ns=st.integers(min_value=0, max_value=1_800_000_000 * 10**9),
+    rows=st.integers(min_value=100, max_value=1500),
+    rate=st.floats(min_value=50.0, max_value=1000.0),
+    jitter=st.floats(min_value=0.0, max_value=0.3),
+    seed=st.integers(min_value=0, max_value=2**16),
+)
+@example(storage="mcap", start_ns=1_899_000_000, rows=801, rate=1000.0, jitter=0.0, seed=0)  # issue 41's offset
+@example(storage="ros1", start_ns=100_123_000_000, rows=201, rate=1000.0, jitter=0.0, seed=0)
+def test_a_bag_imports_whatever_its_first_stamp_rows_rate_and_jitter(
+    tmp_path_factory, storage: str, start_ns: int, rows: int, rate: float, jitter: float, seed: int
+) -> None:
+    """Property (issue 41, as the CSV's in tests/test_import.py): a ROS 1 or ROS 2 bag whose header stamps start
+    anywhere from 0 to Unix-epoch nanoseconds, 100-1500 wrench messages at 50-1000 Hz with jitter up to 0.3 periods
+    (poses at a quarter of that rate), imports with every sample finite, its time axis from 0 and never past the
+    span the two topics share."""
+    rng = np.random.default_rng(seed)
+    truth = synthetic.plane_slide(seed=0)
+    nominal = np.arange(rows) / rate
+    nominal[1:-1] += rng.uniform(-jitter, jitter, rows - 2) / rate
+    along = np.linspace(0.0, 1.0, rows)  # the slide's samples spread over the new clock: its path and its press
+    source = np.linspace(0.0, 1.0, truth.t.size)
+    index = np.minimum(np.searchsorted(source, along), truth.t.size - 1)
+    bag = write_bag(
+        tmp_path_factory.mktemp("bag") / "bag", nominal, truth.positions[index], truth.orientations[index],
+        truth.wrenches[index], storage=storage, stamp_base_ns=start_ns, seed=seed,
+    )  # fmt: skip
+    demo = demonstration_from_bag(bag, BagImportOptions(**MEASURED, tool_frame="tool", tare=False))
+    a = demo.arrays()
+    assert np.all(np.isfinite(a.positions)) and np.all(np.isfinite(a.wrenches)) and np.all(np.isfinite(a.orientations))
+    assert a.t[0] == 0.0 and np.all(np.diff(a.t) > 0)
+    assert a.t[-1] <= nominal[-1] - nominal[0] + 1e-6 and a.t.size >= rows // 2

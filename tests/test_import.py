@@ -21,7 +21,7 @@ from schemas.import_options import CsvImportOptions
 from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv, demonstration_from_json
 from services.importing import DemonstrationImportError
 from skills import preprocess
-from skills.quaternions import quaternion_angle_between
+from skills.quaternions import matrix_from_quaternion, quaternion_angle_between
 
 DATA = KULEUVEN_DATA
 TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
@@ -671,3 +671,46 @@ def test_a_recording_imports_whatever_its_first_stamp_rows_rate_and_jitter(
     a = demo.arrays()
     assert np.all(np.isfinite(a.positions)) and np.all(np.isfinite(a.wrenches))
     assert a.t[-1] <= stamps[-1] + 1e-6 * max(1.0, stamps[-1]) and len(a.t) >= rows // 2
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    start=st.floats(min_value=0.0, max_value=1.8e9, allow_nan=False),
+    rate=st.floats(min_value=100.0, max_value=1000.0),
+    jitter=st.floats(min_value=0.0, max_value=0.3),
+    seed=st.integers(min_value=0, max_value=2**16),
+)
+@example(start=1.899, rate=1000.0, jitter=0.0, seed=0)
+def test_a_json_demonstration_learns_whatever_its_first_stamp_rate_and_jitter(
+    start: float, rate: float, jitter: float, seed: int
+) -> None:
+    """Property (issue 41, the JSON importer's share): a JSON `Demonstration` is taken as it is, and learning resamples
+    it; with stamps from 0 to Unix-epoch seconds, 100-1000 Hz and jitter up to 0.3 periods, the tilted slide it holds
+    is learned as that slide — one contact segment whose compliant frame's z is the true normal within 3° and whose
+    force is the taught 15 N within 1 N — never a traceback."""
+    from corpus import synthetic
+    from schemas import SkillType
+    from schemas.skill import SegmentKind
+    from skills.parameterize import learn_skill
+
+    normal = np.array([np.sin(np.radians(10.0)), 0.0, -np.cos(np.radians(10.0))])
+    truth = synthetic.plane_slide(normal=tuple(normal), seed=0)
+    rows = int(truth.t[-1] * rate) + 1
+    rng = np.random.default_rng(seed)
+    nominal = np.arange(rows) / rate
+    nominal[1:-1] += rng.uniform(-jitter, jitter, rows - 2) / rate
+    index = np.minimum(np.searchsorted(truth.t, nominal), truth.t.size - 1)  # the truth's sample at each stamp
+    stamps = start + nominal
+    if np.any(np.diff(stamps) <= 0):  # epoch-sized stamps round a 1 ms step away: nothing to learn from
+        return
+    text = json.dumps({
+        "t": stamps.tolist(), "positions": truth.positions[index].tolist(),
+        "orientations": truth.orientations[index].tolist(), "wrenches": truth.wrenches[index].tolist(),
+    })  # fmt: skip
+    skill = learn_skill(demonstration_from_json(text))
+    assert skill.skill_type is SkillType.slide
+    contact = [s for s in skill.segments if s.kind is SegmentKind.contact]
+    assert len(contact) == 1
+    z = matrix_from_quaternion(contact[0].compliant_frames.orientations[0])[:, 2]
+    assert np.degrees(np.arccos(np.clip(z @ normal, -1.0, 1.0))) < 3.0
+    assert abs(contact[0].force_constant_n - truth.target_force_n) < 1.0
