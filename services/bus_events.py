@@ -8,13 +8,14 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
 from schemas.bus import ExecutionStatus
 from schemas.execution import ExecutionPhase, TelemetryBatch
 from services.settings import ServiceSettings
-from services.store import RESTART_REASON, Store
+from services.store import RESTART_REASON, DiskFull, Store
 
 if TYPE_CHECKING:
     from services.bus import BusClient
@@ -51,6 +52,24 @@ FINAL_TELEMETRY_GRACE_S = 1.0
 what is still missing is asked again of the worker, s."""
 
 
+@dataclass
+class Unstored:
+    """The telemetry of a run that the store could not take (its disk is full): the run is failed and aborted."""
+
+    disk: str
+    """What the store said (``services.store.DiskFull``: the disk, its free space)."""
+    first: int
+    """The stream index of the first sample not stored."""
+    lost: int
+    """Samples received and not stored so far."""
+
+    def reason(self, total: int | None = None) -> str:
+        """The run's error: the disk, and how many samples were not stored (of ``total``, once its worker said)."""
+        lost = f"{self.lost:,} of its {total:,}" if total is not None else f"{self.lost:,}"
+        return (f"{self.disk}: {lost} telemetry samples were not stored (from sample {self.first:,} on); the run "
+                "was aborted")  # fmt: skip
+
+
 def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -> bool:
     """Apply a worker's status to its (active) execution: state, phase, worker, metrics, error (the abort reason
     when it gives none). True if applied."""
@@ -82,6 +101,11 @@ class BusEvents:
     can read the whole stream, or ``ExecutionView.telemetry_missing_samples`` says how much of it is lost for good
     (the worker is gone or no longer keeps it). An execution run with ``telemetry`` ``none`` has no stream: its
     final status is stored as it arrives.
+
+    A full disk never leaves a run ``running`` with its telemetry silently missing: the first batch the store cannot
+    take (``services.store.DiskFull``) fails the run, saying the disk is full and how many samples were not stored,
+    and tells its worker to abort; its later batches are counted, not stored; its worker's final status then gives
+    the run its metrics and the final count (:class:`Unstored`).
     """
 
     def __init__(self, store: Store, bus: BusClient | None = None) -> None:
@@ -95,12 +119,15 @@ class BusEvents:
         self._held: dict[str, ExecutionStatus] = {}
         self._seen_stored: dict[str, int] = {}  # held execution -> samples stored when last looked at
         self._received: dict[str, int] = {}  # execution -> one past the last sample received live
+        self._unstored: dict[str, Unstored] = {}  # execution failed for a full disk, until its final status
         self._lock = threading.Lock()
         self._repairs: queue.Queue[str] = queue.Queue()
         self._repairing: set[str] = set()
         self._repairer: threading.Thread | None = None
 
     def _status(self, status: ExecutionStatus) -> None:
+        if status.final and self._unstored_final(status):
+            return
         row = self.store.executions.get(status.execution_id)
         if row is not None and row.worker_id is not None and row.worker_id != status.worker_id:
             log.warning("status of %s from %s ignored: it runs on %s", status.execution_id, status.worker_id,
@@ -161,9 +188,18 @@ class BusEvents:
             return
         with self._lock:
             received = self._received.get(execution_id)
+            unstored = self._unstored.get(execution_id)
+            if unstored is not None:
+                unstored.lost += len(batch.t)
+                return
         if received is None:
             received = self.store.telemetry.end(execution_id)
-        self.store.telemetry.add(execution_id, batch)
+        try:
+            self.store.telemetry.add(execution_id, batch)
+        except DiskFull as exc:
+            self._disk_full(execution_id, batch.first_sample if batch.first_sample is not None else received,
+                            len(batch.t), exc)  # fmt: skip
+            return
         if batch.first_sample is not None:
             if batch.first_sample > received:
                 log.warning("telemetry of %s: samples %d to %d missed; asking the worker again", execution_id,
@@ -175,6 +211,34 @@ class BusEvents:
             held = self._held.get(execution_id)
         if held is not None and self._telemetry_complete(held):
             self._release(execution_id)
+
+    def _disk_full(self, execution_id: str, first: int, n: int, exc: DiskFull) -> None:
+        """The store could not take ``n`` samples of the run from sample ``first`` on: fail it and abort it (its
+        later samples are counted, not stored, :meth:`_telemetry`)."""
+        unstored = Unstored(str(exc), first, n)
+        with self._lock:
+            self._unstored[execution_id] = unstored
+            self._held.pop(execution_id, None)
+        log.error("execution %s: %s", execution_id, unstored.reason())
+        if self.bus is not None:
+            self.bus.send_command(execution_id, "abort")
+        self.store.executions.update(
+            execution_id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=unstored.reason()
+        )
+
+    def _unstored_final(self, status: ExecutionStatus) -> bool:
+        """The final status of a run failed for a full disk: the run keeps its failure and gets the worker's metrics
+        and the final count of samples not stored. False for any other run."""
+        with self._lock:
+            unstored = self._unstored.pop(status.execution_id, None)
+        if unstored is None:
+            return False
+        total = status.metrics.steps if status.metrics is not None else None
+        if total is not None:
+            unstored.lost = max(unstored.lost, total - self.store.telemetry.counts(status.execution_id)[1])
+        self.store.executions.amend_failure(status.execution_id, unstored.reason(total), status.metrics)
+        self._forget(status.execution_id)
+        return True
 
     def _repair(self, execution_id: str) -> None:
         """Have the repair thread fill the execution's telemetry gaps (then store its held final status)."""

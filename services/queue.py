@@ -92,11 +92,18 @@ class ExecutionQueue:
     """The queue over ``store`` and ``bus`` (see the module docstring). ``start()`` the dispatcher, ``close()``."""
 
     def __init__(
-        self, store: Store, bus: BusClient, max_queued: int = DEFAULT_MAX_QUEUED, poll_s: float = POLL_S
+        self,
+        store: Store,
+        bus: BusClient,
+        max_queued: int = DEFAULT_MAX_QUEUED,
+        poll_s: float = POLL_S,
+        quota_bytes: int = 0,
     ) -> None:
+        """``quota_bytes``: the storage quota each submission's telemetry is reserved in (0: none)."""
         self.store = store
         self.bus = bus
         self.max_queued = max_queued
+        self.quota_bytes = quota_bytes
         self.poll_s = poll_s
         self._lock = threading.Lock()  # one hand-over at a time: the order of the queue is the order of starts
         self._wake = threading.Event()
@@ -112,15 +119,21 @@ class ExecutionQueue:
     ) -> tuple[ExecutionRow, int | None]:
         """Queue an execution and hand it to a free worker at once if nothing waits before it.
 
-        Returns its row (status running, or queued when every worker is busy) and its queue position. Raises
-        `services.bus.NoWorkerAvailable` when no worker is connected at all (nothing stored),
-        `services.store.QueueFull`, or `services.bus.BusRequestError` when the worker refused it as invalid
-        (nothing stored)."""
+        Its estimated telemetry (``skills.job_estimate.stored_telemetry_bytes``) is reserved in the storage quota
+        until it ends. Returns its row (status running, or queued when every worker is busy) and its queue
+        position. Raises `services.bus.NoWorkerAvailable` when no worker is connected at all (nothing stored),
+        `services.store.QueueFull`, `services.store.QuotaFull` when its telemetry does not fit beside what is stored
+        and reserved, or `services.bus.BusRequestError` when the worker refused it as invalid (nothing stored)."""
         from services.bus import BusRequestError, NoWorkerAvailable
+        from skills.job_estimate import stored_telemetry_bytes
 
         if not self.bus.workers():
             raise NoWorkerAvailable("no worker connected: cannot run executions (start one: contact-skills worker)")
-        row = self.store.executions.add(shown_request, skill_id, dispatch.to_json(), priority, self.max_queued)
+        assert dispatch.request.skill is not None  # the dispatch carries the skill inline
+        row = self.store.executions.add(
+            shown_request, skill_id, dispatch.to_json(), priority, self.max_queued,
+            stored_telemetry_bytes(dispatch.request.skill, dispatch.request), self.quota_bytes,
+        )  # fmt: skip
         with self._lock:
             if self.store.executions.queue_position(row.id) == 0:
                 outcome, reason = self._hand_over(row.id, dispatch)

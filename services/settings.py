@@ -26,7 +26,7 @@
 | max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (open connections and requests at once; more get 503) |
 | client_queued_max | ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` | ``100`` (a client's queued or running executions; 429) |
 | client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
-| storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB the database holds at most; then 507) |
+| storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB stored and reserved by runs, at most; 507) |
 | retention_days | ``CONTACT_SKILLS_RETENTION_DAYS`` | ``0`` (keep all; > 0: older finished runs deleted) |
 | foxglove_port | ``CONTACT_SKILLS_FOXGLOVE_PORT`` | ``8765`` (the live view; ``0`` any free port; ``off``: none) |
 
@@ -239,6 +239,11 @@ class ServiceSettings:
         if self.foxglove_port is None:
             return None if self.token_reads else DEFAULT_FOXGLOVE_PORT
         return None if self.foxglove_port in FOXGLOVE_OFF else int(self.foxglove_port)
+
+    @property
+    def storage_quota_bytes(self) -> int:
+        """The storage quota in bytes (0: none)."""
+        return int(self.storage_quota_mb * 2**20)
 
     @property
     def max_body_bytes(self) -> int:

@@ -282,7 +282,7 @@ class SweepRunner:
         ``window`` are in flight; mark the sweep done once every trial has a result; publish the progress.
         ``first``: errors of the submission raise (the route answers them), else they wait for the next round."""
         from services.bus import BusRequestError, NoWorkerAvailable
-        from services.store import QueueFull
+        from services.store import QueueFull, QuotaFull
 
         rows = self.store.sweeps.trials(row.id)  # read once a round (~30 ms for 600 trials x controllers)
         in_flight = sum(r.status is not None and r.status not in TERMINAL for r in rows)
@@ -295,7 +295,7 @@ class SweepRunner:
             r = rows[k]
             try:
                 rows[k] = self._submit(row, spec, r)
-            except (NoWorkerAvailable, QueueFull, BusRequestError):
+            except (NoWorkerAvailable, QueueFull, QuotaFull, BusRequestError):
                 if first:
                     raise
                 log.warning("sweep %s: trial %d (%s) not submitted now", row.id, r.trial, r.controller, exc_info=True)

@@ -14,7 +14,7 @@ followed to it), a surface found beyond its window, a contour relocated where it
 
 from __future__ import annotations
 
-from schemas.execution import ExecutionSettings, SensorChoice
+from schemas.execution import ExecutionSettings, SensorChoice, TelemetryMode
 from schemas.job_budget import NOMINAL_TIME_STEP_S, JobEstimate, JobPart
 from schemas.skill import SegmentKind, Skill
 
@@ -42,6 +42,14 @@ def taught_time_step_s(skill: Skill) -> float:
     world = world["world_config"] if isinstance(world.get("world_config"), dict) else world
     step = world.get("time_step_s")
     return float(step) if isinstance(step, int | float) and step > 0 else NOMINAL_TIME_STEP_S
+
+
+def stored_telemetry_bytes(skill: Skill, settings: ExecutionSettings) -> int:
+    """The telemetry an execution of ``skill`` with ``settings`` streams for the API to store, bytes: its estimate's
+    at the taught control step (an upper bound: the store compresses it); 0 with ``telemetry`` ``none``."""
+    if settings.telemetry is TelemetryMode.none:
+        return 0
+    return execution_estimate(skill, settings, taught_time_step_s(skill)).telemetry_bytes
 
 
 def execution_estimate(skill: Skill, settings: ExecutionSettings, time_step_s: float) -> JobEstimate:

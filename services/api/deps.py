@@ -170,10 +170,11 @@ def require_token_to_read(settings: SettingsDep, known: AuthenticatedDep) -> Non
 
 
 def require_storage_room(store: StoreDep, settings: SettingsDep) -> None:
-    """507 when the database already holds ``storage_quota_mb`` (0: no quota)."""
-    quota = int(settings.storage_quota_mb * 2**20)
-    if quota and (used := store.usage_bytes()) >= quota:
-        raise errors.storage_full(used, quota)
+    """507 when what the database holds and what the queued and running executions reserve for their telemetry
+    reach ``storage_quota_mb`` (0: no quota)."""
+    quota = settings.storage_quota_bytes
+    if quota and (stored := store.usage_bytes()) + (reserved := store.reserved_bytes()) >= quota:
+        raise errors.storage_full(stored, reserved, quota)
 
 
 TOKEN_GUARD = [Depends(require_token)]

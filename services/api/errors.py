@@ -11,6 +11,8 @@ becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodi
   too with ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed
   request or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
 - 503: no Zenoh bus or no sim worker connected; 504: a recording timed out.
+- 507: the storage quota is reached (what is stored and what queued and running executions reserve), or a write found
+  the disk full (``services.store.DiskFull``: nothing stored; a DELETE still works).
 - 500 only for a bug: logged with its traceback, answered with a short JSON body.
 """
 
@@ -26,11 +28,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from schemas.api import ApiError
+from services.store import DiskFull
 
 if TYPE_CHECKING:
     from services.csv_import import CsvImportError
     from services.importing import DemonstrationImportError
     from services.learner_pool import LearnOutcome
+    from services.store import QuotaFull
 
 log = logging.getLogger("contact_skills.api")
 
@@ -77,14 +81,27 @@ def unavailable(detail: str) -> HTTPException:
     return HTTPException(503, detail)
 
 
-def storage_full(used_bytes: int, quota_bytes: int) -> HTTPException:
-    """507: the database holds its quota (``CONTACT_SKILLS_STORAGE_QUOTA_MB``)."""
+def storage_full(stored_bytes: int, reserved_bytes: int, quota_bytes: int, needed_bytes: int = 0) -> HTTPException:
+    """507: what the database holds and what the queued and running executions reserve for their telemetry reach
+    the quota (``CONTACT_SKILLS_STORAGE_QUOTA_MB``), or leave less than ``needed_bytes`` (an execution's)."""
+    need = f"this execution's telemetry needs {_mib(needed_bytes)} and " if needed_bytes else ""
     return HTTPException(
         507,
-        f"the storage quota is reached: the database holds {used_bytes / 2**20:.0f} MiB of "
-        f"{quota_bytes / 2**20:.0f} MiB (CONTACT_SKILLS_STORAGE_QUOTA_MB); delete executions or demonstrations "
-        "(DELETE /executions/{id}, /demonstrations/{id}) or raise the quota",
+        f"the storage quota is reached: {need}the database holds {_mib(stored_bytes)} and queued or running "
+        f"executions reserve {_mib(reserved_bytes)} for their telemetry, of the quota of {_mib(quota_bytes)} "
+        "(CONTACT_SKILLS_STORAGE_QUOTA_MB); delete executions or demonstrations (DELETE /executions/{id}, "
+        "/demonstrations/{id}), wait for running executions to end, or raise the quota",
     )
+
+
+def quota_full(exc: QuotaFull) -> HTTPException:
+    """507: an execution's telemetry does not fit in the storage quota (:func:`storage_full`)."""
+    return storage_full(exc.stored_bytes, exc.reserved_bytes, exc.quota_bytes, exc.needed_bytes)
+
+
+def _mib(n: int) -> str:
+    """``n`` bytes in MiB, to one decimal."""
+    return f"{n / 2**20:,.1f} MiB"
 
 
 def stored_too_large(
@@ -300,6 +317,15 @@ async def _validation_error(request: Request, exc: RequestValidationError) -> JS
     return JSONResponse(status_code=422, content={"detail": [tidy_error(dict(e)) for e in exc.errors()]})
 
 
+async def _disk_full(request: Request, exc: DiskFull) -> JSONResponse:
+    log.error("%s %s: %s", request.method, request.url.path, exc)
+    return JSONResponse(
+        status_code=507,
+        content={"detail": f"{exc}: nothing was stored; delete executions or demonstrations (DELETE "
+                 "/executions/{id}, /demonstrations/{id}: deletion works on a full disk) or free disk space"},
+    )  # fmt: skip
+
+
 async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:
     log.exception("bug: %s %s raised %s", request.method, request.url.path, type(exc).__name__)
     return JSONResponse(
@@ -308,6 +334,8 @@ async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:
 
 
 def install_error_handlers(app: FastAPI) -> None:
-    """422 bodies through :func:`tidy_error`; any other exception a logged 500 with a short JSON body."""
+    """422 bodies through :func:`tidy_error`; a full disk 507 naming it; any other exception a logged 500 with a
+    short JSON body."""
     app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(DiskFull, _disk_full)
     app.add_exception_handler(Exception, _unexpected_error)

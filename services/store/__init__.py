@@ -5,7 +5,7 @@
 - :mod:`services.store.demonstrations`, :mod:`.skills`, :mod:`.executions` (with the queue), :mod:`.telemetry`,
   :mod:`.sweeps`: one repository each, returning the typed rows of :mod:`services.store.rows`;
 - :class:`Store` (here): the façade that opens the database and holds the repositories, with what spans them: the
-  storage quota and the retention of finished executions.
+  storage quota (what is stored, what admitted executions reserve) and the retention of finished executions.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from schemas.sweep import SweepState
-from services.store.database import SCHEMA_VERSION, Database, StoreError, new_id
+from services.store.database import SCHEMA_VERSION, Database, DiskFull, StoreError, new_id
 from services.store.demonstrations import DemonstrationRepository
-from services.store.executions import ACTIVE, RESTART_REASON, TERMINAL, ExecutionRepository, QueueFull
+from services.store.executions import ACTIVE, RESTART_REASON, TERMINAL, ExecutionRepository, QueueFull, QuotaFull
 from services.store.rows import (
     DemonstrationRow,
     ExecutionRow,
@@ -38,8 +38,10 @@ __all__ = [
     "TELEMETRY_LAYOUT",
     "TERMINAL",
     "DemonstrationRow",
+    "DiskFull",
     "ExecutionRow",
     "QueueFull",
+    "QuotaFull",
     "Retired",
     "SkillRow",
     "SkillSummaryRow",
@@ -63,8 +65,9 @@ class Retired:
 class Store:
     """The service's database: its repositories, one per resource; safe to share between threads."""
 
-    def __init__(self, path: str | Path) -> None:
-        self.database = Database(path)
+    def __init__(self, path: str | Path, max_pages: int | None = None) -> None:
+        """``max_pages``: a ceiling on the database file, pages (``Database``; None: the disk is the ceiling)."""
+        self.database = Database(path, max_pages)
         self.path = self.database.path
         self.demonstrations = DemonstrationRepository(self.database)
         self.skills = SkillRepository(self.database)
@@ -73,44 +76,48 @@ class Store:
         self.sweeps = SweepRepository(self.database)
 
     def usage_bytes(self) -> int:
-        """What the stored rows take in the database file, bytes: its pages in use (pages freed by deletions are
-        reused before the file grows, so they do not count; the write-ahead log does not either)."""
-        pages = self.database.one("PRAGMA page_count")
-        free = self.database.one("PRAGMA freelist_count")
-        size = self.database.one("PRAGMA page_size")
-        assert pages is not None and free is not None and size is not None
-        return (int(pages[0]) - int(free[0])) * int(size[0])
+        """What the stored rows take in the database file, bytes (``Database.used_bytes``)."""
+        return self.database.used_bytes()
+
+    def reserved_bytes(self) -> int:
+        """What the queued and running executions still reserve for their telemetry, bytes
+        (``ExecutionRepository.reserved_bytes``)."""
+        return self.executions.reserved_bytes()
 
     def retire(self, older_than_s: float, now: float | None = None) -> Retired:
         """Delete what the retention setting lets go: finished executions last updated more than ``older_than_s``
         ago, with their telemetry, except those of a sweep still running (it counts them); then finished sweeps
         (done, cancelled) last updated that long ago, with their trials. Demonstrations and skills are kept: they
-        are what a user made, and small."""
+        are what a user made, and small. Gets through a full disk (``Database.deletion``)."""
         cutoff = (time.time() if now is None else now) - older_than_s
         finished = tuple(state.value for state in TERMINAL)
         running_sweeps = "SELECT id FROM sweeps WHERE status = ?"
-        with self.database.transaction() as db:
-            old = [
-                r["id"]
-                for r in db.execute(
-                    f"SELECT id FROM executions WHERE updated < ? AND status IN ({', '.join('?' * len(finished))}) "
-                    f"AND COALESCE(json_extract(request, '$.sweep.id'), '') NOT IN ({running_sweeps})",
-                    (cutoff, *finished, SweepState.running.value),
-                ).fetchall()
-            ]
-            for execution_id in old:
-                db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
-                db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
-            sweeps = [
-                r["id"]
-                for r in db.execute(
-                    "SELECT id FROM sweeps WHERE updated < ? AND status != ?", (cutoff, SweepState.running.value)
-                ).fetchall()
-            ]
-            for sweep_id in sweeps:
-                db.execute("DELETE FROM sweep_trials WHERE sweep_id = ?", (sweep_id,))
-                db.execute("DELETE FROM sweeps WHERE id = ?", (sweep_id,))
-        return Retired(executions=len(old), sweeps=len(sweeps))
+
+        def delete() -> Retired:
+            with self.database.transaction() as db:
+                old = [
+                    r["id"]
+                    for r in db.execute(
+                        f"SELECT id FROM executions WHERE updated < ? AND status IN ({', '.join('?' * len(finished))}) "
+                        f"AND COALESCE(json_extract(request, '$.sweep.id'), '') NOT IN ({running_sweeps})",
+                        (cutoff, *finished, SweepState.running.value),
+                    ).fetchall()
+                ]
+                for execution_id in old:
+                    db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+                    db.execute("DELETE FROM executions WHERE id = ?", (execution_id,))
+                sweeps = [
+                    r["id"]
+                    for r in db.execute(
+                        "SELECT id FROM sweeps WHERE updated < ? AND status != ?", (cutoff, SweepState.running.value)
+                    ).fetchall()
+                ]
+                for sweep_id in sweeps:
+                    db.execute("DELETE FROM sweep_trials WHERE sweep_id = ?", (sweep_id,))
+                    db.execute("DELETE FROM sweeps WHERE id = ?", (sweep_id,))
+            return Retired(executions=len(old), sweeps=len(sweeps))
+
+        return self.database.deletion(delete)
 
     def schema_version(self) -> int:
         """The database's schema version."""

@@ -14,6 +14,12 @@ snapshot, and the next write on that thread would fail with "database is locked"
 
 Schema: created on open and versioned with ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a database written by
 a newer version is refused rather than misread.
+
+A full disk: a write SQLite answers "database or disk is full" (``SQLITE_FULL``) raises :class:`DiskFull`, which the
+API answers 507 naming the disk. What must get through a full disk all the same (a deletion, which makes room; a
+run's final status) is written with :meth:`Database.essential`: on :class:`DiskFull` it releases the ballast, a
+:data:`BALLAST_BYTES` row kept for that moment, and tries once more; a deletion puts the ballast back
+(:meth:`Database.deletion`).
 """
 
 from __future__ import annotations
@@ -21,18 +27,22 @@ from __future__ import annotations
 import contextlib
 import logging
 import secrets
+import shutil
 import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar("T")
 
 log = logging.getLogger("contact_skills.store")
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
-by sample index; 4: sweeps)."""
+by sample index; 4: sweeps; 5: the telemetry an execution reserves, the ballast)."""
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
     id TEXT PRIMARY KEY,
@@ -114,12 +124,38 @@ CREATE INDEX sweeps_by_status ON sweeps (status)
 with the skill inline, JSON, stored once); one row per trial x controller with its drawn parameters and its latest
 execution (whose row holds the status and metrics)."""
 
+_SCHEMA_V5 = """
+ALTER TABLE executions ADD COLUMN reserved_bytes INTEGER NOT NULL DEFAULT 0;
+CREATE TABLE ballast (id INTEGER PRIMARY KEY, data BLOB NOT NULL)
+"""
+"""Version 5: the telemetry bytes an execution reserves in the storage quota while it is queued or running (its job
+estimate's, ``schemas.job_budget.JobEstimate.telemetry_bytes``; 0 with telemetry ``none``); the ballast (one row of
+:data:`BALLAST_BYTES`, released when the disk is full: :meth:`Database.essential`)."""
+
+BALLAST_BYTES = 1 << 20
+"""The ballast, bytes: room kept in the database for the writes that must get through a full disk (a deletion's
+B-tree pages, a run's final status; each a few pages of 4 KiB)."""
 LOCKED_RETRY_S = 120.0
 """How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
 
 
 class StoreError(RuntimeError):
     """The database cannot be used (newer schema, not a database, closed)."""
+
+
+class DiskFull(StoreError):  # noqa: N818 (reads as what happened)
+    """A write found the database's disk full (SQLite's ``SQLITE_FULL``: the disk, or the database's page limit)."""
+
+    def __init__(self, path: Path, max_pages: int | None) -> None:
+        free = shutil.disk_usage(path.parent).free if path.parent.exists() else 0
+        limit = f"; the database may take {max_pages} pages" if max_pages is not None else ""
+        super().__init__(f"the disk holding the database {path} is full ({free / 2**20:.0f} MiB free{limit})")
+        self.path, self.free_bytes = path, free
+
+
+def _is_full(exc: sqlite3.Error) -> bool:
+    """Whether SQLite answered ``SQLITE_FULL`` (its extended codes keep it in the low byte)."""
+    return (getattr(exc, "sqlite_errorcode", 0) or 0) & 0xFF == sqlite3.SQLITE_FULL
 
 
 def new_id(prefix: str) -> str:
@@ -147,8 +183,11 @@ def _retry_locked(step: Callable[[], object], what: str) -> None:
 class Database:
     """One SQLite file shared by the repositories (see the module docstring); safe to share between threads."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, max_pages: int | None = None) -> None:
+        """``max_pages``: a ceiling on the database file, pages (SQLite's ``max_page_count`` on every connection):
+        past it every write that needs a new page fails as on a full disk; None: the disk is the ceiling."""
         self.path = Path(path)
+        self.max_pages = max_pages
         if str(path) != ":memory:":
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
@@ -167,6 +206,8 @@ class Database:
             connection.execute("PRAGMA journal_mode=WAL")
             connection.execute("PRAGMA synchronous=NORMAL")
             connection.execute("PRAGMA busy_timeout=5000")
+            if self.max_pages is not None:
+                connection.execute(f"PRAGMA max_page_count={int(self.max_pages)}")
             self._local.connection = connection
             with self._lock:
                 self._connections.append(connection)
@@ -192,15 +233,60 @@ class Database:
     def transaction(self) -> Iterator[sqlite3.Connection]:
         """A write transaction. Taking the write lock, and committing, retry while the database is locked (each try
         waits ``busy_timeout``, 5 s), for up to :data:`LOCKED_RETRY_S`: a status or a telemetry batch from a bus
-        thread waits for a long write (a big upload, a deletion) instead of being dropped."""
+        thread waits for a long write (a big upload, a deletion) instead of being dropped. A full disk raises
+        :class:`DiskFull`, nothing written."""
         connection = self._connection()
-        _retry_locked(lambda: connection.execute("BEGIN IMMEDIATE"), "BEGIN")
         try:
-            yield connection
-        except BaseException:
-            connection.execute("ROLLBACK")
+            _retry_locked(lambda: connection.execute("BEGIN IMMEDIATE"), "BEGIN")
+            try:
+                yield connection
+            except BaseException:
+                if connection.in_transaction:  # SQLite rolls back by itself after SQLITE_FULL
+                    connection.execute("ROLLBACK")
+                raise
+            _retry_locked(lambda: connection.execute("COMMIT"), "COMMIT")
+        except sqlite3.OperationalError as exc:
+            if connection.in_transaction:  # a COMMIT that failed leaves it open
+                connection.execute("ROLLBACK")
+            if _is_full(exc):
+                raise DiskFull(self.path, self.max_pages) from exc
             raise
-        _retry_locked(lambda: connection.execute("COMMIT"), "COMMIT")
+
+    def essential(self, write: Callable[[], T]) -> T:
+        """Run ``write`` (a function that makes one transaction), which must get through a full disk: on
+        :class:`DiskFull` the ballast is released (its pages become free for this write) and it runs once more."""
+        try:
+            return write()
+        except DiskFull:
+            with self.transaction() as db:  # a deletion: it needs no new page
+                released = db.execute("DELETE FROM ballast").rowcount
+            log.warning("%s: the disk is full; %d ballast bytes released for an essential write", self.path,
+                        released * BALLAST_BYTES)  # fmt: skip
+            return write()
+
+    def deletion(self, delete: Callable[[], T]) -> T:
+        """Run ``delete`` (a function that makes one transaction that deletes) as an :meth:`essential` write, then
+        put the ballast back if it was released and the deletion made room for it."""
+        deleted = self.essential(delete)
+        self._refill_ballast()
+        return deleted
+
+    def _refill_ballast(self) -> None:
+        """Put the ballast back if it was released and there is room for it; else leave it for the next deletion."""
+        if self.one("SELECT 1 FROM ballast") is not None:
+            return
+        with contextlib.suppress(DiskFull), self.transaction() as db:
+            db.execute("INSERT INTO ballast (data) SELECT zeroblob(?) WHERE NOT EXISTS (SELECT 1 FROM ballast)",
+                       (BALLAST_BYTES,))  # fmt: skip
+
+    def used_bytes(self, db: sqlite3.Connection | None = None) -> int:
+        """What the stored rows take in the database file, bytes: its pages in use (pages freed by deletions are
+        reused before the file grows, so they do not count; the write-ahead log does not either); ``db``: the
+        connection of an open transaction to read it in."""
+        read = db or self._connection()
+        pages, free, size = (int(read.execute(f"PRAGMA {name}").fetchone()[0])
+                             for name in ("page_count", "freelist_count", "page_size"))  # fmt: skip
+        return (pages - free) * size
 
     def _migrate(self) -> None:
         try:
@@ -212,13 +298,14 @@ class Database:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4)[version:]:
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5)[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:
                     db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a usable SQLite database ({exc})") from None
+        self._refill_ballast()
 
     def schema_version(self) -> int:
         """The database's schema version."""

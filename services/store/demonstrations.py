@@ -79,5 +79,9 @@ class DemonstrationRepository:
 
     def delete(self, demonstration_id: str) -> bool:
         """Delete a demonstration; False if there was none. Skills learned from it keep their parameters."""
-        with self.database.transaction() as db:
-            return db.execute("DELETE FROM demonstrations WHERE id = ?", (demonstration_id,)).rowcount > 0
+
+        def delete() -> bool:
+            with self.database.transaction() as db:
+                return db.execute("DELETE FROM demonstrations WHERE id = ?", (demonstration_id,)).rowcount > 0
+
+        return self.database.deletion(delete)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import sqlite3
 import time
 from collections.abc import Callable
 
 from schemas.api import ExecutionState
 from schemas.execution import ExecutionMetrics, ExecutionPhase
+from schemas.job_budget import TELEMETRY_BYTES_PER_STEP
 from services.store.database import Database, log, new_id
 from services.store.rows import ExecutionRow
 
@@ -18,8 +20,29 @@ TERMINAL = (ExecutionState.done, ExecutionState.aborted, ExecutionState.failed)
 RESTART_REASON = "API restarted while running; worker state unknown"
 
 
+ADMITTED = (ExecutionState.queued, *ACTIVE)
+"""The statuses of an execution whose telemetry is still to come: what it reserves counts against the quota."""
+_RESERVED = (
+    "SELECT COALESCE(SUM(MAX(e.reserved_bytes - ? * COALESCE((SELECT SUM(t.rows) FROM telemetry t "
+    f"WHERE t.execution_id = e.id), 0), 0)), 0) FROM executions e WHERE e.status IN ({', '.join('?' * len(ADMITTED))})"
+)
+"""What the admitted executions still reserve, bytes: each its reservation less its samples stored so far (those
+count in the pages in use); the sample size and the admitted statuses as the parameters."""
+
+
 class QueueFull(RuntimeError):  # noqa: N818 (reads as what happened)
     """The execution queue holds its maximum."""
+
+
+class QuotaFull(RuntimeError):  # noqa: N818 (reads as what happened)
+    """An execution's telemetry does not fit in the storage quota beside what is stored and what the executions
+    admitted before it reserve (bytes each)."""
+
+    def __init__(self, stored_bytes: int, reserved_bytes: int, needed_bytes: int, quota_bytes: int) -> None:
+        super().__init__(f"{needed_bytes} bytes needed, {stored_bytes} stored and {reserved_bytes} reserved of "
+                         f"{quota_bytes}")  # fmt: skip
+        self.stored_bytes, self.reserved_bytes = stored_bytes, reserved_bytes
+        self.needed_bytes, self.quota_bytes = needed_bytes, quota_bytes
 
 
 class ExecutionRepository:
@@ -52,10 +75,15 @@ class ExecutionRepository:
         dispatch: str | None = None,
         priority: int = 0,
         max_queued: int | None = None,
+        reserved_bytes: int = 0,
+        quota_bytes: int = 0,
     ) -> ExecutionRow:
         """Store a new execution (``request`` as shown back): in status ``starting`` without ``dispatch``; with it
-        (what to send to a worker, JSON) in status ``queued`` at ``priority``. Raises :class:`QueueFull` when
-        ``max_queued`` are queued."""
+        (what to send to a worker, JSON) in status ``queued`` at ``priority``; reserving ``reserved_bytes`` of
+        telemetry in the storage quota until it ends. Raises :class:`QueueFull` when ``max_queued`` are queued,
+        :class:`QuotaFull` when what is stored, what the admitted executions reserve and ``reserved_bytes`` are
+        more than ``quota_bytes`` (0: no quota); checked and stored in one transaction, so two admissions at once
+        cannot both take the last room."""
         now = time.time()
         execution_id = new_id("exec")
         status = ExecutionState.starting if dispatch is None else ExecutionState.queued
@@ -64,15 +92,29 @@ class ExecutionRepository:
                 queued = db.execute("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
                 if queued.fetchone()[0] >= max_queued:
                     raise QueueFull(f"{max_queued} executions are already queued; try again later")
+            if quota_bytes:
+                stored, reserved = self.database.used_bytes(db), self._reserved(db)
+                if stored + reserved + reserved_bytes > quota_bytes:
+                    raise QuotaFull(stored, reserved, reserved_bytes, quota_bytes)
             db.execute(
                 "INSERT INTO executions (id, skill_id, worker_id, status, phase, request, created, updated, priority, "
-                "dispatch) VALUES (?, ?, NULL, ?, ?, ?, ?, ?, ?, ?)",
+                "dispatch, reserved_bytes) VALUES (?, ?, NULL, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (execution_id, skill_id, status.value, ExecutionPhase.pending.value, json.dumps(request), now, now,
-                 priority, dispatch),
+                 priority, dispatch, reserved_bytes),
             )  # fmt: skip
         found = self.get(execution_id)
         assert found is not None
         return found
+
+    def reserved_bytes(self) -> int:
+        """What the queued and running executions still reserve in the storage quota, bytes (see :data:`_RESERVED`;
+        from their rows, so the same after a restart)."""
+        return self._reserved(None)
+
+    def _reserved(self, db: sqlite3.Connection | None) -> int:
+        parameters = (TELEMETRY_BYTES_PER_STEP, *(s.value for s in ADMITTED))
+        r = db.execute(_RESERVED, parameters).fetchone() if db is not None else self.database.one(_RESERVED, parameters)
+        return int(r[0]) if r is not None else 0
 
     def get(self, execution_id: str) -> ExecutionRow | None:
         r = self.database.one("SELECT * FROM executions WHERE id = ?", (execution_id,))
@@ -92,15 +134,20 @@ class ExecutionRepository:
 
     def delete(self, execution_id: str, statuses: tuple[ExecutionState, ...] | None = None) -> bool:
         """Delete an execution and its telemetry, only if it is in one of ``statuses`` when given (one that never
-        started: any status); True if deleted."""
+        started: any status); True if deleted. Gets through a full disk (:meth:`Database.essential`)."""
         condition = f" AND status IN ({', '.join('?' * len(statuses))})" if statuses else ""
-        with self.database.transaction() as db:
-            cursor = db.execute(
-                f"DELETE FROM executions WHERE id = ?{condition}", (execution_id, *(s.value for s in statuses or ()))
-            )
-            if cursor.rowcount:
-                db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
-            return cursor.rowcount > 0
+
+        def delete() -> bool:
+            with self.database.transaction() as db:
+                cursor = db.execute(
+                    f"DELETE FROM executions WHERE id = ?{condition}",
+                    (execution_id, *(s.value for s in statuses or ())),
+                )
+                if cursor.rowcount:
+                    db.execute("DELETE FROM telemetry WHERE execution_id = ?", (execution_id,))
+                return cursor.rowcount > 0
+
+        return self.database.deletion(delete)
 
     # ------------------------------------------------------------------ what the bus reports
 
@@ -123,7 +170,8 @@ class ExecutionRepository:
         metrics: ExecutionMetrics | None = None,
         error: str | None = None,
     ) -> bool:
-        """Apply a status update to an ACTIVE execution (a finished one is never changed); True if applied."""
+        """Apply a status update to an ACTIVE execution (a finished one is never changed); True if applied. Gets
+        through a full disk (:meth:`Database.essential`): a run's status must not stay behind for lack of room."""
         sets, values = ["updated = ?"], [time.time()]
         for column, value in (
             ("status", status.value if status else None),
@@ -135,15 +183,36 @@ class ExecutionRepository:
             if value is not None:
                 sets.append(f"{column} = ?")
                 values.append(value)
-        with self.database.transaction() as db:
-            cursor = db.execute(
-                f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND {_ACTIVE_IN}",
-                (*values, execution_id, *(s.value for s in ACTIVE)),
-            )
-            applied = cursor.rowcount > 0
+
+        def write() -> bool:
+            with self.database.transaction() as db:
+                cursor = db.execute(
+                    f"UPDATE executions SET {', '.join(sets)} WHERE id = ? AND {_ACTIVE_IN}",
+                    (*values, execution_id, *(s.value for s in ACTIVE)),
+                )
+                return cursor.rowcount > 0
+
+        applied = self.database.essential(write)
         if applied and status in TERMINAL:
             self._finished([execution_id])
         return applied
+
+    def amend_failure(self, execution_id: str, error: str, metrics: ExecutionMetrics | None) -> bool:
+        """A run the service failed (its telemetry could not be stored) gets what its worker reported when it
+        stopped: ``error`` (the final count of what was lost) and its ``metrics``; only while failed. True if
+        amended. Gets through a full disk (:meth:`Database.essential`)."""
+
+        def write() -> bool:
+            with self.database.transaction() as db:
+                cursor = db.execute(
+                    "UPDATE executions SET error = ?, metrics = COALESCE(?, metrics), updated = ? "
+                    "WHERE id = ? AND status = ?",
+                    (error, metrics.model_dump_json() if metrics is not None else None, time.time(), execution_id,
+                     ExecutionState.failed.value),
+                )  # fmt: skip
+                return cursor.rowcount > 0
+
+        return self.database.essential(write)
 
     def reopen(self, execution_id: str, error: str) -> bool:
         """failed with exactly ``error`` -> running again, the error cleared (what failed it turned out not to be the
@@ -159,20 +228,25 @@ class ExecutionRepository:
         """Mark active executions failed with ``reason``: those on ``worker_id`` (or all, when None) except
         those on a worker in ``keep_workers``. Returns the ids marked."""
         keep = keep_workers or set()
-        marked = []
-        with self.database.transaction() as db:
-            for r in db.execute(
-                f"SELECT id, worker_id FROM executions WHERE {_ACTIVE_IN}", tuple(s.value for s in ACTIVE)
-            ).fetchall():
-                if worker_id is not None and r["worker_id"] != worker_id:
-                    continue
-                if r["worker_id"] in keep:
-                    continue
-                db.execute(
-                    "UPDATE executions SET status = ?, phase = ?, error = ?, updated = ? WHERE id = ?",
-                    (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
-                )
-                marked.append(r["id"])
+
+        def write() -> list[str]:
+            marked = []
+            with self.database.transaction() as db:
+                for r in db.execute(
+                    f"SELECT id, worker_id FROM executions WHERE {_ACTIVE_IN}", tuple(s.value for s in ACTIVE)
+                ).fetchall():
+                    if worker_id is not None and r["worker_id"] != worker_id:
+                        continue
+                    if r["worker_id"] in keep:
+                        continue
+                    db.execute(
+                        "UPDATE executions SET status = ?, phase = ?, error = ?, updated = ? WHERE id = ?",
+                        (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
+                    )
+                    marked.append(r["id"])
+            return marked
+
+        marked = self.database.essential(write)
         self._finished(marked)
         return marked
 

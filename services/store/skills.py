@@ -53,5 +53,9 @@ class SkillRepository:
 
     def delete(self, skill_id: str) -> bool:
         """Delete a skill; False if there was none. Executions that used it keep their records."""
-        with self.database.transaction() as db:
-            return db.execute("DELETE FROM skills WHERE id = ?", (skill_id,)).rowcount > 0
+
+        def delete() -> bool:
+            with self.database.transaction() as db:
+                return db.execute("DELETE FROM skills WHERE id = ?", (skill_id,)).rowcount > 0
+
+        return self.database.deletion(delete)

@@ -123,10 +123,11 @@ def post_execution(
     ``GET /executions/{id}`` or a Zenoh subscriber. When every worker is busy it is ``queued`` (with its
     ``queue_position``; ``priority`` orders the queue) and starts as soon as one is free. 503 when no worker is
     connected or the queue is full; 429 when this client has ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` executions queued
-    or running already."""
+    or running already; 507 when the telemetry its job estimate implies does not fit in the storage quota beside
+    what is stored and what the queued and running executions reserve (it is reserved until the run ends)."""
     from services.bus import BusRequestError, NoWorkerAvailable
     from services.queue import Dispatch
-    from services.store import QueueFull
+    from services.store import QueueFull, QuotaFull
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)  # the queue sends the demo along
     skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
@@ -142,6 +143,8 @@ def post_execution(
         )
     except (NoWorkerAvailable, QueueFull) as exc:
         raise errors.unavailable(str(exc)) from None
+    except QuotaFull as exc:
+        raise errors.quota_full(exc) from None
     except BusRequestError as exc:  # the worker refused: an unknown scenario, a skill it cannot place in reach
         raise errors.refused_by_worker(str(exc)) from None
     caps.hold(WorkKind.execution, client, row.id)

@@ -63,9 +63,11 @@ def post_sweep(
     ``progress_key``. The same ``seed`` draws the same trials. 404 for an unknown skill, 422 for a bad request, for a
     parameter the trials' world has nothing for (``cylinder_radius_m`` of a skill not taught on a cylinder) or one a
     worker refuses (an unknown scenario), for ``settings`` whose trials would each be over the job budget, 503 when
-    no worker is connected, 429 when this client has ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` sweeps running already."""
+    no worker is connected, 429 when this client has ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` sweeps running already,
+    507 when the first trial's telemetry (``store_telemetry``) does not fit in the storage quota (each trial
+    reserves its own when submitted; later ones wait for room)."""
     from services.bus import BusRequestError, NoWorkerAvailable
-    from services.store import QueueFull
+    from services.store import QueueFull, QuotaFull
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)
     skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
@@ -79,6 +81,8 @@ def post_sweep(
         row = runner.create(request, skill, request.skill_id, demonstration_id)
     except (NoWorkerAvailable, QueueFull) as exc:
         raise errors.unavailable(str(exc)) from None
+    except QuotaFull as exc:
+        raise errors.quota_full(exc) from None
     except BusRequestError as exc:
         raise errors.refused_by_worker(str(exc), environment_at=("body", "settings")) from None
     caps.hold(WorkKind.sweep, client, row.id)
