@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from schemas.demonstration import Demonstration, DemonstrationSummary
 from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.skill import LearnOptions, Skill
+from schemas.text import Identifier
 from schemas.verdict import Verdict
 
 
@@ -109,7 +110,9 @@ class SkillRequest(LearnOptions):
         },
     )
 
-    demonstration_id: str | None = Field(None, description="Id of a stored demonstration (or give `demonstration`).")
+    demonstration_id: Identifier | None = Field(
+        None, description="Id of a stored demonstration (or give `demonstration`)."
+    )
     demonstration: Demonstration | None = Field(
         None, description="An inline demonstration (not stored; or give `demonstration_id`)."
     )

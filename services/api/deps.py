@@ -197,9 +197,24 @@ ExportFormat = Annotated[
         "PlotJuggler (topics in docs/API.md, 'Export').",
     ),
 ]
-WindowStart = Annotated[float | None, Query(description="Only samples at or after this time, s (the record's t).")]
-WindowEnd = Annotated[float | None, Query(description="Only samples at or before this time, s (the record's t).")]
-"""The export parameters of ``GET .../telemetry``."""
+WindowStart = Annotated[
+    float | None, Query(allow_inf_nan=False, description="Only samples at or after this time, s (the record's t).")
+]
+WindowEnd = Annotated[
+    float | None, Query(allow_inf_nan=False, description="Only samples at or before this time, s (the record's t).")
+]
+"""The window parameters of ``GET .../telemetry``: finite (``?t0=nan`` is a 422 naming it, not a scan of a run)."""
+
+
+def time_window(t0: WindowStart = None, t1: WindowEnd = None) -> tuple[float | None, float | None]:
+    """The time window (``t0``, ``t1``, s) of a samples read; 422 on ``t1`` when it ends before it starts, checked
+    before the route looks anything up."""
+    errors.check_window(t0, t1)
+    return t0, t1
+
+
+TimeWindow = Annotated[tuple[float | None, float | None], Depends(time_window)]
+"""The checked ``t0``, ``t1`` of ``GET .../telemetry``."""
 Cursor = Annotated[
     int,
     Query(

@@ -280,9 +280,10 @@ def tidy_error(error: dict[str, Any]) -> dict[str, Any]:
         "type": error.get("type", "value_error"),
     }
     if "input" in error:
-        try:  # strictly JSON: the echo of a NaN is its text (a JSONResponse refuses NaN)
+        try:  # strictly JSON and UTF-8: the echo of a NaN or a lone surrogate is its text (a JSONResponse refuses both)
             text = json.dumps(error["input"], allow_nan=False, default=str)
             echo: Any = json.loads(text)
+            json.dumps(echo, ensure_ascii=False).encode("utf-8")
         except ValueError:
             text = json.dumps(error["input"], default=str)
             echo = text

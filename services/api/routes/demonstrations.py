@@ -7,7 +7,7 @@ import json
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
-from pydantic import ValidationError
+from pydantic import TypeAdapter, ValidationError
 
 from schemas.api import (
     ApiError,
@@ -19,6 +19,7 @@ from schemas.api import (
 from schemas.bus import RecordRequest
 from schemas.demonstration import Demonstration
 from schemas.import_options import BagImportOptions, CsvImportOptions
+from schemas.text import Name
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
@@ -31,8 +32,7 @@ from services.api.deps import (
     Offset,
     QueueDep,
     StoreDep,
-    WindowEnd,
-    WindowStart,
+    TimeWindow,
     need_bus,
     readable_demonstration,
 )
@@ -50,6 +50,8 @@ from services.demonstration_files import (
 from services.store import DemonstrationRow, Store, first_problem
 from services.store.demonstrations import StoredTooLarge
 
+UPLOAD_NAME: TypeAdapter[str] = TypeAdapter(Name)
+"""An upload's file name, a name like any other (it becomes the demonstration's name and source)."""
 RECORD_TIMEOUT_S = 120.0
 """How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
 
@@ -70,8 +72,11 @@ def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict 
 def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str) -> tuple[bytes, str]:
     """The uploaded bytes and the file's name; a 422 on ``file`` when its content is none of ``accepted``: the one
     message for a file no importer reads, or which route takes the kind it is (``wanted``: what this one takes)."""
+    try:  # the file's name becomes the demonstration's name and source: bounded as a name is
+        name = UPLOAD_NAME.validate_python(file.filename or "upload").rsplit("/", 1)[-1]
+    except ValidationError as exc:
+        raise errors.unprocessable(["body", "file"], f"its file name: {exc.errors()[0]['msg']}", "file_name") from None
     data = file.file.read()
-    name = (file.filename or "upload").rsplit("/", 1)[-1]
     kind = file_kind(name, data[:HEAD_BYTES])
     if kind is None:
         raise errors.unprocessable(["body", "file"], unsupported_file(name), "unsupported_file")
@@ -266,8 +271,7 @@ def get_demonstration_telemetry(
     demonstration_id: str,
     store: StoreDep,
     format: ExportFormat = TelemetryFormat.json,
-    t0: WindowStart = None,
-    t1: WindowEnd = None,
+    window: TimeWindow = (None, None),
 ) -> Response:
     """A stored demonstration's samples to save or plot: JSON columns, CSV (as the importer reads it) or MCAP.
 
@@ -278,7 +282,7 @@ def get_demonstration_telemetry(
     from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, demonstration_mcap, window_mask
 
     row, body = readable_demonstration(store, demonstration_id)
-    errors.check_window(t0, t1)
+    t0, t1 = window
     try:
         demonstration = Demonstration.model_validate_json(body)
     except ValidationError as exc:

@@ -38,8 +38,7 @@ from services.api.deps import (
     QueueDep,
     SettingsDep,
     StoreDep,
-    WindowEnd,
-    WindowStart,
+    TimeWindow,
     check_job_budget,
     need_bus,
     need_queue,
@@ -276,8 +275,7 @@ def get_telemetry(
     settings: SettingsDep,
     every: Annotated[int, Query(ge=1, le=1_000_000, description="Return every N-th sample.")] = 1,
     format: ExportFormat = TelemetryFormat.json,
-    t0: WindowStart = None,
-    t1: WindowEnd = None,
+    window: TimeWindow = (None, None),
     cursor: Cursor = 0,
     limit: PageLimit = None,
 ) -> Response:
@@ -301,7 +299,7 @@ def get_telemetry(
     row = _found(store, execution_id)
     if not row.streams_telemetry:
         raise errors.no_telemetry(execution_id, row.request.get("sweep"))
-    errors.check_window(t0, t1)
+    t0, t1 = window
     size = min(limit or settings.telemetry_page_samples, settings.telemetry_page_samples)
     page = telemetry_page(store.telemetry.blocks(execution_id, cursor), cursor, every, t0, t1, size)
     headers = {} if page.next_cursor is None else {NEXT_CURSOR_HEADER: str(page.next_cursor)}
