@@ -1,5 +1,5 @@
 """Every read bounded (issue 41, item 2): free-form fields bounded at input (a 422 naming the field), time windows
-that are finite and in order.
+that are finite and in order, lists paged with a byte budget, a demonstration's samples paged like telemetry.
 
 The API in-process on a real SQLite database (``client`` of conftest.py)."""
 
@@ -10,7 +10,10 @@ import json
 import numpy as np
 import pytest
 
+from schemas.api import NEXT_OFFSET_HEADER
 from schemas.text import MAX_FREE_FORM_BYTES, MAX_FREE_FORM_DEPTH, MAX_ID_CHARS, MAX_NAME_CHARS
+from services.api import responses
+from services.api.deps import NEXT_CURSOR_HEADER
 
 
 def _demo(n: int = 60, **metadata) -> dict:
@@ -41,7 +44,7 @@ def _post(client, body: dict | str):
 
 
 def _only_loc(response) -> list:
-    assert response.status_code == 422, response.text
+    assert response.status_code == 422, response.text[:1000]
     (entry,) = response.json()["detail"]
     return entry["loc"]
 
@@ -91,7 +94,8 @@ def test_request_ids_scenarios_and_overrides_are_bounded(client):
 
 
 def _csv(rows: int = 100) -> bytes:
-    return ("t,px,py,pz,qx,qy,qz,qw,fx,fy,fz\n" + "\n".join(f"{k * 0.01},0,0,0,0,0,0,1,0,0,1" for k in range(rows))).encode()
+    lines = [f"{k * 0.01},0,0,0,0,0,0,1,0,0,1" for k in range(rows)]
+    return "\n".join(["t,px,py,pz,qx,qy,qz,qw,fx,fy,fz", *lines]).encode()
 
 
 def test_upload_names_obey_the_same_bounds(client):
@@ -126,3 +130,117 @@ def test_a_non_finite_or_inverted_window_is_a_422_naming_the_parameter(client, q
         assert _only_loc(client.get(f"{path}?{query}")) == ["query", parameter]
     window = client.get(f"/demonstrations/{created.json()['id']}/telemetry?t0=0.1&t1=0.2")
     assert window.status_code == 200 and window.json()["n_samples"] == 11
+
+
+# --------------------------------------------------------------------------- lists paged with a byte budget
+
+
+def _pages(client, path: str, limit: int = 100) -> list[tuple[list, int]]:
+    """Every page of a list (following X-Next-Offset from 0) as (items, bytes of the reply)."""
+    pages, offset = [], "0"
+    while offset is not None:
+        reply = client.get(path, params={"limit": limit, "offset": offset})
+        assert reply.status_code == 200, reply.text[:1000]
+        pages.append((reply.json(), len(reply.content)))
+        offset = reply.headers.get(NEXT_OFFSET_HEADER)
+    return pages
+
+
+def test_a_list_page_stops_before_its_byte_budget_and_names_the_next(client, monkeypatch):
+    ids = [_post(client, _demo(name=f"{k}" * MAX_NAME_CHARS)).json()["id"] for k in range(6)]
+    whole = client.get("/demonstrations")
+    assert NEXT_OFFSET_HEADER not in whole.headers and [d["id"] for d in whole.json()] == ids[::-1]
+    budget = 2 * max(len(json.dumps(d, separators=(",", ":")).encode()) for d in whole.json()) + 3  # two items a page
+    monkeypatch.setattr(responses, "LIST_PAGE_BYTES", budget)
+    pages = _pages(client, "/demonstrations")
+    assert [len(items) for items, _ in pages] == [2, 2, 2] and all(size <= budget for _, size in pages)
+    assert [d["id"] for items, _ in pages for d in items] == ids[::-1]  # each once, newest first
+    limited = client.get("/demonstrations", params={"limit": 1, "offset": 4})
+    assert len(limited.json()) == 1 and limited.headers[NEXT_OFFSET_HEADER] == "5"
+    monkeypatch.setattr(responses, "LIST_PAGE_BYTES", 10)  # smaller than one item: one a page, never none
+    assert [len(items) for items, _ in _pages(client, "/demonstrations")] == [1] * 6
+    for path in ("/skills", "/executions", "/sweeps"):
+        empty = client.get(path)
+        assert empty.json() == [] and NEXT_OFFSET_HEADER not in empty.headers
+
+
+def test_rows_stored_before_the_bounds_list_cut_and_read(tmp_path):
+    """A demonstration stored with a 2 MB name by an earlier version lists with its name cut, in a small reply."""
+    from conftest import api_settings, loopback_client
+
+    from schemas.demonstration import Demonstration, DemonstrationSummary
+    from services.app import create_app
+    from services.store import Store
+
+    store = Store(tmp_path / "api.db")
+    demonstration = Demonstration.model_validate(_demo())
+    long_name = "n" * 2_000_000
+    demonstration.metadata.name = demonstration.metadata.source = long_name  # assignments are not validated
+    summary = DemonstrationSummary.of(demonstration)
+    with store.database.transaction() as db:
+        db.execute(
+            "INSERT INTO demonstrations (id, created, name, summary, body) VALUES (?, ?, ?, ?, ?)",
+            ("demo_old", 1.0, long_name, summary.model_dump_json(), demonstration.model_dump_json()),
+        )
+    with loopback_client(create_app(api_settings(tmp_path), bus=None, store=store)) as client:
+        listed = client.get("/demonstrations")
+        assert listed.status_code == 200 and len(listed.content) < 10_000
+        (row,) = listed.json()
+        assert row["name"] == "n" * (MAX_NAME_CHARS - 1) + "…" == row["summary"]["name"]
+        assert len(row["source"]) == 2000 and row["problem"] is None
+        read = client.get("/demonstrations/demo_old")
+        assert read.status_code == 200 and len(read.content) < 20_000
+        assert read.json()["demonstration"]["metadata"]["name"] == row["name"]
+        assert len(read.json()["demonstration"]["t"]) == 60
+    store.close()
+
+
+# --------------------------------------------------------------------------- a demonstration's samples paged
+
+
+def test_a_demonstration_is_paged_within_its_byte_budget(client, monkeypatch):
+    body = _demo(2000, name="long")
+    demo_id = _post(client, body).json()["id"]
+    whole = client.get(f"/demonstrations/{demo_id}")
+    assert whole.status_code == 200 and whole.json()["next_cursor"] is None
+    assert whole.json()["demonstration"]["t"] == body["t"] and NEXT_CURSOR_HEADER not in whole.headers
+    budget = 64 * 1024
+    monkeypatch.setattr(responses, "SAMPLES_PAGE_BYTES", budget)
+    refused = client.get(f"/demonstrations/{demo_id}")
+    assert _only_loc(refused) == ["query", "limit"] and "cursor=0" in refused.text
+    columns: dict[str, list] = {name: [] for name in ("t", "positions", "orientations", "wrenches")}
+    cursor, pages = 0, 0
+    while cursor is not None:
+        page = client.get(f"/demonstrations/{demo_id}", params={"cursor": cursor})
+        assert page.status_code == 200 and len(page.content) <= budget
+        assert page.json()["cursor"] == cursor and page.json()["demonstration"]["metadata"]["name"] == "long"
+        for name, values in columns.items():
+            values += page.json()["demonstration"][name]
+        cursor = page.json()["next_cursor"]
+        assert page.headers.get(NEXT_CURSOR_HEADER) == (None if cursor is None else str(cursor))
+        pages += 1
+    assert pages > 1 and all(columns[name] == body[name] for name in columns)
+    ten = client.get(f"/demonstrations/{demo_id}", params={"cursor": 1990, "limit": 50}).json()
+    assert ten["demonstration"]["t"] == body["t"][1990:] and ten["next_cursor"] is None
+    past = client.get(f"/demonstrations/{demo_id}", params={"cursor": 10**6}).json()
+    assert past["demonstration"]["t"] == [] and past["next_cursor"] is None
+    assert client.delete(f"/demonstrations/{demo_id}").status_code == 204
+    assert client.get(f"/demonstrations/{demo_id}", params={"cursor": 0}).status_code == 404  # nothing kept
+
+
+def test_the_client_follows_the_pages(tmp_path, monkeypatch):
+    """`Client.demonstrations` and `Client.demonstration` see everything through small pages."""
+    from conftest import LiveApi, api_settings
+
+    from schemas.demonstration import Demonstration
+    from services.app import create_app
+    from services.client import Client
+
+    monkeypatch.setattr(responses, "LIST_PAGE_BYTES", 800)
+    monkeypatch.setattr(responses, "SAMPLES_PAGE_BYTES", 32 * 1024)
+    body = _demo(1000, name="paged", extra={"k": [1, 2]})
+    with LiveApi(create_app(api_settings(tmp_path), bus=None)) as api, Client(api.url) as client:
+        ids = [client._request("POST", "/demonstrations", json=body).json()["id"] for _ in range(5)]
+        assert [d.id for d in client.demonstrations()] == ids[::-1]
+        assert [d.id for d in client.demonstrations(limit=3, offset=1)] == ids[::-1][1:4]
+        assert client.demonstration(ids[0]) == Demonstration.model_validate(body)

@@ -233,8 +233,26 @@ PageLimit = Annotated[
     ),
 ]
 """The paging parameters of ``GET /executions/{id}/telemetry``."""
+SampleCursor = Annotated[
+    int | None,
+    Query(
+        ge=0,
+        le=MAX_OFFSET,
+        description="Page the samples: the index of the first sample, 0 for the first page, then the previous "
+        "page's next_cursor (X-Next-Cursor header). Without cursor and limit the whole demonstration is returned, "
+        "or a 422 when it does not fit in one reply.",
+    ),
+]
+SampleLimit = Annotated[
+    int | None,
+    Query(
+        ge=1,
+        description="Page the samples: most samples in this page; at most (and by default) what fits in one reply.",
+    ),
+]
+"""The paging parameters of ``GET /demonstrations/{id}``."""
 NEXT_CURSOR_HEADER = "X-Next-Cursor"
-"""The header of a telemetry page that is not the last: the cursor of the next one."""
+"""The header of a telemetry or samples page that is not the last: the cursor of the next one."""
 EXPORT_RESPONSES: dict[int | str, dict] = {
     200: {"content": {"text/csv": {}, "application/octet-stream": {}}, "description": "JSON, CSV or MCAP."}
 }

@@ -127,6 +127,17 @@ def unreadable(demonstration_id: str, problem: str) -> HTTPException:
     )
 
 
+def samples_over_budget(demonstration_id: str, n_samples: int, fit: int) -> RequestValidationError:
+    """422 on ``limit``: a whole demonstration asked for (no ``cursor``, no ``limit``) does not fit in one reply."""
+    return unprocessable(
+        ["query", "limit"],
+        f"demonstration {demonstration_id} has {n_samples} samples, more than one reply holds ({fit}): page them with "
+        f"GET /demonstrations/{demonstration_id}?cursor=0, then cursor=next_cursor (also the X-Next-Cursor header) "
+        "until next_cursor is null",
+        "over_budget",
+    )
+
+
 def still_active(execution_id: str, status: str) -> HTTPException:
     """409: an execution queued or running cannot be deleted."""
     return HTTPException(

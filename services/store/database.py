@@ -28,6 +28,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from schemas.text import MAX_NAME_CHARS
+
 log = logging.getLogger("contact_skills.store")
 
 SCHEMA_VERSION = 4
@@ -120,6 +122,13 @@ LOCKED_RETRY_S = 120.0
 
 class StoreError(RuntimeError):
     """The database cannot be used (newer schema, not a database, closed)."""
+
+
+def cut_text(expression: str, chars: int = MAX_NAME_CHARS) -> str:
+    """SQL: the text ``expression`` cut to ``chars`` characters, ending in "…" when cut: a name stored before names
+    were bounded (a 55 MB one) is listed as a name may be now, and never read whole into the API."""
+    cut = f"substr({expression}, 1, {chars - 1}) || '…'"
+    return f"(CASE WHEN length({expression}) > {chars} THEN {cut} ELSE {expression} END)"
 
 
 def new_id(prefix: str) -> str:

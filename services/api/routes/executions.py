@@ -46,7 +46,7 @@ from services.api.deps import (
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
-from services.api.responses import streamed
+from services.api.responses import LIST_RESPONSES, list_page, streamed
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store
 
@@ -154,13 +154,14 @@ def post_execution(
     )
 
 
-@router.get("/executions", response_model=list[ExecutionView])
-def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[ExecutionView]:
+@router.get("/executions", response_model=list[ExecutionView], responses=LIST_RESPONSES)
+def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> Response:
     """Executions, newest first.
 
     Each with its status (starting, running, paused, done, aborted, failed), phase, worker, metrics once
-    finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them."""
-    return [_view(row, store, keys) for row in store.executions.page(limit, offset)]
+    finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them, a page of at most
+    4 MiB naming the next one's offset in ``X-Next-Offset``."""
+    return list_page(store.executions.page(limit + 1, offset), lambda row: _view(row, store, keys), offset, limit)
 
 
 @router.get("/executions/{execution_id}", response_model=ExecutionView, responses=ERROR_RESPONSES)
