@@ -38,6 +38,7 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
     """A local demonstration file exported: its samples unchanged (no tare), in the window."""
     import json
 
+    from schemas.demonstration import DemonstrationArrays
     from schemas.import_options import ImportOptions
     from services.csv_import import demonstration_from_file, samples_csv_text
     from services.telemetry_export import demonstration_mcap, window_mask
@@ -47,7 +48,10 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
     keep = window_mask(a.t, t0, t1)
     what = f"demonstration {source} ({int(keep.sum())} of {a.t.size} samples)"
     if fmt == "mcap":
-        return demonstration_mcap(demonstration, keep, source.stat().st_mtime).data, what
+        window = DemonstrationArrays(
+            **{name: getattr(a, name)[keep] for name in ("t", "positions", "orientations", "wrenches")}
+        )
+        return demonstration_mcap(window, demonstration.metadata.name, source.stat().st_mtime).data, what
     if fmt == "csv":
         return samples_csv_text(a.t[keep], a.positions[keep], a.orientations[keep], a.wrenches[keep]).encode(), what
     columns = {"t": a.t, "positions": a.positions, "orientations": a.orientations, "wrenches": a.wrenches}

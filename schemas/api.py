@@ -11,10 +11,22 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from schemas.demonstration import Demonstration, DemonstrationSummary
+from schemas.demonstration import (
+    Demonstration,
+    DemonstrationMetadata,
+    DemonstrationSummary,
+    Quaternion,
+    Vector3,
+    Wrench,
+)
 from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.skill import LearnOptions, Skill
+from schemas.text import Identifier
 from schemas.verdict import Verdict
+
+NEXT_OFFSET_HEADER = "X-Next-Offset"
+"""The header of a list page (``GET /demonstrations``, ``/skills``, ``/executions``, ``/sweeps``) that is not the last:
+the ``offset`` of the next one (a page stops at ``limit`` items or at the API's byte budget, whichever comes first)."""
 
 
 class ExecutionState(StrEnum):
@@ -86,13 +98,28 @@ class DemonstrationInfo(BaseModel):
     )
 
 
+class DemonstrationWindow(BaseModel):
+    """Consecutive samples of a stored demonstration with its metadata: a `Demonstration`'s fields, any number of
+    samples (a page of ``GET /demonstrations/{id}``; the pages put together are the `Demonstration`)."""
+
+    t: list[float] = Field(description="Time stamps, s.")
+    positions: list[Vector3] = Field(description="Tool point positions, m, world frame.")
+    orientations: list[Quaternion] = Field(description="Tool orientations in world, [x, y, z, w].")
+    wrenches: list[Wrench] = Field(description="Wrenches applied by the tool, world frame, N and N·m.")
+    metadata: DemonstrationMetadata
+
+
 class StoredDemonstration(BaseModel):
-    """``GET /demonstrations/{id}``: the demonstration with its samples."""
+    """``GET /demonstrations/{id}``: the demonstration with its samples, or a page of them."""
 
     id: str
     created: float
     summary: DemonstrationSummary
-    demonstration: Demonstration
+    cursor: int = Field(0, description="Index of the first sample in this reply.")
+    next_cursor: int | None = Field(
+        None, description="Index of the first sample of the next page (also the X-Next-Cursor header); None: the last."
+    )
+    demonstration: DemonstrationWindow
 
 
 class SkillRequest(LearnOptions):
@@ -109,7 +136,9 @@ class SkillRequest(LearnOptions):
         },
     )
 
-    demonstration_id: str | None = Field(None, description="Id of a stored demonstration (or give `demonstration`).")
+    demonstration_id: Identifier | None = Field(
+        None, description="Id of a stored demonstration (or give `demonstration`)."
+    )
     demonstration: Demonstration | None = Field(
         None, description="An inline demonstration (not stored; or give `demonstration_id`)."
     )

@@ -45,6 +45,7 @@ from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus 
 from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
 from schemas.numbers import WholeNumber
+from schemas.text import FreeForm, Identifier
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
@@ -239,13 +240,13 @@ class RecordRequest(BaseModel):
         json_schema_extra={"examples": [{"scenario": "slide_flat", "seed": 0, "overrides": {"target_force_n": 10.0}}]},
     )
 
-    scenario: str = Field(
-        max_length=64, description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"]
+    scenario: Identifier = Field(
+        description="A teacher scenario (``sim_worker.teacher.SCENARIOS``).", examples=["slide_flat"]
     )
     seed: WholeNumber = Field(
         0, ge=0, le=2**32 - 1, description="Seed of the human-like imperfection; same seed, same recording."
     )
-    overrides: dict[str, Any] = Field(
+    overrides: FreeForm = Field(
         default_factory=dict,
         max_length=32,
         description="TeacherParams or WorldConfig fields, e.g. {'target_force_n': 10, 'move_duration_s': 4}. Booleans, "

@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from schemas.arrays import bounded_rows, finite_rows, strictly_increasing
+from schemas.text import FreeForm, Name, Text
 
 MIN_DEMONSTRATION_SAMPLES = 50
 """Fewest samples a demonstration may have: segmentation and 50-basis DMPs need more than a handful."""
@@ -109,8 +110,8 @@ class DemonstrationMetadata(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field("", description="Human-readable name.", examples=["slide_flat_table"])
-    source: str = Field(
+    name: Name = Field("", description="Human-readable name.", examples=["slide_flat_table"])
+    source: Text = Field(
         "json", description="Origin: 'json', 'csv:<file>', 'teacher:<scenario>'.", examples=["teacher:slide_flat"]
     )
     wrench_convention_on_import: WrenchConvention = Field(
@@ -163,7 +164,10 @@ class DemonstrationMetadata(BaseModel):
         max_length=100_000,
         examples=[[[2.0, 2.5]]],
     )
-    extra: dict[str, Any] = Field(default_factory=dict, description="Free-form extra information.")
+    extra: FreeForm = Field(
+        default_factory=dict,
+        description="Free-form extra information (at most 16 levels deep and 64 KiB of JSON).",
+    )
 
     @field_validator("unmeasured_intervals_s")
     @classmethod

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from schemas.demonstration import Quaternion, Vector3, Wrench
 from schemas.numbers import WholeNumber
 from schemas.skill import Skill
+from schemas.text import Identifier
 from schemas.verdict import ExecutionTolerances, ExecutionVerdict, SurfacePressed
 
 
@@ -534,9 +535,9 @@ class ExecutionRequest(ExecutionSettings):
         },
     )
 
-    skill_id: str | None = Field(None, description="Id of a stored skill (or give `skill` inline).")
+    skill_id: Identifier | None = Field(None, description="Id of a stored skill (or give `skill` inline).")
     skill: Skill | None = Field(None, description="An inline skill (or give `skill_id`).")
-    scenario: str | None = Field(
+    scenario: Identifier | None = Field(
         None,
         description="Teacher scenario whose world to build (the world the skill was taught in); "
         "default: the one named by the skill's demonstration.",

@@ -17,6 +17,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 from schemas.demonstration import QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas.text import Name, Text
 
 COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
 """Keys of a column spec: time (s); position (m); quaternion components; force (N); moment (N·m)."""
@@ -94,7 +95,7 @@ class ImportOptions(BaseModel):
         "offset instead, as the recording reads it with nothing touching the tool (its own frame and sign).",
         examples=[[0.4, -1.2, 2.0]],
     )
-    name: str | None = Field(None, description="Name of the demonstration (default: the file name, no suffix).")
+    name: Name | None = Field(None, description="Name of the demonstration (default: the file name, no suffix).")
 
     @model_validator(mode="before")
     @classmethod
@@ -106,7 +107,7 @@ class ImportOptions(BaseModel):
 class CsvImportOptions(ImportOptions):
     """The options of a CSV recording: which column is which, the quaternion order, the time step."""
 
-    columns: str | None = Field(
+    columns: Text | None = Field(
         None,
         description="Which header column holds which quantity, key=column pairs separated by commas (keys "
         f"{' '.join(COLUMN_KEYS)}); the keys not given are recognised from common header names.",
@@ -129,17 +130,17 @@ class CsvImportOptions(ImportOptions):
 class BagImportOptions(ImportOptions):
     """The options of a ROS 1 or ROS 2 bag: which topics hold the wrench and the tool pose, and its frame."""
 
-    wrench_topic: str | None = Field(
+    wrench_topic: Name | None = Field(
         None, description="The geometry_msgs/msg/WrenchStamped topic (default: the bag's only one)."
     )
-    pose_topic: str | None = Field(
+    pose_topic: Name | None = Field(
         None,
         description="The geometry_msgs/msg/PoseStamped topic of the tool pose (default: the bag's only one, "
         "else the one moving /tf pair).",
     )
-    tf_parent: str | None = Field(None, description="The tool pose from /tf instead: the world frame (with tf_child).")
-    tf_child: str | None = Field(None, description="The tool pose from /tf instead: the tool frame (with tf_parent).")
-    tool_frame: str | None = Field(
+    tf_parent: Name | None = Field(None, description="The tool pose from /tf instead: the world frame (with tf_child).")
+    tf_child: Name | None = Field(None, description="The tool pose from /tf instead: the tool frame (with tf_parent).")
+    tool_frame: Name | None = Field(
         None, description="The frame a PoseStamped is the pose of (a wrench in that frame is the tool's)."
     )
 

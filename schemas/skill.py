@@ -9,12 +9,13 @@ points along the force the tool applies (into the surface). Selection diagonals 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.demonstration import MAX_DURATION_S, DemonstrationSummary, Quaternion, Vector3
 from schemas.numbers import WholeNumber
+from schemas.text import FreeForm, Name, Text
 
 SELECTION_CONTACT: list[float] = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
 """Selection diagonal in CF for slide and contour contact segments: force control along CF z."""
@@ -207,7 +208,7 @@ class Segment(BaseModel):
 class SkillAttributes(BaseModel):
     """Static attributes of the skill implementation (paper Tables 1-2)."""
 
-    segmentation_method: str = Field("agglomerative-ward-time-knn", description="How the demonstration was segmented.")
+    segmentation_method: Name = Field("agglomerative-ward-time-knn", description="How the demonstration was segmented.")
     selection_matrix_cf: list[float] = Field(
         default_factory=lambda: list(SELECTION_CONTACT),
         description="Diagonal of S in CF for contact segments; 1 = motion, 0 = force.",
@@ -248,7 +249,7 @@ class AutoSelection(BaseModel):
         None, description="Largest planarity residual of the contact within one slide segment, m (planes: < 4 mm)."
     )
     evidence: TypeEvidence | None = Field(None, description="Each measure's log-odds for contour.")
-    reason: str = Field(description="One sentence: why this type.")
+    reason: Text = Field(description="One sentence: why this type.")
 
 
 class CheckName(StrEnum):
@@ -278,8 +279,8 @@ class SkillCheck(BaseModel):
     passed: bool
     value: float = Field(description="The measured value, in ``unit``.")
     limit: float = Field(description="The limit the value is held to, in ``unit`` (see ``message``: at most / least).")
-    unit: str = Field(examples=["deg", "N", "ratio", "mm"])
-    message: str = Field(description="One sentence with the numbers; a warning when not passed.")
+    unit: Name = Field(examples=["deg", "N", "ratio", "mm"])
+    message: Text = Field(description="One sentence with the numbers; a warning when not passed.")
 
 
 class Skill(BaseModel):
@@ -299,7 +300,7 @@ class Skill(BaseModel):
     )
     demonstration: DemonstrationSummary
     sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
-    taught_world: dict[str, Any] | None = Field(
+    taught_world: FreeForm | None = Field(
         None,
         description="The simulated world the demonstration was recorded in (simulator recordings carry it as "
         "metadata.extra['world']); executions run in it. None for real recordings: executions rebuild the work "

@@ -37,6 +37,7 @@ from schemas.execution import (
 )
 from schemas.numbers import WholeNumber
 from schemas.skill import Skill
+from schemas.text import Identifier
 from schemas.verdict import Verdict
 
 MAX_TRIALS = 2000
@@ -229,10 +230,10 @@ class SweepRequest(BaseModel):
         },
     )
 
-    skill_id: str | None = Field(None, description="Id of a stored skill (or give `skill` inline).")
+    skill_id: Identifier | None = Field(None, description="Id of a stored skill (or give `skill` inline).")
     skill: Skill | None = Field(None, description="An inline skill (or give `skill_id`).")
-    scenario: str | None = Field(
-        None, description="Teacher scenario whose world to run in (default: the skill's own world).", max_length=64
+    scenario: Identifier | None = Field(
+        None, description="Teacher scenario whose world to run in (default: the skill's own world)."
     )
     controllers: list[ControllerKind] = Field(
         default_factory=lambda: [ControllerKind.hybrid_cf],

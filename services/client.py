@@ -36,6 +36,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from schemas.api import (
+    NEXT_OFFSET_HEADER,
     CommandAccepted,
     DemonstrationCreated,
     DemonstrationInfo,
@@ -44,6 +45,7 @@ from schemas.api import (
     ExecutionView,
     Health,
     SkillInfo,
+    StoredDemonstration,
     StoredSkill,
     TelemetryFormat,
     TelemetryView,
@@ -344,9 +346,16 @@ class Client:
         return response
 
     def _list(self, path: str, model: type[ListedT], limit: int, offset: int) -> list[ListedT]:
-        """``GET path`` of a resource's list (``limit`` items from ``offset``), each item as ``model``."""
-        reply = self._request("GET", path, params={"limit": limit, "offset": offset})
-        return [model.model_validate(item) for item in reply.json()]
+        """``GET path`` of a resource's list (``limit`` items from ``offset``), each item as ``model``: the pages
+        followed (a page stops before the API's byte budget and names the next one's offset, ``X-Next-Offset``)."""
+        items: list[ListedT] = []
+        while len(items) < limit:
+            reply = self._request("GET", path, params={"limit": limit - len(items), "offset": offset})
+            items += [model.model_validate(item) for item in reply.json()]
+            if (next_offset := reply.headers.get(NEXT_OFFSET_HEADER)) is None:
+                break
+            offset = int(next_offset)
+        return items
 
     # ------------------------------------------------------------------ service
 
@@ -390,10 +399,16 @@ class Client:
         return DemonstrationCreated.model_validate(reply.json())
 
     def demonstration(self, demonstration_id: str) -> Demonstration:
-        """A stored demonstration with its samples."""
-        return Demonstration.model_validate(
-            self._request("GET", f"/demonstrations/{demonstration_id}").json()["demonstration"]
-        )
+        """A stored demonstration with its samples, read page by page (one reply holds at most 8 MiB)."""
+        columns: dict[str, list] = {"t": [], "positions": [], "orientations": [], "wrenches": []}
+        cursor: int | None = 0
+        while cursor is not None:
+            path = f"/demonstrations/{demonstration_id}"
+            page = StoredDemonstration.model_validate(self._request("GET", path, params={"cursor": cursor}).json())
+            for name, values in columns.items():
+                values += getattr(page.demonstration, name)
+            cursor = page.next_cursor
+        return Demonstration(**columns, metadata=page.demonstration.metadata)
 
     def demonstrations(self, limit: int = 100, offset: int = 0) -> list[DemonstrationInfo]:
         return self._list("/demonstrations", DemonstrationInfo, limit, offset)

@@ -630,8 +630,11 @@ def demonstration_csv_text(demonstration: Demonstration) -> str:
     return samples_csv_text(a.t, a.positions, a.orientations, a.wrenches)
 
 
-def samples_csv_text(t: np.ndarray, positions: np.ndarray, orientations: np.ndarray, wrenches: np.ndarray) -> str:
-    """Samples in the project's conventions as the CSV text of :func:`demonstration_csv_text` (any number of rows)."""
+def samples_csv_text(
+    t: np.ndarray, positions: np.ndarray, orientations: np.ndarray, wrenches: np.ndarray, header: bool = True
+) -> str:
+    """Samples in the project's conventions as the CSV text of :func:`demonstration_csv_text` (any number of rows;
+    ``header``: with the header row, False for a chunk that goes on a text already started)."""
     table = np.column_stack([t, positions, orientations, wrenches])
-    rows = (",".join(repr(float(v)) for v in row) for row in table)
-    return "\n".join([",".join(CSV_HEADER), *rows]) + "\n"
+    rows = [",".join(repr(float(v)) for v in row) + "\n" for row in table]
+    return "".join([",".join(CSV_HEADER) + "\n"] * header + rows)

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from schemas.demonstration import Demonstration
+from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
 from schemas.telemetry_rows import telemetry_column
 from services.cdr import pose_stamped, tf_message, wrench_stamped
@@ -278,20 +278,18 @@ def execution_mcap(matrix: np.ndarray, start_unix_s: float, execution_id: str) -
     return _finished(out)
 
 
-def demonstration_mcap(demonstration: Demonstration, mask: np.ndarray | None, start_unix_s: float) -> McapExport:
-    """A demonstration (the samples in ``mask``) as MCAP: ``/tool/pose``, ``/wrench/world``, ``/tf``."""
-    a = demonstration.arrays()
-    keep = np.ones(a.t.shape, dtype=bool) if mask is None else mask
-    out = _McapOut(int(start_unix_s * 1e9), {"demonstration": demonstration.metadata.name, "conventions": CONVENTIONS})
-    stamps = out.stamps(a.t[keep])
-    tool = np.hstack([a.positions[keep], a.orientations[keep]])
+def demonstration_mcap(a: DemonstrationArrays, name: str, start_unix_s: float) -> McapExport:
+    """A demonstration's samples (``name``: the demonstration's) as MCAP: ``/tool/pose``, ``/wrench/world``, ``/tf``."""
+    out = _McapOut(int(start_unix_s * 1e9), {"demonstration": name, "conventions": CONVENTIONS})
+    stamps = out.stamps(a.t)
+    tool = np.hstack([a.positions, a.orientations])
     out.write(
         "/tool/pose",
         "geometry_msgs/msg/PoseStamped",
         stamps,
         pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=tool),
     )
-    wrenches = wrench_stamped(WORLD_FRAME).messages(stamp=stamps, wrench=a.wrenches[keep])
+    wrenches = wrench_stamped(WORLD_FRAME).messages(stamp=stamps, wrench=a.wrenches)
     out.write("/wrench/world", "geometry_msgs/msg/WrenchStamped", stamps, wrenches)
     transforms = tf_message(WORLD_FRAME, [TOOL_FRAME]).messages(stamp_tool=stamps, tool=tool)
     out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)

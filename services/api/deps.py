@@ -198,9 +198,24 @@ ExportFormat = Annotated[
         "PlotJuggler (topics in docs/API.md, 'Export').",
     ),
 ]
-WindowStart = Annotated[float | None, Query(description="Only samples at or after this time, s (the record's t).")]
-WindowEnd = Annotated[float | None, Query(description="Only samples at or before this time, s (the record's t).")]
-"""The export parameters of ``GET .../telemetry``."""
+WindowStart = Annotated[
+    float | None, Query(allow_inf_nan=False, description="Only samples at or after this time, s (the record's t).")
+]
+WindowEnd = Annotated[
+    float | None, Query(allow_inf_nan=False, description="Only samples at or before this time, s (the record's t).")
+]
+"""The window parameters of ``GET .../telemetry``: finite (``?t0=nan`` is a 422 naming it, not a scan of a run)."""
+
+
+def time_window(t0: WindowStart = None, t1: WindowEnd = None) -> tuple[float | None, float | None]:
+    """The time window (``t0``, ``t1``, s) of a samples read; 422 on ``t1`` when it ends before it starts, checked
+    before the route looks anything up."""
+    errors.check_window(t0, t1)
+    return t0, t1
+
+
+TimeWindow = Annotated[tuple[float | None, float | None], Depends(time_window)]
+"""The checked ``t0``, ``t1`` of ``GET .../telemetry``."""
 Cursor = Annotated[
     int,
     Query(
@@ -219,8 +234,26 @@ PageLimit = Annotated[
     ),
 ]
 """The paging parameters of ``GET /executions/{id}/telemetry``."""
+SampleCursor = Annotated[
+    int | None,
+    Query(
+        ge=0,
+        le=MAX_OFFSET,
+        description="Page the samples: the index of the first sample, 0 for the first page, then the previous "
+        "page's next_cursor (X-Next-Cursor header). Without cursor and limit the whole demonstration is returned, "
+        "or a 422 when it does not fit in one reply.",
+    ),
+]
+SampleLimit = Annotated[
+    int | None,
+    Query(
+        ge=1,
+        description="Page the samples: most samples in this page; at most (and by default) what fits in one reply.",
+    ),
+]
+"""The paging parameters of ``GET /demonstrations/{id}``."""
 NEXT_CURSOR_HEADER = "X-Next-Cursor"
-"""The header of a telemetry page that is not the last: the cursor of the next one."""
+"""The header of a telemetry or samples page that is not the last: the cursor of the next one."""
 EXPORT_RESPONSES: dict[int | str, dict] = {
     200: {"content": {"text/csv": {}, "application/octet-stream": {}}, "description": "JSON, CSV or MCAP."}
 }

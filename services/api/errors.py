@@ -144,6 +144,17 @@ def unreadable(demonstration_id: str, problem: str) -> HTTPException:
     )
 
 
+def samples_over_budget(demonstration_id: str, n_samples: int, fit: int) -> RequestValidationError:
+    """422 on ``limit``: a whole demonstration asked for (no ``cursor``, no ``limit``) does not fit in one reply."""
+    return unprocessable(
+        ["query", "limit"],
+        f"demonstration {demonstration_id} has {n_samples} samples, more than one reply holds ({fit}): page them with "
+        f"GET /demonstrations/{demonstration_id}?cursor=0, then cursor=next_cursor (also the X-Next-Cursor header) "
+        "until next_cursor is null",
+        "over_budget",
+    )
+
+
 def still_active(execution_id: str, status: str) -> HTTPException:
     """409: an execution queued or running cannot be deleted."""
     return HTTPException(
@@ -297,9 +308,10 @@ def tidy_error(error: dict[str, Any]) -> dict[str, Any]:
         "type": error.get("type", "value_error"),
     }
     if "input" in error:
-        try:  # strictly JSON: the echo of a NaN is its text (a JSONResponse refuses NaN)
+        try:  # strictly JSON and UTF-8: the echo of a NaN or a lone surrogate is its text (a JSONResponse refuses both)
             text = json.dumps(error["input"], allow_nan=False, default=str)
             echo: Any = json.loads(text)
+            json.dumps(echo, ensure_ascii=False).encode("utf-8")
         except ValueError:
             text = json.dumps(error["input"], default=str)
             echo = text

@@ -36,6 +36,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
 
+from schemas.text import MAX_NAME_CHARS
+
 T = TypeVar("T")
 
 log = logging.getLogger("contact_skills.store")
@@ -156,6 +158,13 @@ class DiskFull(StoreError):  # noqa: N818 (reads as what happened)
 def _is_full(exc: sqlite3.Error) -> bool:
     """Whether SQLite answered ``SQLITE_FULL`` (its extended codes keep it in the low byte)."""
     return (getattr(exc, "sqlite_errorcode", 0) or 0) & 0xFF == sqlite3.SQLITE_FULL
+
+
+def cut_text(expression: str, chars: int = MAX_NAME_CHARS) -> str:
+    """SQL: the text ``expression`` cut to ``chars`` characters, ending in "…" when cut: a name stored before names
+    were bounded (a 55 MB one) is listed as a name may be now, and never read whole into the API."""
+    cut = f"substr({expression}, 1, {chars - 1}) || '…'"
+    return f"(CASE WHEN length({expression}) > {chars} THEN {cut} ELSE {expression} END)"
 
 
 def new_id(prefix: str) -> str:

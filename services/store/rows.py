@@ -7,6 +7,7 @@ import sqlite3
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
 from schemas.api import ExecutionState
@@ -50,14 +51,42 @@ class DemonstrationRow:
 
     @classmethod
     def of(cls, r: sqlite3.Row) -> DemonstrationRow:
-        """From a demonstrations row (id, created, name, summary, source, stored_bytes); a summary that does not
+        """From a demonstrations row (id, created, name, summary[, source, stored_bytes]); a summary that does not
         validate (stored by an earlier version: a step of 5e-324 s gave an infinite rate, stored as null) leaves it
         None with the problem."""
         try:
             summary, problem = DemonstrationSummary.model_validate_json(r["summary"]), None
         except ValidationError as exc:
             summary, problem = None, f"its stored summary does not validate: {first_problem(exc)}"
-        return cls(r["id"], r["created"], r["name"], summary, r["source"] or "", problem, int(r["stored_bytes"] or 0))
+        more = r.keys()
+        source = r["source"] if "source" in more else None
+        stored = r["stored_bytes"] if "stored_bytes" in more else None
+        return cls(r["id"], r["created"], r["name"], summary, source or "", problem, int(stored or 0))
+
+
+SAMPLE_ARRAYS = ("t", "positions", "orientations", "wrenches")
+"""The per-sample arrays of a demonstration, in the order it is written."""
+
+
+@dataclass(frozen=True)
+class DemonstrationSamples:
+    """A stored demonstration's samples as arrays (``DemonstrationRepository.samples``): what a paged read slices."""
+
+    t: np.ndarray
+    """Time stamps, (N,), s."""
+    positions: np.ndarray
+    """Tool positions, (N, 3), m, world."""
+    orientations: np.ndarray
+    """Tool orientations, (N, 4), [x, y, z, w], world."""
+    wrenches: np.ndarray
+    """Applied wrenches, (N, 6), N and N·m, world."""
+    metadata: str
+    """The metadata as stored (JSON text)."""
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples N."""
+        return int(self.t.size)
 
 
 @dataclass(frozen=True)

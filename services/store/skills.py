@@ -6,11 +6,12 @@ import json
 import time
 
 from schemas.skill import SkillType
-from services.store.database import Database, new_id
+from services.store.database import Database, cut_text, new_id
 from services.store.rows import SkillRow, SkillSummaryRow
 
 _FAILED_CHECKS = "FROM json_each(skill, '$.checks') WHERE json_extract(value, '$.passed') = 0"
 """SQL: the failed checks of a stored skill (``skills.skill``), one row each (``value`` the check)."""
+_DEMONSTRATION_NAME = "json_extract(skill, '$.demonstration.name')"
 
 
 class SkillRepository:
@@ -45,7 +46,7 @@ class SkillRepository:
             "SELECT id, demonstration_id, created, skill_type, json_array_length(skill, '$.segments') AS segments, "
             "json_extract(skill, '$.auto_selection.confidence') AS confidence, "
             f"(SELECT count(*) {_FAILED_CHECKS}) AS failed_checks, "
-            "json_extract(skill, '$.demonstration.name') AS demonstration_name "
+            f"{cut_text(_DEMONSTRATION_NAME)} AS demonstration_name "
             "FROM skills ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (limit, offset),
         )

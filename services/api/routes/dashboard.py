@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi import APIRouter, Response
 from fastapi.responses import FileResponse
 
-from schemas import Demonstration, Skill
+from schemas import Skill
 from schemas.dashboard import SkillView
 from services.api import errors
 from services.api.deps import READ_GUARD, KeysDep, StoreDep
@@ -57,10 +57,7 @@ def _skill_view(store: Store, skill_id: str) -> SkillView:
     row = store.skills.get(skill_id)
     if row is None:
         raise errors.not_found("skill", skill_id)
-    found = store.demonstrations.json(row.demonstration_id) if row.demonstration_id else None
-    demonstration = None
-    if found is not None and found[0].problem is None:
-        demonstration = Demonstration.model_validate_json(found[1])
+    demonstration = store.demonstrations.get(row.demonstration_id) if row.demonstration_id else None
     return skill_view(skill_id, row.demonstration_id, Skill.model_validate_json(row.skill_json), demonstration)
 
 

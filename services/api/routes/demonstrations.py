@@ -4,10 +4,10 @@ get, delete."""
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
-from pydantic import ValidationError
+from pydantic import TypeAdapter, ValidationError
 
 from schemas.api import (
     ApiError,
@@ -17,11 +17,13 @@ from schemas.api import (
     TelemetryFormat,
 )
 from schemas.bus import RecordRequest
-from schemas.demonstration import Demonstration
+from schemas.demonstration import Demonstration, DemonstrationArrays
 from schemas.import_options import BagImportOptions, CsvImportOptions
+from schemas.text import Name
 from services.api import errors
 from services.api.deps import (
     EXPORT_RESPONSES,
+    NEXT_CURSOR_HEADER,
     READ_GUARD,
     STORING_GUARD,
     TOKEN_GUARD,
@@ -30,15 +32,23 @@ from services.api.deps import (
     Limit,
     Offset,
     QueueDep,
+    SampleCursor,
+    SampleLimit,
     StoreDep,
-    WindowEnd,
-    WindowStart,
+    TimeWindow,
     need_bus,
-    readable_demonstration,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import UPLOAD_STORED_MULTIPLE
-from services.api.responses import download, raw_json
+from services.api.responses import (
+    LIST_RESPONSES,
+    SAMPLE_CHUNK_ROWS,
+    download,
+    list_page,
+    samples_json_chunks,
+    samples_that_fit,
+    streamed,
+)
 from services.demonstration_files import (
     BAGS,
     HEAD_BYTES,
@@ -47,9 +57,12 @@ from services.demonstration_files import (
     other_kind,
     unsupported_file,
 )
-from services.store import DemonstrationRow, Store, first_problem
+from services.store import DemonstrationRow, Store
 from services.store.demonstrations import StoredTooLarge
+from services.store.rows import SAMPLE_ARRAYS, DemonstrationSamples
 
+UPLOAD_NAME: TypeAdapter[str] = TypeAdapter(Name)
+"""An upload's file name, a name like any other (it becomes the demonstration's name and source)."""
 RECORD_TIMEOUT_S = 120.0
 """How long ``POST /demonstrations/record`` waits for the worker's recording, s."""
 
@@ -70,8 +83,11 @@ def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict 
 def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str) -> tuple[bytes, str]:
     """The uploaded bytes and the file's name; a 422 on ``file`` when its content is none of ``accepted``: the one
     message for a file no importer reads, or which route takes the kind it is (``wanted``: what this one takes)."""
+    try:  # the file's name becomes the demonstration's name and source: bounded as a name is
+        name = UPLOAD_NAME.validate_python(file.filename or "upload").rsplit("/", 1)[-1]
+    except ValidationError as exc:
+        raise errors.unprocessable(["body", "file"], f"its file name: {exc.errors()[0]['msg']}", "file_name") from None
     data = file.file.read()
-    name = (file.filename or "upload").rsplit("/", 1)[-1]
     kind = file_kind(name, data[:HEAD_BYTES])
     if kind is None:
         raise errors.unprocessable(["body", "file"], unsupported_file(name), "unsupported_file")
@@ -206,37 +222,73 @@ def record_demonstration(request: RecordRequest, store: StoreDep, bus: BusDep) -
     return _created(row, extra={"ground_truth": reply.ground_truth, "worker_id": reply.worker_id})
 
 
-@router.get("/demonstrations", response_model=list[DemonstrationInfo])
-def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list[DemonstrationInfo]:
+@router.get("/demonstrations", response_model=list[DemonstrationInfo], responses=LIST_RESPONSES)
+def list_demonstrations(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> Response:
     """Stored demonstrations, newest first (summaries, no samples).
 
     Each row: id, name, source (json, csv:FILE, bag:FILE, teacher:SCENARIO), creation time and the summary
-    (samples, duration, rate, largest force); ``limit`` and ``offset`` page through them. A demonstration stored
-    under looser rules that cannot be read back is listed with its ``problem`` (and no summary)."""
-    return [
-        DemonstrationInfo(
-            id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary, problem=r.problem
-        )
-        for r in store.demonstrations.page(limit, offset)
-    ]
+    (samples, duration, rate, largest force); ``limit`` and ``offset`` page through them, a page of at most 4 MiB
+    naming the next one's offset in ``X-Next-Offset``. A demonstration stored under looser rules that cannot be
+    read back is listed with its ``problem`` (and no summary); a name or source stored longer than a name may be
+    now is listed cut, ending in "…"."""
+    return list_page(store.demonstrations.page(limit + 1, offset), _info, offset, limit)
+
+
+def _info(r: DemonstrationRow) -> DemonstrationInfo:
+    return DemonstrationInfo(
+        id=r.id, created=r.created, name=r.name, source=r.source, summary=r.summary, problem=r.problem
+    )
+
+
+def _readable_samples(store: Store, demonstration_id: str) -> tuple[DemonstrationRow, DemonstrationSamples]:
+    """The stored demonstration's row and samples: 404 for an unknown id, 409 for one stored under looser rules that
+    cannot be read back. Parsed one recording at a time, and kept (``DemonstrationRepository.samples``)."""
+    row = store.demonstrations.row(demonstration_id)
+    samples = (
+        None if row is None else store.demonstrations.samples(demonstration_id) if row.problem is None else row.problem
+    )
+    if row is None or samples is None:
+        raise errors.not_found("demonstration", demonstration_id)
+    if isinstance(samples, str):
+        raise errors.unreadable(demonstration_id, samples)
+    return row, samples
 
 
 @router.get(
     "/demonstrations/{demonstration_id}",
-    responses={200: {"model": StoredDemonstration}, **ERROR_RESPONSES, 409: {"model": ApiError}},
-)
-def get_demonstration(demonstration_id: str, store: StoreDep) -> Response:
-    """A stored demonstration with all its samples.
+    responses={
+        200: {"model": StoredDemonstration, "headers": {NEXT_CURSOR_HEADER: {
+            "description": "The next page's cursor (absent on the last page).", "schema": {"type": "integer"}}}},
+        **ERROR_RESPONSES,
+        409: {"model": ApiError},
+    },
+)  # fmt: skip
+def get_demonstration(
+    demonstration_id: str, store: StoreDep, cursor: SampleCursor = None, limit: SampleLimit = None
+) -> Response:
+    """A stored demonstration with its samples, whole or a page of them.
 
     Time, tool positions and orientations ([x, y, z, w]) and the wrench the tool applied (world frame, at the tool
-    point), with the import metadata (conventions of the file, resampling, tare, notes); 404 for an unknown id, 409
-    for one stored under looser rules that cannot be read back (delete it)."""
-    row, body = readable_demonstration(store, demonstration_id)
+    point), with the import metadata (conventions of the file, resampling, tare, notes). One reply holds at most
+    8 MiB (~23 000 samples): ``cursor`` (and ``limit``) page the samples, a page that is not the last naming the
+    next one's cursor in ``next_cursor`` and the ``X-Next-Cursor`` header; asked whole (neither given) a
+    demonstration that does not fit is a 422 on ``limit`` saying how to page. 404 for an unknown id, 409 for one
+    stored under looser rules that cannot be read back (delete it)."""
+    row, samples = _readable_samples(store, demonstration_id)
     assert row.summary is not None  # a readable row has its summary
-    return raw_json(
-        {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")},
-        {"demonstration": body},
+    head: dict[str, Any] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
+    fit = samples_that_fit(len(json.dumps(head)) + len(samples.metadata.encode()) + 200)  # 200: keys, brackets
+    if cursor is None and limit is None and samples.n_samples > fit:
+        raise errors.samples_over_budget(demonstration_id, samples.n_samples, fit)
+    start = min(cursor or 0, samples.n_samples)
+    stop = min(samples.n_samples, start + min(limit or fit, fit))
+    next_cursor = stop if stop < samples.n_samples else None
+    window = {name: getattr(samples, name)[start:stop] for name in SAMPLE_ARRAYS}
+    chunks = samples_json_chunks(
+        {**head, "cursor": start, "next_cursor": next_cursor}, "demonstration", window, {"metadata": samples.metadata}
     )
+    headers = {} if next_cursor is None else {NEXT_CURSOR_HEADER: str(next_cursor)}
+    return streamed(chunks, "application/json", headers=headers)
 
 
 @router.delete(
@@ -266,8 +318,7 @@ def get_demonstration_telemetry(
     demonstration_id: str,
     store: StoreDep,
     format: ExportFormat = TelemetryFormat.json,
-    t0: WindowStart = None,
-    t1: WindowEnd = None,
+    window: TimeWindow = (None, None),
 ) -> Response:
     """A stored demonstration's samples to save or plot: JSON columns, CSV (as the importer reads it) or MCAP.
 
@@ -277,24 +328,19 @@ def get_demonstration_telemetry(
     from services.csv_import import samples_csv_text
     from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, demonstration_mcap, window_mask
 
-    row, body = readable_demonstration(store, demonstration_id)
-    errors.check_window(t0, t1)
-    try:
-        demonstration = Demonstration.model_validate_json(body)
-    except ValidationError as exc:
-        raise errors.unreadable(demonstration_id, f"its samples do not validate: {first_problem(exc)}") from None
-    a = demonstration.arrays()
-    keep = window_mask(a.t, t0, t1)
+    row, samples = _readable_samples(store, demonstration_id)
+    keep = window_mask(samples.t, *window)
+    a = DemonstrationArrays(**{name: getattr(samples, name)[keep] for name in SAMPLE_ARRAYS})
     if format is TelemetryFormat.csv:
-        text = samples_csv_text(a.t[keep], a.positions[keep], a.orientations[keep], a.wrenches[keep])
-        return download(text, CSV_MEDIA_TYPE, f"{demonstration_id}.csv")
+        rows = range(0, a.t.size, SAMPLE_CHUNK_ROWS)
+        chunks = (samples_csv_text(*(getattr(a, name)[k : k + SAMPLE_CHUNK_ROWS] for name in SAMPLE_ARRAYS),
+                                   header=k == 0) for k in rows)  # fmt: skip
+        return streamed(chunks, CSV_MEDIA_TYPE, f"{demonstration_id}.csv")
     if format is TelemetryFormat.mcap:
-        return download(
-            demonstration_mcap(demonstration, keep, row.created).data, MCAP_MEDIA_TYPE, f"{demonstration_id}.mcap"
-        )
-    columns = {"t": a.t[keep], "positions": a.positions[keep], "orientations": a.orientations[keep],
-               "wrenches": a.wrenches[keep]}  # fmt: skip
-    return raw_json(
-        {"demonstration_id": demonstration_id, "n_samples": int(keep.sum())},
-        {name: json.dumps(values.tolist()) for name, values in columns.items()},
+        name = json.loads(samples.metadata).get("name", "")
+        mcap = demonstration_mcap(a, name, row.created).data
+        return download(mcap, MCAP_MEDIA_TYPE, f"{demonstration_id}.mcap")
+    head = {"demonstration_id": demonstration_id, "n_samples": int(a.t.size)}
+    return streamed(
+        samples_json_chunks(head, None, {name: getattr(a, name) for name in SAMPLE_ARRAYS}, {}), "application/json"
     )

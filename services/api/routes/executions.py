@@ -38,8 +38,7 @@ from services.api.deps import (
     QueueDep,
     SettingsDep,
     StoreDep,
-    WindowEnd,
-    WindowStart,
+    TimeWindow,
     check_job_budget,
     need_bus,
     need_queue,
@@ -47,7 +46,7 @@ from services.api.deps import (
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
-from services.api.responses import streamed
+from services.api.responses import LIST_RESPONSES, list_page, streamed
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store
 
@@ -158,13 +157,14 @@ def post_execution(
     )
 
 
-@router.get("/executions", response_model=list[ExecutionView])
-def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[ExecutionView]:
+@router.get("/executions", response_model=list[ExecutionView], responses=LIST_RESPONSES)
+def list_executions(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> Response:
     """Executions, newest first.
 
     Each with its status (starting, running, paused, done, aborted, failed), phase, worker, metrics once
-    finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them."""
-    return [_view(row, store, keys) for row in store.executions.page(limit, offset)]
+    finished and the count of stored telemetry samples; ``limit`` and ``offset`` page through them, a page of at most
+    4 MiB naming the next one's offset in ``X-Next-Offset``."""
+    return list_page(store.executions.page(limit + 1, offset), lambda row: _view(row, store, keys), offset, limit)
 
 
 @router.get("/executions/{execution_id}", response_model=ExecutionView, responses=ERROR_RESPONSES)
@@ -279,8 +279,7 @@ def get_telemetry(
     settings: SettingsDep,
     every: Annotated[int, Query(ge=1, le=1_000_000, description="Return every N-th sample.")] = 1,
     format: ExportFormat = TelemetryFormat.json,
-    t0: WindowStart = None,
-    t1: WindowEnd = None,
+    window: TimeWindow = (None, None),
     cursor: Cursor = 0,
     limit: PageLimit = None,
 ) -> Response:
@@ -304,7 +303,7 @@ def get_telemetry(
     row = _found(store, execution_id)
     if not row.streams_telemetry:
         raise errors.no_telemetry(execution_id, row.request.get("sweep"))
-    errors.check_window(t0, t1)
+    t0, t1 = window
     size = min(limit or settings.telemetry_page_samples, settings.telemetry_page_samples)
     page = telemetry_page(store.telemetry.blocks(execution_id, cursor), cursor, every, t0, t1, size)
     headers = {} if page.next_cursor is None else {NEXT_CURSOR_HEADER: str(page.next_cursor)}

@@ -21,7 +21,7 @@ from services.api.deps import (
     readable_demonstration,
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
-from services.api.responses import raw_json
+from services.api.responses import LIST_RESPONSES, list_page, raw_json
 from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
 
 router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESPONSES)
@@ -73,13 +73,14 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
     return raw_json(parts, {"skill": outcome.skill_json}, 201)
 
 
-@router.get("/skills", response_model=list[SkillInfo])
-def list_skills(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> list[SkillInfo]:
+@router.get("/skills", response_model=list[SkillInfo], responses=LIST_RESPONSES)
+def list_skills(store: StoreDep, limit: Limit = 100, offset: Offset = 0) -> Response:
     """Stored skills, newest first (no parameters).
 
     Each row: id, the demonstration it was learned from, type (slide or contour), number of segments and the
-    auto selection's confidence; ``limit`` and ``offset`` page through them."""
-    return [SkillInfo(**asdict(row)) for row in store.skills.page(limit, offset)]
+    auto selection's confidence; ``limit`` and ``offset`` page through them, a page of at most 4 MiB naming the next
+    one's offset in ``X-Next-Offset``."""
+    return list_page(store.skills.page(limit + 1, offset), lambda row: SkillInfo(**asdict(row)), offset, limit)
 
 
 @router.get("/skills/{skill_id}", responses={200: {"model": StoredSkill}, **ERROR_RESPONSES})

@@ -3,7 +3,7 @@ follow it, list, cancel, read every trial."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from schemas.sweep import SweepCreated, SweepRequest, SweepView, TrialResult
 from services.api import errors
@@ -25,6 +25,7 @@ from services.api.deps import (
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
+from services.api.responses import LIST_RESPONSES, list_page
 from services.store import Store, SweepRow
 from services.sweeps import sweep_view, trial_results
 from skills.sweeps import inapplicable_parameter
@@ -94,13 +95,14 @@ def post_sweep(
     )
 
 
-@router.get("/sweeps", response_model=list[SweepView])
-def list_sweeps(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> list[SweepView]:
+@router.get("/sweeps", response_model=list[SweepView], responses=LIST_RESPONSES)
+def list_sweeps(store: StoreDep, keys: KeysDep, limit: Limit = 100, offset: Offset = 0) -> Response:
     """Sweeps, newest first, with their results so far.
 
     Each with its state, its counts (finished, succeeded, running, queued, reruns), its per-controller summary and
-    sensitivity ranking, as ``GET /sweeps/{id}``; ``limit`` and ``offset`` page through them."""
-    return [sweep_view(store, keys, row) for row in store.sweeps.page(limit, offset)]
+    sensitivity ranking, as ``GET /sweeps/{id}``; ``limit`` and ``offset`` page through them, a page of at most 4 MiB
+    naming the next one's offset in ``X-Next-Offset``."""
+    return list_page(store.sweeps.page(limit + 1, offset), lambda row: sweep_view(store, keys, row), offset, limit)
 
 
 @router.get("/sweeps/{sweep_id}", response_model=SweepView, responses=ERROR_RESPONSES)

@@ -31,6 +31,23 @@ async function api(path, options = {}) {
   return body;
 }
 
+// A list's first `wanted` items, following its pages: a page stops before the API's byte budget and names the next
+// one's offset in X-Next-Offset (docs/API.md).
+async function listed(path, wanted) {
+  const items = [];
+  let offset = 0;
+  while (items.length < wanted) {
+    const response = await fetch(`${path}?limit=${wanted - items.length}&offset=${offset}`, { headers: headers() });
+    const page = await response.json();
+    if (!response.ok) throw new Error(`${response.status}: ${JSON.stringify(page.detail ?? page)}`);
+    items.push(...page);
+    const next = response.headers.get("X-Next-Offset");
+    if (next === null) break;
+    offset = Number(next);
+  }
+  return items;
+}
+
 const el = (tag, attrs = {}, ...children) => {
   const node = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) {
@@ -69,7 +86,7 @@ async function listsPage() {
   let shown = "";
   const refresh = async () => {
     try {
-      const [d, s, x, w] = await Promise.all(["/demonstrations", "/skills", "/executions", "/sweeps"].map((p) => api(`${p}?limit=50`)));
+      const [d, s, x, w] = await Promise.all(["/demonstrations", "/skills", "/executions", "/sweeps"].map((p) => listed(p, 50)));
       connected(true);
       const now = JSON.stringify([d, s, x, w]);
       if (now === shown) return;   // redraw only what changed: a button under the pointer stays where it is
