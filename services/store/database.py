@@ -30,9 +30,9 @@ from pathlib import Path
 
 log = logging.getLogger("contact_skills.store")
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
-by sample index; 4: sweeps)."""
+by sample index; 4: sweeps; 5: an execution's dispatch attempt and the last report taken)."""
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
     id TEXT PRIMARY KEY,
@@ -113,6 +113,15 @@ CREATE INDEX sweeps_by_status ON sweeps (status)
 """Version 4: robustness sweeps (``services/sweeps.py``): the request as shown and the spec (the execution request
 with the skill inline, JSON, stored once); one row per trial x controller with its drawn parameters and its latest
 execution (whose row holds the status and metrics)."""
+
+_SCHEMA_V5 = """
+ALTER TABLE executions ADD COLUMN attempt TEXT;
+ALTER TABLE executions ADD COLUMN report_seq INTEGER NOT NULL DEFAULT -1;
+ALTER TABLE executions ADD COLUMN handovers INTEGER NOT NULL DEFAULT 0
+"""
+"""Version 5: the nonce of an execution's current dispatch (``StartExecution.attempt``: only its reports count), the
+``seq`` of the last status taken from it (a status at or below it is a replay), and how many times a worker accepted
+it (the dispatch watchdog takes a job back from a worker that does not report, a bounded number of times)."""
 
 LOCKED_RETRY_S = 120.0
 """How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
@@ -212,7 +221,7 @@ class Database:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4)[version:]:
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5)[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:
