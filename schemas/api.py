@@ -268,9 +268,20 @@ class WorkerSummary(BaseModel):
 
     worker_id: str
     busy: bool
-    activity: str = Field(description="idle, executing, recording, or unknown (not answering).")
+    activity: str = Field(
+        description="idle, executing, recording, or unknown (it did not answer yet). From the worker's own answer, "
+        "``info_age_s`` old, unless the store knows better: a run the store shows ended is not shown."
+    )
     execution_id: str | None = Field(None, description="The execution it runs now, if any.")
-    executions_run: int = Field(0, description="Executions it accepted since it started.")
+    executions_run: int = Field(0, description="Executions it accepted since it started (its own count).")
+    info_age_s: float | None = Field(
+        None, description="How old the worker's answer behind busy and activity is, s (None: no answer yet)."
+    )
+    heard_s_ago: float | None = Field(
+        None,
+        description="Seconds since the API last took a report from it (a status, a heartbeat or telemetry that "
+        "passed the checks); None: none since the API started.",
+    )
 
 
 class HealthDetail(BaseModel):

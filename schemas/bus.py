@@ -10,12 +10,17 @@ Key expressions (``P`` is the prefix, default ``cskills``; ids are single key ch
 - ``P/exec/{worker_id}/record`` — queryable; query ``RecordRequest``, reply ``RecordReply``.
 - ``P/exec/{worker_id}/replay`` — queryable; query ``TelemetryReplay``, replies ``TelemetryBatch`` (each with its
   ``first_sample``) covering the samples asked that the worker still keeps (its last ``TELEMETRY_KEEP_EXECUTIONS``
-  executions), or an error reply saying it keeps none of them. Under the worker's own keys: only the worker that
-  ran an execution can answer for it (``schemas.bus_security``).
+  executions), or an error reply saying it keeps none of them; at most ``REPLAY_MAX_SAMPLES`` samples per query
+  (the first ones asked). Under the worker's own keys: only the worker that ran an execution can answer for it, and
+  only the API may ask (``schemas.bus_security``).
 - ``P/exec/{execution_id}/cmd`` — put/subscribe; ``ExecutionCommand`` (abort | pause | resume).
 - ``P/exec/{execution_id}/status`` — put/subscribe; ``ExecutionStatus`` on acceptance (pending), every phase or
-  segment change, pause and resume, and a final one (done | aborted | failed) with the metrics. Workers also
-  answer a query on it with the latest status of the executions they ran (for late joiners).
+  segment change, pause and resume, at least every ``HEARTBEAT_S`` while it runs, and a final one (done | aborted
+  | failed) with the metrics; each echoes the dispatch's ``attempt`` and counts up ``seq``. Workers also answer a
+  query on it with the latest status of the executions they ran (for late joiners); a query whose payload is a
+  challenge (bytes the asker just drew) is answered with the signature of the status followed by the challenge
+  (``schemas.bus_security.challenge_signature``): proof that the worker holding the run's secret answers now, not a
+  recording of an earlier answer.
 - ``P/exec/{execution_id}/telemetry`` — put/subscribe; ``schemas.execution.TelemetryBatch``: every control step,
   in batches of ``telemetry_batch`` rows, reliable (congestion control BLOCK), numbered: ``seq`` counts the batches,
   ``first_sample`` places each in the stream, so a receiver that missed some (it was down, the router was) sees the
@@ -61,6 +66,13 @@ FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, Execution
 """Phases after which an execution publishes nothing more."""
 
 CommandName = Literal["abort", "pause", "resume"]
+
+HEARTBEAT_S = 2.0
+"""A running execution publishes a status at least this often, s (a phase can last minutes: without it, a worker
+that went silent could not be told from one in a long phase)."""
+REPLAY_MAX_SAMPLES = 10_000
+"""Most telemetry samples one replay query is answered with (~7 MB of JSON): a query asking more gets the first
+ones; the API asks a longer gap in parts."""
 
 OVERRIDE_BOUNDS: dict[str, tuple[float, float]] = {
     "_s": (0.0, 60.0),
@@ -199,6 +211,13 @@ class StartExecution(BaseModel):
         description="When the caller stops waiting for the reply (wall clock, s since the epoch). A worker that "
         "could only answer later refuses instead of starting: the caller has given up on it and may have started "
         "the execution on another worker.",
+    )
+    attempt: str = Field(
+        "",
+        max_length=64,
+        description="This dispatch's nonce, fresh for every hand-over of the execution: the worker echoes it in every "
+        "status (``ExecutionStatus.attempt``) and the run's secret is bound to it, so no report of an earlier "
+        "dispatch counts for this one.",
     )
     demonstration_id: str | None = Field(
         None,
@@ -355,7 +374,14 @@ class ExecutionStatus(BaseModel):
         description="Simulated time of the last control step completed when the worker received the abort "
         "command, s (the last telemetry sample is at most one control step later).",
     )
-    seq: int = Field(0, description="Per-execution sequence number of the status, from 0.")
+    attempt: str = Field(
+        "", max_length=64, description="The dispatch it reports on: ``StartExecution.attempt``, echoed."
+    )
+    seq: int = Field(
+        0,
+        description="Sequence number of the status within its attempt, from 0, one more for every status published: "
+        "the API takes a status only above the last one it took, so none moves a run back.",
+    )
     sent_unix_s: float = Field(default_factory=time.time, description="Worker's wall clock at publication, s.")
 
     @property

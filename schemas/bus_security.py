@@ -21,14 +21,17 @@ never opened) and applies :func:`access_control`, default deny:
   (so only the worker that ran an execution can replay its telemetry) and ITS liveliness token ``P/workers/W``,
   answer the status queryable, receive commands, publish statuses and telemetry; it cannot command, and cannot pose
   as another worker;
-- ``observer``: read only: subscribe to statuses, telemetry, sweep progress and liveliness, query statuses, worker
-  info and telemetry replays.
+- ``observer``: read only: subscribe to statuses, telemetry, sweep progress and liveliness, query statuses. Not the
+  workers' info (their host names and process ids stay between them and the API) nor telemetry replays (a replay
+  costs the worker that answers it; an observer reads the live stream, or the API's stored telemetry).
 
 Statuses and telemetry are keyed by execution, not by worker: an authenticated worker could publish for an
 execution it does not run, and write any ``worker_id`` into a payload. The API therefore gives each execution a
 secret bound to the worker it chose (sent as the attachment of that worker's start query, which only that worker's
 login can receive) and takes a status, a telemetry batch or a replay only when its attachment is
-:func:`report_signature` of the payload under that secret (`services.bus`).
+:func:`report_signature` of the payload under that secret (`services.bus`). The secret is bound to the dispatch too
+(``StartExecution.attempt``), and a status counts only above the last one taken (``ExecutionStatus.seq``), for a run
+still active: a recorded status replayed later, by anyone, moves nothing.
 """
 
 from __future__ import annotations
@@ -153,10 +156,10 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
         _rule("api-answers", "egress", ["reply"], queried),
         _rule("api-sees", "egress", ["liveliness_token", "declare_queryable", "declare_subscriber"], everything),
         _rule("observer-listens", "ingress", ["declare_subscriber"], [*streams, *progress]),
-        _rule("observer-asks", "ingress", ["query"], [k.info("*"), k.status("*"), replays]),
+        _rule("observer-asks", "ingress", ["query"], [k.status("*")]),
         _rule("observer-watches", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [k.workers]),
         _rule("observer-receives", "egress", ["put"], [*streams, *progress]),
-        _rule("observer-answers", "egress", ["reply"], [k.info("*"), k.status("*"), replays]),
+        _rule("observer-answers", "egress", ["reply"], [k.status("*")]),
         _rule("observer-sees", "egress", ["liveliness_token", "declare_queryable"], everything),
     ]
     subjects: list[dict[str, Any]] = []
@@ -195,6 +198,13 @@ def report_signature(secret: bytes, payload: bytes) -> bytes:
     HMAC-SHA256 (32 bytes) of the payload's exact bytes under the execution's secret (the attachment of the start
     query that handed the execution to this worker)."""
     return hmac.new(secret, payload, hashlib.sha256).digest()
+
+
+def challenge_signature(secret: bytes, payload: bytes, challenge: bytes) -> bytes:
+    """The attachment of a status sent in answer to a query that carried ``challenge`` (its payload): the
+    :func:`report_signature` of the status followed by the challenge. Only the worker holding the run's secret can
+    make it, and only after the challenge was drawn: a recorded status cannot answer a new query."""
+    return report_signature(secret, payload + challenge)
 
 
 def parse_env(text: str) -> dict[str, str]:

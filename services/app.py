@@ -93,11 +93,17 @@ def create_app(settings: ServiceSettings, bus: BusClient | None = None, store: S
     own_store = store is None
     store = store if store is not None else Store(settings.db_path)
     learners = LearnerPool(settings.learn_processes, settings.learn_timeout_s, settings.learn_memory_mb)
-    queue = (
-        ExecutionQueue(store, bus, settings.queue_max, quota_bytes=settings.storage_quota_bytes)
-        if bus is not None
-        else None
-    )
+    queue = None
+    if bus is not None:
+        queue = ExecutionQueue(
+            store,
+            bus,
+            settings.queue_max,
+            first_report_s=settings.dispatch_report_s,
+            silence_s=settings.run_silence_s,
+            handovers=settings.dispatch_handovers,
+            quota_bytes=settings.storage_quota_bytes,
+        )
     keys = KeyExpressions(settings.zenoh_prefix)
     sweeps = SweepRunner(store, queue, bus, keys) if bus is not None and queue is not None else None
     foxglove = live_view(store, settings) if bus is not None else None  # the live view: with a bus

@@ -26,10 +26,16 @@
     applies the worker's true status; a run still going is followed again as before).
 
 REPORTS: a worker's status, telemetry batch or replay counts only if it proves it comes from the worker the execution
-was handed to. Each execution gets a secret bound to the chosen worker (:meth:`.ReportChecks.execution_secret`, derived
-from ``BusSettings.report_key``, which the API keeps in its database so that it survives a restart), sent only to that
+was handed to, for the current dispatch. Each hand-over gets a fresh nonce (``StartExecution.attempt``) and a secret
+bound to the execution, the chosen worker and that nonce (:meth:`.ReportChecks.execution_secret`, derived from
+``BusSettings.report_key``, which the API keeps in its database so that it survives a restart), sent only to that
 worker as the attachment of its start query (the router lets only that worker's login answer its start key); the
-worker attaches ``schemas.bus_security.report_signature`` of every payload it sends for the execution. A report
+worker attaches ``schemas.bus_security.report_signature`` of every payload it sends for the execution, and echoes the
+nonce and a rising ``seq`` in every status. The receiver takes a status only for an active run, on its current
+attempt, above the last ``seq`` it took (``services.store.executions.ExecutionRepository.advance``), so a status
+recorded off the bus and replayed later moves nothing. A worker's latest status is asked with a fresh challenge and
+counts only signed with it (``schemas.bus_security.challenge_signature``): a recorded status cannot answer for a
+worker that is gone. A report
 whose signature does not verify (forged, or from another worker, whatever ``worker_id`` it names), or that is
 implausible (negative counters, ``done`` without a control step), is dropped and logged (each kind of line at most
 once per ``services.log_limits.LOG_EVERY_S``). An info reply counts only under the key of the worker it names (its own
@@ -64,6 +70,7 @@ from schemas.bus import (
     DEFAULT_PREFIX,
     ENV_ENDPOINTS,
     ENV_PREFIX,
+    REPLAY_MAX_SAMPLES,
     ExecutionCommand,
     ExecutionStatus,
     KeyExpressions,
@@ -80,7 +87,8 @@ from schemas.bus_security import ENV_LOGINS, ENV_PASSWORD, ENV_USER, BusSecurity
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionRequest, TelemetryBatch
 from services.bus_keys import local_logins_folder, read_env_file
-from services.bus_reports import ReportChecks, implausible_info
+from services.bus_reports import ReportChecks, implausible_info, implausible_status, new_attempt
+from services.dispatch_watch import DispatchWatch
 from services.worker_liveness import WORKER_CHECK_S, WorkerLiveness
 
 log = logging.getLogger("contact_skills.bus")  # rate-limited: services.bus_reports adds the filter
@@ -101,8 +109,6 @@ statuses and batches in the inbox and never wait: the handling (parse, check, st
 inbox thread's. A session that does not read its link for the lease (10 s) loses it: the API lost its link to its own
 router 6 times in a 733 s fast run when its callbacks stored each batch themselves (making them wait for room instead
 lost it 3 times in a 1344 s run). A batch past this is dropped, and asked again of the worker."""
-REPLAY_SAMPLES = 10_000
-"""Samples asked of a worker in one replay query (a longer gap is asked in parts, each with its own timeout)."""
 INBOX_CLOSE_S = 10.0
 """How long ``close`` waits for the inbox to be handled, s."""
 
@@ -220,13 +226,15 @@ class BusClient:
         on_telemetry: Callable[[TelemetryBatch], None],
         on_worker_lost: Callable[[str], None],
         on_worker_back: Callable[[ExecutionStatus], None] | None = None,
-        owner: Callable[[str], str | None] | None = None,
+        owner: Callable[[str], tuple[str, str] | None] | None = None,
     ) -> None:
-        """``owner``: the worker an execution this client does not remember was handed to (the store's record), for
-        the reports of executions started by a previous API process."""
+        """``owner``: the (worker, dispatch attempt) an execution this client does not remember was handed to (the
+        store's record), for the reports of executions started by a previous API process."""
         self.settings = settings
         self.keys = KeyExpressions(settings.prefix)
         self.reports = ReportChecks(settings.report_key, self.keys, owner)
+        self.watch = DispatchWatch()
+        """What this client saw of its dispatches and of each worker (the dispatch watchdog's, the worker order's)."""
         self._on_status = on_status
         self._on_telemetry = on_telemetry
         self._lock = threading.Lock()
@@ -293,14 +301,26 @@ class BusClient:
         call waits for a query."""
         with self._lock:
             seen, alive = self._seen, self.liveness.alive()
-            refresh = seen is not None and time.monotonic() - seen[0] > WORKERS_FRESH_S and not self._refreshing
-            self._refreshing = self._refreshing or refresh
         if seen is None:
             return self.workers()
-        if refresh:
-            threading.Thread(target=self._refresh_seen, name="workers-refresh", daemon=True).start()
+        if time.monotonic() - seen[0] > WORKERS_FRESH_S:
+            self._refresh_in_background()
         unknown = WorkerInfo(worker_id="?", busy=True, activity="unknown")
         return [seen[1].get(w) or unknown.model_copy(update={"worker_id": w}) for w in sorted(alive)]
+
+    def seen_age(self) -> float | None:
+        """How old the workers' answers :meth:`workers_seen` gives are, s (None: none asked yet)."""
+        with self._lock:
+            seen = self._seen
+        return None if seen is None else time.monotonic() - seen[0]
+
+    def _refresh_in_background(self) -> None:
+        """Ask the workers' info on a thread of its own (one at a time) for :meth:`workers_seen`."""
+        with self._lock:
+            if self._refreshing or self._closed:
+                return
+            self._refreshing = True
+        threading.Thread(target=self._refresh_seen, name="workers-refresh", daemon=True).start()
 
     def _refresh_seen(self) -> None:
         try:
@@ -315,9 +335,10 @@ class BusClient:
         """The latest status of every execution the connected workers ran recently (their status queryables keep
         the last ``STATUS_CACHE``), by execution id: how runs ended while this client was not listening."""
         latest: dict[str, ExecutionStatus] = {}
-        for reply in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s):
+        challenge = secrets.token_bytes(16)
+        for reply in self._ask_all(self.keys.status("*"), ExecutionStatus, timeout_s, challenge):
             status = reply.value
-            if not self.reports.status_trusted(status, reply.payload, reply.signature):
+            if not self._answers_now(reply, challenge):
                 continue
             known = latest.get(status.execution_id)
             if known is None or status.seq > known.seq:
@@ -327,22 +348,39 @@ class BusClient:
     def latest_status(
         self, worker_id: str, execution_id: str, timeout_s: float = INFO_TIMEOUT_S
     ) -> ExecutionStatus | None:
-        """The latest status of ``execution_id`` that ``worker_id`` reports (its status queryable), or None if it
-        does not know the execution (it never ran it, restarted, or forgot it among more recent ones)."""
-        statuses = [r.value for r in self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s)
-                    if r.value.worker_id == worker_id and r.value.execution_id == execution_id
-                    and self.reports.status_trusted(r.value, r.payload, r.signature)]  # fmt: skip
+        """The latest status of ``execution_id`` that ``worker_id`` reports now (its status queryable, asked with a
+        fresh challenge), or None if it does not know the execution (it never ran it, restarted, or forgot it among
+        more recent ones) or does not answer."""
+        challenge = secrets.token_bytes(16)
+        replies = self._ask_all(self.keys.status(execution_id), ExecutionStatus, timeout_s, challenge)
+        statuses = [r.value for r in replies if r.value.worker_id == worker_id and r.value.execution_id == execution_id
+                    and self._answers_now(r, challenge)]  # fmt: skip
         return max(statuses, key=lambda s: s.seq, default=None)
+
+    def _answers_now(self, reply: Reply, challenge: bytes) -> bool:
+        """Whether a status reply to a query that carried ``challenge`` comes from the worker of the execution's
+        current attempt, signed with the challenge, and is plausible (refusals logged)."""
+        status = reply.value
+        if not self.reports.answers_now(status, reply.payload, reply.signature, challenge):
+            log.warning("status of %s naming %s not signed with this query's challenge: refused",
+                        status.execution_id, status.worker_id)  # fmt: skip
+            return False
+        if why := implausible_status(status):
+            log.warning("status of %s from %s refused: %s", status.execution_id, status.worker_id, why)
+            return False
+        return True
 
     def telemetry_replay(
         self, worker_id: str, execution_id: str, start: int, stop: int, timeout_s: float = REPLAY_TIMEOUT_S
     ) -> list[TelemetryBatch]:
         """The samples ``start`` to ``stop - 1`` of an execution's telemetry, asked again of the worker that ran it
-        (``P/exec/{worker_id}/replay``, :data:`REPLAY_SAMPLES` at a time, each ask waiting up to ``timeout_s``): the
+        (``P/exec/{worker_id}/replay``, :data:`REPLAY_MAX_SAMPLES` at a time, each ask waiting up to ``timeout_s``): the
         batches it still keeps of them (none if it is gone or dropped them)."""
         batches = []
-        for first in range(start, stop, REPLAY_SAMPLES):
-            batches += self._replay_part(worker_id, execution_id, first, min(first + REPLAY_SAMPLES, stop), timeout_s)
+        for first in range(start, stop, REPLAY_MAX_SAMPLES):
+            batches += self._replay_part(
+                worker_id, execution_id, first, min(first + REPLAY_MAX_SAMPLES, stop), timeout_s
+            )
         return batches
 
     def _replay_part(
@@ -374,11 +412,13 @@ class BusClient:
                 batches.append(batch)
         return batches
 
-    def adopt(self, execution_id: str, worker_id: str) -> None:
-        """Watch an execution this client did not start (a previous API process did) as its own: it is failed if
-        its worker is lost, caught up on if the worker comes back from an outage."""
+    def adopt(self, execution_id: str, worker_id: str, attempt: str) -> None:
+        """Watch an execution this client did not start (a previous API process did, as dispatch ``attempt``) as its
+        own: it is failed if its worker is lost, caught up on if the worker comes back from an outage, taken back if
+        its worker goes silent."""
         self.liveness.running(execution_id, worker_id)
-        self.reports.hand(execution_id, worker_id)
+        self.reports.hand(execution_id, worker_id, attempt)
+        self.watch.handed(execution_id, worker_id, attempt)
 
     # ------------------------------------------------------------------------------------------ reports
 
@@ -386,15 +426,17 @@ class BusClient:
         """Hand ``status`` to ``on_status`` as if it had just been received (one the subscriber missed)."""
         if status.final:
             self.liveness.finished(status.execution_id)
+            self.watch.ended(status.execution_id)
         self._call(self._on_status, status)
 
-    def _ask_all(self, key: str, model: type[Any], timeout_s: float) -> list[Reply]:
-        """Every valid reply (its payload as ``model``) of every queryable on ``key``; bad replies are logged and
-        skipped."""
+    def _ask_all(self, key: str, model: type[Any], timeout_s: float, payload: bytes | None = None) -> list[Reply]:
+        """Every valid reply (its payload as ``model``) of every queryable on ``key`` to a query carrying
+        ``payload``; bad replies are logged and skipped."""
         import zenoh
 
         answers = []
-        for reply in self._session.get(key, timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE):
+        replies = self._session.get(key, payload=payload, timeout=timeout_s, consolidation=zenoh.ConsolidationMode.NONE)
+        for reply in replies:
             if reply.ok is None:
                 continue
             payload = reply.ok.payload.to_bytes()
@@ -407,14 +449,16 @@ class BusClient:
         return answers
 
     def _candidates(self, everyone: list[WorkerInfo] | None = None) -> tuple[list[WorkerInfo], list[WorkerInfo]]:
-        """(all workers, the free ones in the order to try: fewest executions run first, then round robin);
-        ``everyone``: the workers' info just asked for (else asked now)."""
+        """(all workers, the free ones in the order to try: by what this client saw of them,
+        :meth:`.DispatchWatch.order` (those that let a dispatch time out last, then the fewest dispatches), round robin
+        among equals; never by what a worker says it ran); ``everyone``: the workers' info just asked for (else asked
+        now)."""
         everyone = self.workers() if everyone is None else everyone
         free = [w for w in everyone if not w.busy]
         if free:
             shift = next(self._rotation) % len(free)
             free = free[shift:] + free[:shift]
-            free.sort(key=lambda w: w.executions_run)  # stable: the rotation breaks ties
+            free.sort(key=lambda w: self.watch.order(w.worker_id))  # stable: the rotation breaks ties
         return everyone, free
 
     @staticmethod
@@ -441,21 +485,26 @@ class BusClient:
         demonstration_id: str | None = None,
         timeout_s: float = START_TIMEOUT_S,
         workers: list[WorkerInfo] | None = None,
+        attempt: str | None = None,
     ) -> str:
         """Start ``request`` (its skill INLINE) as ``execution_id`` on a free worker; return the worker's id.
 
-        Free workers are tried in turn (fewest executions first, round robin among equals), so executions spread
-        over the workers. ``world_overrides`` (WorldConfig fields) and ``demonstration`` (for the path metric)
-        are optional. With ``demonstration_id`` (the stored id of ``demonstration``) each worker is first asked
-        to use its own copy, and sent the demonstration only when it keeps none (``need_demonstration``).
+        Free workers are tried in turn (:meth:`_candidates`), so executions spread over the workers. ``attempt``: the
+        dispatch's nonce (``StartExecution.attempt``; None: a fresh one), which the caller stored before asking (the
+        worker's first statuses may come before its reply). ``world_overrides`` (WorldConfig fields) and
+        ``demonstration`` (for the path metric) are optional. With ``demonstration_id`` (the stored id of
+        ``demonstration``) each worker is first asked to use its own copy, and sent the demonstration only when it
+        keeps none (``need_demonstration``).
         ``workers``: the result of a :meth:`workers` call the caller just made (not asked again).
         Raises ``ValueError`` for an id that is not a key chunk or a request without an inline skill,
         ``BusRequestError`` if the worker refuses the request as invalid, ``NoWorkerAvailable`` if no worker
         takes it.
         """
         named = demonstration_id if demonstration is not None else None
+        attempt = attempt or new_attempt()
         start = StartExecution(
             execution_id=execution_id,
+            attempt=attempt,
             request=request,
             world_overrides=world_overrides or {},
             demonstration=None if named else demonstration,
@@ -466,9 +515,9 @@ class BusClient:
         for worker in free:
             key, secret = (
                 self.keys.start(worker.worker_id),
-                self.reports.execution_secret(execution_id, worker.worker_id),
+                self.reports.execution_secret(execution_id, worker.worker_id, attempt),
             )
-            self.reports.hand(execution_id, worker.worker_id)  # its first statuses may come before its reply
+            self.reports.hand(execution_id, worker.worker_id, attempt)  # its first statuses may come before its reply
             answer = self._ask_start(key, start, secret, timeout_s)
             if answer is not None and answer.code == "need_demonstration":
                 with_demonstration = start.model_copy(update={"demonstration": demonstration})
@@ -478,6 +527,7 @@ class BusClient:
                 continue
             if answer.accepted:
                 self.liveness.running(execution_id, worker.worker_id)
+                self.watch.handed(execution_id, worker.worker_id, attempt)
                 log.info("execution %s started on %s", execution_id, worker.worker_id)
                 return worker.worker_id
             if answer.code == "error":
@@ -493,11 +543,14 @@ class BusClient:
         reply = self._query_one(key, start.model_dump_json(), timeout_s, attachment=secret)
         return None if reply is None else StartReply.model_validate_json(reply)
 
-    def send_command(self, execution_id: str, command: Literal["abort", "pause", "resume"]) -> None:
-        """Publish ``command`` to the execution (fire and forget; its status tells what happened)."""
+    def send_command(
+        self, execution_id: str, command: Literal["abort", "pause", "resume"], reason: str | None = None
+    ) -> None:
+        """Publish ``command`` to the execution (fire and forget; its status tells what happened); ``reason``: what
+        an abort's final status says (default: aborted on request)."""
         import zenoh
 
-        message = ExecutionCommand(command=command, execution_id=execution_id)
+        message = ExecutionCommand(command=command, execution_id=execution_id, reason=reason)
         self._session.put(
             self.keys.cmd(execution_id),
             message.model_dump_json(),
@@ -583,6 +636,7 @@ class BusClient:
             log.warning("bad status on %s", key)
             return
         if key == self.keys.status(status.execution_id) and self.reports.status_trusted(status, payload, signature):
+            self.watch.heard(status.execution_id, status.worker_id)
             self.deliver(status)
 
     def _telemetry_received(self, payload: bytes, key: str, signature: bytes | None) -> None:
@@ -592,6 +646,7 @@ class BusClient:
             log.warning("bad telemetry on %s", key)
             return
         if self.reports.telemetry_trusted(batch, key, payload, signature):
+            self.watch.heard(batch.execution_id, self.reports.owner(batch.execution_id) or "")
             self._call(self._on_telemetry, batch)
 
     def _transport_event(self, event) -> None:
@@ -609,7 +664,10 @@ class BusClient:
             worker_id = self.keys.worker_id_of(str(sample.key_expr))
         except ValueError:
             return
-        self.liveness.token(worker_id, sample.kind == zenoh.SampleKind.PUT)
+        present = sample.kind == zenoh.SampleKind.PUT
+        self.liveness.token(worker_id, present)
+        if present:  # ask the newcomer at once: `workers_seen` shows it as it is, not `unknown` until the next ask
+            self._refresh_in_background()
 
     @staticmethod
     def _call(callback: Callable[[Any], None], value: Any) -> None:

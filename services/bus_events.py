@@ -133,6 +133,12 @@ class BusEvents:
             log.warning("status of %s from %s ignored: it runs on %s", status.execution_id, status.worker_id,
                         row.worker_id)  # fmt: skip
             return
+        # A worker's status (it echoes its dispatch; the ones the bus client makes up for a lost worker do not) is
+        # taken once, in order, for the current dispatch of an active run: a replayed one moves nothing.
+        if status.attempt and not self.store.executions.advance(status.execution_id, status.attempt, status.seq):
+            log.warning("status %d of %s from %s ignored: the run ended, was handed over again, or took a later "
+                        "status already", status.seq, status.execution_id, status.worker_id)  # fmt: skip
+            return
         state = FINAL_STATES.get(status.phase, ExecutionState.paused if status.paused else ExecutionState.running)
         streamed = row is None or row.streams_telemetry  # telemetry 'none': no stream to wait for
         if status.final and streamed and not self._telemetry_complete(status):
@@ -330,8 +336,8 @@ def reconcile(store: Store, bus: BusClient | None, wait_s: float = WORKER_DISCOV
     ended = {} if bus is None else bus.latest_statuses()
     marked = []
     for row in active:
-        if row.id in running and bus is not None and row.worker_id is not None:
-            bus.adopt(row.id, row.worker_id)
+        if row.id in running and bus is not None and row.worker_id is not None and row.attempt is not None:
+            bus.adopt(row.id, row.worker_id, row.attempt)
             continue
         if row.id in running or (row.status is ExecutionState.starting and store.executions.requeue(row.id)):
             continue
@@ -363,11 +369,12 @@ def connect_bus(settings: ServiceSettings, store: Store) -> BusClient:
         report_key=store.service_key(REPORT_KEY_NAME),
     )
 
-    def owner(execution_id: str) -> str | None:
-        row = store.executions.get(execution_id)
-        return None if row is None else row.worker_id
-
     events.bus = BusClient(
-        bus_settings, events.on_status, events.on_telemetry, events.on_worker_lost, events.on_worker_back, owner
+        bus_settings,
+        events.on_status,
+        events.on_telemetry,
+        events.on_worker_lost,
+        events.on_worker_back,
+        store.executions.owner,
     )
     return events.bus

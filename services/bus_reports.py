@@ -1,17 +1,19 @@
 """Which worker reports count (``services.bus``'s REPORTS rules): each execution's secret, bound to the worker it was
-handed to, the signatures checked against it, and the plausibility of what a worker says."""
+handed to and to the dispatch (its attempt nonce), the signatures checked against it, and the plausibility of what a
+worker says."""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
 import logging
+import secrets
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
 
 from schemas.bus import ExecutionStatus, KeyExpressions, WorkerInfo
-from schemas.bus_security import report_signature
+from schemas.bus_security import challenge_signature, report_signature
 from schemas.execution import ExecutionPhase, TelemetryBatch
 from services.log_limits import RateLimitFilter
 
@@ -21,6 +23,11 @@ log.addFilter(RateLimitFilter())  # a flood of forged or bad reports cannot floo
 HANDED_KEPT = 10_000
 """Executions whose worker this client remembers (to check their reports), the most recent ones; older ones are
 looked up through ``owner``."""
+
+
+def new_attempt() -> str:
+    """A fresh dispatch nonce (``StartExecution.attempt``): 16 hex digits, never reused."""
+    return secrets.token_hex(8)
 
 
 def implausible_status(status: ExecutionStatus) -> str | None:
@@ -56,53 +63,85 @@ def signed(secret: bytes, payload: bytes, signature: bytes | None) -> bool:
 
 
 class ReportChecks:
-    """The worker each execution was handed to, its secret, and whether a report proves it comes from that worker
-    (thread-safe)."""
+    """The worker and the dispatch attempt each execution was handed to, its secret, and whether a report proves it
+    comes from that worker for that attempt (thread-safe)."""
 
-    def __init__(self, report_key: bytes, keys: KeyExpressions, owner: Callable[[str], str | None] | None) -> None:
-        """``report_key``: what every execution's secret is derived from; ``owner``: the worker an execution this
-        client does not remember was handed to (the store's record)."""
+    def __init__(
+        self, report_key: bytes, keys: KeyExpressions, owner: Callable[[str], tuple[str, str] | None] | None
+    ) -> None:
+        """``report_key``: what every execution's secret is derived from; ``owner``: the (worker, attempt) an
+        execution this client does not remember was handed to (the store's record)."""
         self._report_key = report_key
         self._keys = keys
         self._owner_of = owner
-        self._handed: OrderedDict[str, str] = OrderedDict()  # execution_id -> the worker it was offered or handed to
+        self._handed: OrderedDict[str, tuple[str, str]] = OrderedDict()  # execution_id -> (worker, attempt)
         self._lock = threading.Lock()
 
-    def execution_secret(self, execution_id: str, worker_id: str) -> bytes:
-        """The secret of ``execution_id`` run by ``worker_id`` (32 bytes): known to this client and sent to that
-        worker alone; the same execution offered to another worker has another one."""
-        message = f"{execution_id}/{worker_id}".encode()
+    def execution_secret(self, execution_id: str, worker_id: str, attempt: str) -> bytes:
+        """The secret of ``execution_id`` run by ``worker_id`` as dispatch ``attempt`` (32 bytes): known to this
+        client and sent to that worker alone; the same execution offered to another worker, or handed over again,
+        has another one."""
+        message = f"{execution_id}/{worker_id}/{attempt}".encode()
         return hmac.new(self._report_key, message, hashlib.sha256).digest()
 
-    def hand(self, execution_id: str, worker_id: str) -> None:
-        """``execution_id`` is offered or handed to ``worker_id``: from now on only its reports count."""
+    def hand(self, execution_id: str, worker_id: str, attempt: str) -> None:
+        """``execution_id`` is offered or handed to ``worker_id`` as ``attempt``: from now on only its reports
+        count."""
         with self._lock:
-            self._handed[execution_id] = worker_id
+            self._handed[execution_id] = (worker_id, attempt)
             self._handed.move_to_end(execution_id)
             while len(self._handed) > HANDED_KEPT:
                 self._handed.popitem(last=False)
 
-    def owner(self, execution_id: str) -> str | None:
-        """The worker ``execution_id`` was handed to (None: not known to this client nor to ``owner``)."""
+    def handed(self, execution_id: str) -> tuple[str, str] | None:
+        """(the worker, the attempt) ``execution_id`` was handed to (None: not known to this client nor to
+        ``owner``)."""
         with self._lock:
-            worker_id = self._handed.get(execution_id)
-        if worker_id is None and self._owner_of is not None:
-            worker_id = self._owner_of(execution_id)
-            if worker_id is not None:
-                self.hand(execution_id, worker_id)
-        return worker_id
+            handed = self._handed.get(execution_id)
+        if handed is None and self._owner_of is not None:
+            handed = self._owner_of(execution_id)
+            if handed is not None:
+                self.hand(execution_id, *handed)
+        return handed
+
+    def owner(self, execution_id: str) -> str | None:
+        """The worker ``execution_id`` was handed to (None: not known)."""
+        handed = self.handed(execution_id)
+        return None if handed is None else handed[0]
 
     def signed_by(self, execution_id: str, worker_id: str, payload: bytes, signature: bytes | None) -> bool:
-        """Whether ``payload`` carries ``worker_id``'s signature for ``execution_id``."""
-        return signed(self.execution_secret(execution_id, worker_id), payload, signature)
+        """Whether ``payload`` carries ``worker_id``'s signature for ``execution_id``'s current attempt."""
+        handed = self.handed(execution_id)
+        if handed is None or handed[0] != worker_id:
+            return False
+        return signed(self.execution_secret(execution_id, *handed), payload, signature)
+
+    def answers_now(self, status: ExecutionStatus, payload: bytes, signature: bytes | None, challenge: bytes) -> bool:
+        """Whether a status answering a query that carried ``challenge`` is signed with it
+        (``schemas.bus_security.challenge_signature``) by the worker the execution was handed to, for its current
+        attempt: that worker answers now (not a recording of an earlier answer, whoever replays it)."""
+        handed = self.handed(status.execution_id)
+        if handed is None or handed != (status.worker_id, status.attempt) or signature is None:
+            return False
+        expected = challenge_signature(self.execution_secret(status.execution_id, *handed), payload, challenge)
+        return hmac.compare_digest(expected, signature)
 
     def status_trusted(self, status: ExecutionStatus, payload: bytes, signature: bytes | None) -> bool:
-        """Whether a status comes from the worker its execution was handed to (the worker it names, if this client
-        knows of none) and is plausible; a refused one is logged."""
-        owner = self.owner(status.execution_id) or status.worker_id
+        """Whether a status comes from the worker its execution was handed to, for the current attempt, and is
+        plausible; a refused one is logged. (Whether it is newer than the last one taken is the store's:
+        ``services.store.executions.ExecutionRepository.advance``.)"""
+        handed = self.handed(status.execution_id)
+        if handed is None:
+            log.warning("status of %s, an execution handed to no worker: refused", status.execution_id)
+            return False
+        owner, attempt = handed
         if owner != status.worker_id:
             log.warning("status of %s naming %s refused: the execution was handed to %s",
                         status.execution_id, status.worker_id, owner)  # fmt: skip
+            return False
+        if status.attempt != attempt:
+            log.warning("status of %s from %s refused: attempt %r, not the current one", status.execution_id, owner,
+                        status.attempt)  # fmt: skip
             return False
         if not self.signed_by(status.execution_id, owner, payload, signature):
             log.warning("status of %s not signed by %s: refused", status.execution_id, owner)

@@ -7,18 +7,29 @@ with its dispatch JSON (so the queue survives an API restart) and handed to a fr
 before it; else the dispatcher thread hands it over as soon as one is free.
 
 Order: higher ``priority`` first, then submission order. Fairness across workers: each hand-over goes through
-`services.bus.BusClient.start_execution`, which tries the free workers with the fewest executions run first (round
-robin among equals), so every worker on the bus gets work. A queued execution can be cancelled
+`services.bus.BusClient.start_execution`, which tries the free workers by what the API saw of them (those that let
+a dispatch time out last, then the fewest dispatches; round robin among equals), so every worker on the bus gets
+work. A queued execution can be cancelled
 (:meth:`ExecutionQueue.cancel`: status aborted). The dispatcher wakes at once on :meth:`ExecutionQueue.wake`: a
 submission, and an execution the store put in a terminal status (`services.store.Store.on_finish`: its final status
 arrived, its worker was lost), so a worker that finished gets the next queued execution without waiting for a poll;
 it also polls the workers every ``poll_s`` while something is queued (a worker freed without a status, e.g. one
 that finished recording).
 
-Status flow: queued -> starting (claimed by the dispatcher, atomically in SQLite) -> running (a worker accepted it),
-or back to queued (every worker busy after all), or failed (the worker refused it as invalid), or aborted
-(cancelled while queued). An execution left ``starting`` by an API that died is put back in the queue on restart
-unless a worker reports running it (`services.bus_events.reconcile`).
+Status flow: queued -> starting (claimed by the dispatcher, atomically in SQLite, with a fresh dispatch nonce:
+``StartExecution.attempt``) -> running (a worker accepted it), or back to queued (every worker busy after all), or
+failed (the worker refused it as invalid), or aborted (cancelled while queued).
+
+The dispatch watchdog (every pass of the dispatcher, at least every :data:`IDLE_POLL_S`): a worker that accepted an
+execution and sent no report on it (a status, a heartbeat, a telemetry batch that passed the checks) within
+``first_report_s`` loses it: the execution is aborted on the bus (a slow worker stops) and put back in the queue in
+its place, for another dispatch (another nonce: nothing the first worker sends counts any more), at most
+``handovers`` times, then failed with a reason naming the worker. An execution whose worker goes silent for
+``silence_s`` mid-run is failed with a reason naming the worker. Either way the worker goes to the back of the
+workers tried (``services.dispatch_watch``).
+
+An execution left ``starting`` by an API that died is put back in the queue on restart unless a worker reports
+running it (`services.bus_events.reconcile`).
 """
 
 from __future__ import annotations
@@ -33,6 +44,9 @@ from typing import TYPE_CHECKING, Any
 from schemas.api import ExecutionState
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
+from services.bus_reports import new_attempt
+from services.dispatch_watch import Overdue
+from services.settings import DEFAULT_DISPATCH_REPORT_S, DEFAULT_RUN_SILENCE_S
 from services.store import ExecutionRow, Store
 
 if TYPE_CHECKING:
@@ -42,8 +56,9 @@ log = logging.getLogger("contact_skills.queue")
 
 POLL_S = 0.2
 """How often the dispatcher asks the workers whether one is free while executions are queued, s."""
-IDLE_POLL_S = 2.0
-"""How often the dispatcher looks at an empty queue (it is woken on every submission anyway), s."""
+IDLE_POLL_S = 1.0
+"""How often the dispatcher looks at an empty queue (it is woken on every submission anyway) and the dispatch
+watchdog at the executions handed over, s."""
 DEFAULT_MAX_QUEUED = 1000
 """Most executions waiting at once (more get 503)."""
 DEMONSTRATIONS_KEPT = 8
@@ -97,20 +112,28 @@ class ExecutionQueue:
         bus: BusClient,
         max_queued: int = DEFAULT_MAX_QUEUED,
         poll_s: float = POLL_S,
+        first_report_s: float = DEFAULT_DISPATCH_REPORT_S,
+        silence_s: float = DEFAULT_RUN_SILENCE_S,
+        handovers: int = 3,
         quota_bytes: int = 0,
     ) -> None:
-        """``quota_bytes``: the storage quota each submission's telemetry is reserved in (0: none)."""
+        """``first_report_s``, ``silence_s``, ``handovers``: the dispatch watchdog's (module docstring; the
+        service's ``dispatch_report_s``, ``run_silence_s``, ``dispatch_handovers``); ``quota_bytes``: the storage
+        quota each submission's telemetry is reserved in (0: none)."""
         self.store = store
         self.bus = bus
         self.max_queued = max_queued
         self.quota_bytes = quota_bytes
         self.poll_s = poll_s
+        self.first_report_s = first_report_s
+        self.silence_s = silence_s
+        self.handovers = handovers
         self._lock = threading.Lock()  # one hand-over at a time: the order of the queue is the order of starts
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._demonstrations: dict[str, Demonstration | None] = {}  # by id, the oldest first (hold self._lock)
-        store.executions.on_finish(lambda _execution_id: self.wake())  # its worker is free: hand the next one over now
+        store.executions.on_finish(self._finished)
 
     # ------------------------------------------------------------------ what the service calls
 
@@ -163,6 +186,11 @@ class ExecutionQueue:
         """Look at the queue now (a submission, an execution finished)."""
         self._wake.set()
 
+    def _finished(self, execution_id: str) -> None:
+        """An execution ended: nothing more is due from its worker, which is free: hand the next one over now."""
+        self.bus.watch.ended(execution_id)
+        self.wake()
+
     # ------------------------------------------------------------------ the dispatcher
 
     def start(self) -> ExecutionQueue:
@@ -182,6 +210,7 @@ class ExecutionQueue:
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
+                self._watch()
                 waiting = self._drain()
             except Exception:  # keep the dispatcher alive whatever one hand-over does
                 log.exception("the execution queue failed to dispatch")
@@ -207,6 +236,37 @@ class ExecutionQueue:
                 )
         return True
 
+    def _watch(self) -> None:
+        """The dispatch watchdog (module docstring): take back what workers that do not report hold."""
+        for late in self.bus.watch.overdue(self.first_report_s, self.silence_s):
+            self._take_back(late)
+
+    def _take_back(self, late: Overdue) -> None:
+        worker, waited = late.worker_id, f"{late.silent_s:.0f} s"
+        if late.heard:
+            reason = (
+                f"worker {worker} sent no report for {waited} mid-run (more than run_silence_s, {self.silence_s:g} s)"
+            )
+            handovers = 0  # what it ran so far is lost with it: failed, not started again
+        else:
+            reason = (f"worker {worker} accepted it and sent no report for {waited} (more than dispatch_report_s, "
+                      f"{self.first_report_s:g} s)")  # fmt: skip
+            handovers = self.handovers
+        self.bus.watch.ended(late.execution_id)
+        self.bus.watch.timed_out(worker)
+        with self._lock:
+            row = self.store.executions.get(late.execution_id)
+            if row is None or row.attempt != late.attempt:
+                return
+            if row.handovers >= handovers and not late.heard:
+                reason += f"; handed over {row.handovers} times, the last to {worker}"
+            self.bus.send_command(late.execution_id, "abort", reason)  # a slow worker stops, a silent one never minds
+            state = self.store.executions.take_back(late.execution_id, late.attempt, handovers, reason)
+        if state is not None:
+            log.warning("execution %s %s: %s", late.execution_id,
+                        "back in the queue" if state is ExecutionState.queued else "failed", reason)  # fmt: skip
+            self.wake()
+
     def _demonstration(self, demonstration_id: str) -> Demonstration | None:
         """The stored demonstration, read once: a sweep sends the same one with each of its trials (a 10 s
         recording is ~2 MB of JSON, ~40 ms to read and parse), and a stored demonstration never changes."""
@@ -223,7 +283,8 @@ class ExecutionQueue:
         workers = self.bus.workers()
         if all(worker.busy for worker in workers):  # checked first: a queued one stays queued meanwhile
             return Handover.busy, "every worker busy"
-        if not self.store.executions.claim_queued(execution_id):
+        attempt = new_attempt()
+        if not self.store.executions.claim_queued(execution_id, attempt):
             return Handover.gone, "not queued"
         demonstration = None if dispatch.demonstration_id is None else self._demonstration(dispatch.demonstration_id)
         try:
@@ -234,6 +295,7 @@ class ExecutionQueue:
                 demonstration=demonstration,
                 demonstration_id=dispatch.demonstration_id,
                 workers=workers,
+                attempt=attempt,
             )
         except NoWorkerAvailable:
             self.store.executions.requeue(execution_id)

@@ -29,6 +29,9 @@
 | storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB stored and reserved by runs, at most; 507) |
 | retention_days | ``CONTACT_SKILLS_RETENTION_DAYS`` | ``0`` (keep all; > 0: older finished runs deleted) |
 | foxglove_port | ``CONTACT_SKILLS_FOXGLOVE_PORT`` | ``8765`` (the live view; ``0`` any free port; ``off``: none) |
+| dispatch_report_s | ``CONTACT_SKILLS_DISPATCH_REPORT_S`` | ``10`` (s a worker has to report on a job it accepted) |
+| run_silence_s | ``CONTACT_SKILLS_RUN_SILENCE_S`` | ``30`` (s a running job's worker may go without a report) |
+| dispatch_handovers | ``CONTACT_SKILLS_DISPATCH_HANDOVERS`` | ``3`` (hand-overs of a job to silent workers) |
 
 A job is one execution or recording; its budget (``schemas.job_budget``) is read from the same variables by the sim
 workers, which hold every job they are sent to it too.
@@ -58,6 +61,13 @@ DEFAULT_STORAGE_QUOTA_MB = 4096.0
 sample), so about 120 of them fit in a GiB; a demonstration takes ~285 bytes a sample (the longest, 200 000 samples,
 ~57 MB)."""
 DEFAULT_FOXGLOVE_PORT = 8765
+DEFAULT_DISPATCH_REPORT_S = 10.0
+"""How long a worker has to report on a job it accepted, s. Measured on the shared 2-core machine at load 6: a real
+worker's first status arrived at most 0.03 s after its accept reply (10 runs; mostly before it), so this leaves a
+margin of 300x for a loaded machine, while a worker that takes jobs and never reports holds each for 10 s only."""
+DEFAULT_RUN_SILENCE_S = 30.0
+"""How long a running job's worker may go without a report, s: a worker reports at least every
+``schemas.bus.HEARTBEAT_S`` (2 s; the longest gap measured in a real-time run without telemetry at load 6: 2.00 s)."""
 """Foxglove's own default WebSocket port (what its "Open connection" dialog proposes)."""
 FOXGLOVE_OFF = frozenset({"off", "none", "no", "false"})
 """Values of ``foxglove_port`` that turn the live view's server off."""
@@ -95,6 +105,9 @@ ENV_VARS: dict[str, str] = {
     "retention_days": "CONTACT_SKILLS_RETENTION_DAYS",
     "foxglove_port": "CONTACT_SKILLS_FOXGLOVE_PORT",
     "instance": "CONTACT_SKILLS_INSTANCE",
+    "dispatch_report_s": "CONTACT_SKILLS_DISPATCH_REPORT_S",
+    "run_silence_s": "CONTACT_SKILLS_RUN_SILENCE_S",
+    "dispatch_handovers": "CONTACT_SKILLS_DISPATCH_HANDOVERS",
 }
 """Setting name -> the environment variable that sets it."""
 
@@ -160,6 +173,14 @@ class ServiceSettings:
     (:attr:`foxglove_server_port` decides)."""
     instance: str = field(default_factory=lambda: secrets.token_hex(8))
     """Names this API process in ``GET /health`` (``contact-skills up`` sets it to know its own API answers)."""
+    dispatch_report_s: float = DEFAULT_DISPATCH_REPORT_S
+    """A worker that accepted a job and sends no report on it (status, heartbeat, telemetry) within this loses it
+    (``services.queue``'s watchdog), s."""
+    run_silence_s: float = DEFAULT_RUN_SILENCE_S
+    """A running job whose worker sends nothing for this long is failed, s (workers report at least every
+    ``schemas.bus.HEARTBEAT_S``)."""
+    dispatch_handovers: int = 3
+    """Hand-overs of one job at most: taken back that many times from workers that did not report, it is failed."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -204,6 +225,11 @@ class ServiceSettings:
                 raise SettingsError(f"foxglove_port: {self.foxglove_port!r}: give a port number, 0 (any free port) "
                                     "or off")  # fmt: skip
             object.__setattr__(self, "foxglove_port", port)
+        if not (self.dispatch_report_s > 0 and self.run_silence_s > 0) or self.dispatch_handovers < 1:
+            raise SettingsError(
+                f"dispatch_report_s {self.dispatch_report_s}, run_silence_s {self.run_silence_s} must be > 0 s and "
+                f"dispatch_handovers {self.dispatch_handovers} >= 1"
+            )
         if self.token_reads and not self.token:
             raise SettingsError("token_reads: set CONTACT_SKILLS_TOKEN too (there is no token to require)")
         cors = self.cors_origins.split(",") if isinstance(self.cors_origins, str) else self.cors_origins

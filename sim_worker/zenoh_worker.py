@@ -8,8 +8,10 @@ router if it is not up yet), declares
   -> ``StartReply``; the demonstration a start sends is kept by its id for the next starts that name it),
   ``P/exec/{worker_id}/record`` (``RecordRequest`` -> ``RecordReply``),
   ``P/exec/{worker_id}/replay`` (``TelemetryReplay`` -> ``TelemetryBatch`` replies: the telemetry of its recent
-  executions, ``sim_worker.telemetry_archive``, for a receiver that missed batches) and ``P/exec/*/status`` (the
-  latest ``ExecutionStatus`` of the executions this worker ran, for late joiners and after a router outage),
+  executions, ``sim_worker.telemetry_archive``, for a receiver that missed batches; at most
+  ``schemas.bus.REPLAY_MAX_SAMPLES`` per query) and ``P/exec/*/status`` (the latest ``ExecutionStatus`` of the
+  executions this worker ran, for late joiners and after a router outage; signed with the query's challenge when it
+  carries one),
 
 and serves until SIGINT/SIGTERM. One job at a time: a start or record request while busy gets a ``busy`` reply.
 
@@ -22,7 +24,8 @@ the request's ``scenario`` (else the scenario named by the skill's demonstration
   and keeps them for replays (what a disconnected receiver or router outage lost is asked again); with
   ``request.telemetry`` ``none`` it does neither (the metrics come from the loop's own rows all the same),
 - publishes ``ExecutionStatus`` on ``P/exec/{execution_id}/status``: ``pending`` on acceptance, then on every phase
-  or segment change, pause and resume, and a final one (done / aborted / failed) with the metrics,
+  or segment change, pause and resume, a heartbeat when none went out for ``schemas.bus.HEARTBEAT_S``, and a final
+  one (done / aborted / failed) with the metrics; each echoes the start's ``attempt`` and counts up ``seq``,
 - listens on ``P/exec/{execution_id}/cmd``: ``abort`` is polled by the control loop after every step (the
   execution stops within one control cycle; the final status carries ``abort_received_t``), ``pause`` holds the
   controller at its current reference with the loop running (throttled to about real time), ``resume`` continues.
@@ -57,6 +60,8 @@ from schemas.bus import (
     ENV_ENDPOINTS,
     ENV_PREFIX,
     FINAL_PHASES,
+    HEARTBEAT_S,
+    REPLAY_MAX_SAMPLES,
     ExecutionCommand,
     ExecutionStatus,
     KeyExpressions,
@@ -70,7 +75,7 @@ from schemas.bus import (
     session_config,
     split_endpoints,
 )
-from schemas.bus_security import ENV_LOGINS, BusSecurity, parse_env, report_signature
+from schemas.bus_security import ENV_LOGINS, BusSecurity, challenge_signature, parse_env, report_signature
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
@@ -261,6 +266,10 @@ class _Run:
         self.segment_index = -1
         self.t = 0.0
         self.seq = 0
+        self.status_at = time.monotonic()
+        """When the last status was queued (a heartbeat follows :data:`HEARTBEAT_S` after it)."""
+        self.ended = False
+        """Its final status is queued: nothing follows it."""
         self.lock = threading.Lock()
         self.cmd_subscriber = None
         self.thread: threading.Thread | None = None
@@ -314,11 +323,13 @@ class _Run:
 
     # Any thread.
     def status(self, **fields: Any) -> ExecutionStatus:
-        """Queue an ExecutionStatus with the current phase, segment, time and pause state (``fields`` override)."""
+        """Queue an ExecutionStatus with the current phase, segment, time and pause state (``fields`` override);
+        after the final one nothing more is queued (the status is returned all the same)."""
         with self.lock:
             values = {
                 "execution_id": self.execution_id,
                 "worker_id": self.worker.worker_id,
+                "attempt": self.start.attempt,
                 "phase": self.phase,
                 "segment_index": self.segment_index,
                 "segments": self.segments,
@@ -328,10 +339,21 @@ class _Run:
                 "seq": self.seq,
                 **fields,
             }
-            self.seq += 1
             status = ExecutionStatus(**values)
-            self.worker._publish_queue.put(("status", self.execution_id, status, None, None))
+            if not self.ended:
+                self.seq += 1
+                self.status_at = time.monotonic()
+                self.ended = status.final
+                self.worker._publish_queue.put(("status", self.execution_id, status, None, None))
         return status
+
+    def beat(self) -> None:
+        """Queue a heartbeat (the current status) if no status went out for :data:`HEARTBEAT_S`: the API tells a
+        run in a long phase from a worker gone silent."""
+        with self.lock:
+            due = not self.ended and time.monotonic() - self.status_at >= HEARTBEAT_S
+        if due:
+            self.status(message=f"{self.phase.value}: running")
 
     def command(self, command: ExecutionCommand) -> None:
         """Apply a command (zenoh callback thread)."""
@@ -527,7 +549,15 @@ class Worker:
         nothing = object()  # "no item held back" (None is the queue's stop sentinel)
         held: Any = nothing
         while True:
-            item, held = (self._publish_queue.get(), nothing) if held is nothing else (held, nothing)
+            with self._lock:
+                run = self._run
+            if run is not None:
+                run.beat()
+            try:
+                item = self._publish_queue.get(timeout=HEARTBEAT_S) if held is nothing else held
+            except queue.Empty:
+                continue
+            held = nothing
             if item is None:
                 return
             kind, execution_id, payload, stamp, first = item
@@ -575,11 +605,16 @@ class Worker:
 
         try:
             wanted = zenoh.KeyExpr(str(query.key_expr))
+            challenge = query.payload.to_bytes() if query.payload is not None else b""
             with self._lock:
-                statuses = list(self._statuses.items())
-            for execution_id, (data, signature) in statuses:
+                statuses = [
+                    (e, data, signature, self._secrets.get(e)) for e, (data, signature) in self._statuses.items()
+                ]
+            for execution_id, data, signature, secret in statuses:
                 key = self.keys.status(execution_id)
                 if wanted.intersects(zenoh.KeyExpr(key)):
+                    if challenge and secret is not None:  # the asker wants proof this worker answers now
+                        signature = challenge_signature(secret, data, challenge)
                     query.reply(key, data, attachment=signature)
         except Exception:
             log.exception("status query failed")
@@ -593,10 +628,11 @@ class Worker:
             except ValueError as exc:
                 query.reply_err(_short_error(exc))
                 return
-            telemetry = self.archive.rows(ask.execution_id, ask.start, ask.stop)
+            stop = min(ask.stop, ask.start + REPLAY_MAX_SAMPLES)  # one query never pulls a whole run
+            telemetry = self.archive.rows(ask.execution_id, ask.start, stop)
             if telemetry is None or not len(telemetry):
                 query.reply_err(f"worker {self.worker_id} keeps no telemetry of {ask.execution_id} from sample "
-                                f"{ask.start} to {ask.stop - 1}")  # fmt: skip
+                                f"{ask.start} to {stop - 1}")  # fmt: skip
                 return
             key = self.keys.replay(self.worker_id)
             for first in range(0, len(telemetry), MAX_COALESCED_ROWS):

@@ -12,6 +12,7 @@ import pytest
 
 from schemas.bus import RecordReply, RecordRequest, WorkerInfo
 from services.datasets import repository_data_directory
+from services.dispatch_watch import DispatchWatch
 from services.local_processes import free_port
 
 KULEUVEN_DATA = repository_data_directory() / "kuleuven_contour"
@@ -57,11 +58,15 @@ class FakeBus:
         self.commands: list[tuple[str, str]] = []
         self.recorded: RecordReply | None = None
         self.replays: list[tuple[str, str, int, int]] = []
+        self.watch = DispatchWatch()
 
     def workers(self) -> list[WorkerInfo]:
         return list(self.infos)
 
     workers_seen = workers
+
+    def seen_age(self) -> float:
+        return 0.0
 
     def start_execution(self, execution_id, request, **options) -> str:
         from services.bus import NoWorkerAvailable
@@ -80,7 +85,7 @@ class FakeBus:
         self.replays.append((worker_id, execution_id, start, stop))
         return []
 
-    def send_command(self, execution_id, command) -> None:
+    def send_command(self, execution_id, command, reason=None) -> None:
         self.commands.append((execution_id, command))
 
     def record_demonstration(self, request: RecordRequest, timeout_s: float = 120) -> RecordReply:

@@ -350,9 +350,11 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
 
     def start_naming(worker_id: str, execution_id: str) -> StartReply:
-        start = StartExecution(execution_id=execution_id, request=_request(skill), demonstration_id="demo_kept")
-        client.adopt(execution_id, worker_id)  # its reports verify with the secret the client would have sent
-        secret = client.reports.execution_secret(execution_id, worker_id)
+        start = StartExecution(
+            execution_id=execution_id, request=_request(skill), demonstration_id="demo_kept", attempt="a1"
+        )
+        client.adopt(execution_id, worker_id, "a1")  # its reports verify with the secret the client would have sent
+        secret = client.reports.execution_secret(execution_id, worker_id, "a1")
         [reply] = session.get(keys.start(worker_id), payload=start.model_dump_json(), timeout=WAIT_S, attachment=secret)
         return StartReply.model_validate_json(reply.ok.payload.to_bytes())
 
@@ -474,23 +476,23 @@ def test_a_run_that_ended_while_no_api_listened_keeps_its_verdict_and_gets_its_t
 
     from services.app import BusEvents, create_app
     from services.bus_events import REPORT_KEY_NAME, reconcile
+    from services.bus_reports import new_attempt
     from services.store import Store
 
     endpoint, _ = bus
     store = Store(tmp_path / "api.db")
     events = BusEvents(store)
-    # As `connect_bus`: the report key kept in the database, the store's record of each execution's worker.
+    # As `connect_bus`: the report key kept in the database, the store's record of each execution's worker and
+    # dispatch attempt.
     settings = BusSettings(endpoints=[endpoint], report_key=store.service_key(REPORT_KEY_NAME))
-
-    def owner(execution_id: str) -> str | None:
-        row = store.executions.get(execution_id)  # None: another test's execution on the same workers
-        return None if row is None else row.worker_id
-
+    owner = store.executions.owner
     first = BusClient(settings, events.on_status, events.on_telemetry, events.on_worker_lost, owner=owner)
     try:
         _wait(lambda: len(first.workers()) == 2 and not any(w.busy for w in first.workers()), what="two free workers")
-        row = store.executions.add({"skill": "inline"}, None)
-        worker = first.start_execution(row.id, _request(skill, pace="realtime"))
+        row = store.executions.add({"skill": "inline"}, None, dispatch="{}")  # as the queue: claimed with a nonce
+        attempt = new_attempt()
+        assert store.executions.claim_queued(row.id, attempt)
+        worker = first.start_execution(row.id, _request(skill, pace="realtime"), attempt=attempt)
         store.executions.mark_started(row.id, worker)
         _wait(lambda: store.telemetry.counts(row.id)[1] > 200, what="telemetry stored")
     finally:
@@ -528,9 +530,11 @@ def test_a_start_request_the_caller_gave_up_on_is_refused_not_run(client, skill)
     reply = client._query_one(client.keys.start("w-a"), late.model_dump_json(), 10.0)
     answer = StartReply.model_validate_json(reply)
     assert not answer.accepted and answer.code == "busy" and "expired" in answer.reason
-    fresh = StartExecution(execution_id="ex-fresh", request=_request(skill), answer_by_unix_s=time.time() + 10.0)
-    client.adopt("ex-fresh", "w-a")
-    secret = client.reports.execution_secret("ex-fresh", "w-a")
+    fresh = StartExecution(
+        execution_id="ex-fresh", request=_request(skill), answer_by_unix_s=time.time() + 10.0, attempt="a1"
+    )
+    client.adopt("ex-fresh", "w-a", "a1")
+    secret = client.reports.execution_secret("ex-fresh", "w-a", "a1")
     answer = StartReply.model_validate_json(client._query_one(client.keys.start("w-a"), fresh.model_dump_json(), 10.0,
                                                               attachment=secret))  # fmt: skip
     assert answer.accepted

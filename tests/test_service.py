@@ -235,7 +235,11 @@ def test_an_execution_without_telemetry_sends_none_and_ends_with_the_same_metric
         streamed, silent = stack.finished(streamed["id"]), stack.finished(silent["id"])
         steps = silent["metrics"]["steps"]
         ask = TelemetryReplay(execution_id=silent["id"], start=0, stop=steps).model_dump_json()
-        replies = list(watcher.session.get(f"cskills/exec/{silent['worker_id']}/replay", payload=ask, timeout=10))
+        api_login = stack.session("api")  # replays are the API's alone (the observer may not ask them)
+        try:
+            replies = list(api_login.get(f"cskills/exec/{silent['worker_id']}/replay", payload=ask, timeout=10))
+        finally:
+            api_login.close()
     finally:
         watcher.close()
     samples, phases = watcher.samples, watcher.phases

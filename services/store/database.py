@@ -42,9 +42,10 @@ T = TypeVar("T")
 
 log = logging.getLogger("contact_skills.store")
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
-by sample index; 4: sweeps; 5: the telemetry an execution reserves, the ballast)."""
+by sample index; 4: sweeps; 5: the telemetry an execution reserves, the ballast; 6: an execution's dispatch
+attempt and the last report taken)."""
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
     id TEXT PRIMARY KEY,
@@ -137,6 +138,16 @@ estimate's, ``schemas.job_budget.JobEstimate.telemetry_bytes``; 0 with telemetry
 BALLAST_BYTES = 1 << 20
 """The ballast, bytes: room kept in the database for the writes that must get through a full disk (a deletion's
 B-tree pages, a run's final status; each a few pages of 4 KiB)."""
+
+_SCHEMA_V6 = """
+ALTER TABLE executions ADD COLUMN attempt TEXT;
+ALTER TABLE executions ADD COLUMN report_seq INTEGER NOT NULL DEFAULT -1;
+ALTER TABLE executions ADD COLUMN handovers INTEGER NOT NULL DEFAULT 0
+"""
+"""Version 6: the nonce of an execution's current dispatch (``StartExecution.attempt``: only its reports count), the
+``seq`` of the last status taken from it (a status at or below it is a replay), and how many times a worker accepted
+it (the dispatch watchdog takes a job back from a worker that does not report, a bounded number of times)."""
+
 LOCKED_RETRY_S = 120.0
 """How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
 
@@ -307,7 +318,7 @@ class Database:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5)[version:]:
+                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5, _SCHEMA_V6)[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:

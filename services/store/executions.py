@@ -152,14 +152,58 @@ class ExecutionRepository:
     # ------------------------------------------------------------------ what the bus reports
 
     def mark_started(self, execution_id: str, worker_id: str) -> None:
-        """A worker accepted the execution: record it; starting -> running (a status that came first stays); its
-        dispatch JSON is no longer needed."""
+        """A worker accepted the execution: record it and count the hand-over; starting -> running (a status that
+        came first stays). Its dispatch JSON stays until it ends: the dispatch watchdog may take it back
+        (:meth:`take_back`)."""
         with self.database.transaction() as db:
             db.execute(
-                "UPDATE executions SET worker_id = ?, updated = ?, dispatch = NULL, "
+                "UPDATE executions SET worker_id = ?, updated = ?, handovers = handovers + 1, "
                 "status = CASE WHEN status = ? THEN ? ELSE status END WHERE id = ?",
                 (worker_id, time.time(), ExecutionState.starting.value, ExecutionState.running.value, execution_id),
             )
+
+    def advance(self, execution_id: str, attempt: str, seq: int) -> bool:
+        """Take a worker's status numbered ``seq`` of dispatch ``attempt``: True (and ``seq`` remembered) only if the
+        execution is active, ``attempt`` is its current dispatch and ``seq`` is above the last status taken. A
+        status of an earlier dispatch, of a run that ended, or at or below the last one (a replay) is refused: no
+        report moves a run back or reopens it."""
+        with self.database.transaction() as db:
+            cursor = db.execute(
+                "UPDATE executions SET report_seq = ? "
+                f"WHERE id = ? AND attempt = ? AND report_seq < ? AND {_ACTIVE_IN}",
+                (seq, execution_id, attempt, seq, *(s.value for s in ACTIVE)),
+            )
+            return cursor.rowcount > 0
+
+    def owner(self, execution_id: str) -> tuple[str, str] | None:
+        """(the worker, the dispatch attempt) ``execution_id`` was last handed to, or None if never handed."""
+        r = self.database.one("SELECT worker_id, attempt FROM executions WHERE id = ?", (execution_id,))
+        return None if r is None or r["worker_id"] is None or r["attempt"] is None else (r["worker_id"], r["attempt"])
+
+    def take_back(self, execution_id: str, attempt: str, max_handovers: int, reason: str) -> ExecutionState | None:
+        """The dispatch ``attempt`` of an active execution is given up (its worker did not report in time): back in
+        the queue in its place (``queued``, no worker) while it was handed over fewer than ``max_handovers`` times,
+        else ``failed`` with ``reason``. Returns the new status, or None when the execution is no longer on that
+        attempt (it ended, or was handed over again meanwhile)."""
+        now = time.time()
+        with self.database.transaction() as db:
+            requeued = db.execute(
+                "UPDATE executions SET status = ?, phase = ?, worker_id = NULL, updated = ? "
+                f"WHERE id = ? AND attempt = ? AND handovers < ? AND dispatch IS NOT NULL AND {_ACTIVE_IN}",
+                (ExecutionState.queued.value, ExecutionPhase.pending.value, now, execution_id, attempt, max_handovers,
+                 *(s.value for s in ACTIVE)),
+            ).rowcount  # fmt: skip
+            failed = 0
+            if not requeued:
+                failed = db.execute(
+                    "UPDATE executions SET status = ?, phase = ?, error = ?, dispatch = NULL, updated = ? "
+                    f"WHERE id = ? AND attempt = ? AND {_ACTIVE_IN}",
+                    (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, now, execution_id, attempt,
+                     *(s.value for s in ACTIVE)),
+                ).rowcount  # fmt: skip
+        if failed:
+            self._finished([execution_id])
+        return ExecutionState.queued if requeued else ExecutionState.failed if failed else None
 
     def update(
         self,
@@ -183,6 +227,8 @@ class ExecutionRepository:
             if value is not None:
                 sets.append(f"{column} = ?")
                 values.append(value)
+        if status in TERMINAL:
+            sets.append("dispatch = NULL")  # what to send to a worker: no longer needed
 
         def write() -> bool:
             with self.database.transaction() as db:
@@ -240,7 +286,8 @@ class ExecutionRepository:
                     if r["worker_id"] in keep:
                         continue
                     db.execute(
-                        "UPDATE executions SET status = ?, phase = ?, error = ?, updated = ? WHERE id = ?",
+                        "UPDATE executions SET status = ?, phase = ?, error = ?, dispatch = NULL, updated = ? "
+                        "WHERE id = ?",
                         (ExecutionState.failed.value, ExecutionPhase.failed.value, reason, time.time(), r["id"]),
                     )
                     marked.append(r["id"])
@@ -276,12 +323,14 @@ class ExecutionRepository:
         r = self.database.one("SELECT COUNT(*) FROM executions WHERE status = ?", (ExecutionState.queued.value,))
         return int(r[0]) if r is not None else 0
 
-    def claim_queued(self, execution_id: str) -> bool:
-        """queued -> starting, if it is still queued (a cancel may have come first); True if claimed."""
+    def claim_queued(self, execution_id: str, attempt: str) -> bool:
+        """queued -> starting as dispatch ``attempt`` (a fresh nonce: from now on only its reports count, numbered
+        from scratch), if it is still queued (a cancel may have come first); True if claimed."""
         with self.database.transaction() as db:
             cursor = db.execute(
-                "UPDATE executions SET status = ?, updated = ? WHERE id = ? AND status = ?",
-                (ExecutionState.starting.value, time.time(), execution_id, ExecutionState.queued.value),
+                "UPDATE executions SET status = ?, attempt = ?, report_seq = -1, updated = ? "
+                "WHERE id = ? AND status = ?",
+                (ExecutionState.starting.value, attempt, time.time(), execution_id, ExecutionState.queued.value),
             )
             return cursor.rowcount > 0
 

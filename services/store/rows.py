@@ -128,6 +128,10 @@ class ExecutionRow:
     created: float
     updated: float
     priority: int = 0
+    attempt: str | None = None
+    """The nonce of its current dispatch (``StartExecution.attempt``); None before its first."""
+    handovers: int = 0
+    """How many times a worker accepted it (more than one: the dispatch watchdog took it back from a silent one)."""
 
     @classmethod
     def of(cls, row: sqlite3.Row) -> ExecutionRow:
@@ -143,6 +147,8 @@ class ExecutionRow:
             created=row["created"],
             updated=row["updated"],
             priority=row["priority"],
+            attempt=row["attempt"],
+            handovers=row["handovers"],
         )
 
     @property
