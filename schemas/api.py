@@ -20,6 +20,7 @@ from schemas.demonstration import (
     Wrench,
 )
 from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
+from schemas.numbers import Real
 from schemas.skill import LearnOptions, Skill
 from schemas.text import Identifier
 from schemas.verdict import Verdict
@@ -69,7 +70,7 @@ class DemonstrationCreated(BaseModel):
     """``POST /demonstrations`` (JSON, CSV, record): the stored demonstration's id and summary."""
 
     id: str = Field(description="Id of the stored demonstration.", examples=["demo_3f2a9c01b2d4"])
-    created: float = Field(description="When it was stored, Unix s.")
+    created: Real = Field(description="When it was stored, Unix s.")
     source: str = Field(description="Where it came from: json, csv:<file>, teacher:<scenario>.")
     summary: DemonstrationSummary
     import_notes: list[str] = Field(
@@ -84,7 +85,7 @@ class DemonstrationInfo(BaseModel):
     """One row of ``GET /demonstrations`` (no samples)."""
 
     id: str
-    created: float
+    created: Real
     name: str
     source: str
     summary: DemonstrationSummary | None = Field(
@@ -113,7 +114,7 @@ class StoredDemonstration(BaseModel):
     """``GET /demonstrations/{id}``: the demonstration with its samples, or a page of them."""
 
     id: str
-    created: float
+    created: Real
     summary: DemonstrationSummary
     cursor: int = Field(0, description="Index of the first sample in this reply.")
     next_cursor: int | None = Field(
@@ -159,8 +160,8 @@ class StoredSkill(BaseModel):
 
     id: str = Field(description="Id of the stored skill.", examples=["skill_9b1c2d3e4f50"])
     demonstration_id: str | None = Field(description="The stored demonstration it was learned from; None if inline.")
-    created: float = Field(description="When it was stored, Unix s.")
-    learn_seconds: float | None = Field(None, description="How long learning took, s (only in the POST reply).")
+    created: Real = Field(description="When it was stored, Unix s.")
+    learn_seconds: Real | None = Field(None, description="How long learning took, s (only in the POST reply).")
     warnings: list[str] = Field(
         default_factory=list,
         description="The messages of the skill's failed checks against its demonstration (`skill.checks`): where it "
@@ -174,10 +175,10 @@ class SkillInfo(BaseModel):
 
     id: str
     demonstration_id: str | None
-    created: float
+    created: Real
     skill_type: str = Field(description="slide or contour.")
     segments: int = Field(description="Number of segments.")
-    confidence: float | None = Field(description="Confidence of the auto selection, if `auto` was asked.")
+    confidence: Real | None = Field(description="Confidence of the auto selection, if `auto` was asked.")
     failed_checks: int = Field(0, description="How many of the skill's checks failed (its warnings).")
     demonstration_name: str | None = Field(description="Name of the demonstration it was learned from.")
 
@@ -216,8 +217,8 @@ class ExecutionView(BaseModel):
         "metrics.verdict).",
     )
     error: str | None = Field(None, description="Why it failed or aborted, if it did.")
-    created: float
-    updated: float
+    created: Real
+    updated: Real
     telemetry_key: str = Field(description="Zenoh key expression of its telemetry.")
     telemetry_batches: int = Field(
         description="Telemetry blocks stored so far (a batch received, or the part of a replayed one that was missing)."
@@ -274,10 +275,10 @@ class WorkerSummary(BaseModel):
     )
     execution_id: str | None = Field(None, description="The execution it runs now, if any.")
     executions_run: int = Field(0, description="Executions it accepted since it started (its own count).")
-    info_age_s: float | None = Field(
+    info_age_s: Real | None = Field(
         None, description="How old the worker's answer behind busy and activity is, s (None: no answer yet)."
     )
-    heard_s_ago: float | None = Field(
+    heard_s_ago: Real | None = Field(
         None,
         description="Seconds since the API last took a report from it (a status, a heartbeat or telemetry that "
         "passed the checks); None: none since the API started.",
@@ -300,7 +301,7 @@ class Health(BaseModel):
 
     status: str = Field("ok", description="Always ok when the API answers.")
     version: str
-    started_unix_s: float = Field(description="When this API process started, Unix s.")
+    started_unix_s: Real = Field(description="When this API process started, Unix s.")
     instance: str = Field(description="A random name of this API process (set by `contact-skills up` for its API).")
     bus_connected: bool = Field(description="Whether the API has a Zenoh session (false: executions get 503).")
     zenoh_endpoints: list[str] = Field(description="The router endpoints the API connects to.")

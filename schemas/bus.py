@@ -49,7 +49,7 @@ from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
 from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus contract is imported from here
 from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
-from schemas.numbers import WholeNumber
+from schemas.numbers import Real, WholeNumber
 from schemas.text import FreeForm, Identifier
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -187,7 +187,7 @@ class WorkerInfo(BaseModel):
     execution_id: str | None = Field(None, description="The execution running now, if any.")
     hostname: str = ""
     pid: int = 0
-    started_unix_s: float = Field(0.0, description="When the worker process started, Unix time, s.")
+    started_unix_s: Real = Field(0.0, description="When the worker process started, Unix time, s.")
     executions_run: int = Field(0, description="Executions accepted since the worker started.")
 
 
@@ -206,7 +206,7 @@ class StartExecution(BaseModel):
     demonstration: Demonstration | None = Field(
         None, description="The demonstration the skill was learned from, for the path metric (optional)."
     )
-    answer_by_unix_s: float | None = Field(
+    answer_by_unix_s: Real | None = Field(
         None,
         description="When the caller stops waiting for the reply (wall clock, s since the epoch). A worker that "
         "could only answer later refuses instead of starting: the caller has given up on it and may have started "
@@ -296,7 +296,7 @@ class RecordReply(BaseModel):
         "segments (with the true normals of slide segments), world_config, teacher params.",
     )
     error: str | None = Field(None, description="Why nothing was recorded (e.g. an unknown scenario or override).")
-    wall_s: float = Field(0.0, description="Wall time the recording took, s.")
+    wall_s: Real = Field(0.0, description="Wall time the recording took, s.")
 
     @property
     def ok(self) -> bool:
@@ -334,7 +334,7 @@ class ExecutionCommand(BaseModel):
     )
     execution_id: str = ""
     reason: str | None = Field(None, description="Free text, reported back in the status message.")
-    sent_unix_s: float = Field(default_factory=time.time, description="Sender's wall clock, Unix time, s.")
+    sent_unix_s: Real = Field(default_factory=time.time, description="Sender's wall clock, Unix time, s.")
 
 
 class ExecutionStatus(BaseModel):
@@ -364,12 +364,12 @@ class ExecutionStatus(BaseModel):
     segment_index: int = Field(-1, description="Skill segment being executed; -1 before the first one.")
     segments: int = Field(0, description="Number of segments of the skill.")
     message: str = ""
-    t: float = Field(0.0, description="Simulated time of the execution at this status, s.")
+    t: Real = Field(0.0, description="Simulated time of the execution at this status, s.")
     steps: int = Field(0, description="Control steps run so far.")
     paused: bool = False
     metrics: ExecutionMetrics | None = Field(None, description="When finished (done, aborted, failed).")
     error: str | None = Field(None, description="Why it was aborted or failed.")
-    abort_received_t: float | None = Field(
+    abort_received_t: Real | None = Field(
         None,
         description="Simulated time of the last control step completed when the worker received the abort "
         "command, s (the last telemetry sample is at most one control step later).",
@@ -382,7 +382,7 @@ class ExecutionStatus(BaseModel):
         description="Sequence number of the status within its attempt, from 0, one more for every status published: "
         "the API takes a status only above the last one it took, so none moves a run back.",
     )
-    sent_unix_s: float = Field(default_factory=time.time, description="Worker's wall clock at publication, s.")
+    sent_unix_s: Real = Field(default_factory=time.time, description="Worker's wall clock at publication, s.")
 
     @property
     def final(self) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field
 
+from schemas.numbers import Real
 from schemas.skill import AutoSelection, SkillCheck
 
 
@@ -13,9 +14,9 @@ class SegmentSpan(BaseModel):
 
     index: int
     kind: str = Field(description="contact or free.")
-    t_start: float
-    t_end: float
-    force_n: float | None = Field(None, description="The learned constant CF-z force of a slide segment, N.")
+    t_start: Real
+    t_end: Real
+    force_n: Real | None = Field(None, description="The learned constant CF-z force of a slide segment, N.")
 
 
 class Triad(BaseModel):

@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from schemas.arrays import bounded_rows, finite_rows, strictly_increasing
+from schemas.numbers import Real
 from schemas.text import FreeForm, Name, Text
 
 MIN_DEMONSTRATION_SAMPLES = 50
@@ -124,7 +125,7 @@ class DemonstrationMetadata(BaseModel):
     quaternion_order_on_import: QuaternionOrder = Field(
         QuaternionOrder.xyzw, description="Quaternion order of the original recording."
     )
-    resampled_rate_hz: float | None = Field(
+    resampled_rate_hz: Real | None = Field(
         None, description="Uniform rate (Hz) the importer resampled irregular time stamps to, if it did."
     )
     force_offset_removed: Wrench | None = Field(
@@ -132,7 +133,7 @@ class DemonstrationMetadata(BaseModel):
         description="Sensor offset (N, N·m) subtracted on import, as the file reads it (its sign convention) with "
         "nothing touching the tool, in the frame named by force_offset_frame.",
     )
-    force_offset_uncertainty_n: float | None = Field(
+    force_offset_uncertainty_n: Real | None = Field(
         None,
         ge=0,
         description="95 % uncertainty (two standard errors, N) of the force offset fitted over the free-space "
@@ -336,9 +337,9 @@ class DemonstrationSummary(BaseModel):
     """Short description of a stored demonstration."""
 
     n_samples: int = Field(description="Number of samples.")
-    duration_s: float = Field(description="Last minus first time stamp, s.")
-    mean_rate_hz: float = Field(description="Mean sampling rate, Hz.")
-    max_force_n: float = Field(description="Largest applied force magnitude, N.")
+    duration_s: Real = Field(description="Last minus first time stamp, s.")
+    mean_rate_hz: Real = Field(description="Mean sampling rate, Hz.")
+    max_force_n: Real = Field(description="Largest applied force magnitude, N.")
     name: str = Field("", description="Name from the metadata.")
 
     @classmethod

@@ -15,7 +15,7 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.demonstration import Quaternion, Vector3, Wrench
-from schemas.numbers import WholeNumber
+from schemas.numbers import Real, WholeNumber
 from schemas.skill import Skill
 from schemas.text import Identifier
 from schemas.verdict import ExecutionTolerances, ExecutionVerdict, SurfacePressed
@@ -170,20 +170,20 @@ class ControllerGains(BaseModel):
         default_factory=lambda: [40.0, 40.0, 40.0],
         description="CF rotational stiffness K_c (rx, ry, rz), N·m/rad.",
     )
-    damping_ratio: float = Field(
+    damping_ratio: Real = Field(
         0.8,
         gt=0,
         le=2.0,
         description="Damping ratio zeta of the Cartesian damping d_i = 2 zeta sqrt(K_i m_i), m_i the apparent "
         "inertia of CF axis i from the mass matrix (1).",
     )
-    apparent_mass_kg: float = Field(
+    apparent_mass_kg: Real = Field(
         3.0,
         gt=0,
         le=1000,
         description="Nominal translational apparent mass for the damping ratio before/without a mass matrix, kg.",
     )
-    apparent_inertia_kgm2: float = Field(
+    apparent_inertia_kgm2: Real = Field(
         0.002,
         gt=0,
         le=100,
@@ -196,49 +196,49 @@ class ControllerGains(BaseModel):
     rotational_damping_nms_per_rad: RotStiffness3 | None = Field(
         None, description="Explicit CF rotational damping (rx, ry, rz), N·m·s/rad; overrides the damping ratio."
     )
-    force_axis_damping_ns_per_m: float = Field(
+    force_axis_damping_ns_per_m: Real = Field(
         150.0,
         ge=0,
         le=1e5,
         description="Damping of the tool velocity along the CF force axes, N·s/m (keeps the force loop "
         "stable on a stiff surface; the motion axes use the translational damping).",
     )
-    force_kp: float = Field(0.3, ge=0, le=100, description="Proportional force gain K_p, N per N of force error (1).")
-    force_ki: float = Field(10.0, ge=0, le=1e4, description="Integral force gain K_i, N per N·s of force error (1/s).")
-    force_integral_limit_n: float = Field(
+    force_kp: Real = Field(0.3, ge=0, le=100, description="Proportional force gain K_p, N per N of force error (1).")
+    force_ki: Real = Field(10.0, ge=0, le=1e4, description="Integral force gain K_i, N per N·s of force error (1/s).")
+    force_integral_limit_n: Real = Field(
         20.0, ge=0, le=1000, description="Anti-windup: bound on |K_i ∫e_f dt| per CF force axis, N."
     )
-    nullspace_stiffness_nm_per_rad: float = Field(
+    nullspace_stiffness_nm_per_rad: Real = Field(
         10.0,
         ge=0,
         le=1e4,
         description="Joint stiffness of the null-space posture task (to the start posture), N·m/rad.",
     )
-    nullspace_damping_nms_per_rad: float = Field(
+    nullspace_damping_nms_per_rad: Real = Field(
         1.0, ge=0, le=1e3, description="Joint damping of the null-space posture task, N·m·s/rad."
     )
     null_space: NullSpaceProjection = Field(
         NullSpaceProjection.dynamic, description="Null-space projector: dynamically consistent or static."
     )
-    max_force_n: float = Field(
+    max_force_n: Real = Field(
         80.0, gt=0, le=1000, description="Abort threshold on the measured contact force magnitude, N."
     )
-    torque_saturation_abort_s: float = Field(
+    torque_saturation_abort_s: Real = Field(
         0.2,
         gt=0,
         le=10,
         description="Abort when the torque command stays at a joint's limit (from the robot) this long, s.",
     )
-    force_ramp_s: float = Field(
+    force_ramp_s: Real = Field(
         0.25,
         ge=0,
         le=10,
         description="Time to ramp the desired force from the contact force to its target after contact, s.",
     )
-    force_release_s: float = Field(
+    force_release_s: Real = Field(
         0.1, ge=0, le=10, description="Time to ramp the desired force down to zero after a contact segment, s."
     )
-    contact_force_threshold_n: float | None = Field(
+    contact_force_threshold_n: Real | None = Field(
         None,
         gt=0,
         le=1000,
@@ -325,17 +325,17 @@ class EnvironmentChange(BaseModel):
         "taught world or a skill already in reach, else one chosen to put the path in the arm's comfortable reach "
         "(reported in the metrics).",
     )
-    friction: float | None = Field(
+    friction: Real | None = Field(
         None, ge=0.0, le=2.0, description="Tool-surface friction coefficient (default: the world's, 0.2)."
     )
-    contact_stiffness_n_m: float | None = Field(
+    contact_stiffness_n_m: Real | None = Field(
         None,
         ge=1e2,
         le=1e7,
         description="Contact stiffness of the tool pad, N/m (default: the world's, 3e4). The controller side knows "
         "it (the touch-down speed is planned for it) unless planned_contact_stiffness_n_m says otherwise.",
     )
-    contact_damping_n_s_m: float | None = Field(
+    contact_damping_n_s_m: Real | None = Field(
         None,
         ge=0.0,
         le=1e5,
@@ -355,7 +355,7 @@ class EnvironmentChange(BaseModel):
         "gauges drift to between tares (several N on real sensors). It turns with the tool, so the tare before "
         "contact removes it in every pose; the controller is not told.",
     )
-    sensor_noise_n: float | None = Field(
+    sensor_noise_n: Real | None = Field(
         None,
         ge=0.0,
         le=MAX_SENSOR_NOISE_N,
@@ -374,7 +374,7 @@ class EnvironmentChange(BaseModel):
         "centre (the mean of its compliant frame origins), deg: the real surface tilts, the skill (its frames, its "
         "path) does not; like unknown_offset, the controller has to cope.",
     )
-    force_scale: float = Field(
+    force_scale: Real = Field(
         1.0,
         gt=0.0,
         le=MAX_FORCE_SCALE,
@@ -413,21 +413,21 @@ class ExecutionSettings(BaseModel):
     environment: EnvironmentChange = Field(default_factory=EnvironmentChange)
     controller: ControllerKind = Field(ControllerKind.hybrid_cf, description="The control law.")
     gains: ControllerGains = Field(default_factory=ControllerGains)
-    approach_speed_m_s: float = Field(
+    approach_speed_m_s: Real = Field(
         0.03,
         gt=0,
         le=0.2,
         description="Speed of the guarded approach along +CF z until approach_slow_distance_m before the taught "
         "contact point, m/s.",
     )
-    approach_slow_distance_m: float = Field(
+    approach_slow_distance_m: Real = Field(
         0.02,
         ge=0,
         le=0.5,
         description="The last part of the guarded approach before the taught contact point (and any distance beyond "
         "it) runs at the touch-down speed, m: as far as the surface may be from where it was taught.",
     )
-    touchdown_speed_m_s: float | None = Field(
+    touchdown_speed_m_s: Real | None = Field(
         None,
         gt=0,
         le=0.2,
@@ -436,7 +436,7 @@ class ExecutionSettings(BaseModel):
         "max(sqrt(k m), c), m the arm's apparent mass along CF z, F_c the contact threshold, which the approach has "
         "to pass anyway), within [0.5 mm/s, approach_speed_m_s].",
     )
-    planned_contact_stiffness_n_m: float | None = Field(
+    planned_contact_stiffness_n_m: Real | None = Field(
         None,
         ge=1e2,
         le=1e7,
@@ -444,17 +444,17 @@ class ExecutionSettings(BaseModel):
         "(its nominal pad). Default: the simulated world's own, as if the cell knew its pad exactly. A sweep that "
         "varies the pad plans for its base pad, so the variation stays unknown to the controller.",
     )
-    planned_contact_damping_n_s_m: float | None = Field(
+    planned_contact_damping_n_s_m: Real | None = Field(
         None,
         ge=0.0,
         le=1e5,
         description="The pad damping the touch-down and crease speeds are planned for, N·s/m (as "
         "planned_contact_stiffness_n_m).",
     )
-    approach_max_distance_m: float = Field(
+    approach_max_distance_m: Real = Field(
         0.15, gt=0, le=0.5, description="Longest guarded approach before aborting with 'contact not found', m."
     )
-    approach_clearance_m: float = Field(
+    approach_clearance_m: Real = Field(
         0.06,
         ge=0,
         le=0.3,
@@ -483,7 +483,7 @@ class ExecutionSettings(BaseModel):
         "orientation of the tare. Off: the readings keep whatever offset the sensor has. The ideal sensor is never "
         "tared.",
     )
-    settle_s: float = Field(
+    settle_s: Real = Field(
         0.5, ge=0, le=10, description="Time to settle at the start pose before the first segment, s."
     )
     tolerances: ExecutionTolerances = Field(
@@ -494,7 +494,7 @@ class ExecutionSettings(BaseModel):
         description="A guarded approach that finds the surface farther from where it was taught than the "
         "tolerances' surface window: report (go on; the verdict warns) or abort.",
     )
-    pause_timeout_s: float = Field(
+    pause_timeout_s: Real = Field(
         300.0,
         gt=0,
         le=MAX_PAUSE_TIMEOUT_S,
@@ -599,7 +599,7 @@ class TelemetryBatch(BaseModel):
         "from 0): a receiver that has stored samples 0 to n-1 and gets first_sample > n has missed samples n to "
         "first_sample-1 (None off the bus).",
     )
-    sent_unix_s: float | None = Field(
+    sent_unix_s: Real | None = Field(
         None,
         description="Worker's wall clock when the control loop handed the batch to the bus, just after recording "
         "its last row, Unix time, s (set on the Zenoh bus, None elsewhere). With pace realtime row k was recorded "
@@ -666,36 +666,36 @@ class ExecutionMetrics(BaseModel):
 
     controller: ControllerKind = Field(description="The control law that ran.")
     phase: ExecutionPhase = Field(description="Final phase: done, aborted or failed.")
-    force_rms_error_n: float | None = Field(
+    force_rms_error_n: Real | None = Field(
         None,
         description="RMS of (measured - desired) CF-z force over the steady contact phase (each contact segment "
         "from max(0.2 s, force_ramp_s) after its start), N.",
     )
-    force_rms_error_pct: float | None = Field(
+    force_rms_error_pct: Real | None = Field(
         None, description="The same in % of the reference force (learned constant; contour: profile peak)."
     )
-    force_max_error_n: float | None = Field(
+    force_max_error_n: Real | None = Field(
         None, description="Largest |measured - desired| CF-z force over the steady contact phase, N."
     )
-    force_max_error_pct: float | None = Field(None, description="The same in % of the reference force.")
-    force_reference_n: float | None = Field(
+    force_max_error_pct: Real | None = Field(None, description="The same in % of the reference force.")
+    force_reference_n: Real | None = Field(
         None, description="The force the % refer to: the learned constant (slide) or the profile peak (contour), N."
     )
-    path_rms_m: float | None = Field(
+    path_rms_m: Real | None = Field(
         None,
         description="RMS distance of the executed tool path to the (shifted) demonstrated path in the motion "
         "subspace (CF x-y), over the contact phase, m.",
     )
-    contact_ratio: float | None = Field(
+    contact_ratio: Real | None = Field(
         None,
         ge=0,
         le=1,
         description="Share of contact-phase time in contact (the simulator reports a tool contact point).",
     )
-    real_time_factor: float = Field(description="Simulated time / wall-clock time of the control loop (1).")
-    duration_s: float = Field(description="Simulated duration of the execution, s.")
+    real_time_factor: Real = Field(description="Simulated time / wall-clock time of the control loop (1).")
+    duration_s: Real = Field(description="Simulated duration of the execution, s.")
     steps: int = Field(description="Control steps run.")
-    peak_force_n: float = Field(description="Largest measured contact force magnitude, N.")
+    peak_force_n: Real = Field(description="Largest measured contact force magnitude, N.")
     contact_found_offsets_m: list[float] = Field(
         default_factory=list,
         description="Per guarded approach: where contact was found along +CF z relative to the expected "
@@ -707,7 +707,7 @@ class ExecutionMetrics(BaseModel):
         "touch-down found, from the normal it pressed on matched against the taught ones; the contour then ran "
         'where the part is (docs/EXECUTION.md, "Following the surface").',
     )
-    steady_contact_s: float = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
+    steady_contact_s: Real = Field(0.0, description="Length of the steady contact phase the force errors cover, s.")
     abort_reason: str | None = Field(None, description="Why the execution stopped early, or None.")
     work_piece: str | None = Field(
         None,
@@ -715,47 +715,47 @@ class ExecutionMetrics(BaseModel):
         "demonstration) or 'rebuilt' (from the skill).",
     )
     placement: Placement | None = Field(None, description="The placement applied to the skill and work piece.")
-    true_force_rms_error_n: float | None = Field(
+    true_force_rms_error_n: Real | None = Field(
         None,
         description="RMS of (force along the TRUE surface normal at the contact - desired) over the steady contact "
         "phase, N: the simulator's exact contact force, whatever the learned CF or the sensor say.",
     )
-    true_force_rms_error_pct: float | None = Field(None, description="The same in % of the reference force.")
-    true_force_max_error_n: float | None = Field(
+    true_force_rms_error_pct: Real | None = Field(None, description="The same in % of the reference force.")
+    true_force_max_error_n: Real | None = Field(
         None, description="Largest |true normal force - desired| over the steady contact phase, N."
     )
-    true_force_max_error_pct: float | None = Field(None, description="The same in % of the reference force.")
-    touchdown_peak_n: float | None = Field(
+    true_force_max_error_pct: Real | None = Field(None, description="The same in % of the reference force.")
+    touchdown_peak_n: Real | None = Field(
         None,
         description="Largest true normal force from each first touch until the contact phase is steady, N "
         "(the impact of the guarded approach and the force ramp).",
     )
-    touchdown_peak_ratio: float | None = Field(
+    touchdown_peak_ratio: Real | None = Field(
         None,
         description="The largest touch-down peak over the press that follows it (the desired force where its steady "
         "contact starts; 1 = no overshoot): what the touchdown check holds to its tolerance.",
     )
-    touchdown_contact_force_ratio: float | None = Field(
+    touchdown_contact_force_ratio: Real | None = Field(
         None,
         description="The largest touch-down peak over the force its contact segment asks at contact (the first "
         "desired force; a contour's profile may start far below its press), reported beside the checked ratio.",
     )
-    exit_collision_n: float | None = Field(
+    exit_collision_n: Real | None = Field(
         None,
         description="Largest true normal force where a free segment after a contact hit the part on the way out, N "
         "(None: no hit).",
     )
-    settle_time_s: float | None = Field(
+    settle_time_s: Real | None = Field(
         None,
         description="Longest time from a first touch until the true normal force stays within 5 % of the desired "
         "force (of the reference), s.",
     )
-    cf_normal_angle_deg: float | None = Field(
+    cf_normal_angle_deg: Real | None = Field(
         None,
         description="Mean angle between the CF z the controller used (the learned one, or the one it turned to with "
         "follow_surface_normal) and the true surface normal, over the contact-phase steps that touched, deg.",
     )
-    cf_normal_angle_max_deg: float | None = Field(
+    cf_normal_angle_max_deg: Real | None = Field(
         None, description="Largest angle between the CF z the controller used and the true surface normal, deg."
     )
     surfaces_pressed: list[SurfacePressed] = Field(
@@ -763,13 +763,13 @@ class ExecutionMetrics(BaseModel):
         description="Per contact segment that touched: where it pressed against where it was taught, told by the "
         "surface normals (docs/EXECUTION.md).",
     )
-    transition_true_force_max_error_n: float | None = Field(
+    transition_true_force_max_error_n: Real | None = Field(
         None,
         description="Largest |true normal force - desired| within 0.25 s of a switch between two contact segments "
         "(a crease passage, a slide-to-contour switch), N; None without such a switch. Part of the steady window.",
     )
-    transition_true_force_max_error_pct: float | None = Field(None, description="The same in % of the reference.")
-    contact_threshold_n: float | None = Field(
+    transition_true_force_max_error_pct: Real | None = Field(None, description="The same in % of the reference.")
+    contact_threshold_n: Real | None = Field(
         None,
         description="The force along CF z (tared) at which the last guarded approach took the surface as found, N: "
         "the skill's base threshold, raised when the noise measured while taring needs it.",

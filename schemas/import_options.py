@@ -17,6 +17,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 from schemas.demonstration import QuaternionOrder, WrenchConvention, WrenchFrame
+from schemas.numbers import Real
 from schemas.text import Name, Text
 
 COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
@@ -65,7 +66,7 @@ class ImportOptions(BaseModel):
         "columns it also prefers); for a bag, what the messages' header frame_id says (world, tool, or a sensor "
         "frame fixed on the tool by /tf_static), which this overrides.",
     )
-    rate_hz: float | None = Field(
+    rate_hz: Real | None = Field(
         None,
         alias="rate",
         description="Rate of the demonstration's uniform time base, Hz (default: the data's own: the fastest "
@@ -118,7 +119,7 @@ class CsvImportOptions(ImportOptions):
         description="Order of the quaternion columns in the file: xyzw (scalar last) or wxyz (scalar first); "
         "needed for numbered columns (q0..q3), else taken from the column names (qw, tcp_qw, ...).",
     )
-    dt_s: float | None = Field(
+    dt_s: Real | None = Field(
         None,
         alias="dt",
         description="Time step, s: the same as rate = 1/dt (the fixed step of a file without a time column); "

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES, MAX_DURATION_S
 from schemas.execution import STREAMED_TELEMETRY_WIDTH, TELEMETRY_WIDTH
+from schemas.numbers import Real
 
 ENV_JOB_MAX_SIMULATED_S = "CONTACT_SKILLS_JOB_MAX_SIMULATED_S"
 ENV_JOB_MAX_STEPS = "CONTACT_SKILLS_JOB_MAX_STEPS"
@@ -52,7 +53,7 @@ class JobBudget(BaseModel):
 
     model_config = ConfigDict(frozen=True)
 
-    max_simulated_s: float = Field(
+    max_simulated_s: Real = Field(
         DEFAULT_JOB_MAX_SIMULATED_S,
         gt=0,
         description=f"Longest simulated time of one job, s ({ENV_JOB_MAX_SIMULATED_S}).",
@@ -98,14 +99,14 @@ class JobPart(BaseModel):
         description="The request field that makes it as long as it is, a dotted path from the request's top "
         "(``touchdown_speed_m_s``, ``overrides.move_duration_s``; ``skill`` for the skill's own segments)."
     )
-    simulated_s: float = Field(ge=0, description="Its simulated time, s.")
+    simulated_s: Real = Field(ge=0, description="Its simulated time, s.")
 
 
 class JobEstimate(BaseModel):
     """What a job implies, from all its settings, before it runs (``skills.job_estimate``, ``sim_worker.teacher``)."""
 
     kind: Literal["execution", "recording"]
-    time_step_s: float = Field(gt=0, description="The simulation's control step, s.")
+    time_step_s: Real = Field(gt=0, description="The simulation's control step, s.")
     time_step_field: str = Field(description="The request field that sets the time step (dotted path).")
     parts: list[JobPart] = Field(description="Its stretches of simulated time, in order.")
     longest_phase: JobPart = Field(

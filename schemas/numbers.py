@@ -8,12 +8,16 @@ from pydantic import BeforeValidator
 
 
 def _not_a_boolean(value: object) -> object:
-    """Refuse ``true`` / ``false`` where a count or a seed is asked: JSON's booleans are not numbers (pydantic's lax
-    mode would take ``false`` as 0)."""
+    """Refuse ``true`` / ``false`` where a number is asked: JSON's booleans are not numbers (pydantic's lax mode
+    would take ``false`` as 0 and ``true`` as 1.0)."""
     if isinstance(value, bool):
-        raise ValueError("a whole number, not a boolean")
+        raise ValueError("a number, not a boolean")
     return value
 
 
 WholeNumber = Annotated[int, BeforeValidator(_not_a_boolean)]
 """An integer a request gives (a seed, a count, a priority): a boolean is refused, naming the field."""
+
+Real = Annotated[float, BeforeValidator(_not_a_boolean)]
+"""A real number a model holds (a speed, a force, a gain, a time): a boolean is refused, naming the field. Scalar
+fields only: an array of samples is checked whole by ``schemas.arrays``."""

@@ -14,7 +14,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.demonstration import MAX_DURATION_S, DemonstrationSummary, Quaternion, Vector3
-from schemas.numbers import WholeNumber
+from schemas.numbers import Real, WholeNumber
 from schemas.text import FreeForm, Name, Text
 
 SELECTION_CONTACT: list[float] = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]
@@ -93,10 +93,10 @@ class DMPParameters(BaseModel):
     frame: Literal["world", "cf"] = Field(
         "world", description="Coordinates of y: world frame, or the segment's compliant frame (slide positions)."
     )
-    duration_s: float = Field(gt=0, le=MAX_DURATION_S, description="Time constant tau: the demonstrated duration, s.")
-    alpha_z: float = Field(gt=0, description="Spring-damper gain alpha_z, 1/s scaled by tau.")
-    beta_z: float = Field(gt=0, description="Spring gain beta_z (alpha_z/4 is critically damped).")
-    alpha_x: float = Field(gt=0, description="Canonical system decay alpha_x.")
+    duration_s: Real = Field(gt=0, le=MAX_DURATION_S, description="Time constant tau: the demonstrated duration, s.")
+    alpha_z: Real = Field(gt=0, description="Spring-damper gain alpha_z, 1/s scaled by tau.")
+    beta_z: Real = Field(gt=0, description="Spring gain beta_z (alpha_z/4 is critically damped).")
+    alpha_x: Real = Field(gt=0, description="Canonical system decay alpha_x.")
     centers: list[float] = Field(
         max_length=MAX_BASIS, description="Basis centres c_i in phase x (dimensionless, in (0, 1])."
     )
@@ -134,19 +134,17 @@ class CompliantFrames(BaseModel):
 class SegmentQuality(BaseModel):
     """How well the parameters reproduce the demonstration segment."""
 
-    position_rms_m: float = Field(
+    position_rms_m: Real = Field(
         description="RMS distance of the position DMP rollout to the demonstrated positions, m."
     )
-    orientation_rms_rad: float = Field(
-        description="RMS angle of the orientation DMP rollout to the demonstration, rad."
-    )
-    force_rms_n: float | None = Field(
+    orientation_rms_rad: Real = Field(description="RMS angle of the orientation DMP rollout to the demonstration, rad.")
+    force_rms_n: Real | None = Field(
         None, description="RMS of the learned force profile against the demonstrated CF-z force, N (contact only)."
     )
-    plane_residual_rms_m: float | None = Field(
+    plane_residual_rms_m: Real | None = Field(
         None, description="RMS distance of the positions to the fitted plane, m (slide contact only)."
     )
-    force_std_low_variance_n: float | None = Field(
+    force_std_low_variance_n: Real | None = Field(
         None, description="Standard deviation of the CF-z force in the low-variance region, N (slide contact only)."
     )
     force_measured_percentiles_n: list[float] | None = Field(
@@ -156,13 +154,13 @@ class SegmentQuality(BaseModel):
         description="Slide contact segments: 10th, 50th and 90th percentile of the demonstrated CF-z force over the "
         "segment (ramps included), N: the measured profile the constant stands for.",
     )
-    press_spread: float | None = Field(
+    press_spread: Real | None = Field(
         None,
         description="Slide contact segments: the 10th-90th percentile spread of the pressed CF-z force over the body "
         "of the segment (its ramps left out), over its median; above 0.5 the press was not steady and the segment "
         "keeps its force profile.",
     )
-    press_trend: float | None = Field(
+    press_trend: Real | None = Field(
         None,
         description="Slide contact segments: how much the press's linear trend changes it over the body of the "
         "segment, over its median (+ rising); beyond ±0.5 the press ramped and the segment keeps its force profile.",
@@ -178,8 +176,8 @@ class Segment(BaseModel):
     kind: SegmentKind = Field(description="Contact or free (from force and kinematics, see docs/LEARNING.md).")
     start_index: int = Field(ge=0, description="First sample of the (resampled) demonstration in this segment.")
     end_index: int = Field(ge=0, description="One past the last sample in this segment.")
-    t_start: float = Field(description="Demonstration time of the first sample, s.")
-    t_end: float = Field(description="Demonstration time of the last sample, s.")
+    t_start: Real = Field(description="Demonstration time of the first sample, s.")
+    t_end: Real = Field(description="Demonstration time of the last sample, s.")
     start_reason: BoundaryReason | None = Field(
         None, description="What decided where this segment starts (see BoundaryReason).", examples=["force"]
     )
@@ -199,7 +197,7 @@ class Segment(BaseModel):
         description="Contour contact segments, and slide ones whose press was not steady (a ramp, a wobble): the "
         "CF-z force profile, N.",
     )
-    force_constant_n: float | None = Field(
+    force_constant_n: Real | None = Field(
         None, description="Slide contact segments whose press was steady: the constant CF-z force to apply, N."
     )
     quality: SegmentQuality
@@ -221,9 +219,9 @@ class SkillAttributes(BaseModel):
 class TypeEvidence(BaseModel):
     """Log-odds for contour (positive) against slide (negative) of each measure `auto` weighs (docs/LEARNING.md)."""
 
-    turning: float = Field(description="From the turning of the friction-free normal along a stroke.")
-    tool_following: float = Field(description="From the tool's rotation following that turning (>= 0).")
-    planarity: float = Field(
+    turning: Real = Field(description="From the turning of the friction-free normal along a stroke.")
+    tool_following: Real = Field(description="From the tool's rotation following that turning (>= 0).")
+    planarity: Real = Field(
         description="From how far the contact leaves its best pressed plane (towards slide at most 1.5)."
     )
 
@@ -232,20 +230,20 @@ class AutoSelection(BaseModel):
     """The result of ``skill_type = auto``."""
 
     chosen: SkillType
-    confidence: float = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
+    confidence: Real = Field(ge=0.5, le=1.0, description="Confidence of the choice, 0.5 (a guess) to 1.")
     mixed: bool = Field(
         False,
         description="The evidence is mixed (confidence below 0.75): the more likely type was chosen, and the skill's "
         "type_evidence check warns.",
     )
-    turning_within_planes_deg: float = Field(
+    turning_within_planes_deg: Real = Field(
         description="Largest turn of the normal within one slide segment, deg (planes: a few): the contact's geometry "
         "where it covers an area, the friction-free force where it does not."
     )
-    tool_following: float | None = Field(
+    tool_following: Real | None = Field(
         None, description="Largest share (0-1) of that turning the tool's own rotation followed (contours: 0.4-0.9)."
     )
-    plane_rms_m: float | None = Field(
+    plane_rms_m: Real | None = Field(
         None, description="Largest planarity residual of the contact within one slide segment, m (planes: < 4 mm)."
     )
     evidence: TypeEvidence | None = Field(None, description="Each measure's log-odds for contour.")
@@ -277,8 +275,8 @@ class SkillCheck(BaseModel):
     name: CheckName
     segment: int | None = Field(None, description="The segment checked; None for the whole skill.")
     passed: bool
-    value: float = Field(description="The measured value, in ``unit``.")
-    limit: float = Field(description="The limit the value is held to, in ``unit`` (see ``message``: at most / least).")
+    value: Real = Field(description="The measured value, in ``unit``.")
+    limit: Real = Field(description="The limit the value is held to, in ``unit`` (see ``message``: at most / least).")
     unit: Name = Field(examples=["deg", "N", "ratio", "mm"])
     message: Text = Field(description="One sentence with the numbers; a warning when not passed.")
 
@@ -299,7 +297,7 @@ class Skill(BaseModel):
         "learning refuses the skill).",
     )
     demonstration: DemonstrationSummary
-    sample_rate_hz: float = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
+    sample_rate_hz: Real = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
     taught_world: FreeForm | None = Field(
         None,
         description="The simulated world the demonstration was recorded in (simulator recordings carry it as "
@@ -319,7 +317,7 @@ class LearnOptions(BaseModel):
 
     skill_type: SkillTypeRequest = Field(SkillTypeRequest.auto, description="slide, contour or auto.")
     n_basis: WholeNumber = Field(50, ge=2, le=500, description="Fewest DMP basis functions per dimension and segment.")
-    basis_per_second: float = Field(
+    basis_per_second: Real = Field(
         15.0,
         ge=0,
         le=200,
@@ -336,14 +334,14 @@ class LearnOptions(BaseModel):
         description="DMPs of longer segments are fitted on this many evenly strided samples "
         "(bases are >= 40 ms apart, so a finer grid adds cost, not information).",
     )
-    contact_force_threshold_n: float | None = Field(
+    contact_force_threshold_n: Real | None = Field(
         None,
         gt=0,
         le=1000,
         description="Force (N) a stroke presses with at least while sliding (its core); default: 40 % of the "
         "robust peak. Contact boundaries are then found from the surface and the touch level.",
     )
-    min_segment_duration_s: float = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
+    min_segment_duration_s: Real = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
     contour_frames_max: WholeNumber = Field(
         500, ge=2, le=MAX_FRAMES, description="Most compliant frames stored per contour segment (decimated evenly)."
     )

@@ -35,7 +35,7 @@ from schemas.execution import (
     ExecutionMetrics,
     ExecutionSettings,
 )
-from schemas.numbers import WholeNumber
+from schemas.numbers import Real, WholeNumber
 from schemas.skill import Skill
 from schemas.text import Identifier
 from schemas.verdict import Verdict
@@ -137,8 +137,8 @@ class ParameterRange(BaseModel):
 
     model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"low": -0.02, "high": 0.02}]})
 
-    low: float = Field(description="Lower end, in the parameter's unit.")
-    high: float = Field(description="Upper end, in the parameter's unit (>= low).")
+    low: Real = Field(description="Lower end, in the parameter's unit.")
+    high: Real = Field(description="Upper end, in the parameter's unit (>= low).")
     log: bool = Field(False, description="Uniform in log(value) (both ends > 0): for stiffness and damping.")
 
     @model_validator(mode="after")
@@ -250,7 +250,7 @@ class SweepRequest(BaseModel):
         0, ge=0, le=2**32 - 1, description="Seed of the sampler and of each trial's sensor noise."
     )
     sampler: Sampler = Field(Sampler.lhs, description="Latin hypercube or scrambled Sobol.")
-    success_rms_pct: float = Field(
+    success_rms_pct: Real = Field(
         10.0,
         gt=0.0,
         le=1000.0,
@@ -258,7 +258,7 @@ class SweepRequest(BaseModel):
         "error to at most this, % of the reference force (written into every trial's "
         "settings.tolerances.true_force_rms_pct).",
     )
-    success_contact_ratio: float = Field(
+    success_contact_ratio: Real = Field(
         0.99,
         ge=0.0,
         le=1.0,
@@ -369,10 +369,10 @@ class TrialResult(BaseModel):
         "checks (true_force_rms, true_force_max, contact_ratio, touchdown), or 'aborted: <reason>' for one that did "
         "not finish (empty on success and while running).",
     )
-    true_force_rms_error_pct: float | None = None
-    true_force_max_error_pct: float | None = None
-    touchdown_peak_ratio: float | None = None
-    contact_ratio: float | None = None
+    true_force_rms_error_pct: Real | None = None
+    true_force_max_error_pct: Real | None = None
+    touchdown_peak_ratio: Real | None = None
+    contact_ratio: Real | None = None
     abort_reason: str | None = Field(None, description="Why it stopped early, if it did.")
     metrics: ExecutionMetrics | None = Field(None, description="Every metric of the execution, once finished.")
 
@@ -382,10 +382,10 @@ class Quantiles(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    p10: float
-    p50: float
-    p90: float
-    max: float
+    p10: Real
+    p50: Real
+    p90: Real
+    max: Real
     n: int = Field(description="Trials with the measure (finished with contact).")
 
 
@@ -398,7 +398,7 @@ class ControllerSummary(BaseModel):
     trials: int = Field(description="Trials of the sweep.")
     finished: int = Field(description="Trials with a result.")
     succeeded: int
-    success_rate: float | None = Field(None, description="succeeded / finished (None before any finished).")
+    success_rate: Real | None = Field(None, description="succeeded / finished (None before any finished).")
     true_force_rms_error_pct: Quantiles | None = None
     true_force_max_error_pct: Quantiles | None = None
     touchdown_peak_ratio: Quantiles | None = None
@@ -422,15 +422,15 @@ class Sensitivity(BaseModel):
 
     parameter: SweepParameter
     controller: ControllerKind
-    spearman_rms: float | None = Field(
+    spearman_rms: Real | None = Field(
         None,
         description="Spearman rank correlation of the parameter with the true RMS error (a trial without one, e.g. "
         "aborted, ranks worst); None when undefined (a constant column).",
     )
-    success_low_half: float | None = Field(None, description="Success rate of the trials below the median value.")
-    success_high_half: float | None = Field(None, description="Success rate of the trials above the median value.")
-    success_difference: float | None = Field(None, description="success_high_half - success_low_half.")
-    importance: float = Field(
+    success_low_half: Real | None = Field(None, description="Success rate of the trials below the median value.")
+    success_high_half: Real | None = Field(None, description="Success rate of the trials above the median value.")
+    success_difference: Real | None = Field(None, description="success_high_half - success_low_half.")
+    importance: Real = Field(
         description="The ranking key: max(|spearman_rms|, |success_difference|) (0 where undefined)."
     )
 
@@ -454,8 +454,8 @@ class SweepView(BaseModel):
 
     id: str
     status: SweepState
-    created: float
-    updated: float
+    created: Real
+    updated: Real
     request: dict = Field(description="The request as given (an inline skill is not repeated).")
     counts: SweepCounts
     controllers: list[ControllerSummary]

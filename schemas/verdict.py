@@ -9,6 +9,8 @@ from enum import StrEnum
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.numbers import Real
+
 
 class Verdict(StrEnum):
     """Whether an execution did what its skill asked, within the tolerances (:class:`ExecutionTolerances`)."""
@@ -61,19 +63,19 @@ class ExecutionTolerances(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    true_force_rms_pct: float = Field(
+    true_force_rms_pct: Real = Field(
         10.0, gt=0, le=1000, description="Largest RMS error of the true normal force, % of the reference force."
     )
-    true_force_max_pct: float = Field(
+    true_force_max_pct: Real = Field(
         50.0, gt=0, le=1000, description="Largest error of the true normal force at a steady step, % of the reference."
     )
-    contact_ratio: float = Field(
+    contact_ratio: Real = Field(
         0.97, ge=0, le=1, description="Smallest share of the contact phase spent touching the surface."
     )
-    touchdown_ratio: float = Field(
+    touchdown_ratio: Real = Field(
         1.5, gt=0, le=100, description="Largest touch-down peak over the first desired force (1 = no overshoot)."
     )
-    normal_cone_deg: float = Field(
+    normal_cone_deg: Real = Field(
         42.0,
         gt=0,
         le=90,
@@ -81,14 +83,14 @@ class ExecutionTolerances(BaseModel):
         "deg; default: the widest friction cone (μ 0.9): beyond it the tool pressed on another surface, or another "
         "place of the part.",
     )
-    region_coverage: float = Field(
+    region_coverage: Real = Field(
         0.85,
         ge=0,
         le=1,
         description="Smallest share of a contour's taught region (the turn of its taught normals) the normals it "
         "pressed on must span.",
     )
-    surface_window_m: float | None = Field(
+    surface_window_m: Real | None = Field(
         None,
         gt=0,
         le=0.5,
@@ -106,8 +108,8 @@ class VerdictCheck(BaseModel):
     name: VerdictCheckName
     passed: bool
     warning_only: bool = Field(False, description="A failure is a warning and does not fail the verdict.")
-    value: float | None = Field(None, description="The measured value (unit of the limit; None: not measured).")
-    limit: float | None = Field(None, description="The tolerance it is held to.")
+    value: Real | None = Field(None, description="The measured value (unit of the limit; None: not measured).")
+    limit: Real | None = Field(None, description="The tolerance it is held to.")
     message: str = Field(description="What was measured against what, in words.")
 
 
@@ -138,14 +140,14 @@ class SurfacePressed(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     segment: int = Field(description="The contact segment's index.")
-    normal_error_deg: float = Field(
+    normal_error_deg: Real = Field(
         description="Median angle between the normal pressed and the one taught at the same share of the segment, deg."
     )
-    normal_error_max_deg: float = Field(description="Its 95th percentile, deg.")
-    touchdown_normal_error_deg: float = Field(
+    normal_error_max_deg: Real = Field(description="Its 95th percentile, deg.")
+    touchdown_normal_error_deg: Real = Field(
         description="Angle between the normal pressed over the first 0.1 s and the taught first normal, deg."
     )
-    final_normal_error_deg: float = Field(
+    final_normal_error_deg: Real = Field(
         description="Angle between the normal pressed over the last 0.1 s and the taught last normal, deg."
     )
     taught_region_deg: tuple[float, float] | None = Field(
@@ -156,15 +158,15 @@ class SurfacePressed(BaseModel):
     pressed_region_deg: tuple[float, float] | None = Field(
         None, description="The span of the normals pressed about the same axis (2nd to 98th percentile), deg."
     )
-    region_coverage: float | None = Field(
+    region_coverage: Real | None = Field(
         None, ge=0, le=1, description="The share of the taught region the pressed one spans."
     )
-    crease_deg: float | None = Field(
+    crease_deg: Real | None = Field(
         None,
         description="Entered from another contact segment: the angle of the taught crease between them (the taught "
         "normals on either side), deg.",
     )
-    crease_turn_deg: float | None = Field(
+    crease_turn_deg: Real | None = Field(
         None,
         description="How far the normal pressed turned across the switch (from the previous segment's to this one's), "
         "about the axis of the taught crease, deg, positive the taught way (a part tilted as a whole turns as taught, "

@@ -313,11 +313,18 @@ def test_a_learn_past_the_memory_budget_is_422_and_the_next_one_learns(tmp_path,
         assert c.post("/skills", json={"demonstration": demo}).status_code == 201
 
 
-def test_a_boolean_is_not_a_seed_or_a_count(client, demo):
-    """``"seed": false`` was taken as seed 0, ``"n_basis": true`` as 1 basis function: a 422 naming the field."""
+def test_a_boolean_is_not_a_number(client, demo):
+    """``"seed": false`` was taken as seed 0, ``"n_basis": true`` as 1 basis function, ``"approach_speed_m_s": true``
+    as 1 m/s: a 422 naming the field."""
     response = client.post("/demonstrations/record", json={"scenario": "slide_flat", "seed": False})
     assert _names(response, "seed") and "not a boolean" in response.text, response.text
     response = client.post("/skills", json={"demonstration": demo, "n_basis": True})
     assert _names(response, "n_basis") and "not a boolean" in response.text, response.text
+    response = client.post("/executions", json={"skill_id": "skill_0", "approach_speed_m_s": True})
+    assert _names(response, "approach_speed_m_s") and "not a boolean" in response.text, response.text
+    response = client.post("/skills", json={"demonstration": demo, "basis_per_second": False})
+    assert _names(response, "basis_per_second") and "not a boolean" in response.text, response.text
     response = client.post("/demonstrations/record", json={"scenario": "slide_flat", "seed": 7})
     assert response.status_code != 422, response.text  # a number is still a number (no bus here: 503)
+    response = client.post("/skills", json={"demonstration": demo, "basis_per_second": 30})
+    assert response.status_code == 201, response.text  # an integer is a real number
