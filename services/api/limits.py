@@ -250,9 +250,11 @@ TOO_MANY: dict[int | str, dict[str, Any]] = {429: {"model": ApiError}}
 
 class ClientCaps:
     """Per-client caps on the work waiting in the service: executions queued or running (``client_queued_max``) and
-    sweeps running (``client_sweeps_max``), by client address. One more answers 429 naming the cap; the global queue
-    cap (``queue_max``, 503) still holds for all clients together. Counted by this API process: a restart forgets
-    who submitted what (the store keeps no client)."""
+    sweeps running (``client_sweeps_max``). A request counts against each of its client keys (``deps.client_keys``:
+    its address, every loopback address one; and the bearer token when it carries it, one identity whatever the
+    address): one more than a key's cap answers 429 naming the cap; the global queue cap (``queue_max``, 503) still
+    holds for all clients together. Counted by this API process: a restart forgets who submitted what (the store
+    keeps no client)."""
 
     def __init__(self, store: Store, max_executions: int, max_sweeps: int) -> None:
         self.store = store
@@ -267,23 +269,25 @@ class ClientCaps:
         sweep = self.store.sweeps.get(ident)
         return sweep is not None and sweep.status == SweepState.running.value
 
-    def admit(self, kind: WorkKind, client: str) -> None:
-        """Raise a 429 ``HTTPException`` if ``client`` holds its cap of ``kind`` already."""
-        with self._lock:
-            held = set(self._held.get((kind, client), ()))
-        active = {ident for ident in held if self._active(kind, ident)}
-        with self._lock:
-            self._held[(kind, client)] = active | (self._held.get((kind, client), set()) - held)
-        if len(active) >= self.caps[kind]:
-            setting = {WorkKind.execution: "CONTACT_SKILLS_CLIENT_QUEUED_MAX", WorkKind.sweep:
-                       "CONTACT_SKILLS_CLIENT_SWEEPS_MAX"}[kind]  # fmt: skip
-            raise HTTPException(
-                429,
-                f"client {client} has {len(active)} {kind.value}s queued or running, its cap ({setting}="
-                f"{self.caps[kind]}): wait for one to end, or cancel one",
-            )
+    def admit(self, kind: WorkKind, clients: tuple[str, ...]) -> None:
+        """Raise a 429 ``HTTPException`` if one of ``clients`` (the request's keys) holds its cap of ``kind``."""
+        for client in clients:
+            with self._lock:
+                held = set(self._held.get((kind, client), ()))
+            active = {ident for ident in held if self._active(kind, ident)}
+            with self._lock:
+                self._held[(kind, client)] = active | (self._held.get((kind, client), set()) - held)
+            if len(active) >= self.caps[kind]:
+                setting = {WorkKind.execution: "CONTACT_SKILLS_CLIENT_QUEUED_MAX", WorkKind.sweep:
+                           "CONTACT_SKILLS_CLIENT_SWEEPS_MAX"}[kind]  # fmt: skip
+                raise HTTPException(
+                    429,
+                    f"{client} has {len(active)} {kind.value}s queued or running, its cap ({setting}="
+                    f"{self.caps[kind]}): wait for one to end, or cancel one",
+                )
 
-    def hold(self, kind: WorkKind, client: str, ident: str) -> None:
-        """Count ``ident`` (just created) against ``client``'s cap until it ends."""
+    def hold(self, kind: WorkKind, clients: tuple[str, ...], ident: str) -> None:
+        """Count ``ident`` (just created) against each of ``clients``' caps until it ends."""
         with self._lock:
-            self._held.setdefault((kind, client), set()).add(ident)
+            for client in clients:
+                self._held.setdefault((kind, client), set()).add(ident)
