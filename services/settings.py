@@ -24,7 +24,7 @@
 | header_timeout_s | ``CONTACT_SKILLS_HEADER_TIMEOUT_S`` | ``10`` (s a connection has to send a whole request head) |
 | body_timeout_s | ``CONTACT_SKILLS_BODY_TIMEOUT_S`` | ``60`` (s a request has for its whole body after its head; 408) |
 | keep_alive_s | ``CONTACT_SKILLS_KEEP_ALIVE_S`` | ``5`` (s an idle keep-alive connection is kept) |
-| max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (open connections and requests at once; more get 503) |
+| max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (connections at once; idle ones make way, else 503) |
 | client_queued_max | ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` | ``100`` (a client's queued or running executions; 429) |
 | client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
 | storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB the database holds at most; then 507) |
