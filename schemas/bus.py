@@ -55,6 +55,22 @@ from schemas.text import FreeForm, Identifier
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
 
+HANDSHAKE_TIMEOUT_MS = 2000
+"""How long a client waits for the router to open its session (Zenoh's ``connect/timeout_ms``), and how long the
+router gives a new connection to finish its handshake and login (``transport/unicast/accept_timeout``), ms. Measured
+on loopback: an authenticated session opens in 10-50 ms."""
+ROUTER_UNICAST_LIMITS: dict[str, int] = {
+    "accept_timeout": HANDSHAKE_TIMEOUT_MS,
+    "accept_pending": 1000,
+    "max_links": 1,
+}
+"""The router's ``transport/unicast`` limits on connections that have not logged in: a connection that has not
+finished its handshake within :data:`HANDSHAKE_TIMEOUT_MS` is closed, and past ``accept_pending`` such connections at
+once a new one is closed at once (one link per session, ``max_links``). Zenoh's defaults (10 s, 100) let ~110 idle
+TCP connections, reopened as the router closed them, refuse 21 of 22 new sessions: a restarted worker needed 28 s to
+get back in. With these, an attacker must keep 1000 connections open, each reopened within 2 s, to delay a session
+(docs/BUS.md, "Floods without a login")."""
+
 ENV_ENDPOINTS = "CONTACT_SKILLS_ZENOH_ENDPOINTS"
 """Environment variable: comma-separated endpoints the clients (API, worker, watch) connect to."""
 ENV_LISTEN = "CONTACT_SKILLS_ZENOH_LISTEN"
@@ -129,7 +145,8 @@ def session_config(
     """The Zenoh session configuration (a JSON-able dict) every process of the bus uses.
 
     Multicast scouting is off: sessions meet only through the configured endpoints (a router). A client's
-    ``zenoh.open`` fails after 2 s without a router; the processes retry (start order does not matter, e.g. in
+    ``zenoh.open`` fails after 2 s without a router (:data:`HANDSHAKE_TIMEOUT_MS`); a router bounds the connections
+    that have not logged in (:data:`ROUTER_UNICAST_LIMITS`); the processes retry (start order does not matter, e.g. in
     docker-compose); once connected, a client reconnects by itself when the router restarts.
     ``security`` (`schemas.bus_security.BusSecurity`): the login and TLS of the session, or what the router
     requires; ``access_control``: the router's (`schemas.bus_security.access_control`). Neither: an open bus.
@@ -142,10 +159,12 @@ def session_config(
     if connect:
         config["connect"] = {"endpoints": list(connect)}
         if mode == "client":
-            config["connect"].update({"timeout_ms": 2000, "exit_on_failure": False})
+            config["connect"].update({"timeout_ms": HANDSHAKE_TIMEOUT_MS, "exit_on_failure": False})
     if listen:
         config["listen"] = {"endpoints": list(listen)}
     transport = security.transport(mode) if security is not None else {}
+    if mode == "router":  # the listening side bounds the connections that have not logged in
+        transport["unicast"] = dict(ROUTER_UNICAST_LIMITS)
     if transport:
         config["transport"] = transport
     if access_control is not None:

@@ -45,40 +45,45 @@ from services.store import Store
 from services.sweeps import SweepRunner
 
 if TYPE_CHECKING:
+    import uvicorn
+
     from services.bus import BusClient
 
 __all__ = ["BusEvents", "connect_bus", "create_app"]
 
 
-H11_MAX_HEAD_BYTES = 64 * 1024
-"""Largest request head (request line and headers) the server reads, bytes; a larger one is refused (400)."""
-
-
-def serve_api(app: FastAPI, settings: ServiceSettings, log_level: str) -> None:
-    """Serve ``app`` with uvicorn until SIGINT/SIGTERM, with the connection limits of ``settings``: a request head
-    within ``header_timeout_s`` (``services.api.limits.HeadTimeoutH11Protocol``), idle keep-alive connections closed
-    after ``keep_alive_s``, at most ``max_connections`` connections and requests at once (uvicorn answers 503 past
-    it), heads of at most :data:`H11_MAX_HEAD_BYTES`; and every log line of a kind at most once per
-    ``services.log_limits.LOG_EVERY_S``."""
-    import logging
-
+def server_config(app: FastAPI, settings: ServiceSettings, log_level: str = "info") -> uvicorn.Config:
+    """uvicorn's configuration of ``app`` with the connection limits of ``settings``: a request head within
+    ``header_timeout_s`` and of at most ``services.api.limits.MAX_HEAD_BYTES`` (431), a body within
+    ``body_timeout_s`` of its head (408) (``services.api.limits.BoundedH11Protocol``), idle keep-alive connections
+    closed after ``keep_alive_s``, at most ``max_connections`` connections and requests at once (uvicorn answers 503
+    past it; a new connection closes those waiting longest on their client first)."""
     import uvicorn
 
-    from services.api.limits import head_timeout_protocol
-    from services.log_limits import RateLimitFilter
+    from services.api.limits import bounded_protocol
 
-    config = uvicorn.Config(
+    return uvicorn.Config(
         app,
         host=settings.host,
         port=settings.port,
         log_level=log_level,
         access_log=False,
-        http=head_timeout_protocol(settings.header_timeout_s),
+        http=bounded_protocol(settings.header_timeout_s, settings.body_timeout_s),
         timeout_keep_alive=max(1, round(settings.keep_alive_s)),
         limit_concurrency=settings.max_connections,
-        h11_max_incomplete_event_size=H11_MAX_HEAD_BYTES,
     )
-    server = uvicorn.Server(config)  # configures uvicorn's loggers: the filter goes on their handlers after
+
+
+def serve_api(app: FastAPI, settings: ServiceSettings, log_level: str) -> None:
+    """Serve ``app`` with uvicorn until SIGINT/SIGTERM, with the connection limits of :func:`server_config`; and
+    every log line of a kind at most once per ``services.log_limits.LOG_EVERY_S``."""
+    import logging
+
+    import uvicorn
+
+    from services.log_limits import RateLimitFilter
+
+    server = uvicorn.Server(server_config(app, settings, log_level))  # configures uvicorn's loggers: filter after
     limit = RateLimitFilter()
     for name in ("", "uvicorn", "uvicorn.error", "contact_skills"):
         for handler in logging.getLogger(name).handlers:

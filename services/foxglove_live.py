@@ -18,7 +18,9 @@ markers at the scene's own rates.
 
 Configuration: ``CONTACT_SKILLS_FOXGLOVE_PORT`` (``services.settings.ServiceSettings.foxglove_port``: default 8765;
 ``0`` any free port; ``off`` no server). A port already taken falls back to a free one (``/health`` gives the URL,
-``foxglove_url``). The protocol has no authentication: when the API's reads need its token
+``foxglove_url``). The handshake is held to the REST API's browser rule (``services.origin_gate``: a foreign
+``Origin`` is refused unless in ``CONTACT_SKILLS_CORS_ORIGINS``; a ``Host`` not the service's). The protocol has no
+authentication: when the API's reads need its token
 (``CONTACT_SKILLS_TOKEN_READS``) the server is off unless the variable is set.
 """
 
@@ -31,7 +33,9 @@ from typing import Any
 import numpy as np
 
 from schemas.api import ExecutionState
+from services.api.browser_guard import LOOPBACK_NAMES
 from services.dashboard.stream import decimated, stored_rows
+from services.origin_gate import OriginGate
 from services.settings import DEFAULT_FOXGLOVE_PORT, ServiceSettings
 from services.store import TERMINAL, Store
 
@@ -65,19 +69,33 @@ def live_view(store: Store, settings: ServiceSettings) -> FoxgloveLive | None:
     port = settings.foxglove_server_port
     if port is None and settings.foxglove_port is None:
         log.info("Foxglove live view off: reads need the token and CONTACT_SKILLS_FOXGLOVE_PORT is not set")
-    return None if port is None else FoxgloveLive(store, port, settings.host)
+    if port is None:
+        return None
+    return FoxgloveLive(store, port, settings.host, settings.cors_origins, settings.host_names)
 
 
 class FoxgloveLive:
     """The Foxglove WebSocket server of one API process, following ``store``'s running executions (see the module
     docstring). :meth:`start` it, :meth:`close` it; :attr:`url` is where Foxglove connects. ``host``: the address
-    to listen on, the API's (``ServiceSettings.host``)."""
+    to listen on, the API's (``ServiceSettings.host``); ``allowed_origins``, ``host_names``: the browser rule of the
+    REST API (``ServiceSettings.cors_origins``, ``.host_names``), which the handshake is held to
+    (``services.origin_gate``)."""
 
-    def __init__(self, store: Store, port: int = DEFAULT_FOXGLOVE_PORT, host: str = LOOPBACK) -> None:
+    def __init__(
+        self,
+        store: Store,
+        port: int = DEFAULT_FOXGLOVE_PORT,
+        host: str = LOOPBACK,
+        allowed_origins: list[str] | None = None,
+        host_names: frozenset[str] = LOOPBACK_NAMES,
+    ) -> None:
         self.store = store
         self.port = port
         self.host = host
+        self.allowed_origins = list(allowed_origins or [])
+        self.host_names = host_names
         self.server: Any = None
+        self.gate: OriginGate | None = None
         self._context: Any = None
         self._channels: dict[str, Any] = {}
         self._stop = threading.Event()
@@ -96,10 +114,11 @@ class FoxgloveLive:
     @property
     def url(self) -> str | None:
         """Where a client connects while serving (:func:`client_url`), else None."""
-        return None if self.server is None else client_url(self.host, self.server.port)
+        return None if self.gate is None else client_url(self.host, self.gate.port)
 
     def start(self) -> None:
-        """Serve on :attr:`host` (falling back to a free port when :attr:`port` is taken) and start following."""
+        """Serve on :attr:`host` (falling back to a free port when :attr:`port` is taken) through the origin gate,
+        the SDK's server behind it on a loopback port of its own, and start following."""
         import foxglove
 
         from services.dashboard.ros_scene import message_definition
@@ -111,17 +130,22 @@ class FoxgloveLive:
         for topic, msgtype in topics.items():
             schema = foxglove.Schema(name=msgtype, encoding="ros2msg", data=message_definition(msgtype).encode())
             self._channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=context)
-        options = dict(name="contact-skills", host=self.host, context=context, asset_handler=robot_asset,
+        options = dict(name="contact-skills", host=LOOPBACK, port=0, context=context, asset_handler=robot_asset,
                        server_listener=_Listener(self), message_backlog_size=MESSAGE_BACKLOG)  # fmt: skip
         try:
-            self.server = foxglove.start_server(port=self.port, **options)
-        except RuntimeError as exc:
-            log.warning("Foxglove server: port %d not available (%s): serving on a free port", self.port, exc)
+            self.server = foxglove.start_server(**options)
+        except RuntimeError:  # the API serves on without the live view (/health: foxglove_url null)
+            log.exception("Foxglove server could not start")
+            return
+        for port in (self.port, 0):
+            gate = OriginGate(self.host, port, self.server.port, self.allowed_origins, self.host_names)
             try:
-                self.server = foxglove.start_server(port=0, **options)
-            except RuntimeError:  # the API serves on without the live view (/health: foxglove_url null)
-                log.exception("Foxglove server could not start")
-                return
+                gate.start()
+            except OSError as exc:
+                log.warning("Foxglove server: port %d not available (%s): serving on a free port", port, exc)
+                continue
+            self.gate = gate
+            break
         self._description = self._string(robot_description())
         log.info("Foxglove live view on %s", self.url)
         self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
@@ -131,6 +155,9 @@ class FoxgloveLive:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5)
+        if self.gate is not None:
+            self.gate.close()
+            self.gate = None
         if self.server is not None:
             self.server.stop()
             self.server = None

@@ -22,8 +22,9 @@
 | telemetry_page_samples | ``CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES`` | ``20000`` (samples per telemetry response) |
 | allowed_hosts | ``CONTACT_SKILLS_ALLOWED_HOSTS`` | none (``Host`` names besides loopback, bind address, host name) |
 | header_timeout_s | ``CONTACT_SKILLS_HEADER_TIMEOUT_S`` | ``10`` (s a connection has to send a whole request head) |
+| body_timeout_s | ``CONTACT_SKILLS_BODY_TIMEOUT_S`` | ``60`` (s a request has for its whole body after its head; 408) |
 | keep_alive_s | ``CONTACT_SKILLS_KEEP_ALIVE_S`` | ``5`` (s an idle keep-alive connection is kept) |
-| max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (open connections and requests at once; more get 503) |
+| max_connections | ``CONTACT_SKILLS_MAX_CONNECTIONS`` | ``256`` (connections at once; idle ones make way, else 503) |
 | client_queued_max | ``CONTACT_SKILLS_CLIENT_QUEUED_MAX`` | ``100`` (a client's queued or running executions; 429) |
 | client_sweeps_max | ``CONTACT_SKILLS_CLIENT_SWEEPS_MAX`` | ``2`` (sweeps one client may have running; more get 429) |
 | storage_quota_mb | ``CONTACT_SKILLS_STORAGE_QUOTA_MB`` | ``4096`` (MiB stored and reserved by runs, at most; 507) |
@@ -97,6 +98,7 @@ ENV_VARS: dict[str, str] = {
     "telemetry_page_samples": "CONTACT_SKILLS_TELEMETRY_PAGE_SAMPLES",
     "allowed_hosts": "CONTACT_SKILLS_ALLOWED_HOSTS",
     "header_timeout_s": "CONTACT_SKILLS_HEADER_TIMEOUT_S",
+    "body_timeout_s": "CONTACT_SKILLS_BODY_TIMEOUT_S",
     "keep_alive_s": "CONTACT_SKILLS_KEEP_ALIVE_S",
     "max_connections": "CONTACT_SKILLS_MAX_CONNECTIONS",
     "client_queued_max": "CONTACT_SKILLS_CLIENT_QUEUED_MAX",
@@ -162,6 +164,8 @@ class ServiceSettings:
     """``Host`` names the API answers besides loopback names, its bind address and this host's name (a DNS-rebinding
     page's own name is refused on every bind)."""
     header_timeout_s: float = 10.0
+    body_timeout_s: float = 60.0
+    """s a request's whole body has to arrive in after its head: 64 MiB (the body limit) needs ~1.1 MB/s."""
     keep_alive_s: float = 5.0
     max_connections: int = 256
     client_queued_max: int = 100
@@ -205,10 +209,12 @@ class ServiceSettings:
             )
         if self.telemetry_page_samples < 1:
             raise SettingsError(f"telemetry_page_samples: {self.telemetry_page_samples} must be >= 1")
-        if not (self.header_timeout_s > 0 and self.keep_alive_s > 0) or self.max_connections < 1:
+        if not (self.header_timeout_s > 0 and self.body_timeout_s > 0 and self.keep_alive_s > 0) or (
+            self.max_connections < 1
+        ):
             raise SettingsError(
-                f"header_timeout_s {self.header_timeout_s}, keep_alive_s {self.keep_alive_s} must be > 0 s and "
-                f"max_connections {self.max_connections} >= 1"
+                f"header_timeout_s {self.header_timeout_s}, body_timeout_s {self.body_timeout_s}, keep_alive_s "
+                f"{self.keep_alive_s} must be > 0 s and max_connections {self.max_connections} >= 1"
             )
         if self.client_queued_max < 1 or self.client_sweeps_max < 1:
             raise SettingsError(

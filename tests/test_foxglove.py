@@ -289,7 +289,7 @@ def test_the_live_view_listens_where_the_api_does_and_names_a_loopback_url_for_a
     assert view is not None and view.url is None
     view.start()
     try:
-        port = view.server.port
+        port = view.gate.port
         assert view.url == f"ws://127.0.0.2:{port}"
         with socket.create_connection(("127.0.0.2", port), timeout=5):
             pass

@@ -8,14 +8,15 @@ and its abort, forged ``done``, forged telemetry and fake worker change nothing:
 with its own samples. The open `/health` names workers by their login, no host name or process id.
 
 Connection hygiene (issue 25 M2, L1, M4) on the same stack, its limits set low: a connection that sends no request
-head, or one header byte now and then, is closed after the header timeout; past the connection cap a request gets
-503 and `/health` answers again once the slow connections are cut; a flood of malformed requests logs one line; a
+head, or one header byte now and then, is closed after the header timeout; past the connection cap the silent
+connections waiting longest make way and `/health` answers (issue 41); a flood of malformed requests logs one line; a
 client's executions queued or running and its sweeps are capped (429 naming the setting); a Host that is not one
 of the service's names gets 400 on every bind, all interfaces included.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import time
@@ -120,14 +121,14 @@ def test_a_connection_without_a_whole_request_head_is_closed_after_the_header_ti
         assert _closed_after(dribbling, b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 60) < 5
 
 
-def test_past_the_connection_cap_requests_get_503_and_health_answers_once_slow_ones_are_cut(stack):
+def test_past_the_connection_cap_silent_connections_make_way_and_health_answers(stack):
     slow = [_connect(stack) for _ in range(int(LIMITS["CONTACT_SKILLS_MAX_CONNECTIONS"]) + 2)]
     try:
-        time.sleep(0.2)
-        assert stack.http.get("/health", timeout=5).status_code == 503
-        health = wait_for(lambda: (r := stack.http.get("/health", timeout=5)).status_code == 200 and r, 10,
-                          "/health once the silent connections are cut")  # fmt: skip
-        assert health.json()["status"] == "ok"
+        health = stack.http.get("/health", timeout=5)
+        assert health.status_code == 200 and health.json()["status"] == "ok"  # uvicorn alone: 503
+        slow[0].settimeout(30)  # a generous wait: it was closed when /health connected
+        with contextlib.suppress(ConnectionResetError):
+            assert slow[0].recv(1) == b""  # the one waiting longest made way
     finally:
         for sock in slow:
             sock.close()

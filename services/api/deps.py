@@ -8,6 +8,7 @@ after validating its input, so a bad body is still a 422 and an unknown id a 404
 
 from __future__ import annotations
 
+import ipaddress
 import secrets
 from typing import Annotated
 
@@ -61,11 +62,6 @@ def get_client_caps(request: Request) -> ClientCaps:
     return request.app.state.client_caps
 
 
-def client_address(request: Request) -> str:
-    """Who sent the request, for the per-client caps: its address (``unknown`` if the server gave none)."""
-    return request.client.host if request.client is not None else "unknown"
-
-
 StoreDep = Annotated[Store, Depends(get_store)]
 SettingsDep = Annotated[ServiceSettings, Depends(get_settings)]
 BusDep = Annotated[BusClient | None, Depends(get_bus)]
@@ -74,7 +70,6 @@ LearnersDep = Annotated[LearnerPool, Depends(get_learners)]
 QueueDep = Annotated[ExecutionQueue | None, Depends(get_queue)]
 SweepsDep = Annotated[SweepRunner | None, Depends(get_sweeps)]
 ClientCapsDep = Annotated[ClientCaps, Depends(get_client_caps)]
-ClientDep = Annotated[str, Depends(client_address)]
 
 
 def need_bus(bus: BusClient | None) -> BusClient:
@@ -155,6 +150,27 @@ def authenticated(settings: SettingsDep, credentials: Credentials) -> bool:
 
 
 AuthenticatedDep = Annotated[bool, Depends(authenticated)]
+
+TOKEN_CLIENT = "the bearer token"
+"""The client key of every request that carries the configured token (:func:`client_keys`)."""
+
+
+def client_keys(request: Request, known: AuthenticatedDep) -> tuple[str, ...]:
+    """Who sent the request, for the per-client caps (``services.api.limits.ClientCaps``): its address, every
+    loopback address one (127.0.0.2 is this machine as much as 127.0.0.1), and :data:`TOKEN_CLIENT` when it carries
+    the token (one identity, whatever address its holders send from)."""
+    host = request.client.host if request.client is not None else "unknown"
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        address = None
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped
+    keys = ("client on this machine (loopback)" if address is not None and address.is_loopback else f"client {host}",)
+    return (*keys, TOKEN_CLIENT) if known else keys
+
+
+ClientDep = Annotated[tuple[str, ...], Depends(client_keys)]
 
 
 def require_token(settings: SettingsDep, known: AuthenticatedDep) -> None:

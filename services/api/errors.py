@@ -10,6 +10,7 @@ becomes a status code and a ``detail``, the handlers that shape 422 and 500 bodi
   missing/wrong bearer token on POST/DELETE when ``CONTACT_SKILLS_TOKEN`` is set (``deps.require_token``; on GET
   too with ``CONTACT_SKILLS_TOKEN_READS``). 413: body over the limit (``body_limit.BodyLimit``). 400: a malformed
   request or a Host that is not the loopback service's; 403: a cross-origin browser request (``browser_guard``).
+- 405 for a method the path does not answer, with ``Allow``; OPTIONS answers 204 with it.
 - 503: no Zenoh bus or no sim worker connected; 504: a recording timed out.
 - 507: the storage quota is reached (what is stored and what queued and running executions reserve), or a write found
   the disk full (``services.store.DiskFull``: nothing stored; a DELETE still works).
@@ -25,7 +26,8 @@ from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
+from starlette.routing import Match, Mount
 
 from schemas.api import ApiError
 from services.store import DiskFull
@@ -345,9 +347,33 @@ async def _unexpected_error(request: Request, exc: Exception) -> JSONResponse:
     )
 
 
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+"""The methods a route may answer, for ``Allow`` (:func:`allowed_methods`)."""
+
+
+def allowed_methods(request: Request) -> list[str]:
+    """The methods the request's path answers (a route takes the path and the method), and OPTIONS, sorted."""
+    routes = [route for route in request.app.router.routes if not isinstance(route, Mount)]
+
+    def answers(method: str) -> bool:
+        return any(route.matches({**request.scope, "method": method})[0] is Match.FULL for route in routes)
+
+    return sorted({method for method in HTTP_METHODS if answers(method)} | {"OPTIONS"})
+
+
+async def _method_not_allowed(request: Request, exc: Exception) -> Response:
+    """405 with an ``Allow`` naming every method of the path (Starlette names only the first route's); OPTIONS
+    answers 204 with it (a CORS preflight never gets here: ``CORSMiddleware`` answers it first)."""
+    allow = {"Allow": ", ".join(allowed_methods(request))}
+    if request.method == "OPTIONS":
+        return Response(status_code=204, headers=allow)
+    return JSONResponse({"detail": "Method Not Allowed"}, status_code=405, headers=allow)
+
+
 def install_error_handlers(app: FastAPI) -> None:
-    """422 bodies through :func:`tidy_error`; a full disk 507 naming it; any other exception a logged 500 with a
-    short JSON body."""
+    """422 bodies through :func:`tidy_error`; a full disk 507 naming it; 405 and OPTIONS with ``Allow``
+    (:func:`allowed_methods`); any other exception a logged 500 with a short JSON body."""
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(DiskFull, _disk_full)
+    app.add_exception_handler(405, _method_not_allowed)
     app.add_exception_handler(Exception, _unexpected_error)

@@ -1,0 +1,127 @@
+"""The browser rule of the REST API (``services.api.browser_guard.browser_refusal``: a ``Host`` among the service's
+names, an ``Origin`` that is the request's own or allowed by ``CONTACT_SKILLS_CORS_ORIGINS``) in front of a WebSocket
+server that checks neither: the Foxglove SDK's (``services.foxglove_live``), which accepted a handshake from any web
+page's origin.
+
+:class:`OriginGate` listens where the server is reached, reads each connection's handshake (at most
+``services.api.limits.MAX_HEAD_BYTES`` within :data:`HANDSHAKE_TIMEOUT_S`), answers a refused one 400 or 403 and
+closes it, and relays an accepted one, byte for byte both ways, to the server on a loopback port of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+from http import HTTPStatus
+
+from services.api.browser_guard import browser_refusal, origin_set
+from services.api.limits import MAX_HEAD_BYTES
+
+log = logging.getLogger("contact_skills.foxglove")
+
+HANDSHAKE_TIMEOUT_S = 10.0
+"""How long a connection has to send its whole handshake request, s (the API's header timeout's default)."""
+RELAY_CHUNK = 65536
+"""Bytes relayed per read."""
+
+
+class OriginGate:
+    """A TCP front on ``host``:``port`` (0: any free port) of the WebSocket server on ``127.0.0.1``:``upstream_port``
+    that refuses what :func:`~services.api.browser_guard.browser_refusal` refuses (``allowed_origins``, ``host_names``
+    as ``ServiceSettings.cors_origins``, ``.host_names``). :meth:`start` raises ``OSError`` if the port is taken."""
+
+    def __init__(
+        self, host: str, port: int, upstream_port: int, allowed_origins: list[str], host_names: frozenset[str]
+    ) -> None:
+        self.host, self.port, self.upstream_port = host, port, upstream_port
+        self.allowed = origin_set(allowed_origins)
+        self.host_names = host_names
+        self._loop = asyncio.new_event_loop()
+        self._server: asyncio.Server | None = None
+        self._writers: set[asyncio.StreamWriter] = set()  # every open connection's, both sides: closed by close()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="foxglove-gate", daemon=True)
+
+    def start(self) -> int:
+        """Listen, and relay in a thread of its own (its own event loop: this may run in the API's); returns the port
+        listened on."""
+        self._thread.start()
+        start = asyncio.start_server(self._serve, self.host, self.port, limit=MAX_HEAD_BYTES)
+        try:
+            self._server = asyncio.run_coroutine_threadsafe(start, self._loop).result(HANDSHAKE_TIMEOUT_S)
+        except OSError:
+            self._stop_loop()
+            raise
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self.port
+
+    def close(self) -> None:
+        """Stop listening and drop every relayed connection."""
+        if self._server is not None:
+            server, self._server = self._server, None
+
+            async def stop() -> None:
+                server.close()
+                for writer in list(self._writers):
+                    writer.close()
+                await server.wait_closed()
+
+            asyncio.run_coroutine_threadsafe(stop(), self._loop).result(HANDSHAKE_TIMEOUT_S)
+        self._stop_loop()
+
+    def _stop_loop(self) -> None:
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(HANDSHAKE_TIMEOUT_S)
+        self._loop.close()
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._writers.add(writer)
+        try:
+            await self._gate(reader, writer)
+        finally:
+            self._writers.discard(writer)
+
+    async def _gate(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), HANDSHAKE_TIMEOUT_S)
+        except (TimeoutError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, ConnectionError):
+            writer.close()
+            return
+        lines = head.decode("latin-1").split("\r\n")[1:]
+        headers = {name.strip().lower(): value.strip() for name, _, value in (line.partition(":") for line in lines)}
+        if refusal := browser_refusal(headers, self.allowed, self.host_names):
+            status, detail = refusal
+            body = detail.encode()
+            writer.write(f"HTTP/1.1 {status} {HTTPStatus(status).phrase}\r\nContent-Type: text/plain; charset=utf-8"
+                         f"\r\nContent-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode() + body)  # fmt: skip
+            await _close(writer)
+            return
+        try:
+            upstream_reader, upstream_writer = await asyncio.open_connection("127.0.0.1", self.upstream_port)
+        except OSError:
+            log.warning("Foxglove live view: its server on port %d does not answer", self.upstream_port)
+            writer.close()
+            return
+        self._writers.add(upstream_writer)
+        try:
+            upstream_writer.write(head)
+            await asyncio.gather(_relay(reader, upstream_writer), _relay(upstream_reader, writer))
+        finally:
+            self._writers.discard(upstream_writer)
+
+
+async def _relay(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    """Copy ``reader`` to ``writer`` until either side closes, then close ``writer``."""
+    with contextlib.suppress(ConnectionError):
+        while chunk := await reader.read(RELAY_CHUNK):
+            writer.write(chunk)
+            await writer.drain()
+    await _close(writer)
+
+
+async def _close(writer: asyncio.StreamWriter) -> None:
+    writer.close()
+    with contextlib.suppress(ConnectionError):
+        await writer.wait_closed()
