@@ -113,6 +113,8 @@ FLOOR_SCENARIO = "slide_flat"
 """The skill the project loop is compared with the bare PyBullet loop on (settle, free motion, touch-down, slide)."""
 TARGET_FLOOR_RATIO = 1.3
 """Issue 28's target: the project loop within this factor of the bare loop's µs per step."""
+SMOKE_RECORD = {"move_duration_s": 2.0}
+"""The smoke run's teacher overrides: the same S-curve in 2 s, not 5 (every phase of the loop, fewer steps)."""
 
 
 def wall_us_per_step(result: ExecutionResult) -> float:
@@ -634,13 +636,15 @@ def main() -> None:
     parser.add_argument(
         "--floor-only", action="store_true", help="only the comparison with the bare PyBullet loop (print, no write)"
     )
-    add_smoke_argument(parser, f"one repeat, the {FLOOR_SCENARIO} hybrid_cf rows only, fewer timing calls")
+    add_smoke_argument(
+        parser, f"one repeat, the {FLOOR_SCENARIO} hybrid_cf rows only, a 2 s stroke, fewer timing calls"
+    )
     args = parser.parse_args()
-    runs, law_repeats, cost_calls = RUNS, 20000, 2000
+    runs, law_repeats, cost_calls, overrides = RUNS, 20000, 2000, {}
     if args.smoke:
         args.repeats = args.floor_repeats = 1
         runs = tuple(r for r in RUNS if r[0] == FLOOR_SCENARIO and r[2] is ControllerKind.hybrid_cf)
-        law_repeats, cost_calls = 200, 50
+        law_repeats, cost_calls, overrides = 200, 50, SMOKE_RECORD
         args.no_write = True
     pinned = pin_one_core()
     load_before = os.getloadavg()
@@ -648,7 +652,7 @@ def main() -> None:
     learned = {}
     for scenario, skill_type, _, _ in runs:
         if scenario not in learned:
-            recording = record_demonstration(scenario, seed=0)
+            recording = record_demonstration(scenario, seed=0, **overrides)
             options = LearnOptions(skill_type=skill_type)
             learned[scenario] = (recording, learn_skill(recording.demonstration, options))
 

@@ -65,6 +65,8 @@ FINE = 4
 """The finer rollout step is dt / FINE."""
 NOISE_MM = (0.01, 0.1)
 NOISE_SEEDS = 5
+LONG_REPEATS_MIN = 3
+"""The long trajectory's timings take a third of the repeats, at least this many (at most the repeats asked)."""
 SECTION = "bench_dmp_peer"
 COMMAND = ".venv/bin/python benchmarks/bench_dmp_peer.py"
 
@@ -313,10 +315,10 @@ def timing(tr: Trajectory, repeats: int, peer_ok: bool) -> list[dict]:
 # --------------------------------------------------------------------------- 3. noise
 
 
-def noise(tr: Trajectory, sigma_mm: float, peer_ok: bool) -> dict[str, float]:
-    """Median over seeds of the position RMS error (mm) against the clean trajectory, rolled out at dt."""
+def noise(tr: Trajectory, sigma_mm: float, peer_ok: bool, seeds: int = NOISE_SEEDS) -> dict[str, float]:
+    """Median over ``seeds`` seeds of the position RMS error (mm) against the clean trajectory, rolled out at dt."""
     results: dict[str, list[float]] = {}
-    for seed in range(NOISE_SEEDS):
+    for seed in range(seeds):
         rng = np.random.default_rng(seed)
         noisy = tr.position + rng.normal(0.0, sigma_mm * 1e-3, tr.position.shape)
         results.setdefault("noise", []).append(position_rms_mm(noisy, tr.position))
@@ -351,12 +353,17 @@ def _span(values: list[float], digits: int = 1) -> str:
     return f"{lo:.{digits}f}x" if f"{lo:.{digits}f}" == f"{hi:.{digits}f}" else f"{lo:.{digits}f}-{hi:.{digits}f}x"
 
 
+def long_repeats(repeats: int) -> int:
+    """The timing repeats of the long trajectory when the short ones take ``repeats`` (:data:`LONG_REPEATS_MIN`)."""
+    return min(repeats, max(LONG_REPEATS_MIN, repeats // 3))
+
+
 def long_rollout_times(repeats: int) -> tuple[float, float]:
     """Median wall time (s) of our position and quaternion rollouts over 60 000 steps (the reach demo)."""
     t, position, q = reach_pose_trajectory(N_SAMPLES, DURATION_S)
     pos_dmp, q_dmp = DMP.fit(t, position, n_basis=N_BASIS), QuaternionDMP.fit(t, q, n_basis=N_BASIS)
     dt = DURATION_S / 60_000
-    n = max(3, repeats // 3)
+    n = long_repeats(repeats)
     return median_time(lambda: pos_dmp.rollout(dt), n)[0], median_time(lambda: q_dmp.rollout(dt), n)[0]
 
 
@@ -376,7 +383,7 @@ def _guarded(what: str, notes: list[str], fn: Callable[[], object], fallback: ob
         return fallback
 
 
-def build_report(repeats: int) -> str:
+def build_report(repeats: int, noise_seeds: int = NOISE_SEEDS) -> str:
     try:
         import movement_primitives  # noqa: F401
 
@@ -472,7 +479,7 @@ def build_report(repeats: int) -> str:
         "",
         "### Time: fit, and rollout with equal integration step counts",
         "",
-        f"Median of {repeats} repeats ({max(3, repeats // 3)} for the {LONG_DURATION_S:g} s trajectory). Rollout "
+        f"Median of {repeats} repeats ({long_repeats(repeats)} for the {LONG_DURATION_S:g} s trajectory). Rollout "
         "at the demonstration's step: 'equal steps' rows run one integration step per output sample, as ours "
         "does; the peer's default `int_dt` row runs its own number of sub-steps. Equal step counts are not equal "
         f"arithmetic: the peer's default position step is `{steps_used[0]}`"
@@ -488,7 +495,7 @@ def build_report(repeats: int) -> str:
     for tr in trs:
         if not tr.timed:
             continue
-        n_rep = repeats if tr.short else max(3, repeats // 3)
+        n_rep = repeats if tr.short else long_repeats(repeats)
         rows = _guarded(f"timing {tr.name}", notes, lambda tr=tr, n_rep=n_rep: timing(tr, n_rep, peer_ok), None)
         if rows is None:
             rows = timing(tr, n_rep, False)
@@ -533,7 +540,7 @@ def build_report(repeats: int) -> str:
         "",
         f"Gaussian noise of σ on each position coordinate; ours `DMP` and the peer's `DMP` (default `int_dt`, "
         f"default widths and ours) fitted on the noisy positions, rolled out at dt, scored against the CLEAN "
-        f"trajectory; median over {NOISE_SEEDS} seeds. 'noise' is the RMS of the added noise itself (3-D).",
+        f"trajectory; median over {noise_seeds} seeds. 'noise' is the RMS of the added noise itself (3-D).",
         "",
         "| trajectory | σ mm | noise RMS mm | ours mm | peer mm (its widths) | peer mm (our widths) |",
         "| --- | ---: | ---: | ---: | ---: | ---: |",
@@ -541,9 +548,9 @@ def build_report(repeats: int) -> str:
     noisy: list[tuple[Trajectory, float, dict]] = []
     for tr in trs:
         for sigma in NOISE_MM:
-            r = _guarded(f"noise {tr.name}", notes, lambda tr=tr, s=sigma: noise(tr, s, peer_ok), None)
+            r = _guarded(f"noise {tr.name}", notes, lambda tr=tr, s=sigma: noise(tr, s, peer_ok, noise_seeds), None)
             if r is None:
-                r = noise(tr, sigma, False)
+                r = noise(tr, sigma, False, noise_seeds)
             noisy.append((tr, sigma, r))
             lines.append(
                 f"| {label[id(tr)]} | {sigma:g} | {_f(r['noise'])} | {_f(r['ours'])} | {_f(r.get('peer'))} | "
@@ -600,11 +607,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=15, help="timing repeats (median reported)")
     parser.add_argument("--output", type=Path, default=ROOT / "docs" / "BENCHMARKS.md", help="markdown file to update")
     parser.add_argument("--no-write", action="store_true", help="only print the report")
-    add_smoke_argument(parser, "one timing repeat")
+    add_smoke_argument(parser, "one timing repeat, one noise seed")
     args = parser.parse_args(argv)
-    if args.smoke:
-        args.repeats, args.no_write = 1, True
-    report = build_report(args.repeats)
+    noise_seeds = NOISE_SEEDS
+    if args.smoke:  # every timing once, the noise on one seed: the same code as the full run's medians
+        args.repeats, args.no_write, noise_seeds = 1, True, 1
+    report = build_report(args.repeats, noise_seeds)
     print(report)
     if not args.no_write:
         write_section(SECTION, report, args.output)

@@ -30,8 +30,10 @@ import numpy as np  # noqa: E402
 from scipy.spatial import ConvexHull  # noqa: E402
 
 from experiments.kuleuven_cad import (  # noqa: E402
+    CAD_STIFFNESSES_N_PER_M,
     LATERAL_STIFFNESS_N_PER_M,
     ON_FACE_DEG,
+    STL_FIT_SAMPLES,
     execution_table,
     gap_table,
     kuleuven_cad_trials,
@@ -140,10 +142,10 @@ def ridge_rows(layouts: int, stroke_m: float) -> list[dict]:
     return rows
 
 
-def stl_rows() -> list[tuple[float, float, float, float, float]]:
-    """(from, to, RMS, most inside, most outside) of the CAD pieces' surface against the STL's faces per band of
-    distance from the crease, m (the pieces' surface outside the STL face is negative)."""
-    distance, signed = stl_fit(kuleuven_ground_truth(kuleuven_recordings()[0]))
+def stl_rows(samples: int) -> list[tuple[float, float, float, float, float]]:
+    """(from, to, RMS, most inside, most outside) of the CAD pieces' surface against the STL's faces at ``samples``
+    points, per band of distance from the crease, m (the pieces' surface outside the STL face is negative)."""
+    distance, signed = stl_fit(kuleuven_ground_truth(kuleuven_recordings()[0]), samples)
     rows = []
     for low, high in itertools.pairwise(STL_BANDS_M):
         band = signed[(distance >= low) & (distance < high)]
@@ -151,13 +153,16 @@ def stl_rows() -> list[tuple[float, float, float, float, float]]:
     return rows
 
 
-def build_report(ridge_layouts: int, ridge_stroke_m: float, trials: int) -> str:
+def build_report(
+    ridge_layouts: int, ridge_stroke_m: float, trials: int, cad_stiffnesses: list[float | None], stl_samples: int
+) -> str:
     """The report over the last ``ridge_layouts`` ridge piece layouts (the last is the KU object's), with a ridge
-    stroke of ``ridge_stroke_m`` (m), and the first ``trials`` KU Leuven recordings."""
+    stroke of ``ridge_stroke_m`` (m), the CAD pieces' fit at ``stl_samples`` points, and the first ``trials`` KU
+    Leuven recordings run on the CAD with each CF x-y stiffness of ``cad_stiffnesses`` (N/m; None: the default)."""
     started = time.perf_counter()
     ridges = ridge_rows(ridge_layouts, ridge_stroke_m)
-    fit = stl_rows()
-    trials = kuleuven_cad_trials(kuleuven_recordings()[:trials])
+    fit = stl_rows(stl_samples)
+    trials = kuleuven_cad_trials(kuleuven_recordings()[:trials], tuple(cad_stiffnesses))
     elapsed = time.perf_counter() - started
     ridge_table = [
         "| geometry | convex parts | final | true RMS % | true max % | CF-z RMS % | real-time × |",
@@ -181,6 +186,8 @@ def build_report(ridge_layouts: int, ridge_stroke_m: float, trials: int) -> str:
 
     def true_rms(work_piece: str, stiffness: float | None = None) -> str:
         values = [run.metrics.true_force_rms_error_pct for run in runs_of(trials, work_piece, stiffness)]
+        if not values:  # a stiffness left out (--cad-stiffnesses)
+            return "not run"
         return f"median {statistics.median(values):.2f} %, worst {max(values):.2f} %"
 
     exact = ridges[0]
@@ -225,8 +232,9 @@ def build_report(ridge_layouts: int, ridge_stroke_m: float, trials: int) -> str:
             "",
             *ridge_table,
             "",
-            "The CAD pieces against the STL's faces on both sides of the crease (20 000 points spread over them; "
-            "signed distance from the pieces' surface as PyBullet holds it):",
+            "The CAD pieces against the STL's faces on both sides of the crease "
+            f"({f'{stl_samples:,}'.replace(',', ' ')} points spread over them; signed distance from the pieces' "
+            "surface as PyBullet holds it):",
             "",
             *fit_table,
             "",
@@ -251,8 +259,27 @@ def main(argv: list[str] | None = None) -> int:
             ("--ridge-layouts", {"type": int, "default": len(RIDGE_PIECES), "help": "ridge piece layouts, from last"}),
             ("--ridge-stroke-m", {"type": float, "default": RIDGE_STROKE_M, "help": "ridge stroke length, m"}),
             ("--trials", {"type": int, "default": 4, "help": "KU Leuven recordings (the first N)"}),
+            (
+                "--cad-stiffnesses",
+                {
+                    "type": float,
+                    "nargs": "+",
+                    "default": list(CAD_STIFFNESSES_N_PER_M),
+                    "help": "CF x-y N/m on the CAD",
+                },
+            ),
+            ("--stl-samples", {"type": int, "default": STL_FIT_SAMPLES, "help": "points of the CAD pieces' fit"}),
         ],
-        smoke={"ridge_layouts": 1, "ridge_stroke_m": 0.05, "trials": 1},
+        # The smoke run: every part once. One stiffness on the CAD (an execution there is the run's dearest, its
+        # pieces make every step several times dearer; the other stiffness runs the same code), a tenth of the fit's
+        # points (the same bands, the same code).
+        smoke={
+            "ridge_layouts": 1,
+            "ridge_stroke_m": 0.05,
+            "trials": 1,
+            "cad_stiffnesses": [LATERAL_STIFFNESS_N_PER_M],
+            "stl_samples": STL_FIT_SAMPLES // 10,
+        },
     )
 
 

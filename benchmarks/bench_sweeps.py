@@ -23,11 +23,15 @@ runs the whole skill), polled over REST until done. Measured per run:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -100,8 +104,22 @@ def hand_over_gaps(log: str) -> list[float]:
     return gaps
 
 
-def bench_sweep(workers: int, trials: int, store_telemetry: bool) -> dict:
-    """One sweep of ``trials`` trials on ``contact-skills up --workers {workers}``: its rate, where its time went."""
+@dataclass(frozen=True)
+class Stack:
+    """A running ``contact-skills up --workers {workers}``: its client, its process, its log (level info) and the
+    skill learned on it."""
+
+    workers: int
+    client: httpx.Client
+    up: subprocess.Popen
+    log: Path
+    skill_id: str
+
+
+@contextlib.contextmanager
+def stack(workers: int) -> Iterator[Stack]:
+    """``contact-skills up --workers {workers}`` on a temporary SQLite database, :data:`RECORD` recorded by a worker and
+    learned as a slide."""
     port, zenoh_port = free_port(), free_port()
     url = f"http://127.0.0.1:{port}"
     argv = ["up", "--workers", str(workers), "--port", str(port), "--zenoh-port", str(zenoh_port)]
@@ -114,24 +132,33 @@ def bench_sweep(workers: int, trials: int, store_telemetry: bool) -> dict:
         assert demo.status_code == 201, demo.text
         skill = client.post("/skills", json={"demonstration_id": demo.json()["id"], "skill_type": "slide"})
         assert skill.status_code == 201, skill.text
-        body = {"skill_id": skill.json()["id"], "controllers": ["hybrid_cf"], "vary": VARY, "trials": trials,
-                "store_telemetry": store_telemetry}  # fmt: skip
-        pids = _children(up.pid)
-        cpu_before = {role: sum(_cpu_s(p) for p in found) for role, found in pids.items()}
-        load_before = os.getloadavg()[0]
-        start = time.perf_counter()
-        created = client.post("/sweeps", json=body)
-        submitted_s = time.perf_counter() - start
-        assert created.status_code == 202, created.text
-        sweep_id = created.json()["id"]
-        while (view := client.get(f"/sweeps/{sweep_id}").json())["status"] == "running":
-            time.sleep(POLL_S)
-        wall = time.perf_counter() - start
-        cpu = {role: sum(_cpu_s(p) for p in found) - cpu_before[role] for role, found in pids.items()}
-        load_after = os.getloadavg()[0]
-        trials_view = client.get(f"/sweeps/{sweep_id}/trials").json()
-        stored = [client.get(f"/executions/{t['execution_id']}").json()["telemetry_samples"] for t in trials_view]
-        gaps = hand_over_gaps((Path(tmp) / "up.log").read_text(errors="replace"))
+        yield Stack(workers, client, up, Path(tmp) / "up.log", skill.json()["id"])
+
+
+def bench_sweep(on: Stack, trials: int, store_telemetry: bool) -> dict:
+    """One sweep of ``trials`` trials on the stack ``on``: its rate, where its time went."""
+    workers, client = on.workers, on.client
+    log_from = on.log.stat().st_size  # the hand-overs of this sweep only (a stack may run more than one)
+    body = {"skill_id": on.skill_id, "controllers": ["hybrid_cf"], "vary": VARY, "trials": trials,
+            "store_telemetry": store_telemetry}  # fmt: skip
+    pids = _children(on.up.pid)
+    cpu_before = {role: sum(_cpu_s(p) for p in found) for role, found in pids.items()}
+    load_before = os.getloadavg()[0]
+    start = time.perf_counter()
+    created = client.post("/sweeps", json=body)
+    submitted_s = time.perf_counter() - start
+    assert created.status_code == 202, created.text
+    sweep_id = created.json()["id"]
+    while (view := client.get(f"/sweeps/{sweep_id}").json())["status"] == "running":
+        time.sleep(POLL_S)
+    wall = time.perf_counter() - start
+    cpu = {role: sum(_cpu_s(p) for p in found) - cpu_before[role] for role, found in pids.items()}
+    load_after = os.getloadavg()[0]
+    trials_view = client.get(f"/sweeps/{sweep_id}/trials").json()
+    stored = [client.get(f"/executions/{t['execution_id']}").json()["telemetry_samples"] for t in trials_view]
+    with on.log.open("rb") as log:
+        log.seek(log_from)
+        gaps = hand_over_gaps(log.read().decode(errors="replace"))
     metrics = [t["metrics"] for t in trials_view if t["metrics"]]
     executions = view["counts"]["finished"]
     loop_s = float(np.median([m["duration_s"] / m["real_time_factor"] for m in metrics]))
@@ -242,10 +269,16 @@ def main() -> None:
     speed = machine_speed()
     runs = []
     for workers in worker_counts:
-        for store_telemetry in (False, True):
-            run = bench_sweep(workers, args.trials_per_worker * workers, store_telemetry)
-            runs.append(run)
-            print({k: round(v, 3) if isinstance(v, float) else v for k, v in run.items()}, flush=True)
+        with contextlib.ExitStack() as shared:
+            # The smoke run's two sweeps share one stack (its start-up, recording and learning cost more than its
+            # two trials); the full run gives each sweep a fresh one.
+            one = shared.enter_context(stack(workers)) if args.smoke else None
+            for store_telemetry in (False, True):
+                with contextlib.ExitStack() as own:
+                    on = one or own.enter_context(stack(workers))
+                    run = bench_sweep(on, args.trials_per_worker * workers, store_telemetry)
+                runs.append(run)
+                print({k: round(v, 3) if isinstance(v, float) else v for k, v in run.items()}, flush=True)
     body = report(runs, args.trials_per_worker, speed)
     print(body)
     if not args.no_write:

@@ -252,8 +252,13 @@ def bench_worker_loss(c: Cluster, skill, repeats: int) -> list[float]:
     return times
 
 
-def bench_throughput(logs: Path, skill, workers: int, executions: int) -> tuple[float, float]:
-    with cluster(logs, workers) as c:
+def bench_throughput(
+    logs: Path, skill, workers: int, executions: int, on: Cluster | None = None
+) -> tuple[float, float]:
+    """Executions per minute (pace fast) and their median simulated s, on a fresh cluster of ``workers`` (or ``on``,
+    of as many)."""
+    with contextlib.ExitStack() as own:
+        c = on or own.enter_context(cluster(logs, workers))
         request = ExecutionRequest(skill=skill, scenario="slide_flat", pace="fast")
         started = time.monotonic()
         pending = [f"tp{workers}-{i}" for i in range(executions)]
@@ -297,12 +302,16 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         logs = Path(tmp)
-        with cluster(logs, 1) as c:
+        # The smoke run measures everything on one cluster of 2 workers (a cluster's start-up costs more than its
+        # one execution per minute row); the full run measures latency, aborts and kills with 1 worker, and each
+        # throughput row on a fresh cluster.
+        with cluster(logs, 2 if args.smoke else 1) as c:
             skill = learn_skill_over_bus(c.client)
             latency = [bench_latency(c, skill, batch) for batch in args.batches]
             aborts = bench_abort(c, skill, args.aborts)
             losses = bench_worker_loss(c, skill, args.kills)
-        throughput = {n: bench_throughput(logs, skill, n, args.executions) for n in worker_counts}
+            shared = c if args.smoke else None
+            throughput = {n: bench_throughput(logs, skill, n, args.executions, shared) for n in worker_counts}
 
     default_batch = ExecutionRequest.model_fields["telemetry_batch"].default
     move_s = RECORD.overrides.get("move_duration_s")

@@ -106,9 +106,10 @@ class StressRun:
     world: WorldConfig
 
 
-def stress_skills(scenarios: Iterable[str] = (CONTOUR, CREASE), seed: int = 0) -> dict[str, Skill]:
-    """The skills the cases run: each scenario's teacher recording (``seed``), learned with the default options."""
-    recordings = {name: record_demonstration(name, seed=seed) for name in scenarios}
+def stress_skills(scenarios: Iterable[str] = (CONTOUR, CREASE), seed: int = 0, **overrides: Any) -> dict[str, Skill]:
+    """The skills the cases run: each scenario's teacher recording (``seed``; ``overrides`` as
+    `sim_worker.teacher.record_demonstration` takes them), learned with the default options."""
+    recordings = {name: record_demonstration(name, seed=seed, **overrides) for name in scenarios}
     return {name: learn_skill(r.demonstration, LearnOptions()) for name, r in recordings.items()}
 
 

@@ -60,6 +60,8 @@ ball ``x = K x_ref / (K - F / r)`` off the crease when its taught path lies ``x_
 recordings); its contact normal then leans ``asin(x / r)`` from the CF z, and the force along it grows by ``1 / cos``
 of that lean: within 10 % needs ``x`` under 4 mm, ``K`` at least 3 ``F / r``. (6000 N/m, 2-3 × ``F / r``, held three
 of the four within 10 %: contour_b_2 ran at 15.5 %.)"""
+CAD_STIFFNESSES_N_PER_M: tuple[float | None, ...] = (None, LATERAL_STIFFNESS_N_PER_M)
+"""The CF x-y stiffnesses each skill runs with on the CAD, N/m (None: the default gains')."""
 ON_FACE_DEG = 2.0
 """The ball presses on one face of the crease when the true contact normal lies within this of that face's normal
 (across the crease), deg."""
@@ -73,6 +75,8 @@ BAND_RAYS = 11
 STL_FIT_REACH_M = 0.003
 """A piece counts for an STL point's distance when the point lies within this of its bounding box, m (the pieces
 hold the faces within a millimetre)."""
+STL_FIT_SAMPLES = 20000
+"""Points spread over the STL's faces by the crease for :func:`stl_fit`."""
 RAY_CLEARANCE_M = 0.05
 """The rays start this far back along the CF z from the surface, m."""
 
@@ -230,7 +234,7 @@ def surface_gap(
     )
 
 
-def stl_fit(truth: KuleuvenGroundTruth, samples: int = 20000, seed: int = 0) -> tuple[NDArray, NDArray]:
+def stl_fit(truth: KuleuvenGroundTruth, samples: int = STL_FIT_SAMPLES, seed: int = 0) -> tuple[NDArray, NDArray]:
     """How closely the CAD pieces (`sim_worker.cad_work_piece.crease_pieces`, as PyBullet holds them: faces out by
     the margin) hold the STL's faces on both sides of the crease: for ``samples`` points spread evenly over those
     faces (CAD frame), their distance from the crease (m) and their signed distance from the pieces' surface (m,
@@ -259,8 +263,11 @@ def stl_fit(truth: KuleuvenGroundTruth, samples: int = 20000, seed: int = 0) -> 
     return closest_points_on_polyline(points, contour.crease.points).distances, signed
 
 
-def kuleuven_cad_trial(recording: Path) -> CadTrial:
-    """Learn, place and execute one KU Leuven recording's skill on its work pieces and on the CAD (see the module)."""
+def kuleuven_cad_trial(
+    recording: Path, cad_stiffnesses: tuple[float | None, ...] = CAD_STIFFNESSES_N_PER_M
+) -> CadTrial:
+    """Learn, place and execute one KU Leuven recording's skill on its work pieces and on the CAD (see the module),
+    there once per CF x-y stiffness of ``cad_stiffnesses`` (N/m; None: the default gains')."""
     truth = kuleuven_ground_truth(recording)
     skill = learn_skill(truth.demonstration)
     settings = ExecutionSettings()
@@ -275,7 +282,7 @@ def kuleuven_cad_trial(recording: Path) -> CadTrial:
     runs = [CadRun(name, default_stiffness, run_skill(world, settings).metrics, None) for name, world in worlds.items()]
     cad = cad_world(truth, placement)
     where = placed_object(truth, placement)
-    for stiffness in (default_stiffness, LATERAL_STIFFNESS_N_PER_M):
+    for stiffness in (default_stiffness if value is None else value for value in cad_stiffnesses):
         along_cf_z = settings.gains.translational_stiffness_n_per_m[2]
         gains = settings.gains.model_copy(
             update={"translational_stiffness_n_per_m": [stiffness, stiffness, along_cf_z]}
@@ -298,10 +305,12 @@ def kuleuven_cad_trial(recording: Path) -> CadTrial:
     )
 
 
-def kuleuven_cad_trials(recordings: list[Path] | None = None) -> list[CadTrial]:
+def kuleuven_cad_trials(
+    recordings: list[Path] | None = None, cad_stiffnesses: tuple[float | None, ...] = CAD_STIFFNESSES_N_PER_M
+) -> list[CadTrial]:
     """:func:`kuleuven_cad_trial` of every KU Leuven recording (default: `services.datasets.kuleuven_recordings`):
     about 15 s each on one core."""
-    return [kuleuven_cad_trial(path) for path in (recordings or kuleuven_recordings())]
+    return [kuleuven_cad_trial(path, cad_stiffnesses) for path in (recordings or kuleuven_recordings())]
 
 
 def _mm(values: NDArray[np.float64]) -> str:

@@ -2,7 +2,9 @@
 report with numbers computed from that run, and writes nothing into docs/ (issue 28, "benchmarks that cannot rot").
 
 The benchmarks that start a stack of their own (``contact-skills up``, a router, workers) are in
-tests/test_benchmarks_smoke_stack.py, so that ``pytest -n 2 --dist loadfile`` runs the two files side by side.
+tests/test_benchmarks_smoke_stack.py, those that execute skills on work pieces, the CAD and changed parts in
+tests/test_benchmarks_smoke_parts.py: ``pytest -n 2 --dist loadfile`` runs a file in one process, and three files of
+similar cost spread over both.
 """
 
 from __future__ import annotations
@@ -77,11 +79,10 @@ def finite(*values: float) -> bool:
 
 
 def test_every_benchmark_has_a_smoke_test_and_a_line_in_make_bench():
-    """A new benchmark cannot be left out: each ``benchmarks/bench_*.py`` is smoke-run by one of the two smoke test
-    files and run in its full mode by ``make bench``."""
+    """A new benchmark cannot be left out: each ``benchmarks/bench_*.py`` is smoke-run by one of the smoke test files
+    (tests/test_benchmarks_smoke*.py) and run in its full mode by ``make bench``."""
     scripts = sorted(p.name for p in (ROOT / "benchmarks").glob("bench_*.py"))
-    tests = "".join((ROOT / "tests" / name).read_text() for name in ("test_benchmarks_smoke.py",
-                                                                     "test_benchmarks_smoke_stack.py"))  # fmt: skip
+    tests = "".join(path.read_text() for path in (ROOT / "tests").glob("test_benchmarks_smoke*.py"))
     make_bench = (ROOT / "Makefile").read_text().split("\nbench:", 1)[1].split("\n\n", 1)[0]
     assert len(scripts) > 10
     assert [s for s in scripts if f'run_smoke("{s}"' not in tests] == []
@@ -173,69 +174,6 @@ def test_learning_sources_benchmark_smoke():
     for row in tuned_wipes:
         median, largest = numbers(row[2])
         assert median < 5.0 and largest < 10.0, row
-
-
-def test_contours_benchmark_smoke():
-    """The case as taught, with every controller: a cell per controller with its force errors and contact share."""
-    out = run_smoke("bench_contours.py")
-    rows = table(out, "unknown change")
-    assert [row[0] for row in rows] == ["as taught"]
-    for cell in rows[0][1:]:
-        rms, peak, contact = numbers(cell)[:3]
-        assert 0 < rms <= peak and 0 <= contact <= 100, cell
-
-
-def test_verdicts_benchmark_smoke():
-    """The flat-table slide as taught, fixed and following: the counts row and a table row, both settings judged."""
-    out = run_smoke("bench_verdicts.py")
-    (counts,) = table(out, "group")
-    assert counts[0] == "tuned" and numbers(counts[1])[0] == 2, counts
-    (row,) = table(out, "skill")
-    assert row[:3] == ["slide_flat", "as taught", "tuned"] and all("pass" in cell for cell in row[3:]), row
-
-
-def test_real_skills_benchmark_smoke():
-    """The four KU Leuven trials at their surface and 2 cm higher; the sentence counts the table's rows."""
-    out = run_smoke("bench_real_skills.py")
-    rows = table(out, "trial | unknown shift")
-    assert len(rows) == 8
-    done = sum(row[2] == "done" for row in rows)
-    assert f"{done} of 8 executions finished" in out
-    worst = max(float(row[4]) for row in rows)
-    assert f"worst {worst:.2f} %" in out
-
-
-def test_work_piece_benchmark_smoke():
-    """One flat case, one cylinder, one KU Leuven trial, each learned both ways; the floor sentence from the rows."""
-    out = run_smoke("bench_work_piece.py")
-    flat = table(out, "case | learned as | ideal table")
-    assert len(flat) == 2 and flat[1][1].endswith("(forced)")
-    added = max(numbers(row[4])[0] for row in flat)
-    assert f"The measured piece adds at most {added:+.2f} % RMS" in out
-    assert len(table(out, "case | learned as | true cylinder")) == 2
-    ku = table(out, "case | learned as | measured | rebuilt")
-    assert [row[0] for row in ku] == ["contour_a_1", "contour_a_1"]
-    assert all(finite(*numbers(row[2]), *numbers(row[3])) for row in ku)
-
-
-def test_kuleuven_cad_benchmark_smoke():
-    """The ridge on one exact prism and on the KU object's pieces, and one KU Leuven trial on its CAD."""
-    out = run_smoke("bench_kuleuven_cad.py", timeout_s=400.0)
-    ridge = table(out, "geometry | convex parts")
-    assert len(ridge) == 2 and ridge[0][0] == "one exact convex prism" and int(ridge[1][1]) > 1
-    exact, pieces = float(ridge[0][3]), float(ridge[1][3])
-    assert f"holds the force to {exact:.2f} % RMS" in out and f"to {pieces:.2f} %:" in out
-    runs = table(out, "trial | work piece")
-    assert {row[0] for row in runs} == {"contour_a_1"}
-
-
-def test_kuleuven_truth_benchmark_smoke():
-    """The four recordings registered to the CAD: a row each, distances in millimetres."""
-    out = run_smoke("bench_kuleuven_truth.py")
-    rows = table(out, "trial | samples")
-    assert len(rows) == 4
-    for row in rows:
-        assert int(row[1]) > 500 and finite(*numbers(row[2])) and 0 < numbers(row[2])[0] < 50, row
 
 
 def test_control_loop_benchmark_smoke():
