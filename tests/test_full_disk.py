@@ -143,3 +143,54 @@ def test_a_run_whose_telemetry_meets_a_full_disk_ends_failed_with_the_count_of_l
         assert f"{steps - stored:,} of its {steps:,} telemetry samples were not stored" in view["error"], view
         assert c.delete(f"/executions/{run}").status_code == 204  # and the full disk still deletes it
         assert c.post("/demonstrations", json=_demo_json()).status_code == 201
+
+
+@contextmanager
+def _small_disk(path, size_mib: int) -> Iterator:
+    """A real file system of ``size_mib`` MiB (tmpfs) mounted at ``path``: needs root and the right to mount (CI runs
+    as root); skips otherwise, saying why."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("a real full disk needs root to mount a small tmpfs (the page-limit tests above run anyway)")
+    path.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_mib}m", "tmpfs", str(path)],
+                             capture_output=True, text=True)  # fmt: skip
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=False)
+
+
+def test_a_real_full_disk_still_deletes_through_the_api_and_the_room_is_used_again(tmp_path):
+    """Not SQLite's page limit: a 24 MiB file system filled by uploads. There even a deletion needs room (the
+    write-ahead log grows, and its committed pages may lie past the database file's end): before the ballast FILE
+    every DELETE answered 507 (measured); it is freed first, the log emptied, and the deletion goes through."""
+    demo = Demonstration.model_validate(_demo_json())
+    t = np.arange(8000) * 1e-3  # an 8 s, 1 kHz recording: ~2 MiB as JSON
+    arrays = demo.arrays()
+    index = np.minimum(np.arange(8000) * arrays.t.size // 8000, arrays.t.size - 1)
+    body = Demonstration.from_arrays(t, arrays.positions[index], arrays.orientations[index], arrays.wrenches[index])
+    with _small_disk(tmp_path / "disk", 24) as disk:
+        store = Store(disk / "api.db")
+        try:
+            with loopback_client(create_app(api_settings(tmp_path, storage_quota_mb=0), bus=None, store=store)) as c:
+                answers = []
+                while len(answers) < 40 and (not answers or answers[-1].status_code == 201):
+                    answers.append(c.post("/demonstrations", content=body.model_dump_json(),
+                                          headers={"content-type": "application/json"}))  # fmt: skip
+                assert answers[-1].status_code == 507 and "is full" in answers[-1].text, answers[-1].text
+                assert len(answers) > 3
+                stored = [a.json()["id"] for a in answers[:-1]]
+                assert c.get("/demonstrations").status_code == 200
+                assert c.delete(f"/demonstrations/{stored[0]}").status_code == 204
+                assert c.delete(f"/demonstrations/{stored[1]}").status_code == 204
+                again = c.post("/demonstrations", content=body.model_dump_json(),
+                               headers={"content-type": "application/json"})  # fmt: skip
+                assert again.status_code == 201, again.text
+                assert len(c.get("/demonstrations").json()) == len(stored) - 1
+        finally:
+            store.close()
