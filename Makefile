@@ -61,6 +61,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_dashboard.py
 	$(BIN)/python benchmarks/bench_long_run.py
 	$(BIN)/python benchmarks/bench_worker_memory.py
+	$(BIN)/python benchmarks/bench_floods.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -80,16 +80,18 @@ def running(
         log.close()
 
 
-def demonstration_body() -> dict:
+def demonstration_body(duration_s: float = LEARN_DEMO_S, name: str | None = None) -> dict:
+    """The JSON body of ``POST /demonstrations``: a ``duration_s`` synthetic slide at 1 kHz
+    (``corpus.synthetic.plane_slide``), named ``name`` (default: what it is)."""
     from corpus.synthetic import plane_slide
 
-    d = plane_slide(duration_s=LEARN_DEMO_S)
+    d = plane_slide(duration_s=duration_s)
     return {
         "t": d.t.tolist(),
         "positions": d.positions.tolist(),
         "orientations": d.orientations.tolist(),
         "wrenches": d.wrenches.tolist(),
-        "metadata": {"name": "plane_slide 10 s 1 kHz"},
+        "metadata": {"name": f"plane_slide {duration_s:g} s 1 kHz" if name is None else name},
     }
 
 

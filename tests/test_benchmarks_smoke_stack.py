@@ -105,3 +105,25 @@ def test_worker_memory_benchmark_smoke():
     assert recorded and float(recorded.group(3)) <= float(recorded.group(1)) and float(recorded.group(1)) >= peak
     budget = float(re.search(r"(within|OVER) the (\d+) MB budget", out).group(2))
     assert (recorded.group(2) == "within") == (float(recorded.group(1)) <= budget)  # the verdict from the run
+
+
+def test_floods_benchmark_smoke():
+    """20 slow bodies, 20 idle router connections, 3 s of /health probes each; 12 paged reads of 20 000 samples and
+    3 lists: every probe and bus session counted, every read whole, the peaks read from /proc."""
+    out = run_smoke("bench_floods.py", timeout_s=120.0)
+    floods = table(out, "flood | held")
+    assert [row[0] for row in floods] == ["quiet", "slow `POST` bodies to the API",
+                                          "idle TCP connections to the Zenoh port"]  # fmt: skip
+    for row in floods:
+        probes, not_ok, p50, p99, peak = int(row[2]), int(row[3]), float(row[4]), float(row[5]), float(row[6])
+        assert probes >= 5 and 0 <= not_ok <= probes and 0 < p50 <= p99 <= peak, row
+    assert numbers(floods[1][1])[0] == 20 and numbers(floods[2][1])[0] == 20
+    for row in (floods[0], floods[2]):  # the sessions opened: median <= max, none refused
+        median, most = numbers(row[7])
+        assert 0 < median <= most and "refused" not in row[7], row
+    reads, lists = table(out, "read burst | answered")
+    assert reads[1].startswith("12 of 12 whole") and lists[1] == "3 of 3 with all 6", (reads, lists)
+    for row in (reads, lists):
+        assert 50 < float(row[3]) <= float(row[4]) and float(row[2]) > 0, row  # peak reset to the resident set
+    p99 = re.search(r"p99 of `/health` during the slow-body flood: (\d+(?:\.\d+)?) ms", out)
+    assert p99 and float(p99.group(1)) == float(floods[1][5])

@@ -99,7 +99,8 @@ def _closed(sock: socket.socket) -> bool:
 
 
 class IdleFlood:
-    """``n`` idle TCP connections to ``port`` that send nothing, each reopened as soon as the router closes it."""
+    """``n`` idle TCP connections to ``port`` that send nothing, each reopened as soon as the router closes it
+    (``_open``, ``_gone`` and ``_tend``: other floods, benchmarks/bench_floods.py's slow bodies)."""
 
     def __init__(self, port: int, n: int) -> None:
         self.port, self.n = port, n
@@ -108,15 +109,27 @@ class IdleFlood:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._hold, daemon=True)
 
+    def _open(self) -> socket.socket:
+        """One more connection of the flood (a subclass sends something first)."""
+        return socket.create_connection(("127.0.0.1", self.port), timeout=5)
+
+    def _gone(self, sock: socket.socket) -> bool:
+        """Whether to reopen ``sock``: as soon as the router closed it."""
+        return _closed(sock)
+
+    def _tend(self, held: list[socket.socket]) -> None:
+        """What the flood does with the connections it ``held`` every round: nothing (they are idle)."""
+
     def _hold(self) -> None:
         held: list[socket.socket] = []
         while not self._stop.is_set():
-            held = [s for s in held if not _closed(s) or s.close()]
+            held = [s for s in held if not self._gone(s) or s.close()]
             while len(held) < self.n and not self._stop.is_set():
                 with contextlib.suppress(OSError):
-                    held.append(socket.create_connection(("127.0.0.1", self.port), timeout=5))
+                    held.append(self._open())
                     self.opened += 1
             self.held_most = max(self.held_most, len(held))
+            self._tend(held)
             self._stop.wait(0.01)
         for s in held:
             s.close()
