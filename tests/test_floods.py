@@ -28,6 +28,7 @@ from conftest import FakeBus, api_settings
 from test_api import _demo_json
 from waiting import wait_for
 
+from benchmarks.floods import IdleFlood, closed, port_of, slow_body
 from services.local_processes import free_port
 
 WAIT_S = 60.0
@@ -61,18 +62,6 @@ def served(tmp_path: Path, bus: bool = False, **changes) -> Iterator[str]:
         store.close()
 
 
-def _port(url: str) -> int:
-    return int(url.rsplit(":", 1)[1])
-
-
-def _slow_body(url: str) -> socket.socket:
-    """A connection that sent a POST's head and the first byte of its 100 000-byte body."""
-    sock = socket.create_connection(("127.0.0.1", _port(url)), timeout=WAIT_S)
-    sock.sendall(b"POST /demonstrations HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
-                 b"Content-Length: 100000\r\n\r\n{")  # fmt: skip
-    return sock
-
-
 def _answer(sock: socket.socket) -> bytes:
     """Everything the server sends until it closes the connection."""
     received = b""
@@ -82,66 +71,7 @@ def _answer(sock: socket.socket) -> bytes:
     return received
 
 
-def _closed(sock: socket.socket) -> bool:
-    """Whether the server closed ``sock`` (without waiting)."""
-    sock.setblocking(False)
-    try:
-        return sock.recv(65536) == b""
-    except BlockingIOError:
-        return False
-    except OSError:
-        return True
-    finally:
-        sock.setblocking(True)
-
-
 # ------------------------------------------------------------------------------------------------ the Zenoh router
-
-
-class IdleFlood:
-    """``n`` idle TCP connections to ``port`` that send nothing, each reopened as soon as the router closes it
-    (``_open``, ``_gone`` and ``_tend``: other floods, benchmarks/bench_floods.py's slow bodies)."""
-
-    def __init__(self, port: int, n: int) -> None:
-        self.port, self.n = port, n
-        self.opened = 0
-        self.held_most = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._hold, daemon=True)
-
-    def _open(self) -> socket.socket:
-        """One more connection of the flood (a subclass sends something first)."""
-        return socket.create_connection(("127.0.0.1", self.port), timeout=5)
-
-    def _gone(self, sock: socket.socket) -> bool:
-        """Whether to reopen ``sock``: as soon as the router closed it."""
-        return _closed(sock)
-
-    def _tend(self, held: list[socket.socket]) -> None:
-        """What the flood does with the connections it ``held`` every round: nothing (they are idle)."""
-
-    def _hold(self) -> None:
-        held: list[socket.socket] = []
-        while not self._stop.is_set():
-            held = [s for s in held if not self._gone(s) or s.close()]
-            while len(held) < self.n and not self._stop.is_set():
-                with contextlib.suppress(OSError):
-                    held.append(self._open())
-                    self.opened += 1
-            self.held_most = max(self.held_most, len(held))
-            self._tend(held)
-            self._stop.wait(0.01)
-        for s in held:
-            s.close()
-
-    def __enter__(self) -> IdleFlood:
-        self._thread.start()
-        wait_for(lambda: self.held_most >= self.n, WAIT_S, f"{self.n} idle connections to the router")
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(WAIT_S)
 
 
 def test_idle_connections_to_the_router_do_not_keep_a_worker_out(tmp_path):
@@ -169,7 +99,7 @@ def test_idle_connections_to_the_router_do_not_keep_a_worker_out(tmp_path):
 
 
 def test_a_body_that_does_not_arrive_in_time_is_answered_408_and_closed(tmp_path):
-    with served(tmp_path, body_timeout_s=1.0) as url, _slow_body(url) as slow:
+    with served(tmp_path, body_timeout_s=1.0) as url, slow_body(url, WAIT_S) as slow:
         answer = _answer(slow)  # the server closes it: recv returns b""
         assert answer.startswith(b"HTTP/1.1 408 ") and b"request body not received within 1 s" in answer
         assert httpx.get(f"{url}/health", timeout=WAIT_S).status_code == 200
@@ -183,13 +113,13 @@ def test_slow_bodies_past_the_connection_cap_do_not_keep_health_out(tmp_path, to
         slow = []
         try:
             for _ in range(14):
-                slow.append(_slow_body(url))
+                slow.append(slow_body(url, WAIT_S))
                 time.sleep(0.05)  # in order: the first ones wait longest
             for _ in range(3):
                 health = httpx.get(f"{url}/health", timeout=WAIT_S)
                 assert health.status_code == 200 and health.json()["status"] == "ok"
-            wait_for(lambda: _closed(slow[0]) and _closed(slow[1]), WAIT_S, "the oldest slow bodies to be closed")
-            assert not _closed(slow[-1])  # the newest still waits for its body
+            wait_for(lambda: closed(slow[0]) and closed(slow[1]), WAIT_S, "the oldest slow bodies to be closed")
+            assert not closed(slow[-1])  # the newest still waits for its body
         finally:
             for sock in slow:
                 sock.close()
@@ -203,7 +133,7 @@ def test_a_request_head_over_64_kib_is_431_even_when_it_arrives_whole(tmp_path):
 
     with served(tmp_path) as url:
         for size, status in ((60_000, b"200"), (100_000, b"431"), (MAX_HEAD_BYTES + 1, b"431")):
-            with socket.create_connection(("127.0.0.1", _port(url)), timeout=WAIT_S) as sock:
+            with socket.create_connection(("127.0.0.1", port_of(url)), timeout=WAIT_S) as sock:
                 head = b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\nX-Pad: "
                 sock.sendall(head + b"a" * (size - len(head) - 4) + b"\r\n\r\n")  # exactly `size` bytes, at once
                 assert _answer(sock).startswith(b"HTTP/1.1 " + status), size
