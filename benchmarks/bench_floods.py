@@ -32,16 +32,17 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the floods of tests/floods.py
 
 from benchmarks.bench_service import child_commands, demonstration_body, running
 from benchmarks.bench_worker_memory import resident_mb
-from benchmarks.floods import IdleFlood, closed, port_of, slow_body
 from benchmarks.report import machine_line, pin_blas_threads, report_main
 
 pin_blas_threads()
 
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
+from floods import IdleFlood, closed, port_of, slow_body  # noqa: E402
 
 from schemas.api import NEXT_OFFSET_HEADER  # noqa: E402
 from schemas.text import MAX_NAME_CHARS  # noqa: E402
@@ -71,7 +72,7 @@ SMOKE = {"slow_bodies": 20, "idle": 20, "seconds": 3.0, "settle": 0.5, "samples"
 
 
 class SlowBodyFlood(IdleFlood):
-    """``n`` slow ``POST /demonstrations`` bodies to the API at ``url`` (``benchmarks.floods.slow_body``: the
+    """``n`` slow ``POST /demonstrations`` bodies to the API at ``url`` (``tests/floods.py``'s ``slow_body``: the
     head with a 100 000-byte ``Content-Length`` and its first byte), each sending one more byte every
     :data:`BYTE_EVERY_S` s; one the server closed is reopened when it comes to send its next byte (as the issue's
     probe did: a client that dribbles a body learns of the close when it writes)."""

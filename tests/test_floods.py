@@ -25,10 +25,10 @@ from pathlib import Path
 import httpx
 import pytest
 from conftest import FakeBus, api_settings
+from floods import IdleFlood, closed, port_of, slow_body
 from test_api import _demo_json
 from waiting import wait_for
 
-from benchmarks.floods import IdleFlood, closed, port_of, slow_body
 from services.local_processes import free_port
 
 WAIT_S = 60.0
