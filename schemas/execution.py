@@ -23,7 +23,7 @@ from schemas.verdict import ExecutionTolerances, ExecutionVerdict, SurfacePresse
 
 def _triple(low: float, high: float) -> type[list[float]]:
     """Three numbers, each within [low, high] (the bound is declared in the OpenAPI and enforced)."""
-    return Annotated[list[Annotated[float, Field(ge=low, le=high)]], Field(min_length=3, max_length=3)]  # type: ignore[return-value]
+    return Annotated[list[Annotated[Real, Field(ge=low, le=high)]], Field(min_length=3, max_length=3)]  # type: ignore[return-value]
 
 
 Stiffness3 = _triple(0.0, 1e5)
@@ -35,7 +35,7 @@ MAX_OFFSET_M = 1.0
 Offset3 = _triple(-MAX_OFFSET_M, MAX_OFFSET_M)
 MAX_TILT_DEG = 30.0
 """Largest unknown tilt of the work piece about each axis, deg."""
-Tilt2 = Annotated[list[Annotated[float, Field(ge=-MAX_TILT_DEG, le=MAX_TILT_DEG)]], Field(min_length=2, max_length=2)]
+Tilt2 = Annotated[list[Annotated[Real, Field(ge=-MAX_TILT_DEG, le=MAX_TILT_DEG)]], Field(min_length=2, max_length=2)]
 MAX_SENSOR_BIAS_N = 50.0
 """Largest untared force bias of the sensor per axis, N (a 10 % offset of a large wrist sensor's range)."""
 Bias3 = _triple(-MAX_SENSOR_BIAS_N, MAX_SENSOR_BIAS_N)

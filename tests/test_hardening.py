@@ -326,6 +326,8 @@ def test_a_boolean_is_not_a_number(client, demo):
     assert _names(response, "n_basis") and "not a boolean" in response.text, response.text
     response = client.post("/executions", json={"skill_id": "skill_0", "approach_speed_m_s": True})
     assert _names(response, "approach_speed_m_s") and "not a boolean" in response.text, response.text
+    response = client.post("/executions", json={"skill_id": "skill_0", "environment": {"offset": [0.0, True, 0.0]}})
+    assert _names(response, "offset") and "not a boolean" in response.text, response.text
     response = client.post("/skills", json={"demonstration": demo, "basis_per_second": False})
     assert _names(response, "basis_per_second") and "not a boolean" in response.text, response.text
     response = client.post("/demonstrations/record", json={"scenario": "slide_flat", "seed": 7})
