@@ -1,5 +1,5 @@
-"""The live execution in Foxglove: a Foxglove WebSocket server (protocol ``foxglove.websocket.v1``, the
-``foxglove-sdk`` package) in the API process, on the API's own bind address (loopback by default; in docker-compose
+"""The live execution in Foxglove: a Foxglove WebSocket server (Foxglove's WebSocket protocol, the ``foxglove-sdk``
+package, under either of its names: :data:`SDK_SUBPROTOCOL` and :data:`WEBSOCKET_SUBPROTOCOL`) in the API process, on the API's own bind address (loopback by default; in docker-compose
 the container's interfaces, published on the host's loopback), streaming the execution that runs.
 
 What it streams is what the exported MCAP holds (``services.telemetry_export.ExecutionMessages``: the same topics,
@@ -19,7 +19,8 @@ markers at the scene's own rates.
 Configuration: ``CONTACT_SKILLS_FOXGLOVE_PORT`` (``services.settings.ServiceSettings.foxglove_port``: default 8765;
 ``0`` any free port; ``off`` no server). A port already taken falls back to a free one (``/health`` gives the URL,
 ``foxglove_url``). The handshake is held to the REST API's browser rule (``services.origin_gate``: a foreign
-``Origin`` is refused unless in ``CONTACT_SKILLS_CORS_ORIGINS``; a ``Host`` not the service's). The protocol has no
+``Origin`` is refused unless in ``CONTACT_SKILLS_CORS_ORIGINS``; a ``Host`` not the service's), and the same gate
+answers a client that offers only ``foxglove.websocket.v1`` in that name. The protocol has no
 authentication: when the API's reads need its token
 (``CONTACT_SKILLS_TOKEN_READS``) the server is off unless the variable is set.
 """
@@ -49,6 +50,11 @@ POLL_S = 0.05
 LIVE_HZ = 100.0
 """Poses, wrenches and ``/tf`` per second of execution time (1 kHz control steps; the last of each read always)."""
 EXECUTION_TOPIC = "/execution"
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"
+"""The WebSocket subprotocol the SDK's server accepts (and it alone)."""
+WEBSOCKET_SUBPROTOCOL = "foxglove.websocket.v1"
+"""The same protocol's original name, the only one older Foxglove Studio releases and some forks offer: the origin
+gate answers it in that name (``services.origin_gate``)."""
 MESSAGE_BACKLOG = 8192
 """Messages the server holds per client before it drops the oldest (the SDK's default is 1024): about 7 s of the
 live stream (eleven topics at :data:`LIVE_HZ`; joint states and markers slower), so an API that stalls a few
@@ -138,7 +144,8 @@ class FoxgloveLive:
             log.exception("Foxglove server could not start")
             return
         for port in (self.port, 0):
-            gate = OriginGate(self.host, port, self.server.port, self.allowed_origins, self.host_names)
+            gate = OriginGate(self.host, port, self.server.port, self.allowed_origins, self.host_names,
+                              {WEBSOCKET_SUBPROTOCOL: SDK_SUBPROTOCOL})
             try:
                 gate.start()
             except OSError as exc:

@@ -157,40 +157,56 @@ def test_options_answers_allow_with_every_method_of_the_path(tmp_path):
 # ------------------------------------------------------------------------------------------------ Foxglove's origin
 
 
-def test_the_foxglove_handshake_is_held_to_the_rest_apis_origin_rule(tmp_path):
+def test_the_foxglove_handshake_is_held_to_the_rest_apis_origin_rule_under_either_protocol_name(tmp_path):
+    """The origin gate refuses a foreign page's handshake whichever name of Foxglove's protocol it offers, and
+    answers an accepted one in the name the client offered (``foxglove.websocket.v1`` alone: older Foxglove Studio
+    releases; both: the SDK's own name, which the server picks), with the server's first message behind it."""
     import asyncio
+    import json
 
     websockets = pytest.importorskip("websockets")
     pytest.importorskip("foxglove")
-    from services.foxglove_live import live_view
+    from services.foxglove_live import SDK_SUBPROTOCOL, WEBSOCKET_SUBPROTOCOL, live_view
     from services.settings import ServiceSettings
     from services.store import Store
 
-    async def handshake(url: str, **headers: str) -> int | str:
-        """The subprotocol a handshake with ``headers`` agreed, or the HTTP status refusing it."""
+    async def handshake(url: str, offered: list[str], **headers: str) -> int | str:
+        """The subprotocol a handshake offering ``offered`` with ``headers`` agreed (once the server's first
+        message, serverInfo, came through it), or the HTTP status refusing it."""
         try:
-            async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"], **headers) as ws:
+            async with websockets.connect(url, subprotocols=offered, **headers) as ws:
+                assert json.loads(await ws.recv())["op"] == "serverInfo"
                 return ws.subprotocol
         except websockets.InvalidStatus as exc:
             return exc.response.status_code
 
-    async def handshakes(url: str, port: int) -> list[int | str]:
+    async def handshakes(url: str, port: int, offered: list[str]) -> list[int | str]:
         local = f"http://127.0.0.1:{port}"
         return await asyncio.gather(
-            handshake(url), handshake(url, origin=local), handshake(url, origin="http://ui.example"),
-            handshake(url, origin="http://attacker.example"), handshake(f"ws://localhost:{port}", origin=local),
-            handshake(url, additional_headers={"Host": f"attacker.example:{port}"}),
+            handshake(url, offered), handshake(url, offered, origin=local),
+            handshake(url, offered, origin="http://ui.example"),
+            handshake(url, offered, origin="http://attacker.example"),
+            handshake(f"ws://localhost:{port}", offered, origin=local),
+            handshake(url, offered, additional_headers={"Host": f"attacker.example:{port}"}),
         )  # fmt: skip
 
     store = Store(tmp_path / "api.db")
     view = live_view(store, ServiceSettings(foxglove_port="0", cors_origins=["http://ui.example"]))
     view.start()
+    results = {}
     try:
-        results = asyncio.run(asyncio.wait_for(handshakes(view.url, view.gate.port), WAIT_S))
+        for offered in ([SDK_SUBPROTOCOL], [WEBSOCKET_SUBPROTOCOL], [WEBSOCKET_SUBPROTOCOL, SDK_SUBPROTOCOL]):
+            results[offered[0], len(offered)] = asyncio.run(asyncio.wait_for(handshakes(view.url, view.gate.port,
+                                                                                        offered), WAIT_S))  # fmt: skip
+        results["other", 1] = asyncio.run(asyncio.wait_for(handshake(view.url, ["other.v1"]), WAIT_S))
     finally:
         view.close()
         store.close()
-    assert results == ["foxglove.sdk.v1", "foxglove.sdk.v1", "foxglove.sdk.v1", 403, 403, 400]
+    for (name, count), agreed in results.items():
+        if name != "other":
+            expected = name if count == 1 else SDK_SUBPROTOCOL
+            assert agreed == [expected, expected, expected, 403, 403, 400], (name, count)
+    assert results["other", 1] == 400  # a protocol of another name: the server's own refusal, passed on
 
 
 # ------------------------------------------------------------------------------------------------ per-client caps

@@ -1,8 +1,9 @@
 """The live execution in Foxglove and the exported MCAP, against the REAL stack (`contact-skills up`: embedded Zenoh
 router, the API, a PyBullet sim worker on 127.0.0.1).
 
-A WebSocket client speaking Foxglove's protocol (``foxglove.websocket.v1``, which the SDK's server negotiates as
-``foxglove.sdk.v1``: serverInfo, advertise, subscribe, binary message data, fetchAsset) connects to the URL
+A WebSocket client speaking Foxglove's protocol and offering only its original name, ``foxglove.websocket.v1`` (the
+SDK's server knows it as ``foxglove.sdk.v1``; serverInfo, advertise, subscribe, binary message data, fetchAsset)
+connects to the URL
 ``/health`` gives, subscribes to every channel and records an execution. The messages must decode as their
 advertised ROS 2 types and agree with physics and with each other: the ``cf`` frame of ``/tf`` turns the CF wrench
 into the world wrench of the same step, the joint states put the arm's tool point where ``/tf`` says the tool is
@@ -35,9 +36,10 @@ from services.local_processes import free_port  # noqa: E402
 from services.telemetry_export import execution_topics  # noqa: E402
 from skills.quaternions import matrix_from_quaternion  # noqa: E402
 
-PROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-"""The WebSocket subprotocols a client offers: the SDK names Foxglove's protocol ``foxglove.sdk.v1`` (the messages of
-``foxglove.websocket.v1`` under a new name; the Foxglove app offers both)."""
+PROTOCOLS = ["foxglove.websocket.v1"]
+"""The WebSocket subprotocols the client offers: only the protocol's original name, as older Foxglove Studio releases
+do (the SDK's server accepts only ``foxglove.sdk.v1``, the same messages under a new name: the product's origin gate
+answers this one; tests/test_floods.py checks both names against the origin rule)."""
 MESSAGE_DATA, FETCH_ASSET_RESPONSE = 0x01, 0x04
 PORT = free_port()
 
@@ -70,7 +72,7 @@ async def _record_live(url: str, start, finished) -> tuple[list[dict], dict[str,
     frames: list[bytes] = []
     mesh, mesh_uri = None, ""
     async with websockets.connect(url, subprotocols=PROTOCOLS, max_size=None) as ws:
-        assert ws.subprotocol in PROTOCOLS
+        assert ws.subprotocol == PROTOCOLS[0]
         info = json.loads(await ws.recv())
         assert info["op"] == "serverInfo" and "assets" in info.get("capabilities", []), info
         while not channels:
