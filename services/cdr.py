@@ -102,10 +102,10 @@ def wrench_stamped(frame: str) -> CdrLayout:
     return CdrLayout().stamp("stamp").string(frame).floats("wrench", 6)
 
 
-def tf_message(parent: str, children: Sequence[str]) -> CdrLayout:
-    """``tf2_msgs/msg/TFMessage`` of ``parent -> child`` transforms: ``stamp_<child>``, ``<child>`` = translation (3)
-    + rotation [x, y, z, w] (4)."""
-    layout = CdrLayout().count(len(children))
-    for child in children:
+def tf_message(transforms: Sequence[tuple[str, str]]) -> CdrLayout:
+    """``tf2_msgs/msg/TFMessage`` of ``(parent, child)`` transforms (a frame is the child of one transform at most):
+    ``stamp_<child>``, ``<child>`` = translation (3) + rotation [x, y, z, w] (4)."""
+    layout = CdrLayout().count(len(transforms))
+    for parent, child in transforms:
         layout.stamp(f"stamp_{child}").string(parent).string(child).floats(child, 7)
     return layout

@@ -1,10 +1,12 @@
 """The live execution in Foxglove: a Foxglove WebSocket server (Foxglove's WebSocket protocol, the ``foxglove-sdk``
-package, under either of its names: :data:`SDK_SUBPROTOCOL` and :data:`WEBSOCKET_SUBPROTOCOL`) in the API process, on the API's own bind address (loopback by default; in docker-compose
-the container's interfaces, published on the host's loopback), streaming the execution that runs.
+package, under either of its names: :data:`SDK_SUBPROTOCOL` and :data:`WEBSOCKET_SUBPROTOCOL`) in the API process,
+on the API's own bind address (loopback by default; in docker-compose the container's interfaces, published on the
+host's loopback), streaming the execution that runs.
 
 What it streams is what the exported MCAP holds (``services.telemetry_export.ExecutionMessages``: the same topics,
 ROS 2 message types, CDR, built by the same code), so a recorded run looks in Foxglove as the live one did: poses,
-wrenches (world, CF), desired force, phase, segment, ``/tf`` (world, flange, tool, reference, ``cf``),
+wrenches (world, CF), desired force, phase, segment, ``/tf`` (one tree that agrees with the URDF: the arm's links,
+flange and tool link; tool, reference, ``cf`` under ``world``),
 ``/joint_states``, ``/robot_description`` (the URDF; its meshes served by the asset handler, ``package://`` URIs) and
 ``/markers`` (paths, CF triads, the touched work piece); and what the simulator knows of the contact,
 ``/force/true`` (the true normal force, N) and ``/contact`` (``services.dashboard.ros_scene.truth_messages``).
@@ -144,8 +146,8 @@ class FoxgloveLive:
             log.exception("Foxglove server could not start")
             return
         for port in (self.port, 0):
-            gate = OriginGate(self.host, port, self.server.port, self.allowed_origins, self.host_names,
-                              {WEBSOCKET_SUBPROTOCOL: SDK_SUBPROTOCOL})
+            aliases = {WEBSOCKET_SUBPROTOCOL: SDK_SUBPROTOCOL}
+            gate = OriginGate(self.host, port, self.server.port, self.allowed_origins, self.host_names, aliases)
             try:
                 gate.start()
             except OSError as exc:

@@ -14,8 +14,9 @@ zstd chunks, written with the ``mcap`` library). Every message is stamped ``star
 - ``/force/desired`` (WrenchStamped, ``cf``): the desired CF force on force z, zero elsewhere (executions);
 - ``/phase`` (``std_msgs/msg/String``) and ``/segment`` (``std_msgs/msg/Int32``): at the start and at every
   change (executions);
-- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> tool`` (and, for an execution, ``world -> reference``,
-  ``flange``, ``cf`` and the robot's base link ``lbr_iiwa_link_0``), for the 3D panels;
+- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world -> tool`` (and, for an execution, ``world -> reference``, ``cf``
+  and the robot's base link ``lbr_iiwa_link_0``, and at each joint state the URDF's joints, link to link down to
+  ``flange`` and ``tool_link``: one tree that agrees with the URDF), for the 3D panels;
 - executions also: ``/joint_states`` (``sensor_msgs/msg/JointState``), ``/robot_description`` (the URDF,
   ``std_msgs/msg/String``) and ``/markers`` (``visualization_msgs/msg/MarkerArray``: reference and executed paths,
   CF triads, the touched surface): the scene the live Foxglove server streams, built by the same code
@@ -291,7 +292,7 @@ def demonstration_mcap(a: DemonstrationArrays, name: str, start_unix_s: float) -
     )
     wrenches = wrench_stamped(WORLD_FRAME).messages(stamp=stamps, wrench=a.wrenches)
     out.write("/wrench/world", "geometry_msgs/msg/WrenchStamped", stamps, wrenches)
-    transforms = tf_message(WORLD_FRAME, [TOOL_FRAME]).messages(stamp_tool=stamps, tool=tool)
+    transforms = tf_message([(WORLD_FRAME, TOOL_FRAME)]).messages(stamp_tool=stamps, tool=tool)
     out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)
     return _finished(out)
 

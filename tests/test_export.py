@@ -107,9 +107,10 @@ def test_execution_mcap_holds_the_stored_telemetry(client, stored):
     assert [m.data for _, m in topics["/force/true"]] == column["normal_force_true_n"][:, 0].tolist()
     assert [m.data for _, m in topics["/contact"]] == (column["in_contact"][:, 0] > 0.5).tolist()
     assert [log for log, _ in topics["/force/true"]] == stamps.tolist()
-    tf = topics["/tf"][n // 2][1].transforms
-    assert [t.child_frame_id for t in tf][:2] == ["tool", "reference"] and tf[0].header.frame_id == "world"
-    assert tf[0].transform.translation.x == column["tool_position"][n // 2, 0]
+    tf = {t.child_frame_id: t for t in topics["/tf"][n // 2][1].transforms}
+    assert tf["tool"].header.frame_id == tf["reference"].header.frame_id == "world"
+    assert tf["tool"].transform.translation.x == column["tool_position"][n // 2, 0]
+    assert tf["reference"].transform.translation.y == column["reference_position"][n // 2, 1]
     # Phases: a message at the start and at every change, the same sequence as stored.
     json_phases = client.get(f"/executions/{execution.id}/telemetry").json()["phase"]
     changes = [p for k, p in enumerate(json_phases) if k == 0 or p != json_phases[k - 1]]
@@ -234,7 +235,7 @@ def test_the_vectorized_cdr_is_byte_identical_to_rosbags():
     for frame in ("world", "cf", "a_longer_frame"):  # string lengths move the alignment of what follows
         poses = pose_stamped(frame).messages(stamp=stamps, pose=values)
         wrenches = wrench_stamped(frame).messages(stamp=stamps, wrench=values[:, :6])
-        tfs = tf_message(frame, ["tool", "reference"]).messages(
+        tfs = tf_message([(frame, "tool"), (frame, "reference")]).messages(
             stamp_tool=stamps, stamp_reference=stamps, tool=values, reference=values[::-1]
         )
         for k, stamp in enumerate(stamps):

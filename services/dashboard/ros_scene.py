@@ -4,8 +4,11 @@ streams and the exported MCAP holds (``services.telemetry_export``), so both loo
 :class:`SceneStream` takes the store's rows (:data:`services.store.TELEMETRY_LAYOUT`) a block at a time (the whole
 run for an export, each new batch live) and returns, per topic, the messages of those rows:
 
-- ``/tf`` (``tf2_msgs/msg/TFMessage``): ``world`` -> ``tool``, ``reference``, ``cf`` (at the tool point with the
-  CF's axes, :func:`services.dashboard.scene.cf_rotations`), ``flange``, ``lbr_iiwa_link_0`` (identity);
+- ``/tf`` (``tf2_msgs/msg/TFMessage``), one tree that agrees with the URDF: per row ``world`` -> ``lbr_iiwa_link_0``
+  (the URDF's root, identity), ``tool``, ``reference``, ``cf`` (at the tool point with the CF's axes,
+  :func:`services.dashboard.scene.cf_rotations`) (:data:`SCENE_TRANSFORMS`: frames the URDF does not have); at the
+  joint states' rows also every joint of the URDF, parent link -> child link, as ``robot_state_publisher`` sends them
+  (:func:`services.dashboard.scene.link_transforms`: ``lbr_iiwa_link_0`` .. ``_7``, ``flange``, ``tool_link``);
 - ``/joint_states`` (``sensor_msgs/msg/JointState``): the iiwa's joints (IK of the tool pose), at most
   :data:`JOINT_STATE_HZ`;
 - ``/robot_description`` (``std_msgs/msg/String``): the URDF, once at the start;
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -33,7 +37,6 @@ from schemas.execution import PHASE_CODES, ExecutionPhase
 from services.cdr import CdrLayout, tf_message
 from services.dashboard.scene import (
     CF_FRAME,
-    FLANGE_FRAME,
     JOINT_NAMES,
     REFERENCE_FRAME,
     ROBOT_BASE_LINK,
@@ -41,8 +44,9 @@ from services.dashboard.scene import (
     WORLD_FRAME,
     JointSolver,
     cf_quaternions,
-    flange_positions,
+    link_transforms,
     robot_description,
+    urdf_joints,
 )
 from skills.quaternions import matrix_from_quaternion
 
@@ -56,7 +60,9 @@ FLOAT64_TYPE, BOOL_TYPE = "std_msgs/msg/Float64", "std_msgs/msg/Bool"
 TRUTH_TOPICS = {TRUE_FORCE: FLOAT64_TYPE, CONTACT: BOOL_TYPE}
 """The simulator's truth about the contact (:func:`truth_messages`) and their ROS 2 message types. Unstamped
 ``std_msgs`` (ROS 2 has no stamped scalar): a message's log time is its stamp."""
-TF_CHILDREN = [TOOL_FRAME, REFERENCE_FRAME, CF_FRAME, FLANGE_FRAME, ROBOT_BASE_LINK]
+SCENE_TRANSFORMS = [(WORLD_FRAME, child) for child in (ROBOT_BASE_LINK, TOOL_FRAME, REFERENCE_FRAME, CF_FRAME)]
+"""The (parent, child) transforms of every ``/tf`` message: the URDF's root link and the frames the URDF does not
+have, all children of ``world``."""
 JOINT_STATE_HZ = 50.0
 """Joint states per second of execution time (an IK solve each; the arm moves smoothly at this rate)."""
 MARKER_PERIOD_S = 0.5
@@ -71,7 +77,7 @@ PLATE_STEP_M = 0.01
 PLATE_SIZE_M = 0.025
 CONTACT_CODE = PHASE_CODES[ExecutionPhase.contact]
 
-_TF = tf_message(WORLD_FRAME, TF_CHILDREN)
+_TF = tf_message(SCENE_TRANSFORMS)
 _FLOAT64 = CdrLayout().floats("data", 1)
 _BOOL = {value: b"\x00\x01\x00\x00" + bytes([value]) for value in (False, True)}
 """``std_msgs/msg/Bool`` in CDR: the little-endian encapsulation header and one byte."""
@@ -100,6 +106,12 @@ def truth_messages(rows: NDArray[np.float64], stamps: NDArray[np.int64]) -> dict
     if (known := np.isfinite(contact)).any():
         out[CONTACT] = (stamps[known], [_BOOL[bool(v > 0.5)] for v in contact[known].tolist()])
     return out
+
+
+@cache
+def _tf_with_arm() -> CdrLayout:
+    """The ``/tf`` of a joint state's row: :data:`SCENE_TRANSFORMS` and every joint of the URDF."""
+    return tf_message(SCENE_TRANSFORMS + [(joint.parent, joint.child) for joint in urdf_joints()])
 
 
 def message_definition(msgtype: str) -> str:
@@ -180,16 +192,20 @@ class SceneStream:
         identity = np.tile([0.0, 0, 0, 0, 0, 0, 1], (len(t), 1))
         poses = {
             ROBOT_BASE_LINK: identity,
-            FLANGE_FRAME: np.hstack([flange_positions(tool_p, tool_q), tool_q]),
             TOOL_FRAME: np.hstack([tool_p, tool_q]),
             REFERENCE_FRAME: np.hstack([col["reference_position"], col["reference_orientation"]]),
             CF_FRAME: np.hstack([tool_p, cf_q]),
         }
-        out[TF] = (stamps, _TF.messages(**poses, **{f"stamp_{child}": stamps for child in TF_CHILDREN}))
+        transforms = _TF.messages(**poses, **{f"stamp_{child}": stamps for _, child in SCENE_TRANSFORMS})
         joint_rows = self._joint_rows(t)
         if joint_rows.size:
             q = self.solver.solve(tool_p[joint_rows], tool_q[joint_rows])
             out[JOINT_STATES] = (stamps[joint_rows], _JOINTS.messages(stamp=stamps[joint_rows], position=q))
+            arm = {**{name: pose[joint_rows] for name, pose in poses.items()}, **link_transforms(q)}
+            with_arm = _tf_with_arm().messages(**arm, **{f"stamp_{child}": stamps[joint_rows] for child in arm})
+            for k, payload in zip(joint_rows.tolist(), with_arm, strict=True):
+                transforms[k] = payload
+        out[TF] = (stamps, transforms)
         self._accumulate(tool_p, col["reference_position"], cf_q, col["phase"][:, 0])
         marker_rows = self._marker_rows(t, final)
         if marker_rows:

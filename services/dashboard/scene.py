@@ -14,7 +14,10 @@ the same messages from the same rows, so a recorded run looks like the live one)
   tool path, CF triads along it, and the touched surface (a thin plate under every stretch of contact, normal to
   the CF z there): the work piece as the tool found it.
 
-Frames: ``world`` (the robot base, ``lbr_iiwa_link_0``, at its origin), ``flange``, ``tool`` (the tool point),
+Frames: one tree that agrees with the URDF. ``world`` is the root; the URDF's root link ``lbr_iiwa_link_0`` (the
+robot base) sits at its origin, and every link of the URDF hangs off its parent link by its joint
+(:func:`urdf_joints`, :func:`link_transforms`: ``lbr_iiwa_link_1`` .. ``lbr_iiwa_link_7``, ``flange``,
+``tool_link``); frames the URDF does not have are children of ``world``: ``tool`` (the measured tool point, exact),
 ``reference`` and ``cf`` (at the tool point, the compliance centre, with the CF's axes). SI units, quaternions
 ``[x, y, z, w]``.
 """
@@ -22,16 +25,22 @@ Frames: ``world`` (the robot base, ``lbr_iiwa_link_0``, at its origin), ``flange
 from __future__ import annotations
 
 import threading
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
+from skills.quaternions import matrix_from_quaternion, quaternion_exp, quaternion_from_matrix, quaternion_product
 
 WORLD_FRAME, TOOL_FRAME, REFERENCE_FRAME, CF_FRAME, FLANGE_FRAME = "world", "tool", "reference", "cf", "flange"
 ROBOT_BASE_LINK = "lbr_iiwa_link_0"
 """The URDF's root link, at the world origin (the simulator loads the arm with its base there)."""
+TOOL_LINK = f"{TOOL_FRAME}_link"
+"""The URDF's tool (shaft and ball, its origin at the tool point): where the arm's joints put the tool, within the IK's
+residual of the measured ``tool`` frame."""
 JOINT_NAMES = [f"lbr_iiwa_joint_{k}" for k in range(1, 8)]
 LINK7_TO_FLANGE_M = 0.045
 LINK7_TO_TOOL_POINT_M = 0.125
@@ -64,9 +73,9 @@ def robot_description() -> str:
   </joint>
   <link name="{FLANGE_FRAME}"/>
   <joint name="tool_joint" type="fixed">
-    <parent link="{FLANGE_FRAME}"/><child link="{TOOL_FRAME}_link"/><origin xyz="0 0 {shaft:.6f}" rpy="0 0 0"/>
+    <parent link="{FLANGE_FRAME}"/><child link="{TOOL_LINK}"/><origin xyz="0 0 {shaft:.6f}" rpy="0 0 0"/>
   </joint>
-  <link name="{TOOL_FRAME}_link">
+  <link name="{TOOL_LINK}">
     <visual><origin xyz="0 0 {-shaft / 2:.6f}" rpy="0 0 0"/><geometry><cylinder radius="0.008" length="{shaft:.6f}"/>
       </geometry><material name="Grey"><color rgba="0.6 0.6 0.6 1"/></material></visual>
     <visual><origin xyz="0 0 -0.01" rpy="0 0 0"/><geometry><sphere radius="0.01"/></geometry>
@@ -74,6 +83,59 @@ def robot_description() -> str:
   </link>
 """
     return text.replace("</robot>", extra + "</robot>")
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """A joint of the URDF: ``child`` in ``parent`` is the joint's origin (``xyz`` m, ``quaternion`` ``[x, y, z, w]``)
+    then, for a revolute joint, the rotation by its angle about ``axis`` (the child's frame)."""
+
+    name: str
+    parent: str
+    child: str
+    revolute: bool
+    xyz: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]
+    axis: tuple[float, float, float]
+
+
+def _quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
+    """``[x, y, z, w]`` of a URDF ``rpy`` (rad): about the fixed x, then y, then z (``Rz(yaw) Ry(pitch) Rx(roll)``)."""
+    about = [quaternion_exp(np.eye(3)[k] * angle / 2) for k, angle in enumerate((roll, pitch, yaw))]
+    return quaternion_product(about[2], quaternion_product(about[1], about[0]))
+
+
+@cache
+def urdf_joints(description: str | None = None) -> tuple[UrdfJoint, ...]:
+    """The joints of the URDF ``description`` (default :func:`robot_description`), in the file's order (each parent
+    before its children)."""
+    joints = []
+    for joint in ET.fromstring(description or robot_description()).findall("joint"):
+        origin, axis = joint.find("origin"), joint.find("axis")
+        xyz = [float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()]
+        rpy = [float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
+        joints.append(UrdfJoint(
+            name=joint.get("name", ""), parent=joint.find("parent").get("link"), child=joint.find("child").get("link"),
+            revolute=joint.get("type") in ("revolute", "continuous"), xyz=(xyz[0], xyz[1], xyz[2]),
+            quaternion=tuple(_quaternion_from_rpy(*rpy).tolist()),
+            axis=tuple(float(v) for v in (axis.get("xyz") if axis is not None else "1 0 0").split()),
+        ))  # fmt: skip
+    return tuple(joints)
+
+
+def link_transforms(joint_angles: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+    """Per child link of :func:`urdf_joints`: (N, 7) its pose in its parent link, translation m + ``[x, y, z, w]``, for
+    (N, 7) angles (rad) of :data:`JOINT_NAMES` (what ``robot_state_publisher`` publishes on ``/tf``)."""
+    q = np.asarray(joint_angles, dtype=float).reshape(-1, len(JOINT_NAMES))
+    angle = dict(zip(JOINT_NAMES, q.T, strict=True))
+    out = {}
+    for joint in urdf_joints():
+        rotation = np.tile(joint.quaternion, (len(q), 1))
+        if joint.revolute:
+            turn = quaternion_exp(np.outer(angle[joint.name] / 2, np.asarray(joint.axis) / np.linalg.norm(joint.axis)))
+            rotation = quaternion_product(rotation, turn)
+        out[joint.child] = np.hstack([np.tile(joint.xyz, (len(q), 1)), rotation])
+    return out
 
 
 def robot_asset(uri: str) -> bytes | None:
@@ -163,9 +225,3 @@ def cf_quaternions(wrench_world: NDArray[np.float64], wrench_cf: NDArray[np.floa
     flip = np.sign(np.einsum("ij,ij->i", q[1:], q[:-1]))
     q[1:] *= np.where(np.cumprod(np.where(flip == 0, 1, flip)) < 0, -1.0, 1.0)[:, None]
     return q
-
-
-def flange_positions(tool_positions: NDArray[np.float64], tool_orientations: NDArray[np.float64]) -> NDArray:
-    """(N, 3) flange origins, m: back from the tool point along the tool's z (the flange has the tool's axes)."""
-    R = matrix_from_quaternion(tool_orientations).reshape(-1, 3, 3)
-    return tool_positions - R[:, :, 2] * (LINK7_TO_TOOL_POINT_M - LINK7_TO_FLANGE_M)
