@@ -1,5 +1,6 @@
 """``contact-skills export``: a stored demonstration or execution (from the API) or a local demonstration file, as
-MCAP (ROS 2 messages for Foxglove and PlotJuggler), CSV or JSON, optionally a time window of it."""
+MCAP (ROS 2 messages for Foxglove and PlotJuggler), CSV or JSON, optionally a time window of it; or a stored skill as
+MCAP (the robot, the demonstrated path and the learned compliant frames)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from services.service_url import URL_HELP
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """Export a demonstration or an execution: an id (demo_..., exec_...) is fetched from the API, a local JSON or
+    """Export a demonstration, an execution or a skill: an id (demo_..., exec_..., skill_...: a skill as MCAP only,
+    along its demonstration, with the robot and the learned compliant frames) is fetched from the API, a local JSON or
     CSV demonstration (in the project's conventions, as `record` writes them) is converted here. The format
     follows the output's suffix (.mcap, .csv, .json) unless --format says."""
     from cli.errors import UserError, report_user_error
@@ -78,10 +80,12 @@ def register(commands: argparse._SubParsersAction) -> None:
     """Add ``export`` to the `contact-skills` parser."""
     export = commands.add_parser(
         "export",
-        help="export a demonstration or execution as MCAP (Foxglove, PlotJuggler), CSV or JSON",
+        help="export a demonstration or execution as MCAP (Foxglove, PlotJuggler), CSV or JSON; a skill as MCAP",
         description=cmd_export.__doc__,
     )
-    export.add_argument("source", metavar="ID_OR_FILE", help="demo_... or exec_... (from the API), or a local file")
+    export.add_argument(
+        "source", metavar="ID_OR_FILE", help="demo_..., exec_... or skill_... (from the API), or a local file"
+    )
     export.add_argument("-o", "--output", type=Path, required=True, help="file to write (.mcap, .csv or .json)")
     export.add_argument("--format", choices=["mcap", "csv", "json"], help="default: from the output's suffix")
     export.add_argument("--t0", type=float, metavar="S", help="only samples at or after S seconds")

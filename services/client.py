@@ -506,15 +506,23 @@ class Client:
         t1: float | None = None,
         every: int | None = None,
     ) -> bytes:
-        """A demonstration (``demo_...``) or an execution (``exec_...``) as MCAP, CSV or JSON bytes.
+        """A demonstration (``demo_...``) or an execution (``exec_...``) as MCAP, CSV or JSON bytes, or a skill
+        (``skill_...``) as MCAP (``GET /skills/{id}/mcap``: the robot, the path and the learned frames; whole).
 
         An execution's file is written here from every page of its telemetry (the service sends at most its cap of
         samples per request), exactly as the service writes one page."""
         if record_id.startswith("demo_"):
             params = _given({"format": TelemetryFormat(format).value, "t0": t0, "t1": t1})
             return self._request("GET", f"/demonstrations/{record_id}/telemetry", params=params).content
+        if record_id.startswith("skill_"):
+            whole = t0 is None and t1 is None and every in (None, 1)
+            if TelemetryFormat(format) is not TelemetryFormat.mcap or not whole:
+                raise ValueError(f"{record_id} is a skill: it exports whole, as MCAP only (no --t0, --t1, --every)")
+            return self._request("GET", f"/skills/{record_id}/mcap").content
         if not record_id.startswith("exec_"):
-            raise ValueError(f"{record_id!r} is not a demonstration (demo_...) or an execution (exec_...) id")
+            raise ValueError(
+                f"{record_id!r} is not a demonstration (demo_...), an execution (exec_...) or a skill (skill_...) id"
+            )
         from schemas.telemetry_rows import telemetry_matrix
         from services.telemetry_export import execution_csv, execution_json_chunks, execution_mcap
 

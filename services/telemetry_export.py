@@ -44,6 +44,7 @@ import numpy as np
 
 from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
+from schemas.skill import Skill
 from schemas.telemetry_rows import telemetry_column
 from services.cdr import pose_stamped, tf_message, wrench_stamped
 from services.dashboard.scene import CF_FRAME, TOOL_FRAME, WORLD_FRAME
@@ -279,21 +280,49 @@ def execution_mcap(matrix: np.ndarray, start_unix_s: float, execution_id: str) -
     return _finished(out)
 
 
+def _write_samples(out: _McapOut, a: DemonstrationArrays) -> np.ndarray:
+    """A demonstration's ``/tool/pose`` and ``/wrench/world`` into ``out``; returns their stamps (ns)."""
+    stamps = out.stamps(a.t)
+    tool = np.hstack([a.positions, a.orientations])
+    out.write("/tool/pose", POSE_TYPE, stamps, _POSE.messages(stamp=stamps, pose=tool))
+    out.write("/wrench/world", WRENCH_TYPE, stamps, _WRENCH_WORLD.messages(stamp=stamps, wrench=a.wrenches))
+    return stamps
+
+
 def demonstration_mcap(a: DemonstrationArrays, name: str, start_unix_s: float) -> McapExport:
     """A demonstration's samples (``name``: the demonstration's) as MCAP: ``/tool/pose``, ``/wrench/world``, ``/tf``."""
     out = _McapOut(int(start_unix_s * 1e9), {"demonstration": name, "conventions": CONVENTIONS})
-    stamps = out.stamps(a.t)
+    stamps = _write_samples(out, a)
     tool = np.hstack([a.positions, a.orientations])
-    out.write(
-        "/tool/pose",
-        "geometry_msgs/msg/PoseStamped",
-        stamps,
-        pose_stamped(WORLD_FRAME).messages(stamp=stamps, pose=tool),
-    )
-    wrenches = wrench_stamped(WORLD_FRAME).messages(stamp=stamps, wrench=a.wrenches)
-    out.write("/wrench/world", "geometry_msgs/msg/WrenchStamped", stamps, wrenches)
     transforms = tf_message([(WORLD_FRAME, TOOL_FRAME)]).messages(stamp_tool=stamps, tool=tool)
     out.write("/tf", "tf2_msgs/msg/TFMessage", stamps, transforms)
+    return _finished(out)
+
+
+def skill_mcap(a: DemonstrationArrays, skill: Skill, skill_id: str, start_unix_s: float) -> McapExport:
+    """A skill along the demonstration it was learned from (``a``: its samples, stamped ``start + t``) as MCAP: the
+    demonstration's ``/tool/pose`` and ``/wrench/world``, and its scene
+    (``services.dashboard.ros_scene.skill_scene_messages``): ``/tf`` with the LEARNED compliant frame ``cf`` through
+    every contact segment, ``/markers`` with the path and a triad at each learned CF; and the robot (``/joint_states``
+    solved from the tool pose, ``/robot_description``, the URDF's joints in ``/tf``) when the demonstration was recorded
+    in the robot's world (``skill.taught_world``: the simulator's). An imported recording is in a frame of its own,
+    where no arm was modelled: its MCAP shows the tool frame, the path, the wrench and the learned frames."""
+    from services.dashboard.ros_scene import SCENE_TOPICS, skill_scene_messages
+    from services.dashboard.scene import JointSolver
+
+    robot = skill.taught_world is not None
+    metadata = {"skill_id": skill_id, "demonstration": skill.demonstration.name, "robot": str(robot).lower(),
+                "conventions": CONVENTIONS}  # fmt: skip
+    out = _McapOut(int(start_unix_s * 1e9), metadata)
+    _write_samples(out, a)
+    solver = JointSolver() if robot else None
+    try:
+        scene = skill_scene_messages(out.start_ns, a, skill, solver)
+    finally:
+        if solver is not None:
+            solver.close()
+    for topic, (stamps, payloads) in scene.items():
+        out.write(topic, SCENE_TOPICS[topic], stamps, payloads)
     return _finished(out)
 
 

@@ -9,7 +9,9 @@ advertised ROS 2 types and agree with physics and with each other: the ``cf`` fr
 into the world wrench of the same step, the joint states put the arm's tool point where ``/tf`` says the tool is
 (forward kinematics), the URDF's meshes are served, ``/force/true`` and ``/contact`` are the stored telemetry's true
 normal force and contact of the same step. The exported MCAP of the same run (read with the ``mcap``
-reader) holds ``/joint_states``, the URDF and the ``cf`` frame, with the same agreement."""
+reader) holds ``/joint_states``, the URDF and the ``cf`` frame, with the same agreement. ``/tf`` is one tree that
+agrees with the URDF, live and exported. A skill's MCAP shows the robot (for a demonstration the simulator recorded)
+and the LEARNED compliant frames along the demonstrated path, read back against the skill."""
 
 from __future__ import annotations
 
@@ -184,8 +186,9 @@ def _check_tf_is_the_urdfs_tree(tf: list, description: str) -> int:
         np.testing.assert_allclose(chain[:3, :3], measured[:3, :3], atol=0.01)
         checked += 1
     assert {child: frames for child, frames in parents.items() if len(frames) > 1} == {}
-    beside_the_urdf = dict.fromkeys([root, "tool", "reference", "cf"], "world")
-    assert {child: frames.pop() for child, frames in parents.items()} == {**urdf_parent, **beside_the_urdf}
+    expected = {**urdf_parent, **dict.fromkeys([root, "tool", "reference", "cf"], "world")}
+    assert {child: frames.pop() for child, frames in parents.items()} == {c: expected.get(c) for c in parents}
+    assert set(urdf_parent) | {root} <= set(parents)  # every joint of the URDF, and its root
     return checked
 
 
@@ -375,3 +378,105 @@ def test_the_layout_users_load_shows_only_topics_the_server_and_the_export_have(
     for panel, config in layout["configById"].items():
         assert {path["timestampMethod"] for path in config.get("paths", [])} <= {"receiveTime"}, panel
     assert "3D!scene" in json.dumps(layout["layout"]) and "/robot_description" in text
+
+
+def _mcap_topics(data: bytes) -> tuple[dict[str, list], dict[str, str]]:
+    """The decoded messages of an MCAP per topic, and its ``contact_skills`` metadata."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    reader = make_reader(io.BytesIO(data), decoder_factories=[DecoderFactory()])
+    topics: dict[str, list] = defaultdict(list)
+    for _, channel, _, message in reader.iter_decoded_messages():
+        topics[channel.topic].append(message)
+    metadata = next(m.metadata for m in reader.iter_metadata() if m.name == "contact_skills")
+    return topics, metadata
+
+
+def _check_the_learned_frames_are_the_skills(topics: dict[str, list], skill: dict, start_ns: int) -> int:
+    """The ``cf`` of ``/tf`` is, at every sample of a contact segment and only there, at the demonstrated tool point
+    with the axes of the skill's compliant frame in force (its one frame; for a series, the stored frame of the same
+    time, 0.5° between them); every triad of ``/markers`` is one of the skill's frames (origin, axes), and every contact
+    segment has one. ``start_ns``: the stamp of the demonstration's t = 0. Returns how many ``cf`` were checked."""
+    tool = {_stamp(m.header): [m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in topics["/tool/pose"]}
+    segments = [s for s in skill["segments"] if s["compliant_frames"] is not None]
+    checked = 0
+    for message in topics["/tf"]:
+        for transform in message.transforms:
+            if transform.child_frame_id != "cf":
+                continue
+            stamp = _stamp(transform.header)
+            t = (stamp - start_ns) * 1e-9
+            (segment,) = [s for s in segments if s["t_start"] - 1e-6 <= t <= s["t_end"] + 1e-6]
+            frames = segment["compliant_frames"]
+            k = int(np.argmin(np.abs(np.asarray(frames["t"]) + segment["t_start"] - t)))
+            learned = matrix_from_quaternion(frames["orientations"][k])
+            pose = _pose(transform.transform)
+            np.testing.assert_allclose(pose[:3, 3], tool[stamp], atol=1e-12)
+            tolerance = 1e-9 if len(frames["t"]) == 1 else np.radians(0.5)
+            np.testing.assert_allclose(pose[:3, :3], learned, atol=tolerance)
+            checked += 1
+    (array,) = topics["/markers"]
+    triads = next(m for m in array.markers if m.ns == "cf_triads")
+    frames = [
+        (np.asarray(o), matrix_from_quaternion(q))
+        for s in segments
+        for o, q in zip(s["compliant_frames"]["origins"], s["compliant_frames"]["orientations"], strict=True)
+    ]
+    origins_drawn = set()
+    for k in range(0, len(triads.points), 6):  # a triad: x, y, z axes, two points each
+        origin = np.array([triads.points[k].x, triads.points[k].y, triads.points[k].z])
+        match = [R for o, R in frames if np.allclose(o, origin, atol=1e-12)]
+        assert match, origin
+        for axis in range(3):
+            tip = triads.points[k + 2 * axis + 1]
+            np.testing.assert_allclose((np.array([tip.x, tip.y, tip.z]) - origin) / 0.03, match[0][:, axis], atol=1e-9)
+        origins_drawn.add(tuple(origin))
+    for segment in segments:
+        assert tuple(segment["compliant_frames"]["origins"][0]) in origins_drawn
+    return checked
+
+
+def test_a_skills_mcap_shows_the_robot_and_the_learned_frames_along_the_taught_path(stack, skill_id):
+    """A skill learned from the simulator's teacher: its demonstration was recorded in the robot's world, so the MCAP
+    has the arm (joint states whose forward kinematics put the tool on the demonstrated pose, the URDF, one /tf tree
+    that agrees with it) and the learned compliant frames."""
+    skill = stack.http.get(f"/skills/{skill_id}").json()
+    demonstration = stack.http.get(f"/demonstrations/{skill['demonstration_id']}").json()
+    response = stack.http.get(f"/skills/{skill_id}/mcap")
+    assert response.status_code == 200, response.text
+    topics, metadata = _mcap_topics(response.content)
+    assert set(topics) == {"/tool/pose", "/wrench/world", "/tf", "/joint_states", "/robot_description", "/markers"}
+    assert metadata["robot"] == "true" and metadata["skill_id"] == skill_id
+    assert len(topics["/tool/pose"]) == len(topics["/tf"]) == len(demonstration["demonstration"]["t"])
+    start_ns = _stamp(topics["/tool/pose"][0].header) - round(demonstration["demonstration"]["t"][0] * 1e9)
+    assert _check_tf_is_the_urdfs_tree(topics["/tf"], topics["/robot_description"][0].data) == len(
+        topics["/joint_states"]) > 50  # fmt: skip
+    assert _check_joint_states_put_the_tool_where_tf_says(topics["/joint_states"], topics["/tf"]) > 50
+    assert _check_the_learned_frames_are_the_skills(topics, skill["skill"], start_ns) > 500
+
+
+def test_an_imported_skills_mcap_shows_the_tool_and_the_learned_frames_and_no_arm(stack):
+    """A contour recorded elsewhere (the teacher's samples posted as plain JSON: no world, no robot): its skill's MCAP
+    shows the tool frame, the path and the learned frames (a series, slerped), and no arm, whose joints it cannot know;
+    a skill learned from an inline demonstration has none stored to show it along: 409 saying so."""
+    recorded = stack.post("/demonstrations/record", {"scenario": "contour_cylinder", "seed": 1,
+                                                     "overrides": {"move_duration_s": 2.0}}, 201)  # fmt: skip
+    samples = stack.http.get(f"/demonstrations/{recorded['id']}").json()["demonstration"]
+    imported = {name: samples[name] for name in ("t", "positions", "orientations", "wrenches")}
+    demo = stack.post("/demonstrations", {**imported, "metadata": {"name": "elsewhere"}}, 201)
+    skill = stack.post("/skills", {"demonstration_id": demo["id"], "skill_type": "contour"}, 201)
+    assert skill["skill"]["taught_world"] is None
+    response = stack.http.get(f"/skills/{skill['id']}/mcap")
+    assert response.status_code == 200, response.text
+    topics, metadata = _mcap_topics(response.content)
+    assert set(topics) == {"/tool/pose", "/wrench/world", "/tf", "/markers"} and metadata["robot"] == "false"
+    assert {(t.header.frame_id, t.child_frame_id) for m in topics["/tf"] for t in m.transforms} == {
+        ("world", "tool"), ("world", "cf")}  # fmt: skip
+    start_ns = _stamp(topics["/tool/pose"][0].header) - round(imported["t"][0] * 1e9)
+    assert _check_the_learned_frames_are_the_skills(topics, skill["skill"], start_ns) > 500
+    triads = next(m for m in topics["/markers"][0].markers if m.ns == "cf_triads")
+    assert len(triads.points) // 6 > 5  # a contour's series, along the path
+    inline = stack.post("/skills", {"demonstration": imported, "skill_type": "contour"}, 201)
+    refused = stack.http.get(f"/skills/{inline['id']}/mcap")
+    assert refused.status_code == 409 and "inline demonstration" in refused.json()["detail"]

@@ -146,6 +146,15 @@ def unreadable(demonstration_id: str, problem: str) -> HTTPException:
     )
 
 
+def no_demonstration(skill_id: str) -> HTTPException:
+    """409: a skill learned from an inline demonstration has no stored one to show it along."""
+    return HTTPException(
+        409,
+        f"skill {skill_id} was learned from an inline demonstration, which was not stored: store it (POST "
+        "/demonstrations) and learn from its demonstration_id to export the skill along it",
+    )
+
+
 def samples_over_budget(demonstration_id: str, n_samples: int, fit: int) -> RequestValidationError:
     """422 on ``limit``: a whole demonstration asked for (no ``cursor``, no ``limit``) does not fit in one reply."""
     return unprocessable(

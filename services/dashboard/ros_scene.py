@@ -20,6 +20,9 @@ true normal force (``/force/true``, ``std_msgs/msg/Float64``, N) and whether the
 (``/contact``, ``std_msgs/msg/Bool``), one message per row; rows stored before these columns were streamed (NaN)
 give none.
 
+:func:`skill_scene_messages` gives the same scene for a skill along the demonstration it was learned from: the robot
+(when the demonstration was recorded in the robot's world), the demonstrated path and the LEARNED compliant frames.
+
 Stamps: ns since the epoch, ``start + t``.
 """
 
@@ -33,7 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, ExecutionPhase
+from schemas.skill import Skill
 from services.cdr import CdrLayout, tf_message
 from services.dashboard.scene import (
     CF_FRAME,
@@ -48,7 +53,7 @@ from services.dashboard.scene import (
     robot_description,
     urdf_joints,
 )
-from skills.quaternions import matrix_from_quaternion
+from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 TF, JOINT_STATES, ROBOT_DESCRIPTION, MARKERS = "/tf", "/joint_states", "/robot_description", "/markers"
 TF_TYPE, JOINT_STATE_TYPE = "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/JointState"
@@ -77,7 +82,6 @@ PLATE_STEP_M = 0.01
 PLATE_SIZE_M = 0.025
 CONTACT_CODE = PHASE_CODES[ExecutionPhase.contact]
 
-_TF = tf_message(SCENE_TRANSFORMS)
 _FLOAT64 = CdrLayout().floats("data", 1)
 _BOOL = {value: b"\x00\x01\x00\x00" + bytes([value]) for value in (False, True)}
 """``std_msgs/msg/Bool`` in CDR: the little-endian encapsulation header and one byte."""
@@ -109,9 +113,57 @@ def truth_messages(rows: NDArray[np.float64], stamps: NDArray[np.int64]) -> dict
 
 
 @cache
-def _tf_with_arm() -> CdrLayout:
-    """The ``/tf`` of a joint state's row: :data:`SCENE_TRANSFORMS` and every joint of the URDF."""
-    return tf_message(SCENE_TRANSFORMS + [(joint.parent, joint.child) for joint in urdf_joints()])
+def frame_parents() -> dict[str, str]:
+    """Each frame's parent in the one tree ``/tf`` publishes: the URDF's links' by its joints, and ``world`` for the
+    frames of :data:`SCENE_TRANSFORMS`."""
+    return {**{child: parent for parent, child in SCENE_TRANSFORMS}, **{j.child: j.parent for j in urdf_joints()}}
+
+
+@cache
+def _tf_layout(transforms: tuple[tuple[str, str], ...]) -> CdrLayout:
+    return tf_message(transforms)
+
+
+def tf_payloads(stamps: NDArray[np.int64], poses: dict[str, NDArray[np.float64]], parents: dict[str, str]) -> list:
+    """One ``/tf`` message per stamp (CDR): the transforms ``parents[child] -> child`` of ``poses[child]`` ((N, 7)
+    translation m + ``[x, y, z, w]``; a NaN row: that transform is not in that message), in ``poses``' order."""
+    present = np.column_stack([np.isfinite(pose[:, 0]) for pose in poses.values()])
+    out: list = [b""] * len(stamps)
+    for mask in np.unique(present, axis=0):
+        rows = np.flatnonzero((present == mask).all(axis=1))
+        children = [child for child, kept in zip(poses, mask.tolist(), strict=True) if kept]
+        layout = _tf_layout(tuple((parents[child], child) for child in children))
+        values = {child: poses[child][rows] for child in children} | {f"stamp_{c}": stamps[rows] for c in children}
+        for k, payload in zip(rows.tolist(), layout.messages(**values), strict=True):
+            out[k] = payload
+    return out
+
+
+def arm_poses(n: int, rows: NDArray[np.intp], joint_angles: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+    """Per child link of the URDF's joints: (n, 7) its pose in its parent link at ``rows`` (their ``joint_angles``,
+    (len(rows), 7) rad), NaN at the other rows (for :func:`tf_payloads`)."""
+    out = {}
+    for child, pose in link_transforms(joint_angles).items():
+        out[child] = np.full((n, 7), np.nan)
+        out[child][rows] = pose
+    return out
+
+
+def robot_description_message() -> bytes:
+    """The URDF (:func:`services.dashboard.scene.robot_description`) as a ``std_msgs/msg/String``, CDR."""
+    store = _typestore()
+    return bytes(store.serialize_cdr(_default(store, STRING_TYPE, data=robot_description()), STRING_TYPE))
+
+
+def rows_every(t: NDArray[np.float64], next_t: float, period_s: float) -> tuple[NDArray[np.intp], float]:
+    """The rows of times ``t`` (s) at or after ``next_t`` and then one every ``period_s`` (s) at most, and the time
+    the next pick is due."""
+    picked = []
+    for k, time in enumerate(t.tolist()):
+        if time >= next_t:
+            picked.append(k)
+            next_t = time + period_s
+    return np.asarray(picked, dtype=np.intp), next_t
 
 
 def message_definition(msgtype: str) -> str:
@@ -166,7 +218,6 @@ class SceneStream:
         self.next_joint_t = -np.inf
         self.next_marker_t = 0.0
         self.described = False
-        self.store = _typestore()
 
     def stamps(self, t: NDArray[np.float64]) -> NDArray[np.int64]:
         return self.start_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
@@ -183,8 +234,7 @@ class SceneStream:
         t = col["t"][:, 0]
         stamps = self.stamps(t)
         if not self.described:
-            text = _default(self.store, STRING_TYPE, data=robot_description())
-            out[ROBOT_DESCRIPTION] = (stamps[:1], [bytes(self.store.serialize_cdr(text, STRING_TYPE))])
+            out[ROBOT_DESCRIPTION] = (stamps[:1], [robot_description_message()])
             self.described = True
         tool_p, tool_q = col["tool_position"], col["tool_orientation"]
         cf_q = cf_quaternions(col["wrench_world"], col["wrench_cf"], self.last_cf)
@@ -196,16 +246,12 @@ class SceneStream:
             REFERENCE_FRAME: np.hstack([col["reference_position"], col["reference_orientation"]]),
             CF_FRAME: np.hstack([tool_p, cf_q]),
         }
-        transforms = _TF.messages(**poses, **{f"stamp_{child}": stamps for _, child in SCENE_TRANSFORMS})
-        joint_rows = self._joint_rows(t)
+        joint_rows, self.next_joint_t = rows_every(t, self.next_joint_t, 1.0 / JOINT_STATE_HZ)
         if joint_rows.size:
             q = self.solver.solve(tool_p[joint_rows], tool_q[joint_rows])
             out[JOINT_STATES] = (stamps[joint_rows], _JOINTS.messages(stamp=stamps[joint_rows], position=q))
-            arm = {**{name: pose[joint_rows] for name, pose in poses.items()}, **link_transforms(q)}
-            with_arm = _tf_with_arm().messages(**arm, **{f"stamp_{child}": stamps[joint_rows] for child in arm})
-            for k, payload in zip(joint_rows.tolist(), with_arm, strict=True):
-                transforms[k] = payload
-        out[TF] = (stamps, transforms)
+            poses |= arm_poses(len(t), joint_rows, q)
+        out[TF] = (stamps, tf_payloads(stamps, poses, frame_parents()))
         self._accumulate(tool_p, col["reference_position"], cf_q, col["phase"][:, 0])
         marker_rows = self._marker_rows(t, final)
         if marker_rows:
@@ -213,20 +259,9 @@ class SceneStream:
             out[MARKERS] = (stamps[marker_rows], [payload] * len(marker_rows))
         return out
 
-    def _joint_rows(self, t: NDArray[np.float64]) -> NDArray[np.intp]:
-        picked = []
-        for k, time in enumerate(t.tolist()):
-            if time >= self.next_joint_t:
-                picked.append(k)
-                self.next_joint_t = time + 1.0 / JOINT_STATE_HZ
-        return np.asarray(picked, dtype=np.intp)
-
     def _marker_rows(self, t: NDArray[np.float64], final: bool) -> list[int]:
-        picked = []
-        for k, time in enumerate(t.tolist()):
-            if time >= self.next_marker_t:
-                picked.append(k)
-                self.next_marker_t = time + MARKER_PERIOD_S
+        rows, self.next_marker_t = rows_every(t, self.next_marker_t, MARKER_PERIOD_S)
+        picked = rows.tolist()
         if final and (not picked or picked[-1] != len(t) - 1):
             picked.append(len(t) - 1)
         return picked
@@ -249,44 +284,94 @@ class SceneStream:
 
     def markers(self, stamp_ns: int) -> bytes:
         """The MarkerArray of everything accumulated so far, CDR."""
-        s, p = self.store, self.paths
-        header = _default(s, "std_msgs/msg/Header", frame_id=WORLD_FRAME,
-                          stamp=_default(s, "builtin_interfaces/msg/Time", sec=int(stamp_ns // 10**9),
-                                         nanosec=int(stamp_ns % 10**9)))  # fmt: skip
+        return markers_payload(self.paths, stamp_ns)
 
-        def point(xyz: list[float]) -> Any:
-            return _default(s, "geometry_msgs/msg/Point", x=xyz[0], y=xyz[1], z=xyz[2])
 
-        def color(r: float, g: float, b: float, a: float = 1.0) -> Any:
-            return _default(s, "std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=a)
+def markers_payload(p: _Paths, stamp_ns: int, path_name: str = "executed_path") -> bytes:
+    """The MarkerArray (CDR) of ``p``: the reference path (when it has points), the tool's path (namespace
+    ``path_name``), the CF triads and the plates of the touched surface, stamped ``stamp_ns``."""
+    s = _typestore()
+    header = _default(s, "std_msgs/msg/Header", frame_id=WORLD_FRAME,
+                      stamp=_default(s, "builtin_interfaces/msg/Time", sec=int(stamp_ns // 10**9),
+                                     nanosec=int(stamp_ns % 10**9)))  # fmt: skip
 
-        def marker(ns: str, ident: int, kind: int, **fields: Any) -> Any:
-            unit = _default(s, "geometry_msgs/msg/Quaternion", w=1.0)
-            fields.setdefault("pose", _default(s, "geometry_msgs/msg/Pose", orientation=unit))
-            return _default(s, "visualization_msgs/msg/Marker", header=header, ns=ns, id=ident, type=kind,
-                            action=0, **fields)  # fmt: skip
+    def point(xyz: list[float]) -> Any:
+        return _default(s, "geometry_msgs/msg/Point", x=xyz[0], y=xyz[1], z=xyz[2])
 
-        line = _default(s, "geometry_msgs/msg/Vector3", x=0.002, y=0.002, z=0.002)
-        markers = [
-            marker("reference_path", 0, 4, scale=line, color=color(0.2, 0.4, 1.0), points=[point(q) for q in
-                   p.reference]),
-            marker("executed_path", 0, 4, scale=line, color=color(1.0, 0.5, 0.0), points=[point(q) for q in
-                   p.executed]),
-        ]  # fmt: skip
-        axes, colors = [], []
-        for origin, R in p.triads:
-            for j, rgb in enumerate(((1.0, 0.0, 0.0), (0.0, 0.8, 0.0), (0.0, 0.3, 1.0))):
-                axes += [point(origin), point((np.asarray(origin) + R[:, j] * TRIAD_LENGTH_M).tolist())]
-                colors += [color(*rgb), color(*rgb)]
-        markers.append(marker("cf_triads", 0, 5, scale=line, color=color(1, 1, 1), points=axes, colors=colors))
-        plate = _default(s, "geometry_msgs/msg/Vector3", x=PLATE_SIZE_M, y=PLATE_SIZE_M, z=0.003)
-        for k, (centre, q, _) in enumerate(p.plates):
-            pose = _default(
-                s,
-                "geometry_msgs/msg/Pose",
-                position=point(centre),
-                orientation=_default(s, "geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3]),
-            )
-            markers.append(marker("work_piece", k, 1, pose=pose, scale=plate, color=color(0.55, 0.55, 0.6, 0.8)))
-        array = _default(s, MARKER_ARRAY_TYPE, markers=markers)
-        return bytes(s.serialize_cdr(array, MARKER_ARRAY_TYPE))
+    def color(r: float, g: float, b: float, a: float = 1.0) -> Any:
+        return _default(s, "std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=a)
+
+    def marker(ns: str, ident: int, kind: int, **fields: Any) -> Any:
+        unit = _default(s, "geometry_msgs/msg/Quaternion", w=1.0)
+        fields.setdefault("pose", _default(s, "geometry_msgs/msg/Pose", orientation=unit))
+        return _default(s, "visualization_msgs/msg/Marker", header=header, ns=ns, id=ident, type=kind,
+                        action=0, **fields)  # fmt: skip
+
+    line = _default(s, "geometry_msgs/msg/Vector3", x=0.002, y=0.002, z=0.002)
+    markers = [marker(path_name, 0, 4, scale=line, color=color(1.0, 0.5, 0.0), points=[point(q) for q in p.executed])]
+    if p.reference:
+        markers.append(marker("reference_path", 0, 4, scale=line, color=color(0.2, 0.4, 1.0),
+                              points=[point(q) for q in p.reference]))  # fmt: skip
+    axes, colors = [], []
+    for origin, R in p.triads:
+        for j, rgb in enumerate(((1.0, 0.0, 0.0), (0.0, 0.8, 0.0), (0.0, 0.3, 1.0))):
+            axes += [point(origin), point((np.asarray(origin) + R[:, j] * TRIAD_LENGTH_M).tolist())]
+            colors += [color(*rgb), color(*rgb)]
+    markers.append(marker("cf_triads", 0, 5, scale=line, color=color(1, 1, 1), points=axes, colors=colors))
+    plate = _default(s, "geometry_msgs/msg/Vector3", x=PLATE_SIZE_M, y=PLATE_SIZE_M, z=0.003)
+    for k, (centre, q, _) in enumerate(p.plates):
+        pose = _default(
+            s,
+            "geometry_msgs/msg/Pose",
+            position=point(centre),
+            orientation=_default(s, "geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        markers.append(marker("work_piece", k, 1, pose=pose, scale=plate, color=color(0.55, 0.55, 0.6, 0.8)))
+    array = _default(s, MARKER_ARRAY_TYPE, markers=markers)
+    return bytes(s.serialize_cdr(array, MARKER_ARRAY_TYPE))
+
+
+def skill_scene_messages(
+    start_ns: int, a: DemonstrationArrays, skill: Skill, solver: JointSolver | None
+) -> dict[str, tuple[NDArray[np.int64], list]]:
+    """The scene of ``skill`` along the demonstration it was learned from (``a``, its samples; stamps ``start_ns +
+    t``), per topic (stamps ns, CDR payloads):
+
+    - ``/tf``: ``world`` -> ``tool`` (the demonstrated tool point) and, through each contact segment, ``cf``: the
+      LEARNED compliant frame in force at that sample (the segment's frame, or its series slerped,
+      ``skills.compliant_frames.compliant_frame_rotations``), at the tool point as in an execution's scene;
+    - with a ``solver`` (a demonstration recorded in the robot's world, the simulator's): the robot, as for an
+      execution: ``world`` -> ``lbr_iiwa_link_0`` and, at each joint state, the URDF's joints; ``/joint_states`` (IK
+      of the demonstrated tool pose, :data:`JOINT_STATE_HZ`); ``/robot_description``;
+    - ``/markers``, once: the demonstrated path (``demonstrated_path``) and a triad at the origin of each learned CF
+      (``cf_triads``: each contact segment's first, then one every :data:`TRIAD_STEP_M` along its series)."""
+    from skills.compliant_frames import compliant_frame_rotations
+
+    n = len(a.t)
+    stamps = start_ns + np.round(a.t * 1e9).astype(np.int64)
+    cf, paths = np.full((n, 7), np.nan), _Paths()
+    for segment in skill.segments:
+        if (frames := segment.compliant_frames) is None:
+            continue
+        rows = np.flatnonzero((a.t >= segment.t_start) & (a.t <= segment.t_end))
+        rotations = compliant_frame_rotations(segment, a.t[rows] - segment.t_start)
+        cf[rows] = np.hstack([a.positions[rows], np.reshape(quaternion_from_matrix(rotations), (-1, 4))])
+        first = len(paths.triads)
+        for origin, q in zip(frames.origins, frames.orientations, strict=True):
+            if len(paths.triads) == first or _far(paths.triads[-1][0], origin, TRIAD_STEP_M):
+                paths.triads.append((list(origin), matrix_from_quaternion(q)))
+    for point in a.positions.tolist():
+        if _far(paths.executed[-1] if paths.executed else None, point, PATH_STEP_M):
+            paths.executed.append(point)
+    poses = {TOOL_FRAME: np.hstack([a.positions, a.orientations]), CF_FRAME: cf}
+    out: dict[str, tuple[NDArray[np.int64], list]] = {}
+    if solver is not None:
+        solver.reset()
+        joint_rows, _ = rows_every(a.t, -np.inf, 1.0 / JOINT_STATE_HZ)
+        q = solver.solve(a.positions[joint_rows], a.orientations[joint_rows])
+        out[JOINT_STATES] = (stamps[joint_rows], _JOINTS.messages(stamp=stamps[joint_rows], position=q))
+        out[ROBOT_DESCRIPTION] = (stamps[:1], [robot_description_message()])
+        poses = {ROBOT_BASE_LINK: np.tile([0.0, 0, 0, 0, 0, 0, 1], (n, 1)), **poses, **arm_poses(n, joint_rows, q)}
+    out[TF] = (stamps, tf_payloads(stamps, poses, frame_parents()))
+    out[MARKERS] = (stamps[:1], [markers_payload(paths, int(stamps[0]), "demonstrated_path")])
+    return out

@@ -240,7 +240,7 @@ def _info(r: DemonstrationRow) -> DemonstrationInfo:
     )
 
 
-def _readable_samples(store: Store, demonstration_id: str) -> tuple[DemonstrationRow, DemonstrationSamples]:
+def readable_samples(store: Store, demonstration_id: str) -> tuple[DemonstrationRow, DemonstrationSamples]:
     """The stored demonstration's row and samples: 404 for an unknown id, 409 for one stored under looser rules that
     cannot be read back. Parsed one recording at a time, and kept (``DemonstrationRepository.samples``)."""
     row = store.demonstrations.row(demonstration_id)
@@ -274,7 +274,7 @@ def get_demonstration(
     next one's cursor in ``next_cursor`` and the ``X-Next-Cursor`` header; asked whole (neither given) a
     demonstration that does not fit is a 422 on ``limit`` saying how to page. 404 for an unknown id, 409 for one
     stored under looser rules that cannot be read back (delete it)."""
-    row, samples = _readable_samples(store, demonstration_id)
+    row, samples = readable_samples(store, demonstration_id)
     assert row.summary is not None  # a readable row has its summary
     head: dict[str, Any] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
     fit = samples_that_fit(len(json.dumps(head)) + len(samples.metadata.encode()) + 200)  # 200: keys, brackets
@@ -328,7 +328,7 @@ def get_demonstration_telemetry(
     from services.csv_import import samples_csv_text
     from services.telemetry_export import CSV_MEDIA_TYPE, MCAP_MEDIA_TYPE, demonstration_mcap, window_mask
 
-    row, samples = _readable_samples(store, demonstration_id)
+    row, samples = readable_samples(store, demonstration_id)
     keep = window_mask(samples.t, *window)
     a = DemonstrationArrays(**{name: getattr(samples, name)[keep] for name in SAMPLE_ARRAYS})
     if format is TelemetryFormat.csv:

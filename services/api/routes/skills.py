@@ -1,5 +1,6 @@
 """``/skills``: learn one from a stored or an inline demonstration (``skills.parameterize.learn_skill``, in a learner
-process of ``services.learner_pool``: the event loop never waits on it), list, get, delete."""
+process of ``services.learner_pool``: the event loop never waits on it), list, get, delete, and its MCAP (the robot,
+the demonstrated path and the learned compliant frames, for Foxglove)."""
 
 from __future__ import annotations
 
@@ -109,3 +110,36 @@ def delete_skill(skill_id: str, store: StoreDep) -> Response:
     if not store.skills.delete(skill_id):
         raise errors.not_found("skill", skill_id)
     return Response(status_code=204)
+
+
+@router.get(
+    "/skills/{skill_id}/mcap",
+    responses={
+        200: {"content": {"application/octet-stream": {}}, "description": "MCAP."},
+        **ERROR_RESPONSES,
+        409: {"model": ApiError},
+    },
+)
+def get_skill_mcap(skill_id: str, store: StoreDep) -> Response:
+    """A skill along the demonstration it was learned from, as MCAP (ROS 2 messages, for Foxglove): the
+    demonstration's tool pose and applied wrench, ``/tf`` with the LEARNED compliant frame ``cf`` through every contact
+    segment, ``/markers`` with the path and a triad at each learned frame, and, for a demonstration recorded in the
+    simulator (the robot's world), the robot: ``/robot_description``, ``/joint_states`` (inverse kinematics of the tool
+    pose) and the URDF's joints in ``/tf``. 404 for an unknown skill or a deleted demonstration; 409 for a skill
+    learned from an inline demonstration (none stored) or from one that cannot be read back."""
+    from schemas.demonstration import DemonstrationArrays
+    from schemas.skill import Skill
+    from services.api.responses import download
+    from services.api.routes.demonstrations import readable_samples
+    from services.store.rows import SAMPLE_ARRAYS
+    from services.telemetry_export import MCAP_MEDIA_TYPE, skill_mcap
+
+    row = store.skills.get(skill_id)
+    if row is None:
+        raise errors.not_found("skill", skill_id)
+    if row.demonstration_id is None:
+        raise errors.no_demonstration(skill_id)
+    demonstration, samples = readable_samples(store, row.demonstration_id)
+    a = DemonstrationArrays(**{name: getattr(samples, name) for name in SAMPLE_ARRAYS})
+    mcap = skill_mcap(a, Skill.model_validate_json(row.skill_json), skill_id, demonstration.created)
+    return download(mcap.data, MCAP_MEDIA_TYPE, f"{skill_id}.mcap")
