@@ -209,7 +209,8 @@ def _bash(script: str, stack, cwd: Path) -> subprocess.CompletedProcess:
 def test_the_readme_curl_flow_runs_as_written(stack, tmp_path):
     """The README's curl + jq block run by bash as written, the stack named by ``CONTACT_SKILLS_URL`` alone
     (``watch`` finds the Zenoh router from ``/health``): ids travel in shell variables, the realtime run is watched to
-    its end, the recording is exported as MCAP and imported back as a bag; ``export`` finds the stack the same way.
+    its end, the run and the skill are exported as MCAP, the recording too and imported back as a bag; ``export``
+    finds the stack the same way.
     A curl block of a docs page runs after it, as written."""
     [flow] = [step.command for step in steps(("README.md",))[0] if step.check is Check.service]
     result = _bash(flow + '\necho "ids $DEMO $SKILL $EXEC"\n', stack, tmp_path)
@@ -218,6 +219,7 @@ def test_the_readme_curl_flow_runs_as_written(stack, tmp_path):
     assert [i.split("_")[0] for i in ids] == ["demo", "skill", "exec"]
     assert f"{ids[2]} done" in result.stdout and '"status": "done"' in result.stdout  # watch, then the view
     assert (tmp_path / "run.mcap").stat().st_size > 100_000
+    assert (tmp_path / "skill.mcap").stat().st_size > 100_000  # the robot and the learned frames (test_foxglove.py)
     assert (tmp_path / "window.csv").read_text().splitlines()[0].startswith("t,phase,segment_index")
     assert "ROS 2 bag: wrench /wrench/world" in result.stdout  # demo.mcap imported back
     export = [sys.executable, "-m", "cli.main", "export", ids[0], "-o", "demo.csv"]
