@@ -314,3 +314,12 @@ def test_the_client_commands_find_the_service_by_contact_skills_url(tmp_path):
                        (["export", "exec_000000000000", "-o", "run.csv"], 2)):  # fmt: skip
         result = _subprocess(args, tmp_path, CONTACT_SKILLS_URL=nobody)
         assert result.returncode == code and nobody in result.stderr, (args, result.stdout, result.stderr)
+
+
+def test_a_skill_exports_whole_as_mcap_and_export_says_so_for_another_format(tmp_path):
+    """`export skill_...` writes the skill's MCAP (tests/test_foxglove.py reads one back); CSV, or a window, of a skill
+    is refused before any request, naming what it takes."""
+    for args in (["-o", "skill.csv"], ["-o", "skill.mcap", "--t0", "1"]):
+        result = _subprocess(["export", "skill_000000000000", *args, "--url", "http://127.0.0.1:9"], tmp_path)
+        assert result.returncode == 2 and "is a skill: it exports whole, as MCAP only" in result.stderr, result.stderr
+        assert not (tmp_path / args[1]).exists()
