@@ -106,11 +106,11 @@ def _quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> NDArray[np.fl
 
 
 @cache
-def urdf_joints(description: str | None = None) -> tuple[UrdfJoint, ...]:
-    """The joints of the URDF ``description`` (default :func:`robot_description`), in the file's order (each parent
-    before its children)."""
+def urdf_joints() -> tuple[UrdfJoint, ...]:
+    """The joints of the URDF Foxglove draws (:func:`robot_description`), in the file's order (each parent before its
+    children)."""
     joints = []
-    for joint in ET.fromstring(description or robot_description()).findall("joint"):
+    for joint in ET.fromstring(robot_description()).findall("joint"):
         origin, axis = joint.find("origin"), joint.find("axis")
         xyz = [float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()]
         rpy = [float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
