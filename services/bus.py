@@ -57,6 +57,7 @@ import json
 import logging
 import os
 import queue
+import re
 import secrets
 import threading
 import time
@@ -211,9 +212,16 @@ def open_session(
         except zenoh.ZError as exc:
             if time.monotonic() >= deadline:
                 where = f"connect to {connect}" if connect else f"listen on {listen}"
-                raise ConnectionError(f"zenoh ({mode}) could not {where}: {exc}") from exc
+                within = f" within {wait_s:g} s" if wait_s else ""
+                raise ConnectionError(f"zenoh ({mode}) could not {where}{within}: {_reason(exc)}") from exc
             log.warning("zenoh (%s) could not connect to %s; retrying", mode, connect)
             time.sleep(0.5)
+
+
+def _reason(error: Exception) -> str:
+    """A Zenoh error's message without the Rust source location it ends with (`` at /root/.cargo/...rs:388.``), which
+    says nothing to a user."""
+    return re.sub(r"\s+at \S+\.rs:\d+\.?$", "", str(error).strip())
 
 
 class BusClient:

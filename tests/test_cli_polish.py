@@ -23,8 +23,8 @@ REPO = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
 
-def _cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], env=ENV, capture_output=True, text=True,
+def _cli(*args: str, timeout: float = 60, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cli.main", *args], env=env or ENV, capture_output=True, text=True,
                           timeout=timeout)  # fmt: skip
 
 
@@ -116,6 +116,31 @@ def test_watch_an_unknown_id_asks_the_api_or_gives_up_on_the_bus(tmp_path):
         stop_process(api)
         stop_process(router)
         log.close()
+
+
+def test_watch_with_no_api_says_which_url_it_asked_and_the_setting_as_export_does(tmp_path):
+    """`watch` with no API answering and no router named waited for the default router (12.7 s) and then printed a
+    Zenoh error ending in a Rust source path: now it says at once which URL it asked and the setting that points
+    elsewhere, in the words `export` uses (one message, the typed client's)."""
+    nobody = f"http://127.0.0.1:{free_port()}"
+    env = {k: v for k, v in ENV.items() if k != "CONTACT_SKILLS_ZENOH_ENDPOINTS"} | {"CONTACT_SKILLS_URL": nobody}
+    watched = _cli("watch", "exec_000000000000", env=env)
+    exported = _cli("export", "exec_000000000000", "-o", str(tmp_path / "run.mcap"), env=env)
+    assert watched.returncode == exported.returncode == 2, watched.stderr + exported.stderr
+    said = watched.stderr.strip().removeprefix("contact-skills watch: error: ")
+    assert said == exported.stderr.strip().removeprefix("contact-skills export: error: ")
+    assert said.startswith(f"the API at {nobody} does not answer") and "CONTACT_SKILLS_URL" in said
+    assert "zenoh" not in watched.stderr.lower() and not (tmp_path / "run.mcap").exists()
+
+
+def test_a_router_that_does_not_answer_is_named_without_zenoh_source_paths():
+    """The bus's connection error ended in ``at /root/.cargo/.../orchestrator.rs:388.``: the endpoint, not Rust."""
+    from services.bus import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with pytest.raises(ConnectionError) as raised:
+        open_session("client", connect=[endpoint], wait_s=0.0)
+    assert endpoint in str(raised.value) and ".rs:" not in str(raised.value)
 
 
 def test_demo_exits_1_on_a_missed_target_unless_report_only(monkeypatch, capsys):
