@@ -1,4 +1,4 @@
-"""Subcommands of `contact-skills` for the service: api, up (lazy imports inside each command).
+"""Subcommands of `contact-skills` for the service: api, warm-up, up (lazy imports inside each command).
 
 - ``contact-skills api``: the REST API (uvicorn) with its SQLite store, connected to a Zenoh router.
 - ``contact-skills up``: everything on this machine, loopback only: an embedded Zenoh router (in this
@@ -94,6 +94,23 @@ def cmd_api(args: argparse.Namespace) -> int:
         if bus is not None:
             bus.close()
         store.close()
+    return 0
+
+
+# --------------------------------------------------------------------------- warm-up
+
+
+def cmd_warm_up(args: argparse.Namespace) -> int:
+    """``contact-skills warm-up``: compile every compiled function of the sim worker's control loop once (or load it
+    from numba's on-disk cache), after installing or changing the code; make run, make test and the Docker image run
+    it. The first compile takes tens of seconds and holds the interpreter: a worker or learner that met it inside a
+    request would miss its deadline."""
+    from services.quiet_imports import import_pybullet_quietly
+
+    import_pybullet_quietly()  # the warm-up builds PyBullet worlds: no banner
+    from sim_worker.warm_up import warm_up
+
+    print(f"compiled code ready in {warm_up():.1f} s")
     return 0
 
 
@@ -370,6 +387,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     api.add_argument("--no-bus", action="store_true", help="run without Zenoh (executions and recordings get 503)")
     login_arguments(api)
     api.set_defaults(run=cmd_api)
+
+    warm = commands.add_parser(
+        "warm-up", help="compile the sim worker's control loop once (after installing)", description=cmd_warm_up.__doc__
+    )
+    warm.set_defaults(run=cmd_warm_up)
 
     up = commands.add_parser(
         "up", help="run router + API + N sim workers on this machine (loopback)", description=cmd_up.__doc__

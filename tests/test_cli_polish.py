@@ -143,6 +143,19 @@ def test_a_router_that_does_not_answer_is_named_without_zenoh_source_paths():
     assert endpoint in str(raised.value) and ".rs:" not in str(raised.value)
 
 
+def test_the_warm_up_of_make_run_and_make_test_prints_no_banner():
+    """`make run` and `make test` began with PyBullet's `pybullet build time: ...` (``python -m sim_worker.warm_up``
+    imported it bare): they run `contact-skills warm-up`, which prints its one line and nothing of PyBullet's."""
+    makefile = (REPO / "Makefile").read_text()
+    for target in ("run", "test"):
+        recipe = re.search(rf"^{target}:.*\n((?:\t.*\n)+)", makefile, re.MULTILINE)
+        assert recipe and "\t$(BIN)/contact-skills warm-up" in recipe[1], f"make {target}: {recipe}"
+    assert "sim_worker.warm_up" not in makefile
+    result = _cli("warm-up", timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert re.fullmatch(r"compiled code ready in \d+\.\d s\n", result.stdout) and result.stderr == "", result
+
+
 def test_demo_exits_1_on_a_missed_target_unless_report_only(monkeypatch, capsys):
     """The exit code contract of `contact-skills demo` (the run itself is tests/test_demo.py's)."""
     import experiments.paper_demo as paper_demo
