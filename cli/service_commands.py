@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS, apply_login, login_arguments
+from services.service_url import DEFAULT_URL, URL_ENV
 from services.settings import DEFAULT_WORKERS
 
 STOP_TIMEOUT_S = 10.0
@@ -63,14 +64,21 @@ def cmd_api(args: argparse.Namespace) -> int:
     from services.app import connect_bus, create_app, serve_api
 
     apply_login(args)
+    import os
+
     from services.settings import SettingsError
     from services.store import Store, StoreError
+    from services.store.owner import claim_database
 
     _configure_logging(args.log_level)
+    claim = None
     try:
         settings = _settings(args)
+        claim = claim_database(settings.db_path, f"pid {os.getpid()}, http://{settings.host}:{settings.port}")
         store = Store(settings.db_path)
-    except (SettingsError, StoreError) as exc:
+    except (SettingsError, StoreError, OSError) as exc:
+        if claim is not None:
+            os.close(claim)
         print(f"contact-skills api: error: {exc}", file=sys.stderr)
         return 2
     bus = None
@@ -94,6 +102,8 @@ def cmd_api(args: argparse.Namespace) -> int:
         if bus is not None:
             bus.close()
         store.close()
+        if claim is not None:
+            os.close(claim)
     return 0
 
 
@@ -211,12 +221,43 @@ def _not_ready(url: str, api: _Child, instance: str, stop: threading.Event, time
     return "stopped" if stop.is_set() else f"the API did not answer {url}/health within {timeout_s:.0f} s"
 
 
-def _ports_taken(settings, zenoh_port: int) -> list[str]:
-    """The ports `up` needs that something else holds: ``"HTTP port 8000 on 127.0.0.1"``, ..."""
+def _ports_taken(settings, zenoh_port: int) -> str | None:
+    """Why `up` cannot start on the ports asked (something else holds one or both), with what to run instead: free
+    ports, in the words the user started it with (make's ``PORT=`` and ``ZENOH_PORT=`` under make, else the flags),
+    and the ``/health`` to ask when the HTTP port is held; None when both are free."""
+    import os
+
     from services.local_processes import LOOPBACK, port_free
 
-    wanted = [("HTTP", settings.host, settings.port), ("Zenoh router", LOOPBACK, zenoh_port)]
-    return [f"{what} port {port} on {host}" for what, host, port in wanted if not port_free(port, host)]
+    http_taken = not port_free(settings.port, settings.host)
+    zenoh_taken = not port_free(zenoh_port, LOOPBACK)
+    if not (http_taken or zenoh_taken):
+        return None
+    held = [f"HTTP port {settings.port} on {settings.host}"] if http_taken else []
+    held += [f"Zenoh router port {zenoh_port} on {LOOPBACK}"] if zenoh_taken else []
+    why = (
+        f"another contact-skills up? curl http://{settings.host}:{settings.port}/health tells"
+        if http_taken
+        else "the Zenoh router of another contact-skills up?"
+    )
+    port = _free_from(settings.port, settings.host) if http_taken else settings.port
+    zenoh = _free_from(zenoh_port, LOOPBACK) if zenoh_taken else zenoh_port
+    instead = (
+        f"make run PORT={port} ZENOH_PORT={zenoh}"
+        if "MAKELEVEL" in os.environ  # GNU make exports it to every recipe: `up` was started by `make run`
+        else f"contact-skills up --port {port} --zenoh-port {zenoh}"
+    )
+    return f"{' and '.join(held)} already in use ({why}); stop it, or run this one on free ports: {instead}"
+
+
+def _free_from(port: int, host: str) -> int:
+    """The first port above ``port`` nothing listens on at ``host``."""
+    from services.local_processes import port_free
+
+    candidate = port + 1
+    while not port_free(candidate, host):
+        candidate += 1
+    return candidate
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -231,14 +272,14 @@ def cmd_up(args: argparse.Namespace) -> int:
     except SettingsError as exc:
         print(f"contact-skills up: error: {exc}", file=sys.stderr)
         return 2
+    from services.store.owner import DatabaseInUse, database_owner
+
     taken = _ports_taken(settings, args.zenoh_port)
-    if taken:
-        print(
-            f"contact-skills up: error: {' and '.join(taken)} already in use (another contact-skills up? "
-            f"curl http://{settings.host}:{settings.port}/health tells); stop it, or choose free ones with --port "
-            "and --zenoh-port",
-            file=sys.stderr,
-        )
+    owner = database_owner(settings.db_path)
+    if taken or owner is not None:
+        for problem in (taken, owner and DatabaseInUse(settings.db_path, owner)):
+            if problem:
+                print(f"contact-skills up: error: {problem}", file=sys.stderr)
         return 2
     from services.local_processes import parent_death_signal
 
@@ -283,7 +324,9 @@ def cmd_up(args: argparse.Namespace) -> int:
             url = f"http://{settings.host}:{settings.port}"
             reason = _not_ready(url, api, instance, stop, READY_TIMEOUT_S)
             if reason is None:
-                printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}")
+                clients = "" if url == DEFAULT_URL else f"; clients: export {URL_ENV}={url}"
+                printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}"
+                             + clients)  # fmt: skip
                 code = _supervise(api, workers, stop, printer)
             elif "another process" in reason:
                 printer.line("up", f"error: {reason}: stopping")
@@ -367,7 +410,10 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="interface to listen on (default $CONTACT_SKILLS_HOST or 127.0.0.1)")
     parser.add_argument("--port", type=int, help="HTTP port (default $CONTACT_SKILLS_PORT or 8000)")
     parser.add_argument(
-        "--db", type=Path, help="SQLite database file (default $CONTACT_SKILLS_DB or ./contact_skills.db)"
+        "--db",
+        type=Path,
+        help="SQLite database file (default $CONTACT_SKILLS_DB, else ./contact_skills.db on port 8000 and "
+        "./contact_skills_PORT.db on another: each instance its own)",
     )
     parser.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
 

@@ -14,6 +14,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from waiting import wait_for
 
 from cli.main import build_parser
 from services.local_processes import free_port, stop_process, wait_for_port
@@ -92,6 +93,60 @@ def test_up_refuses_a_taken_port_before_starting_anything(which):
     taken = f"HTTP port {port}" if which == "http" else f"Zenoh router port {zenoh_port}"
     assert f"{taken} on 127.0.0.1 already in use" in result.stderr and "ready" not in result.stdout
     assert "started api" not in result.stdout
+
+
+@pytest.mark.parametrize("launcher", ["make", "flags"])
+def test_a_taken_port_is_answered_with_free_ports_in_the_words_the_user_started_with(launcher):
+    """The hint named `curl http://127.0.0.1:<this port>/health` when only the Zenoh port was held (nothing answers
+    there) and told a `make run` user to use --port and --zenoh-port: it names the /health of a held HTTP port only,
+    and free ports as `make run PORT= ZENOH_PORT=` under make (which exports MAKELEVEL), else as the flags."""
+    port, zenoh_port = free_port(), free_port()
+    env = {k: v for k, v in ENV.items() if k != "MAKELEVEL"} | ({"MAKELEVEL": "1"} if launcher == "make" else {})
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", zenoh_port))
+        holder.listen()
+        result = _cli("up", "--port", str(port), "--zenoh-port", str(zenoh_port), env=env, timeout=30)
+    assert result.returncode == 2 and "started" not in result.stdout, result.stdout + result.stderr
+    assert "/health" not in result.stderr, result.stderr
+    suggested = re.search(r"run this one on free ports: (.+)$", result.stderr.strip())
+    assert suggested, result.stderr
+    if launcher == "make":
+        [(again, zenoh_again)] = re.findall(r"^make run PORT=(\d+) ZENOH_PORT=(\d+)$", suggested[1])
+    else:
+        [(again, zenoh_again)] = re.findall(r"^contact-skills up --port (\d+) --zenoh-port (\d+)$", suggested[1])
+    assert int(again) == port and int(zenoh_again) > zenoh_port  # the free HTTP port kept, the held one moved
+
+
+def test_each_instance_keeps_its_own_database_and_one_database_has_one_api(tmp_path):
+    """A second `make run` on other ports silently shared ./contact_skills.db with the first: an instance on another
+    port than 8000 keeps ./contact_skills_<port>.db unless told (--db, CONTACT_SKILLS_DB); told to share a live one,
+    `up` and `api` refuse naming its holder (two APIs on one file fail each other's runs); its end frees it."""
+    from services.store.owner import database_owner
+
+    port, zenoh_port = free_port(), free_port()
+    log_path = tmp_path / "up.log"
+    env = {k: v for k, v in ENV.items() if not k.startswith("CONTACT_SKILLS_")}
+    with log_path.open("w") as log:
+        first = subprocess.Popen([sys.executable, "-m", "cli.main", "up", "--workers", "0", "--port", str(port),
+                                  "--zenoh-port", str(zenoh_port)], cwd=tmp_path, env=env, stdout=log,
+                                 stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        ready = wait_for(lambda: re.search(r"ready: .*$", log_path.read_text(), re.MULTILINE), 120, "up's ready line")
+        own = f"contact_skills_{port}.db"
+        assert f"db {own}" in ready[0] and f"export CONTACT_SKILLS_URL=http://127.0.0.1:{port}" in ready[0], ready[0]
+        assert (tmp_path / own).is_file() and not (tmp_path / "contact_skills.db").exists()
+        holder = database_owner(tmp_path / own)
+        assert holder is not None and holder.endswith(f"http://127.0.0.1:{port}"), holder
+        shared = ["--db", str(tmp_path / own), "--port", str(free_port())]
+        again = _cli("up", *shared, "--zenoh-port", str(free_port()), env=env, timeout=30)
+        api = _cli("api", "--no-bus", *shared, env=env, timeout=30)
+        for result in (again, api):
+            assert result.returncode == 2, result.stdout + result.stderr
+            assert f"is in use by another API ({holder})" in result.stderr and "--db" in result.stderr, result.stderr
+        assert "started" not in again.stdout
+    finally:
+        stop_process(first)
+    assert database_owner(tmp_path / own) is None
 
 
 def test_watch_an_unknown_id_asks_the_api_or_gives_up_on_the_bus(tmp_path):
