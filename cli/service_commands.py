@@ -198,27 +198,39 @@ class _Child:
             return self.process.wait()
 
 
-def _not_ready(url: str, api: _Child, instance: str, stop: threading.Event, timeout_s: float) -> str | None:
-    """None once THIS API (its ``instance``) answers ``/health``; else why not (stopped, exited, another process,
-    timeout)."""
+def _not_ready(
+    url: str, api: _Child, instance: str, workers: int, stop: threading.Event, timeout_s: float
+) -> str | None:
+    """None once THIS API (its ``instance``) answers ``/health`` showing ``workers`` workers each in the state it
+    answered itself (idle, executing, recording; not ``unknown``): what ``ready`` promises, so that the first
+    ``/health`` after it shows the workers as they are and a run posted at once finds one. Else why not (stopped,
+    exited, another process, timeout)."""
     import json
     import time
     import urllib.request
 
     deadline = time.monotonic() + timeout_s
+    answering = False
     while time.monotonic() < deadline and not stop.is_set():
         if api.exit_code() is not None:
             return f"the API exited ({_exit_text(api.exit_code())})"
         try:
             with urllib.request.urlopen(url + "/health", timeout=2) as response:
-                answered = json.loads(response.read()).get("instance")
-                if answered == instance:
-                    return None
+                health = json.loads(response.read())
+            if health.get("instance") != instance:
                 return f"{url} is answered by another process, not this API (pid {api.process.pid})"
+            answering = True
+            known = [w for w in health.get("workers", []) if w.get("activity") != "unknown"]
+            if len(known) >= workers:
+                return None
         except (OSError, ValueError):
             pass
         stop.wait(0.2)
-    return "stopped" if stop.is_set() else f"the API did not answer {url}/health within {timeout_s:.0f} s"
+    if stop.is_set():
+        return "stopped"
+    if answering:
+        return f"the API answers {url}/health, but not all {workers} workers connected within {timeout_s:.0f} s"
+    return f"the API did not answer {url}/health within {timeout_s:.0f} s"
 
 
 def _ports_taken(settings, zenoh_port: int) -> str | None:
@@ -322,7 +334,7 @@ def cmd_up(args: argparse.Namespace) -> int:
             for worker in workers:
                 worker.start()
             url = f"http://{settings.host}:{settings.port}"
-            reason = _not_ready(url, api, instance, stop, READY_TIMEOUT_S)
+            reason = _not_ready(url, api, instance, len(workers), stop, READY_TIMEOUT_S)
             if reason is None:
                 clients = "" if url == DEFAULT_URL else f"; clients: export {URL_ENV}={url}"
                 printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}"

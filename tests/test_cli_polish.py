@@ -149,6 +149,29 @@ def test_each_instance_keeps_its_own_database_and_one_database_has_one_api(tmp_p
     assert database_owner(tmp_path / own) is None
 
 
+def test_up_is_ready_when_health_shows_its_worker_idle(tmp_path):
+    """`up` said ready once the API answered; the worker connected after that, and /health showed it missing, then
+    busy/unknown until the API next asked it (1-10 s): from ready on, /health shows the worker idle, at every ask."""
+    import json
+    import urllib.request
+
+    port = free_port()
+    log_path = tmp_path / "up.log"
+    with log_path.open("w") as log:
+        up = subprocess.Popen([sys.executable, "-m", "cli.main", "up", "--workers", "1", "--port", str(port),
+                               "--zenoh-port", str(free_port()), "--db", str(tmp_path / "up.db")], env=ENV,
+                              stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        wait_for(lambda: "ready:" in log_path.read_text(), 120, "up's ready line", every_s=0.02)
+        shown = []
+        for _ in range(10):
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=30) as response:
+                shown.append([(w["worker_id"], w["busy"], w["activity"]) for w in json.load(response)["workers"]])
+        assert shown == [[("worker-1", False, "idle")]] * 10, (shown, log_path.read_text())
+    finally:
+        stop_process(up)
+
+
 def test_watch_an_unknown_id_asks_the_api_or_gives_up_on_the_bus(tmp_path):
     port, zenoh_port = free_port(), free_port()
     log = (tmp_path / "log").open("w")
