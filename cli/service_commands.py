@@ -58,14 +58,14 @@ def _configure_logging(level: str) -> None:
 
 def cmd_api(args: argparse.Namespace) -> int:
     """``contact-skills api``: serve the REST API (OpenAPI at /docs) over the SQLite store and the Zenoh bus."""
+    import os
+
     from services.quiet_imports import import_pybullet_quietly
 
     import_pybullet_quietly()  # the live scene and the MCAP export solve the arm's joints with PyBullet: no banner
     from services.app import connect_bus, create_app, serve_api
 
     apply_login(args)
-    import os
-
     from services.settings import SettingsError
     from services.store import Store, StoreError
     from services.store.owner import claim_database

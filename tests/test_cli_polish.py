@@ -120,7 +120,9 @@ def test_a_taken_port_is_answered_with_free_ports_in_the_words_the_user_started_
 def test_each_instance_keeps_its_own_database_and_one_database_has_one_api(tmp_path):
     """A second `make run` on other ports silently shared ./contact_skills.db with the first: an instance on another
     port than 8000 keeps ./contact_skills_<port>.db unless told (--db, CONTACT_SKILLS_DB); told to share a live one,
-    `up` and `api` refuse naming its holder (two APIs on one file fail each other's runs); its end frees it."""
+    `up` and `api` refuse naming its holder (two APIs on one file fail each other's runs); its end frees it. What it
+    leaves beside the database (the ballast, the claim) is git-ignored like the database, so `git status` stays
+    clean after a `make run`."""
     from services.store.owner import database_owner
 
     port, zenoh_port = free_port(), free_port()
@@ -147,6 +149,10 @@ def test_each_instance_keeps_its_own_database_and_one_database_has_one_api(tmp_p
     finally:
         stop_process(first)
     assert database_owner(tmp_path / own) is None
+    left = sorted(path.name for path in tmp_path.iterdir() if path != log_path)  # the database and its companions
+    assert own in left and ".owner" in " ".join(left), left
+    ignored = subprocess.run(["git", "check-ignore", "--no-index", *left], cwd=REPO, capture_output=True, text=True)
+    assert sorted(ignored.stdout.split()) == left, f"git status would show {set(left) - set(ignored.stdout.split())}"
 
 
 def test_up_is_ready_when_health_shows_its_worker_idle(tmp_path):
