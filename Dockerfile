@@ -43,7 +43,7 @@ WORKDIR /home/cskills
 # every container starts with it compiled (as root, the cache went where the user could not write, and every
 # container compiled it again: 17 s).
 ENV NUMBA_CACHE_DIR=/home/cskills/.cache/numba
-RUN python -m sim_worker.warm_up
+RUN contact-skills warm-up
 ENV CONTACT_SKILLS_DB=/data/contact_skills.db
 EXPOSE 8000 8765
 

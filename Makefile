@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)  # make run PORT=8001 ZENOH_PORT=7448: the HTTP and Zenoh ports (loopback)
-	$(BIN)/python -m sim_worker.warm_up
+	$(BIN)/contact-skills warm-up
 	$(BIN)/contact-skills up $(if $(PORT),--port $(PORT)) $(if $(ZENOH_PORT),--zenoh-port $(ZENOH_PORT))
 
 # The dashboard's browser tests drive Debian's Chromium (tests/test_dashboard.py): installed here where this user can
@@ -28,7 +28,7 @@ browser:
 test: $(STAMP) browser
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/python -m sim_worker.warm_up  # numba: compile once here, not in every test's worker
+	$(BIN)/contact-skills warm-up  # numba: compile once here, not in every test's worker
 	$(BIN)/pytest -q -rs -n 2 --dist loadfile  # two processes: one per core; a test file stays in one process
 
 lint: $(STAMP)
@@ -41,7 +41,7 @@ lint: $(STAMP)
 # make test runs each one's --smoke instead (tests/test_benchmarks_smoke*.py).
 bench: $(STAMP)
 	$(BIN)/pip install --quiet movement-primitives pytransform3d  # bench_dmp_peer's peer, for this target only
-	$(BIN)/python -m sim_worker.warm_up
+	$(BIN)/contact-skills warm-up
 	$(BIN)/python benchmarks/bench_learning.py
 	$(BIN)/python benchmarks/bench_kinesthetic.py
 	$(BIN)/python benchmarks/bench_corpus.py

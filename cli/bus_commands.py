@@ -184,10 +184,12 @@ def exit_code(done: bool, metrics) -> int:
     return EXIT_VERDICT_FAILED if failed else 0
 
 
-def _asked_the_api(args: argparse.Namespace) -> int | list[str] | None:
+def _asked_the_api(args: argparse.Namespace, router_named: bool) -> int | list[str] | None:
     """Ask the API at ``--url`` about the execution first: exit 2 for an id it does not know, the stored metrics for
     a finished one (exit as :func:`exit_code`; unless it is to be replayed, ``--from-start``); else, to follow it,
-    the Zenoh endpoints the API reports (``GET /health``), or None when no API answers there."""
+    the Zenoh endpoints the API reports (``GET /health``). No API there: exit 2 saying so, unless the user named the
+    router (``router_named``: --connect or $CONTACT_SKILLS_ZENOH_ENDPOINTS), whose bus is then watched alone (None);
+    without it there is no bus to watch, and a default one would only time out after seconds."""
     from services.client import FINAL_STATUSES, Client, NotFoundError, ServiceError
 
     try:
@@ -197,7 +199,10 @@ def _asked_the_api(args: argparse.Namespace) -> int | list[str] | None:
     except NotFoundError as exc:
         print(f"contact-skills watch: error: {exc.detail} (asked the API at {args.url})", file=sys.stderr)
         return 2
-    except ServiceError:
+    except ServiceError as exc:
+        if exc.status == 0 and not router_named:
+            print(f"contact-skills watch: error: {exc.detail}", file=sys.stderr)
+            return 2
         return None
     if view.status not in FINAL_STATUSES or args.from_start:
         return endpoints
@@ -270,9 +275,10 @@ def cmd_watch(args: argparse.Namespace) -> int:
     """``contact-skills watch``: live view of an execution from the bus; exits when it ends, printing its metrics.
 
     The API at --url is asked first: an id it does not know is an error at once, a finished execution's metrics are
-    printed from it. Without an answer from the API, the bus alone is watched: no status within --wait seconds is
-    an error (an unknown id, or no worker runs it). After the end on the bus it waits (up to 10 s) for the API to
-    have stored it, so that the next request to the API sees the execution finished."""
+    printed from it, and no API answering there is an error at once naming the URL. With the router named
+    (--connect or CONTACT_SKILLS_ZENOH_ENDPOINTS), the bus alone is watched instead: no status within --wait
+    seconds is an error (an unknown id, or no worker runs it). After the end on the bus it waits (up to 10 s) for
+    the API to have stored it, so that the next request to the API sees the execution finished."""
     import threading
     import time
 
@@ -289,7 +295,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"contact-skills watch: error: {exc}", file=sys.stderr)
         return 2
-    answered = _asked_the_api(args)
+    named = _endpoints(args.connect) or _endpoints([os.environ.get(ENV_ENDPOINTS, "")])
+    answered = _asked_the_api(args, router_named=bool(named))
     if isinstance(answered, int):
         return answered
     if answered is not None and (args.from_start or args.pace != "fast"):
@@ -298,9 +305,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
         print(f"contact-skills watch: error: --from-start reads the stored run from the API at {args.url}, which "
               "does not answer", file=sys.stderr)  # fmt: skip
         return 2
-    # --connect, else $CONTACT_SKILLS_ZENOH_ENDPOINTS, else the endpoints the API reports, else the default
-    endpoints = _endpoints(args.connect) or _endpoints([os.environ.get(ENV_ENDPOINTS, "")]) or answered
-    endpoints = endpoints or settings.endpoints
+    # --connect, else $CONTACT_SKILLS_ZENOH_ENDPOINTS, else the endpoints the API reports
+    endpoints = named or answered or settings.endpoints
     try:
         keys = KeyExpressions(args.prefix or settings.prefix)
         session = open_session("client", connect=endpoints, wait_s=10.0)
@@ -438,7 +444,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         type=float,
         default=10.0,
         metavar="S",
-        help="without an answer from the API: give up if the bus says nothing of the execution for S s (default 10)",
+        help="without an answer from the API, the router named (--connect): give up if the bus says nothing of the "
+        "execution for S s (default 10)",
     )
     watch.add_argument("--url", help=f"{URL_HELP}: asked about the execution first, and for the Zenoh endpoint")
     watch.add_argument(

@@ -54,6 +54,7 @@ EXAMPLES: dict[str, list[str]] = {
         "contact-skills api --connect tcp/127.0.0.1:7447",
         "contact-skills api --no-bus",
     ],
+    "warm-up": ["contact-skills warm-up"],
     "up": [
         "contact-skills up",
         "contact-skills up --workers 2 --port 8001 --zenoh-port 7448 --db scratch/service.db",

@@ -1,4 +1,4 @@
-"""Subcommands of `contact-skills` for the service: api, up (lazy imports inside each command).
+"""Subcommands of `contact-skills` for the service: api, warm-up, up (lazy imports inside each command).
 
 - ``contact-skills api``: the REST API (uvicorn) with its SQLite store, connected to a Zenoh router.
 - ``contact-skills up``: everything on this machine, loopback only: an embedded Zenoh router (in this
@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS, apply_login, login_arguments
+from services.service_url import DEFAULT_URL, URL_ENV
 from services.settings import DEFAULT_WORKERS
 
 STOP_TIMEOUT_S = 10.0
@@ -57,6 +58,8 @@ def _configure_logging(level: str) -> None:
 
 def cmd_api(args: argparse.Namespace) -> int:
     """``contact-skills api``: serve the REST API (OpenAPI at /docs) over the SQLite store and the Zenoh bus."""
+    import os
+
     from services.quiet_imports import import_pybullet_quietly
 
     import_pybullet_quietly()  # the live scene and the MCAP export solve the arm's joints with PyBullet: no banner
@@ -65,12 +68,17 @@ def cmd_api(args: argparse.Namespace) -> int:
     apply_login(args)
     from services.settings import SettingsError
     from services.store import Store, StoreError
+    from services.store.owner import claim_database
 
     _configure_logging(args.log_level)
+    claim = None
     try:
         settings = _settings(args)
+        claim = claim_database(settings.db_path, f"pid {os.getpid()}, http://{settings.host}:{settings.port}")
         store = Store(settings.db_path)
-    except (SettingsError, StoreError) as exc:
+    except (SettingsError, StoreError, OSError) as exc:
+        if claim is not None:
+            os.close(claim)
         print(f"contact-skills api: error: {exc}", file=sys.stderr)
         return 2
     bus = None
@@ -94,6 +102,25 @@ def cmd_api(args: argparse.Namespace) -> int:
         if bus is not None:
             bus.close()
         store.close()
+        if claim is not None:
+            os.close(claim)
+    return 0
+
+
+# --------------------------------------------------------------------------- warm-up
+
+
+def cmd_warm_up(args: argparse.Namespace) -> int:
+    """``contact-skills warm-up``: compile every compiled function of the sim worker's control loop once (or load it
+    from numba's on-disk cache), after installing or changing the code; make run, make test and the Docker image run
+    it. The first compile takes tens of seconds and holds the interpreter: a worker or learner that met it inside a
+    request would miss its deadline."""
+    from services.quiet_imports import import_pybullet_quietly
+
+    import_pybullet_quietly()  # the warm-up builds PyBullet worlds: no banner
+    from sim_worker.warm_up import warm_up
+
+    print(f"compiled code ready in {warm_up():.1f} s")
     return 0
 
 
@@ -171,35 +198,78 @@ class _Child:
             return self.process.wait()
 
 
-def _not_ready(url: str, api: _Child, instance: str, stop: threading.Event, timeout_s: float) -> str | None:
-    """None once THIS API (its ``instance``) answers ``/health``; else why not (stopped, exited, another process,
-    timeout)."""
+def _not_ready(
+    url: str, api: _Child, instance: str, workers: int, stop: threading.Event, timeout_s: float
+) -> str | None:
+    """None once THIS API (its ``instance``) answers ``/health`` showing ``workers`` workers each in the state it
+    answered itself (idle, executing, recording; not ``unknown``): what ``ready`` promises, so that the first
+    ``/health`` after it shows the workers as they are and a run posted at once finds one. Else why not (stopped,
+    exited, another process, timeout)."""
     import json
     import time
     import urllib.request
 
     deadline = time.monotonic() + timeout_s
+    answering = False
     while time.monotonic() < deadline and not stop.is_set():
         if api.exit_code() is not None:
             return f"the API exited ({_exit_text(api.exit_code())})"
         try:
             with urllib.request.urlopen(url + "/health", timeout=2) as response:
-                answered = json.loads(response.read()).get("instance")
-                if answered == instance:
-                    return None
+                health = json.loads(response.read())
+            if health.get("instance") != instance:
                 return f"{url} is answered by another process, not this API (pid {api.process.pid})"
+            answering = True
+            known = [w for w in health.get("workers", []) if w.get("activity") != "unknown"]
+            if len(known) >= workers:
+                return None
         except (OSError, ValueError):
             pass
         stop.wait(0.2)
-    return "stopped" if stop.is_set() else f"the API did not answer {url}/health within {timeout_s:.0f} s"
+    if stop.is_set():
+        return "stopped"
+    if answering:
+        return f"the API answers {url}/health, but not all {workers} workers connected within {timeout_s:.0f} s"
+    return f"the API did not answer {url}/health within {timeout_s:.0f} s"
 
 
-def _ports_taken(settings, zenoh_port: int) -> list[str]:
-    """The ports `up` needs that something else holds: ``"HTTP port 8000 on 127.0.0.1"``, ..."""
+def _ports_taken(settings, zenoh_port: int) -> str | None:
+    """Why `up` cannot start on the ports asked (something else holds one or both), with what to run instead: free
+    ports, in the words the user started it with (make's ``PORT=`` and ``ZENOH_PORT=`` under make, else the flags),
+    and the ``/health`` to ask when the HTTP port is held; None when both are free."""
+    import os
+
     from services.local_processes import LOOPBACK, port_free
 
-    wanted = [("HTTP", settings.host, settings.port), ("Zenoh router", LOOPBACK, zenoh_port)]
-    return [f"{what} port {port} on {host}" for what, host, port in wanted if not port_free(port, host)]
+    http_taken = not port_free(settings.port, settings.host)
+    zenoh_taken = not port_free(zenoh_port, LOOPBACK)
+    if not (http_taken or zenoh_taken):
+        return None
+    held = [f"HTTP port {settings.port} on {settings.host}"] if http_taken else []
+    held += [f"Zenoh router port {zenoh_port} on {LOOPBACK}"] if zenoh_taken else []
+    why = (
+        f"another contact-skills up? curl http://{settings.host}:{settings.port}/health tells"
+        if http_taken
+        else "the Zenoh router of another contact-skills up?"
+    )
+    port = _free_from(settings.port, settings.host) if http_taken else settings.port
+    zenoh = _free_from(zenoh_port, LOOPBACK) if zenoh_taken else zenoh_port
+    instead = (
+        f"make run PORT={port} ZENOH_PORT={zenoh}"
+        if "MAKELEVEL" in os.environ  # GNU make exports it to every recipe: `up` was started by `make run`
+        else f"contact-skills up --port {port} --zenoh-port {zenoh}"
+    )
+    return f"{' and '.join(held)} already in use ({why}); stop it, or run this one on free ports: {instead}"
+
+
+def _free_from(port: int, host: str) -> int:
+    """The first port above ``port`` nothing listens on at ``host``."""
+    from services.local_processes import port_free
+
+    candidate = port + 1
+    while not port_free(candidate, host):
+        candidate += 1
+    return candidate
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -214,14 +284,14 @@ def cmd_up(args: argparse.Namespace) -> int:
     except SettingsError as exc:
         print(f"contact-skills up: error: {exc}", file=sys.stderr)
         return 2
+    from services.store.owner import DatabaseInUse, database_owner
+
     taken = _ports_taken(settings, args.zenoh_port)
-    if taken:
-        print(
-            f"contact-skills up: error: {' and '.join(taken)} already in use (another contact-skills up? "
-            f"curl http://{settings.host}:{settings.port}/health tells); stop it, or choose free ones with --port "
-            "and --zenoh-port",
-            file=sys.stderr,
-        )
+    owner = database_owner(settings.db_path)
+    if taken or owner is not None:
+        for problem in (taken, owner and DatabaseInUse(settings.db_path, owner)):
+            if problem:
+                print(f"contact-skills up: error: {problem}", file=sys.stderr)
         return 2
     from services.local_processes import parent_death_signal
 
@@ -264,9 +334,11 @@ def cmd_up(args: argparse.Namespace) -> int:
             for worker in workers:
                 worker.start()
             url = f"http://{settings.host}:{settings.port}"
-            reason = _not_ready(url, api, instance, stop, READY_TIMEOUT_S)
+            reason = _not_ready(url, api, instance, len(workers), stop, READY_TIMEOUT_S)
             if reason is None:
-                printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}")
+                clients = "" if url == DEFAULT_URL else f"; clients: export {URL_ENV}={url}"
+                printer.line("up", f"ready: {url} (OpenAPI {url}/docs), {len(workers)} workers, db {settings.db_path}"
+                             + clients)  # fmt: skip
                 code = _supervise(api, workers, stop, printer)
             elif "another process" in reason:
                 printer.line("up", f"error: {reason}: stopping")
@@ -350,7 +422,10 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="interface to listen on (default $CONTACT_SKILLS_HOST or 127.0.0.1)")
     parser.add_argument("--port", type=int, help="HTTP port (default $CONTACT_SKILLS_PORT or 8000)")
     parser.add_argument(
-        "--db", type=Path, help="SQLite database file (default $CONTACT_SKILLS_DB or ./contact_skills.db)"
+        "--db",
+        type=Path,
+        help="SQLite database file (default $CONTACT_SKILLS_DB, else ./contact_skills.db on port 8000 and "
+        "./contact_skills_PORT.db on another: each instance its own)",
     )
     parser.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
 
@@ -370,6 +445,11 @@ def register(commands: argparse._SubParsersAction) -> None:
     api.add_argument("--no-bus", action="store_true", help="run without Zenoh (executions and recordings get 503)")
     login_arguments(api)
     api.set_defaults(run=cmd_api)
+
+    warm = commands.add_parser(
+        "warm-up", help="compile the sim worker's control loop once (after installing)", description=cmd_warm_up.__doc__
+    )
+    warm.set_defaults(run=cmd_warm_up)
 
     up = commands.add_parser(
         "up", help="run router + API + N sim workers on this machine (loopback)", description=cmd_up.__doc__

@@ -57,6 +57,7 @@ import json
 import logging
 import os
 import queue
+import re
 import secrets
 import threading
 import time
@@ -211,9 +212,16 @@ def open_session(
         except zenoh.ZError as exc:
             if time.monotonic() >= deadline:
                 where = f"connect to {connect}" if connect else f"listen on {listen}"
-                raise ConnectionError(f"zenoh ({mode}) could not {where}: {exc}") from exc
+                within = f" within {wait_s:g} s" if wait_s else ""
+                raise ConnectionError(f"zenoh ({mode}) could not {where}{within}: {_reason(exc)}") from exc
             log.warning("zenoh (%s) could not connect to %s; retrying", mode, connect)
             time.sleep(0.5)
+
+
+def _reason(error: Exception) -> str:
+    """A Zenoh error's message without the Rust source location it ends with (`` at /root/.cargo/...rs:388.``), which
+    says nothing to a user."""
+    return re.sub(r"\s+at \S+\.rs:\d+\.?$", "", str(error).strip())
 
 
 class BusClient:
@@ -241,6 +249,7 @@ class BusClient:
         self._rotation = itertools.count()
         self._seen: tuple[float, dict[str, WorkerInfo]] | None = None  # (time.monotonic(), the last info replies)
         self._refreshing = False
+        self._refresh_again = False  # asked to refresh while a refresh ran: run it once more
         self.liveness = WorkerLiveness(
             answering=lambda worker_id: bool(self._ask_all(self.keys.info(worker_id), WorkerInfo, WORKER_CHECK_S)),
             latest_status=self.latest_status,
@@ -315,21 +324,30 @@ class BusClient:
         return None if seen is None else time.monotonic() - seen[0]
 
     def _refresh_in_background(self) -> None:
-        """Ask the workers' info on a thread of its own (one at a time) for :meth:`workers_seen`."""
+        """Ask the workers' info on a thread of its own (one at a time) for :meth:`workers_seen`. Asked while one
+        runs, it runs once more after it: a worker whose token arrived while a query was out was not asked by it
+        (its answer would show it ``unknown`` until the next)."""
         with self._lock:
-            if self._refreshing or self._closed:
+            if self._closed:
+                return
+            if self._refreshing:
+                self._refresh_again = True
                 return
             self._refreshing = True
         threading.Thread(target=self._refresh_seen, name="workers-refresh", daemon=True).start()
 
     def _refresh_seen(self) -> None:
-        try:
-            self.workers()
-        except Exception:  # the session closed meanwhile
-            log.debug("refreshing the workers' info failed", exc_info=True)
-        finally:
+        again = True
+        while again:
             with self._lock:
-                self._refreshing = False
+                self._refresh_again = False
+            try:
+                self.workers()
+            except Exception:  # the session closed meanwhile
+                log.debug("refreshing the workers' info failed", exc_info=True)
+            with self._lock:
+                again = self._refresh_again and not self._closed
+                self._refreshing = again
 
     def latest_statuses(self, timeout_s: float = INFO_TIMEOUT_S) -> dict[str, ExecutionStatus]:
         """The latest status of every execution the connected workers ran recently (their status queryables keep

@@ -72,7 +72,7 @@ from services.demonstration_files import (
     unsupported_file,
 )
 from services.quiet_imports import import_pybullet_quietly
-from services.service_url import service_url
+from services.service_url import not_answering, service_url
 
 ListedT = TypeVar("ListedT", bound=BaseModel)
 FINAL_STATUSES = frozenset({ExecutionState.done, ExecutionState.aborted, ExecutionState.failed})
@@ -338,9 +338,7 @@ class Client:
         except httpx.TimeoutException as exc:
             raise UnavailableError(0, f"the API at {self.url} did not answer {method} {path} in time ({exc})") from None
         except httpx.TransportError as exc:
-            raise UnavailableError(
-                0, f"the API at {self.url} does not answer ({exc}): is it running (contact-skills up)?"
-            ) from None
+            raise UnavailableError(0, not_answering(self.url, str(exc))) from None
         if response.status_code >= 400:
             raise _error(response)
         return response

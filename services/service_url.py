@@ -23,3 +23,12 @@ URL_HELP = f"the service's URL (default ${URL_ENV}, else {DEFAULT_URL})"
 def service_url(url: str | None = None) -> str:
     """``url`` if given, else ``$CONTACT_SKILLS_URL``, else :data:`DEFAULT_URL`; without a trailing slash."""
     return (url or os.environ.get(URL_ENV) or DEFAULT_URL).rstrip("/")
+
+
+def not_answering(url: str, reason: str) -> str:
+    """What every client says when no API answers at ``url`` (``reason``: why the connection failed): the URL it
+    asked, how to start the service there, and the one setting that points a client at a service elsewhere."""
+    return (
+        f"the API at {url} does not answer ({reason}): start it (make run, or contact-skills up), or point "
+        f"{URL_ENV} at the one that runs (e.g. export {URL_ENV}=http://127.0.0.1:8001; --url for one command)"
+    )

@@ -4,7 +4,7 @@
 | --- | --- | --- |
 | host | ``CONTACT_SKILLS_HOST`` | ``127.0.0.1`` (loopback only; set ``0.0.0.0`` inside a container) |
 | port | ``CONTACT_SKILLS_PORT`` | ``8000`` |
-| db_path | ``CONTACT_SKILLS_DB`` | ``./contact_skills.db`` |
+| db_path | ``CONTACT_SKILLS_DB`` | ``./contact_skills.db``; ``./contact_skills_<port>.db`` on another port |
 | token | ``CONTACT_SKILLS_TOKEN`` | none: POST/DELETE are open; set it to require ``Authorization: Bearer <token>`` |
 | max_body_mb | ``CONTACT_SKILLS_MAX_BODY_MB`` | ``64`` (MiB; a larger request body gets 413) |
 | workers | ``CONTACT_SKILLS_WORKERS`` | ``1`` (sim worker processes started by ``contact-skills up``) |
@@ -53,6 +53,7 @@ if TYPE_CHECKING:
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8000
 DEFAULT_DB = "contact_skills.db"
+"""The database of the API on :data:`DEFAULT_PORT`; on another port, :func:`default_database` names it for the port."""
 DEFAULT_MAX_BODY_MB = 64.0
 DEFAULT_WORKERS = 1
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -114,6 +115,16 @@ ENV_VARS: dict[str, str] = {
 """Setting name -> the environment variable that sets it."""
 
 
+def default_database(port: int) -> Path:
+    """The database an API on ``port`` uses unless told (``--db``, ``CONTACT_SKILLS_DB``): ``contact_skills.db`` on
+    the default port, ``contact_skills_<port>.db`` on another, so that a second instance (``make run PORT=8001
+    ZENOH_PORT=7448``) keeps its own records beside the first's and finds them again when restarted on its port."""
+    if port == DEFAULT_PORT:
+        return Path(DEFAULT_DB)
+    stem, suffix = DEFAULT_DB.rsplit(".", 1)
+    return Path(f"{stem}_{port}.{suffix}")
+
+
 class SettingsError(ValueError):
     """An environment variable or flag holds a value the setting cannot take."""
 
@@ -142,7 +153,8 @@ class ServiceSettings:
 
     host: str = DEFAULT_HOST
     port: int = DEFAULT_PORT
-    db_path: Path = Path(DEFAULT_DB)
+    db_path: Path | None = None
+    """The SQLite file; None: :func:`default_database` of :attr:`port` (a Path once made)."""
     token: str | None = None
     max_body_mb: float = DEFAULT_MAX_BODY_MB
     workers: int = DEFAULT_WORKERS
@@ -242,7 +254,7 @@ class ServiceSettings:
         object.__setattr__(self, "cors_origins", [origin.strip() for origin in cors if origin.strip()])
         hosts = self.allowed_hosts.split(",") if isinstance(self.allowed_hosts, str) else self.allowed_hosts
         object.__setattr__(self, "allowed_hosts", [host.strip().lower() for host in hosts if host.strip()])
-        object.__setattr__(self, "db_path", Path(self.db_path))
+        object.__setattr__(self, "db_path", default_database(self.port) if self.db_path is None else Path(self.db_path))
         object.__setattr__(self, "zenoh_endpoints", _endpoints(self.zenoh_endpoints))
         object.__setattr__(self, "token", self.token or None)
 

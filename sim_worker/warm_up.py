@@ -1,9 +1,9 @@
 """Compile (or load from numba's on-disk cache) every compiled function of the control loop once.
 
-Run as ``python -m sim_worker.warm_up`` after installing or changing the code (``make test`` and the Docker image
-do): the first compile takes tens of seconds and holds the interpreter, so a worker or learner process that met it
-inside a request would miss its deadline; afterwards each new process loads the compiled code from the cache in
-well under a second.
+Run as ``contact-skills warm-up`` after installing or changing the code (``make run``, ``make test`` and the Docker
+image do; the command imports PyBullet without its banner first): the first compile takes tens of seconds and holds
+the interpreter, so a worker or learner process that met it inside a request would miss its deadline; afterwards each
+new process loads the compiled code from the cache in well under a second.
 """
 
 from __future__ import annotations
@@ -74,7 +74,3 @@ def _hold(world: SimWorld) -> None:
     plan = PhasePlan(ExecutionPhase.free, -1, np.tile(p, (HOLD_STEPS, 1)), np.tile(q, (HOLD_STEPS, 1)),
                      np.zeros((HOLD_STEPS, 6)), np.zeros(HOLD_STEPS), frame=frame)  # fmt: skip
     ControlLoop(world, controller, frame, 1.0, 100, Pace.fast, True, None, None, None).run_plan(plan)
-
-
-if __name__ == "__main__":
-    print(f"compiled code ready in {warm_up():.1f} s")

@@ -198,7 +198,7 @@ def test_key_permissions_work_for_the_routers_uid():
 def test_the_numba_cache_is_warm_for_the_runtime_user():
     """The control loop is compiled at build time by the user that runs it, into a cache it owns."""
     user_line = DOCKERFILE.index("\nUSER cskills")
-    warm = DOCKERFILE.index("python -m sim_worker.warm_up")
+    warm = DOCKERFILE.index("RUN contact-skills warm-up")
     cache = re.search(r"^ENV NUMBA_CACHE_DIR=(\S+)$", DOCKERFILE, re.MULTILINE)
     assert user_line < warm and cache and cache[1].startswith("/home/cskills/")
     assert DOCKERFILE.index(cache[0]) < warm

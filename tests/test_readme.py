@@ -61,6 +61,22 @@ def test_the_readme_fits_one_read() -> None:
     assert "docs/CONVENTIONS.md" in readme and "Where things live" in (REPO / "docs/CONVENTIONS.md").read_text()
 
 
+def test_the_readme_s_browser_note_is_what_make_and_ci_do() -> None:
+    """The README says `make test` installs Chromium as root (`make browser`), says so and skips the browser tests
+    otherwise, and that CI's CONTACT_SKILLS_REQUIRE_BROWSER=1 makes a missing one a failure: so the Makefile, .ci/run
+    and tests/test_dashboard.py do."""
+    readme = " ".join((REPO / "README.md").read_text().split())
+    assert "`make test` installs it with apt-get when run as root (`make browser` is that step alone)" in readme
+    assert "CI sets `CONTACT_SKILLS_REQUIRE_BROWSER=1`, which makes a missing Chromium a failure" in readme
+    makefile = (REPO / "Makefile").read_text()
+    assert re.search(r"^test: .*\bbrowser\b", makefile, re.MULTILINE), "make test does not run make browser"
+    browser = re.search(r"^browser:\n((?:\t.*\n)+)", makefile, re.MULTILINE)
+    assert browser and "apt-get install" in browser[1] and '"$$(id -u)" = 0' in browser[1] and "skip" in browser[1]
+    assert "export CONTACT_SKILLS_REQUIRE_BROWSER=1" in (REPO / ".ci" / "run").read_text().split("\nmake test")[0]
+    dashboard = (REPO / "tests" / "test_dashboard.py").read_text()
+    assert re.search(r'if os\.environ\.get\("CONTACT_SKILLS_REQUIRE_BROWSER"\):.*\n\s+pytest\.fail\(', dashboard)
+
+
 @pytest.mark.parametrize("page", [*PAGES, "docs/CONVENTIONS.md"])
 def test_every_relative_link_of_the_pages_leads_to_a_file(page: str) -> None:
     base = (REPO / page).parent
