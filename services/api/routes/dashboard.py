@@ -7,12 +7,14 @@ from __future__ import annotations
 import asyncio
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 from fastapi import APIRouter, Response
 from fastapi.responses import FileResponse
 
 from schemas import Skill
 from schemas.dashboard import ExecutionScene, SkillView
+from schemas.import_options import BagImportOptions, CsvImportOptions
 from services.api import errors
 from services.api.deps import READ_GUARD, KeysDep, StoreDep
 from services.api.errors import ERROR_RESPONSES, READ_RESPONSES
@@ -23,6 +25,9 @@ from services.store import Store
 STATIC = Path(__file__).resolve().parents[2] / "dashboard" / "static"
 MEDIA_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 """The asset kinds the dashboard has; any other name is a 404."""
+
+IMPORT_OPTIONS = {"csv": CsvImportOptions, "bag": BagImportOptions}
+"""The options model of each upload route the page's form posts to."""
 
 router = APIRouter(tags=["dashboard"])  # the page is open (it holds no data); its views need what reads need
 
@@ -69,6 +74,15 @@ def robot_mesh(name: str) -> Response:
     if data is None:
         raise errors.not_found("robot mesh", name)
     return Response(data, media_type="model/stl", headers={"Cache-Control": "max-age=3600"})
+
+
+@router.get("/dashboard/api/import-options")
+def get_import_options() -> dict[str, Any]:
+    """The options of an upload by kind, as JSON schemas by their form names: ``csv``, those of ``POST
+    /demonstrations/csv`` (``CsvImportOptions``), ``bag``, those of ``POST /demonstrations/bag``
+    (``BagImportOptions``); the same models give ``contact-skills learn FILE`` its flags. The page's upload form is
+    generated from them."""
+    return {kind: model.model_json_schema(by_alias=True) for kind, model in IMPORT_OPTIONS.items()}
 
 
 @router.get(

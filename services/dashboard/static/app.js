@@ -70,6 +70,7 @@ function table(columns, rows, rowId) {
 // ------------------------------------------------------------------------------------------------ lists
 
 let listTimer = null;
+let listRefresh = null;   // the lists page's refresh, to show an upload at once
 
 async function listsPage() {
   const demos = el("section", { id: "demonstrations" }, el("h2", {}, "Demonstrations"));
@@ -78,11 +79,15 @@ async function listsPage() {
   const sweeps = el("section", { id: "sweeps" }, el("h2", {}, "Sweeps"));
   const scenario = el("input", { id: "scenario", value: "slide_flat", size: 16 });
   const file = el("input", { id: "upload-file", type: "file", accept: ".csv,.json,.mcap,.db3,.bag" });
+  const options = el("div", { id: "import-options" });
+  const uploadForm = el("form", { id: "upload-form", onsubmit: (e) => { e.preventDefault(); upload(uploadForm, file.files[0]); } },
+    el("div", { class: "inline" }, el("label", {}, "recording (CSV, JSON, ROS bag)", file), el("button", { id: "upload", type: "submit" }, "Upload")),
+    options, el("div", { id: "upload-result" }));
+  file.addEventListener("change", () => showImportOptions(options, file.files[0]));
   const add = el("section", {}, el("h2", {}, "Add a demonstration"),
     el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); record(scenario.value); } },
       el("label", {}, "teacher scenario", scenario), el("button", { id: "record", type: "submit" }, "Record in simulation")),
-    el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); upload(file.files[0]); } },
-      el("label", {}, "recording (CSV, JSON, ROS bag)", file), el("button", { id: "upload", type: "submit" }, "Upload")));
+    uploadForm);
   main.replaceChildren(add, demos, skills, executions, sweeps);
   let shown = "";
   const refresh = async () => {
@@ -106,7 +111,8 @@ async function listsPage() {
         ["id", (r) => el("a", { href: `#/execution/${r.id}` }, r.id)], ["created", (r) => when(r.created)],
         ["status", (r) => badge(r.status)], ["verdict", (r) => badge(r.verdict)], ["controller", (r) => r.request?.controller],
         ["true RMS %", (r) => fmt(r.metrics?.true_force_rms_error_pct)], ["CF-z RMS %", (r) => fmt(r.metrics?.force_rms_error_pct)],
-        ["contact", (r) => fmt(r.metrics?.contact_ratio)], ["s", (r) => fmt(r.metrics?.duration_s, 1)],
+        ["contact", (r) => pct(r.metrics?.contact_ratio)], ["path RMS", (r) => mm(r.metrics?.path_rms_m)],
+        ["s", (r) => fmt(r.metrics?.duration_s, 1)],
       ], x, (r) => r.id));
       const running = x.filter((r) => !FINAL.includes(r.status)).map((r) => r.id);
       if (running.length > 1) executions.append(el("a", { href: `#/execution/${running.join(",")}` }, `watch the ${running.length} running`));
@@ -117,6 +123,7 @@ async function listsPage() {
       ], w, (r) => r.id));
     } catch (error) { connected(false); say(error.message); }
   };
+  listRefresh = refresh;
   await refresh();
   listTimer = setInterval(refresh, LIST_PERIOD_MS);
 }
@@ -136,22 +143,100 @@ async function record(scenario) {
   } catch (error) { say(`record: ${error.message}`); }
 }
 
-async function upload(file) {
+// ------------------------------------------------------------------------------------------------ upload
+
+// The import options of an upload, generated from the API's JSON schema of the options model (the same model gives
+// `contact-skills learn FILE` its flags and POST /demonstrations/csv|bag its form fields): field names, types,
+// closed sets, defaults and descriptions all come from it.
+let importSchemas = null;
+const UPLOAD_FIELD = "file";   // the form's file, not an option
+
+const uploadKind = (file) => {
+  const name = file?.name.toLowerCase() || "";
+  return name.endsWith(".json") ? "json" : name.endsWith(".csv") ? "csv" : file ? "bag" : null;
+};
+
+async function showImportOptions(container, file) {
+  const kind = uploadKind(file);
+  container.dataset.kind = kind || "";
+  if (!kind || kind === "json") {
+    container.replaceChildren(kind ? el("p", { class: "help" }, "A JSON Demonstration is stored as it is: no import options.") : "");
+    return;
+  }
+  importSchemas ??= await api("/dashboard/api/import-options");
+  const schema = importSchemas[kind];
+  const fields = Object.entries(schema.properties).filter(([name]) => name !== UPLOAD_FIELD).map(([name, property]) => {
+    const choices = [property, ...(property.anyOf || [])].map((p) => (p.$ref ? schema.$defs[p.$ref.split("/").pop()] : p)).find((p) => p.enum);
+    const help = property.description || "";
+    let input;
+    if (choices) {
+      input = el("select", { name }, property.default === undefined || property.default === null ? el("option", { value: "" }, "(from the file)") : null,
+        choices.enum.map((v) => el("option", { value: v, selected: v === property.default ? "" : null }, v)));
+    } else if (property.type === "boolean") {
+      input = el("input", { type: "checkbox", name, checked: property.default ? "" : null });
+    } else {
+      const numeric = [property, ...(property.anyOf || [])].some((p) => p.type === "number");
+      const list = [property, ...(property.anyOf || [])].some((p) => p.type === "array");
+      const example = property.examples?.[0];
+      input = el("input", { name, type: numeric ? "number" : "text", step: numeric ? "any" : null, size: list ? 14 : 18,
+        placeholder: example === undefined ? "" : Array.isArray(example) ? example.join(",") : String(example) });
+    }
+    input.dataset.default = JSON.stringify(property.default ?? null);
+    return el("label", { title: help }, name, input);
+  });
+  const route = kind === "csv" ? "POST /demonstrations/csv" : "POST /demonstrations/bag";
+  container.replaceChildren(el("details", { open: "" },
+    el("summary", {}, `import options (those of contact-skills learn FILE and ${route}; hover a field for what it does)`),
+    el("div", { class: "inline options" }, fields)));
+}
+
+function importOptionValues(form) {
+  // The options set to other than their defaults, as the form fields the route takes.
+  const values = {};
+  for (const input of form.querySelectorAll("#import-options [name]")) {
+    const standard = JSON.parse(input.dataset.default);
+    if (input.type === "checkbox") { if (input.checked !== standard) values[input.name] = String(input.checked); }
+    else if (input.value !== "" && input.value !== (standard ?? "")) values[input.name] = input.value;
+  }
+  return values;
+}
+
+async function upload(form, file, replacing = null) {
   if (!file) { say("choose a file first"); return; }
-  const name = file.name.toLowerCase();
+  const kind = uploadKind(file);
+  const result = form.querySelector("#upload-result");
   say(`uploading ${file.name}…`);
   try {
     let demo;
-    if (name.endsWith(".json")) {
+    if (kind === "json") {
       demo = await api("/demonstrations", { method: "POST", headers: { "content-type": "application/json" }, body: await file.text() });
     } else {
-      const form = new FormData();
-      form.append("file", file);
-      demo = await api(name.endsWith(".csv") ? "/demonstrations/csv" : "/demonstrations/bag", { method: "POST", body: form });
+      const body = new FormData();
+      body.append(UPLOAD_FIELD, file);
+      for (const [name, value] of Object.entries(importOptionValues(form))) body.append(name, value);
+      demo = await api(`/demonstrations/${kind}`, { method: "POST", body });
     }
-    say(`stored ${demo.id}: ${(demo.import_notes || []).join(" ")}`);
-    route();
-  } catch (error) { say(`upload: ${error.message}`); }
+    if (replacing) await api(`/demonstrations/${replacing}`, { method: "DELETE" });
+    const readings = demo.extra?.plausible_readings || [];
+    result.replaceChildren(el("div", { class: "upload-note", "data-demonstration": demo.id },
+      el("b", {}, `stored ${demo.id}${replacing ? ` (re-imported; ${replacing} deleted)` : ""}`),
+      el("ul", {}, (demo.import_notes || []).map((n) => el("li", {}, n))),
+      readings.length ? el("p", {}, "The import found these readings of the wrench plausible: ",
+        readings.map((reading) => el("button", { type: "button", class: "use-reading",
+          onclick: () => useReading(form, file, reading, demo.id) },
+        `re-import with ${Object.entries(reading).map(([k, v]) => `${k} = ${v}`).join(", ")}`))) : null));
+    say(`stored ${demo.id}`);
+    if (!location.hash || location.hash === "#/") listRefresh?.();
+  } catch (error) { result.replaceChildren(el("p", { class: "failed" }, `upload: ${error.message}`)); say(`upload: ${error.message}`); }
+}
+
+function useReading(form, file, reading, wrongId) {
+  // One click: set the reading's options in the form and import the same file again; the first import is deleted.
+  for (const [name, value] of Object.entries(reading)) {
+    const field = form.querySelector(`#import-options [name='${name}']`);
+    if (field) field.value = value;
+  }
+  upload(form, file, wrongId);
 }
 
 async function learn(demonstrationId) {
