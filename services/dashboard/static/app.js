@@ -569,14 +569,39 @@ function executionPage(ids) {
 
 // ------------------------------------------------------------------------------------------------ a sweep
 
+// A sweep parameter's value as an engineer reads it (schemas.sweep.SweepParameter: its name ends in its unit).
+const PARAMETER_UNITS = [["_n_s_m", 1, "N·s/m"], ["_n_m", 1, "N/m"], ["_m", 1000, "mm"], ["_deg", 1, "°"], ["_n", 1, "N"]];
+function parameter(name, value) {
+  const [suffix, scale, unit] = PARAMETER_UNITS.find(([end]) => name.endsWith(end)) || ["", 1, ""];
+  const label = name.slice(0, name.length - suffix.length).replaceAll("_", " ");
+  const v = value * scale;
+  const shown = Math.abs(v) >= 1000 ? v.toExponential(2) : v.toFixed(Math.abs(v) >= 100 ? 0 : 2);
+  return `${label} ${v > 0 && suffix !== "" && !name.startsWith("contact") ? "+" : ""}${shown}${unit ? ` ${unit}` : ""}`;
+}
+
 async function sweepPage(id) {
-  const view = await api(`/sweeps/${id}`);
+  const [view, trials] = await Promise.all([api(`/sweeps/${id}`), api(`/sweeps/${id}/trials`)]);
   const image = el("img", { id: "sweep-figure", alt: "success rate and true force error along each parameter", style: "max-width:100%" });
+  const verdict = (r) => (r.success === null || r.success === undefined ? badge(r.status) : badge(r.success ? "pass" : "fail"));
   main.replaceChildren(el("section", {}, el("h2", {}, `Sweep ${id}: `, badge(view.status)),
-    table([["controller", (r) => r.controller], ["finished", (r) => `${r.finished}/${r.trials}`], ["success rate", (r) => fmt(r.success_rate)],
-      ["true RMS % p50", (r) => fmt(r.true_force_rms_error_pct?.p50)], ["p90", (r) => fmt(r.true_force_rms_error_pct?.p90)],
-      ["failures", (r) => Object.entries(r.failures || {}).map(([k, v]) => `${k}: ${v}`).join(", ")]], view.controllers || [])),
-  el("section", {}, el("h2", {}, "Success rate along each varied parameter"), image));
+    table([["controller", (r) => r.controller], ["finished", (r) => `${r.finished}/${r.trials}`], ["success rate", (r) => pct(r.success_rate)],
+      ["true RMS error p50", (r) => (r.true_force_rms_error_pct ? `${fmt(r.true_force_rms_error_pct.p50)} %` : "–")],
+      ["p90", (r) => (r.true_force_rms_error_pct ? `${fmt(r.true_force_rms_error_pct.p90)} %` : "–")],
+      ["failures", (r) => Object.entries(r.failures || {}).map(([k, v]) => `${k}: ${v}`).join(", ") || "none"]], view.controllers || [])),
+  el("div", { class: "grid2 sweep-row" },
+    el("section", { id: "sweep-trials" }, el("h2", {}, `Trials (${trials.length}): each row its execution`),
+      table([
+        ["trial", (r) => String(r.trial)], ["controller", (r) => r.controller],
+        ["perturbation", (r) => Object.entries(r.parameters).flatMap(([k, v], j) => [j ? el("br") : null, parameter(k, v)])],
+        ["verdict", verdict],
+        ["true RMS error", (r) => (r.true_force_rms_error_pct === null ? "–" : `${fmt(r.true_force_rms_error_pct)} %`)],
+        ["true max error", (r) => (r.true_force_max_error_pct === null ? "–" : `${fmt(r.true_force_max_error_pct)} %`)],
+        ["contact", (r) => pct(r.contact_ratio)], ["touch-down peak", (r) => (r.touchdown_peak_ratio === null ? "–" : `${fmt(r.touchdown_peak_ratio)} ×`)],
+        ["path RMS", (r) => mm(r.metrics?.path_rms_m)],
+        ["execution", (r) => (r.execution_id ? el("a", { href: `#/execution/${r.execution_id}` }, r.execution_id) : "–")],
+        ["why it failed", (r) => el("span", { class: "message" }, [...r.reasons, r.abort_reason].filter(Boolean).join("; "))],
+      ], trials, (r) => `${r.trial}-${r.controller}`)),
+    el("section", {}, el("h2", {}, "Summary: true RMS error and success rate along each varied parameter"), image)));
   const response = await fetch(`/dashboard/api/sweeps/${id}/figure.png`, { headers: headers() });
   if (response.ok) image.src = URL.createObjectURL(await response.blob());
 }
