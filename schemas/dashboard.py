@@ -16,7 +16,7 @@ MAX_WORK_PIECE_SOLIDS = 512
 
 class WorkPieceMesh(BaseModel):
     """One solid of the world an execution ran in (table, ramp, contour object, a work piece part) as a triangle mesh:
-    vertices in the world frame, m; triangles as vertex indices, counter-clockwise seen from outside."""
+    vertices in the world frame, m; triangles as vertex indices."""
 
     name: str
     vertices: list[tuple[float, float, float]] = Field(max_length=MAX_MESH_VERTICES)
