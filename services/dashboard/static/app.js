@@ -333,6 +333,7 @@ const CFZ_COLOR = "#1565c0";                     // the measured force along CF 
 const CONTACT_COLOR = "#2e7d32";                 // the tool touching (the simulator's contact points)
 const PHASE_COLORS = { settle: "#cfd8dc", free: "#bbdefb", approach: "#fff59d", contact: "#ffcc80", retreat: "#d1c4e9" };
 const TRIAD_SPACING_M = 0.015;                   // a CF triad every 1.5 cm of path in the contact phase
+const SCENE_RETRY_MS = 1000;                     // how often a live page asks for the work piece until it has it
 const COMMANDS = {                               // which command each state allows (the buttons follow the run)
   queued: ["abort"], starting: ["abort"], running: ["pause", "abort"], paused: ["resume", "abort"],
 };
@@ -359,7 +360,7 @@ class LivePanel {
     this.t = []; this.fz = []; this.fd = []; this.fw = []; this.ft = []; this.index = []; this.maxGap = 0;
     this.errTrue = []; this.errCfz = [];
     this.tool = []; this.reference = []; this.phaseSpans = []; this.contactSpans = []; this.triads = []; this.joints = null;
-    this.workPiece = null; this.sceneAsked = false; this.drawnTriads = 0; this.fitted = 0;
+    this.workPiece = null; this.sceneAsked = false; this.sceneAskedAt = 0; this.drawnTriads = 0; this.fitted = 0;
     this.head = el("div", { class: "live-head" });
     this.force = el("canvas", { class: "live-force", "data-execution": id });
     this.error = el("canvas", { class: "live-error" });
@@ -428,18 +429,19 @@ class LivePanel {
       else if (line.startsWith("id: ")) id = Number(line.slice(4));
     }
     const body = JSON.parse(data || "{}");
-    if (kind === "telemetry") this.addTelemetry(body);
+    if (kind === "telemetry") { this.addTelemetry(body); this.askScene(); }
     else if (kind === "status") { this.status = body; this.askScene(); }
-    else if (kind === "end") { this.ended = true; this.status = { ...this.status, ...body }; this.askScene(); this.showFinal(body); }
+    else if (kind === "end") { this.ended = true; this.status = { ...this.status, ...body }; this.askScene(true); this.showFinal(body); }
     if (id !== null) this.cursor = id;
     this.schedule();
   }
 
-  async askScene() {
-    // The work piece its worker reported when it started the run (none before): asked at each state change until
-    // it comes.
-    if (this.workPiece || this.sceneAsked) return;
+  async askScene(last = false) {
+    // The work piece its worker reported when it started the run (none before): asked at each event until it comes,
+    // once a second at most.
+    if (this.workPiece || (this.sceneAsked && !last) || (!last && Date.now() - this.sceneAskedAt < SCENE_RETRY_MS)) return;
     this.sceneAsked = true;
+    this.sceneAskedAt = Date.now();
     try {
       const scene = await api(`/dashboard/api/executions/${this.id}/scene`);
       if (scene.work_piece) { this.workPiece = scene.work_piece; this.scene.setWorkPiece(scene.work_piece); this.fitted = 0; this.schedule(); }

@@ -133,7 +133,16 @@ export class Scene3D {
     this.labels.domElement.className = "scene3d-labels";
     this.note = document.createElement("div");
     this.note.className = "scene3d-note";
-    container.append(this.renderer.domElement, this.labels.domElement, this.note);
+    const views = document.createElement("div");
+    views.className = "scene3d-views";
+    for (const [name, close] of [["whole cell", false], ["the path", true]]) {
+      const button = document.createElement("button");
+      button.type = "button";
+      button.textContent = name;
+      button.addEventListener("click", () => { this.close = close; this.fit(true); });
+      views.append(button);
+    }
+    container.append(this.renderer.domElement, this.labels.domElement, this.note, views);
     this.scene = new THREE.Scene();
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x667788, 2.2));
     const sun = new THREE.DirectionalLight(0xffffff, 1.6);
@@ -144,6 +153,7 @@ export class Scene3D {
     this.controls = new OrbitControls(this.camera, this.labels.domElement);
     this.controls.addEventListener("change", () => this.render());
     this.userMoved = false;   // the user turned the camera: a live view no longer frames it again by itself
+    this.close = false;       // framing the path alone (its button), else the whole cell
     this.controls.addEventListener("start", () => { this.userMoved = true; });
     this.layers = {};   // name -> Object3D, replaced by set*()
     this.fitted = false;
@@ -215,7 +225,7 @@ export class Scene3D {
       // The taught path drawn over everything: where the tool follows it exactly, its dashes lie on the executed
       // path and the gaps between them show it.
       line.computeLineDistances();
-      material.depthTest = false;
+      Object.assign(material, { depthTest: false, transparent: true });   // drawn after the (translucent) work piece
       line.renderOrder = 2;
     }
     this.replace(name, line);
@@ -232,6 +242,8 @@ export class Scene3D {
         group.add(new THREE.ArrowHelper(new THREE.Vector3(...axis), origin, length, AXIS_COLORS[j], 0.25 * length, 0.12 * length));
       });
     }
+    // Over everything, as the taught path: a CF sits at the tool point, on (or in) the surface it presses.
+    group.traverse((o) => { if (o.material) { Object.assign(o.material, { depthTest: false, transparent: true }); o.renderOrder = 3; } });
     this.replace("triads", group);
     this.container.dataset.triads = String(triads.length);
   }
@@ -296,12 +308,13 @@ export class Scene3D {
     this.fitted = true;
     // The robot too when it is drawn: its base at the origin, its arm up to about a metre above it.
     const reach = box.clone();
-    if (this.robot?.root.visible || this.pendingJoints) reach.expandByPoint(new THREE.Vector3(0, 0, 0)).expandByPoint(new THREE.Vector3(0, 0, 1.0));
-    const centre = box.getCenter(new THREE.Vector3());
+    if (this.close) reach.copy(new THREE.Box3().setFromObject(this.layers.taught || this.layers.executed || this.layers.triads));
+    else if (this.robot?.root.visible || this.pendingJoints) reach.expandByPoint(new THREE.Vector3(0, 0, 0)).expandByPoint(new THREE.Vector3(0, 0, 1.0));
+    const centre = this.close ? reach.getCenter(new THREE.Vector3()) : box.getCenter(new THREE.Vector3());
     const size = reach.getSize(new THREE.Vector3()).length();
     const look = reach.getCenter(new THREE.Vector3()).lerp(centre, 0.75);   // the work, with the arm around it
     this.controls.target.copy(look);
-    this.camera.position.copy(look).add(new THREE.Vector3(0.5, -1.0, 0.5).normalize().multiplyScalar(1.05 * Math.max(size, 0.4)));
+    this.camera.position.copy(look).add(new THREE.Vector3(0.5, -1.0, 0.5).normalize().multiplyScalar(1.05 * Math.max(size, this.close ? 0.08 : 0.4)));
     this.camera.near = size / 200; this.camera.far = size * 20;
     this.camera.updateProjectionMatrix();
     this.controls.update();
