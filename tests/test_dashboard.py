@@ -214,6 +214,8 @@ def test_abort_from_the_page_stops_the_execution(stack, page, tmp_path):
     assert float(pressing["err_cfz"]) == pytest.approx(stored["fz"] - stored["fd"], abs=1e-5)
     assert pressing["ft"] == stored["ft"] and pressing["t"] == stored["t"]
     assert "in contact" in page.inner_text("section.live .live-head")
+    # The scene while it runs: the arm and the work piece its worker reported at the start.
+    page.wait_for_selector("section.live .live-scene[data-work-piece='1'][data-robot='1']", timeout=10_000)
     buttons = "bs => bs.map(b => [b.className, b.disabled])"
     assert page.eval_on_selector_all("section.live h2 button", buttons) == [["pause", False], ["resume", True],
                                                                            ["abort", False]]  # fmt: skip
