@@ -97,7 +97,7 @@ class JointSolver:
         import pybullet
 
         self._p = pybullet
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entered by reached(), which solves and reads the pose in one hold
         self._client = pybullet.connect(pybullet.DIRECT)
         self._robot = pybullet.loadURDF(
             str(_robot_data() / "model.urdf"), useFixedBase=True, physicsClientId=self._client
@@ -130,9 +130,9 @@ class JointSolver:
         ``[x, y, z, w]``, world; None when the arm does not reach it (its solution's tool point further than
         :data:`REACH_TOLERANCE_M` from it: a recording made away from the robot, before a placement). Solved from
         the home posture."""
-        self.reset()
-        joints = self.solve(tool_position[None], tool_orientation[None])[0]
         with self._lock:
+            self.reset()
+            joints = self.solve(tool_position[None], tool_orientation[None])[0]
             link7 = np.array(self._p.getLinkState(self._robot, 6, computeForwardKinematics=True,
                                                   physicsClientId=self._client)[4])  # fmt: skip
         wanted = tool_position - matrix_from_quaternion(tool_orientation)[:, 2] * LINK7_TO_TOOL_POINT_M
