@@ -119,7 +119,7 @@ async function listsPage() {
       sweeps.replaceChildren(sweeps.firstChild, table([
         ["id", (r) => el("a", { href: `#/sweep/${r.id}` }, r.id)], ["created", (r) => when(r.created)], ["status", (r) => badge(r.status)],
         ["trials", (r) => `${r.counts?.finished ?? 0}/${r.counts?.total ?? 0}`],
-        ["success", (r) => (r.controllers || []).map((c) => `${c.controller} ${fmt(c.success_rate)}`).join(", ")],
+        ["success", (r) => (r.controllers || []).map((c) => `${c.controller} ${pct(c.success_rate)}`).join(", ")],
       ], w, (r) => r.id));
     } catch (error) { connected(false); say(error.message); }
   };
