@@ -32,7 +32,7 @@ def _client(tmp_path):
 def _imported(url: str, text: str, import_map: dict[str, str]) -> list[str]:
     """The page's own URLs a file names (src, href, an ES module's from) and the vendored modules it imports by a
     bare name or a relative path, resolved as the browser does (through the page's import map)."""
-    urls = re.findall(r"""(?:src|href|from)\s*=?\s*["'](/dashboard/[^"']+)["']""", text)
+    urls = re.findall(r"""(?:src|href|from|import\()\s*=?\s*["'](/dashboard/[^"']+)["']""", text)
     for name in re.findall(r"""^(?:import|export)\b[^'";=]*?["']([^"']+)["']""", text, re.M):  # a module's imports
         if name.startswith("/"):
             continue  # found above

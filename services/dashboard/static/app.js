@@ -1,7 +1,8 @@
 // The dashboard: lists, a skill's page, live executions, a sweep's page. Plain ES module, data from the API only
 // (same origin; the bearer token, if the service wants one, from the field in the header, kept in localStorage).
 import { linePlot, stripPlot } from "/dashboard/static/plot.js";
-import { Scene3D, STYLE } from "/dashboard/static/scene3d.js";
+// The 3-D scene (three.js, 0.7 MB) is loaded by the pages that draw one, not by the lists.
+const scene3d = () => import("/dashboard/static/scene3d.js");
 
 const main = document.getElementById("main");
 const tokenField = document.getElementById("token");
@@ -305,6 +306,7 @@ async function skillPage(id) {
     { x: view.t, y: view.force_cf_z, color: "#1565c0", width: 1 },
     { x: view.learned_t, y: view.learned_force, color: "#000", dash: [6, 3], width: 2 },
   ], { bands: spans, xLabel: "t (s)", yLabel: "N", xRange });
+  const { Scene3D, STYLE } = await scene3d();
   const scene = new Scene3D(sceneBox, { height: 440 });
   scene.setPath("taught", view.path.length ? view.path : view.triads.map((tr) => tr.origin), STYLE.taught);
   scene.setTriads(view.triads, view.triads.length > 3 ? 0.03 : 0.06);   // a slide's one frame per segment drawn larger
@@ -334,6 +336,7 @@ const CONTACT_COLOR = "#2e7d32";                 // the tool touching (the simul
 const PHASE_COLORS = { settle: "#cfd8dc", free: "#bbdefb", approach: "#fff59d", contact: "#ffcc80", retreat: "#d1c4e9" };
 const TRIAD_SPACING_M = 0.015;                   // a CF triad every 1.5 cm of path in the contact phase
 const SCENE_RETRY_MS = 1000;                     // how often a live page asks for the work piece until it has it
+const SCENE_PERIOD_MS = 500;                     // the live 3-D scene is redrawn twice a second at most
 const COMMANDS = {                               // which command each state allows (the buttons follow the run)
   queued: ["abort"], starting: ["abort"], running: ["pause", "abort"], paused: ["resume", "abort"],
 };
@@ -361,6 +364,7 @@ class LivePanel {
     this.errTrue = []; this.errCfz = [];
     this.tool = []; this.reference = []; this.phaseSpans = []; this.contactSpans = []; this.triads = []; this.joints = null;
     this.workPiece = null; this.sceneAsked = false; this.sceneAskedAt = 0; this.drawnTriads = 0; this.fitted = 0;
+    this.sceneDrawn = -Infinity; this.sceneLater = null;
     this.head = el("div", { class: "live-head" });
     this.force = el("canvas", { class: "live-force", "data-execution": id });
     this.error = el("canvas", { class: "live-error" });
@@ -386,7 +390,13 @@ class LivePanel {
           el("div", { class: "legend" }, key("#1d2330", "taught path (the reference, dashed)"), key("#ff6d00", "executed tool path"),
             key("#d32f2f", "CF x"), key("#2e7d32", "CF y"), key("#1565c0", "CF z (into the surface)"), key("#c8a46e", "work piece", "height:10px")))),
       this.final);
-    this.scene = new Scene3D(this.sceneBox, { height: 480 });
+    this.scene = null;   // until three.js has loaded
+    scene3d().then(({ Scene3D, STYLE }) => {
+      this.scene = new Scene3D(this.sceneBox, { height: 480 });
+      this.style = STYLE;
+      if (this.workPiece) this.scene.setWorkPiece(this.workPiece);
+      this.drawScene();
+    });
     streams.add(this);
     this.status = { status: "…", phase: "…" };
     this.connect();
@@ -444,7 +454,7 @@ class LivePanel {
     this.sceneAskedAt = Date.now();
     try {
       const scene = await api(`/dashboard/api/executions/${this.id}/scene`);
-      if (scene.work_piece) { this.workPiece = scene.work_piece; this.scene.setWorkPiece(scene.work_piece); this.fitted = 0; this.schedule(); }
+      if (scene.work_piece) { this.workPiece = scene.work_piece; this.scene?.setWorkPiece(scene.work_piece); this.schedule(); }
     } catch (error) { say(`scene: ${error.message}`); }
     this.sceneAsked = false;
   }
@@ -514,7 +524,8 @@ class LivePanel {
     ], { xLabel: "t (s)", yLabel: "N", xRange, height: 150, zero: true });
     stripPlot(this.strips, [{ label: "phase", spans: this.phaseSpans }, { label: "contact", spans: this.contactSpans }],
       { xRange, xLabel: "t (s)" });
-    this.drawScene();
+    if (this.ended || performance.now() - this.sceneDrawn >= SCENE_PERIOD_MS) this.drawScene();
+    else if (!this.sceneLater) this.sceneLater = setTimeout(() => { this.sceneLater = null; this.drawScene(); }, SCENE_PERIOD_MS);
     if (n) {
       // The plot's last point, for whoever checks it against the stored telemetry (tests, the benchmark).
       // lastFt, lastContact: "" where not recorded.
@@ -527,9 +538,12 @@ class LivePanel {
   }
 
   drawScene() {
-    if (!this.t.length) return;
-    this.scene.setPath("taught", this.reference, STYLE.taught);
-    this.scene.setPath("executed", this.tool, STYLE.executed);
+    // At most every SCENE_PERIOD_MS: the 3-D scene costs far more a frame than the plots (software WebGL on a
+    // machine without a GPU), and the plots must keep the live rate.
+    if (!this.t.length || !this.scene) return;
+    this.sceneDrawn = performance.now();
+    this.scene.setPath("taught", this.reference, this.style.taught);
+    this.scene.setPath("executed", this.tool, this.style.executed);
     if (this.triads.length !== this.drawnTriads) { this.scene.setTriads(this.triads); this.drawnTriads = this.triads.length; }
     if (this.joints) this.scene.setRobot(this.joints);
     // Framed on the first data, again when the work piece comes and when the run ends; else the user's camera stays.
@@ -562,7 +576,7 @@ class LivePanel {
     this.root.dataset.ended = "1";
   }
 
-  close() { this.closed = true; streams.delete(this); }
+  close() { this.closed = true; clearTimeout(this.sceneLater); streams.delete(this); }
 }
 
 function executionPage(ids) {
