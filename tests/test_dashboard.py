@@ -94,7 +94,7 @@ def _assert_the_checks_read_whole(page, checks: list[dict]) -> None:
     rows = page.locator("#checks tbody tr")
     for k, check in enumerate(checks):
         cells = rows.nth(k).locator("td")
-        bound = check_bound(SkillCheck.model_validate(check)).value
+        bound = {">=": "≥", "<=": "≤"}[check_bound(SkillCheck.model_validate(check)).value]
         assert cells.nth(4).inner_text().startswith(bound), (check["name"], cells.nth(4).inner_text())
         assert cells.nth(5).inner_text() == check["message"]
     overflow = page.eval_on_selector("#checks", "s => s.scrollWidth - s.clientWidth")

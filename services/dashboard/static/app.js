@@ -253,6 +253,7 @@ async function learn(demonstrationId) {
 // ------------------------------------------------------------------------------------------------ a skill
 
 const SEGMENT_COLORS = { contact: "#ffcc80", free: "#e0e0e0" };
+const BOUND_SIGNS = { ">=": "≥", "<=": "≤" };   // schemas.skill.CheckBound, as a reader writes it
 
 async function skillPage(id) {
   const view = await api(`/dashboard/api/skills/${id}`);
@@ -274,7 +275,7 @@ async function skillPage(id) {
   const pieceNote = view.work_piece
     ? el("span", {}, `work piece: the world of its latest execution, `, el("a", { href: `#/execution/${view.work_piece_execution}` }, view.work_piece_execution))
     : el("span", {}, "work piece: none drawn until the skill has run (the world an execution runs in comes from its worker)");
-  const limit = (check, k) => `${view.check_bounds[k] ?? ""} ${fmt(check.limit, 3)} ${check.unit}`;
+  const limit = (check, k) => `${BOUND_SIGNS[view.check_bounds[k]] ?? ""} ${fmt(check.limit, 3)} ${check.unit}`;
   main.replaceChildren(
     el("section", {}, el("h2", {}, `Skill ${id}: ${view.skill_type}, ${view.segments.length} segments`), form),
     el("section", {}, el("h2", {}, "Segments on the demonstration's time line"), timeline,
