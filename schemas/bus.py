@@ -44,6 +44,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.bus_security import BusSecurity
+from schemas.dashboard import MAX_WORK_PIECE_SOLIDS, WorkPieceMesh
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
 from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus contract is imported from here
@@ -402,6 +403,12 @@ class ExecutionStatus(BaseModel):
         "the API takes a status only above the last one it took, so none moves a run back.",
     )
     sent_unix_s: Real = Field(default_factory=time.time, description="Worker's wall clock at publication, s.")
+    work_piece: list[WorkPieceMesh] | None = Field(
+        None,
+        max_length=MAX_WORK_PIECE_SOLIDS,
+        description="The solids of the world the run uses (its first world, for a run stroke by stroke), world frame, "
+        "m: sent with the first status of an attempt only (the dashboard's 3-D scene draws them).",
+    )
 
     @property
     def final(self) -> bool:

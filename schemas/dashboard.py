@@ -6,7 +6,21 @@ from __future__ import annotations
 from pydantic import BaseModel, Field
 
 from schemas.numbers import Real
-from schemas.skill import AutoSelection, SkillCheck
+from schemas.skill import AutoSelection, CheckBound, SkillCheck
+
+MAX_MESH_VERTICES = 4096
+"""Vertices of one work piece solid at most (a curved block has a few hundred; a rebuilt part a few dozen)."""
+MAX_WORK_PIECE_SOLIDS = 512
+"""Solids of one world at most (a rebuilt work piece has one per stretch of its path: tens)."""
+
+
+class WorkPieceMesh(BaseModel):
+    """One solid of the world an execution ran in (table, ramp, contour object, a work piece part) as a triangle mesh:
+    vertices in the world frame, m; triangles as vertex indices."""
+
+    name: str
+    vertices: list[tuple[float, float, float]] = Field(max_length=MAX_MESH_VERTICES)
+    triangles: list[tuple[int, int, int]] = Field(max_length=2 * MAX_MESH_VERTICES)
 
 
 class SegmentSpan(BaseModel):
@@ -26,6 +40,14 @@ class Triad(BaseModel):
     axes: list[list[float]]
 
 
+class ExecutionScene(BaseModel):
+    """``GET /dashboard/api/executions/{id}/scene``: what the execution's 3-D view draws besides its telemetry."""
+
+    work_piece: list[WorkPieceMesh] | None = Field(
+        description="The solids of the world the execution runs in (world, m); None until its worker started it."
+    )
+
+
 class SkillView(BaseModel):
     """``GET /dashboard/api/skills/{id}``: a skill as its page draws it."""
 
@@ -40,5 +62,15 @@ class SkillView(BaseModel):
     learned_t: list[float] = Field(description="Times of the learned CF-z force, s.")
     learned_force: list[float | None] = Field(description="Learned CF-z force, N (None between contact segments).")
     triads: list[Triad]
+    joints: list[float] | None = Field(
+        None, description="The arm's 7 joint angles at the path's first sample, rad (None: out of the arm's reach)."
+    )
+    work_piece: list[WorkPieceMesh] | None = Field(
+        None, description="The solids of the world the skill's latest execution ran in (world, m), if one ran."
+    )
+    work_piece_execution: str | None = Field(None, description="That execution's id.")
     auto_selection: AutoSelection | None
     checks: list[SkillCheck]
+    check_bounds: list[CheckBound] = Field(
+        default_factory=list, description="Per check, the side of its limit its value must stay on (>= or <=)."
+    )

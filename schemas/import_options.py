@@ -23,6 +23,11 @@ from schemas.text import Name, Text
 COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", "mx", "my", "mz")
 """Keys of a column spec: time (s); position (m); quaternion components; force (N); moment (N·m)."""
 
+PLAUSIBLE_READINGS = "plausible_readings"
+"""The key of a demonstration's ``metadata.extra`` (and of an upload answer's ``extra``) listing the other readings of
+the recorded wrench its import note advises, each as import options (form names and values, e.g.
+``{"wrench": "measured-on-tool"}``; ``services.importing``)."""
+
 UPLOAD_FIELD = "file"
 """The multipart field of an upload route that carries the file itself (the route's own parameter)."""
 
@@ -157,4 +162,4 @@ class BagImportOptions(ImportOptions):
         return None if self.tf_parent is None or self.tf_child is None else (self.tf_parent, self.tf_child)
 
 
-__all__ = ["COLUMN_KEYS", "BagImportOptions", "CsvImportOptions", "ImportOptions"]
+__all__ = ["COLUMN_KEYS", "PLAUSIBLE_READINGS", "BagImportOptions", "CsvImportOptions", "ImportOptions"]

@@ -267,6 +267,13 @@ class CheckName(StrEnum):
     type_evidence = "type_evidence"
 
 
+class CheckBound(StrEnum):
+    """Which side of its limit a check's value must stay on (``skills.skill_checks.check_bound``)."""
+
+    at_least = ">="
+    at_most = "<="
+
+
 class SkillCheck(BaseModel):
     """One check of a learned skill against what its demonstration measured: its value, its limit and the verdict."""
 

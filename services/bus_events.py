@@ -83,6 +83,7 @@ def store_status(store: Store, status: ExecutionStatus, state: ExecutionState) -
         worker_id=status.worker_id,
         metrics=status.metrics,
         error=error,
+        work_piece=status.work_piece,
     )
 
 

@@ -23,7 +23,7 @@ from pydantic import ValidationError
 
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, TareMethod, WrenchConvention, WrenchFrame
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
-from schemas.import_options import ImportOptions
+from schemas.import_options import PLAUSIBLE_READINGS, ImportOptions
 from services.demonstration_files import DemonstrationFile, path_kind, unsupported_file
 from skills import preprocess, skill_checks
 from skills import tare as tare_module
@@ -165,7 +165,8 @@ def demonstration_from_samples(
             }
     else:
         notes.append("tare off: no sensor offset removed (the file is taken as compensated)")
-    notes.extend(_direction_hint(recording, wrenches, options, frame, metadata.quaternion_order_on_import))
+    hint, readings = _direction_hint(recording, wrenches, options, frame, metadata.quaternion_order_on_import)
+    notes.extend(hint)
     if recording.t.size < MIN_DEMONSTRATION_SAMPLES:
         remedy = "record longer" if recording.fixed_rate else "record longer, or pass a higher rate"
         raise error(
@@ -183,7 +184,13 @@ def demonstration_from_samples(
             "world_force_removed": None if world_force is None else world_force.tolist(),
             "tare": method,
             "unmeasured_intervals_s": [] if recording.unmeasured_s is None else recording.unmeasured_s.tolist(),
-            "extra": {**metadata.extra, "import_notes": notes, **(extra or {}), "tare": tare_report},
+            "extra": {
+                **metadata.extra,
+                "import_notes": notes,
+                **(extra or {}),
+                "tare": tare_report,
+                **({PLAUSIBLE_READINGS: readings} if readings else {}),
+            },
         }
     )
     try:
@@ -284,7 +291,7 @@ def _direction_hint(
     options: ImportOptions,
     frame: WrenchFrame,
     order: QuaternionOrder,
-) -> list[str]:
+) -> tuple[list[str], list[dict[str, str]]]:
     """A note when the applied force (``wrenches``: world, applied by the tool, as imported) points UP in the world
     (`skills.skill_checks.press_elevation_deg` above ``UPWARD_PRESS_LIMIT_DEG``): pressing on a table, a part or a wall
     points down or sideways. Not an error (work done from below is possible), but a reaction read as applied-by-tool,
@@ -296,26 +303,28 @@ def _direction_hint(
     a skill that passes every check (`_failed_checks_read_so`: a reading is advised only when learning with it is
     tried first and clean), with their numbers: the one to import it with, unless the tool worked from below. Several
     may: a tool held straight down looks alike in both quaternion orders. Judged on the wrench as tared (an
-    uncompensated tool weight, which reads as a force UP, is gone where the free space showed it).
+    uncompensated tool weight, which reads as a force UP, is gone where the free space showed it). Returns the note
+    (none, or one) and the readings it advises as import options (form names and values: what to import it with).
     """
     forces = wrenches[:, :3]
     elevation = skill_checks.press_elevation_deg(forces)
     if elevation <= skill_checks.UPWARD_PRESS_LIMIT_DEG:
-        return []
+        return [], []
     magnitude = np.linalg.norm(forces, axis=1)
     pressed = magnitude >= np.median(magnitude)  # where the tool presses: the lean of free space's noise says nothing
     velocities = tool_velocities(recording.positions, recording.rate_hz)[pressed]
     readings = _other_readings(forces, recording.orientations, options.wrench_convention, frame, order)
-    sentences = []
-    for flags, alternative in readings:
+    sentences, advised = [], []
+    for reading, alternative in readings:
         down = skill_checks.press_elevation_deg(alternative)
         lean, samples = skill_checks.median_friction_lean(alternative[pressed], velocities)
         if down < -skill_checks.UPWARD_PRESS_LIMIT_DEG and skill_checks.leans_with_friction(lean):
             failed = _failed_checks_read_so(recording, alternative)
             if failed:
                 continue  # it presses down, but the skill learned so would still be warned: no advice to give
+            advised.append(reading)
             sentences.append(
-                f"read with {flags} it presses {-down:.0f} deg below the horizontal, "
+                f"read with {reading_flags(reading)} it presses {-down:.0f} deg below the horizontal, "
                 + skill_checks.lean_sentence(lean, samples).removeprefix("the applied force ")
                 + ", and the skill learned so passes every check"
             )
@@ -329,7 +338,7 @@ def _direction_hint(
     return [
         f"check how the wrench is read: the force the tool applies points {elevation:.0f} deg above the horizontal in "
         f"the world, where pressing on a table, a part or a wall points down or sideways; {found}"
-    ]
+    ], advised
 
 
 HINT_SAMPLES = 20_000
@@ -360,29 +369,38 @@ def _other_readings(
     convention: WrenchConvention,
     frame: WrenchFrame,
     order: QuaternionOrder,
-) -> list[tuple[str, np.ndarray]]:
+) -> list[tuple[dict[str, str], np.ndarray]]:
     """The other readings of a file's forces as the import would turn them (world, applied by the tool) from
-    ``forces`` (N, 3) N as it turned them, each with the options that give it: the other sign; the other frame (tool
-    <-> world: ``orientations`` (N, 4) turn them); for a tool-frame wrench, the quaternions in the other component
-    order (``order`` is the one read); and the other sign with each of those."""
+    ``forces`` (N, 3) N as it turned them, each with the import options that give it (form names and values, as
+    :func:`reading_flags` prints them): the other sign; the other frame (tool <-> world: ``orientations`` (N, 4) turn
+    them); for a tool-frame wrench, the quaternions in the other component order (``order`` is the one read); and the
+    other sign with each of those."""
     flip = "measured-on-tool" if convention == WrenchConvention.applied_by_tool else "applied-by-tool"
     R = matrix_from_quaternion(orientations)
+    others: list[tuple[dict[str, str], np.ndarray]]
     if frame == WrenchFrame.world:
-        others = [("--wrench-frame tool", np.einsum("nij,nj->ni", R, forces))]
+        others = [({"wrench_frame": WrenchFrame.tool.value}, np.einsum("nij,nj->ni", R, forces))]
     else:
         in_tool = np.einsum("nji,nj->ni", R, forces)
         other = QuaternionOrder.wxyz if order == QuaternionOrder.xyzw else QuaternionOrder.xyzw
         # The file's components, read in the other order: scalar-last as read -> rolled one place either way.
         reordered = np.roll(orientations, -1 if other == QuaternionOrder.wxyz else 1, axis=1)
         others = [
-            ("--wrench-frame world", in_tool),
+            ({"wrench_frame": WrenchFrame.world.value}, in_tool),
             (
-                f"--quaternion-order {other.value} (--columns for named ones)",
+                {"quaternion_order": other.value},
                 np.einsum("nij,nj->ni", matrix_from_quaternion(reordered), in_tool),
             ),
         ]
-    signed = [(f"--wrench {flip} {flags}", -alternative) for flags, alternative in others]
-    return [(f"--wrench {flip}", -forces), *others, *signed]
+    signed = [({"wrench": flip, **options}, -alternative) for options, alternative in others]
+    return [({"wrench": flip}, -forces), *others, *signed]
+
+
+def reading_flags(reading: dict[str, str]) -> str:
+    """A reading's import options as ``contact-skills learn`` flags (``{"wrench_frame": "tool"}``: ``--wrench-frame
+    tool``); a quaternion order names ``--columns`` too, which named quaternion columns need instead."""
+    parts = [f"--{name.replace('_', '-')} {value}" for name, value in reading.items()]
+    return " ".join(part + (" (--columns for named ones)" if "quaternion" in part else "") for part in parts)
 
 
 def validation_problems(exc: ValidationError) -> list[str]:

@@ -92,8 +92,8 @@ def write_sweep_figure(view: SweepView, trials: list[TrialResult], path: str | o
             success_ax.plot(centres, 100 * rates, "o-", color=color, ms=3, lw=1.2)
     axes[names[0]][0].legend(fontsize=6, loc="lower left")
     counts = view.counts
-    figure.suptitle(
-        f"sweep {view.id}: {view.request['trials']} trials, {counts.finished}/{counts.total} executions; "
+    figure.suptitle(  # two lines: a figure of one or two parameters is narrower than the sentence
+        f"sweep {view.id}: {view.request['trials']} trials, {counts.finished}/{counts.total} executions\n"
         f"x = aborted, dashed = success threshold {threshold:g} % (true normal force)",
         fontsize=9,
     )

@@ -29,6 +29,7 @@ import numpy as np
 import pybullet
 from numpy.typing import NDArray
 
+from schemas.dashboard import WorkPieceMesh
 from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK, robot_urdf
 from sim_worker.world_config import WorldConfig
@@ -144,6 +145,36 @@ def build_environment(client: int, geometry: WorldGeometry) -> dict[str, int]:
             )
             builder.add(name, shape, visual, solid.R, solid.p)
     return builder.bodies
+
+
+CYLINDER_SIDES = 48
+"""Sides of a cylinder's drawn mesh (its simulated shape is exact: a capsule)."""
+
+
+def work_piece_meshes(geometry: WorldGeometry) -> list[WorkPieceMesh]:
+    """``geometry``'s solids as the triangle meshes the dashboard draws (world frame, m), the same shapes
+    :func:`build_environment` gives PyBullet (a cylinder as a prism of :data:`CYLINDER_SIDES` sides)."""
+    meshes = []
+    for name, solid in geometry.solids.items():
+        if isinstance(solid, BoxSolid):
+            local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * solid.half
+            triangles = _hull_indices(local)
+        elif isinstance(solid, ConvexSolid):
+            local, triangles = solid.vertices, _hull_indices(solid.vertices)
+        elif isinstance(solid, CylinderSolid):  # along the body y axis
+            angle = np.linspace(0.0, 2 * math.pi, CYLINDER_SIDES, endpoint=False)
+            ring = np.stack([solid.radius * np.cos(angle), np.zeros_like(angle), solid.radius * np.sin(angle)], axis=1)
+            local = np.concatenate([ring + np.array([0.0, y, 0.0]) for y in (-0.5 * solid.length, 0.5 * solid.length)])
+            triangles = _hull_indices(local)
+        elif isinstance(solid, CurvedBlockSolid):
+            profile = _block_profile(solid, geometry.config.block.mesh_segments)
+            local, triangles = np.array(_block_vertices(solid, profile)), _block_indices(profile.shape[0])
+        else:
+            continue
+        vertices = np.asarray(local, dtype=float) @ solid.R.T + solid.p
+        meshes.append(WorkPieceMesh(name=name, vertices=vertices.round(6).tolist(),
+                                    triangles=np.reshape(triangles, (-1, 3)).tolist()))  # fmt: skip
+    return meshes
 
 
 @dataclass

@@ -77,7 +77,7 @@ from schemas.bus import (
 )
 from schemas.bus_security import ENV_LOGINS, BusSecurity, challenge_signature, parse_env, report_signature
 from schemas.demonstration import Demonstration
-from schemas.execution import ExecutionPhase, TelemetryMode
+from schemas.execution import EnvironmentChange, ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
 from sim_worker.process_memory import bound_heap, trim_heap
 from sim_worker.telemetry import Telemetry
@@ -219,6 +219,17 @@ def worlds_for(start: StartExecution) -> list:
     )
 
 
+def _work_piece_meshes(config, environment: EnvironmentChange) -> list:
+    """The solids of the world ``config`` (a ``WorldConfig``) as the run meets them, moved by the environment's known
+    and unknown offsets as the executor moves them, as ``schemas.dashboard.WorkPieceMesh`` (world, m)."""
+    from sim_worker.executor import shifted_world_config
+    from sim_worker.geometry import WorldGeometry
+    from sim_worker.world_build import work_piece_meshes
+
+    shift = np.asarray(environment.offset, dtype=float) + np.asarray(environment.unknown_offset, dtype=float)
+    return work_piece_meshes(WorldGeometry(shifted_world_config(config, shift)))
+
+
 def _load_execution_code() -> None:
     """Import what an execution runs and load the compiled control loop (``sim_worker.warm_up``) before the worker
     shows itself: its first execution would otherwise pay for it (~2 s on a quiet core), not just the ones after."""
@@ -273,6 +284,8 @@ class _Run:
         self.lock = threading.Lock()
         self.cmd_subscriber = None
         self.thread: threading.Thread | None = None
+        self.work_piece = _work_piece_meshes(worlds[0].config, start.request.environment)
+        """The solids of its (first) world, sent with its first status (the dashboard's 3-D scene draws them)."""
 
     # Polled by the control loop (its thread).
     def should_abort(self) -> bool:
@@ -337,6 +350,7 @@ class _Run:
                 "steps": self.polls,
                 "paused": self.paused,
                 "seq": self.seq,
+                "work_piece": self.work_piece if self.seq == 0 else None,
                 **fields,
             }
             status = ExecutionStatus(**values)

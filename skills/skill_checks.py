@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
 from schemas.demonstration import TareMethod
-from schemas.skill import CheckName, SkillCheck, SkillType
+from schemas.skill import CheckBound, CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask, press_body
@@ -358,6 +358,19 @@ def median_friction_lean(forces: NDArray[np.float64], velocities: NDArray[np.flo
     leans = friction_leans(forces, velocities)
     sliding = sliding_fast(leans, np.linalg.norm(velocities, axis=1))
     return (float(np.median(leans[sliding])) if sliding.any() else 0.0), int(sliding.sum())
+
+
+_AT_LEAST = frozenset({CheckName.plane_conditioning, CheckName.stroke_strength, CheckName.friction_along_motion,
+                       CheckName.type_evidence})  # fmt: skip
+"""The checks whose value must reach their limit (the others must not pass theirs; ``force_along_cf`` either way)."""
+
+
+def check_bound(check: SkillCheck) -> CheckBound:
+    """The side of its limit ``check``'s value must stay on, as its function above decides it: a ratio of the force
+    along CF z below 1 is held to the lower limit, above 1 to the upper (``force_along_cf`` reports the nearer)."""
+    if check.name is CheckName.force_along_cf:
+        return CheckBound.at_least if check.value < 1.0 else CheckBound.at_most
+    return CheckBound.at_least if check.name in _AT_LEAST else CheckBound.at_most
 
 
 def leans_with_friction(lean: float) -> bool:

@@ -13,6 +13,7 @@ import signal
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 pytest.importorskip("zenoh")
@@ -62,10 +63,11 @@ def page(browser, stack):
 
 
 def _stored_sample(stack, execution_id: str, index: int) -> dict:
-    """Stored telemetry sample ``index`` of an execution: t s, CF-z force N, true normal force N, in contact."""
+    """Stored telemetry sample ``index`` of an execution: t s, CF-z force N, true normal force N, desired CF-z force
+    N, in contact."""
     body = stack.http.get(f"/executions/{execution_id}/telemetry", params={"cursor": index, "limit": 1}).json()
     return {"index": index, "t": body["t"][0], "fz": body["wrench_cf"][0][2], "ft": body["normal_force_true_n"][0],
-            "contact": body["in_contact"][0]}  # fmt: skip
+            "fd": body["desired_force_cf_z_n"][0], "contact": body["in_contact"][0]}  # fmt: skip
 
 
 def _stored_end(stack, execution_id: str) -> dict:
@@ -80,7 +82,37 @@ def _plot_end(page, execution_id: str) -> dict:
     data = page.eval_on_selector(f"canvas.live-force[data-execution='{execution_id}']", "c => ({...c.dataset})")
     return {"index": int(data["lastIndex"]), "t": float(data["lastT"]), "fz": float(data["lastFz"]),
             "ft": float(data["lastFt"]), "contact": data["lastContact"] == "true", "max_gap": int(data["maxGap"]),
-            "points": int(data["points"])}  # fmt: skip
+            "points": int(data["points"]), "err_true": data["lastErrTrue"], "err_cfz": data["lastErrCfz"]}  # fmt: skip
+
+
+def _assert_the_checks_read_whole(page, checks: list[dict]) -> None:
+    """Every check's row says which side of its limit it must stay on (as the value and the verdict agree) and
+    shows its whole message: nothing of the table lies beyond its section's right edge."""
+    from schemas.skill import SkillCheck
+    from skills.skill_checks import check_bound
+
+    rows = page.locator("#checks tbody tr")
+    for k, check in enumerate(checks):
+        cells = rows.nth(k).locator("td")
+        bound = {">=": "≥", "<=": "≤"}[check_bound(SkillCheck.model_validate(check)).value]
+        assert cells.nth(4).inner_text().startswith(bound), (check["name"], cells.nth(4).inner_text())
+        assert cells.nth(5).inner_text() == check["message"]
+    overflow = page.eval_on_selector("#checks", "s => s.scrollWidth - s.clientWidth")
+    assert overflow <= 1, f"the checks table is {overflow} px wider than its section"
+
+
+def _scene_is_drawn(page, selector: str) -> bool:
+    """Whether the 3-D scene's canvas holds a picture (WebGL drew more than the background)."""
+    colours = page.eval_on_selector(
+        f"{selector} canvas",
+        """c => {
+        const small = document.createElement('canvas'); small.width = 64; small.height = 48;
+        const ctx = small.getContext('2d'); ctx.drawImage(c, 0, 0, 64, 48);
+        const d = ctx.getImageData(0, 0, 64, 48).data, seen = new Set();
+        for (let i = 0; i < d.length; i += 4) seen.add(`${d[i] >> 4},${d[i + 1] >> 4},${d[i + 2] >> 4}`);
+        return seen.size; }""",
+    )
+    return colours > 20
 
 
 def _more_than(stack, n: int) -> list[dict] | None:
@@ -114,6 +146,12 @@ def test_lists_render_a_recording_from_the_page_is_learned_and_an_upload_is_list
     assert int(page.get_attribute("#timeline", "data-segments")) == len(stored["segments"])
     assert page.locator("#checks tbody tr").count() == len(stored["checks"])
     assert stored["auto_selection"]["chosen"] in page.inner_text("#auto-selection")
+    _assert_the_checks_read_whole(page, stored["checks"])
+    scene = page.wait_for_selector("#skill-scene[data-robot='1']", timeout=30_000)  # the arm at the path's start
+    view = stack.http.get(f"/dashboard/api/skills/{skill['id']}").json()
+    assert int(scene.get_attribute("data-taught")) == len(view["path"]) and view["joints"] is not None
+    assert int(scene.get_attribute("data-triads")) == len(view["triads"]) > 0
+    assert _scene_is_drawn(page, "#skill-scene")
     page.screenshot(path=tmp_path / "skill.png", full_page=True)
 
     truth = plane_slide(seed=3)  # recordings uploaded from the page are stored whole and listed
@@ -145,6 +183,18 @@ def test_an_execution_started_from_the_page_plots_up_to_the_stored_telemetry(sta
     assert plotted["ft"] == stored["ft"] and plotted["contact"] == stored["contact"]  # sent as stored
     assert plotted["max_gap"] <= MAX_INDEX_STEP and plotted["points"] >= stored["index"] // 10
     assert stored["verdict"] in page.inner_text("section.live .final")
+    final = page.inner_text("section.live .final")
+    metrics = stack.execution(execution_id)["metrics"]
+    assert f"{metrics['path_rms_m'] * 1000:.2f} mm" in final and f"{100 * metrics['contact_ratio']:.1f} %" in final
+    assert page.eval_on_selector_all("section.live h2 button", "bs => bs.map(b => b.disabled)") == [True] * 3
+    # The scene: the robot, and the work piece the run met: the taught table moved 1 cm up (the unknown offset).
+    page.wait_for_selector("section.live .live-scene[data-work-piece][data-robot='1']", timeout=30_000)
+    taught = stack.http.get(f"/skills/{skill_id}").json()["skill"]["taught_world"]["table"]
+    [table] = stack.http.get(f"/dashboard/api/executions/{execution_id}/scene").json()["work_piece"]
+    corners = np.array(table["vertices"])
+    assert corners[:, 2].max() == pytest.approx(taught["height_m"] + 0.01, abs=1e-6)
+    assert corners[:, :2].mean(axis=0) == pytest.approx(taught["center_xy"], abs=1e-6)
+    assert _scene_is_drawn(page, "section.live .live-scene")
     page.screenshot(path=tmp_path / "execution.png", full_page=True)
 
 
@@ -153,19 +203,29 @@ def test_abort_from_the_page_stops_the_execution(stack, page, tmp_path):
     page.goto(f"{stack.url}/#/skill/{skill_id}")
     page.select_option("select[name=pace]", "realtime")
     page.click("#execute")
-    page.wait_for_selector("canvas.live-force[data-last-contact='true']", timeout=60_000)  # the tool presses
+    pressing_now = "canvas.live-force[data-last-contact='true']:not([data-last-err-true=''])"  # in the contact phase
+    page.wait_for_selector(pressing_now, timeout=60_000)
     execution_id = page.get_attribute("section.live", "data-execution")
     pressing = _plot_end(page, execution_id)
     stored = _stored_sample(stack, execution_id, pressing["index"])
     assert stored["contact"] is True and stored["ft"] > 1.0  # pressing, not grazing
+    # The force error plotted is the stored sample's: true normal force and CF-z force less the desired force.
+    assert float(pressing["err_true"]) == pytest.approx(stored["ft"] - stored["fd"], abs=1e-9)
+    assert float(pressing["err_cfz"]) == pytest.approx(stored["fz"] - stored["fd"], abs=1e-5)
     assert pressing["ft"] == stored["ft"] and pressing["t"] == stored["t"]
     assert "in contact" in page.inner_text("section.live .live-head")
+    # The scene while it runs: the arm and the work piece its worker reported at the start.
+    page.wait_for_selector("section.live .live-scene[data-work-piece='1'][data-robot='1']", timeout=10_000)
+    buttons = "bs => bs.map(b => [b.className, b.disabled])"
+    assert page.eval_on_selector_all("section.live h2 button", buttons) == [["pause", False], ["resume", True],
+                                                                           ["abort", False]]  # fmt: skip
     page.click("section.live button.abort")
     page.wait_for_selector("section.live[data-ended='1']", timeout=60_000)
     stored = _stored_end(stack, execution_id)
     assert stored["status"] == "aborted" and stored["t"] < 10.0  # the run takes 12.7 s
     assert page.get_attribute("section.live", "data-status") == "aborted"
     assert _plot_end(page, execution_id)["index"] == stored["index"]
+    assert page.eval_on_selector_all("section.live h2 button", "bs => bs.every(b => b.disabled)")
     page.screenshot(path=tmp_path / "aborted.png", full_page=True)
 
 
@@ -220,5 +280,41 @@ def test_a_sweeps_page_shows_its_success_rate_and_figure(stack, page, tmp_path):
     page.wait_for_function("document.getElementById('sweep-figure')?.naturalWidth > 0", timeout=60_000)
     [summary] = view["controllers"]
     row = page.locator("main table tbody tr").first.inner_text()
-    assert "hybrid_cf" in row and f"{summary['success_rate']:.2f}" in row and f"{summary['finished']}/2" in row
+    assert "hybrid_cf" in row and f"{100 * summary['success_rate']:.1f} %" in row and f"{summary['finished']}/2" in row
+    trials = stack.http.get(f"/sweeps/{sweep_id}/trials").json()
+    rows = page.locator("#sweep-trials tbody tr")
+    assert rows.count() == len(trials) == 2
+    for trial in trials:  # every trial a row: its perturbation in mm, its verdict and error, a link to its execution
+        row = page.locator(f"#sweep-trials tr[data-id='{trial['trial']}-{trial['controller']}']")
+        text = row.inner_text()
+        assert f"offset z {1000 * trial['parameters']['offset_z_m']:+.2f} mm" in text
+        assert ("pass" if trial["success"] else "fail") in text and f"{trial['true_force_rms_error_pct']:.2f} %" in text
+        assert row.locator("a").get_attribute("href") == f"#/execution/{trial['execution_id']}"
     page.screenshot(path=tmp_path / "sweep.png", full_page=True)
+
+
+KULEUVEN = Path(__file__).resolve().parents[1] / "data" / "kuleuven_contour" / "contour_a_1.csv"
+
+
+def test_the_kuleuven_recording_uploads_from_the_page_with_the_reading_its_import_offers(stack, page):
+    from schemas.import_options import UPLOAD_FIELD, CsvImportOptions
+
+    page.wait_for_selector("#executions table")
+    page.set_input_files("#upload-file", KULEUVEN)
+    page.wait_for_selector("#import-options select[name=wrench]")
+    fields = page.eval_on_selector_all("#import-options [name]", "fs => fs.map(f => f.name)")
+    options = CsvImportOptions.model_json_schema(by_alias=True)["properties"]
+    assert fields == [name for name in options if name != UPLOAD_FIELD]  # the form is the options model's
+    page.click("#upload")  # with the defaults: its wrench is read upside down, and the note says so
+    first = page.wait_for_selector(".upload-note", timeout=60_000).get_attribute("data-demonstration")
+    assert "read with --wrench measured-on-tool it presses" in page.inner_text(".upload-note")
+    page.uncheck("#import-options input[name=tare]")  # all contact, compensated by its authors (GETTING_STARTED.md)
+    page.click(".use-reading:has-text('wrench = measured-on-tool')")
+    page.wait_for_selector(".upload-note b:has-text('re-imported')", timeout=60_000)
+    second = page.get_attribute(".upload-note", "data-demonstration")
+    assert stack.http.get(f"/demonstrations/{first}").status_code == 404  # the first reading is gone
+    metadata = stack.http.get(f"/demonstrations/{second}").json()["demonstration"]["metadata"]
+    assert metadata["wrench_convention_on_import"] == "measured-on-tool" and metadata["force_offset_removed"] is None
+    skill = stack.post("/skills", {"demonstration_id": second, "skill_type": "auto"}, 201)["skill"]
+    assert skill["skill_type"] == "contour"
+    assert [c["name"] for c in skill["checks"] if not c["passed"]] == []  # pressing down, with friction

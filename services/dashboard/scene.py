@@ -51,6 +51,8 @@ HOME_JOINTS = (0.0, 0.5325, 0.0, -1.6083, 0.0, 1.0008, 0.0)
 """The IK's first seed, rad (the arm's home posture); each later solve starts from the previous solution."""
 ROBOT_PACKAGE = "kuka_iiwa"
 MESH_URI = f"package://{ROBOT_PACKAGE}/meshes/"
+REACH_TOLERANCE_M = 0.005
+"""How far from a wanted tool pose an inverse kinematics solution may leave link 7 and still count as reaching it, m."""
 MIN_WRENCH_N = 1e-9
 """Below this force or moment magnitude (N, N·m) a sample does not fix the CF (it is kept from the last one)."""
 
@@ -157,7 +159,7 @@ class JointSolver:
         import pybullet
 
         self._p = pybullet
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entered by reached(), which solves and reads the pose in one hold
         self._client = pybullet.connect(pybullet.DIRECT)
         self._robot = pybullet.loadURDF(
             str(_robot_data() / "model.urdf"), useFixedBase=True, physicsClientId=self._client
@@ -184,6 +186,19 @@ class JointSolver:
                     p.resetJointState(self._robot, j, angle, physicsClientId=cid)  # the next solve's seed
                 out[k] = q
         return out
+
+    def reached(self, tool_position: NDArray[np.float64], tool_orientation: NDArray[np.float64]) -> list[float] | None:
+        """The 7 joint angles (rad) that put the tool at ``tool_position`` (3,) m with ``tool_orientation`` (4,)
+        ``[x, y, z, w]``, world; None when the arm does not reach it (its solution's tool point further than
+        :data:`REACH_TOLERANCE_M` from it: a recording made away from the robot, before a placement). Solved from
+        the home posture."""
+        with self._lock:
+            self.reset()
+            joints = self.solve(tool_position[None], tool_orientation[None])[0]
+            link7 = np.array(self._p.getLinkState(self._robot, 6, computeForwardKinematics=True,
+                                                  physicsClientId=self._client)[4])  # fmt: skip
+        wanted = tool_position - matrix_from_quaternion(tool_orientation)[:, 2] * LINK7_TO_TOOL_POINT_M
+        return joints.tolist() if np.linalg.norm(link7 - wanted) <= REACH_TOLERANCE_M else None
 
     def close(self) -> None:
         with self._lock:

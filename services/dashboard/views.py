@@ -33,6 +33,7 @@ def skill_view(
     :data:`PLOT_POINTS` samples: path and force along CF z."""
     from services.figures import forces_in_compliant_frames, learned_force_curve
     from skills.quaternions import matrix_from_quaternion
+    from skills.skill_checks import check_bound
 
     t: list[float] = []
     path: list[list[float]] = []
@@ -73,6 +74,7 @@ def skill_view(
         triads=triads,
         auto_selection=skill.auto_selection,
         checks=skill.checks,
+        check_bounds=[check_bound(check) for check in skill.checks],
     )
 
 

@@ -43,10 +43,10 @@ T = TypeVar("T")
 
 log = logging.getLogger("contact_skills.store")
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 """Version of the tables below, kept in ``PRAGMA user_version`` (2: the execution queue's columns; 3: telemetry keyed
 by sample index; 4: sweeps; 5: the telemetry an execution reserves, the ballast; 6: an execution's dispatch
-attempt and the last report taken)."""
+attempt and the last report taken; 7: the work piece an execution ran on)."""
 _SCHEMA_V1 = """
 CREATE TABLE demonstrations (
     id TEXT PRIMARY KEY,
@@ -151,6 +151,12 @@ ALTER TABLE executions ADD COLUMN handovers INTEGER NOT NULL DEFAULT 0
 """Version 6: the nonce of an execution's current dispatch (``StartExecution.attempt``: only its reports count), the
 ``seq`` of the last status taken from it (a status at or below it is a replay), and how many times a worker accepted
 it (the dispatch watchdog takes a job back from a worker that does not report, a bounded number of times)."""
+
+_SCHEMA_V7 = """
+ALTER TABLE executions ADD COLUMN work_piece TEXT
+"""
+"""Version 7: the solids of the world an execution runs in, as its worker reported them (JSON of
+``schemas.dashboard.WorkPieceMesh`` rows; NULL before it started, and for runs stored before)."""
 
 LOCKED_RETRY_S = 120.0
 """How long a write keeps retrying a locked database before it fails, s (each try waits ``busy_timeout``)."""
@@ -350,7 +356,8 @@ class Database:
                         f"({SCHEMA_VERSION}); upgrade contact-skills or use another database"
                     )
                 # not executescript: it would COMMIT the open transaction
-                for script in (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5, _SCHEMA_V6)[version:]:
+                scripts = (_SCHEMA_V1, _SCHEMA_V2, _SCHEMA_V3, _SCHEMA_V4, _SCHEMA_V5, _SCHEMA_V6, _SCHEMA_V7)
+                for script in scripts[version:]:
                     for statement in filter(None, (s.strip() for s in script.split(";"))):
                         db.execute(statement)
                 if version < SCHEMA_VERSION:

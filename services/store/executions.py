@@ -7,11 +7,17 @@ import sqlite3
 import time
 from collections.abc import Callable
 
+from pydantic import TypeAdapter
+
 from schemas.api import ExecutionState
+from schemas.dashboard import WorkPieceMesh
 from schemas.execution import ExecutionMetrics, ExecutionPhase
 from schemas.job_budget import TELEMETRY_BYTES_PER_STEP
 from services.store.database import Database, log, new_id
 from services.store.rows import ExecutionRow
+
+_MESHES: TypeAdapter[list[WorkPieceMesh]] = TypeAdapter(list[WorkPieceMesh])
+"""The ``work_piece`` column's JSON."""
 
 ACTIVE = (ExecutionState.starting, ExecutionState.running, ExecutionState.paused)
 _ACTIVE_IN = f"status IN ({', '.join('?' * len(ACTIVE))})"
@@ -120,6 +126,21 @@ class ExecutionRepository:
         r = self.database.one("SELECT * FROM executions WHERE id = ?", (execution_id,))
         return None if r is None else ExecutionRow.of(r)
 
+    def work_piece(self, execution_id: str) -> list[WorkPieceMesh] | None:
+        """The solids of the world the execution runs in, as its worker reported them; None before it started (or
+        for a run stored before they were reported)."""
+        r = self.database.one("SELECT work_piece FROM executions WHERE id = ?", (execution_id,))
+        return None if r is None or r[0] is None else _MESHES.validate_json(r[0])
+
+    def latest_work_piece(self, skill_id: str) -> tuple[str, list[WorkPieceMesh]] | None:
+        """The newest execution of ``skill_id`` whose worker reported its work piece: its id and the solids."""
+        r = self.database.one(
+            "SELECT id, work_piece FROM executions WHERE skill_id = ? AND work_piece IS NOT NULL "
+            "ORDER BY created DESC, id LIMIT 1",
+            (skill_id,),
+        )
+        return None if r is None else (r[0], _MESHES.validate_json(r[1]))
+
     def page(self, limit: int = 100, offset: int = 0) -> list[ExecutionRow]:
         """Executions, newest first."""
         rows = self.database.all("SELECT * FROM executions ORDER BY created DESC, id LIMIT ? OFFSET ?", (limit, offset))
@@ -213,6 +234,7 @@ class ExecutionRepository:
         worker_id: str | None = None,
         metrics: ExecutionMetrics | None = None,
         error: str | None = None,
+        work_piece: list[WorkPieceMesh] | None = None,
     ) -> bool:
         """Apply a status update to an ACTIVE execution (a finished one is never changed); True if applied. Gets
         through a full disk (:meth:`Database.essential`): a run's status must not stay behind for lack of room."""
@@ -223,6 +245,7 @@ class ExecutionRepository:
             ("worker_id", worker_id),
             ("metrics", metrics.model_dump_json() if metrics is not None else None),
             ("error", error),
+            ("work_piece", _MESHES.dump_json(work_piece).decode() if work_piece is not None else None),
         ):
             if value is not None:
                 sets.append(f"{column} = ?")

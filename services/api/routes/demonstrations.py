@@ -18,7 +18,7 @@ from schemas.api import (
 )
 from schemas.bus import RecordRequest
 from schemas.demonstration import Demonstration, DemonstrationArrays
-from schemas.import_options import BagImportOptions, CsvImportOptions
+from schemas.import_options import PLAUSIBLE_READINGS, BagImportOptions, CsvImportOptions
 from schemas.text import Name
 from services.api import errors
 from services.api.deps import (
@@ -111,6 +111,13 @@ def _notes(demonstration: Demonstration) -> list[str]:
     return list(demonstration.metadata.extra.get("import_notes", []))
 
 
+def _advice(demonstration: Demonstration) -> dict[str, Any]:
+    """An upload answer's ``extra``: the readings the import note advises as import options (the form's names and
+    values, ``plausible_readings``), when it advises any."""
+    readings = demonstration.metadata.extra.get(PLAUSIBLE_READINGS) or []
+    return {PLAUSIBLE_READINGS: readings} if readings else {}
+
+
 @router.post(
     "/demonstrations",
     status_code=201,
@@ -154,7 +161,8 @@ def post_demonstration_csv(
         raise errors.csv_import_failed(exc) from None
     if file.filename:
         demonstration.metadata.source = f"csv:{file.filename}"
-    return _created(_store_upload(store, demonstration, len(data)), notes=_notes(demonstration))
+    stored = _store_upload(store, demonstration, len(data))
+    return _created(stored, notes=_notes(demonstration), extra=_advice(demonstration))
 
 
 @router.post(
@@ -183,7 +191,8 @@ def post_demonstration_bag(
         demonstration = demonstration_from_bag_upload(data, name, options)
     except BagImportError as exc:
         raise errors.import_failed(exc) from None
-    return _created(_store_upload(store, demonstration, len(data)), notes=_notes(demonstration))
+    stored = _store_upload(store, demonstration, len(data))
+    return _created(stored, notes=_notes(demonstration), extra=_advice(demonstration))
 
 
 @router.post(

@@ -23,6 +23,7 @@ from fastapi.responses import StreamingResponse
 from services.api import errors
 from services.api.deps import MAX_OFFSET, READ_GUARD, StoreDep
 from services.api.errors import ERROR_RESPONSES, READ_RESPONSES
+from services.dashboard.scene import JointSolver, cf_rotations
 from services.dashboard.stream import decimated, stored_rows
 from services.store import TELEMETRY_LAYOUT, TERMINAL, Store
 
@@ -61,16 +62,41 @@ def _column(block: np.ndarray, name: str) -> list:
     return [v for (v,) in values]
 
 
-def _telemetry(rows: np.ndarray, first: int) -> dict[str, Any]:
+def _telemetry(rows: np.ndarray, first: int, scene: _Scene | None = None) -> dict[str, Any]:
     """The columns of ``rows`` (the store's matrix, stream index ``first`` onwards) decimated to :data:`PLOT_HZ`,
-    the last row always kept; ``index``: each kept row's stream index."""
+    the last row always kept; ``index``: each kept row's stream index. With ``scene`` (what the 3-D view draws):
+    ``cf_axes``, each kept row's compliant frame (world-from-CF rotation, rows of the matrix; recovered from its two
+    wrenches, the last one kept where they do not fix it), and ``joints``, the arm's 7 joint angles (rad) at the last
+    row (inverse kinematics of its tool pose)."""
     keep = decimated(rows[:, 0], PLOT_HZ)
     picked = rows[keep]
     out: dict[str, Any] = {"index": (first + keep).tolist()}
     for name in SEND:
         a, b = TELEMETRY_LAYOUT[name]
         out[name] = _column(picked[:, a:b], name)
+    if scene is not None:
+        out.update(scene.drawn(picked))
     return out
+
+
+class _Scene:
+    """What a stream adds for the 3-D view: the CF of each sample and the arm's joints at the last; one joint solver
+    per stream (seeded by its previous solution, so the arm moves continuously), closed with the stream."""
+
+    def __init__(self) -> None:
+        self.solver = JointSolver()
+        self.frame: np.ndarray | None = None
+
+    def drawn(self, picked: np.ndarray) -> dict[str, Any]:
+        columns = {name: picked[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
+        world, cf = (np.nan_to_num(columns[name]) for name in ("wrench_world", "wrench_cf"))
+        frames = cf_rotations(world, cf, self.frame)
+        self.frame = frames[-1]
+        joints = self.solver.solve(columns["tool_position"][-1:], columns["tool_orientation"][-1:])[0]
+        return {"cf_axes": frames.round(4).tolist(), "joints": joints.round(5).tolist()}
+
+    def close(self) -> None:
+        self.solver.close()
 
 
 def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tuple[Any, np.ndarray]:
@@ -80,6 +106,17 @@ def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tupl
 
 
 async def _events(request: Request, store: Store, execution_id: str, cursor: int) -> AsyncIterator[str]:
+    scene = await asyncio.to_thread(_Scene)
+    try:
+        async for event in _scene_events(request, store, execution_id, cursor, scene):
+            yield event
+    finally:
+        scene.close()
+
+
+async def _scene_events(
+    request: Request, store: Store, execution_id: str, cursor: int, scene: _Scene
+) -> AsyncIterator[str]:
     sent_state: tuple | None = None
     final_since: float | None = None
     loop = asyncio.get_running_loop()
@@ -92,7 +129,8 @@ async def _events(request: Request, store: Store, execution_id: str, cursor: int
             yield _event("end", {"error": f"execution {execution_id} was deleted"})
             return
         if rows.shape[0]:
-            yield _event("telemetry", _telemetry(rows, cursor), cursor + rows.shape[0])
+            event = await asyncio.to_thread(_telemetry, rows, cursor, scene)
+            yield _event("telemetry", event, cursor + rows.shape[0])
             cursor += rows.shape[0]
         state = (row.status.value, row.phase.value, row.error)
         if state != sent_state:

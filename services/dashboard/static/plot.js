@@ -1,7 +1,8 @@
-// Small hand-written canvas plots: time series (linePlot) and a rotatable 3-D view of paths and frames (View3D).
-// Units are whatever the caller gives (the dashboard: s, N, m); no library, so the page works offline.
+// Small hand-written canvas plots: time series (linePlot) and strips of labelled spans on the same time axis
+// (stripPlot: phases, contact, segments). Units are whatever the caller gives and labels (the dashboard: s, N); the
+// 3-D scene is scene3d.js.
 
-const PAD = { left: 48, right: 10, top: 10, bottom: 24 };
+const PAD = { left: 56, right: 10, top: 10, bottom: 24 };
 const MAX_DRAWN = 2000;   // points drawn per line at most (every k-th, the last always): a frame stays a few ms
 
 function strided(n) {
@@ -43,11 +44,13 @@ function niceTicks(lo, hi, count) {
 }
 
 // series: [{x: [...], y: [... | null], color, label, dash}], bands: [{x0, x1, color, y0?, y1?}] behind the lines
-// (y0, y1: the band's bottom and top as fractions of the plot's height; the full height without them).
-export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "", bands = [] } = {}) {
+// (y0, y1: the band's bottom and top as fractions of the plot's height; the full height without them); xRange:
+// [x0, x1] shared with the plots beside it (default: the series' own); zero: a line at y = 0.
+export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "", bands = [], xRange = null, zero = false } = {}) {
   const { ctx, width } = sized(canvas, height);
   let [x0, x1] = [Infinity, -Infinity], [y0, y1] = [0, -Infinity];
   for (const s of series) { [x0, x1] = bounds(s.x, x0, x1); [y0, y1] = bounds(s.y, y0, y1); }
+  if (xRange) [x0, x1] = xRange;
   if (!Number.isFinite(x0)) { x0 = 0; x1 = 1; }
   if (!Number.isFinite(y1)) y1 = 1;
   if (x1 === x0) x1 = x0 + 1;
@@ -70,6 +73,9 @@ export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "
   for (const v of niceTicks(x0, x1, 8)) if (X(v) + 8 < labelLeft) ctx.fillText(String(v), X(v) - 8, height - 8);
   ctx.fillText(xLabel, labelLeft, height - 8);
   ctx.fillText(yLabel, PAD.left + 4, PAD.top + 10);
+  if (zero && y0 < 0 && y1 > 0) {
+    ctx.strokeStyle = "#556"; ctx.beginPath(); ctx.moveTo(PAD.left, Y(0)); ctx.lineTo(width - PAD.right, Y(0)); ctx.stroke();
+  }
   for (const s of series) {
     ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.5; ctx.setLineDash(s.dash || []);
     ctx.beginPath();
@@ -85,70 +91,29 @@ export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "
   ctx.setLineDash([]);
 }
 
-// A rotatable orthographic 3-D view: lines [{points: [[x,y,z]...], color}], triads [{origin, axes: [x, y, z]}].
-export class View3D {
-  constructor(canvas, { height = 320 } = {}) {
-    this.canvas = canvas; this.height = height; this.yaw = -0.6; this.pitch = 0.5;
-    this.lines = []; this.triads = []; this.triadLength = 0.02;
-    canvas.classList.add("view3d");
-    let drag = null;
-    canvas.addEventListener("pointerdown", (e) => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
-    canvas.addEventListener("pointerup", () => { drag = null; });
-    canvas.addEventListener("pointermove", (e) => {
-      if (!drag) return;
-      this.yaw += (e.clientX - drag[0]) * 0.01;
-      this.pitch = Math.max(-1.5, Math.min(1.5, this.pitch + (e.clientY - drag[1]) * 0.01));
-      drag = [e.clientX, e.clientY];
-      this.draw();
-    });
-  }
-
-  set(lines, triads = []) { this.lines = lines; this.triads = triads; this.draw(); }
-
-  draw() {
-    const { ctx, width, height } = sized(this.canvas, this.height);
-    const all = this.lines.flatMap((l) => strided(l.points.length).map((k) => l.points[k]))
-      .concat(this.triads.map((t) => t.origin));
-    if (!all.length) return;
-    const lo = [0, 1, 2].map((i) => bounds(all.map((p) => p[i]))[0]);
-    const hi = [0, 1, 2].map((i) => bounds(all.map((p) => p[i]))[1]);
-    const centre = lo.map((v, i) => (v + hi[i]) / 2);
-    const span = Math.max(...hi.map((v, i) => v - lo[i]), 1e-3);
-    const scale = (0.8 * Math.min(width, height)) / span;
-    const cy = Math.cos(this.yaw), sy = Math.sin(this.yaw), cp = Math.cos(this.pitch), sp = Math.sin(this.pitch);
-    const project = (p) => {
-      const x = p[0] - centre[0], y = p[1] - centre[1], z = p[2] - centre[2];
-      const u = cy * x - sy * y;                   // about world z (yaw), then tilt (pitch): z stays up on screen
-      const v = sy * x + cy * y;
-      return [width / 2 + scale * u, height / 2 - scale * (cp * z - sp * v)];
-    };
-    const segment = (a, b, color, width_ = 1.5) => {
-      const [p, q] = [project(a), project(b)];
-      ctx.strokeStyle = color; ctx.lineWidth = width_;
-      ctx.beginPath(); ctx.moveTo(p[0], p[1]); ctx.lineTo(q[0], q[1]); ctx.stroke();
-    };
-    for (const line of this.lines) {
-      ctx.strokeStyle = line.color; ctx.lineWidth = line.width || 1.5; ctx.beginPath();
-      strided(line.points.length).forEach((k, j) => {
-        const [x, y] = project(line.points[k]);
-        if (j) ctx.lineTo(x, y); else ctx.moveTo(x, y);
-      });
-      ctx.stroke();
+// rows: [{label, spans: [{x0, x1, color, text?}]}], one strip each, on the time axis [x0, x1] (s) of the plots
+// beside it; a span's text is written in it where it fits. The bottom row carries the time ticks and xLabel.
+export function stripPlot(canvas, rows, { xRange, xLabel = "", rowHeight = 18 } = {}) {
+  const height = rows.length * rowHeight + 22;
+  const { ctx, width } = sized(canvas, height);
+  const [x0, x1] = xRange[1] > xRange[0] ? xRange : [xRange[0], xRange[0] + 1];
+  const w = width - PAD.left - PAD.right;
+  const X = (v) => PAD.left + ((Math.min(Math.max(v, x0), x1) - x0) / (x1 - x0)) * w;
+  ctx.font = "11px system-ui"; ctx.textBaseline = "middle";
+  rows.forEach((row, r) => {
+    const top = r * rowHeight + 2;
+    ctx.fillStyle = "#f0f1f4"; ctx.fillRect(PAD.left, top, w, rowHeight - 3);
+    ctx.fillStyle = "#667"; ctx.fillText(row.label, 4, top + rowHeight / 2 - 1);
+    for (const span of row.spans) {
+      const [a, b] = [X(span.x0), X(span.x1)];
+      ctx.fillStyle = span.color; ctx.fillRect(a, top, Math.max(b - a, 1), rowHeight - 3);
+      if (span.text && ctx.measureText(span.text).width + 6 < b - a) {
+        ctx.fillStyle = "#1d2330"; ctx.fillText(span.text, a + 3, top + rowHeight / 2 - 1);
+      }
     }
-    const length = Math.max(span * 0.06, 1e-3);
-    for (const t of this.triads) {
-      ["#d32f2f", "#2e7d32", "#1565c0"].forEach((color, j) => {
-        segment(t.origin, t.origin.map((v, i) => v + t.axes[j][i] * length), color);
-      });
-    }
-    const axis = [[1, 0, 0], [0, 1, 0], [0, 0, 1]];   // the world axes' directions, bottom left
-    const o = [30, height - 30];
-    ["x", "y", "z"].forEach((name, j) => {
-      const p = project(centre.map((c, i) => c + axis[j][i] * (25 / scale)));
-      const q = project(centre);
-      ctx.strokeStyle = ["#d32f2f", "#2e7d32", "#1565c0"][j]; ctx.beginPath();
-      ctx.moveTo(o[0], o[1]); ctx.lineTo(o[0] + p[0] - q[0], o[1] + p[1] - q[1]); ctx.stroke();
-      ctx.fillStyle = ctx.strokeStyle; ctx.fillText(name, o[0] + p[0] - q[0], o[1] + p[1] - q[1]);
-    });
-  }
+  });
+  ctx.fillStyle = "#667"; ctx.textBaseline = "alphabetic";
+  const labelLeft = width - PAD.right - 40;
+  for (const v of niceTicks(x0, x1, 8)) if (X(v) + 8 < labelLeft) ctx.fillText(String(v), X(v) - 8, height - 6);
+  ctx.fillText(xLabel, labelLeft, height - 6);
 }
