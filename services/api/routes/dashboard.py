@@ -76,7 +76,7 @@ def robot_mesh(name: str) -> Response:
     return Response(data, media_type="model/stl", headers={"Cache-Control": "max-age=3600"})
 
 
-@router.get("/dashboard/api/import-options")
+@router.get("/dashboard/api/import-options", responses=READ_RESPONSES, dependencies=READ_GUARD)
 def get_import_options() -> dict[str, Any]:
     """The options of an upload by kind, as JSON schemas by their form names: ``csv``, those of ``POST
     /demonstrations/csv`` (``CsvImportOptions``), ``bag``, those of ``POST /demonstrations/bag``
