@@ -35,7 +35,7 @@ pin_blas_threads()
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
-from services.local_processes import free_port  # noqa: E402
+from services.local_processes import cpu_seconds, free_port  # noqa: E402
 
 LEARN_TARGET_P50_S = 1.5
 POLL_S = 0.1
@@ -146,13 +146,9 @@ def child_commands(pid: int) -> dict[int, list[str]]:
     return children
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far, s (Linux /proc; 0 elsewhere)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (OSError, IndexError):
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+def process_cpu_s(pid: int) -> float:
+    """User + system CPU time of a process so far, s (0 where it cannot be read)."""
+    return cpu_seconds(pid) or 0.0
 
 
 def bench_executions(workers: int, executions: int) -> tuple[float, list[dict], dict[str, float]]:
@@ -179,7 +175,7 @@ def bench_executions(workers: int, executions: int) -> tuple[float, list[dict], 
             "router (up)": [up.pid],
         }
         assert len(pids["workers"]) == workers and len(pids["API"]) == 1, children
-        cpu_before = {name: sum(map(cpu_seconds, p)) for name, p in pids.items()}
+        cpu_before = {name: sum(map(process_cpu_s, p)) for name, p in pids.items()}
         running_ids: list[str] = []
         finished: list[dict] = []
         submitted = 0
@@ -199,7 +195,7 @@ def bench_executions(workers: int, executions: int) -> tuple[float, list[dict], 
                     running_ids.remove(execution_id)
                     finished.append(view)
         wall = time.perf_counter() - start
-        cpu = {name: (sum(map(cpu_seconds, p)) - cpu_before[name]) / len(finished) for name, p in pids.items()}
+        cpu = {name: (sum(map(process_cpu_s, p)) - cpu_before[name]) / len(finished) for name, p in pids.items()}
     return len(finished) / wall * 60.0, finished, cpu
 
 

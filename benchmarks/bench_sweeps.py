@@ -44,7 +44,7 @@ pin_blas_threads()
 import httpx  # noqa: E402
 import numpy as np  # noqa: E402
 
-from benchmarks.bench_service import running  # noqa: E402
+from benchmarks.bench_service import process_cpu_s, running  # noqa: E402
 from services.local_processes import free_port  # noqa: E402
 
 SECTION = "bench_sweeps"
@@ -55,16 +55,6 @@ TARGET_PER_MINUTE = 150.0
 """Issue 14's target for 2 workers on 2 cores."""
 POLL_S = 0.5
 """How often the sweep's state is asked over REST (as the CLI's progress bar does), s."""
-TICKS_PER_S = os.sysconf("SC_CLK_TCK")
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU time of a process so far, s (0 once it is gone)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / TICKS_PER_S
 
 
 def _children(pid: int) -> dict[str, list[int]]:
@@ -142,7 +132,7 @@ def bench_sweep(on: Stack, trials: int, store_telemetry: bool) -> dict:
     body = {"skill_id": on.skill_id, "controllers": ["hybrid_cf"], "vary": VARY, "trials": trials,
             "store_telemetry": store_telemetry}  # fmt: skip
     pids = _children(on.up.pid)
-    cpu_before = {role: sum(_cpu_s(p) for p in found) for role, found in pids.items()}
+    cpu_before = {role: sum(process_cpu_s(p) for p in found) for role, found in pids.items()}
     load_before = os.getloadavg()[0]
     start = time.perf_counter()
     created = client.post("/sweeps", json=body)
@@ -152,7 +142,7 @@ def bench_sweep(on: Stack, trials: int, store_telemetry: bool) -> dict:
     while (view := client.get(f"/sweeps/{sweep_id}").json())["status"] == "running":
         time.sleep(POLL_S)
     wall = time.perf_counter() - start
-    cpu = {role: sum(_cpu_s(p) for p in found) - cpu_before[role] for role, found in pids.items()}
+    cpu = {role: sum(process_cpu_s(p) for p in found) - cpu_before[role] for role, found in pids.items()}
     load_after = os.getloadavg()[0]
     trials_view = client.get(f"/sweeps/{sweep_id}/trials").json()
     stored = [client.get(f"/executions/{t['execution_id']}").json()["telemetry_samples"] for t in trials_view]

@@ -8,8 +8,12 @@ for a free process without blocking the event loop, sends the job, and polls for
   instead of oversubscribing them,
 - has an address-space limit (``memory_mb``, ``RLIMIT_AS``): a job that needs more gets ``MemoryError``, answered
   as a 422 instead of taking the machine's memory,
-- is killed and replaced when its job runs past ``time_budget_s`` (:class:`LearningTimedOut`) or when the client
-  that asked for it goes away (:class:`LearningCancelled`): abandoned requests stop computing.
+- is killed and replaced when its job has used ``time_budget_s`` of CPU time (:class:`LearningTimedOut`) or when the
+  client that asked for it goes away (:class:`LearningCancelled`): abandoned requests stop computing. The budget is
+  the WORK a job may cost, not its wall time: learners run niced (:data:`LEARNER_NICENESS`), so on a busy machine a
+  quick learn waits for CPU, and a wall-clock budget killed it for the machine's load (a 0.3 s learn took over 15 s
+  at a load of 6). A job starved of CPU still ends: after :data:`WALL_BUDGETS` budgets of wall time (also where
+  ``/proc`` cannot be read, the wall time alone is the budget).
 
 At most ``max_waiting`` jobs wait for a process; more get :class:`LearnerPoolFull` (503).
 """
@@ -28,7 +32,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
-from services.local_processes import THREAD_LIMIT_ENV
+from services.local_processes import THREAD_LIMIT_ENV, cpu_seconds
 
 log = logging.getLogger("contact_skills.learning")
 
@@ -36,6 +40,9 @@ POLL_S = 0.1
 """How often a running job checks its budget and its client, s."""
 LEARNER_NICENESS = 10
 """Learner processes run this much nicer than the API: on a busy machine /health and the bus answer first."""
+WALL_BUDGETS = 5
+"""A job is stopped after this many CPU budgets of wall time even if it has not used its CPU budget (a learner
+starved of CPU by the machine's load)."""
 
 
 class LearningTimedOut(RuntimeError):  # noqa: N818 (the name is the interface)
@@ -233,7 +240,9 @@ class LearnerPool:
             self._free.release()
 
     async def _run(self, slot: _Slot, payload: bytes, client_gone: Callable[[], Awaitable[bool]]) -> LearnOutcome:
-        deadline = time.monotonic() + self.time_budget_s
+        started = time.monotonic()
+        cpu_before = cpu_seconds(slot.process.pid)  # the process's earlier jobs are not this one's
+        walls = 1 if cpu_before is None else WALL_BUDGETS  # no CPU clock to read: the wall time is the budget
         await asyncio.to_thread(slot.connection.send_bytes, payload)
         while True:
             if await asyncio.to_thread(slot.connection.poll, POLL_S):
@@ -243,9 +252,17 @@ class LearnerPool:
                     return LearnOutcome("memory", reason="the learner process died")
                 self.stats.completed += 1
                 return outcome
-            if time.monotonic() > deadline:
+            cpu_now = cpu_seconds(slot.process.pid)
+            used = None if cpu_before is None or cpu_now is None else cpu_now - cpu_before
+            if (used is not None and used > self.time_budget_s) or (
+                time.monotonic() - started > walls * self.time_budget_s
+            ):
                 self.stats.timed_out += 1
-                raise LearningTimedOut(f"learning took longer than the budget of {self.time_budget_s:g} s")
+                spent = f"{used:.1f} s of CPU" if used is not None else "its wall time"
+                raise LearningTimedOut(
+                    f"learning took longer than the budget of {self.time_budget_s:g} s of CPU time ({spent} used in "
+                    f"{time.monotonic() - started:.1f} s)"
+                )
             if await client_gone():
                 self.stats.cancelled += 1
                 raise LearningCancelled("the client went away while learning")

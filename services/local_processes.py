@@ -16,6 +16,16 @@ THREAD_LIMIT_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NU
 and each library's default of one thread per core makes them oversubscribe (50 learns: 173-252 s instead of 10 s)."""
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time a live process has used so far, s (Linux ``/proc``); None where it cannot be read (no
+    ``/proc``, or the process is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def with_thread_limits(env: dict[str, str]) -> dict[str, str]:
     """``env`` with :data:`THREAD_LIMIT_ENV` for every variable it does not set itself."""
     return {**THREAD_LIMIT_ENV, **env}

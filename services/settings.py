@@ -14,7 +14,7 @@
 | token_reads | ``CONTACT_SKILLS_TOKEN_READS`` | ``false``; ``true``: GETs need the token too (``/health`` stays open) |
 | cors_origins | ``CONTACT_SKILLS_CORS_ORIGINS`` | none: no cross-origin browser request (comma-separated origins) |
 | learn_processes | ``CONTACT_SKILLS_LEARN_PROCESSES`` | the number of CPUs (learner processes of ``POST /skills``) |
-| learn_timeout_s | ``CONTACT_SKILLS_LEARN_TIMEOUT_S`` | ``120`` (time budget of one learning job, s) |
+| learn_timeout_s | ``CONTACT_SKILLS_LEARN_TIMEOUT_S`` | ``120`` (CPU-time budget of one learning job, s) |
 | queue_max | ``CONTACT_SKILLS_QUEUE_MAX`` | ``1000`` (executions waiting for a worker at most; more get 503) |
 | learn_memory_mb | ``CONTACT_SKILLS_LEARN_MEMORY_MB`` | ``4096`` (address space of a learner process, MiB; 0: none) |
 | job_max_simulated_s | ``CONTACT_SKILLS_JOB_MAX_SIMULATED_S`` | ``1800`` (longest simulated time of one job, s) |
