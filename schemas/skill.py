@@ -29,6 +29,8 @@ MAX_SEGMENTS = 500
 """Most segments a skill may have."""
 MAX_JOINT_DEMONSTRATIONS = 8
 """Most demonstrations one skill is learned from together (``POST /skills``' ``demonstration_ids``)."""
+MAX_JOINT_SAMPLES = 1_000_000
+"""Most samples, summed over the demonstrations, one skill is learned from together (learning N costs N times one)."""
 MAX_CHECKS = 8 * MAX_SEGMENTS + 2 * MAX_JOINT_DEMONSTRATIONS
 """Most checks a skill may carry (a few per segment, two per demonstration it was learned from)."""
 MAX_BAND_POINTS = 1000
@@ -354,6 +356,11 @@ class DemonstrationUse(BaseModel):
 
     index: WholeNumber = Field(description="Its position in the list learned from, from 0.")
     source: Name = Field(description="What it was given as: a stored demonstration's id, a file's name.")
+    reference: bool = Field(
+        False,
+        description="The reference: the one that agrees best with the others, whose time base and samples the "
+        "segments' indices refer to (the skill's ``demonstration``).",
+    )
     name: Name | None = Field(None, description="Its recording's name (metadata).")
     weight: Real = Field(ge=0, le=1, description="Its weight in the joint estimates (0: left out).")
     misfit: MisfitReason | None = Field(None, description="Why it was left out (None: it was used).")

@@ -83,7 +83,8 @@ def _limit_process(memory_mb: int) -> None:
 
 
 def _learn(payload: bytes) -> LearnOutcome:
-    """One job in a learner process: validate the demonstration, check its sampling, learn."""
+    """One job in a learner process: validate the demonstrations, check their sampling, learn (one: as
+    `learn_skill`; several: together, `skills.joint_learning.learn_joint_skill`, each named by its source)."""
     import traceback
 
     from pydantic import ValidationError
@@ -91,14 +92,16 @@ def _learn(payload: bytes) -> LearnOutcome:
     from schemas.demonstration import Demonstration
     from schemas.skill import LearnOptions
     from services.api.limits import check_sampling
-    from skills.parameterize import LearningError, SkillCheckError, learn_skill
+    from skills.joint_learning import learn_joint_skill
+    from skills.parameterize import LearningError, SkillCheckError
 
-    demonstration_json, options_json = pickle.loads(payload)
+    demonstrations_json, sources, options_json = pickle.loads(payload)
     started = time.perf_counter()
     try:
-        demonstration = Demonstration.model_validate_json(demonstration_json)
-        check_sampling(demonstration)
-        skill = learn_skill(demonstration, LearnOptions.model_validate_json(options_json))
+        demonstrations = [Demonstration.model_validate_json(text) for text in demonstrations_json]
+        for demonstration in demonstrations:
+            check_sampling(demonstration)
+        skill = learn_joint_skill(demonstrations, LearnOptions.model_validate_json(options_json), sources)
         seconds = time.perf_counter() - started
         warnings = tuple(skill.warnings())
         return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings)
@@ -191,9 +194,14 @@ class LearnerPool:
             self._idle.append(await asyncio.to_thread(self._spawn))
 
     async def learn(
-        self, demonstration_json: str, options_json: str, client_gone: Callable[[], Awaitable[bool]]
+        self,
+        demonstrations_json: list[str],
+        sources: list[str],
+        options_json: str,
+        client_gone: Callable[[], Awaitable[bool]],
     ) -> LearnOutcome:
-        """Learn in a free process; raises :class:`LearnerPoolFull`, :class:`LearningTimedOut`,
+        """Learn from ``demonstrations_json`` (one, or several of one task given as ``sources``) in a free process;
+        raises :class:`LearnerPoolFull`, :class:`LearningTimedOut`,
         :class:`LearningCancelled` (``client_gone()`` became true while waiting or learning)."""
         if self._closed:
             raise LearningCancelled("the learner pool is shut down")
@@ -220,7 +228,7 @@ class LearnerPool:
         try:
             slot = self._idle.pop() if self._idle else await asyncio.to_thread(self._spawn)
             self.stats.running += 1
-            outcome = await self._run(slot, pickle.dumps((demonstration_json, options_json)), client_gone)
+            outcome = await self._run(slot, pickle.dumps((demonstrations_json, sources, options_json)), client_gone)
             if slot.process.is_alive():
                 self._idle.append(slot)
                 slot = None

@@ -41,6 +41,8 @@ from scipy.stats import t as student_t
 
 from schemas.demonstration import Demonstration
 from schemas.skill import (
+    MAX_JOINT_DEMONSTRATIONS,
+    MAX_JOINT_SAMPLES,
     SELECTION_CONTACT,
     AutoSelection,
     CheckName,
@@ -60,7 +62,7 @@ from schemas.skill import (
 )
 from skills import skill_checks
 from skills.compliant_frames import PlaneFit, contour_frames, plane_along, slide_frame
-from skills.force_profile import cf_z_forces, constant_force, press_steadiness
+from skills.force_profile import cf_z_forces, constant_force, plateau_mask, press_steadiness
 from skills.friction import unit_rows
 from skills.parameterize import (
     PROFILE_FLOOR,
@@ -530,7 +532,7 @@ def _joint_segment(
             ]
             constant, profile = float(np.mean(constants)), None
             learned_force = np.full(m, constant)
-            force_rms = float(np.sqrt(np.mean((press - constant) ** 2)))
+            force_rms = float(np.sqrt(np.mean((press[plateau_mask(press)] - constant) ** 2)))
         else:
             force_basis = min(options.max_basis, max(n_basis, round(UNSTEADY_BASIS_PER_SECOND * float(t_seg[-1]))))
             pressed = np.maximum(press, PROFILE_FLOOR * np.percentile(press, 90))
@@ -549,6 +551,7 @@ def _joint_segment(
                 orientation_rms_rad=q_rms,
                 force_rms_n=force_rms,
                 plane_residual_rms_m=plane.residual_rms_m,
+                force_std_low_variance_n=float(np.median(np.asarray(band.spread_n)[plateau_mask(mean_press)])),
                 force_measured_percentiles_n=np.percentile(press, [10, 50, 90]).tolist(),
                 press_spread=steadiness.spread,
                 press_trend=steadiness.trend,
@@ -669,12 +672,21 @@ def learn_joint_skill(
     options = options or LearnOptions()
     if len(demonstrations) == 1:
         return learn_skill(demonstrations[0], options)
+    if len(demonstrations) > MAX_JOINT_DEMONSTRATIONS:
+        raise LearningError(
+            "demonstrations", f"{len(demonstrations)} given: at most {MAX_JOINT_DEMONSTRATIONS} are learned together"
+        )
+    total = sum(len(d.t) for d in demonstrations)
+    if total > MAX_JOINT_SAMPLES:
+        raise LearningError(
+            "demonstrations", f"{total} samples in all: at most {MAX_JOINT_SAMPLES} are learned together"
+        )
     sources = list(sources) if sources is not None else [str(k) for k in range(len(demonstrations))]
     trials, skill_type, summed = _corresponding(demonstrations, sources, options)
     misfits = [t for t in trials if t.misfit is not None]
     if misfits and options.misfit is MisfitPolicy.refuse:
         raise JointLearningError(
-            "demonstration_ids", "; ".join(f"{t.source} does not fit the others: {t.reason}" for t in misfits)
+            "demonstrations", "; ".join(f"{t.source} does not fit the others: {t.reason}" for t in misfits)
         )
     kept = [t for t in trials if t.misfit is None]
     learned = [t.learned for t in kept]
@@ -728,6 +740,7 @@ def learn_joint_skill(
             DemonstrationUse(
                 index=t.index,
                 source=t.source,
+                reference=t.index == kept[reference].index,
                 name=None if t.learned is None else t.learned.demonstration.metadata.name,
                 weight=float(weights.get(t.index, 0.0)),
                 misfit=t.misfit,

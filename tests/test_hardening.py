@@ -255,12 +255,12 @@ def test_the_pool_kills_a_job_past_its_budget_and_replaces_the_process():
     demonstration = _slow_demonstration_json(SLOWER_S)
 
     async def scenario() -> int:
-        quick = await pool.learn(_demo_as_json(), "{}", _never)
+        quick = await pool.learn([_demo_as_json()], ["demo"], "{}", _never)
         assert quick.kind == "ok" and quick.skill_type == "slide"
         first_pid = pool.pids()[0]
         with pytest.raises(LearningTimedOut, match="budget of 15 s"):  # killed at its budget, not run to its end
-            await pool.learn(demonstration, options, _never)
-        again = await pool.learn(_demo_as_json(), "{}", _never)
+            await pool.learn([demonstration], ["slow"], options, _never)
+        again = await pool.learn([_demo_as_json()], ["demo"], "{}", _never)
         assert again.kind == "ok" and pool.pids()[0] != first_pid
         return pool.stats.restarted
 
@@ -284,7 +284,7 @@ def test_the_pool_cancels_a_job_whose_client_is_gone():
 
     try:
         with pytest.raises(LearningCancelled):  # (not a result: the learn was stopped, not run to its end)
-            asyncio.run(pool.learn(_slow_demonstration_json(), json.dumps(SLOW_OPTIONS), gone))
+            asyncio.run(pool.learn([_slow_demonstration_json()], ["slow"], json.dumps(SLOW_OPTIONS), gone))
         assert pool.stats.cancelled == 1 and pool.stats.completed == 0 and pool.pids() == []
     finally:
         pool.close()

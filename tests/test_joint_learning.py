@@ -120,4 +120,4 @@ def test_a_trial_of_another_task_is_named_and_not_averaged_in(
             LearnOptions(misfit=MisfitPolicy.refuse),
             sources=sources,
         )
-    assert refused.value.field == "demonstration_ids" and other.name in refused.value.reason
+    assert refused.value.field == "demonstrations" and other.name in refused.value.reason
