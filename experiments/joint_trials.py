@@ -10,14 +10,14 @@ which lies in the crease's normal cone), and the joint skill's CF z against the 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from corpus.case import CorpusCase
-from corpus.scoring import score
+from corpus.scoring import Score, score
 from schemas.demonstration import Demonstration
 from schemas.import_options import CsvImportOptions
 from schemas.skill import LearnOptions, SegmentKind, Skill, SkillTypeRequest
@@ -45,7 +45,10 @@ class LeftOut:
     """One trial left out of its set: ``share_in_band`` of its contact samples whose true normal force lies in the
     joint skill's band (None: its contact segments do not match the joint skill's), the joint skill's and each
     single trial's CF error against the truth (deg; the singles are the trials learned from), the joint skill's
-    warnings, the others left out by the learner, and the seconds joint learning took."""
+    warnings, the others left out by the learner, and the seconds joint learning took. Where the truth has
+    tolerances (the corpus): whether the joint skill and each single one are within every one of them
+    (``bench_corpus.within``'s tolerances: type, segments, normal, force, boundaries), and whether each single one
+    was warned."""
 
     set_name: str
     left_out: str
@@ -55,6 +58,9 @@ class LeftOut:
     warnings: list[str]
     misfits: list[str]
     seconds: float
+    joint_right: bool | None = None
+    singles_right: tuple[bool, ...] = ()
+    singles_warned: tuple[bool, ...] = ()
 
     @property
     def best_single_deg(self) -> float:
@@ -85,10 +91,26 @@ def band_share(
     return share_in_band(runs)
 
 
-def corpus_leave_one_out(set_name: str, cases: Sequence[CorpusCase]) -> list[LeftOut]:
-    """Leave each of ``cases`` (trials of one task) out in turn and learn from the others."""
+def task_truth(cases: Sequence[CorpusCase], reference: CorpusCase) -> CorpusCase:
+    """The truth of a task learned from ``cases``: ``reference``'s (the part is the same in every trial; the joint
+    skill's samples are the reference's) pressing the trials' mean: each segment's press their mean, the true normal
+    force at every sample scaled by the same ratio (the trials' plateaus differ by the hand, ±10 %)."""
+    segments = [
+        replace(segment, force_n=float(np.mean([case.segments[k].force_n for case in cases])))
+        for k, segment in enumerate(reference.segments)
+    ]
+    ratio = segments[0].force_n / reference.segments[0].force_n
+    return replace(reference, segments=segments, normal_force_n=reference.normal_force_n * ratio)
+
+
+def corpus_leave_one_out(
+    set_name: str, cases: Sequence[CorpusCase], within: Callable[[CorpusCase, Score], bool]
+) -> list[LeftOut]:
+    """Leave each of ``cases`` (trials of one task) out in turn and learn from the others; ``within`` says whether a
+    score is within the corpus's tolerances."""
     demonstrations = [case.demonstration(read_csv) for case in cases]
-    singles = [score(learn_skill(d), case).normal_error_deg for d, case in zip(demonstrations, cases, strict=True)]
+    singles = [learn_skill(d) for d in demonstrations]
+    scores = [score(skill, case) for skill, case in zip(singles, cases, strict=True)]
     results = []
     for k, case in enumerate(cases):
         others = [i for i in range(len(cases)) if i != k]
@@ -96,17 +118,22 @@ def corpus_leave_one_out(set_name: str, cases: Sequence[CorpusCase]) -> list[Lef
         joint = learn_joint_skill([demonstrations[i] for i in others], sources=[cases[i].name for i in others])
         seconds = time.perf_counter() - started
         reference = next(cases[i] for i in others if cases[i].name == joint.demonstration.name)
+        truth = task_truth([cases[i] for i in others], reference)
+        joint_score = score(joint, truth)
         share = band_share(joint, demonstrations[k], case.t, case.positions, case.normal_force_n)
         results.append(
             LeftOut(
                 set_name,
                 case.name,
                 share,
-                score(joint, reference).normal_error_deg,
-                [singles[i] for i in others],
+                joint_score.normal_error_deg,
+                [scores[i].normal_error_deg for i in others],
                 joint.warnings(),
                 [f"{use.source}: {use.misfit.value}" for use in joint.demonstrations or [] if use.misfit is not None],
                 seconds,
+                within(truth, joint_score),
+                tuple(within(cases[i], scores[i]) for i in others),
+                tuple(bool(singles[i].warnings()) for i in others),
             )
         )
     return results

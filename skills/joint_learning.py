@@ -85,7 +85,7 @@ from skills.surface_geometry import FORCE_SIGMA_MIN_DEG, POOL_NORMAL_DEG
 ALIGNMENT_POINTS = 100
 """Points, evenly in time, each demonstration's contact segment is aligned and averaged on (the band's phases)."""
 
-RUN_POINTS = 400
+RUN_POINTS = 200
 """Points a run judged against a band (a left-out demonstration, an execution) is resampled to before alignment."""
 
 SAME_PLACE_M = 0.05
@@ -184,10 +184,18 @@ def warping_path(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArra
         j = s - i
         best = np.minimum(np.minimum(total[i - 1, j - 1], total[i - 1, j]), total[i, j - 1])
         total[i, j] = cost[i - 1, j - 1] + best
+    # Backtrack along the cheapest predecessor of each cell (0: diagonal, 1: from above, 2: from the left).
+    came_from = np.argmin(np.stack([total[:-1, :-1], total[:-1, 1:], total[1:, :-1]]), axis=0)
+    steps = ((-1, -1), (-1, 0), (0, -1))
     i, j, path = n, m, [(n - 1, m - 1)]
     while i > 1 or j > 1:
-        steps = ((i - 1, j - 1), (i - 1, j), (i, j - 1))
-        i, j = min(steps, key=lambda step: total[step])
+        if i == 1:
+            j -= 1
+        elif j == 1:
+            i -= 1
+        else:
+            di, dj = steps[came_from[i - 1, j - 1]]
+            i, j = i + di, j + dj
         path.append((i - 1, j - 1))
     pairs = np.array(path[::-1])
     return pairs[:, 0], pairs[:, 1]
@@ -281,9 +289,10 @@ def _disagreement(a: _Footprint, b: _Footprint) -> float:
     return max(_place_m(a, b) / SAME_PLACE_M, _surface_deg(a, b) / SAME_SURFACE_DEG)
 
 
-def _medoid(indices: list[int], footprints: dict[int, _Footprint]) -> int:
-    """The demonstration whose summed disagreement with the others is least (the first on a tie)."""
-    sums = [sum(_disagreement(footprints[i], footprints[j]) for j in indices if j != i) for i in indices]
+def _medoid(indices: list[int], disagreement: dict[tuple[int, int], float]) -> int:
+    """The demonstration of ``indices`` whose summed disagreement (by pair, `_disagreement`) with the others is least
+    (the first on a tie)."""
+    sums = [sum(disagreement[min(i, j), max(i, j)] for j in indices if j != i) for i in indices]
     return indices[int(np.argmin(sums))]
 
 
@@ -297,9 +306,10 @@ def _forced(options: LearnOptions, skill_type: SkillType) -> LearnOptions:
 
 def _corresponding(
     demonstrations: Sequence[Demonstration], sources: Sequence[str], options: LearnOptions
-) -> tuple[list[_Trial], SkillType, NDArray[np.float64] | None]:
+) -> tuple[list[_Trial], SkillType, NDArray[np.float64] | None, int]:
     """Learn each demonstration and decide which fit together: the trials (the left-out ones with their reason),
-    the joint type and the summed log-odds for contour (3,) of the ones kept (None: not measured)."""
+    the joint type, the summed log-odds for contour (3,) of the ones kept (None: not measured) and the reference
+    (the index of the kept one that agrees best with the others)."""
     single = options.model_copy(update={"strict": False})
     trials = []
     for k, (demonstration, source) in enumerate(zip(demonstrations, sources, strict=True)):
@@ -311,7 +321,8 @@ def _corresponding(
     if not kept:
         raise LearningError("demonstrations", "; ".join(f"{t.source}: {t.reason}" for t in trials))
     footprints = {i: _footprint(trials[i].learned) for i in kept}  # type: ignore[arg-type]
-    medoid = _medoid(kept, footprints)
+    disagreement = {(i, j): _disagreement(footprints[i], footprints[j]) for i in kept for j in kept if i < j}
+    medoid = _medoid(kept, disagreement)
     for i in kept:
         place, angle = _place_m(footprints[i], footprints[medoid]), _surface_deg(footprints[i], footprints[medoid])
         if place > SAME_PLACE_M:
@@ -357,7 +368,7 @@ def _corresponding(
     counts = {i: len(_contacts(trials[i].learned)) for i in kept}  # type: ignore[arg-type]
     tally = Counter(counts.values()).most_common()
     usual = [n for n, c in tally if c == tally[0][1]]
-    reference = _medoid(kept, footprints)
+    reference = _medoid(kept, disagreement)
     wanted = counts[reference] if counts[reference] in usual else usual[0]
     for i in kept:
         if counts[i] != wanted:
@@ -366,7 +377,8 @@ def _corresponding(
                 misfit=MisfitReason.another_stroke_count,
                 reason=f"it has {counts[i]} contact segment(s) as a {skill_type.value} where the others have {wanted}",
             )
-    return trials, skill_type, summed
+    kept = [t.index for t in trials if t.misfit is None]
+    return trials, skill_type, summed, _medoid(kept, disagreement)
 
 
 @dataclass(frozen=True)
@@ -602,25 +614,31 @@ def band_alignment(
 def share_in_band(segments: Sequence[tuple[ForceBand, NDArray[np.float64], NDArray[np.float64]]]) -> float:
     """The share (0-1) of a run's contact time that presses within the bands: ``segments`` holds per contact segment
     its band, its path (M, 3) m and its press (M,) N; each segment counts by its samples."""
-    weights = np.array([len(press) for _, _, press in segments], dtype=float)
-    shares = np.array([band_alignment(band, positions, press)[0].mean() for band, positions, press in segments])
-    return float(weights @ shares / weights.sum())
+    return _weighted_share([band_alignment(band, positions, press)[0] for band, positions, press in segments],
+                           [len(press) for _, _, press in segments])  # fmt: skip
+
+
+def _weighted_share(insides: Sequence[NDArray[np.bool_]], samples: Sequence[int]) -> float:
+    """The share of samples in band over segments, each segment's resampled points counting by its ``samples``."""
+    weights = np.asarray(samples, dtype=float)
+    return float(weights @ np.array([inside.mean() for inside in insides]) / weights.sum())
 
 
 def _agreement(learned: LearnedTrial, joint: list[_JointSegment]) -> tuple[float, float]:
     """A demonstration against the joint contact segments: its share of contact within their bands, and the median
     angle (deg) between its own CF z and theirs at the matched phases."""
-    r, runs, angles = learned.recording, [], []
+    r, insides, samples, angles = learned.recording, [], [], []
     for item, segment in zip(_contacts(learned), joint, strict=True):
         rows = slice(item.segment.start_index, item.segment.end_index)
         band = segment.learned.segment.force_band
         assert band is not None and item.measured_force_n is not None and item.cf_z is not None
-        runs.append((band, r.positions[rows], item.measured_force_n))
-        _, matched = band_alignment(band, r.positions[rows], item.measured_force_n)
+        inside, matched = band_alignment(band, r.positions[rows], item.measured_force_n)
+        insides.append(inside)
+        samples.append(rows.stop - rows.start)
         own = resampled(np.asarray(item.cf_z), RUN_POINTS)
         known = matched >= 0
         angles.append(_angles_deg(own[known], segment.normals[matched[known]]))
-    return share_in_band(runs), float(np.median(np.concatenate(angles)))
+    return _weighted_share(insides, samples), float(np.median(np.concatenate(angles)))
 
 
 def _auto_selection(
@@ -682,7 +700,7 @@ def learn_joint_skill(
             "demonstrations", f"{total} samples in all: at most {MAX_JOINT_SAMPLES} are learned together"
         )
     sources = list(sources) if sources is not None else [str(k) for k in range(len(demonstrations))]
-    trials, skill_type, summed = _corresponding(demonstrations, sources, options)
+    trials, skill_type, summed, reference_index = _corresponding(demonstrations, sources, options)
     misfits = [t for t in trials if t.misfit is not None]
     if misfits and options.misfit is MisfitPolicy.refuse:
         raise JointLearningError(
@@ -691,8 +709,7 @@ def learn_joint_skill(
     kept = [t for t in trials if t.misfit is None]
     learned = [t.learned for t in kept]
     assert all(item is not None for item in learned)
-    footprints = {k: _footprint(item) for k, item in enumerate(learned)}  # type: ignore[arg-type]
-    reference = _medoid(list(range(len(kept))), footprints)
+    reference = next(k for k, t in enumerate(kept) if t.index == reference_index)
     ref = learned[reference]
     assert ref is not None
     contacts = iter(range(len(_contacts(ref))))
