@@ -33,6 +33,9 @@ MAX_JOINT_SAMPLES = 1_000_000
 """Most samples, summed over the demonstrations, one skill is learned from together (learning N costs N times one)."""
 MAX_CHECKS = 8 * MAX_SEGMENTS + 2 * MAX_JOINT_DEMONSTRATIONS
 """Most checks a skill may carry (a few per segment, two per demonstration it was learned from)."""
+IN_BAND_SHARE = 0.9
+"""A run presses like the demonstrations when its press lies within their force band for at least this share of its
+contact (a demonstration against its joint skill; an execution against the band, `ExecutionTolerances`)."""
 MAX_BAND_POINTS = 1000
 """Most phase points of a segment's force band."""
 

@@ -109,6 +109,10 @@ AGREEMENT_DEG = 2.0
 """A demonstration whose contour normals lie this far (deg, median) from the others' mean weighs half as much as
 one that agrees with it exactly (`_normals_by_place`)."""
 
+BAND_POOLING_POINTS = 5.0
+"""The across-trial variance is pooled over the nearby phases by a Gaussian of this many alignment points (5 % of the
+segment): its degrees of freedom are (n - 1) times the pooled points, sqrt(2 pi) times this."""
+
 BAND_CONFIDENCE = 0.95
 """The force band is the prediction interval, at this confidence, of a new demonstration's press."""
 
@@ -443,17 +447,21 @@ def _band(
     press (G,) N along the joint ``normals`` (G, 3).
 
     Where a NEW demonstration's press is expected, at `BAND_CONFIDENCE`: the prediction interval of one more draw
-    from the n shown, Student's t with n - 1 degrees of freedom times ``s·sqrt(1 + 1/n)`` (``s`` their standard
-    deviation at that phase; a few trials say little about their spread, and the interval says so), combined with
+    from the n shown, Student's t times ``s·sqrt(1 + 1/n)`` (``s`` their standard deviation, pooled over the nearby
+    phases, `BAND_POOLING_POINTS`, with the degrees of freedom that pooling gives), combined with
     the wobble within each (`BAND_SIGMAS` times its RMS) and the sensor offsets' 95 % uncertainty (N; the press each
     recorded is known to no better), in quadrature."""
     presses = np.array([np.sum(a[:, 7:10] * normals, axis=1) for a in aligned])
     wobble = np.sqrt(np.mean([a[:, 13] ** 2 for a in aligned], axis=0))
     mean = presses.mean(axis=0)
     n = len(presses)
-    across = presses.std(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)
+    # The spread across trials, pooled over the nearby phases (a few trials give one noisy number per phase; the
+    # pooled variance has (n - 1) degrees of freedom per phase pooled).
+    variance = presses.var(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)
+    across = np.sqrt(gaussian_filter1d(variance, BAND_POOLING_POINTS, mode="nearest"))
     spread = np.sqrt(across**2 + wobble**2)
-    t_quantile = float(student_t.ppf(0.5 + 0.5 * BAND_CONFIDENCE, n - 1)) if n > 1 else 0.0
+    pooled_df = (n - 1) * np.sqrt(2.0 * np.pi) * BAND_POOLING_POINTS
+    t_quantile = float(student_t.ppf(0.5 + 0.5 * BAND_CONFIDENCE, pooled_df)) if n > 1 else 0.0
     half = np.sqrt(
         (t_quantile * across * np.sqrt(1.0 + 1.0 / n)) ** 2
         + (BAND_SIGMAS * wobble) ** 2

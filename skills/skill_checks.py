@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
 from schemas.demonstration import TareMethod
-from schemas.skill import CheckName, SkillCheck, SkillType
+from schemas.skill import IN_BAND_SHARE, CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask, press_body
@@ -119,9 +119,6 @@ it: a work piece measured from the same recording carries what they find wrong."
 
 AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
 """A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
-
-IN_BAND_SHARE_LIMIT = 0.9
-"""A demonstration of a joint skill presses within the skill's force band for at least this share of its contact."""
 
 
 def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -571,17 +568,17 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
 def demonstration_in_band(index: int, source: str, share: float) -> SkillCheck:
     """Check demonstration ``index`` (given as ``source``) against a joint skill's force band: ``share`` (0-1) of its
     contact samples press within it (`skills.joint_learning.share_in_band`)."""
-    passed = share >= IN_BAND_SHARE_LIMIT
+    passed = share >= IN_BAND_SHARE
     verdict = "within" if passed else "outside"
     return SkillCheck(
         name=CheckName.demonstration_in_band,
         demonstration=index,
         passed=passed,
         value=share,
-        limit=IN_BAND_SHARE_LIMIT,
+        limit=IN_BAND_SHARE,
         unit="ratio",
         message=f"demonstration {index} ({source}) presses within the demonstrated force band for "
-        f"{100 * share:.0f} % of its contact (at least {100 * IN_BAND_SHARE_LIMIT:.0f} %): {verdict} what the "
+        f"{100 * share:.0f} % of its contact (at least {100 * IN_BAND_SHARE:.0f} %): {verdict} what the "
         "demonstrations together showed",
     )
 
