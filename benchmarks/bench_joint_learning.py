@@ -206,6 +206,8 @@ def cost_report(repeats: int) -> str:
             )
     return "\n".join(
         [
+            "## Joint learning: N demonstrations of one task together, against one (issue 42)",
+            "",
             f"Command: `{COMMAND}` (its cost part; `--smoke` runs one repeat). Median wall time of "
             f"{repeats} runs, one BLAS thread. *per trial*: the mean over the {TRIALS} trials of learning each alone.",
             "",
