@@ -121,3 +121,16 @@ def test_a_trial_of_another_task_is_named_and_not_averaged_in(
             sources=sources,
         )
     assert refused.value.field == "demonstrations" and other.name in refused.value.reason
+
+
+def test_a_demonstration_without_contact_is_named_not_learnable(
+    task: tuple[list[CorpusCase], list[Demonstration]], joint: Skill
+) -> None:
+    cases, demonstrations = task
+    a = demonstrations[0].arrays()
+    in_the_air = Demonstration.from_arrays(a.t, a.positions, a.orientations, np.zeros_like(a.wrenches))
+    sources = [*(case.name for case in cases[:3]), "in-the-air"]
+    skill = learn_joint_skill([*demonstrations[:3], in_the_air], sources=sources)
+    use = (skill.demonstrations or [])[3]
+    assert use.misfit is MisfitReason.not_learnable and use.weight == 0.0 and "wrenches" in (use.reason or "")
+    assert [s.model_dump() for s in skill.segments] == [s.model_dump() for s in joint.segments]
