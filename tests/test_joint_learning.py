@@ -41,6 +41,33 @@ def test_one_demonstration_learns_exactly_as_one_skill_did() -> None:
     assert learn_joint_skill([demonstration]).model_dump_json() == learn_skill(demonstration).model_dump_json()
 
 
+def _same(before: object, now: object, path: str = "") -> None:
+    """``now`` holds every value of ``before`` (numbers to 1e-9 relative: another BLAS may round the last bits
+    differently); keys ``before`` lacks must be empty (the fields added since)."""
+    if isinstance(before, dict):
+        assert isinstance(now, dict), path
+        for key, value in now.items():
+            if key in before:
+                _same(before[key], value, f"{path}.{key}")
+            else:
+                assert value is None, f"{path}.{key} is new and set"
+    elif isinstance(before, list):
+        assert isinstance(now, list) and len(now) == len(before), path
+        for k, (b, n) in enumerate(zip(before, now, strict=True)):
+            _same(b, n, f"{path}[{k}]")
+    elif isinstance(before, float) and not isinstance(now, bool):
+        assert now == pytest.approx(before, rel=1e-9, abs=1e-12), path
+    else:
+        assert now == before, path
+
+
+def test_one_demonstration_learns_the_skill_it_learned_before_joint_learning() -> None:
+    """The stored skill was learned by the code before joint learning (commit eb6b496) from this demonstration."""
+    stored = json.loads(BEFORE.read_text())
+    now = json.loads(learn_joint_skill([plane_case("straight", 0.0, 0).demonstration()]).model_dump_json())
+    _same(stored, now)
+
+
 def test_a_skill_stored_before_joint_learning_loads_unchanged() -> None:
     stored = json.loads(BEFORE.read_text())
     skill = Skill.model_validate(stored)
