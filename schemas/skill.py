@@ -332,7 +332,7 @@ class MisfitReason(StrEnum):
     """Why a demonstration does not fit the others of a joint skill (docs/LEARNING.md, section 11)."""
 
     not_learnable = "not_learnable"
-    """It gives no skill on its own (no contact, no moving contact)."""
+    """It gives no skill on its own (no contact, no moving contact), or none of the type the others together are."""
     another_place = "another_place"
     """Its contact lies elsewhere than the others' (another part, or the same part moved)."""
     another_surface = "another_surface"

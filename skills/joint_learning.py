@@ -366,8 +366,12 @@ def _corresponding(
         skill_type = SkillType(options.skill_type.value)
     for i in kept:
         if trials[i].learned.skill.skill_type is not skill_type:  # type: ignore[union-attr]
-            relearned = learn_trial(demonstrations[i], _forced(options, skill_type))
-            trials[i] = replace(trials[i], learned=relearned)
+            try:
+                trials[i] = replace(trials[i], learned=learn_trial(demonstrations[i], _forced(options, skill_type)))
+            except LearningError as exc:
+                reason = f"as a {skill_type.value}: {exc.field}: {exc.reason}"
+                trials[i] = replace(trials[i], misfit=MisfitReason.not_learnable, reason=reason)
+    kept = [t.index for t in trials if t.misfit is None]
 
     counts = {i: len(_contacts(trials[i].learned)) for i in kept}  # type: ignore[arg-type]
     tally = Counter(counts.values()).most_common()
