@@ -53,7 +53,7 @@ class LearnerPoolFull(RuntimeError):  # noqa: N818
 @dataclass(frozen=True)
 class LearnOutcome:
     """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``, ``reasons``: the
-    skill's warnings), ``checks``
+    skill's warnings, ``reference``), ``checks``
     (strict learning refused a skill: ``reasons``, one per failed check), ``learning`` (a
     `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
     ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
@@ -65,6 +65,8 @@ class LearnOutcome:
     field: str = ""
     reason: str = ""
     reasons: tuple[str, ...] = ()
+    reference: str = ""
+    """Several demonstrations learned together: the source of the reference, whose samples the skill's refer to."""
 
 
 def _limit_process(memory_mb: int) -> None:
@@ -104,7 +106,10 @@ def _learn(payload: bytes) -> LearnOutcome:
         skill = learn_joint_skill(demonstrations, LearnOptions.model_validate_json(options_json), sources)
         seconds = time.perf_counter() - started
         warnings = tuple(skill.warnings())
-        return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings)
+        reference = next((use.source for use in skill.demonstrations or [] if use.reference), "")
+        return LearnOutcome(
+            "ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings, reference=reference
+        )
     except SkillCheckError as exc:
         return LearnOutcome("checks", reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks))
     except LearningError as exc:

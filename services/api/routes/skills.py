@@ -9,7 +9,7 @@ from dataclasses import asdict
 from fastapi import APIRouter, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
-from schemas.skill import MAX_JOINT_SAMPLES, Skill
+from schemas.skill import MAX_JOINT_SAMPLES
 from services.api import errors
 from services.api.deps import (
     READ_GUARD,
@@ -77,10 +77,8 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
         raise errors.unprocessable(loc, outcome.reason, "learning_error")
     if outcome.kind != "ok":
         raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
-    if len(sources) > 1:
-        # A joint skill's segments refer to its reference demonstration: the one stored with it.
-        skill = Skill.model_validate_json(outcome.skill_json)
-        stored_id = next(use.source for use in skill.demonstrations or [] if use.reference)
+    if len(sources) > 1:  # a joint skill's segments refer to its reference demonstration: the one stored with it
+        stored_id = outcome.reference
     warnings = list(outcome.reasons)
     row = await asyncio.to_thread(store.skills.add, outcome.skill_json, outcome.skill_type, stored_id, warnings)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
