@@ -78,7 +78,14 @@ from skills.parameterize import (
     motion_dmps,
     recording_checks,
 )
-from skills.quaternions import quaternion_from_matrix, quaternions_sign_continuous
+from skills.quaternions import (
+    quaternion_conjugate,
+    quaternion_exp,
+    quaternion_from_matrix,
+    quaternion_log,
+    quaternion_product,
+    quaternions_sign_continuous,
+)
 from skills.selection import MIXED_CONFIDENCE, SkillClassification
 from skills.surface_geometry import FORCE_SIGMA_MIN_DEG, POOL_NORMAL_DEG
 
@@ -115,6 +122,10 @@ segment): its degrees of freedom are (n - 1) times the pooled points, sqrt(2 pi)
 
 BAND_CONFIDENCE = 0.95
 """The force band is the prediction interval, at this confidence, of a new demonstration's press."""
+
+DEVIATION_SMOOTHING_POINTS = 2.0
+"""The demonstrations' mean deviation from the reference is smoothed over this many alignment points (2 % of the
+segment) before it moves the reference's samples."""
 
 PLACE_POINTS = 400
 """Contact points per demonstration compared for its place on the part (decimated evenly)."""
@@ -510,8 +521,23 @@ def _joint_segment(
         x = np.linspace(0.0, m - 1.0, len(values))
         return np.column_stack([np.interp(np.arange(m), x, column) for column in np.atleast_2d(values.T)])
 
-    mean_positions = on_samples(np.mean([a[:, 0:3] for a in aligned], axis=0))
-    mean_quaternions = quaternions_sign_continuous(unit_rows(on_samples(np.mean([a[:, 3:7] for a in aligned], axis=0))))
+    def mean_on_samples(mean: NDArray[np.float64], own: NDArray[np.float64], samples: NDArray) -> NDArray[np.float64]:
+        # The reference's own samples moved by the demonstrations' mean deviation from it, smoothed over phase: the
+        # mean of warped runs steps where the warping does, and a path interpolated through such steps would jerk.
+        return samples + on_samples(gaussian_filter1d(mean - own, DEVIATION_SMOOTHING_POINTS, axis=0, mode="nearest"))
+
+    mean_positions = mean_on_samples(
+        np.mean([a[:, 0:3] for a in aligned], axis=0), ref_stroke.positions, r.positions[rows]
+    )
+    turn = quaternion_log(
+        quaternion_product(
+            unit_rows(np.mean([a[:, 3:7] for a in aligned], axis=0)), quaternion_conjugate(ref_stroke.quaternions)
+        )
+    )
+    own_turn = np.zeros_like(turn)
+    mean_quaternions = quaternions_sign_continuous(
+        quaternion_product(quaternion_exp(mean_on_samples(turn, own_turn, np.zeros((m, 3)))), r.quaternions[rows])
+    )
     n_basis = basis_count(float(t_seg[-1]), options)
     stride = -(-m // options.max_fit_samples)
     fit = slice((m - 1) % stride, None, stride)
@@ -522,13 +548,14 @@ def _joint_segment(
         cf_z = np.broadcast_to(plane.rotation[:, 2], (m, 3))
     else:
         normals, weights = _normals_by_place(ref_stroke.positions, trials, items)
-        rotations = contour_frames(
-            mean_positions, np.zeros_like(mean_positions), rate_hz, slice(0, m), normals=unit_rows(on_samples(normals))
-        )
+        own_normals = np.asarray(ref_item.cf_z)
+        on_path = unit_rows(mean_on_samples(normals, ref_stroke.normals, own_normals))
+        rotations = contour_frames(mean_positions, np.zeros_like(mean_positions), rate_hz, slice(0, m), normals=on_path)
         cf_z = rotations[:, :, 2]
     band, mean_press = _band(strokes, aligned, normals, _offset_uncertainty_n(trials))
-    press = on_samples(mean_press)[:, 0]
     measured = cf_z_forces(r.forces[rows], cf_z)
+    own_press = resampled(measured, ALIGNMENT_POINTS)
+    press = mean_on_samples(mean_press[:, None], own_press[:, None], measured[:, None])[:, 0]
     common = {
         "index": segment.index,
         "start_index": segment.start_index,
