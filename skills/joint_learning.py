@@ -18,7 +18,7 @@ correspondence and joined (docs/LEARNING.md, section 11):
    normals as the mean, at the same place, of each one's fused normals (a normal that turns at the same place in
    every trial is kept, one hand's wander is averaged down); the press as the mean with its spread per phase (the
    force band: across them and within each); the DMPs fitted to the aligned mean (position, orientation, force),
-   on the reference's time base.
+   on the reference's time base: its own samples moved by the mean's smoothed deviation from them.
 4. **Self-checks.** The joint skill's checks against the reference recording (`skills.parameterize
    .recording_checks`), and each demonstration against the joint skill: its press within the band, its own CF z
    against the joint one (`skills.skill_checks.demonstration_in_band`, `demonstration_normal`).
