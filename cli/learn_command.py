@@ -21,9 +21,19 @@ def _add_learn_arguments(parser: LazyArgumentsParser) -> None:
     # the thread limit must be in the environment before numpy loads its BLAS, which happens while `learn` is parsed.
     parser.add_lazily(lambda _: _thread_limit_environment())
     parser.add_argument(
-        "file",
+        "files",
         type=Path,
-        help=f"demonstration: {SUPPORTED_FILES}",
+        nargs="+",
+        metavar="file",
+        help=f"demonstration: {SUPPORTED_FILES}; several files of the same task are learned together into ONE skill "
+        "(docs/LEARNING.md section 11), each imported with the same options",
+    )
+    parser.add_argument(
+        "--misfit",
+        choices=["leave_out", "refuse"],
+        default="leave_out",
+        help="several files: leave out one that does not fit the others (named with its reason), or refuse to learn "
+        "(exit 2 naming it) (default leave_out)",
     )
     parser.add_argument(
         "--type",
@@ -66,27 +76,51 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-def learn_and_report(demonstration, options, output: Path, figure: Path | None) -> None:
-    """Learn the skill from ``demonstration`` with ``options`` (`schemas.LearnOptions`), write it (and the figure),
-    print the summary with its checks' warnings. Callers run it in `one_blas_thread`."""
+def learn_and_report(demonstrations, sources: list[str], options, output: Path, figure: Path | None) -> None:
+    """Learn the skill from ``demonstrations`` (one, or several of one task given as ``sources``) with ``options``
+    (`schemas.LearnOptions`), write it (and the figure of the reference demonstration), print the summary with its
+    checks' warnings. Callers run it in `one_blas_thread`."""
     import time
 
-    from skills.parameterize import learn_skill
+    from skills.joint_learning import learn_joint_skill
 
     started = time.perf_counter()
-    skill = learn_skill(demonstration, options)
+    skill = learn_joint_skill(demonstrations, options, sources)
     elapsed = time.perf_counter() - started
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_text(skill.model_dump_json(indent=1))
-    for line in summary_lines(demonstration, skill):
+    uses = skill.demonstrations or []
+    reference = next((demonstrations[use.index] for use in uses if use.reference), demonstrations[0])
+    for line in joint_lines(skill) + summary_lines(reference, skill):
         print(line)
     print(f"learned in {elapsed:.2f} s; skill written to {output}")
     if figure is not None:
         from services.figures import write_learning_figure
 
         figure.parent.mkdir(parents=True, exist_ok=True)
-        write_learning_figure(demonstration, skill, figure)
+        write_learning_figure(reference, skill, figure)
         print(f"figure written to {figure}")
+
+
+def joint_lines(skill) -> list[str]:
+    """What a skill learned from several demonstrations says about each (none for one)."""
+    uses = skill.demonstrations or []
+    lines = (
+        [f"learned from {sum(use.weight > 0 for use in uses)} of {len(uses)} demonstrations together:"] if uses else []
+    )
+    for use in uses:
+        if use.misfit is not None:
+            lines.append(f"  {use.source}: LEFT OUT ({use.misfit.value}): {use.reason}")
+            continue
+        agreement = (
+            f"{100 * use.share_in_band:.0f} % of its contact in the force band, its own CF z "
+            f"{use.normal_angle_deg:.1f} deg from the joint one"
+            if use.share_in_band is not None and use.normal_angle_deg is not None
+            else "not aligned"
+        )
+        role = ", the reference" if use.reference else ""
+        lines.append(f"  {use.source}: weight {use.weight:.2f}{role}; {agreement}")
+    return lines
 
 
 def _vector(v) -> str:
@@ -151,14 +185,17 @@ def summary_lines(demonstration, skill) -> list[str]:
 
 
 def cmd_learn(args: argparse.Namespace) -> int:
-    """``contact-skills learn``: import a recording, learn the skill, write it, print the summary."""
+    """``contact-skills learn``: import a recording (or several of the same task, learned together into one skill),
+    learn the skill, write it, print the summary."""
     try:
         with one_blas_thread():
-            demonstration = import_demonstration(args)
+            demonstrations = [import_demonstration(argparse.Namespace(**{**vars(args), "file": f})) for f in args.files]
             from schemas import LearnOptions
 
-            options = LearnOptions(skill_type=args.skill_type, n_basis=args.basis, strict=args.strict)
-            learn_and_report(demonstration, options, args.output, args.figure)
+            options = LearnOptions(
+                skill_type=args.skill_type, n_basis=args.basis, strict=args.strict, misfit=args.misfit
+            )
+            learn_and_report(demonstrations, [str(f) for f in args.files], options, args.output, args.figure)
     except Exception as exc:
         return report_user_error("learn", exc)
     return 0
@@ -179,7 +216,13 @@ def cmd_demo_learn(args: argparse.Namespace) -> int:
             out = args.out_dir
             from schemas import LearnOptions
 
-            learn_and_report(demonstration, LearnOptions(skill_type="contour"), out / "skill.json", out / "learn.png")
+            learn_and_report(
+                [demonstration],
+                [str(recordings[0])],
+                LearnOptions(skill_type="contour"),
+                out / "skill.json",
+                out / "learn.png",
+            )
     except Exception as exc:
         return report_user_error("demo-learn", exc)
     return 0

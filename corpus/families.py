@@ -498,6 +498,66 @@ def human_case(kind: str, seed: int = 0) -> CorpusCase:
     return recorded_case(f"{kind}-s{seed}", kind, skill_type, fine, params, rng, rate, irregular, operator)
 
 
+TRIAL_KINDS = ("human-straight", "human-cylinder")
+"""The human-like kinds `human_trials` repeats on one part: a line (where a single trial's tilt about it is the
+hand's) and a contour."""
+
+TRIAL_SHIFT_M = 0.015
+"""Each trial of a straight stroke lies up to this far (m) beside the part's line: a person does not retrace it."""
+
+
+def human_trials(kind: str, seed: int = 0, n_trials: int = 3) -> list[CorpusCase]:
+    """``n_trials`` demonstrations of ONE task (`TRIAL_KINDS`): the same part, friction, pad and press (±10 % per
+    trial), each with another hand (its push, wander, lean, tremor, ramps, speed) and another wrist sensor (offset,
+    noise), recorded as `human_case` records them. ``human-straight``: a straight stroke on a plane tilted 0-35°,
+    each trial shifted across the line by up to `TRIAL_SHIFT_M`; ``human-cylinder``: the same contour across a
+    cylinder of 10-20 cm. Names ``{kind}-task{seed}-t{trial}``."""
+    if kind not in TRIAL_KINDS:
+        raise ValueError(f"kind must be one of {TRIAL_KINDS}, got {kind!r}")
+    part = np.random.default_rng([seed, 300 + TRIAL_KINDS.index(kind)])
+    dt = 1.0 / FINE_RATE_HZ
+    task = {
+        "friction": part.uniform(0.1, 0.5),
+        "pad_stiffness_n_m": float(np.exp(part.uniform(np.log(2e3), np.log(3e4)))),
+        "force_n": part.uniform(12.0, 25.0),
+    }
+    if kind == "human-straight":
+        task["tilt_deg"] = part.uniform(0.0, 35.0)
+        plane = tilted_plane(task["tilt_deg"], part)
+    else:
+        task |= {"radius_m": part.uniform(0.1, 0.2), "turn_deg": part.uniform(60.0, 90.0)}
+    geometry_seed = int(part.integers(2**31))
+    cases = []
+    for trial in range(n_trials):
+        rng = np.random.default_rng([seed, 300 + TRIAL_KINDS.index(kind), trial + 1])
+        params = task | {
+            "force_n": task["force_n"] * rng.uniform(0.9, 1.1),
+            "ramp_s": rng.uniform(0.5, 0.9),
+            "cruise_m_s": rng.uniform(0.06, 0.1),
+        }
+        operator = OperatorModel(rng.uniform(3.0, 6.0), rng.uniform(15.0, 30.0), rng.uniform(2.0, 5.0))
+        force, ramp, cruise = params["force_n"], params["ramp_s"], params["cruise_m_s"]
+        if kind == "human-straight":
+            shift = rng.uniform(-TRIAL_SHIFT_M, TRIAL_SHIFT_M)
+            params["shift_m"] = shift
+            line = Fold(plane.origin + shift * plane.e_v, plane.e_u, plane.e_v, plane.fold, plane.radius)
+            contact = plane_stroke(line, "straight", rng, dt, force, ramp, cruise)
+            skill_type = "slide"
+        else:
+            radius, turn = task["radius_m"], np.radians(task["turn_deg"])
+            params["cruise_m_s"] = cruise = float(np.clip(radius * turn / 3 * rng.uniform(0.8, 1.2), 0.04, 0.1))
+            contact = cylinder_stroke(radius, turn, np.random.default_rng(geometry_seed), dt, force, ramp, cruise)
+            skill_type = "contour"
+        pieces = _carried(contact, rng, dt)
+        fine = assemble(
+            _with_rests(pieces, rng, dt), dt, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1
+        )
+        rate, irregular = HUMAN_RECORDING[kind]
+        name = f"{kind}-task{seed}-t{trial}"
+        cases.append(recorded_case(name, kind, skill_type, fine, params, rng, rate, irregular, operator))
+    return cases
+
+
 def _brush(rng: np.random.Generator, dt: float, force: float, ramp: float, cruise: float) -> list[Piece]:
     """The tool brushes 4 cm down a box's vertical side for ~1 s at 40-45 % of the stroke's press (held pointing
     down: no stroke), is carried over the top and strokes 15 cm across it, away from the edge."""

@@ -21,7 +21,7 @@ from schemas.demonstration import (
 )
 from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.numbers import Real
-from schemas.skill import LearnOptions, Skill
+from schemas.skill import MAX_JOINT_DEMONSTRATIONS, MAX_JOINT_SAMPLES, LearnOptions, Skill
 from schemas.text import Identifier
 from schemas.verdict import Verdict
 
@@ -124,8 +124,9 @@ class StoredDemonstration(BaseModel):
 
 
 class SkillRequest(LearnOptions):
-    """``POST /skills``: learn from a stored demonstration (``demonstration_id``) OR an inline one
-    (``demonstration``), with the options of `LearnOptions` (all optional)."""
+    """``POST /skills``: learn from a stored demonstration (``demonstration_id``), several stored demonstrations of
+    the same task learned together (``demonstration_ids``), OR an inline one (``demonstration``), with the options of
+    `LearnOptions` (all optional)."""
 
     model_config = ConfigDict(
         extra="forbid",
@@ -133,12 +134,21 @@ class SkillRequest(LearnOptions):
             "examples": [
                 {"demonstration_id": "demo_3f2a9c01b2d4", "skill_type": "auto"},
                 {"demonstration_id": "demo_3f2a9c01b2d4", "skill_type": "contour", "n_basis": 80},
+                {"demonstration_ids": ["demo_3f2a9c01b2d4", "demo_77aa01c2d3e4"], "misfit": "refuse"},
             ]
         },
     )
 
     demonstration_id: Identifier | None = Field(
-        None, description="Id of a stored demonstration (or give `demonstration`)."
+        None, description="Id of a stored demonstration (or give `demonstration_ids` or `demonstration`)."
+    )
+    demonstration_ids: list[Identifier] | None = Field(
+        None,
+        min_length=1,
+        max_length=MAX_JOINT_DEMONSTRATIONS,
+        description="Ids of stored demonstrations of the same task, learned together into ONE skill (docs/LEARNING.md "
+        f"section 11): at most {MAX_JOINT_DEMONSTRATIONS}, each once, {MAX_JOINT_SAMPLES} samples in all; one id "
+        "learns exactly as `demonstration_id`.",
     )
     demonstration: Demonstration | None = Field(
         None, description="An inline demonstration (not stored; or give `demonstration_id`)."
@@ -146,9 +156,22 @@ class SkillRequest(LearnOptions):
 
     @model_validator(mode="after")
     def _one_demonstration(self) -> SkillRequest:
-        if (self.demonstration_id is None) == (self.demonstration is None):
-            raise ValueError("give exactly one of demonstration_id (a stored demonstration) or demonstration (inline)")
+        given = [self.demonstration_id, self.demonstration_ids, self.demonstration]
+        if sum(value is not None for value in given) != 1:
+            raise ValueError(
+                "give exactly one of demonstration_id (a stored demonstration), demonstration_ids (several stored "
+                "ones of the same task) or demonstration (inline)"
+            )
+        if self.demonstration_ids is not None and len(set(self.demonstration_ids)) != len(self.demonstration_ids):
+            twice = sorted({i for i in self.demonstration_ids if self.demonstration_ids.count(i) > 1})
+            raise ValueError(f"demonstration_ids: each demonstration once ({', '.join(twice)} given twice)")
         return self
+
+    def stored_ids(self) -> list[str] | None:
+        """The stored demonstrations to learn from, in order (None: the inline one)."""
+        if self.demonstration_ids is not None:
+            return list(self.demonstration_ids)
+        return None if self.demonstration_id is None else [self.demonstration_id]
 
     def learn_options(self) -> LearnOptions:
         """The `LearnOptions` part of the request."""

@@ -721,6 +721,13 @@ class ExecutionMetrics(BaseModel):
         "phase, N: the simulator's exact contact force, whatever the learned CF or the sensor say.",
     )
     true_force_rms_error_pct: Real | None = Field(None, description="The same in % of the reference force.")
+    true_force_in_band: Real | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="Skills learned from several demonstrations: the share of the contact whose true normal force lies "
+        "within the force band the demonstrations pressed (aligned to it by the tool's path; None: no band).",
+    )
     true_force_max_error_n: Real | None = Field(
         None, description="Largest |true normal force - desired| over the steady contact phase, N."
     )

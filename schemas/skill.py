@@ -27,8 +27,17 @@ MAX_FRAMES = 5000
 """Most compliant frames per segment (``LearnOptions.contour_frames_max`` at most)."""
 MAX_SEGMENTS = 500
 """Most segments a skill may have."""
-MAX_CHECKS = 8 * MAX_SEGMENTS
-"""Most checks a skill may carry (a few per segment)."""
+MAX_JOINT_DEMONSTRATIONS = 8
+"""Most demonstrations one skill is learned from together (``POST /skills``' ``demonstration_ids``)."""
+MAX_JOINT_SAMPLES = 1_000_000
+"""Most samples, summed over the demonstrations, one skill is learned from together (learning N costs N times one)."""
+MAX_CHECKS = 8 * MAX_SEGMENTS + 2 * MAX_JOINT_DEMONSTRATIONS
+"""Most checks a skill may carry (a few per segment, two per demonstration it was learned from)."""
+IN_BAND_SHARE = 0.9
+"""A run presses like the demonstrations when its press lies within their force band for at least this share of its
+contact (a demonstration against its joint skill; an execution against the band, `ExecutionTolerances`)."""
+MAX_BAND_POINTS = 1000
+"""Most phase points of a segment's force band."""
 
 
 class SkillType(StrEnum):
@@ -167,6 +176,34 @@ class SegmentQuality(BaseModel):
     )
 
 
+class ForceBand(BaseModel):
+    """The force several demonstrations pressed along a contact segment's CF z, aligned in time: mean and spread
+    per phase (`skills.joint_learning`).
+
+    ``phase`` is the fraction (0-1) of the segment's duration; ``positions`` the demonstrations' mean path at each
+    phase (world, m), by which another run (a left-out demonstration, an execution) is aligned to the band.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    phase: list[Real] = Field(min_length=2, max_length=MAX_BAND_POINTS, description="Fraction of the segment, 0-1.")
+    positions: list[Vector3] = Field(
+        min_length=2, max_length=MAX_BAND_POINTS, description="Mean tool-point path at each phase, world, m."
+    )
+    mean_n: list[Real] = Field(
+        min_length=2, max_length=MAX_BAND_POINTS, description="Mean press along CF z at each phase, N."
+    )
+    spread_n: list[Real] = Field(
+        min_length=2,
+        max_length=MAX_BAND_POINTS,
+        description="Standard deviation of the press at each phase, N: across the demonstrations and within each "
+        "(its wobble about its own smoothed press), combined.",
+    )
+    lower_n: list[Real] = Field(min_length=2, max_length=MAX_BAND_POINTS, description="Band's lower edge, N.")
+    upper_n: list[Real] = Field(min_length=2, max_length=MAX_BAND_POINTS, description="Band's upper edge, N.")
+    demonstrations: WholeNumber = Field(ge=1, description="How many demonstrations the band was built from.")
+
+
 class Segment(BaseModel):
     """One segment of the skill: a movement primitive with its frames and force profile."""
 
@@ -201,6 +238,11 @@ class Segment(BaseModel):
         None, description="Slide contact segments whose press was steady: the constant CF-z force to apply, N."
     )
     quality: SegmentQuality
+    force_band: ForceBand | None = Field(
+        None,
+        description="Contact segments of a skill learned from several demonstrations: the press they showed, mean "
+        "and spread per phase (None: learned from one).",
+    )
 
 
 class SkillAttributes(BaseModel):
@@ -265,6 +307,8 @@ class CheckName(StrEnum):
     unmeasured_contact = "unmeasured_contact"
     sensor_offset = "sensor_offset"
     type_evidence = "type_evidence"
+    demonstration_in_band = "demonstration_in_band"
+    demonstration_normal = "demonstration_normal"
 
 
 class CheckBound(StrEnum):
@@ -281,11 +325,63 @@ class SkillCheck(BaseModel):
 
     name: CheckName
     segment: int | None = Field(None, description="The segment checked; None for the whole skill.")
+    demonstration: int | None = Field(
+        None, description="The demonstration checked against the joint skill (its index in ``demonstrations``)."
+    )
     passed: bool
     value: Real = Field(description="The measured value, in ``unit``.")
     limit: Real = Field(description="The limit the value is held to, in ``unit`` (see ``message``: at most / least).")
     unit: Name = Field(examples=["deg", "N", "ratio", "mm"])
     message: Text = Field(description="One sentence with the numbers; a warning when not passed.")
+
+
+class MisfitReason(StrEnum):
+    """Why a demonstration does not fit the others of a joint skill (docs/LEARNING.md, section 11)."""
+
+    not_learnable = "not_learnable"
+    """It gives no skill on its own (no contact, no moving contact), or none of the type the others together are."""
+    another_place = "another_place"
+    """Its contact lies elsewhere than the others' (another part, or the same part moved)."""
+    another_surface = "another_surface"
+    """It presses along another direction than the others."""
+    another_type = "another_type"
+    """It is confidently the other type (slide against contour)."""
+    another_stroke_count = "another_stroke_count"
+    """It has another number of contact segments than the others."""
+
+
+class MisfitPolicy(StrEnum):
+    """What joint learning does with a demonstration that does not fit the others."""
+
+    leave_out = "leave_out"
+    """Learn from the others; the skill names it with its reason."""
+    refuse = "refuse"
+    """Refuse to learn (a 422 naming it and the reason)."""
+
+
+class DemonstrationUse(BaseModel):
+    """One demonstration of a skill learned from several: where it came from, its weight, and how it agrees."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    index: WholeNumber = Field(description="Its position in the list learned from, from 0.")
+    source: Name = Field(description="What it was given as: a stored demonstration's id, a file's name.")
+    reference: bool = Field(
+        False,
+        description="The reference: the one that agrees best with the others, whose time base and samples the "
+        "segments' indices refer to (the skill's ``demonstration``).",
+    )
+    name: Name | None = Field(None, description="Its recording's name (metadata).")
+    weight: Real = Field(ge=0, le=1, description="Its weight in the joint estimates (0: left out).")
+    misfit: MisfitReason | None = Field(None, description="Why it was left out (None: it was used).")
+    reason: Text | None = Field(None, description="One sentence with the numbers, when it was left out.")
+    skill_type: SkillType | None = Field(None, description="The type it gives on its own.")
+    share_in_band: Real | None = Field(
+        None, ge=0, le=1, description="Share of its contact samples whose press lies in the joint force band."
+    )
+    normal_angle_deg: Real | None = Field(
+        None, description="Median angle between its own CF z and the joint skill's, over its contact, deg."
+    )
 
 
 class Skill(BaseModel):
@@ -304,6 +400,13 @@ class Skill(BaseModel):
         "learning refuses the skill).",
     )
     demonstration: DemonstrationSummary
+    demonstrations: list[DemonstrationUse] | None = Field(
+        None,
+        max_length=MAX_JOINT_DEMONSTRATIONS,
+        description="A skill learned from several demonstrations: each with its weight, the left-out ones with their "
+        "reason (None: learned from one, ``demonstration``). ``demonstration`` and the segments' sample indices are "
+        "then those of the reference demonstration, the one that agrees best with the others.",
+    )
     sample_rate_hz: Real = Field(description="Rate of the (resampled) demonstration the skill was learned from, Hz.")
     taught_world: FreeForm | None = Field(
         None,
@@ -351,6 +454,11 @@ class LearnOptions(BaseModel):
     min_segment_duration_s: Real = Field(0.25, gt=0, le=600, description="Segments shorter than this are merged, s.")
     contour_frames_max: WholeNumber = Field(
         500, ge=2, le=MAX_FRAMES, description="Most compliant frames stored per contour segment (decimated evenly)."
+    )
+    misfit: MisfitPolicy = Field(
+        MisfitPolicy.leave_out,
+        description="Learning from several demonstrations: leave out one that does not fit the others (named with "
+        "its reason in the skill), or refuse to learn.",
     )
     strict: bool = Field(
         False,

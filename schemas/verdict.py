@@ -50,6 +50,10 @@ class VerdictCheckName(StrEnum):
     judged_on = "judged_on"
     """What the verdict was judged on: a work piece measured from the skill's own recording (or rebuilt from the
     skill) can confirm that recording only, not that the skill does the job on the real part: a warning."""
+    force_in_band = "force_in_band"
+    """A skill learned from several demonstrations: the share of the contact whose TRUE normal force lies within the
+    band the demonstrations pressed (``Segment.force_band``), aligned to it by where the tool is; below
+    ``force_in_band`` a failure, below `schemas.skill.IN_BAND_SHARE` without it a warning."""
     skill_checks = "skill_checks"
     """The skill passes its own checks against its demonstration (``Skill.checks``). A failed one is a warning; it
     fails the verdict where the work piece carries the mistake, so that the run cannot show it wrong: one rebuilt from
@@ -89,6 +93,14 @@ class ExecutionTolerances(BaseModel):
         le=1,
         description="Smallest share of a contour's taught region (the turn of its taught normals) the normals it "
         "pressed on must span.",
+    )
+    force_in_band: Real | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="Skills learned from several demonstrations: the least share of the contact whose true normal "
+        "force lies within the demonstrated force band (the verdict fails below it); None: judged as a warning below "
+        "0.9.",
     )
     surface_window_m: Real | None = Field(
         None,

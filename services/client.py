@@ -415,13 +415,15 @@ class Client:
 
     def learn(
         self,
-        demonstration: str | Demonstration,
+        demonstration: str | Demonstration | Sequence[str],
         skill_type: SkillTypeRequest = SkillTypeRequest.auto,
         *,
         strict: bool = False,
         **options: Any,
     ) -> StoredSkill:
-        """Learn a skill from a stored demonstration (its id) or an inline `Demonstration`; ``options`` are
+        """Learn a skill from a stored demonstration (its id), several stored demonstrations of the same task
+        together (a list of ids: the skill's ``demonstrations`` name each with its weight, and those left out with
+        their reason; ``misfit="refuse"`` refuses instead) or an inline `Demonstration`; ``options`` are
         `LearnOptions` fields.
 
         The skill checks itself against the demonstration: each failed check is issued as a `SkillCheckWarning`
@@ -430,8 +432,10 @@ class Client:
         body: dict[str, Any] = {"skill_type": SkillTypeRequest(skill_type).value, "strict": strict, **options}
         if isinstance(demonstration, Demonstration):
             body["demonstration"] = demonstration.model_dump(mode="json")
-        else:
+        elif isinstance(demonstration, str):
             body["demonstration_id"] = demonstration
+        else:
+            body["demonstration_ids"] = list(demonstration)
         stored = StoredSkill.model_validate(self._request("POST", "/skills", json=body).json())
         for message in stored.warnings:
             warnings.warn(SkillCheckWarning(f"skill {stored.id}: {message}"), stacklevel=2)

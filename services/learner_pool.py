@@ -60,7 +60,7 @@ class LearnerPoolFull(RuntimeError):  # noqa: N818
 @dataclass(frozen=True)
 class LearnOutcome:
     """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``, ``reasons``: the
-    skill's warnings), ``checks``
+    skill's warnings, ``reference``), ``checks``
     (strict learning refused a skill: ``reasons``, one per failed check), ``learning`` (a
     `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
     ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
@@ -72,6 +72,8 @@ class LearnOutcome:
     field: str = ""
     reason: str = ""
     reasons: tuple[str, ...] = ()
+    reference: str = ""
+    """Several demonstrations learned together: the source of the reference, whose samples the skill's refer to."""
 
 
 def _limit_process(memory_mb: int) -> None:
@@ -90,7 +92,8 @@ def _limit_process(memory_mb: int) -> None:
 
 
 def _learn(payload: bytes) -> LearnOutcome:
-    """One job in a learner process: validate the demonstration, check its sampling, learn."""
+    """One job in a learner process: validate the demonstrations, check their sampling, learn (one: as
+    `learn_skill`; several: together, `skills.joint_learning.learn_joint_skill`, each named by its source)."""
     import traceback
 
     from pydantic import ValidationError
@@ -98,17 +101,22 @@ def _learn(payload: bytes) -> LearnOutcome:
     from schemas.demonstration import Demonstration
     from schemas.skill import LearnOptions
     from services.api.limits import check_sampling
-    from skills.parameterize import LearningError, SkillCheckError, learn_skill
+    from skills.joint_learning import learn_joint_skill
+    from skills.parameterize import LearningError, SkillCheckError
 
-    demonstration_json, options_json = pickle.loads(payload)
+    demonstrations_json, sources, options_json = pickle.loads(payload)
     started = time.perf_counter()
     try:
-        demonstration = Demonstration.model_validate_json(demonstration_json)
-        check_sampling(demonstration)
-        skill = learn_skill(demonstration, LearnOptions.model_validate_json(options_json))
+        demonstrations = [Demonstration.model_validate_json(text) for text in demonstrations_json]
+        for demonstration in demonstrations:
+            check_sampling(demonstration)
+        skill = learn_joint_skill(demonstrations, LearnOptions.model_validate_json(options_json), sources)
         seconds = time.perf_counter() - started
         warnings = tuple(skill.warnings())
-        return LearnOutcome("ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings)
+        reference = next((use.source for use in skill.demonstrations or [] if use.reference), "")
+        return LearnOutcome(
+            "ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings, reference=reference
+        )
     except SkillCheckError as exc:
         return LearnOutcome("checks", reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks))
     except LearningError as exc:
@@ -198,9 +206,14 @@ class LearnerPool:
             self._idle.append(await asyncio.to_thread(self._spawn))
 
     async def learn(
-        self, demonstration_json: str, options_json: str, client_gone: Callable[[], Awaitable[bool]]
+        self,
+        demonstrations_json: list[str],
+        sources: list[str],
+        options_json: str,
+        client_gone: Callable[[], Awaitable[bool]],
     ) -> LearnOutcome:
-        """Learn in a free process; raises :class:`LearnerPoolFull`, :class:`LearningTimedOut`,
+        """Learn from ``demonstrations_json`` (one, or several of one task given as ``sources``) in a free process;
+        raises :class:`LearnerPoolFull`, :class:`LearningTimedOut`,
         :class:`LearningCancelled` (``client_gone()`` became true while waiting or learning)."""
         if self._closed:
             raise LearningCancelled("the learner pool is shut down")
@@ -227,7 +240,7 @@ class LearnerPool:
         try:
             slot = self._idle.pop() if self._idle else await asyncio.to_thread(self._spawn)
             self.stats.running += 1
-            outcome = await self._run(slot, pickle.dumps((demonstration_json, options_json)), client_gone)
+            outcome = await self._run(slot, pickle.dumps((demonstrations_json, sources, options_json)), client_gone)
             if slot.process.is_alive():
                 self._idle.append(slot)
                 slot = None

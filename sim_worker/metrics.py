@@ -24,7 +24,7 @@ from schemas.execution import (
     ExecutionSettings,
     WorkPieceSource,
 )
-from schemas.skill import Segment, SegmentKind, Skill, SkillCheck
+from schemas.skill import IN_BAND_SHARE, Segment, SegmentKind, Skill, SkillCheck
 from schemas.verdict import (
     ExecutionTolerances,
     ExecutionVerdict,
@@ -38,6 +38,7 @@ from sim_worker.plans import contact_geometry
 from sim_worker.telemetry import Telemetry
 from skills import pressed_normals, skill_checks
 from skills.dmp import DMP
+from skills.joint_learning import share_in_band
 
 STEADY_CONTACT_DELAY_S = 0.2
 """The steady contact phase starts this long after a contact run starts (and after its force ramp), s."""
@@ -435,6 +436,24 @@ def execution_verdict(
                 "second touch there did not confirm it: not relocated",
             )
         )
+    if m.true_force_in_band is not None:
+        judged = t.force_in_band is not None
+        limit = t.force_in_band if judged else IN_BAND_SHARE
+        passed = m.true_force_in_band >= limit
+        message = (
+            f"true force within the demonstrated band for {100 * m.true_force_in_band:.0f} % of the contact "
+            f"({'≥' if passed else '<'} {100 * limit:.0f} %)"
+        )
+        checks.append(
+            VerdictCheck(
+                name=name.force_in_band,
+                passed=passed,
+                warning_only=not judged,
+                value=m.true_force_in_band,
+                limit=limit,
+                message=message,
+            )
+        )
     if skill_failed:
         checks.append(_skill_checks_check(skill_failed, log.work_piece))
     failed = [c.message for c in checks if not c.passed and not c.warning_only]
@@ -554,6 +573,18 @@ def _skill_checks_check(failed: list[SkillCheck], work_piece: str | None) -> Ver
     )
 
 
+def _true_force_in_band(skill: Skill, tel: Telemetry, contact: NDArray[np.bool_]) -> float | None:
+    """The share of the contact phase of the segments with a force band (`Segment.force_band`) whose true normal
+    force lies within it, each segment's contact aligned to its band by the tool's path
+    (`skills.joint_learning.share_in_band`); None where no segment has a band or ran in contact."""
+    runs = []
+    for segment in skill.segments:
+        rows = contact & (tel.segment_index == segment.index)
+        if segment.force_band is not None and rows.sum() >= 2:
+            runs.append((segment.force_band, tel.tool_position[rows], tel.normal_force_true[rows]))
+    return share_in_band(runs) if runs else None
+
+
 def compute_metrics(
     skill: Skill,
     tel: Telemetry,
@@ -591,6 +622,9 @@ def compute_metrics(
             cosine = np.clip(np.sum(cf_z * tel.contact_normal[touching], axis=1), -1.0, 1.0)
             angles = np.degrees(np.arccos(cosine))
             metrics |= {"cf_normal_angle_deg": float(angles.mean()), "cf_normal_angle_max_deg": float(angles.max())}
+    in_band = _true_force_in_band(skill, tel, contact)
+    if in_band is not None:
+        metrics["true_force_in_band"] = in_band
     exits = exit_rows(skill, tel)
     metrics |= _touchdowns(tel, steady, exits, reference, dt)
     if (exits & (tel.normal_force_true > 0.0)).any():
@@ -659,7 +693,11 @@ def combined_stroke_metrics(strokes: list[ExecutionMetrics]) -> ExecutionMetrics
             "contact_threshold_n", "contact_persistence_steps", "touchdown_contact_force_ratio", "exit_collision_n",
         )
     }  # fmt: skip
-    for name in ("contact_ratio", "cf_normal_angle_deg"):  # shares and means: weighted by steady contact
+    for name in (
+        "contact_ratio",
+        "cf_normal_angle_deg",
+        "true_force_in_band",
+    ):  # shares and means: weighted by steady contact
         values = [getattr(m, name) for m in strokes]
         if all(v is not None for v in values) and weights.sum() > 0:
             fields[name] = float(np.sum(weights * np.asarray(values)) / weights.sum())

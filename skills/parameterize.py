@@ -53,7 +53,7 @@ MAX_RATE_HZ = 100_000.0
 
 UNSTEADY_BASIS_PER_SECOND = 40.0
 """Force DMP bases per second of a slide segment whose press was not steady: 25 ms apart, a 3 Hz wobble keeps 97 %
-of its amplitude through the fit's smoothing (`_basis_resolution`)."""
+of its amplitude through the fit's smoothing (`basis_resolution`)."""
 
 PROFILE_FLOOR = 0.3
 """A slide's force profile presses at least this fraction of its 90th percentile (its feet are the approach's)."""
@@ -102,13 +102,13 @@ def _rms(values: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def _basis_count(duration_s: float, options: LearnOptions) -> int:
+def basis_count(duration_s: float, options: LearnOptions) -> int:
     """Return the DMP basis count for a segment: ``n_basis``, more for long segments, at most ``max_basis``."""
     wanted = max(options.n_basis, int(np.ceil(options.basis_per_second * duration_s)))
     return max(2, min(wanted, options.max_basis))
 
 
-def _basis_resolution(values: NDArray, t: NDArray, n_basis: int) -> NDArray:
+def basis_resolution(values: NDArray, t: NDArray, n_basis: int) -> NDArray:
     """Return ``values`` (N, D) smoothed by a Gaussian of half the basis spacing in time.
 
     The DMP fit takes second differences of the data (targets consistent with the integrator):
@@ -120,11 +120,11 @@ def _basis_resolution(values: NDArray, t: NDArray, n_basis: int) -> NDArray:
     return gaussian_filter1d(values, sigma=max(0.5 * spacing_samples, 1e-3), axis=0, mode="nearest")
 
 
-def _motion_dmps(
+def motion_dmps(
     t: NDArray, positions: NDArray, quaternions: NDArray, n_basis: int, frame: str
 ) -> tuple[DMP, QuaternionDMP, float, float]:
     """Fit position and orientation DMPs; return them with their reproduction RMS (m, rad) on the fit grid."""
-    position_dmp = DMP.fit(t, _basis_resolution(positions, t, n_basis), n_basis=n_basis, kind="position", frame=frame)
+    position_dmp = DMP.fit(t, basis_resolution(positions, t, n_basis), n_basis=n_basis, kind="position", frame=frame)
     orientation_dmp = QuaternionDMP.fit(t, quaternions, n_basis=n_basis)
     dt = float(t[1] - t[0])
     y = position_dmp.rollout(dt).y
@@ -141,7 +141,7 @@ def _decimated_indices(n: int, most: int) -> NDArray[np.int_]:
 
 
 @dataclass(frozen=True)
-class _Recording:
+class Recording:
     """The demonstration on its uniform grid (world, SI), its contact analysis and the normals of its surfaces."""
 
     t: NDArray[np.float64]
@@ -156,7 +156,7 @@ class _Recording:
 
 
 @dataclass(frozen=True)
-class _Learned:
+class LearnedSegment:
     """A segment and what its checks compare: per sample CF z (M, 3), the force learned along it (M,) N and the
     force measured along it (M,) N."""
 
@@ -168,7 +168,7 @@ class _Learned:
 
 
 @dataclass(frozen=True)
-class _ForceProfile:
+class ForceProfileFit:
     """A contact segment's CF-z force as a DMP, its rollout at every sample (M,) N and its RMS against the data (N)."""
 
     dmp: DMP
@@ -176,26 +176,26 @@ class _ForceProfile:
     rms_n: float
 
 
-def _force_profile(
+def force_profile_dmp(
     t_seg: NDArray[np.float64], f_z: NDArray[np.float64], fit: slice, stride: int, n_basis: int, rate_hz: float
-) -> _ForceProfile:
+) -> ForceProfileFit:
     """Fit the CF-z force ``f_z`` (M,) N of a segment (times ``t_seg`` (M,) s from its start) as a 1-D force DMP on
     the strided grid ``fit`` (every ``stride`` samples) with ``n_basis`` bases."""
-    dmp = DMP.fit(t_seg[fit], _basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")
+    dmp = DMP.fit(t_seg[fit], basis_resolution(f_z[fit], t_seg[fit], n_basis), n_basis=n_basis, kind="force")
     rollout = dmp.rollout(stride / rate_hz).y[:, 0]
     n = min(len(rollout), len(f_z[fit]))
     learned = np.interp(t_seg, np.arange(len(rollout)) * stride / rate_hz, rollout)
-    return _ForceProfile(dmp, learned, _rms(rollout[:n] - f_z[fit][:n]))
+    return ForceProfileFit(dmp, learned, _rms(rollout[:n] - f_z[fit][:n]))
 
 
 def _segment(
-    index: int, bounds: SegmentBounds, skill_type: SkillType, r: _Recording, options: LearnOptions
-) -> _Learned:
+    index: int, bounds: SegmentBounds, skill_type: SkillType, r: Recording, options: LearnOptions
+) -> LearnedSegment:
     """Parameterize one segment: frames, force profile, DMPs and their quality."""
     rows = slice(bounds.start, bounds.end)
     t_seg = r.t[rows] - r.t[bounds.start]
     p_seg, q_seg, f_seg = r.positions[rows], r.quaternions[rows], r.forces[rows]
-    n_basis = _basis_count(float(t_seg[-1]), options)
+    n_basis = basis_count(float(t_seg[-1]), options)
     # DMPs are fitted on an evenly strided grid that ends on the last sample (the goal).
     stride = -(-len(t_seg) // options.max_fit_samples)
     fit = slice((len(t_seg) - 1) % stride, None, stride)
@@ -209,7 +209,7 @@ def _segment(
         "end_reason": bounds.end_reason,
     }
     if not bounds.contact:
-        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
+        position_dmp, orientation_dmp, p_rms, q_rms = motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
         free = Segment(
             kind=SegmentKind.free,
             selection=list(SELECTION_FREE),
@@ -218,13 +218,13 @@ def _segment(
             quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms),
             **common,
         )
-        return _Learned(free)
+        return LearnedSegment(free)
 
     rate_hz = r.contact.rate_hz
     if skill_type is SkillType.slide:
         plane = _pooled_plane(bounds, r)
         in_plane = ((p_seg - plane.origin) @ plane.rotation)[:, :2]
-        position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], in_plane[fit], q_seg[fit], n_basis, "cf")
+        position_dmp, orientation_dmp, p_rms, q_rms = motion_dmps(t_seg[fit], in_plane[fit], q_seg[fit], n_basis, "cf")
         f_z = cf_z_forces(f_seg, plane.rotation[:, 2])
         steadiness = press_steadiness(f_z, rate_hz)
         force = constant_force(f_z, rate_hz)
@@ -235,7 +235,7 @@ def _segment(
             # Its touch-down and lift-off feet are the approach's and the retreat's to make (as for a constant): a
             # profile asking ~0 N at its ends lets the tool leave the surface it is meant to press.
             pressed = np.maximum(f_z, PROFILE_FLOOR * np.percentile(f_z, 90))
-            profile = _force_profile(t_seg, pressed, fit, stride, force_basis, rate_hz)
+            profile = force_profile_dmp(t_seg, pressed, fit, stride, force_basis, rate_hz)
         slide = Segment(
             kind=SegmentKind.contact,
             selection=list(SELECTION_CONTACT),
@@ -262,12 +262,12 @@ def _segment(
         )
         cf_z = np.broadcast_to(plane.rotation[:, 2], p_seg.shape)
         learned = np.full(len(p_seg), force.value_n) if profile is None else profile.learned_n
-        return _Learned(slide, cf_z, learned, plane, f_z)
+        return LearnedSegment(slide, cf_z, learned, plane, f_z)
 
     rotations = contour_frames(r.positions, r.forces, rate_hz, rows, normals=_contour_normals(rows, r))
     f_z = cf_z_forces(f_seg, rotations[:, :, 2])
-    position_dmp, orientation_dmp, p_rms, q_rms = _motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
-    profile = _force_profile(t_seg, f_z, fit, stride, n_basis, rate_hz)
+    position_dmp, orientation_dmp, p_rms, q_rms = motion_dmps(t_seg[fit], p_seg[fit], q_seg[fit], n_basis, "world")
+    profile = force_profile_dmp(t_seg, f_z, fit, stride, n_basis, rate_hz)
     keep = _decimated_indices(len(t_seg), options.contour_frames_max)
     contour = Segment(
         kind=SegmentKind.contact,
@@ -283,10 +283,10 @@ def _segment(
         quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=profile.rms_n),
         **common,
     )
-    return _Learned(contour, rotations[:, :, 2], profile.learned_n, None, f_z)
+    return LearnedSegment(contour, rotations[:, :, 2], profile.learned_n, None, f_z)
 
 
-def _pooled_plane(bounds: SegmentBounds, r: _Recording) -> PlaneFit:
+def _pooled_plane(bounds: SegmentBounds, r: Recording) -> PlaneFit:
     """The slide CF of a contact segment from its surface (`skills.surface_evidence`): its own positions where they
     span a plane (an uneven part's local plane), else those of every contact segment on the same surface, pooled
     (strokes side by side, each a line); weighed against the force with the force direction's uncertainty measured
@@ -307,7 +307,7 @@ def _pooled_plane(bounds: SegmentBounds, r: _Recording) -> PlaneFit:
     return plane_along(r.pooled_planes[surface.index], r.positions[rows])
 
 
-def _contour_normals(rows: slice, r: _Recording) -> NDArray[np.float64] | None:
+def _contour_normals(rows: slice, r: Recording) -> NDArray[np.float64] | None:
     """The fused normals (M, 3) of a contour segment's samples (`skills.surface_evidence`), the force's where a
     sample lies on no surface of the slide segmentation (none at all: None, the force's alone)."""
     normals = r.surfaces.normals[rows]
@@ -320,9 +320,9 @@ def _contour_normals(rows: slice, r: _Recording) -> NDArray[np.float64] | None:
     return normals[nearest]
 
 
-def _checks(
-    learned: list[_Learned],
-    r: _Recording,
+def recording_checks(
+    learned: list[LearnedSegment],
+    r: Recording,
     classification: SkillClassification | None,
     skill_type: SkillType,
     auto: bool,
@@ -381,6 +381,20 @@ class SkillCheckError(LearningError):
         self.checks = checks
 
 
+@dataclass(frozen=True)
+class LearnedTrial:
+    """One demonstration learned: the skill, the recording it was learned on, its segments with what their checks
+    compare, the type's evidence (None where it could not be measured) and the intervals (K, 2) s without
+    measurement. What `skills.joint_learning` joins across demonstrations."""
+
+    skill: Skill
+    recording: Recording
+    learned: list[LearnedSegment]
+    classification: SkillClassification | None
+    unmeasured: NDArray[np.float64]
+    demonstration: Demonstration
+
+
 def learn_skill(demonstration: Demonstration, options: LearnOptions | None = None) -> Skill:
     """Return the skill parameterized from one validated ``demonstration``, with its checks.
 
@@ -388,6 +402,12 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
     a contact skill, e.g. it has no contact or no moving contact to classify; `SkillCheckError`
     (a `LearningError`) when ``options.strict`` and the skill fails any of its checks.
     """
+    return learn_trial(demonstration, options).skill
+
+
+def learn_trial(demonstration: Demonstration, options: LearnOptions | None = None) -> LearnedTrial:
+    """Return ``demonstration`` learned (`learn_skill`'s skill) with what it was learned from; raises as
+    `learn_skill`."""
     options = options or LearnOptions()
     recorded = demonstration.arrays()
     t, positions, quaternions, wrenches = uniform_arrays(recorded)
@@ -406,7 +426,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
         )
     velocities = tool_velocities(positions, contact.rate_hz)
     surfaces = surface_evidence(positions, forces, velocities, contact, slide_segments)
-    r = _Recording(t, positions, quaternions, forces, velocities, contact, surfaces)
+    r = Recording(t, positions, quaternions, forces, velocities, contact, surfaces)
 
     auto = options.skill_type is SkillTypeRequest.auto
     try:
@@ -448,11 +468,13 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
             [np.reshape(demonstration.metadata.unmeasured_intervals_s, (-1, 2)), unmeasured_intervals(recorded.t)]
         )
     )
-    checks = _checks(learned, r, classification, skill_type, auto, demonstration.metadata.tare, uncertainty, unmeasured)
+    checks = recording_checks(
+        learned, r, classification, skill_type, auto, demonstration.metadata.tare, uncertainty, unmeasured
+    )
     failed = [check for check in checks if not check.passed]
     if options.strict and failed:
         raise SkillCheckError(failed)
-    return Skill(
+    skill = Skill(
         skill_type=skill_type,
         attributes=SkillAttributes(
             selection_matrix_cf=list(SELECTION_CONTACT),
@@ -465,6 +487,7 @@ def learn_skill(demonstration: Demonstration, options: LearnOptions | None = Non
         sample_rate_hz=contact.rate_hz,
         taught_world=_taught_world(demonstration),
     )
+    return LearnedTrial(skill, r, learned, classification, unmeasured, demonstration)
 
 
 def _taught_world(demonstration: Demonstration) -> dict | None:

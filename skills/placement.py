@@ -76,6 +76,11 @@ def _moved_segment(segment: Segment, R: NDArray[np.float64], t: NDArray[np.float
                 "orientations": quaternions_sign_continuous(quaternion_from_matrix(rotations)).tolist(),
             }
         )
+    band = segment.force_band
+    if band is not None:  # its mean path moves with the skill (runs are aligned to it)
+        update["force_band"] = band.model_copy(
+            update={"positions": (np.asarray(band.positions, dtype=float) @ R.T + t).tolist()}
+        )
     return segment.model_copy(update=update)
 
 

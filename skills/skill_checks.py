@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
 from schemas.demonstration import TareMethod
-from schemas.skill import CheckBound, CheckName, SkillCheck, SkillType
+from schemas.skill import IN_BAND_SHARE, CheckBound, CheckName, SkillCheck, SkillType
 from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask, press_body
@@ -575,4 +575,39 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
         limit=limit,
         unit="probability",
         message=message,
+    )
+
+
+def demonstration_in_band(index: int, source: str, share: float) -> SkillCheck:
+    """Check demonstration ``index`` (given as ``source``) against a joint skill's force band: ``share`` (0-1) of its
+    contact samples press within it (`skills.joint_learning.share_in_band`)."""
+    passed = share >= IN_BAND_SHARE
+    verdict = "within" if passed else "outside"
+    return SkillCheck(
+        name=CheckName.demonstration_in_band,
+        demonstration=index,
+        passed=passed,
+        value=share,
+        limit=IN_BAND_SHARE,
+        unit="ratio",
+        message=f"demonstration {index} ({source}) presses within the demonstrated force band for "
+        f"{100 * share:.0f} % of its contact (at least {100 * IN_BAND_SHARE:.0f} %): {verdict} what the "
+        "demonstrations together showed",
+    )
+
+
+def demonstration_normal(index: int, source: str, angle_deg: float) -> SkillCheck:
+    """Check demonstration ``index``'s own CF z against the joint skill's: the median angle (deg) over its contact
+    may be at most a hand's lean (`PLANE_FORCE_TOLERANCE_DEG`)."""
+    passed = angle_deg <= PLANE_FORCE_TOLERANCE_DEG
+    return SkillCheck(
+        name=CheckName.demonstration_normal,
+        demonstration=index,
+        passed=passed,
+        value=angle_deg,
+        limit=PLANE_FORCE_TOLERANCE_DEG,
+        unit="deg",
+        message=f"demonstration {index} ({source}) alone gives a CF z {angle_deg:.1f} deg from the joint skill's "
+        f"(median over its contact; at most {PLANE_FORCE_TOLERANCE_DEG:.0f} deg, a hand's lean)"
+        + ("" if passed else ": it pressed on something else, or its hand leaned more than the others'"),
     )

@@ -176,6 +176,28 @@ def test_learning_sources_benchmark_smoke():
         assert median < 5.0 and largest < 10.0, row
 
 
+def test_joint_learning_benchmark_smoke():
+    """Task 0 of each corpus kind, each trial left out of four: on the straight strokes, the left-out trial's true
+    press within the band learned from the other three for >= 90 % of its contact and the joint CF error no larger
+    than the best single trial's, every time; a trial of another task named, weighted 0, and the joint segments as
+    without it; two flat slides learned together and executed pass, in their band for >= 90 % of the contact; the
+    cost table's times from the run."""
+    out = run_smoke("bench_joint_learning.py", timeout_s=400.0)
+    rows = table(out, "left out")
+    straight = [row for row in rows if row[0].startswith("human-straight-task0-t")]
+    assert len(straight) == 4
+    for row in straight:
+        assert numbers(row[1])[0] >= 90 and row[4] == "yes" and row[5].startswith("right"), row
+    strangers = table(out, "set")
+    assert len(strangers) == 2
+    for row in strangers:
+        assert row[1].startswith(("another_place", "another_surface")) and row[2] == "0.00" and row[3] == "yes", row
+    [executed] = table(out, "scenario")
+    assert executed[0] == "slide_flat" and executed[4] == "pass" and numbers(executed[5])[0] >= 90, executed
+    for row in table(out, "trials of"):
+        assert finite(*numbers(" ".join(row[1:]))) and numbers(row[6])[0] > 0, row
+
+
 def test_control_loop_benchmark_smoke():
     """The control loop's real-time factors, from the run. (``--smoke`` is the control loop's owner's to add.)"""
     out = run_smoke("bench_control_loop.py", timeout_s=300.0)

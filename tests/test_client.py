@@ -107,6 +107,9 @@ def test_upload_every_kind_of_file_and_learn(client, tmp_path):
     assert contact.force_constant_n == pytest.approx(truth.target_force_n, rel=0.02)
     assert client.skill(skill.id).skill == skill.skill
     assert skill.id in {s.id for s in client.skills()}
+    joint = client.learn([from_json.id, from_csv.id])  # a list of ids: learned together into one skill
+    assert [use.source for use in joint.skill.demonstrations or []] == [from_json.id, from_csv.id]
+    assert joint.demonstration_id in (from_json.id, from_csv.id)
 
 
 def test_record_learn_execute_live_and_telemetry(client, stack):

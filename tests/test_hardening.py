@@ -256,14 +256,14 @@ def test_the_pool_kills_a_job_past_its_cpu_budget_and_replaces_the_process():
     demonstration = _slow_demonstration_json()
 
     async def scenario() -> int:
-        quick = await pool.learn(_demo_as_json(), "{}", _never)
+        quick = await pool.learn([_demo_as_json()], ["demo"], "{}", _never)
         assert quick.kind == "ok" and quick.skill_type == "slide"
         first_pid = pool.pids()[0]
         with pytest.raises(LearningTimedOut, match="budget of 6 s of CPU time") as stopped:
-            await pool.learn(demonstration, options, _never)
+            await pool.learn([demonstration], ["slow"], options, _never)
         used = re.search(r"\(([\d.]+) s of CPU used in ([\d.]+) s\)", str(stopped.value))
         assert used and 6.0 <= float(used[1]) < 10.0, str(stopped.value)  # stopped at its budget, within a few polls
-        again = await pool.learn(_demo_as_json(), "{}", _never)
+        again = await pool.learn([_demo_as_json()], ["demo"], "{}", _never)
         assert again.kind == "ok" and pool.pids()[0] != first_pid
         return pool.stats.restarted
 
@@ -285,7 +285,7 @@ def test_a_learner_starved_of_cpu_is_stopped_after_its_wall_budgets():
         [pid] = pool.pids()
         os.kill(pid, signal.SIGSTOP)
         with pytest.raises(LearningTimedOut, match=r"\(0\.0 s of CPU used in") as stopped:
-            await pool.learn(_demo_as_json(), "{}", _never)
+            await pool.learn([_demo_as_json()], ["demo"], "{}", _never)
         waited = float(re.search(r"used in ([\d.]+) s\)", str(stopped.value))[1])
         assert waited >= WALL_BUDGETS * 0.4, str(stopped.value)
 
@@ -309,7 +309,7 @@ def test_the_pool_cancels_a_job_whose_client_is_gone():
 
     try:
         with pytest.raises(LearningCancelled):  # (not a result: the learn was stopped, not run to its end)
-            asyncio.run(pool.learn(_slow_demonstration_json(), json.dumps(SLOW_OPTIONS), gone))
+            asyncio.run(pool.learn([_slow_demonstration_json()], ["slow"], json.dumps(SLOW_OPTIONS), gone))
         assert pool.stats.cancelled == 1 and pool.stats.completed == 0 and pool.pids() == []
     finally:
         pool.close()

@@ -10,6 +10,7 @@ from dataclasses import asdict
 from fastapi import APIRouter, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
+from schemas.skill import MAX_JOINT_SAMPLES
 from services.api import errors
 from services.api.deps import (
     READ_GUARD,
@@ -24,6 +25,7 @@ from services.api.deps import (
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.responses import LIST_RESPONSES, list_page, raw_json
 from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
+from services.store import Store
 
 router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
@@ -41,7 +43,9 @@ router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESP
     dependencies=STORING_GUARD,
 )
 async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersDep, http: Request) -> Response:
-    """Learn a skill (slide, contour or auto) from a stored or an inline demonstration, and store it.
+    """Learn a skill (slide, contour or auto) from a stored or an inline demonstration, or from several stored ones
+    of the same task together (``demonstration_ids``: the skill names each with its weight, and those left out with
+    their reason, docs/LEARNING.md section 11), and store it.
 
     Learns in a separate process within the service's time and memory budget (422 past either); a request
     whose client goes away is cancelled. A demonstration that cannot give the skill is a 422 naming the field, a
@@ -49,29 +53,56 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
     waiting. The skill checks itself against the demonstration: the
     reply's ``warnings`` are its failed checks; with ``strict: true`` such a skill is refused instead (422, one
     entry per failed check)."""
-    if request.demonstration is not None:
-        demonstration_json = await asyncio.to_thread(request.demonstration.model_dump_json)
-        loc, stored_id = ["body", "demonstration"], None
+    ids = request.stored_ids()
+    if ids is None:
+        assert request.demonstration is not None
+        demonstrations_json = [await asyncio.to_thread(request.demonstration.model_dump_json)]
+        loc, sources, stored_id = ["body", "demonstration"], ["inline"], None
     else:
-        assert request.demonstration_id is not None
-        _, demonstration_json = await asyncio.to_thread(readable_demonstration, store, request.demonstration_id)
-        loc, stored_id = ["body", "demonstration_id"], request.demonstration_id
+        field = "demonstration_ids" if request.demonstration_ids is not None else "demonstration_id"
+        loc, sources = ["body", field], ids
+        if len(ids) > 1:
+            await asyncio.to_thread(_within_joint_bounds, store, ids)
+        demonstrations_json = [(await asyncio.to_thread(readable_demonstration, store, i))[1] for i in ids]
+        stored_id = ids[0] if len(ids) == 1 else None
     options_json = request.learn_options().model_dump_json()
     try:
-        outcome = await learners.learn(demonstration_json, options_json, http.is_disconnected)
+        outcome = await learners.learn(demonstrations_json, sources, options_json, http.is_disconnected)
     except LearnerPoolFull as exc:
         raise errors.unavailable(str(exc)) from None
     except LearningTimedOut as exc:
         raise errors.unprocessable(loc, f"cannot learn from this demonstration: {exc}", "learning_budget") from None
     except LearningCancelled:
         return Response(status_code=499)  # nobody reads it: the client is gone
+    if outcome.kind == "learning" and outcome.field == "demonstrations":  # the demonstrations together
+        raise errors.unprocessable(loc, outcome.reason, "learning_error")
     if outcome.kind != "ok":
         raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
+    if len(sources) > 1:  # a joint skill's segments refer to its reference demonstration: the one stored with it
+        stored_id = outcome.reference
     warnings = list(outcome.reasons)
     row = await asyncio.to_thread(store.skills.add, outcome.skill_json, outcome.skill_type, stored_id, warnings)
     parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
     parts |= {"learn_seconds": round(outcome.seconds, 4), "warnings": row.warnings}
     return raw_json(parts, {"skill": outcome.skill_json}, 201)
+
+
+def _within_joint_bounds(store: Store, ids: list[str]) -> None:
+    """422 on ``demonstration_ids`` when the stored demonstrations hold more samples in all than are learned together
+    (`schemas.skill.MAX_JOINT_SAMPLES`; from their summaries, before any is read); 404 for an unknown id."""
+    total = 0
+    for demonstration_id in ids:
+        row = store.demonstrations.row(demonstration_id)
+        if row is None:
+            raise errors.not_found("demonstration", demonstration_id)
+        total += row.summary.n_samples if row.summary is not None else 0
+    if total > MAX_JOINT_SAMPLES:
+        raise errors.unprocessable(
+            ["body", "demonstration_ids"],
+            f"{total} samples in all: at most {MAX_JOINT_SAMPLES} are learned together (fewer or shorter "
+            "demonstrations)",
+            "learning_budget",
+        )
 
 
 @router.get("/skills", response_model=list[SkillInfo], responses=LIST_RESPONSES)
