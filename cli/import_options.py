@@ -15,6 +15,7 @@ import types
 import typing
 from collections.abc import Callable
 from enum import Enum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -164,17 +165,17 @@ def options_from_args(args: argparse.Namespace, model: type[ImportOptions], what
     return model(**given)
 
 
-def import_demonstration(args: argparse.Namespace) -> Demonstration:
-    """``args.file`` imported by what it holds (its content, not only its name) with the options of its kind: a
-    JSON Demonstration, a CSV recording, a ROS 1 or ROS 2 bag; any other file gets the one message every interface
-    gives (`services.demonstration_files.unsupported_file`)."""
+def import_demonstration(file: Path, args: argparse.Namespace) -> Demonstration:
+    """``file`` imported by what it holds (its content, not only its name) with the import options ``args`` gives
+    for its kind: a JSON Demonstration, a CSV recording, a ROS 1 or ROS 2 bag; any other file gets the one message
+    every interface gives (`services.demonstration_files.unsupported_file`)."""
     from schemas.import_options import BagImportOptions, CsvImportOptions
     from services.csv_import import demonstration_from_file
     from services.demonstration_files import BAGS, DESCRIBED, DemonstrationFile
     from services.importing import demonstration_file
 
-    kind = demonstration_file(args.file)
+    kind = demonstration_file(file)
     if kind is DemonstrationFile.json:
-        return demonstration_from_file(args.file)
+        return demonstration_from_file(file)
     model = BagImportOptions if kind in BAGS else CsvImportOptions
-    return demonstration_from_file(args.file, options_from_args(args, model, f"{args.file} is {DESCRIBED[kind]}"))
+    return demonstration_from_file(file, options_from_args(args, model, f"{file} is {DESCRIBED[kind]}"))

@@ -189,7 +189,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
     learn the skill, write it, print the summary."""
     try:
         with one_blas_thread():
-            demonstrations = [import_demonstration(argparse.Namespace(**{**vars(args), "file": f})) for f in args.files]
+            demonstrations = [import_demonstration(file, args) for file in args.files]
             from schemas import LearnOptions
 
             options = LearnOptions(

@@ -249,7 +249,7 @@ def test_a_ros1_bag_imports_to_the_truth_through_the_cli_and_the_api(tmp_path):
     truth = _slide()
     bag = _bag(tmp_path, truth, "demo", storage="ros1")
     args = build_parser().parse_args(["learn", str(bag), *ROS1_FLAGS, "-o", str(tmp_path / "skill.json")])
-    from_cli = import_demonstration(args)
+    from_cli = import_demonstration(bag, args)
     _assert_the_truth(from_cli, truth)
     assert from_cli.metadata.name == "ros1_demo" and from_cli.metadata.extra["bag"]["ros"] == 1
     with _api(tmp_path) as client:
