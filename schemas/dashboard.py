@@ -6,7 +6,7 @@ from __future__ import annotations
 from pydantic import BaseModel, Field
 
 from schemas.numbers import Real
-from schemas.skill import AutoSelection, CheckBound, SkillCheck
+from schemas.skill import AutoSelection, CheckBound, DemonstrationUse, SkillCheck
 
 MAX_MESH_VERTICES = 4096
 """Vertices of one work piece solid at most (a curved block has a few hundred; a rebuilt part a few dozen)."""
@@ -31,6 +31,19 @@ class SegmentSpan(BaseModel):
     t_start: Real
     t_end: Real
     force_n: Real | None = Field(None, description="The learned constant CF-z force of a slide segment, N.")
+
+
+class BandSpan(BaseModel):
+    """A contact segment's force band (``Segment.force_band``) on the skill's time line: the press the demonstrations
+    learned together showed along CF z, N, at each of the band's phases placed on the reference demonstration's time
+    (s), every point of the band."""
+
+    segment: int = Field(description="The segment's index.")
+    t: list[float] = Field(description="Times of the band's phases on the reference demonstration's time line, s.")
+    mean_n: list[float] = Field(description="Mean press along CF z, N.")
+    lower_n: list[float] = Field(description="Band's lower edge, N.")
+    upper_n: list[float] = Field(description="Band's upper edge, N.")
+    demonstrations: int = Field(description="How many demonstrations the band was built from.")
 
 
 class Triad(BaseModel):
@@ -61,6 +74,12 @@ class SkillView(BaseModel):
                                            "segments).")  # fmt: skip
     learned_t: list[float] = Field(description="Times of the learned CF-z force, s.")
     learned_force: list[float | None] = Field(description="Learned CF-z force, N (None between contact segments).")
+    force_bands: list[BandSpan] = Field(
+        default_factory=list, description="The force bands of its contact segments (empty: learned from one)."
+    )
+    demonstrations: list[DemonstrationUse] | None = Field(
+        None, description="The demonstrations it was learned from together (``Skill.demonstrations``; None: one)."
+    )
     triads: list[Triad]
     joints: list[float] | None = Field(
         None, description="The arm's 7 joint angles at the path's first sample, rad (None: out of the arm's reach)."

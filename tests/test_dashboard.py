@@ -8,6 +8,7 @@ restart of the API. Screenshots go to each test's tmp directory."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 from pathlib import Path
@@ -318,3 +319,39 @@ def test_the_kuleuven_recording_uploads_from_the_page_with_the_reading_its_impor
     skill = stack.post("/skills", {"demonstration_id": second, "skill_type": "auto"}, 201)["skill"]
     assert skill["skill_type"] == "contour"
     assert [c["name"] for c in skill["checks"] if not c["passed"]] == []  # pressing down, with friction
+
+
+def test_two_demonstrations_learned_together_from_the_page_show_their_band_and_weights(stack, page, tmp_path):
+    # Last in the module: the joint skill it learns becomes the newest, which `_learned_skill` would give the others.
+    demos = [stack.post("/demonstrations/record", {"scenario": "slide_flat", "seed": seed}, 201) for seed in (0, 1)]
+    page.wait_for_selector(f"#demonstrations tr[data-id='{demos[1]['id']}']")
+    page.click("#learn-together")  # nothing ticked: the API refuses, the page says why
+    page.wait_for_function("document.getElementById('message').textContent.includes('422')")
+    assert "demonstration_ids" in page.inner_text("#message")
+    for demo in demos:
+        page.check(f"#demonstrations tr[data-id='{demo['id']}'] input.choose")
+    page.click("#learn-together")
+    bands = page.wait_for_selector("#skill-force[data-bands]", timeout=90_000).get_attribute("data-bands")
+    skill_id = page.url.split("/")[-1]
+    stored = stack.http.get(f"/skills/{skill_id}").json()
+    skill = stored["skill"]
+    assert [use["source"] for use in skill["demonstrations"]] == [demo["id"] for demo in demos]
+    assert stored["demonstration_id"] in {demo["id"] for demo in demos}  # the reference, whose time line is drawn
+    banded = [segment for segment in skill["segments"] if segment["force_band"] is not None]
+    assert banded and [b["segment"] for b in json.loads(bands)] == [segment["index"] for segment in banded]
+    for drawn, segment in zip(json.loads(bands), banded, strict=True):  # drawn where the segment lies, as stored
+        assert drawn["lower_n"] == segment["force_band"]["lower_n"]
+        assert drawn["upper_n"] == segment["force_band"]["upper_n"]
+        assert (drawn["t0"], drawn["t1"]) == pytest.approx((segment["t_start"], segment["t_end"]), abs=1e-9)
+    assert "force band of the 2 demonstrations" in page.inner_text("#skill-force + .legend")
+    rows = page.locator("#learned-from tbody tr")
+    assert rows.count() == 2
+    for use in skill["demonstrations"]:
+        cells = page.locator(f"#learned-from tr[data-id='{use['source']}'] td")
+        assert cells.nth(0).locator("a").get_attribute("href") == f"/demonstrations/{use['source']}"
+        assert cells.nth(2).inner_text() == f"{use['weight']:.3f}"
+        assert cells.nth(3).inner_text() == ("yes" if use["reference"] else "no")
+        assert cells.nth(4).inner_text() == (
+            "included" if use["misfit"] is None else f"left out ({use['misfit']}): {use['reason']}"
+        )
+    page.screenshot(path=tmp_path / "joint_skill.png", full_page=True)

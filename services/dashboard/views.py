@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from schemas import Demonstration, Skill
-from schemas.dashboard import SegmentSpan, SkillView, Triad
+from schemas.dashboard import BandSpan, SegmentSpan, SkillView, Triad
+from schemas.skill import ForceBand, Segment
 from schemas.sweep import SweepView, TrialResult
 
 PLOT_POINTS = 1500
@@ -30,7 +31,8 @@ def skill_view(
     skill_id: str, demonstration_id: str | None, skill: Skill, demonstration: Demonstration | None
 ) -> SkillView:
     """The skill's segments, learned force and CF triads, with its demonstration (when stored) decimated to
-    :data:`PLOT_POINTS` samples: path and force along CF z."""
+    :data:`PLOT_POINTS` samples: path and force along CF z; for a skill learned from several demonstrations, the
+    demonstrations with their weights and its segments' force bands on the (reference) demonstration's time line."""
     from services.figures import forces_in_compliant_frames, learned_force_curve
     from skills.quaternions import matrix_from_quaternion
     from skills.skill_checks import check_bound
@@ -71,11 +73,20 @@ def skill_view(
         force_cf_z=force,
         learned_t=learned_t,
         learned_force=learned,
+        force_bands=[_band_span(s, s.force_band) for s in skill.segments if s.force_band is not None],
+        demonstrations=skill.demonstrations,
         triads=triads,
         auto_selection=skill.auto_selection,
         checks=skill.checks,
         check_bounds=[check_bound(check) for check in skill.checks],
     )
+
+
+def _band_span(segment: Segment, band: ForceBand) -> BandSpan:
+    """The segment's force band with its phases (0-1 of the segment) placed on the segment's time span, s."""
+    t = segment.t_start + np.asarray(band.phase) * (segment.t_end - segment.t_start)
+    return BandSpan(segment=segment.index, t=t.tolist(), mean_n=band.mean_n, lower_n=band.lower_n,
+                    upper_n=band.upper_n, demonstrations=band.demonstrations)  # fmt: skip
 
 
 def sweep_png(view: SweepView, trials: list[TrialResult]) -> bytes:

@@ -94,7 +94,9 @@ def get_import_options() -> dict[str, Any]:
 async def get_skill_view(skill_id: str, store: StoreDep) -> SkillView:
     """A skill as its dashboard page draws it: segments on the demonstration's time line, the demonstrated and
     the learned force along CF z (N), the tool path and CF triads (world, m), the auto-selection verdict with its
-    evidence, the skill's checks. The demonstration decimated to at most 1500 samples. 404 for an unknown id."""
+    evidence, the skill's checks; a skill learned from several demonstrations also its segments' force bands on the
+    reference demonstration's time line (N, s) and the demonstrations with their weights. The demonstration
+    decimated to at most 1500 samples. 404 for an unknown id."""
     return await asyncio.to_thread(_skill_view, store, skill_id)
 
 

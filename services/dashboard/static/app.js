@@ -90,6 +90,11 @@ async function listsPage() {
       el("label", {}, "teacher scenario", scenario), el("button", { id: "record", type: "submit" }, "Record in simulation")),
     uploadForm);
   main.replaceChildren(add, demos, skills, executions, sweeps);
+  // The demonstrations ticked to learn together: kept across the redraws, in the order they were ticked.
+  const chosen = new Set();
+  const together = el("div", { class: "inline" },
+    el("button", { id: "learn-together", type: "button", onclick: () => learn({ demonstration_ids: [...chosen] }) }, "Learn together"),
+    el("span", { class: "help" }, "the ticked demonstrations of one task, learned as one skill"));
   let shown = "";
   const refresh = async () => {
     try {
@@ -98,10 +103,13 @@ async function listsPage() {
       const now = JSON.stringify([d, s, x, w]);
       if (now === shown) return;   // redraw only what changed: a button under the pointer stays where it is
       shown = now;
-      demos.replaceChildren(demos.firstChild, table([
+      for (const id of chosen) if (!d.some((r) => r.id === id)) chosen.delete(id);   // deleted meanwhile
+      demos.replaceChildren(demos.firstChild, together, table([
+        ["", (r) => el("input", { type: "checkbox", class: "choose", checked: chosen.has(r.id) ? "" : null,
+          onchange: (e) => (e.target.checked ? chosen.add(r.id) : chosen.delete(r.id)) })],
         ["id", (r) => r.id], ["created", (r) => when(r.created)], ["name", (r) => r.name], ["source", (r) => r.source],
         ["samples", (r) => r.summary?.n_samples ?? r.problem], ["s", (r) => fmt(r.summary?.duration_s, 1)],
-        ["", (r) => el("button", { class: "learn", onclick: () => learn(r.id) }, "Learn")],
+        ["", (r) => el("button", { class: "learn", onclick: () => learn({ demonstration_id: r.id }) }, "Learn")],
       ], d, (r) => r.id));
       skills.replaceChildren(skills.firstChild, table([
         ["id", (r) => el("a", { href: `#/skill/${r.id}` }, r.id)], ["created", (r) => when(r.created)],
@@ -240,11 +248,12 @@ function useReading(form, file, reading, wrongId) {
   upload(form, file, wrongId);
 }
 
-async function learn(demonstrationId) {
-  say(`learning from ${demonstrationId}…`);
+async function learn(source) {
+  // source: { demonstration_id } (one) or { demonstration_ids } (several of one task, learned together).
+  say(`learning from ${source.demonstration_id ?? source.demonstration_ids.join(", ")}…`);
   try {
     const skill = await api("/skills", { method: "POST", headers: { "content-type": "application/json" },
-      body: JSON.stringify({ demonstration_id: demonstrationId, skill_type: "auto" }) });
+      body: JSON.stringify({ ...source, skill_type: "auto" }) });
     say(`learned ${skill.id} (${skill.skill.skill_type})`);
     location.hash = `#/skill/${skill.id}`;
   } catch (error) { say(`learn: ${error.message}`); }
@@ -253,6 +262,7 @@ async function learn(demonstrationId) {
 // ------------------------------------------------------------------------------------------------ a skill
 
 const SEGMENT_COLORS = { contact: "#ffcc80", free: "#e0e0e0" };
+const BAND_COLOR = "rgba(46,125,50,.25)";   // the press several demonstrations showed (Segment.force_band)
 const BOUND_SIGNS = { ">=": "≥", "<=": "≤" };   // schemas.skill.CheckBound, as a reader writes it
 
 async function skillPage(id) {
@@ -275,6 +285,17 @@ async function skillPage(id) {
   const pieceNote = view.work_piece
     ? el("span", {}, `work piece: the world of its latest execution, `, el("a", { href: `#/execution/${view.work_piece_execution}` }, view.work_piece_execution))
     : el("span", {}, "work piece: none drawn until the skill has run (the world an execution runs in comes from its worker)");
+  const bandKey = view.force_bands.length
+    ? key(BAND_COLOR, `force band of the ${view.force_bands[0].demonstrations} demonstrations (segment ${view.force_bands.map((b) => b.segment).join(", ")})`, "height:10px")
+    : null;
+  const uses = view.demonstrations;
+  const learnedFrom = uses ? el("section", { id: "learned-from" }, el("h2", {}, `Learned from ${uses.length} demonstrations`), table([
+    ["demonstration", (r) => el("a", { href: `/demonstrations/${encodeURIComponent(r.source)}` }, r.source)], ["name", (r) => r.name ?? "–"],
+    ["weight", (r) => fmt(r.weight, 3)], ["reference", (r) => (r.reference ? "yes" : "no")],
+    ["used", (r) => (r.misfit ? el("span", { class: "message" }, `left out (${r.misfit}): ${r.reason ?? ""}`) : "included")],
+    ["type alone", (r) => r.skill_type ?? "–"], ["press in the band", (r) => pct(r.share_in_band)],
+    ["CF z vs the joint one", (r) => (r.normal_angle_deg === null ? "–" : `${fmt(r.normal_angle_deg, 1)}°`)],
+  ], uses, (r) => r.source)) : null;
   const limit = (check, k) => `${BOUND_SIGNS[view.check_bounds[k]] ?? ""} ${fmt(check.limit, 3)} ${check.unit}`;
   main.replaceChildren(
     el("section", {}, el("h2", {}, `Skill ${id}: ${view.skill_type}, ${view.segments.length} segments`), form),
@@ -283,12 +304,13 @@ async function skillPage(id) {
         `${s.index} ${s.kind} ${fmt(s.t_start)}–${fmt(s.t_end)} s${s.force_n !== null ? `, ${fmt(s.force_n, 1)} N` : ""}`)))),
     el("div", { class: "grid2" },
       el("section", {}, el("h2", {}, "Force along CF z: demonstrated vs learned (N)"), force,
-        el("div", { class: "legend" }, key("#1565c0", "demonstrated"), key("#000", "learned (dashed)"), key("rgba(255,152,0,.4)", "contact segment", "height:10px"))),
+        el("div", { class: "legend" }, key("#1565c0", "demonstrated"), key("#000", "learned (dashed)"), key("rgba(255,152,0,.4)", "contact segment", "height:10px"), bandKey)),
       el("section", {}, el("h2", {}, "Scene (world, m; drag to rotate, right-drag to pan, wheel to zoom)"), sceneBox,
         el("div", { class: "legend" }, key("#1d2330", "taught path (dashed)"), key("#d32f2f", "CF x"), key("#2e7d32", "CF y"),
           key("#1565c0", "CF z (into the surface)"), key("#c8a46e", "work piece", "height:10px"),
           view.joints ? el("span", {}, "arm: at the path's first pose") : el("span", {}, "arm: the path is out of its reach as recorded (an execution places it)")),
         el("div", { class: "legend" }, pieceNote))),
+    learnedFrom,
     el("div", { class: "grid2 checks-row" },
       el("section", { id: "auto-selection" }, el("h2", {}, "Auto selection"), auto
         ? el("div", {}, el("p", {}, el("b", {}, auto.chosen), ` (confidence ${fmt(auto.confidence)}): ${auto.reason}`),
@@ -306,7 +328,11 @@ async function skillPage(id) {
   linePlot(force, [
     { x: view.t, y: view.force_cf_z, color: "#1565c0", width: 1 },
     { x: view.learned_t, y: view.learned_force, color: "#000", dash: [6, 3], width: 2 },
-  ], { bands: spans, xLabel: "t (s)", yLabel: "N", xRange });
+  ], { bands: spans, areas: view.force_bands.map((b) => ({ x: b.t, low: b.lower_n, high: b.upper_n, color: BAND_COLOR })),
+    xLabel: "t (s)", yLabel: "N", xRange });
+  // The bands drawn, for whoever checks them against the stored skill (tests).
+  force.dataset.bands = JSON.stringify(view.force_bands.map((b) => ({ segment: b.segment, t0: b.t[0], t1: b.t[b.t.length - 1],
+    lower_n: b.lower_n, upper_n: b.upper_n })));
   const { Scene3D, STYLE } = await scene3d();
   const scene = new Scene3D(sceneBox, { height: 440 });
   scene.setPath("taught", view.path.length ? view.path : view.triads.map((tr) => tr.origin), STYLE.taught);

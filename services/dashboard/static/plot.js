@@ -44,12 +44,14 @@ function niceTicks(lo, hi, count) {
 }
 
 // series: [{x: [...], y: [... | null], color, label, dash}], bands: [{x0, x1, color, y0?, y1?}] behind the lines
-// (y0, y1: the band's bottom and top as fractions of the plot's height; the full height without them); xRange:
+// (y0, y1: the band's bottom and top as fractions of the plot's height; the full height without them); areas:
+// [{x: [...], low: [...], high: [...], color}] shaded between low and high in data units, behind the lines; xRange:
 // [x0, x1] shared with the plots beside it (default: the series' own); zero: a line at y = 0.
-export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "", bands = [], xRange = null, zero = false } = {}) {
+export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "", bands = [], areas = [], xRange = null, zero = false } = {}) {
   const { ctx, width } = sized(canvas, height);
   let [x0, x1] = [Infinity, -Infinity], [y0, y1] = [0, -Infinity];
   for (const s of series) { [x0, x1] = bounds(s.x, x0, x1); [y0, y1] = bounds(s.y, y0, y1); }
+  for (const a of areas) { [x0, x1] = bounds(a.x, x0, x1); [y0, y1] = bounds(a.low, y0, y1); [y0, y1] = bounds(a.high, y0, y1); }
   if (xRange) [x0, x1] = xRange;
   if (!Number.isFinite(x0)) { x0 = 0; x1 = 1; }
   if (!Number.isFinite(y1)) y1 = 1;
@@ -63,6 +65,16 @@ export function linePlot(canvas, series, { height = 220, xLabel = "", yLabel = "
     const [low, high] = [b.y0 ?? 0, b.y1 ?? 1];
     ctx.fillStyle = b.color;
     ctx.fillRect(X(Math.max(b.x0, x0)), PAD.top + (1 - high) * h, X(Math.min(b.x1, x1)) - X(Math.max(b.x0, x0)), (high - low) * h);
+  }
+  for (const a of areas) {
+    // The upper edge left to right, the lower edge back: one closed polygon.
+    const picked = strided(a.x.length);
+    ctx.fillStyle = a.color;
+    ctx.beginPath();
+    picked.forEach((k, j) => (j ? ctx.lineTo(X(a.x[k]), Y(a.high[k])) : ctx.moveTo(X(a.x[k]), Y(a.high[k]))));
+    for (const k of [...picked].reverse()) ctx.lineTo(X(a.x[k]), Y(a.low[k]));
+    ctx.closePath();
+    ctx.fill();
   }
   ctx.strokeStyle = "#d8dbe2"; ctx.fillStyle = "#667"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
   for (const v of niceTicks(y0, y1, 5)) {
