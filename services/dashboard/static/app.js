@@ -2,7 +2,9 @@
 // (same origin; the bearer token, if the service wants one, from the field in the header, kept in localStorage).
 import { linePlot, stripPlot } from "/dashboard/static/plot.js";
 // The 3-D scene (three.js, 0.7 MB) is loaded by the pages that draw one, not by the lists.
-const scene3d = () => import("/dashboard/static/scene3d.js");
+// A retry names the module anew: a browser may keep a failed import's outcome for its URL.
+const scene3d = (attempt = 0) => (attempt ? import(`/dashboard/static/scene3d.js?retry=${attempt}`)
+  : import("/dashboard/static/scene3d.js"));
 
 const main = document.getElementById("main");
 const tokenField = document.getElementById("token");
@@ -418,12 +420,7 @@ class LivePanel {
             key("#d32f2f", "CF x"), key("#2e7d32", "CF y"), key("#1565c0", "CF z (into the surface)"), key("#c8a46e", "work piece", "height:10px")))),
       this.final);
     this.scene = null;   // until three.js has loaded
-    scene3d().then(({ Scene3D, STYLE }) => {
-      this.scene = new Scene3D(this.sceneBox, { height: 480 });
-      this.style = STYLE;
-      if (this.workPiece) this.scene.setWorkPiece(this.workPiece);
-      this.drawScene();
-    });
+    this.loadScene();
     streams.add(this);
     this.status = { status: "…", phase: "…" };
     this.connect();
@@ -562,6 +559,23 @@ class LivePanel {
       window.__drawLog.push([this.id, this.index[n - 1], Date.now()]);
     }
     this.root.dataset.status = this.status.status;
+  }
+
+  async loadScene() {
+    // three.js and the scene's module come from the API: while it restarts the load fails, and is tried again.
+    for (let attempt = 0; !this.closed; attempt++) {
+      try {
+        const { Scene3D, STYLE } = await scene3d(attempt);
+        this.scene = new Scene3D(this.sceneBox, { height: 480 });
+        this.style = STYLE;
+        if (this.workPiece) this.scene.setWorkPiece(this.workPiece);
+        this.drawScene();
+        return;
+      } catch (error) {
+        say(`3-D scene: ${error.message}; trying again`);
+        await new Promise((r) => setTimeout(r, RETRY_MS[Math.min(attempt, RETRY_MS.length - 1)]));
+      }
+    }
   }
 
   drawScene() {

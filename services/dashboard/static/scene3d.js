@@ -28,7 +28,8 @@ const MESH_URL = "/dashboard/robot/meshes/";
 const downloads = new Map();   // URL -> promise of its text or geometry: one download per page, shared by the scenes
 
 function once(url, load) {
-  if (!downloads.has(url)) downloads.set(url, load(url));
+  // A failed download is forgotten (the API restarting, say), so that the next call tries again.
+  if (!downloads.has(url)) downloads.set(url, load(url).catch((error) => { downloads.delete(url); throw error; }));
   return downloads.get(url);
 }
 
@@ -72,7 +73,11 @@ async function visualObject(visual, named) {
 async function parsedRobot() {
   // {root, joints: [{name, axis, motion}]}: links as groups, each revolute joint a fixed frame (its origin) holding a
   // group turned about its axis that holds the child link.
-  const text = await once(ROBOT_URDF, async (u) => (await fetch(u)).text());
+  const text = await once(ROBOT_URDF, async (u) => {
+    const response = await fetch(u);
+    if (!response.ok) throw new Error(`${u}: ${response.status}`);
+    return response.text();
+  });
   const xml = new DOMParser().parseFromString(text, "application/xml");
   const robot = xml.documentElement;
   const named = Object.fromEntries([...robot.querySelectorAll(":scope > material")].map(
@@ -201,11 +206,18 @@ export class Scene3D {
   }
 
   // The arm at joint angles (rad, the URDF's movable joints in order); null hides it.
+  // Never rejects: a robot that could not be loaded (the API restarting) is asked for again at the next call.
   async setRobot(joints) {
     this.pendingJoints = joints;
     if (!joints) { if (this.robot) this.robot.root.visible = false; this.render(); return; }
     this.robotReady ??= parsedRobot().then((robot) => { this.scene.add(robot.root); return robot; });
-    this.robot = await this.robotReady;
+    try {
+      this.robot = await this.robotReady;
+    } catch (error) {
+      this.robotReady = null;
+      this.container.dataset.robotError = error.message;
+      return;
+    }
     this.robot.root.visible = true;
     this.pendingJoints.forEach((angle, k) => this.robot.joints[k]?.motion.quaternion.setFromAxisAngle(this.robot.joints[k].axis, angle));
     this.container.dataset.robot = "1";
