@@ -68,42 +68,38 @@ def cmd_api(args: argparse.Namespace) -> int:
     apply_login(args)
     from services.settings import SettingsError
     from services.store import Store, StoreError
-    from services.store.owner import claim_database
+    from services.store.owner import claimed_database
 
     _configure_logging(args.log_level)
-    claim = None
-    try:
-        settings = _settings(args)
-        claim = claim_database(settings.db_path, f"pid {os.getpid()}, http://{settings.host}:{settings.port}")
-        store = Store(settings.db_path)
-    except (SettingsError, StoreError, OSError) as exc:
-        if claim is not None:
-            os.close(claim)
-        print(f"contact-skills api: error: {exc}", file=sys.stderr)
-        return 2
-    bus = None
-    try:
-        if not args.no_bus:
-            try:
-                bus = connect_bus(settings, store)
-            except ConnectionError as exc:
-                print(f"contact-skills api: error: {exc}", file=sys.stderr)
-                return 1
-        app = create_app(settings, bus, store)
-        print(
-            f"contact-skills api: http://{settings.host}:{settings.port} (OpenAPI /docs), database {settings.db_path}, "
-            f"zenoh {'off' if bus is None else ','.join(settings.zenoh_endpoints)}"
-            + (", token required for POST/DELETE" if settings.token else ""),
-            file=sys.stderr,
-            flush=True,
-        )
-        serve_api(app, settings, args.log_level.lower())  # with the connection limits of the settings
-    finally:
-        if bus is not None:
-            bus.close()
-        store.close()
-        if claim is not None:
-            os.close(claim)
+    with contextlib.ExitStack() as held:
+        try:
+            settings = _settings(args)
+            owner = f"pid {os.getpid()}, http://{settings.host}:{settings.port}"
+            held.enter_context(claimed_database(settings.db_path, owner))
+            store = held.enter_context(contextlib.closing(Store(settings.db_path)))
+        except (SettingsError, StoreError, OSError) as exc:
+            print(f"contact-skills api: error: {exc}", file=sys.stderr)
+            return 2
+        bus = None
+        try:
+            if not args.no_bus:
+                try:
+                    bus = connect_bus(settings, store)
+                except ConnectionError as exc:
+                    print(f"contact-skills api: error: {exc}", file=sys.stderr)
+                    return 1
+            app = create_app(settings, bus, store)
+            print(
+                f"contact-skills api: http://{settings.host}:{settings.port} (OpenAPI /docs), database "
+                f"{settings.db_path}, zenoh {'off' if bus is None else ','.join(settings.zenoh_endpoints)}"
+                + (", token required for POST/DELETE" if settings.token else ""),
+                file=sys.stderr,
+                flush=True,
+            )
+            serve_api(app, settings, args.log_level.lower())  # with the connection limits of the settings
+        finally:
+            if bus is not None:
+                bus.close()
     return 0
 
 

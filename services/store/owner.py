@@ -10,8 +10,10 @@ learners are started by a fork server that is itself a fresh interpreter).
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from services.store.database import StoreError
@@ -35,23 +37,27 @@ def _owner_file(path: Path) -> Path:
     return path.with_name(path.name + OWNER_SUFFIX)
 
 
-def claim_database(path: Path, owner: str) -> int | None:
-    """Claim the database at ``path`` for this process, writing ``owner`` (its pid and URL) into the claim; the
-    claim's descriptor, to keep open while the process serves (None for an in-memory database, which no other
-    process can open). :class:`DatabaseInUse` naming the holder if another live process holds it."""
+@contextlib.contextmanager
+def claimed_database(path: Path, owner: str) -> Iterator[None]:
+    """Hold the database at ``path`` for this process while the block runs, writing ``owner`` (its pid and URL) into
+    the claim (nothing to hold for an in-memory database, which no other process can open). :class:`DatabaseInUse`
+    naming the holder if another live process holds it."""
     if str(path) == ":memory:":
-        return None
+        yield
+        return
     path.parent.mkdir(parents=True, exist_ok=True)
     descriptor = os.open(_owner_file(path), os.O_RDWR | os.O_CREAT, 0o644)
     try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.read(descriptor, 4096).decode(errors="replace").strip()
-        os.close(descriptor)
-        raise DatabaseInUse(path, holder) from None
-    os.ftruncate(descriptor, 0)
-    os.write(descriptor, owner.encode())
-    return descriptor
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(descriptor, 4096).decode(errors="replace").strip()
+            raise DatabaseInUse(path, holder) from None
+        os.ftruncate(descriptor, 0)
+        os.write(descriptor, owner.encode())
+        yield
+    finally:
+        os.close(descriptor)  # the kernel drops the lock with it
 
 
 def database_owner(path: Path) -> str | None:
