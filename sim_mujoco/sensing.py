@@ -1,0 +1,83 @@
+"""What the tool's contact gives in MuJoCo, computed as ``sim_worker.contact_sensing`` computes it from PyBullet's
+contact points: the exact applied wrench, the force along the true surface normal with that normal, the contact flag
+(the truth an execution is judged by), and the wrist sensor's source wrench (the flange's force on the tool, its
+weight compensated from the tool model).
+
+Conventions (docs/CONVENTIONS.md): the wrench is the one the TOOL APPLIES TO THE ENVIRONMENT, at the tool point, in
+the world frame, ``(f, m)`` in N and N·m.
+
+Measured MuJoCo 4.0 facts this module relies on (``tests/test_mujoco.py``)
+    - ``mj_contactForce`` gives contact ``i``'s force in its frame (rows of ``contact.frame``: the normal, pointing
+      from ``geom1`` to ``geom2``, then the two tangents) as the force ``geom1`` exerts on ``geom2``.
+    - The ``force`` and ``torque`` sensors at a site of the tool body give the force and torque (about the site) the
+      parent, the flange, exerts on the tool's subtree, in the site frame (hanging at rest: ``m g`` up).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+CONTACT_DISTANCE_M = 0.0
+"""A contact counts as contact when its distance beyond its margin is at or below this (m) or it carries force
+(as ``sim_worker.contact_sensing.CONTACT_DISTANCE_M``)."""
+
+
+class TrueContact(NamedTuple):
+    """The exact contact of the tool at one step: ``wrench`` (6,) applied by the tool at the tool point, world frame
+    (N, N·m); ``normal_force_n`` the magnitude of the vector sum of the contacts' normal forces (N) and ``normal``
+    (3,) its unit direction, into the surface (zeros without force); ``in_contact`` whether the tool touches."""
+
+    wrench: NDArray[np.float64]
+    normal_force_n: float
+    normal: NDArray[np.float64]
+    in_contact: bool
+
+
+def true_contact(
+    model: mujoco.MjModel, data: mujoco.MjData, tool_geoms: frozenset[int], tool_point: NDArray[np.float64]
+) -> TrueContact:
+    """The tool's :class:`TrueContact` from ``data``'s contacts (after a step: the forces that drove it) and
+    ``mj_contactForce``, moments about ``tool_point`` (3,) m, world: each contact's applied force is its normal and
+    friction force on the environment, summed; the normal force is the sum of the normal parts alone."""
+    wrench = np.zeros(6)
+    pressed = np.zeros(3)
+    touching = False
+    local = np.zeros(6)
+    for i in range(data.ncon):
+        contact = data.contact[i]
+        on_geom1 = contact.geom1 in tool_geoms
+        if not on_geom1 and contact.geom2 not in tool_geoms:
+            continue
+        mujoco.mj_contactForce(model, data, i, local)
+        frame = contact.frame.reshape(3, 3)
+        # geom1's force on geom2, in the world: the tool applies it when the tool is geom1, its negative otherwise.
+        sign = 1.0 if on_geom1 else -1.0
+        force = sign * (frame.T @ local[:3])
+        wrench[:3] += force
+        wrench[3:] += np.cross(contact.pos - tool_point, force)
+        pressed += sign * local[0] * frame[0]
+        touching = touching or contact.dist - contact.includemargin <= CONTACT_DISTANCE_M or local[0] > 0.0
+    magnitude = float(np.linalg.norm(pressed))
+    normal = pressed / magnitude if magnitude > 0.0 else np.zeros(3)
+    return TrueContact(wrench, magnitude, normal, touching)
+
+
+def wrist_wrench(
+    sensed: NDArray[np.float64],
+    rotation: NDArray[np.float64],
+    tool_weight_n: NDArray[np.float64],
+    com_offset_m: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The wrench (6,) the tool applies at the tool point, world frame, from the wrist sensor's ``sensed`` (6,: the
+    flange's force and torque on the tool, about the tool point, tool frame, N and N·m), the tool orientation
+    ``rotation`` (3, 3: world from tool), its weight ``tool_weight_n`` (3,: m g, world, N) and its centre of mass
+    relative to the tool point ``com_offset_m`` (3,: tool frame, m). Tool equilibrium without its inertia (which a real
+    integration does not compensate either): the flange's force ``F`` on the tool and moment ``M`` about the tool point
+    give ``F + m g`` and ``M + c × m g``."""
+    force = rotation @ sensed[:3] + tool_weight_n
+    moment = rotation @ sensed[3:] + np.cross(rotation @ com_offset_m, tool_weight_n)
+    return np.concatenate([force, moment])
