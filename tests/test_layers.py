@@ -29,9 +29,11 @@ FORBIDDEN: dict[str, set[str]] = {
     "corpus": {"services", "sim_worker", "experiments", "cli", "benchmarks"},
     "services": {"sim_worker", "experiments", "cli", "benchmarks"},
     "sim_worker": {"services", "experiments", "cli", "benchmarks"},
+    # The MuJoCo engine: sim_worker's engine-free data (world_config, robot_model, geometry, sensor), never PyBullet.
+    "sim_mujoco": {"services", "experiments", "cli", "benchmarks", "pybullet"},
     "experiments": {"cli", "benchmarks"},
 }
-PACKAGES = ("schemas", "skills", "corpus", "services", "sim_worker", "experiments", "cli", "benchmarks")
+PACKAGES = ("schemas", "skills", "corpus", "services", "sim_worker", "sim_mujoco", "experiments", "cli", "benchmarks")
 
 
 def imported_packages(source: str, package: tuple[str, ...]) -> list[tuple[int, str]]:

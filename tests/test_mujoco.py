@@ -1,0 +1,175 @@
+"""The MuJoCo cell (``sim_mujoco``) against PyBullet's (``sim_worker.world``) and against physics: the same arm
+dynamics, the same solids, the pad's stiffness, the true contact and the wrist sensor, and a joint-space impedance
+written here (no product controller) pressing on the table with the force it commands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_mujoco.model import cell_model
+from sim_mujoco.robot import MujocoRobot
+from sim_worker.geometry import WorldGeometry
+from sim_worker.robot_model import Q_HOME
+from sim_worker.world import SimWorld
+from sim_worker.world_config import WorkPiece, WorldConfig
+
+DOWN = (1.0, 0.0, 0.0, 0.0)
+"""The tool pointing straight down (``[x, y, z, w]``)."""
+PRESS_XY = (0.6, 0.0)
+CONFIGURATIONS = (
+    Q_HOME,
+    (0.3, -0.4, 0.5, -1.2, 0.7, 0.9, -0.4),
+    (-0.8, 0.9, -0.3, -0.5, -1.1, 1.4, 0.6),
+)
+
+
+@pytest.fixture(scope="module")
+def pybullet_world():
+    with SimWorld(WorldConfig()) as world:
+        yield world
+
+
+def pose_above_table(world: SimWorld, depth_m: float) -> np.ndarray:
+    """Joint positions (PyBullet's inverse kinematics) putting the tool point ``depth_m`` below the table top at
+    :data:`PRESS_XY`, pointing down, in the elbow-up posture of ``Q_HOME``."""
+    top = world.config.table.height_m
+    return world.inverse_kinematics([*PRESS_XY, top - depth_m], DOWN, q_seed=Q_HOME)
+
+
+def press(robot: MujocoRobot, q_d: np.ndarray, force_n: float, steps: int, stiffness: float = 100.0) -> None:
+    """Hold ``q_d`` with a joint-space impedance (``M (K e - D qd)``, MuJoCo's own bias compensated) and push the tool
+    down with ``force_n`` (N, through ``J^T``) for ``steps`` steps."""
+    push = np.array([0.0, 0.0, -force_n, 0.0, 0.0, 0.0])
+    damping = 2.0 * np.sqrt(stiffness)
+    for _ in range(steps):
+        q, qd = robot.joint_state()
+        tau = robot.gravity_coriolis_torques() + robot.mass_matrix() @ (stiffness * (q_d - q) - damping * qd)
+        robot.command_torques(tau + robot.jacobian().T @ push)
+        robot.step()
+
+
+def test_the_arm_has_pybullets_mass_matrix_gravity_tool_pose_and_limits(pybullet_world):
+    """M(q), g(q) and the tool point's pose equal PyBullet's at three configurations (measured: 1e-15 relative), and
+    the joint limits are the URDF's."""
+    robot = MujocoRobot()
+    for q in CONFIGURATIONS:
+        robot.reset(q)
+        pybullet_world.set_joint_positions(q)
+        M, g = pybullet_world.mass_matrix(), pybullet_world.gravity_coriolis_torques()
+        assert np.abs(robot.mass_matrix() - M).max() <= 1e-6 * np.abs(M).max()
+        assert np.abs(robot.gravity_coriolis_torques() - g).max() <= 1e-6 * np.abs(g).max()
+        position, quat = robot.tool_pose()
+        bullet_position, bullet_quat = pybullet_world.tool_pose()
+        np.testing.assert_allclose(position, bullet_position, atol=1e-9)
+        assert abs(abs(float(quat @ bullet_quat)) - 1.0) < 1e-9
+        np.testing.assert_allclose(robot.jacobian(), pybullet_world.jacobian(), atol=1e-9)
+    np.testing.assert_allclose(robot.cell.joint_lower, pybullet_world.joint_lower)
+    np.testing.assert_allclose(robot.cell.joint_upper, pybullet_world.joint_upper)
+
+
+def test_the_solids_are_where_the_world_geometry_puts_them():
+    """Table, ramp, cylinder (a capsule), block and a convex work piece: MuJoCo's rays from above hit each solid's
+    exact surface (``WorldGeometry``; a ray sees the hull itself, its contacts start PyBullet's margin out)."""
+    import mujoco
+
+    piece = WorkPiece(name="plate", vertices=[(x, y, z) for x in (0.2, 0.3) for y in (0.3, 0.4) for z in (0.1, 0.12)])
+    config = WorldConfig().replace(
+        ramp={"enabled": True, "crease_x_m": 0.2},
+        cylinder={"enabled": True, "xy_m": (-0.15, 0.25)},
+        block={"enabled": True, "xy_m": (-0.15, -0.2)},
+        work_pieces=[piece.model_dump()],
+    )
+    cell = cell_model(config)
+    data = mujoco.MjData(cell.model)
+    mujoco.mj_forward(cell.model, data)
+    geometry = WorldGeometry(config)
+    solids = geometry.solids
+    targets = {
+        "ramp": geometry.ramp_point(0.1, 0.0),
+        "cylinder": solids["cylinder"].p + np.array([0.0, 0.0, 0.08]),
+        "block": solids["block"].p + np.array([0.0, 0.0, 0.08]),
+        "plate": np.array([0.25, 0.35, 0.12]),
+        "table": geometry.table_point(0.2, -0.3),
+    }
+    hit = np.zeros(1, dtype=np.int32)
+    for name, point in targets.items():
+        start = point + np.array([0.0, 0.0, 0.3])
+        distance = mujoco.mj_ray(cell.model, data, start, np.array([0.0, 0.0, -1.0]), None, 1, -1, hit)
+        assert cell.environment[int(hit[0])] == name
+        assert start[2] - distance == pytest.approx(point[2], abs=2e-5), name
+
+
+@pytest.mark.parametrize("force_n", [5.0, 15.0, 30.0])
+def test_a_static_press_compresses_the_pad_by_force_over_its_stiffness(pybullet_world, force_n):
+    """The tool pressed on the table with a known force settles at the force (true normal force) and compresses the
+    pad by F / k, k the pad's 3e4 N/m (measured: 15.0007 N and 0.50002 mm at 15 N), the normal up out of the
+    table."""
+    k = WorldConfig().contact.stiffness_n_m
+    robot = MujocoRobot(q=pose_above_table(pybullet_world, force_n / k))
+    press(robot, robot.joint_state()[0], force_n, 1500, stiffness=20.0)
+    truth = robot.true_contact()
+    depth = WorldConfig().table.height_m - robot.tool_pose()[0][2]
+    assert truth.in_contact
+    assert truth.normal_force_n == pytest.approx(force_n, rel=0.01)
+    assert depth == pytest.approx(force_n / k, rel=0.02)
+    np.testing.assert_allclose(truth.normal, [0.0, 0.0, -1.0], atol=1e-6)
+    np.testing.assert_allclose(truth.wrench[:3], [0.0, 0.0, -force_n], atol=0.01 * force_n)
+
+
+def test_a_layered_work_piece_keeps_the_pads_stiffness(pybullet_world):
+    """Two overlapping plates, each in 2 layers (as a rebuilt strip's pieces), press like one: F / k again."""
+    top = WorldConfig().table.height_m
+    plate = [(x, y, z) for x in (0.5, 0.7) for y in (-0.1, 0.1) for z in (top - 0.02, top)]
+    pieces = [WorkPiece(name=f"plate_{k}", vertices=plate, layers=2).model_dump() for k in range(2)]
+    config = WorldConfig().with_only_work_pieces([WorkPiece.model_validate(p) for p in pieces])
+    k, force = config.contact.stiffness_n_m, 15.0
+    # The plates' faces lie out by the hull margin PyBullet adds: press from there.
+    margin = cell_model(config).model.geom_margin.max()
+    robot = MujocoRobot(config, q=pose_above_table(pybullet_world, force / k - margin))
+    press(robot, robot.joint_state()[0], force, 1500, stiffness=20.0)
+    depth = top + margin - robot.tool_pose()[0][2]
+    assert robot.true_contact().normal_force_n == pytest.approx(force, rel=0.01)
+    assert depth == pytest.approx(force / k, rel=0.03)
+
+
+def test_the_wrist_sensor_reads_the_contact_wrench_with_the_tool_weight_compensated(pybullet_world):
+    """Hanging still: the wrist reads nothing (the tool's weight compensated); pressing: the true contact wrench."""
+    config = WorldConfig().replace(sensor={"model": "wrist"})
+    robot = MujocoRobot(config)
+    robot.command_torques(robot.gravity_coriolis_torques())
+    robot.step()
+    np.testing.assert_allclose(robot.wrist_wrench(), np.zeros(6), atol=1e-6)
+    robot.reset(pose_above_table(pybullet_world, 15.0 / config.contact.stiffness_n_m))
+    press(robot, robot.joint_state()[0], 15.0, 1000)
+    np.testing.assert_allclose(robot.wrist_wrench(), robot.true_contact().wrench, atol=0.02)
+    assert robot.wrist_wrench()[2] == pytest.approx(-15.0, rel=0.01)
+
+
+def test_a_joint_impedance_comes_down_from_above_and_presses_with_its_force(pybullet_world):
+    """A joint-space impedance (written here, MuJoCo's bias compensated) starting 1 cm above the table, its target
+    the pose the pad would take at 10 N, pushing down with 10 N: touches down and settles at 10 N (true normal force,
+    within 2 %), and the realistic wrist sensor reads it within 0.5 N."""
+    from sim_worker.sensor import WRIST_SENSOR
+
+    config = WorldConfig().replace(sensor=WRIST_SENSOR.model_dump())
+    force = 10.0
+    q_d = pose_above_table(pybullet_world, force / config.contact.stiffness_n_m)
+    robot = MujocoRobot(config, q=pose_above_table(pybullet_world, -0.01))
+    assert not robot.true_contact().in_contact
+    press(robot, q_d, force, 1500)
+    truth = robot.true_contact()
+    assert truth.in_contact and robot.time_s == pytest.approx(1.5)
+    assert truth.normal_force_n == pytest.approx(force, rel=0.02)
+    assert robot.wrist_wrench()[2] == pytest.approx(-force, abs=0.5)
+
+
+def test_the_tools_contacts_take_the_pads_friction_coefficient(pybullet_world):
+    """Pressing on the table, every tool contact MuJoCo made has the pad's μ (``ContactConfig.lateral_friction``, 0.2,
+    the tool's priority over the environment's geoms) and no torsional or rolling friction (condim 3)."""
+    config = WorldConfig().replace(contact={"lateral_friction": 0.35})
+    robot = MujocoRobot(config, q=pose_above_table(pybullet_world, 15.0 / config.contact.stiffness_n_m))
+    press(robot, robot.joint_state()[0], 15.0, 100)
+    contacts = [robot.data.contact[i] for i in range(robot.data.ncon)]
+    assert contacts and all(c.geom1 in robot.cell.tool_geoms or c.geom2 in robot.cell.tool_geoms for c in contacts)
+    assert [(c.friction[0], c.dim) for c in contacts] == [(0.35, 3)] * len(contacts)
