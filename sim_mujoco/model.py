@@ -68,6 +68,11 @@ PAD_IMPEDANCE = 0.1
 (:func:`pad_solref` scales solref by ``1 - d``); the contact's own regularization does: MuJoCo's constraint adds an
 apparent mass ``d / ((1 - d) Â)`` along the normal (0.18 kg at 0.1 for the 0.2 kg tool, 1.6 kg at 0.5), which
 smaller values shrink, at the price of a less implicit contact (docs/ENGINES.md)."""
+FRICTION_IMPRATIO = 100.0
+"""MuJoCo's ratio of the friction rows' impedance to the normal's (``opt.impratio``, elliptic cones). Below the cone
+MuJoCo's soft friction is a damper (the normal's damping times this ratio) rather than PyBullet's stick: a tool pushed
+sideways with half of μ N creeps 4.5 mm in 1 s at 1, 0.5 mm at 10, 0.05 mm at 100 (PyBullet: 0.03 mm; measured,
+``tests/test_mujoco.py``)."""
 IMPEDANCE_WIDTH_M = 1.0
 """solimp's width (m): irrelevant with ``dmin = dmax`` (the impedance is constant), kept wide."""
 
@@ -115,6 +120,7 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
     spec.option.timestep = config.time_step_s
     spec.option.gravity = list(config.gravity)
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = FRICTION_IMPRATIO
     tool = spec.body(TOOL_BODY)
     tool.add_site(name=TOOL_SITE, pos=[0.0, 0.0, 0.0])
     spec.add_sensor(name=WRIST_FORCE_SENSOR, type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE,

@@ -164,6 +164,51 @@ def test_a_joint_impedance_comes_down_from_above_and_presses_with_its_force(pybu
     assert robot.wrist_wrench()[2] == pytest.approx(-force, abs=0.5)
 
 
+def test_the_tool_slides_with_mu_times_the_normal_force(pybullet_world):
+    """Pressed with 15 N while a stiff impedance's target moves 5 cm along x in 0.5 s: the tool slides and the
+    friction force is μ (``ContactConfig.lateral_friction``, 0.2) times the normal force (measured: 0.2000)."""
+    config = WorldConfig()
+    depth = 15.0 / config.contact.stiffness_n_m
+    start = pose_above_table(pybullet_world, depth)
+    end = pybullet_world.inverse_kinematics(
+        [PRESS_XY[0] + 0.05, PRESS_XY[1], config.table.height_m - depth], DOWN, q_seed=start
+    )
+    robot = MujocoRobot(config, q=start)
+    press(robot, start, 15.0, 200)
+    ratios = []
+    for s in np.linspace(0.0, 1.0, 500):
+        press(robot, (1.0 - s) * start + s * end, 15.0, 1, stiffness=400.0)
+        truth = robot.true_contact()
+        ratios.append(np.linalg.norm(truth.wrench[:2]) / truth.normal_force_n)
+    assert robot.tool_pose()[0][0] > PRESS_XY[0] + 0.02
+    np.testing.assert_allclose(ratios[250:], config.contact.lateral_friction, rtol=0.01)
+
+
+def test_below_the_cone_the_tool_sticks_as_in_pybullet(pybullet_world):
+    """Pressed with 15 N and pushed sideways with 1.5 N (half of μ N) for 1 s against a soft joint impedance: the tool
+    stays within 0.1 mm in both engines (measured: PyBullet 0.03 mm, MuJoCo 0.05 mm with ``FRICTION_IMPRATIO``; 4.5 mm
+    with MuJoCo's default impratio of 1)."""
+    config = WorldConfig()
+    start = pose_above_table(pybullet_world, 15.0 / config.contact.stiffness_n_m)
+    push = np.array([1.5, 0.0, -15.0, 0.0, 0.0, 0.0])
+    robot = MujocoRobot(config, q=start)
+    pybullet_world.set_joint_positions(start)
+    moved = []
+    for engine in (robot, pybullet_world):
+        x0 = engine.tool_pose()[0][0]
+        for _ in range(1000):
+            q, qd = engine.joint_state()
+            tau = engine.gravity_coriolis_torques() + engine.mass_matrix() @ (100.0 * (start - q) - 20.0 * qd)
+            tau += engine.jacobian().T @ push
+            if engine is robot:
+                robot.command_torques(tau)
+                robot.step()
+            else:
+                pybullet_world.step(tau)
+        moved.append(engine.tool_pose()[0][0] - x0)
+    assert np.abs(moved).max() < 1e-4, moved
+
+
 def test_the_tools_contacts_take_the_pads_friction_coefficient(pybullet_world):
     """Pressing on the table, every tool contact MuJoCo made has the pad's μ (``ContactConfig.lateral_friction``, 0.2,
     the tool's priority over the environment's geoms) and no torsional or rolling friction (condim 3)."""
