@@ -56,6 +56,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_toolchain.py
 	$(BIN)/python benchmarks/bench_dmp_peer.py
 	$(BIN)/python benchmarks/bench_control_loop.py --repeats 5
+	$(BIN)/python benchmarks/bench_mujoco_loop.py
 	$(BIN)/python benchmarks/bench_telemetry.py
 	$(BIN)/python benchmarks/bench_service.py
 	$(BIN)/python benchmarks/bench_service_load.py

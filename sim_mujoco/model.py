@@ -136,9 +136,10 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
         geom.priority = _TOOL_PRIORITY
         geom.friction = [config.contact.lateral_friction, 0.0, 0.0]
     layers = _add_environment(spec, WorldGeometry(config))
-    probe = spec.compile()  # the impedance depends on the compiled tool's inverse weight
-    tool_id = probe.body(TOOL_BODY).id
-    inverse_weight = float(probe.body_invweight0[tool_id, 0])
+    # The tool's inverse weight at qpos0, of the robot alone: the world's static geoms do not change it, and the arm
+    # compiles in milliseconds where a world of a thousand meshes takes a second.
+    arm = robot_spec(config).compile()
+    inverse_weight = float(arm.body_invweight0[arm.body(TOOL_BODY).id, 0])
     solimp = [PAD_IMPEDANCE, PAD_IMPEDANCE, IMPEDANCE_WIDTH_M, 0.5, 2.0]
     contact = config.contact
     for geom, count in [(geom, 1) for geom in tool_geoms] + layers:
@@ -149,7 +150,7 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
     return MujocoCell(
         model=model,
         config=config,
-        tool_body=tool_id,
+        tool_body=model.body(TOOL_BODY).id,
         tool_geoms=frozenset(g.id for g in tool_geoms),
         force_address=int(model.sensor_adr[model.sensor(WRIST_FORCE_SENSOR).id]),
         torque_address=int(model.sensor_adr[model.sensor(WRIST_TORQUE_SENSOR).id]),

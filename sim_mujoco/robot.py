@@ -150,10 +150,12 @@ class MujocoRobot:
         rotation = self._rotation()
         self._truth = true_contact(self.model, data, cell.tool_geoms, data.site_xpos[self._site].copy())
         if self.config.sensor.model is SensorModel.wrist:
-            sensed = np.concatenate([
-                data.sensordata[cell.force_address : cell.force_address + 3],
-                data.sensordata[cell.torque_address : cell.torque_address + 3],
-            ])
+            sensed = np.concatenate(
+                [
+                    data.sensordata[cell.force_address : cell.force_address + 3],
+                    data.sensordata[cell.torque_address : cell.torque_address + 3],
+                ]
+            )
             source = wrist_wrench(sensed, rotation, self._tool_weight, self._com_offset)
         else:
             source = self._truth.wrench

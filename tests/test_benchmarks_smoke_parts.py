@@ -68,3 +68,17 @@ def test_kuleuven_truth_benchmark_smoke():
     assert len(rows) == 4
     for row in rows:
         assert int(row[1]) > 500 and finite(*numbers(row[2])) and 0 < numbers(row[2])[0] < 50, row
+
+
+def test_mujoco_loop_benchmark_smoke():
+    """The table and the KU Leuven CAD in both engines: five rows, each with a real-time factor, and the loops on the
+    table pressing the 15 N they push with (the CAD's arm touches nothing)."""
+    out = run_smoke("bench_mujoco_loop.py")
+    rows = table(out, "world | loop")
+    assert len(rows) == 5
+    for row in rows:
+        rtf = numbers(row[2])
+        assert finite(*rtf) and rtf[0] > 0, row
+        force = numbers(row[4])[0]
+        assert abs(force - (15.0 if row[0].startswith("table") else 0.0)) < 0.1, row
+    assert "Through the robot interface the MuJoCo loop runs at" in out
