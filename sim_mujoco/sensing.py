@@ -15,6 +15,7 @@ Measured MuJoCo 4.0 facts this module relies on (``tests/test_mujoco.py``)
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import mujoco
@@ -42,28 +43,37 @@ def true_contact(
 ) -> TrueContact:
     """The tool's :class:`TrueContact` from ``data``'s contacts (after a step: the forces that drove it) and
     ``mj_contactForce``, moments about ``tool_point`` (3,) m, world: each contact's applied force is its normal and
-    friction force on the environment, summed; the normal force is the sum of the normal parts alone."""
-    wrench = np.zeros(6)
-    pressed = np.zeros(3)
+    friction force on the environment, summed; the normal force is the sum of the normal parts alone. ``tool_geoms``
+    the tool's geom ids. Plain floats: a contact or two a step, where numpy's per-call cost would be most of it."""
+    contacts = data.contact
+    sides = [
+        (i, 1.0 if first in tool_geoms else -1.0)  # the tool as geom1 applies geom1's force on geom2, else minus it
+        for i, (first, second) in enumerate(zip(contacts.geom1.tolist(), contacts.geom2.tolist(), strict=True))
+        if first in tool_geoms or second in tool_geoms
+    ]
+    if not sides:
+        return TrueContact(np.zeros(6), 0.0, np.zeros(3), False)
+    frames, positions = contacts.frame.tolist(), contacts.pos.tolist()
+    distances = (contacts.dist - contacts.includemargin).tolist()
+    px, py, pz = tool_point.tolist()
+    fx = fy = fz = mx = my = mz = nx = ny = nz = 0.0
     touching = False
     local = np.zeros(6)
-    for i in range(data.ncon):
-        contact = data.contact[i]
-        on_geom1 = contact.geom1 in tool_geoms
-        if not on_geom1 and contact.geom2 not in tool_geoms:
-            continue
+    for i, sign in sides:
         mujoco.mj_contactForce(model, data, i, local)
-        frame = contact.frame.reshape(3, 3)
-        # geom1's force on geom2, in the world: the tool applies it when the tool is geom1, its negative otherwise.
-        sign = 1.0 if on_geom1 else -1.0
-        force = sign * (frame.T @ local[:3])
-        wrench[:3] += force
-        wrench[3:] += np.cross(contact.pos - tool_point, force)
-        pressed += sign * local[0] * frame[0]
-        touching = touching or contact.dist - contact.includemargin <= CONTACT_DISTANCE_M or local[0] > 0.0
-    magnitude = float(np.linalg.norm(pressed))
-    normal = pressed / magnitude if magnitude > 0.0 else np.zeros(3)
-    return TrueContact(wrench, magnitude, normal, touching)
+        fn, f1, f2 = local[0], local[1], local[2]
+        frame = frames[i]  # rows: the normal (geom1 to geom2), tangent 1, tangent 2
+        ax = sign * (fn * frame[0] + f1 * frame[3] + f2 * frame[6])
+        ay = sign * (fn * frame[1] + f1 * frame[4] + f2 * frame[7])
+        az = sign * (fn * frame[2] + f1 * frame[5] + f2 * frame[8])
+        rx, ry, rz = positions[i][0] - px, positions[i][1] - py, positions[i][2] - pz
+        fx, fy, fz = fx + ax, fy + ay, fz + az
+        mx, my, mz = mx + ry * az - rz * ay, my + rz * ax - rx * az, mz + rx * ay - ry * ax
+        nx, ny, nz = nx + sign * fn * frame[0], ny + sign * fn * frame[1], nz + sign * fn * frame[2]
+        touching = touching or distances[i] <= CONTACT_DISTANCE_M or fn > 0.0
+    magnitude = math.sqrt(nx * nx + ny * ny + nz * nz)
+    normal = [nx / magnitude, ny / magnitude, nz / magnitude] if magnitude > 0.0 else [0.0, 0.0, 0.0]
+    return TrueContact(np.array([fx, fy, fz, mx, my, mz]), magnitude, np.array(normal), touching)
 
 
 def wrist_wrench(
