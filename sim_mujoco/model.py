@@ -18,9 +18,10 @@ Contact
     MuJoCo's contact is a soft constraint: with the negative ``solref = (-S, -B)`` and a constant impedance ``d``
     (``solimp = (d, d, ...)``), a static press compresses the contact by ``r = (1 - d) Â F / S`` and the contact's
     damping is ``B / ((1 - d) Â)``, where ``Â`` is MuJoCo's diagonal approximation of the contact's inverse mass, a
-    constant of the model (the tool body's translational inverse weight at ``qpos0``, ``body_invweight0``). The
-    impedance :func:`pad_impedance` makes ``(1 - d) Â = 1``, so ``solref = (-k, -c)`` with PyBullet's pad stiffness
-    ``k`` (N/m) and damping ``c`` (N·s/m) gives the same spring and damper. The tool's geoms carry the contact
+    constant of the model (the tool body's translational inverse weight at ``qpos0``, ``body_invweight0``: 0.624 1/kg
+    here). :func:`pad_solref` therefore scales PyBullet's pad stiffness ``k`` (N/m) and damping ``c`` (N·s/m) by
+    ``(1 - d) Â``: the same spring and damper whatever :data:`PAD_IMPEDANCE` (the unscaled ``(-k, -c)`` would need
+    ``(1 - d) Â = 1``, impossible with ``Â < 1``). The tool's geoms carry the contact
     parameters (``priority`` above the environment's, whose parameters MuJoCo then ignores), friction ``μ`` of
     ``ContactConfig.lateral_friction`` with an elliptic (circular) cone as PyBullet's, no torsional or rolling friction
     (``condim = 3``). A work piece whose parts overlap in ``layers`` has priority over the tool with ``k / layers``,
@@ -65,9 +66,10 @@ _URDF_COMPILER = (
 the mesh paths absolute (``robot_urdf`` writes them so)."""
 PAD_IMPEDANCE = 0.1
 """solimp's constant impedance ``d`` of the tool's contacts (0 < d < 1). The static spring does not depend on it
-(:func:`pad_solref` scales solref by ``1 - d``); the contact's own regularization does: MuJoCo's constraint adds an
-apparent mass ``d / ((1 - d) Â)`` along the normal (0.18 kg at 0.1 for the 0.2 kg tool, 1.6 kg at 0.5), which
-smaller values shrink, at the price of a less implicit contact (docs/ENGINES.md)."""
+(:func:`pad_solref` scales solref by ``1 - d``); the transient does: MuJoCo's constraint adds an apparent mass
+``d / ((1 - d) Â)`` along the normal (0.18 kg at 0.1, 1.6 kg at 0.5). A joint impedance touching down from 1 cm peaks
+at 51.2 N with 0.1, 45.4 N with 0.5, 33.4 N with 0.9, 52.9 N with 0.01, against PyBullet's 52.0 N (measured,
+``tests/test_mujoco.py``; docs/ENGINES.md)."""
 FRICTION_IMPRATIO = 100.0
 """MuJoCo's ratio of the friction rows' impedance to the normal's (``opt.impratio``, elliptic cones). Below the cone
 MuJoCo's soft friction is a damper (the normal's damping times this ratio) rather than PyBullet's stick: a tool pushed
