@@ -109,11 +109,18 @@ class MujocoRobot:
         return self._truth
 
     def tare_sensor(self, offset: ArrayLike) -> None:
-        """Remove ``offset`` (6,: force N, moment N·m, TOOL frame) from every reading from the next step on, turned
-        into the world with the tool's orientation at that reading (as ``SimWorld.tare_sensor``)."""
+        """Tare the sensor as ``SimWorld.tare_sensor`` does: ``offset`` (6,: force N, moment N·m, TOOL frame) is removed
+        from every reading, turned into the world with the tool's orientation at that reading, this step's reading
+        included. ValueError for the ideal sensor (it reads the exact wrench) or a malformed offset."""
+        if self._sensor.ideal:
+            raise ValueError("the ideal sensor reads the exact contact wrench: there is nothing to tare")
         tare = np.asarray(offset, dtype=float)
         if tare.shape != (6,) or not np.all(np.isfinite(tare)):
             raise ValueError(f"tare: expected 6 finite numbers (force N, moment N·m, tool frame), got {offset!r}")
+        change = tare - self._tare
+        rotation = self._rotation()
+        self._reading[:3] -= rotation @ change[:3]
+        self._reading[3:] -= rotation @ change[3:]
         self._tare[:] = tare
 
     # -- model queries (the new state's, after mj_step1) -------------------------------------------------------

@@ -146,6 +146,51 @@ def test_the_wrist_sensor_reads_the_contact_wrench_with_the_tool_weight_compensa
     assert robot.wrist_wrench()[2] == pytest.approx(-15.0, rel=0.01)
 
 
+def hold_still(engine: MujocoRobot | SimWorld) -> np.ndarray:
+    """One step of either engine under its gravity and Coriolis torques; the sensor's reading after it."""
+    hold = engine.gravity_coriolis_torques()
+    if isinstance(engine, MujocoRobot):
+        engine.command_torques(hold)
+        engine.step()
+        return engine.wrist_wrench()
+    engine.step(hold)
+    return engine.contact_wrench()
+
+
+def reading(engine: MujocoRobot | SimWorld) -> np.ndarray:
+    """The sensor's reading of the last step, either engine."""
+    return engine.wrist_wrench() if isinstance(engine, MujocoRobot) else engine.contact_wrench()
+
+
+def test_the_sensor_model_reads_as_pybullets_with_bias_offset_and_tare():
+    """The wrist sensor with a world-fixed bias and its own offset in the tool frame, the arm held still at two poses,
+    then tared: both engines read the same (within 1e-4 N), before and right after the tare and a step later."""
+    config = WorldConfig().replace(sensor={"model": "wrist", "bias_n": (0.3, -0.2, 0.5), "offset_tool_n": (0.4, 0, 0)})
+    robot = MujocoRobot(config)
+    readings: dict[str, list[np.ndarray]] = {"mujoco": [], "pybullet": []}
+    with SimWorld(config) as world:
+        for q in CONFIGURATIONS[:2]:
+            for name, engine in (("mujoco", robot), ("pybullet", world)):
+                engine.reset(q)
+                readings[name].append(hold_still(engine))
+                engine.tare_sensor([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
+                readings[name] += [reading(engine), hold_still(engine)]
+    for mujoco_reading, bullet_reading in zip(readings["mujoco"], readings["pybullet"], strict=True):
+        np.testing.assert_allclose(mujoco_reading, bullet_reading, atol=1e-4)
+    # Untared, the reading is the bias plus the offset turned with the tool; tared, the bias alone.
+    assert np.linalg.norm(readings["mujoco"][0][:3] - [0.3, -0.2, 0.5]) == pytest.approx(0.4, abs=1e-4)
+    np.testing.assert_allclose(readings["mujoco"][5][:3], [0.3, -0.2, 0.5], atol=1e-4)
+    with pytest.raises(ValueError, match="ideal sensor"):
+        MujocoRobot().tare_sensor(np.zeros(6))
+
+
+def test_a_malformed_torque_command_is_refused_naming_tau():
+    robot = MujocoRobot()
+    for bad in (np.zeros(6), [0.0] * 6 + [float("nan")]):
+        with pytest.raises(ValueError, match="tau: expected 7 finite joint torques"):
+            robot.command_torques(bad)
+
+
 def test_a_joint_impedance_comes_down_from_above_and_presses_with_its_force(pybullet_world):
     """A joint-space impedance (written here, MuJoCo's bias compensated) starting 1 cm above the table, its target
     the pose the pad would take at 10 N, pushing down with 10 N: touches down and settles at 10 N (true normal force,
