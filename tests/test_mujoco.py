@@ -133,6 +133,44 @@ def test_a_layered_work_piece_keeps_the_pads_stiffness(pybullet_world):
     assert depth == pytest.approx(force / k, rel=0.03)
 
 
+def test_both_engines_press_the_kuleuven_cad_crease_alike():
+    """The KU Leuven object's CAD pieces (every 2.5 mm, in 4 layers: 345 mesh geoms), turned so that the crease's
+    bisector points up under the tool, pressed with 15 N by the same weak joint impedance in both engines: the same
+    force along the same normal, the tool at the same height (measured: 14.973 and 14.971 N, normals 0.02° apart,
+    heights 0.010 mm apart: PyBullet's own offset, docs/ENGINES.md)."""
+    from conftest import KULEUVEN_DATA
+
+    from services.kuleuven_object import kuleuven_ground_truth
+    from sim_worker.cad_work_piece import cad_world_config
+    from skills.frames import rotation_from_vectors
+
+    contour = kuleuven_ground_truth(KULEUVEN_DATA / "contour_a_1.csv").kuleuven_object
+    k = len(contour.crease.outward) // 2
+    bisector = contour.crease.outward[k].sum(axis=0)
+    rotation = rotation_from_vectors(bisector, [0.0, 0.0, 1.0])
+    apex = np.array([*PRESS_XY, 0.15])
+    translation = apex - rotation @ contour.crease.points[k : k + 2].mean(axis=0)
+    config = cad_world_config(contour.mesh, contour.crease, rotation, translation, spacing_m=0.0025, layers=4)
+    force = 15.0
+    with SimWorld(config) as world:
+        q_d = world.inverse_kinematics(apex - [0.0, 0.0, force / config.contact.stiffness_n_m], DOWN, q_seed=Q_HOME)
+        world.set_joint_positions(q_d)
+        push = np.array([0.0, 0.0, -force, 0.0, 0.0, 0.0])
+        for _ in range(600):
+            q, qd = world.joint_state()
+            tau = world.gravity_coriolis_torques() + world.jacobian().T @ push
+            world.step(tau + world.mass_matrix() @ (20.0 * (q_d - q) - 2.0 * np.sqrt(20.0) * qd))
+        bullet_force, bullet_normal = world.true_normal_force()
+        bullet_height = world.tool_pose()[0][2]
+    robot = MujocoRobot(config, q=q_d)
+    press(robot, q_d, force, 600, stiffness=20.0)
+    truth = robot.true_contact()
+    assert truth.normal_force_n == pytest.approx(force, rel=0.01)
+    assert truth.normal_force_n == pytest.approx(bullet_force, rel=0.005)
+    assert np.degrees(np.arccos(np.clip(truth.normal @ bullet_normal, -1.0, 1.0))) < 0.5
+    assert robot.tool_pose()[0][2] == pytest.approx(bullet_height, abs=3e-5)
+
+
 def test_the_wrist_sensor_reads_the_contact_wrench_with_the_tool_weight_compensated(pybullet_world):
     """Hanging still: the wrist reads nothing (the tool's weight compensated); pressing: the true contact wrench."""
     config = WorldConfig().replace(sensor={"model": "wrist"})
