@@ -83,27 +83,17 @@ from sim_worker.surface_following import SurfaceFollower, contour_tracker, reloc
 from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
-from skills.control import (
-    HybridController,
-)
+from skills.control import HybridController
 from skills.dmp import DMP
 from skills.job_estimate import LIFT_OFF_M, LIFT_OFF_S, SURFACE_WINDOW_MIN_M, TARE_HOLD_S
 from skills.normal_tracking import SurfaceNormalTracker
 from skills.quaternions import matrix_from_quaternion
 
-NULL_SPACE_UPDATE_STEPS = 20
-"""The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
 TARE_AVERAGE_S = 0.1
 """The tare is the mean reading over the last this long of the still hold (``TARE_HOLD_S``), s."""
 NOISE_WINDOW_S = 0.15
 """The sensor's noise along the next approach is measured over the last this long of a still hold, s (its first
 moments still carry the deceleration the tool's inertia shows)."""
-CONTACT_LOSS_TRAVEL_M = 0.01
-"""In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
-(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
-CONTACT_LOSS_RETRACT_M = 0.05
-"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
-CONTACT_LOSS_RETRACT_S = 1.0
 LIFT_OFF_SPEED_M_S = 1.5 * LIFT_OFF_M / LIFT_OFF_S
 """The lift-off's mean speed (away from the surface: no impact to plan for; ``PhasePlanner.transfer`` takes
 1.5 × the distance over the speed), m/s; the confirming touch lifts at it too."""
@@ -245,7 +235,6 @@ class _Execution:
         self.loop = ControlLoop(
             self.world,
             self.controller,
-            self.planner.identity_frame,
             # Room for the segments and a few seconds of settle, approach and retreat, so the rows rarely grow.
             sum(segment.position_dmp.duration_s for segment in skill.segments) + 5.0,
             settings.telemetry_batch,
@@ -261,6 +250,15 @@ class _Execution:
         when it follows the surface."""
         references = plan.reference_rows()
         return self.loop.run_plan(plan, guard or self.guard, references, self._follower(plan, references))
+
+    def retract(self, axis: NDArray[np.float64] | None = None, segment: int = -1) -> None:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit; default: CF z of the frame in use) from
+        the current pose with motion control on every axis (``PhasePlanner.retraction``), the force integral
+        cleared."""
+        p, q = self.world.tool_pose()
+        plan = self.planner.retraction(segment, p, q, self.loop.cf_rotation[:, 2] if axis is None else axis)
+        self.controller.reset_integral()
+        self.loop.run_plan(plan)
 
     def _after_still_hold(self, axis: NDArray[np.float64] | None) -> None:
         """At the end of a still hold in free space: tare the sensor (``self.tares``) and set the contact guard of the
@@ -402,7 +400,7 @@ class _Execution:
             return False
         shift = 0.5 * (first + second)
         self._release(segment, press_n, ref_q)
-        self.loop.retract()
+        self.retract()
         self.offset = self.offset + shift
         self.relocations.append(shift.tolist())
         self.planner = PhasePlanner(self.skill, self.settings, self.controller, self.offset, self.dt)
@@ -432,7 +430,7 @@ class _Execution:
         window = self.surface_window_m()
         if abs(offset) > window and self.settings.surface_outside_window is SurfaceWindowAction.abort:
             where = "before" if offset < 0 else "beyond"
-            self.loop.retract()
+            self.retract()
             raise ExecutionAbortError(
                 f"surface outside its window in segment {segment.index}: found {abs(offset) * 1e3:.0f} mm {where} "
                 f"where it was taught, outside the expected ±{window * 1e3:.0f} mm (another surface, or the part "
@@ -486,7 +484,7 @@ class _Execution:
                     if exit_axis is None:
                         found_early = self._run(plan) is PlanEnd.contact
                     elif self._run(plan, self._free_guard(plan)) is PlanEnd.contact:  # hit the part on the way out:
-                        self.loop.retract(exit_axis, segment.index)  # back off the way it lifted; the way out ends
+                        self.retract(exit_axis, segment.index)  # back off the way it lifted; the way out ends
                         found_early = False
                 last_ref_q = plan.ref_q[-1]
                 continue
@@ -612,7 +610,7 @@ def execute_skill(
         try:
             execution.run()
         except ContactLostError as lost:
-            loop.retract()
+            execution.retract()
             raise ExecutionAbortError(str(lost)) from None
     except ExecutionAbortError as abort:
         phase, reason = abort.phase, abort.reason

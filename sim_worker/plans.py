@@ -32,6 +32,9 @@ CREASE_HOLD_DISTANCE_M = 0.006
 surface before the taught switch: ~3 mm for our 1 cm ball on a 20° crease, plus a margin)."""
 CREASE_DECELERATION_M_S2 = 0.08
 """Tangential deceleration into (and acceleration out of) the crease speed, m/s²."""
+CONTACT_LOSS_RETRACT_M = 0.05
+"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
+CONTACT_LOSS_RETRACT_S = 1.0
 
 
 @dataclass
@@ -195,6 +198,16 @@ class PhasePlanner:
             np.zeros(n),
             frame=self.identity_frame,
         )
+
+    def retraction(self, segment_index: int, p: NDArray, q: NDArray, axis: NDArray[np.float64]) -> PhasePlan:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit) from the tool pose ``(p, q)`` over
+        ``CONTACT_LOSS_RETRACT_S``, motion control on every axis: a retreat of segment ``segment_index``."""
+        n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
+        ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * axis
+        twist = np.zeros((n, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
+        return PhasePlan(ExecutionPhase.retreat, segment_index, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
+                         frame=self.identity_frame)  # fmt: skip
 
     def free(
         self, segment: Segment, p: NDArray, q: NDArray, goal: NDArray[np.float64], stop_axis: NDArray | None
