@@ -1,5 +1,5 @@
 """The 1 kHz control loop of an execution: one phase plan at a time, every step sensed, controlled, recorded and
-stepped in the simulated world (``sim_worker.executor`` sequences the phases; ``sim_worker.plans`` builds them).
+stepped in the simulated world (``execution.executor`` sequences the phases; ``execution.plans`` builds them).
 
 :class:`ControlLoop` owns what every phase shares: the world and the controller, the telemetry rows (one float row
 per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, handed to ``on_sample`` in batches), the step count, the
@@ -29,20 +29,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from enum import Enum
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.contact_detection import ContactGuard
+from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
+from execution.runner import ContactLostError, ExecutionAbortError, PlanEnd
+from execution.surface_following import SurfaceFollower
+from execution.telemetry import Telemetry
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
 from sim_worker.compiled_calls import state_reader, stepper
-from sim_worker.contact_detection import ContactGuard
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
-from sim_worker.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
-from sim_worker.surface_following import SurfaceFollower
-from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
 from skills.compiled import compiled_entry
 from skills.control import HybridController, law_step_packed, layouts
@@ -175,30 +175,6 @@ def _record_and_control(
 def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
     """Whether a joint of ``q`` is outside [``lower``, ``upper``] (one compiled call: four numpy calls cost ~3 µs)."""
     return (q < lower).any() or (q > upper).any()
-
-
-class PlanEnd(Enum):
-    """How a phase plan ended (:meth:`_Execution.run_plan`)."""
-
-    done = "done"
-    """It ran to its last step."""
-    contact = "contact"
-    """A guarded phase met a surface (:class:`ContactGuard`)."""
-    next_surface = "next_surface"
-    """A phase that follows the surface found itself on the next segment's surface (a crease, met early)."""
-
-
-class ContactLostError(Exception):
-    """Raised inside the loop when the tool lost the surface in a contact phase (it is retracted, then aborted)."""
-
-
-class ExecutionAbortError(Exception):
-    """Raised inside the loop to stop the execution with a reason."""
-
-    def __init__(self, reason: str, phase: ExecutionPhase = ExecutionPhase.aborted) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.phase = phase
 
 
 class _PhaseState:

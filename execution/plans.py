@@ -3,7 +3,7 @@
 A plan holds, for every 1 kHz control step of a phase, the reference pose and twist (world frame, m, m/s,
 quaternions ``[x, y, z, w]``, rad/s), the desired force along CF z (N) and the control frame(s) with their
 selection. :class:`PhasePlanner` builds them from the skill's segments and the tool pose at the moment the phase
-starts (see ``sim_worker.executor`` for the order of the phases; docs/CONVENTIONS.md for the frames).
+starts (see ``execution.executor`` for the order of the phases; docs/CONVENTIONS.md for the frames).
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ class PhasePlan:
     learned_rotations: NDArray[np.float64] | None = None
     """A contour's learned CF rotations (M, 3, 3), one every ``stride`` steps (``series`` holds their frames)."""
     follows_surface: bool = False
-    """The frame follows the surface normal estimated online (``sim_worker.surface_following``)."""
+    """The frame follows the surface normal estimated online (``execution.surface_following``)."""
     quick_steps: NDArray[np.bool_] | None = None
     """With ``follows_surface``: per step, whether it is near a crease, where the normal is followed quickly."""
     next_z: NDArray[np.float64] | None = None
@@ -323,7 +323,7 @@ class PhasePlanner:
 
         ``crease_in_m_s`` / ``crease_out_m_s``: the segment starts / ends at a crease with another contact segment,
         passed at this tangential speed (m/s; the plan is slowed there, see :func:`crease_speed_caps`).
-        ``follows_surface``: the frame follows the surface found (``sim_worker.surface_following``); the crease may
+        ``follows_surface``: the frame follows the surface found (``execution.surface_following``); the crease may
         then be met up to ``approach_slow_distance_m`` before the taught one (the slow-down before it starts that
         much earlier), and a contour keeps its learned rotations for the follower instead of a frame series."""
         geo = self.geometry[segment.index]
