@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from schemas.execution import ControllerKind, ExecutionPhase, ExecutionSettings
 from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
 from skills.control import ControlFrame, ControlFrameSeries, HybridController
-from skills.dmp import DMP, QuaternionDMP
+from skills.dmp import DMP
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
     quaternion_from_matrix,

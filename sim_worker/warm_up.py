@@ -21,7 +21,8 @@ from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
 from skills.control import HybridController, damping_matrix, pose_error
 from skills.control.layouts import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT
-from skills.dmp import DMP, QuaternionDMP
+from skills.dmp import DMP
+from skills.quaternion_dmp import QuaternionDMP
 
 
 def warm_up() -> float:
