@@ -11,6 +11,7 @@ COPY pyproject.toml README.md ./
 COPY schemas/ schemas/
 COPY skills/ skills/
 COPY corpus/ corpus/
+COPY execution/ execution/
 COPY services/ services/
 COPY sim_worker/ sim_worker/
 COPY experiments/ experiments/

@@ -58,16 +58,14 @@ from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
 from sim_worker import control_loop  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
 from sim_worker.bullet_client import read_contact_rows, read_joint_rows  # noqa: E402
-from sim_worker.compiled_calls import compiled_entry, state_reader, stepper  # noqa: E402
+from sim_worker.compiled_calls import state_reader, stepper  # noqa: E402
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED  # noqa: E402
 from sim_worker.control_loop import (  # noqa: E402
     _S_DT,
     _S_LIMITS,
     _S_SIZE,
     NULL_SPACE_UPDATE_STEPS,
-    _control,
     _outside_limits,
-    _record,
     _record_and_control,
 )
 from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
@@ -76,18 +74,15 @@ from sim_worker.robot_model import N_JOINTS, TOOL_LINK  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
 from sim_worker.world import LoopHandles, SimWorld  # noqa: E402
 from sim_worker.world_config import WorldConfig  # noqa: E402
-from skills.control import (  # noqa: E402
-    DAMPING_UPDATE_EVERY,
-    NO_MASS_MATRIX,
+from skills.compiled import compiled_entry  # noqa: E402
+from skills.control import DAMPING_UPDATE_EVERY, ControlFrame, HybridController, LawKernel  # noqa: E402
+from skills.control.layouts import (  # noqa: E402
     REFERENCE_SIZE,
     REFERENCE_TWIST,
     ROBOT_POSITION,
     ROBOT_Q,
     ROBOT_QUAT,
     ROBOT_STATE_SIZE,
-    ControlFrame,
-    HybridController,
-    model_update_packed,
 )
 from skills.parameterize import learn_skill  # noqa: E402
 
@@ -232,7 +227,7 @@ class StepParts(NamedTuple):
     advance: Callable[..., None]
     record_and_control: Callable[..., tuple]
     mass_of: Callable[..., np.ndarray]
-    update_model: Callable[..., int]
+    kernel: LawKernel
 
 
 def step_parts(sim: SimWorld, steps: int) -> StepParts:
@@ -244,7 +239,8 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
     frame = controller.frame(np.diag([1.0, -1.0, -1.0]), SELECTION_CONTACT)
     references = np.zeros((steps, REFERENCE_SIZE))
     references[:, : REFERENCE_TWIST.start] = arm[ROBOT_POSITION.start : ROBOT_QUAT.stop]
-    controller.prepare(frame, arm[:ROBOT_STATE_SIZE], references[0], contact[:6], None, True)
+    kernel = controller.kernel(arm[:ROBOT_STATE_SIZE])
+    kernel.refresh(frame, arm[:ROBOT_STATE_SIZE], references[0], contact[:6], None, True)
     loop_state = np.zeros(_S_SIZE)
     loop_state[_S_LIMITS : _S_LIMITS + N_JOINTS] = sim.torque_limits
     loop_state[_S_DT] = sim.config.time_step_s
@@ -256,9 +252,8 @@ def step_parts(sim: SimWorld, steps: int) -> StepParts:
         _record_and_control, (arm, contact, reading_at, False, law_buffer, loop_state, rows, references, 0, False, 0, 0)
     )
     mass_of = compiled_entry(arm_mass_matrix, (handles.model, arm[ROBOT_Q]))
-    update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *controller.model_arguments()))
     return StepParts(handles, reading_at, controller, frame, references, loop_state, rows, state_reader(handles),
-                     stepper(handles), record_and_control, mass_of, update_model)  # fmt: skip
+                     stepper(handles), record_and_control, mass_of, kernel)  # fmt: skip
 
 
 @contextmanager
@@ -272,27 +267,18 @@ def replayed_world(world: ExecutionWorld, start: tuple) -> Iterator[SimWorld]:
 
 
 def model_update(sim: SimWorld, parts: StepParts, touching: bool, k: int) -> None:
-    """The project loop's model update at step ``k``, as it makes it: the joint-limit check, then, when the update
-    does not rebuild the adaptive damping, the mass matrix and the controller's null-space model in two compiled
-    calls before the step's row and law (one call); else the mass matrix, the row, ``HybridController.prepare``,
-    the law."""
-    handles, reading_at, controller, loop_state = parts.handles, parts.reading_at, parts.controller, parts.loop_state
+    """The project loop's model update at step ``k``, as it makes it: the joint-limit check, the mass matrix, the
+    kernel's refresh (``LawKernel.refresh``: the null-space model in one compiled call, or, when the update rebuilds
+    the adaptive damping, in the controller's Python), then the step's row and law (one call)."""
+    handles, reading_at, loop_state = parts.handles, parts.reading_at, parts.loop_state
     arm, contact, references, rows = handles.arm, handles.contact, parts.references, parts.rows
     robot = arm[:ROBOT_STATE_SIZE]
     q = robot[ROBOT_Q]
     _outside_limits(q, sim.joint_lower, sim.joint_upper)
-    if not controller.damping_due(True):
-        controller.use_frame(parts.frame)
-        M = parts.mass_of(handles.model, q)
-        parts.update_model(controller.law_buffer, arm, M, *controller.model_arguments())
-        controller.model_updated(parts.frame, True)
-        parts.record_and_control(arm, contact, reading_at, touching, controller.law_buffer, loop_state, rows,
-                                 references, k, False, k, k)  # fmt: skip
-        return
-    M = arm_mass_matrix(handles.model, q)
-    pressing = _record(robot, contact, reading_at, touching, loop_state, rows, references, k, False, k, k)
-    controller.prepare(parts.frame, robot, references[k], contact[reading_at : reading_at + 6], M, True)
-    _control(robot, contact, reading_at, controller.law_buffer, loop_state, references, k, False, pressing)
+    M = parts.mass_of(handles.model, q)
+    parts.kernel.refresh(parts.frame, robot, references[k], contact[reading_at : reading_at + 6], M, True)
+    parts.record_and_control(arm, contact, reading_at, touching, parts.kernel.buffer, loop_state, rows, references, k,
+                             False, k, k)  # fmt: skip
 
 
 def bare_loop(

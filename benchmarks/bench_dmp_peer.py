@@ -54,7 +54,8 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from corpus.synthetic import minimum_jerk, reach_pose_trajectory  # noqa: E402
 from schemas.skill import LearnOptions  # noqa: E402
-from skills.dmp import BASIS_OVERLAP, DMP, QuaternionDMP  # noqa: E402
+from skills.dmp import BASIS_OVERLAP, DMP  # noqa: E402
+from skills.quaternion_dmp import QuaternionDMP  # noqa: E402
 from skills.quaternions import quaternion_angle_between, quaternions_from_wxyz  # noqa: E402
 
 N_SAMPLES = 2000

@@ -5,7 +5,7 @@ its top at 12 N; ``slide_two_planes``: across the crease between the table and a
 parts changed in ways the controller is not told: the cylinder 8 cm higher or lower, 5 cm across its axis, turned
 by 10°, of radius 6 or 12 cm (its crown where it was taught), a pad of 3e3 to 1e6 N/m, the ramp's crease 2 cm before
 or after where it was taught. Every case runs with every controller, and ``hybrid_cf`` twice: with the paper's
-fixed frames and following the surface (``follow_surface_normal``, ``sim_worker.surface_following``).
+fixed frames and following the surface (``follow_surface_normal``, ``execution.surface_following``).
 
 Ground truth: the simulator's normal force at the contact against the desired force (the metrics' true RMS and
 largest steady error, % of the reference force), the share of the contact phase in contact, the verdict.
@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from execution.telemetry import Telemetry
 from schemas import LearnOptions
 from schemas.execution import PHASE_CODES, ControllerKind, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import Skill
@@ -27,7 +28,6 @@ from schemas.sweep import SweepParameter
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.teacher import record_demonstration
-from sim_worker.telemetry import Telemetry
 from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides

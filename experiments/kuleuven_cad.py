@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull
 
+from execution.telemetry import Telemetry
 from schemas import ExecutionSettings
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, Placement
 from schemas.verdict import VerdictCheckName
@@ -38,7 +39,6 @@ from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth
 from sim_worker.cad_work_piece import CONVEX_MARGIN_M, cad_world_config, crease_pieces, crease_side_faces
 from sim_worker.execution_world import ExecutionWorld, execution_world
 from sim_worker.executor import run_skill
-from sim_worker.telemetry import Telemetry
 from sim_worker.world_config import WorldConfig
 from skills.mesh_geometry import closest_points_on_mesh
 from skills.parameterize import learn_skill

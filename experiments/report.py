@@ -43,8 +43,8 @@ def _impedance_stiffness() -> float:
 
 def _steady_delay_s() -> float:
     """Where the steady contact the force errors cover starts after contact with the default gains, s."""
+    from execution.metrics import STEADY_CONTACT_DELAY_S
     from schemas.execution import ControllerGains
-    from sim_worker.metrics import STEADY_CONTACT_DELAY_S
 
     return max(STEADY_CONTACT_DELAY_S, ControllerGains().force_ramp_s)
 

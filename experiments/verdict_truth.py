@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.metrics import exit_rows
+from execution.telemetry import Telemetry
 from schemas import LearnOptions
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import SegmentKind, Skill
@@ -36,9 +38,7 @@ from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
-from sim_worker.metrics import exit_rows
 from sim_worker.teacher import TeacherRecording, record_demonstration
-from sim_worker.telemetry import Telemetry
 from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides

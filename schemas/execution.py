@@ -639,7 +639,7 @@ if sum(c.stop - c.start for c in STREAMED_TELEMETRY_COLUMNS.values()) != STREAME
 
 
 class ExecutionMetrics(BaseModel):
-    """What an execution achieved (sim_worker/metrics.py); None where a measure does not apply."""
+    """What an execution achieved (execution/metrics.py); None where a measure does not apply."""
 
     model_config = ConfigDict(
         extra="forbid",

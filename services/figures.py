@@ -470,7 +470,7 @@ def write_scene_figure(
 ) -> None:
     """Write the 3-D scene of an execution: the work piece, the learned and the executed paths, the CFs.
 
-    ``telemetry`` is a ``sim_worker.telemetry.Telemetry`` (its ``tool_position`` and phases are read);
+    ``telemetry`` is a ``execution.telemetry.Telemetry`` (its ``tool_position`` and phases are read);
     ``work_pieces`` the vertex arrays (K, 3) of the rebuilt work piece's convex parts (world frame, m; empty for a
     taught world). The learned path is each contact segment's DMP rolled out from its demonstrated start (black);
     the executed contact phase in blue. Compliant frames (x red, y green, z blue: into the surface) are drawn on the

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sim_worker.bullet_client import BulletClient
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK
-from skills.control import (
+from skills.control.layouts import (
     ROBOT_BIAS,
     ROBOT_JACOBIAN,
     ROBOT_POSITION,

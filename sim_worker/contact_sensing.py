@@ -46,7 +46,7 @@ from sim_worker.bullet_client import (
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
 from sim_worker.world_config import SensorModel, WorldConfig
-from skills.control import ROBOT_POSITION, ROBOT_ROTATION
+from skills.control.layouts import ROBOT_POSITION, ROBOT_ROTATION
 
 CONTACT_DISTANCE_M = 0.0
 """A contact point counts as contact when its distance is at or below this (m) or it carries force."""

@@ -1,5 +1,5 @@
 """The 1 kHz control loop of an execution: one phase plan at a time, every step sensed, controlled, recorded and
-stepped in the simulated world (``sim_worker.executor`` sequences the phases; ``sim_worker.plans`` builds them).
+stepped in the simulated world (``execution.executor`` sequences the phases; ``execution.plans`` builds them).
 
 :class:`ControlLoop` owns what every phase shares: the world and the controller, the telemetry rows (one float row
 per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, handed to ``on_sample`` in batches), the step count, the
@@ -7,6 +7,21 @@ control frames the controller took, and what the last guarded phase found. A pha
 (guarded), on the next surface (a follower), or by an exception: an abort with its reason (force, torque or joint
 limit, non-finite values, ``should_abort()``) or a contact lost (pressing into nothing).
 World frame, SI units (docs/CONVENTIONS.md).
+
+One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs ~0.1-1 µs, as
+much as the arithmetic): the world's PyBullet calls made from compiled code through its C API
+(``SimWorld.loop_handles``, ``sim_worker.bullet_client``): the joint states and contact points with the arm state, the
+contact summary and, for a sampling sensor, its reading in one compiled call (``contact_sensing.sense_client`` at the
+top of the step; with a sampling sensor ``sample_client`` right after the physics step, as ``SimWorld.step`` samples
+every state), one compiled call for the telemetry row, the law and the world's torque limits
+(:func:`_record_and_control`, the law on the phase's ``skills.control.LawKernel``'s buffer), and one for the torque
+command and the physics step (``bullet_client.send_torques_and_step``); all through their compiled specializations
+(``skills.compiled.compiled_entry``: the arguments' types are the same every step). On a model update (every
+:data:`NULL_SPACE_UPDATE_STEPS` steps) and on a new control frame, the kernel refreshes the law first
+(``LawKernel.refresh``): the mass matrix and the null-space model in compiled calls with no Python between (a third
+one fusing them with the step costs every worker ~9 MB of compiled code for ~1 µs per update), except the update in
+``skills.control.DAMPING_UPDATE_EVERY`` that also rebuilds the adaptive damping, and a new frame's gain rows, which
+the controller makes in Python.
 """
 
 from __future__ import annotations
@@ -14,45 +29,29 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from enum import Enum
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.contact_detection import ContactGuard
+from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
+from execution.runner import ContactLostError, ExecutionAbortError, PlanEnd
+from execution.surface_following import SurfaceFollower
+from execution.telemetry import Telemetry
 from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from sim_worker.arm_model import arm_mass_matrix
-from sim_worker.compiled_calls import compiled_entry, state_reader, stepper
-from sim_worker.contact_detection import ContactGuard
+from sim_worker.compiled_calls import state_reader, stepper
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
-from sim_worker.plans import PhasePlan, smooth_ramp
-from sim_worker.surface_following import SurfaceFollower
-from sim_worker.telemetry import Telemetry
 from sim_worker.world import SimWorld
-from skills.control import (
-    LAW_OK,
-    LAW_OUTPUT_SIZE,
-    LAW_TAU,
-    NO_MASS_MATRIX,
-    REFERENCE_FORCE,
-    REFERENCE_TWIST,
-    ROBOT_POSITION,
-    ROBOT_Q,
-    ROBOT_STATE_SIZE,
-    ControlFrame,
-    HybridController,
-    law_step_packed,
-    model_update_packed,
-)
+from skills.compiled import compiled_entry
+from skills.control import HybridController, law_step_packed, layouts
 
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
 CONTACT_LOSS_TRAVEL_M = 0.01
 """In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
 (an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
-CONTACT_LOSS_RETRACT_M = 0.05
-"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
-CONTACT_LOSS_RETRACT_S = 1.0
 UNGUARDED = ContactGuard(math.inf)
 """The guard of a phase without a stop axis (it reads nothing; a contact phase names the approaches' guard in its
 reasons)."""
@@ -67,7 +66,8 @@ _C_REFERENCE = TELEMETRY_COLUMNS["reference_position"].start  # position then or
 _C_WRENCH, _C_WRENCH_CF = TELEMETRY_COLUMNS["wrench_world"].start, TELEMETRY_COLUMNS["wrench_cf"].start
 _C_DESIRED, _C_CONTACT = TELEMETRY_COLUMNS["desired_force_cf_z_n"].start, TELEMETRY_COLUMNS["in_contact"].start
 _C_TRUE_NORMAL = TELEMETRY_COLUMNS["normal_force_true_n"].start  # force then the normal (3)
-_R_POSE = ROBOT_POSITION.start  # position then quaternion
+_R_POSE = layouts.ROBOT_POSITION.start  # position then quaternion
+_REFERENCE_FORCE = layouts.REFERENCE_FORCE
 
 
 @numba.njit(cache=True)
@@ -97,7 +97,7 @@ def _record_row(
     row[cf + 3] = mx * r00 + my * r10 + mz * r20
     row[cf + 4] = mx * r01 + my * r11 + mz * r21
     row[cf + 5] = mx * r02 + my * r12 + mz * r22
-    f_des = reference[REFERENCE_FORCE]
+    f_des = reference[_REFERENCE_FORCE]
     row[_C_DESIRED] = f_des
     row[_C_CONTACT] = 1.0 if in_contact else 0.0
     for i in range(4):  # the true normal force and the normal
@@ -109,14 +109,14 @@ def _record_row(
 # (the torque first), the CF rotation of the frame in use (by rows), the torque limits the world clips to, the time
 # step, the phase code and segment of the rows.
 _S_OUT = 0
-_S_CF = _S_OUT + LAW_OUTPUT_SIZE
+_S_CF = _S_OUT + layouts.LAW_OUTPUT_SIZE
 _S_LIMITS = _S_CF + 9
 _S_DT = _S_LIMITS + 7
 _S_PHASE = _S_DT + 1
 _S_SEGMENT = _S_PHASE + 1
 _S_SIZE = _S_SEGMENT + 1
 _NORMAL0 = CONTACT_NORMAL.start
-_TWIST0, _TWIST1 = REFERENCE_TWIST.start, REFERENCE_TWIST.stop
+_TWIST0, _TWIST1 = layouts.REFERENCE_TWIST.start, layouts.REFERENCE_TWIST.stop
 
 
 @numba.njit(cache=True)
@@ -147,7 +147,7 @@ def _control(
     if paused:
         reference = reference.copy()
         reference[_TWIST0:_TWIST1] = 0.0
-    out = state[_S_OUT : _S_OUT + LAW_OUTPUT_SIZE]
+    out = state[_S_OUT : _S_OUT + layouts.LAW_OUTPUT_SIZE]
     code = law_step_packed(law_buffer, robot, reference, contact[reading_at : reading_at + 6], pressing, out)
     clipped = False
     for j in range(7):
@@ -177,28 +177,54 @@ def _outside_limits(q, lower, upper):  # pragma: no cover - compiled
     return (q < lower).any() or (q > upper).any()
 
 
-class PlanEnd(Enum):
-    """How a phase plan ended (:meth:`_Execution.run_plan`)."""
+class _PhaseState:
+    """What the steps of one phase share, set up before its first (:meth:`ControlLoop.run_plan`): the world's handles
+    and the views of the arrays the compiled calls write (the same every step), the controller's kernel for the phase,
+    the compiled specializations of the step's calls (the same argument types every step: rows grow as the same
+    type), the references, the control frame to start from, the guard's window and the phase's checks."""
 
-    done = "done"
-    """It ran to its last step."""
-    contact = "contact"
-    """A guarded phase met a surface (:class:`ContactGuard`)."""
-    next_surface = "next_surface"
-    """A phase that follows the surface found itself on the next segment's surface (a crease, met early)."""
-
-
-class ContactLostError(Exception):
-    """Raised inside the loop when the tool lost the surface in a contact phase (it is retracted, then aborted)."""
-
-
-class ExecutionAbortError(Exception):
-    """Raised inside the loop to stop the execution with a reason."""
-
-    def __init__(self, reason: str, phase: ExecutionPhase = ExecutionPhase.aborted) -> None:
-        super().__init__(reason)
-        self.reason = reason
-        self.phase = phase
+    def __init__(
+        self,
+        loop: ControlLoop,
+        plan: PhasePlan,
+        guard: ContactGuard,
+        references: NDArray[np.float64] | None,
+        follower: SurfaceFollower | None,
+    ) -> None:
+        handles, state = loop.handles, loop.state
+        self.ids, self.joint_rows = handles.bullet.ids, handles.bullet.joint_rows
+        self.model, self.arm, self.contact, self.sensor = handles.model, handles.arm, handles.contact, handles.sensor
+        self.ideal, self.draw = handles.ideal, handles.draw
+        self.reading_at = CONTACT_APPLIED.start if self.ideal else CONTACT_MEASURED.start
+        self.read, self.advance = state_reader(handles), stepper(handles)  # PyBullet from compiled code
+        self.robot = self.arm[: layouts.ROBOT_STATE_SIZE]
+        self.q, self.p = self.robot[layouts.ROBOT_Q], self.robot[layouts.ROBOT_POSITION]
+        self.w = self.contact[self.reading_at : self.reading_at + 6]
+        self.out = state[_S_OUT : _S_OUT + layouts.LAW_OUTPUT_SIZE]
+        self.tau = self.out[layouts.LAW_TAU]
+        self.cf_rows = state[_S_CF : _S_CF + 9].reshape(3, 3)
+        state[_S_PHASE], state[_S_SEGMENT] = PHASE_CODES[plan.phase], plan.segment
+        self.kernel = loop.controller.kernel(self.robot)
+        self.refresh = self.kernel.refresh
+        self.references = plan.reference_rows() if references is None else references
+        self.batch = loop.telemetry_batch if loop.on_sample is not None else math.inf  # no one to hand rows to
+        self.window = guard.window_steps
+        self.window_threshold = guard.threshold_n * self.window  # on the sum of the last `window` readings
+        self.stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
+        if self.stop_axis is not None:
+            loop.found_force = None
+        self.single = plan.frame if follower is None else follower.first_frame()
+        self.next_surface = plan.next_z is not None
+        self.guard_loss = plan.phase is ExecutionPhase.contact
+        self.q_lower, self.q_upper = loop.world.joint_lower, loop.world.joint_upper
+        # The arm, contact and reading of the state the loop starts in (a sampling sensor: sampled once, if not yet).
+        self.sampled_touching = False if self.ideal else loop.world.sense().in_contact
+        self.record_and_control = compiled_entry(
+            _record_and_control,
+            (self.arm, self.contact, self.reading_at, False, self.kernel.buffer, state, loop.rows, self.references, 0,
+             False, loop.n, loop.step_count),
+        )  # fmt: skip
+        self.mass_of = compiled_entry(arm_mass_matrix, (self.model, self.q))
 
 
 class ControlLoop:
@@ -207,14 +233,12 @@ class ControlLoop:
     ``capacity_s`` (s): the rows allocated at first (they grow by doubling); ``telemetry_batch`` rows per
     ``on_sample`` call; ``pace`` realtime sleeps to follow the wall clock; ``dynamic_null`` refreshes the mass matrix
     for the null-space projector; ``should_abort()`` is polled after every step, ``should_pause()`` before;
-    ``identity_frame`` the controller's frame with motion control on every axis (the retreat's).
     """
 
     def __init__(
         self,
         world: SimWorld,
         controller: HybridController,
-        identity_frame: ControlFrame,
         capacity_s: float,
         telemetry_batch: int,
         pace: Pace,
@@ -225,11 +249,10 @@ class ControlLoop:
     ) -> None:
         self.world = world
         self.controller = controller
-        self.identity_frame = identity_frame
         self.dt = float(world.config.time_step_s)
         self.telemetry_batch = telemetry_batch
         self.realtime = pace is Pace.realtime
-        self._dynamic_null = dynamic_null
+        self.dynamic_null = dynamic_null
         self.on_sample = on_sample
         self.should_abort = should_abort
         self.should_pause = should_pause
@@ -249,12 +272,12 @@ class ControlLoop:
         """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
         self.cf_rotation = np.eye(3)
         """The CF rotation of the control frame in use (world from CF)."""
-        self._handles = world.loop_handles()
-        self._state = np.zeros(_S_SIZE)
+        self.handles = world.loop_handles()
+        self.state = np.zeros(_S_SIZE)
         """The compiled step's own state (layout ``_S_*``): the law's output, the CF rotation in use, the world's torque
         limits, the time step, the phase and segment recorded."""
-        self._state[_S_LIMITS : _S_LIMITS + 7] = self._handles.torque_limits
-        self._state[_S_DT] = self.dt
+        self.state[_S_LIMITS : _S_LIMITS + 7] = self.handles.torque_limits
+        self.state[_S_DT] = self.dt
 
     def telemetry(self, copy: bool = True) -> Telemetry:
         """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
@@ -267,11 +290,14 @@ class ControlLoop:
         """The rows of the last ``duration_s`` (s) recorded (a view: read it before the loop runs on)."""
         return Telemetry(self.rows[max(0, self.n - round(duration_s / self.dt)) : self.n])
 
-    def _grow(self) -> None:
+    def _grow(self, n: int) -> tuple[NDArray[np.float64], int]:
+        """Double the rows allocated, the ``n`` recorded kept; return the new rows and capacity."""
+        self.n = n
         self.capacity *= 2
         rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
         rows[: self.n] = self.rows[: self.n]
         self.rows = rows
+        return rows, self.capacity
 
     def emit(self, final: bool = False) -> None:
         """Hand the rows recorded since the last batch to ``on_sample`` (a full batch, or whatever is left when
@@ -288,91 +314,25 @@ class ControlLoop:
         references: NDArray[np.float64] | None = None,
         follower: SurfaceFollower | None = None,
     ) -> PlanEnd:
-        """Run a phase; return how it ended: a guarded phase ends on contact (``guard`` on the readings along the
-        plan's stop axis), a phase with a ``follower`` may end on the next surface. ``references``: the phase's
-        reference rows (``PhasePlan.reference_rows``; the follower rewrites them), built here when not given.
-        Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing.
-
-        One control step, flat, for the 1 kHz budget (each Python call and each compiled call's dispatch costs ~0.1-1
-        µs, as much as the arithmetic): the world's PyBullet calls made from compiled code through its C API
-        (``SimWorld.loop_handles``, ``sim_worker.bullet_client``): the joint states and contact points with the arm
-        state, the contact summary and, for a sampling sensor, its reading in one compiled call
-        (``contact_sensing.sense_client`` at the top of the step; with a sampling sensor ``sample_client`` right after
-        the physics step, as ``SimWorld.step`` samples every state), one compiled call for the telemetry row, the law
-        and the world's torque limits (:func:`_record_and_control`), and one for the torque command and the physics
-        step (``bullet_client.send_torques_and_step``); all through their compiled specializations
-        (:func:`compiled_entry`: the arguments' types are the same every step). A model update (every
-        :data:`NULL_SPACE_UPDATE_STEPS` steps) makes the mass matrix and the controller's null-space model in two more
-        compiled calls before them (``skills.control.model_update_packed``, with no Python between: a third one fusing
-        all of them costs every worker ~9 MB of compiled code for ~1 µs per update), except the one in
-        ``DAMPING_UPDATE_EVERY`` that also rebuilds the adaptive damping: there, as on a new control frame, the
-        controller prepares its model and gains in Python (``HybridController.prepare``) between :func:`_record` and
-        :func:`_control`.
-        """
-        world, handles, state = self.world, self._handles, self._state
-        ids, joint_rows = handles.bullet.ids, handles.bullet.joint_rows
-        model, arm, contact = handles.model, handles.arm, handles.contact
-        ideal = handles.ideal
-        draw, sensor = handles.draw, handles.sensor
-        reading_at = CONTACT_APPLIED.start if ideal else CONTACT_MEASURED.start
-        read_state, advance = state_reader(handles), stepper(handles)  # PyBullet from compiled code
-        # Views of the arrays the compiled calls write, the same every step.
-        robot = arm[:ROBOT_STATE_SIZE]
-        q, p = robot[ROBOT_Q], robot[ROBOT_POSITION]
-        w = contact[reading_at : reading_at + 6]
-        out = state[_S_OUT : _S_OUT + LAW_OUTPUT_SIZE]
-        tau = out[LAW_TAU]
-        cf_rows = state[_S_CF : _S_CF + 9].reshape(3, 3)
-        state[_S_PHASE] = PHASE_CODES[plan.phase]
-        state[_S_SEGMENT] = plan.segment
-        controller = self.controller
-        prepare, law_buffer = controller.prepare, controller.law_buffer
-        damping_due, use_frame, model_updated = controller.damping_due, controller.use_frame, controller.model_updated
-        model_arguments = controller.model_arguments()
-        perf = time.perf_counter
-        dt = self.dt
-        guard_loss = plan.phase is ExecutionPhase.contact
-        loss_travel = CONTACT_LOSS_TRAVEL_M
-        batch = self.telemetry_batch if self.on_sample is not None else math.inf  # no one to hand rows to
-        next_emit = self.emitted + batch
-        realtime = self.realtime
-        window = guard.window_steps
-        window_threshold = guard.threshold_n * window  # on the sum of the last `window` readings
+        """Run a phase (its steps as the module docstring says) and return how it ended: a guarded phase on contact
+        (``guard`` on the readings along the plan's stop axis), one with a ``follower`` maybe on the next surface.
+        ``references``: the rows of ``plan.reference_rows()``, which the follower rewrites (made when not given).
+        Raises ExecutionAbortError, or ContactLostError in a contact phase pressing into nothing."""
+        ph = _PhaseState(self, plan, guard, references, follower)
+        kernel, references, refresh, read_state, advance = ph.kernel, ph.references, ph.refresh, ph.read, ph.advance
+        ids, model, joint_rows, arm, contact, sensor = ph.ids, ph.model, ph.joint_rows, ph.arm, ph.contact, ph.sensor
+        robot, q, p, w, tau, reading_at, ideal = ph.robot, ph.q, ph.p, ph.w, ph.tau, ph.reading_at, ph.ideal
+        law_buffer, state, record_and_control, mass_of = kernel.buffer, self.state, ph.record_and_control, ph.mass_of
+        stop_axis, window, window_threshold = ph.stop_axis, ph.window, ph.window_threshold
         window_readings, window_sum, window_slot = [0.0] * window, 0.0, 0
-        touched = self.touched
-        frame_log = self.frame_log
-        stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
-        if stop_axis is not None:
-            self.found_force = None
-        single = plan.frame
-        series, stride = plan.series, plan.stride
-        if references is None:
-            references = plan.reference_rows()
-        dynamic_null = self._dynamic_null
-        q_lower, q_upper = world.joint_lower, world.joint_upper
+        touched, frame_log, dt, realtime = self.touched, self.frame_log, self.dt, self.realtime
+        single = current = ph.single
+        series, stride, next_frame_step, frame = plan.series, plan.stride, 0, None
         should_abort, should_pause = self.should_abort, self.should_pause
-        frame: ControlFrame | None = None
-        current = single
-        next_frame_step = 0  # the step at which the series' next frame is due (indexing it costs ~0.3 µs)
         r02 = r12 = r22 = 0.0
-        if follower is not None:
-            single = follower.first_frame()
-        next_surface = plan.next_z is not None
-        p_tracked: list[float] | None = None
-        step_tracked = 0
+        p_tracked, step_tracked, clipped, sampled_touching = None, 0, False, ph.sampled_touching
         n, rows, capacity, step_count = self.n, self.rows, self.capacity, self.step_count
-        first_step, clipped_steps = step_count, 0
-        clipped = False
-        touching = sampled_touching = False
-        if not ideal:  # the arm, contact and reading of the state the loop starts in (sampled once, if not yet)
-            sampled_touching = world.sense().in_contact
-        # The row and law's specialization: the same argument types every step (rows grow as the same type).
-        record_and_control = compiled_entry(
-            _record_and_control,
-            (arm, contact, reading_at, touching, law_buffer, state, rows, references, 0, False, n, step_count),
-        )
-        mass_of = compiled_entry(arm_mass_matrix, (model, q))
-        update_model = compiled_entry(model_update_packed, (law_buffer, arm, NO_MASS_MATRIX, *model_arguments))
+        first_step, clipped_steps, next_emit = step_count, 0, self.emitted + ph.batch
         try:
             k, steps = 0, plan.steps
             while k < steps:
@@ -381,67 +341,40 @@ class ControlLoop:
                 # This state's arm and contact (a sampling sensor read them after the last step).
                 touching = read_state(ids, model, joint_rows, arm, contact) if ideal else sampled_touching
                 update_null = step_count % NULL_SPACE_UPDATE_STEPS == 0
-                if update_null and _outside_limits(q, q_lower, q_upper):
+                if update_null and _outside_limits(q, ph.q_lower, ph.q_upper):
                     raise ExecutionAbortError(self._joint_limit_reason(q))
                 if single is not None:
                     current = single
-                elif k >= next_frame_step:
+                elif k >= next_frame_step:  # the series' next frame is due (indexing it costs ~0.3 µs)
                     current = series[k // stride]
                     next_frame_step = (k // stride + 1) * stride
                 new_frame = current is not frame
                 if new_frame:  # a new control frame: its CF rotation by rows, for the CF wrench
                     frame = current
-                    self.cf_rotation = frame.cf_rotation
-                    cf_rows[:] = frame.cf_rotation
+                    self.cf_rotation = ph.cf_rows[:] = frame.cf_rotation
                     r02, r12, r22 = frame.cf_z.tolist()
                     frame_log.append((n, r02, r12, r22))
                 if n >= capacity:
-                    self.n = n
-                    self._grow()
-                    rows, capacity = self.rows, self.capacity
+                    rows, capacity = self._grow(n)
                 reason = M = None
-                if update_null and not damping_due(dynamic_null):  # the model in compiled calls, no Python between
-                    use_frame(frame)
-                    M = mass_of(model, q) if dynamic_null else None
-                    try:
-                        status = update_model(law_buffer, arm, NO_MASS_MATRIX if M is None else M, *model_arguments)
-                        if status == LAW_OK:
-                            model_updated(frame, dynamic_null)  # (the damping is not due: no LAPACK here)
-                        else:
-                            reason = controller.abort_reason(status, out, robot, references[k], w, M)
-                    except np.linalg.LinAlgError as exc:
-                        reason = controller.singular_model_reason(exc)
-                    if reason is None:
-                        pressing, code, clipped = record_and_control(
-                            arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
-                            step_count,
-                        )  # fmt: skip
-                    else:  # the step is recorded, its law not run
-                        pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused,
-                                           n, step_count)  # fmt: skip
-                    n += 1
-                elif update_null or new_frame:  # the controller updates its model or gains between row and law
-                    if update_null and dynamic_null:
-                        M = arm_mass_matrix(model, q)
-                    pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused, n,
-                                       step_count)  # fmt: skip
-                    n += 1
-                    reason = prepare(frame, robot, references[k], w, M, update_null)
-                    if reason is None:
-                        code, clipped = _control(robot, contact, reading_at, law_buffer, state, references, k, paused,
-                                                 pressing)  # fmt: skip
-                else:
+                if update_null or new_frame:  # the law's model and gains, before the step's row and law
+                    M = mass_of(model, q) if update_null and self.dynamic_null else None
+                    reason = refresh(frame, robot, references[k], w, M, update_null)
+                if reason is None:
                     pressing, code, clipped = record_and_control(
                         arm, contact, reading_at, touching, law_buffer, state, rows, references, k, paused, n,
                         step_count,
                     )  # fmt: skip
-                    n += 1
-                if reason is None and code:
-                    reason = controller.abort_reason(code, out, robot, references[k], w, M)
+                    if code:
+                        reason = kernel.abort_reason(code, ph.out, robot, references[k], w, M)
+                else:  # the step is recorded, its law not run
+                    pressing = _record(robot, contact, reading_at, touching, state, rows, references, k, paused, n,
+                                       step_count)  # fmt: skip
+                n += 1
                 if n >= next_emit:
                     self.n = n
                     self.emit()
-                    next_emit = self.emitted + batch
+                    next_emit = self.emitted + ph.batch
                 if reason is not None:
                     raise ExecutionAbortError(reason)
                 if stop_axis is not None or follower is not None:
@@ -450,12 +383,11 @@ class ControlLoop:
                 step_count += 1
                 clipped_steps += clipped
                 if not ideal:  # the sensor samples every state (SimWorld.step): the next state's arm, contact, reading
-                    draw()
+                    ph.draw()
                     sampled_touching = read_state(ids, model, joint_rows, arm, contact, sensor)
                 if should_abort is not None and should_abort():  # every step: stops within one control cycle
                     raise ExecutionAbortError("aborted on request")
-                if touching:
-                    touched = True
+                touched = touched or touching
                 if stop_axis is not None:  # the mean of the last `window` readings along the axis over the threshold
                     along = fx * stop_axis[0] + fy * stop_axis[1] + fz * stop_axis[2]
                     window_sum += along - window_readings[window_slot]
@@ -472,24 +404,24 @@ class ControlLoop:
                         velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
                     single = follower.update(k, [fx, fy, fz], velocity, p_now, pressing, references)
                     p_tracked, step_tracked = p_now, step_count
-                    if next_surface and follower.on_next_surface:
+                    if ph.next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
-                if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
+                if ph.guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
                     rx, ry, rz = references[k, :3].tolist()
                     px, py, pz = p.tolist()
                     beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22
-                    if beyond > loss_travel:
+                    if beyond > CONTACT_LOSS_TRAVEL_M:
                         self.step_count = step_count
                         raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
                 if realtime and step_count % REALTIME_CHECK_STEPS == 0:
-                    lag = step_count * dt - (perf() - self.wall_start)
+                    lag = step_count * dt - (time.perf_counter() - self.wall_start)
                     if lag > 0:
                         time.sleep(lag)
                 if not paused:
                     k += 1
         finally:
             self.n, self.step_count = n, step_count
-            world.loop_ended(step_count - first_step, clipped_steps, clipped)
+            self.world.loop_ended(step_count - first_step, clipped_steps, clipped)
             self.touched = touched
         if plan.exhausted_reason is not None:
             guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
@@ -513,20 +445,6 @@ class ControlLoop:
             f"contact lost in segment {segment} at {t}: no contact {beyond_m * 1e3:.0f} mm beyond the surface along "
             f"CF z (an edge or a hole?); {retracted}"
         )
-
-    def retract(self, axis: NDArray[np.float64] | None = None, segment: int = -1) -> None:
-        """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit; default: CF z of the frame in use) from
-        the current pose with motion control on every axis (recorded as a retreat of ``segment``)."""
-        p, q = self.world.tool_pose()
-        z = self.cf_rotation[:, 2] if axis is None else axis
-        n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
-        ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * z
-        twist = np.zeros((n, 6))
-        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
-        plan = PhasePlan(ExecutionPhase.retreat, segment, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
-                         frame=self.identity_frame)  # fmt: skip
-        self.controller.reset_integral()
-        self.run_plan(plan)
 
     def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
         """Name the joint outside its URDF limits (PyBullet does not enforce them in torque mode)."""

@@ -4,7 +4,7 @@ A recording lives in its own frame (another robot's base, a tracker's world, met
 maps it into the robot's world, ``x_world = R x_skill + t`` (``skills.placement``). The skill's tool poses
 (every ``REACH_CHECK_STEP_S`` of every segment, plus the pre-contact points the guarded approach starts from, in
 the order the executor visits them) are solved one after the other by inverse kinematics: the first, the start pose,
-from the home posture as the executor solves it (``sim_worker.executor``), each later one from the previous
+from the home posture as the executor solves it (``execution.executor``), each later one from the previous
 solution; a placement is reachable when every pose converges with every joint at least ``JOINT_MARGIN_RAD`` inside
 its limits.
 

@@ -15,8 +15,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from execution.telemetry import Telemetry
 from schemas.execution import TELEMETRY_WIDTH
-from sim_worker.telemetry import Telemetry
 
 TELEMETRY_KEEP_EXECUTIONS = 16
 """Executions whose telemetry a worker keeps for replays."""

@@ -12,23 +12,17 @@ import time
 
 import numpy as np
 
+from execution.plans import PhasePlan
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
 from sim_worker.control_loop import ControlLoop, _record_row
-from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
 from sim_worker.world_config import WorldConfig
-from skills.control import (
-    LAW_OUTPUT_SIZE,
-    REFERENCE_SIZE,
-    ROBOT_POSITION,
-    ROBOT_QUAT,
-    HybridController,
-    damping_matrix,
-    pose_error,
-)
-from skills.dmp import DMP, QuaternionDMP
+from skills.control import HybridController, damping_matrix, pose_error
+from skills.control.layouts import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT
+from skills.dmp import DMP
+from skills.quaternion_dmp import QuaternionDMP
 
 
 def warm_up() -> float:
@@ -48,7 +42,6 @@ def warm_up() -> float:
         reference[:7] = robot[ROBOT_POSITION.start : ROBOT_QUAT.stop]  # hold the current pose
         controller.step(frame, robot, reference, np.zeros(6), True, mass, True)
         controller.step(frame, robot, reference, np.zeros(6), True, None, True)
-        controller.step_into(frame, robot, reference, np.zeros(6), True, None, False, np.zeros(LAW_OUTPUT_SIZE))
         rows = np.zeros((1, TELEMETRY_WIDTH))
         phase = float(PHASE_CODES[ExecutionPhase.contact])
         _record_row(robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0, 0.0, phase, 0.0)
@@ -73,4 +66,4 @@ def _hold(world: SimWorld) -> None:
     p, q = world.tool_pose()
     plan = PhasePlan(ExecutionPhase.free, -1, np.tile(p, (HOLD_STEPS, 1)), np.tile(q, (HOLD_STEPS, 1)),
                      np.zeros((HOLD_STEPS, 6)), np.zeros(HOLD_STEPS), frame=frame)  # fmt: skip
-    ControlLoop(world, controller, frame, 1.0, 100, Pace.fast, True, None, None, None).run_plan(plan)
+    ControlLoop(world, controller, 1.0, 100, Pace.fast, True, None, None, None).run_plan(plan)

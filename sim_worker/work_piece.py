@@ -73,9 +73,9 @@ from schemas.demonstration import Demonstration
 from schemas.skill import Segment, SegmentKind, Skill
 from sim_worker.world_config import WorkPiece, WorldConfig
 from skills.compliant_frames import compliant_frame_rotations, slide_frame
-from skills.dmp import QuaternionDMP
 from skills.measured_surface import MeasuredPass, measured_passes
 from skills.placement import segment_positions
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import matrix_from_quaternion
 from skills.surface import pressed_surface
 

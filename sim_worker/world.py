@@ -112,7 +112,8 @@ class LoopHandles(NamedTuple):
 
 
 class SimWorld:
-    """One PyBullet DIRECT world (own client): iiwa + tool, table, optional ramp, cylinder, block and work pieces.
+    """One PyBullet DIRECT world (own client): iiwa + tool, table, optional ramp, cylinder, block and work pieces; an
+    ``execution.robot.SimulatedRobot``.
 
     Several worlds can live in one process; call ``close()`` (or use ``with``) to free the client.
     State queries are cached until the next ``step()``/``set_joint_positions()``/``reset()``; the accessors
@@ -179,6 +180,16 @@ class SimWorld:
         contact keep their own flags because reading contacts or the sensor has a cost (and the sensor a state) a
         kinematic query must not pay (inverse kinematics teleports the arm hundreds of times)."""
         self._arm.fresh = self._arm.mass_fresh = self._contact.fresh = self._contact.measured_fresh = False
+
+    @property
+    def time_step_s(self) -> float:
+        """The simulated time one :meth:`step` advances, s (``execution.robot.Robot``'s clock)."""
+        return self.config.time_step_s
+
+    @property
+    def sensor_ideal(self) -> bool:
+        """Whether the sensor reads the exact wrench (``execution.robot.Robot``)."""
+        return self.sensor.ideal
 
     def reset(self, q: ArrayLike | None = None) -> None:
         """Set the joints to ``q`` (rad; default ``Q_HOME``: tool pointing down above the table) at rest; the sensor

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from execution.telemetry import Telemetry
 from schemas.bus import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -80,7 +81,6 @@ from schemas.demonstration import Demonstration
 from schemas.execution import EnvironmentChange, ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
 from sim_worker.process_memory import bound_heap, trim_heap
-from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import TelemetryArchive
 from skills.job_estimate import execution_estimate
 
@@ -390,8 +390,8 @@ class _Run:
 
     def run(self) -> None:
         """The execution thread: run the skill, publish the final status, free the worker."""
+        from execution.metrics import combined_stroke_metrics
         from sim_worker.executor import run_skill
-        from sim_worker.metrics import combined_stroke_metrics
 
         final: dict[str, Any]
         try:

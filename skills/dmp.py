@@ -8,8 +8,8 @@ One primitive per class:
       tau dz = alpha_z (beta_z (g - y) - z) + s f(x),   tau dy = z,   tau dx = -alpha_x x
       f(x) = x sum_i psi_i(x) w_i / sum_i psi_i(x),    psi_i(x) = exp(-h_i (x - c_i)^2)
 
-- :class:`QuaternionDMP` encodes an orientation trajectory (unit quaternions, scalar-last
-  ``[x, y, z, w]``, world frame) with Ude, Nemec, Petric, Morimoto 2014::
+- ``skills.quaternion_dmp.QuaternionDMP`` encodes an orientation trajectory (unit quaternions, scalar-last
+  ``[x, y, z, w]``, world frame) with Ude, Nemec, Petric, Morimoto 2014, on the pieces below::
 
       tau d eta = alpha_z (beta_z 2 log(g * conj(q)) - eta) + f(x),   tau dq = 1/2 eta * q
 
@@ -52,12 +52,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from schemas.skill import DMPParameters
-from skills.quaternions import (
-    quaternion_conjugate,
-    quaternion_log,
-    quaternion_product,
-    quaternions_sign_continuous,
-)
 
 DEFAULT_ALPHA_Z = 25.0
 """Spring-damper gain alpha_z (beta_z = alpha_z / 4, critically damped)."""
@@ -88,19 +82,6 @@ class DMPRollout:
     t: NDArray[np.float64]
     y: NDArray[np.float64]
     yd: NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class QuaternionDMPRollout:
-    """A rolled-out orientation DMP.
-
-    ``t`` (M,) time since the start, s; ``q`` (M, 4) unit quaternions ``[x, y, z, w]`` (world
-    from tool), sign-continuous; ``omega`` (M, 3) angular velocity in the world frame, rad/s.
-    """
-
-    t: NDArray[np.float64]
-    q: NDArray[np.float64]
-    omega: NDArray[np.float64]
 
 
 # --------------------------------------------------------------------------- shared pieces
@@ -135,7 +116,7 @@ def forcing_features(
     return x[:, None] * psi / psi.sum(axis=1, keepdims=True)
 
 
-def _check_time(t: ArrayLike, n_samples: int) -> tuple[NDArray[np.float64], float]:
+def validated_time(t: ArrayLike, n_samples: int) -> tuple[NDArray[np.float64], float]:
     """Validate a uniform time grid of ``n_samples`` stamps (s); return it and its step dt (s)."""
     t = np.asarray(t, dtype=float)
     if t.ndim != 1:
@@ -161,7 +142,7 @@ def uniform_grid_step(t: NDArray[np.float64]) -> float | None:
     return dt if float(np.max(np.abs(np.diff(t) - dt))) <= UNIFORM_GRID_RTOL * dt else None
 
 
-def _fit_weights(features: NDArray[np.float64], targets: NDArray[np.float64]) -> NDArray[np.float64]:
+def fitted_weights(features: NDArray[np.float64], targets: NDArray[np.float64]) -> NDArray[np.float64]:
     """Solve ``features @ W = targets`` for ``W`` (n_basis, D) in one ridge-regularized least squares."""
     n_basis = features.shape[1]
     lam = RIDGE * float(np.max(np.einsum("ij,ij->j", features, features)))
@@ -170,7 +151,7 @@ def _fit_weights(features: NDArray[np.float64], targets: NDArray[np.float64]) ->
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _rollout_times(dt: float, duration_s: float) -> NDArray[np.float64]:
+def rollout_times(dt: float, duration_s: float) -> NDArray[np.float64]:
     """Return the rollout time stamps ``k dt``, ``k = 0 .. round(duration_s / dt)`` (s)."""
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive finite number of seconds, got {dt}")
@@ -210,7 +191,7 @@ def _rollout_forcing_term(
     """The unscaled forcing term (M - 1, D) ``forcing_features(x) @ weights`` at the phases of the rollout steps
     ``k dt``, ``k = 0 .. M - 2`` of a movement of ``duration_s`` (s): with a design matrix from the cache (within
     :data:`ROLLOUT_FEATURES_CACHE_BYTES`, oldest dropped first) or, too large to keep, block by block."""
-    x = canonical_phase(_rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
+    x = canonical_phase(rollout_times(dt, duration_s)[:-1], alpha_x, duration_s)
     blocks = [slice(start, start + FEATURE_ROWS_PER_BLOCK) for start in range(0, x.size, FEATURE_ROWS_PER_BLOCK)]
     if x.size * centers.size * 8 > ROLLOUT_FEATURES_CACHE_BYTES // 8:
         out = np.empty((x.size, weights.shape[1]))
@@ -232,7 +213,7 @@ def _rollout_forcing_term(
     return features @ weights
 
 
-class _DMPBase:
+class DMPBase:
     """Shared state of a discrete DMP: time constant, gains, basis and weights (n_basis, n_forcing)."""
 
     kind: str
@@ -321,7 +302,7 @@ class _DMPBase:
 # --------------------------------------------------------------------------- positions and forces
 
 
-class DMP(_DMPBase):
+class DMP(DMPBase):
     """A discrete DMP over ``D`` dimensions of positions (m) or forces (N), one shared phase.
 
     Build it with :meth:`fit` (from one demonstration) or :meth:`from_parameters`. ``start`` and
@@ -400,7 +381,7 @@ class DMP(_DMPBase):
             y = y[:, None]
         if y.ndim != 2 or y.shape[1] < 1:
             raise ValueError(f"y must have shape (N, D), got {y.shape}")
-        t, dt = _check_time(t, y.shape[0])
+        t, dt = validated_time(t, y.shape[0])
         if not np.all(np.isfinite(y)):
             raise ValueError("y contains NaN or inf")
         alpha_x, centers, widths = cls._basis(n_basis)
@@ -412,7 +393,7 @@ class DMP(_DMPBase):
         z[1:] = tau * np.diff(y, axis=0) / dt
         targets = tau * (z[1:] - z[:-1]) / dt - alpha_z * (beta_z * (g - y[:-1]) - z[:-1])
         x = np.exp(-alpha_x * np.arange(y.shape[0] - 1) * dt / tau)
-        weights = _fit_weights(forcing_features(x, centers, widths), targets)
+        weights = fitted_weights(forcing_features(x, centers, widths), targets)
 
         motion_range = np.ptp(y, axis=0)
         threshold = AMPLITUDE_SCALING_MIN_FRACTION * float(motion_range.max())
@@ -443,7 +424,7 @@ class DMP(_DMPBase):
         self, dt: float, start: ArrayLike | None, goal: ArrayLike | None, duration_s: float | None
     ) -> tuple[NDArray, NDArray, NDArray, NDArray, float]:
         tau = self.duration_s if duration_s is None else float(duration_s)
-        t = _rollout_times(dt, tau)
+        t = rollout_times(dt, tau)
         y0 = self.start if start is None else np.asarray(start, dtype=float).reshape(-1)
         g = self.goal if goal is None else np.asarray(goal, dtype=float).reshape(-1)
         for name, value in (("start", y0), ("goal", g)):
@@ -515,169 +496,14 @@ class DMP(_DMPBase):
     def from_parameters(cls, p: DMPParameters) -> DMP:
         """Rebuild a DMP from its parameters (kind position or force). Raises ValueError on inconsistent shapes."""
         if p.kind == "quaternion":
-            raise ValueError("kind 'quaternion' parameters belong to QuaternionDMP.from_parameters")
+            raise ValueError(
+                "kind 'quaternion' parameters belong to skills.quaternion_dmp.QuaternionDMP.from_parameters"
+            )
         return cls(
             kind=p.kind,
             start=p.start,
             goal=p.goal,
             amplitude_scaling=p.amplitude_scaling,
-            duration_s=p.duration_s,
-            alpha_z=p.alpha_z,
-            beta_z=p.beta_z,
-            alpha_x=p.alpha_x,
-            centers=p.centers,
-            widths=p.widths,
-            weights=p.weights,
-            frame=p.frame,
-        )
-
-
-# --------------------------------------------------------------------------- orientation
-
-
-def _unit_quaternions(q: ArrayLike, name: str) -> NDArray[np.float64]:
-    """Validate (N, 4) or (4,) quaternions of unit norm (within UNIT_NORM_TOL) and renormalize them."""
-    q = np.asarray(q, dtype=float)
-    if q.shape[-1:] != (4,):
-        raise ValueError(f"{name} must be quaternions [x, y, z, w] with a last axis of 4, got shape {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise ValueError(f"{name} contains NaN or inf")
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(np.abs(norm - 1.0) > UNIT_NORM_TOL):
-        raise ValueError(f"{name} must be unit quaternions (norm off by up to {np.max(np.abs(norm - 1.0)):.3g})")
-    return q / norm
-
-
-class QuaternionDMP(_DMPBase):
-    """An orientation DMP (Ude et al. 2014) over unit quaternions ``[x, y, z, w]`` in the world frame.
-
-    ``start`` and ``goal`` are the demonstrated unit quaternions (4,); the forcing term ``f`` is a
-    3-vector (weights (n_basis, 3)) with the unit of ``tau^2`` times an angular acceleration
-    (rad). No amplitude scaling.
-    """
-
-    kind = "quaternion"
-
-    def __init__(
-        self,
-        *,
-        start: ArrayLike,
-        goal: ArrayLike,
-        duration_s: float,
-        alpha_z: float,
-        beta_z: float,
-        alpha_x: float,
-        centers: ArrayLike,
-        widths: ArrayLike,
-        weights: ArrayLike,
-        frame: Literal["world", "cf"] = "world",
-    ) -> None:
-        super().__init__(
-            duration_s=duration_s,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
-        if self.weights.shape[1] != 3:
-            raise ValueError(f"a quaternion DMP has weights (n_basis, 3), got {self.weights.shape}")
-        self.start = _unit_quaternions(start, "start").reshape(4)
-        self.goal = _unit_quaternions(goal, "goal").reshape(4)
-
-    @classmethod
-    def fit(
-        cls,
-        t: ArrayLike,
-        q: ArrayLike,
-        n_basis: int = 50,
-        alpha_z: float = DEFAULT_ALPHA_Z,
-        frame: Literal["world", "cf"] = "world",
-    ) -> QuaternionDMP:
-        """Learn an orientation DMP from one demonstration in one linear least-squares solve.
-
-        ``t`` (N,) uniformly sampled time stamps, s; ``q`` (N, 4) unit quaternions ``[x, y, z, w]``.
-        The input is first made sign-continuous, so the result does not depend on the signs of
-        the input quaternions. Targets consistent with the integrator ``q_{k+1} = exp(dt/(2 tau)
-        eta_{k+1}) * q_k`` and ``eta_0 = 0``::
-
-            eta_{k+1} = 2 tau log(q_{k+1} * conj(q_k)) / dt
-            f_k = tau (eta_{k+1} - eta_k) / dt - alpha_z (beta_z 2 log(g * conj(q_k)) - eta_k)
-
-        Raises ValueError for fewer than 3 samples, mismatched shapes, NaN/inf, non-unit
-        quaternions, or a non-uniform or non-increasing time grid.
-        """
-        q = np.asarray(q, dtype=float)
-        if q.ndim != 2 or q.shape[1] != 4:
-            raise ValueError(f"q must have shape (N, 4), got {q.shape}")
-        t, dt = _check_time(t, q.shape[0])
-        q = quaternions_sign_continuous(_unit_quaternions(q, "q"))
-        alpha_x, centers, widths = cls._basis(n_basis)
-        beta_z = alpha_z / 4.0
-        tau = float(t[-1] - t[0])
-        g = q[-1]
-
-        eta = np.zeros((q.shape[0], 3))
-        eta[1:] = 2.0 * tau * quaternion_log(quaternion_product(q[1:], quaternion_conjugate(q[:-1]))) / dt
-        goal_error = 2.0 * quaternion_log(quaternion_product(g, quaternion_conjugate(q[:-1])))
-        targets = tau * (eta[1:] - eta[:-1]) / dt - alpha_z * (beta_z * goal_error - eta[:-1])
-        x = np.exp(-alpha_x * np.arange(q.shape[0] - 1) * dt / tau)
-        weights = _fit_weights(forcing_features(x, centers, widths), targets)
-        return cls(
-            start=q[0],
-            goal=g,
-            duration_s=tau,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
-
-    def rollout(
-        self,
-        dt: float,
-        start: ArrayLike | None = None,
-        goal: ArrayLike | None = None,
-        duration_s: float | None = None,
-    ) -> QuaternionDMPRollout:
-        """Integrate from rest at ``start`` towards ``goal`` (unit quaternions), step ``dt`` over ``duration_s`` (s).
-
-        Semi-implicit: ``eta_{k+1} = eta_k + dt/tau (alpha_z (beta_z 2 log(g * conj(q_k)) - eta_k) + f(x_k))``,
-        ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k`` (renormalized). The forcing term is evaluated
-        for all steps at once; the nonlinear recursion is one compiled loop (:func:`_quaternion_recursion`).
-        """
-        tau = self.duration_s if duration_s is None else float(duration_s)
-        t = _rollout_times(dt, tau)
-        q0 = self.start if start is None else _unit_quaternions(start, "start").reshape(4)
-        g = self.goal if goal is None else _unit_quaternions(goal, "goal").reshape(4)
-        a = dt / tau
-        # a * (f_k) per step, and the constant gains.
-        drive = np.ascontiguousarray(a * self._rollout_forcing(dt, tau))
-        k_goal = a * self.alpha_z * self.beta_z * 2.0
-        damp = 1.0 - a * self.alpha_z
-        half_a = 0.5 * a
-        q, eta = _quaternion_recursion(drive, g, q0, k_goal, damp, half_a)
-        return QuaternionDMPRollout(t=t, q=q, omega=eta / tau)
-
-    def to_parameters(self) -> DMPParameters:
-        """Return the wire form (kind quaternion, no amplitude scaling); :meth:`from_parameters` inverts it."""
-        return self._parameters(self.start, self.goal, [False, False, False])
-
-    @classmethod
-    def from_parameters(cls, p: DMPParameters) -> QuaternionDMP:
-        """Rebuild an orientation DMP from kind-quaternion parameters. Raises ValueError otherwise."""
-        if p.kind != "quaternion":
-            raise ValueError(f"QuaternionDMP.from_parameters needs kind 'quaternion', got {p.kind!r}")
-        if any(p.amplitude_scaling):
-            raise ValueError("a quaternion DMP has no amplitude scaling (amplitude_scaling must be all false)")
-        return cls(
-            start=p.start,
-            goal=p.goal,
             duration_s=p.duration_s,
             alpha_z=p.alpha_z,
             beta_z=p.beta_z,
@@ -705,51 +531,3 @@ def _second_order_filter(b1, a1, a2, v):  # pragma: no cover - compiled
             z0 = z1 + x * b1 - y * a1
             z1 = x * 0.0 - y * a2  # b2 = 0: lfilter pads b to the length of a
     return out
-
-
-@numba.njit(cache=True)
-def _quaternion_recursion(drive, g, q0, k_goal, damp, half_a):  # pragma: no cover - compiled
-    """The orientation DMP's recursion (:meth:`QuaternionDMP.rollout`): quaternions (N + 1, 4) and ``eta`` (N + 1, 3)
-    from ``q0`` for the per-step drives ``a f_k`` (N, 3). Compiled: the loop runs once per millisecond of motion
-    (a 10 s stroke: 10 000 iterations, ~40 ms in plain Python)."""
-    n = drive.shape[0]
-    out_q = np.empty((n + 1, 4))
-    out_eta = np.zeros((n + 1, 3))
-    gx, gy, gz, gw = g[0], g[1], g[2], g[3]
-    qx, qy, qz, qw = q0[0], q0[1], q0[2], q0[3]
-    out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3] = qx, qy, qz, qw
-    ex = ey = ez = 0.0
-    atan2, sqrt, sin, cos = math.atan2, math.sqrt, math.sin, math.cos
-    for k in range(n):
-        fx, fy, fz = drive[k, 0], drive[k, 1], drive[k, 2]
-        # Goal error r = g * conj(q) on the short branch; log(r) = scale * r_vec = u theta/2.
-        rw = gw * qw + gx * qx + gy * qy + gz * qz
-        rx = qw * gx - gw * qx + gz * qy - gy * qz
-        ry = qw * gy - gw * qy + gx * qz - gz * qx
-        rz = qw * gz - gw * qz + gy * qx - gx * qy
-        vn = sqrt(rx * rx + ry * ry + rz * rz)
-        scale = k_goal
-        if vn > 1e-12:
-            scale = k_goal * atan2(vn, rw) / vn if rw >= 0.0 else -k_goal * atan2(vn, -rw) / vn
-        ex = damp * ex + scale * rx + fx
-        ey = damp * ey + scale * ry + fy
-        ez = damp * ez + scale * rz + fz
-        # Step rotation d = exp(a/2 eta), applied on the left (world frame): q <- d * q.
-        hx, hy, hz = half_a * ex, half_a * ey, half_a * ez
-        hn = sqrt(hx * hx + hy * hy + hz * hz)
-        if hn > 1e-12:
-            sinc = sin(hn) / hn
-            dx, dy, dz, dw = hx * sinc, hy * sinc, hz * sinc, cos(hn)
-        else:
-            dx, dy, dz, dw = hx, hy, hz, 1.0
-        qx, qy, qz, qw = (
-            dw * qx + qw * dx + dy * qz - dz * qy,
-            dw * qy + qw * dy + dz * qx - dx * qz,
-            dw * qz + qw * dz + dx * qy - dy * qx,
-            dw * qw - dx * qx - dy * qy - dz * qz,
-        )
-        inv = 1.0 / sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-        qx, qy, qz, qw = qx * inv, qy * inv, qz * inv, qw * inv
-        out_q[k + 1, 0], out_q[k + 1, 1], out_q[k + 1, 2], out_q[k + 1, 3] = qx, qy, qz, qw
-        out_eta[k + 1, 0], out_eta[k + 1, 1], out_eta[k + 1, 2] = ex, ey, ez
-    return out_q, out_eta

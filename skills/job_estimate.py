@@ -1,6 +1,6 @@
 """How long an execution of a skill runs, from the skill and ALL its execution settings (``schemas.job_budget``).
 
-The phases follow ``sim_worker.executor``: the settle at the start pose (with the tare's hold), then per segment a
+The phases follow ``execution.executor``: the settle at the start pose (with the tare's hold), then per segment a
 free motion, or before a contact run the tare's hold, the guarded approach (at ``approach_speed_m_s`` until
 ``approach_slow_distance_m`` before the taught contact point, then at the touch-down speed), the force ramp, the
 contact segments, the force release and the lift-off. Each guarded approach is counted until the surface at the far
@@ -21,7 +21,7 @@ from schemas.skill import SegmentKind, Skill
 TARE_HOLD_S = 0.2
 """With ``tare_sensor``, the tool holds still this long in free space (the start pose's settle, the pre-contact point
 before each later guarded approach) and the wrist sensor is tared with its mean reading over the last
-``sim_worker.executor.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
+``execution.executor.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less). The executor's and the
 estimate's."""

@@ -34,10 +34,11 @@ from schemas.skill import (
 from skills import skill_checks
 from skills.compliant_frames import PlaneFit, contour_frames, plane_along, slide_frame, tool_velocities
 from skills.contact import ContactAnalysis, analyse_contact
-from skills.dmp import DMP, QuaternionDMP, uniform_grid_step
+from skills.dmp import DMP, uniform_grid_step
 from skills.force_profile import cf_z_forces, constant_force, press_steadiness
 from skills.friction import blended_friction_free, friction_coefficient, unit_rows
 from skills.preprocess import MAX_GAP_S, merged_intervals, resampled_recording, unmeasured_intervals
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
     quaternion_angle_between,

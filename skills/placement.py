@@ -26,7 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from schemas.skill import DMPParameters, Segment, SegmentKind, Skill
 from skills.compliant_frames import compliant_frame_rotations
-from skills.dmp import DMP, QuaternionDMP
+from skills.dmp import DMP
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
     quaternion_from_matrix,

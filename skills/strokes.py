@@ -5,7 +5,7 @@ each other without a free segment between them (a crease, a press dip without li
 free segments between strokes carry the tool from one to the next; a long demonstration's transfers can take the
 tool far beyond any arm's reach while every stroke itself is small. A per-stroke skill keeps only the stroke's
 contact segments: the executor settles at the pre-contact point of its first segment and approaches it guarded
-(``sim_worker.executor``), which is the free approach of that stroke.
+(``execution.executor``), which is the free approach of that stroke.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Invariants of the hybrid impedance/force control law (skills/control.py): pure numpy, fast."""
+"""Invariants of the hybrid impedance/force control law (skills/control/): pure numpy, fast."""
 
 from __future__ import annotations
 

@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from corpus.synthetic import minimum_jerk, reach_pose_trajectory
 from schemas.skill import DMPParameters
-from skills.dmp import AMPLITUDE_SCALING_MIN_FRACTION, DMP, QuaternionDMP
+from skills.dmp import AMPLITUDE_SCALING_MIN_FRACTION, DMP
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     quaternion_angle_between,
     quaternion_exp,

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from execution.telemetry import Telemetry
 from schemas.execution import (
     ControllerGains,
     ControllerKind,
@@ -24,7 +25,6 @@ from schemas.execution import (
 from schemas.skill import LearnOptions, SegmentKind
 from sim_worker.executor import ExecutionResult, execute_skill
 from sim_worker.teacher import record_demonstration
-from sim_worker.telemetry import Telemetry
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion
 

@@ -1,5 +1,5 @@
 """A skill learned from several demonstrations executed in PyBullet (real physics at 1 kHz): its force band goes into
-the execution's metrics and verdict (`sim_worker.metrics`), judged on the simulator's TRUE normal force."""
+the execution's metrics and verdict (`execution.metrics`), judged on the simulator's TRUE normal force."""
 
 from __future__ import annotations
 

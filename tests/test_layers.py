@@ -1,11 +1,13 @@
 """The package layers, checked on the source (``ast``, nothing imported): every import, at module level or inside a
 function, points down the layers.
 
-    schemas  <-  skills  <-  corpus  <-  services, sim_worker  <-  experiments  <-  cli
+    schemas  <-  skills  <-  corpus, execution  <-  services, sim_worker  <-  experiments  <-  cli
 
 - ``schemas/`` (the contract) imports none of the project's other packages;
 - ``skills/`` (the science) imports only ``schemas``: no service, no simulator, and no test-data generator;
 - ``corpus/`` (demonstrations with known ground truth) imports only ``schemas`` and ``skills``;
+- ``execution/`` (an execution apart from any physics engine: plans, contact detection, surface following, metrics,
+  telemetry, the robot interface) imports only ``schemas`` and ``skills``: no engine, no bus, no test data;
 - nothing below ``cli/`` imports from ``cli`` (the console script is the top; a child process started as
   ``python -m cli.main`` is a command line, not an import);
 - ``services/`` and ``sim_worker/`` import nothing from ``experiments/`` (the runners sit on top of them), nor
@@ -24,16 +26,28 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN: dict[str, set[str]] = {
-    "schemas": {"skills", "corpus", "services", "sim_worker", "experiments", "cli", "benchmarks"},
-    "skills": {"corpus", "services", "sim_worker", "experiments", "cli", "benchmarks"},
-    "corpus": {"services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "schemas": {"skills", "corpus", "execution", "services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "skills": {"corpus", "execution", "services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "corpus": {"execution", "services", "sim_worker", "experiments", "cli", "benchmarks"},
+    "execution": {"corpus", "services", "sim_worker", "experiments", "cli", "benchmarks"},
     "services": {"sim_worker", "experiments", "cli", "benchmarks"},
     "sim_worker": {"services", "experiments", "cli", "benchmarks"},
     # The MuJoCo engine: sim_worker's engine-free data (world_config, robot_model, geometry, sensor), never PyBullet.
     "sim_mujoco": {"services", "experiments", "cli", "benchmarks", "pybullet"},
     "experiments": {"cli", "benchmarks"},
 }
-PACKAGES = ("schemas", "skills", "corpus", "services", "sim_worker", "sim_mujoco", "experiments", "cli", "benchmarks")
+PACKAGES = (
+    "schemas",
+    "skills",
+    "corpus",
+    "execution",
+    "services",
+    "sim_worker",
+    "sim_mujoco",
+    "experiments",
+    "cli",
+    "benchmarks",
+)
 
 
 def imported_packages(source: str, package: tuple[str, ...]) -> list[tuple[int, str]]:

@@ -1,9 +1,9 @@
-"""Phase-plan time warping: the same path, slowed where it must be (sim_worker/plans.py)."""
+"""Phase-plan time warping: the same path, slowed where it must be (execution/plans.py)."""
 
 import numpy as np
 import pytest
 
-from sim_worker.plans import CREASE_HOLD_DISTANCE_M, crease_speed_caps, slowed_times
+from execution.plans import CREASE_HOLD_DISTANCE_M, crease_speed_caps, slowed_times
 
 DT = 1e-3
 

@@ -351,8 +351,8 @@ class _Query:
 def test_one_replay_query_is_answered_with_at_most_replay_max_samples():
     """A worker's replay queryable answers one query with the first REPLAY_MAX_SAMPLES samples asked, whatever range
     it asks: the API asks a longer gap in parts (`BusClient.telemetry_replay`)."""
+    from execution.telemetry import Telemetry
     from schemas.execution import TELEMETRY_WIDTH, TelemetryBatch
-    from sim_worker.telemetry import Telemetry
     from sim_worker.zenoh_worker import Worker
 
     worker = Worker(worker_id="w-replay")

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from execution.telemetry import Telemetry
 from schemas.execution import TELEMETRY_WIDTH
-from sim_worker.telemetry import Telemetry
 from sim_worker.telemetry_archive import CONSOLIDATED_ROWS, TelemetryArchive
 
 

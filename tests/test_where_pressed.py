@@ -1,4 +1,4 @@
-"""Verdicts that know where the tool pressed (``skills.pressed_normals``, ``sim_worker.metrics.surfaces_pressed``).
+"""Verdicts that know where the tool pressed (``skills.pressed_normals``, ``execution.metrics.surfaces_pressed``).
 
 Ground truth: the judge of ``experiments.verdict_truth``, which places the tool's POSITIONS on the exact shapes of the
 world that ran (the verdict compares the simulator's contact normals with the skill's taught frames): which body each
@@ -14,12 +14,13 @@ import math
 import numpy as np
 import pytest
 
+from execution.executor import follows_surface
 from experiments.verdict_truth import PERTURBATIONS, Fault, Judgement, run_judged, taught
 from schemas.execution import ExecutionPhase, ExecutionSettings
 from schemas.skill import SegmentKind
 from schemas.verdict import VerdictCheckName
 from sim_worker.execution_world import execution_world
-from sim_worker.executor import follows_surface, run_skill
+from sim_worker.executor import run_skill
 from skills import pressed_normals
 from skills.frames import matrix_from_axis_angle
 

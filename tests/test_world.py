@@ -314,7 +314,7 @@ def test_a_world_left_to_the_interpreters_exit_is_closed_silently() -> None:
     finalized after the modules' globals are gone: no "Exception ignored" on stderr."""
     script = (  # a compiled function of the script's own, held with its entry, decides the order of the teardown
         "import numba\n"
-        "from sim_worker.compiled_calls import compiled_entry\n"
+        "from skills.compiled import compiled_entry\n"
         "from sim_worker.world import SimWorld\n"
         "@numba.njit\n"
         "def first(model):\n"

@@ -59,7 +59,8 @@ def skill_problems(skill: Skill) -> list[tuple[list[str | int], str]]:
     a contact segment without compliant frames or without a force, DMP parameters whose shapes disagree
     (``skills.dmp`` rebuilds each one), compliant frame lists of different lengths."""
     from schemas.skill import SegmentKind
-    from skills.dmp import DMP, QuaternionDMP
+    from skills.dmp import DMP
+    from skills.quaternion_dmp import QuaternionDMP
 
     problems: list[tuple[list[str | int], str]] = []
     for k, segment in enumerate(skill.segments):

@@ -31,7 +31,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from skills.control import REFERENCE_POSITION, REFERENCE_QUAT, REFERENCE_TWIST, ControlFrame, HybridController
+from skills.control import ControlFrame, HybridController
+from skills.control.layouts import REFERENCE_POSITION, REFERENCE_QUAT, REFERENCE_TWIST
 from skills.frames import rotation_from_vectors
 from skills.normal_tracking import SurfaceNormalTracker
 from skills.quaternions import quaternion_from_matrix, quaternion_product

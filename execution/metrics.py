@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.contact_detection import ContactGuard
+from execution.plans import contact_geometry
+from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
 from schemas.execution import (
     PHASE_CODES,
@@ -33,9 +36,6 @@ from schemas.verdict import (
     VerdictCheck,
     VerdictCheckName,
 )
-from sim_worker.contact_detection import ContactGuard
-from sim_worker.plans import contact_geometry
-from sim_worker.telemetry import Telemetry
 from skills import pressed_normals, skill_checks
 from skills.dmp import DMP
 from skills.joint_learning import share_in_band

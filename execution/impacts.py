@@ -13,11 +13,12 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.metrics import STEADY_CONTACT_DELAY_S
+from execution.plans import first_force, force_after
+from execution.robot import Robot
 from schemas.execution import ExecutionSettings
 from schemas.skill import Segment
-from sim_worker.metrics import STEADY_CONTACT_DELAY_S
-from sim_worker.plans import first_force, force_after
-from sim_worker.world import SimWorld
+from skills.control.layouts import ROBOT_JACOBIAN
 from skills.job_estimate import TOUCHDOWN_SPEED_MIN_M_S
 
 TOUCHDOWN_IMPACT_FRACTION = 0.8
@@ -31,11 +32,20 @@ CREASE_MIN_ANGLE_RAD = math.radians(3.0)
 
 
 class ImpactPlanner:
-    """The impact speeds of one execution in ``world`` (its arm, its contact as planned for by ``settings``), for a
-    contact threshold of ``contact_threshold_n`` (N) at the control step ``dt`` (s)."""
+    """The impact speeds of one execution on ``robot`` (its arm; its contact as planned for by ``settings``, else the
+    ``contact`` stiffness N/m and damping N·s/m, a simulator's own), for a contact threshold of
+    ``contact_threshold_n`` (N) at the control step ``dt`` (s)."""
 
-    def __init__(self, world: SimWorld, settings: ExecutionSettings, contact_threshold_n: float, dt: float) -> None:
-        self.world = world
+    def __init__(
+        self,
+        robot: Robot,
+        settings: ExecutionSettings,
+        contact_threshold_n: float,
+        dt: float,
+        contact: tuple[float, float],
+    ) -> None:
+        self.robot = robot
+        self.contact = contact
         self.settings = settings
         self.contact_threshold_n = contact_threshold_n
         self.dt = dt
@@ -43,18 +53,19 @@ class ImpactPlanner:
     def contact_impedance(self, z: NDArray[np.float64]) -> float:
         """The touch-down peak per unit impact speed (N·s/m) of a contact along the world direction ``z``:
         ``max(sqrt(k m), c)``, ``k`` and ``c`` the contact's stiffness and damping as planned for (the settings'
-        ``planned_contact_*``, else the simulated world's), ``m`` the arm's apparent mass along ``z`` in its pose now.
+        ``planned_contact_*``, else the simulator's ``contact``), ``m`` the arm's apparent mass along ``z`` in its pose
+        now.
 
         A mass ``m`` meeting a spring ``k`` and a damper ``c`` side by side at speed ``v`` peaks at
         ``v sqrt(k m) g(ζ)``, ``ζ = c / (2 sqrt(k m))``: ``g`` stays at or below 1 up to ``ζ = 1/2`` (the damper takes
         off some of the spring's peak) and is ``2ζ`` above it (the damper's ``c v`` at the first instant is the peak;
         worked out from the closed-form motion). The maximum of the two bounds both."""
-        J, _, M = self.world.dynamics(True)
-        mobility = J[:3] @ np.linalg.solve(M, J[:3].T)  # Λ^-1, translational block
+        J = self.robot.robot_state()[ROBOT_JACOBIAN].reshape(6, 7)
+        mobility = J[:3] @ np.linalg.solve(self.robot.mass_matrix(), J[:3].T)  # Λ^-1, translational block
         mass = 1.0 / max(float(z @ mobility @ z), 1e-9)
-        s, config = self.settings, self.world.config
-        k = config.contact.stiffness_n_m if s.planned_contact_stiffness_n_m is None else s.planned_contact_stiffness_n_m
-        c = config.contact.damping_n_s_m if s.planned_contact_damping_n_s_m is None else s.planned_contact_damping_n_s_m
+        s, (k, c) = self.settings, self.contact
+        k = k if s.planned_contact_stiffness_n_m is None else s.planned_contact_stiffness_n_m
+        c = c if s.planned_contact_damping_n_s_m is None else s.planned_contact_damping_n_s_m
         return max(math.sqrt(k * mass), c)
 
     def touchdown_speed(self, segment: Segment, z: NDArray[np.float64]) -> float:

@@ -3,7 +3,7 @@
 A plan holds, for every 1 kHz control step of a phase, the reference pose and twist (world frame, m, m/s,
 quaternions ``[x, y, z, w]``, rad/s), the desired force along CF z (N) and the control frame(s) with their
 selection. :class:`PhasePlanner` builds them from the skill's segments and the tool pose at the moment the phase
-starts (see ``sim_worker.executor`` for the order of the phases; docs/CONVENTIONS.md for the frames).
+starts (see ``execution.executor`` for the order of the phases; docs/CONVENTIONS.md for the frames).
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from schemas.execution import ControllerKind, ExecutionPhase, ExecutionSettings
 from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
 from skills.control import ControlFrame, ControlFrameSeries, HybridController
-from skills.dmp import DMP, QuaternionDMP
+from skills.dmp import DMP
+from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
     quaternion_from_matrix,
@@ -32,6 +33,9 @@ CREASE_HOLD_DISTANCE_M = 0.006
 surface before the taught switch: ~3 mm for our 1 cm ball on a 20° crease, plus a margin)."""
 CREASE_DECELERATION_M_S2 = 0.08
 """Tangential deceleration into (and acceleration out of) the crease speed, m/s²."""
+CONTACT_LOSS_RETRACT_M = 0.05
+"""How far the tool backs off along -CF z after losing the surface, m (over ``CONTACT_LOSS_RETRACT_S``)."""
+CONTACT_LOSS_RETRACT_S = 1.0
 
 
 @dataclass
@@ -91,7 +95,7 @@ class PhasePlan:
     learned_rotations: NDArray[np.float64] | None = None
     """A contour's learned CF rotations (M, 3, 3), one every ``stride`` steps (``series`` holds their frames)."""
     follows_surface: bool = False
-    """The frame follows the surface normal estimated online (``sim_worker.surface_following``)."""
+    """The frame follows the surface normal estimated online (``execution.surface_following``)."""
     quick_steps: NDArray[np.bool_] | None = None
     """With ``follows_surface``: per step, whether it is near a crease, where the normal is followed quickly."""
     next_z: NDArray[np.float64] | None = None
@@ -195,6 +199,16 @@ class PhasePlanner:
             np.zeros(n),
             frame=self.identity_frame,
         )
+
+    def retraction(self, segment_index: int, p: NDArray, q: NDArray, axis: NDArray[np.float64]) -> PhasePlan:
+        """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit) from the tool pose ``(p, q)`` over
+        ``CONTACT_LOSS_RETRACT_S``, motion control on every axis: a retreat of segment ``segment_index``."""
+        n = max(1, round(CONTACT_LOSS_RETRACT_S / self.dt))
+        ref_p = p - smooth_ramp(0.0, CONTACT_LOSS_RETRACT_M, n)[:, None] * axis
+        twist = np.zeros((n, 6))
+        twist[1:, :3] = np.diff(ref_p, axis=0) / self.dt
+        return PhasePlan(ExecutionPhase.retreat, segment_index, ref_p, np.broadcast_to(q, (n, 4)), twist, np.zeros(n),
+                         frame=self.identity_frame)  # fmt: skip
 
     def free(
         self, segment: Segment, p: NDArray, q: NDArray, goal: NDArray[np.float64], stop_axis: NDArray | None
@@ -310,7 +324,7 @@ class PhasePlanner:
 
         ``crease_in_m_s`` / ``crease_out_m_s``: the segment starts / ends at a crease with another contact segment,
         passed at this tangential speed (m/s; the plan is slowed there, see :func:`crease_speed_caps`).
-        ``follows_surface``: the frame follows the surface found (``sim_worker.surface_following``); the crease may
+        ``follows_surface``: the frame follows the surface found (``execution.surface_following``); the crease may
         then be met up to ``approach_slow_distance_m`` before the taught one (the slow-down before it starts that
         much earlier), and a contour keeps its learned rotations for the follower instead of a frame series."""
         geo = self.geometry[segment.index]
