@@ -680,7 +680,10 @@ def _left_out_judges(
     mean_positions: NDArray[np.float64],
 ) -> list[_Judge]:
     """For each demonstration, the segment's CF z and force band learned from the OTHERS (the same estimators as the
-    joint segment's, on the same alignment): a demonstration is not compared with an estimate it is part of."""
+    joint segment's, on the same alignment): a demonstration is not compared with an estimate it is part of. Empty
+    where it is the only one (no others to judge it by)."""
+    if len(trials) < 2:
+        return []
     judges = []
     for k in range(len(trials)):
         others = [i for i in range(len(trials)) if i != k]
@@ -855,7 +858,8 @@ def learn_joint_skill(
     for t in trials:
         own_type = None if t.learned is None else t.learned.skill.skill_type
         share = angle = None
-        if t.learned is not None and len(_contacts(t.learned)) == len(joints) and own_type is skill_type:
+        judged = t.misfit is not None or len(kept) > 1  # one used alone has no others to be judged against
+        if judged and t.learned is not None and len(_contacts(t.learned)) == len(joints) and own_type is skill_type:
             # Each one used is judged against the skill learned from the OTHERS (leave-one-out); one left out by the
             # learner is in none of the joint estimates, so against the joint skill itself.
             judges = (

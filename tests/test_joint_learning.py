@@ -192,3 +192,18 @@ def test_a_demonstration_without_contact_is_named_not_learnable(
     use = (skill.demonstrations or [])[3]
     assert use.misfit is MisfitReason.not_learnable and use.weight == 0.0 and "wrenches" in (use.reason or "")
     assert [s.model_dump() for s in skill.segments] == [s.model_dump() for s in joint.segments]
+
+
+def test_one_demonstration_left_with_the_others_left_out_is_not_judged_against_nothing(
+    task: tuple[list[CorpusCase], list[Demonstration]],
+) -> None:
+    # Two given, one not learnable: the joint skill is the other's alone, with no others to judge it against.
+    cases, demonstrations = task
+    a = demonstrations[0].arrays()
+    in_the_air = Demonstration.from_arrays(a.t, a.positions, a.orientations, np.zeros_like(a.wrenches))
+    skill = learn_joint_skill([demonstrations[1], in_the_air], sources=[cases[1].name, "in-the-air"])
+    uses = skill.demonstrations or []
+    assert uses[0].weight == 1.0 and uses[1].misfit is MisfitReason.not_learnable
+    assert uses[0].share_in_band is None and uses[0].normal_angle_deg is None
+    names = {check.name for check in skill.checks}
+    assert CheckName.demonstration_in_band not in names and CheckName.demonstration_normal not in names
