@@ -112,10 +112,15 @@ def joint_lines(skill) -> list[str]:
         if use.misfit is not None:
             lines.append(f"  {use.source}: LEFT OUT ({use.misfit.value}): {use.reason}")
             continue
+        # Judged against the skill learned from the others (leave-one-out); with one other, no band to judge by.
+        band = (
+            ""
+            if use.share_in_band is None
+            else f"{100 * use.share_in_band:.0f} % of its contact in the others' force band, "
+        )
         agreement = (
-            f"{100 * use.share_in_band:.0f} % of its contact in the force band, its own CF z "
-            f"{use.normal_angle_deg:.1f} deg from the joint one"
-            if use.share_in_band is not None and use.normal_angle_deg is not None
+            f"{band}its own CF z {use.normal_angle_deg:.1f} deg from the others' joint one"
+            if use.normal_angle_deg is not None
             else "not aligned"
         )
         role = ", the reference" if use.reference else ""

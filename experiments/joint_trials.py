@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +28,9 @@ from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth,
 from skills.joint_learning import learn_joint_skill, share_in_band
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
+
+if TYPE_CHECKING:
+    from experiments.kuleuven_cad import CadRun
 
 KULEUVEN_TRIALS = ("contour_a_1", "contour_a_2", "contour_b_1", "contour_b_2")
 """The KU Leuven recordings, two per configuration."""
@@ -274,3 +278,35 @@ def executed_comparison(scenario: str, seeds: Sequence[int], **overrides: object
         run.verdict.verdict.value if run.verdict else "—",
         run.true_force_in_band,
     )
+
+
+@dataclass(frozen=True)
+class CadExecuted:
+    """A KU Leuven skill executed on the object's CAD (`experiments.kuleuven_cad.cad_runs`): ``skill`` names it (a
+    recording's, or the one learned from all of them), ``runs`` one per CF x-y stiffness."""
+
+    skill: str
+    runs: list[CadRun]
+
+
+def kuleuven_cad_comparison(stiffnesses: tuple[float | None, ...] | None = None) -> list[CadExecuted]:
+    """Each KU Leuven recording's own skill and the skill learned from all four together, every one learned on the
+    reference's placement of the object (`kuleuven_trials`) and executed on its CAD there, placed in reach as any
+    real recording's skill is, once per CF x-y stiffness of ``stiffnesses`` (N/m; None: the default gains'; default
+    `experiments.kuleuven_cad.CAD_STIFFNESSES_N_PER_M`)."""
+    from experiments.kuleuven_cad import CAD_STIFFNESSES_N_PER_M, cad_runs
+    from schemas.execution import ExecutionSettings
+    from sim_worker.execution_world import execution_world
+
+    stiffnesses = CAD_STIFFNESSES_N_PER_M if stiffnesses is None else stiffnesses
+    trials = kuleuven_trials()
+    reference = next(t for t in trials if t.name == KULEUVEN_REFERENCE).truth
+    environment = ExecutionSettings().environment
+
+    def on_cad(skill: Skill, trial: KuleuvenTrial) -> list[CadRun]:
+        return cad_runs(execution_world(skill, environment), _moved_truth(trial, reference), stiffnesses)
+
+    executed = [CadExecuted(t.name, on_cad(learn_skill(t.demonstration), t)) for t in trials]
+    joint = learn_joint_skill([t.demonstration for t in trials], sources=[t.name for t in trials])
+    own = next(t for t in trials if t.demonstration.metadata.name == joint.demonstration.name)
+    return [*executed, CadExecuted(f"all {len(trials)} together", on_cad(joint, own))]

@@ -282,16 +282,7 @@ def kuleuven_cad_trial(
     runs = [CadRun(name, default_stiffness, run_skill(world, settings).metrics, None) for name, world in worlds.items()]
     cad = cad_world(truth, placement)
     where = placed_object(truth, placement)
-    for stiffness in (default_stiffness if value is None else value for value in cad_stiffnesses):
-        along_cf_z = settings.gains.translational_stiffness_n_per_m[2]
-        gains = settings.gains.model_copy(
-            update={"translational_stiffness_n_per_m": [stiffness, stiffness, along_cf_z]}
-        )
-        chosen = settings.model_copy(update={"gains": gains})
-        resolved = execution_world(rebuilt.skill, chosen.environment, world=cad)
-        result = run_skill(resolved, chosen)
-        share = on_face_share(result.telemetry, where, truth, resolved.config.tool.radius_m)
-        runs.append(CadRun("CAD", stiffness, result.metrics, share))
+    runs += cad_runs(rebuilt, truth, cad_stiffnesses)
     path = skill_tool_path(rebuilt.skill, PATH_STEP_S)
     crease = where.to_world(truth.kuleuven_object.crease.points)
     return CadTrial(
@@ -303,6 +294,33 @@ def kuleuven_cad_trial(
         runs=tuple(runs),
         gaps=tuple(surface_gap(name, world, truth, placement) for name, world in worlds.items()),
     )
+
+
+def cad_runs(
+    rebuilt: ExecutionWorld,
+    truth: KuleuvenGroundTruth,
+    cad_stiffnesses: tuple[float | None, ...] = CAD_STIFFNESSES_N_PER_M,
+) -> list[CadRun]:
+    """Execute a skill on the CAD of the object ``truth`` registered (the skill's demonstrations are in its recording's
+    world), moved by the placement ``rebuilt`` (the skill's own resolved world) gave it: once per CF x-y stiffness of
+    ``cad_stiffnesses`` (N/m; None: the default gains'), ``hybrid_cf`` and the wrist sensor."""
+    settings = ExecutionSettings()
+    placement = rebuilt.placement
+    assert placement is not None  # a real recording carries no world: it is always placed
+    cad = cad_world(truth, placement)
+    where = placed_object(truth, placement)
+    runs = []
+    for stiffness in (settings.gains.translational_stiffness_n_per_m[0] if v is None else v for v in cad_stiffnesses):
+        along_cf_z = settings.gains.translational_stiffness_n_per_m[2]
+        gains = settings.gains.model_copy(
+            update={"translational_stiffness_n_per_m": [stiffness, stiffness, along_cf_z]}
+        )
+        chosen = settings.model_copy(update={"gains": gains})
+        resolved = execution_world(rebuilt.skill, chosen.environment, world=cad)
+        result = run_skill(resolved, chosen)
+        share = on_face_share(result.telemetry, where, truth, resolved.config.tool.radius_m)
+        runs.append(CadRun("CAD", stiffness, result.metrics, share))
+    return runs
 
 
 def kuleuven_cad_trials(

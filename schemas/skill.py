@@ -377,10 +377,17 @@ class DemonstrationUse(BaseModel):
     reason: Text | None = Field(None, description="One sentence with the numbers, when it was left out.")
     skill_type: SkillType | None = Field(None, description="The type it gives on its own.")
     share_in_band: Real | None = Field(
-        None, ge=0, le=1, description="Share of its contact samples whose press lies in the joint force band."
+        None,
+        ge=0,
+        le=1,
+        description="Share of its contact samples whose press lies in the force band learned from the OTHERS "
+        "(leave-one-out; a demonstration left out by the learner: the joint band). None: not aligned, or fewer "
+        "than two others.",
     )
     normal_angle_deg: Real | None = Field(
-        None, description="Median angle between its own CF z and the joint skill's, over its contact, deg."
+        None,
+        description="Median angle between its own CF z and the one learned from the OTHERS (leave-one-out), over its "
+        "contact, deg.",
     )
 
 

@@ -20,8 +20,9 @@ correspondence and joined (docs/LEARNING.md, section 11):
    force band: across them and within each); the DMPs fitted to the aligned mean (position, orientation, force),
    on the reference's time base: its own samples moved by the mean's smoothed deviation from them.
 4. **Self-checks.** The joint skill's checks against the reference recording (`skills.parameterize
-   .recording_checks`), and each demonstration against the joint skill: its press within the band, its own CF z
-   against the joint one (`skills.skill_checks.demonstration_in_band`, `demonstration_normal`).
+   .recording_checks`), and each demonstration against the skill learned WITHOUT it (leave-one-out): its press
+   within the others' band, its own CF z against theirs (`skills.skill_checks.demonstration_in_band`,
+   `demonstration_normal`).
 
 ONE demonstration learns exactly as `learn_skill` (the same skill, bit for bit). World frame, SI units.
 """
@@ -126,6 +127,10 @@ BAND_CONFIDENCE = 0.95
 DEVIATION_SMOOTHING_POINTS = 2.0
 """The demonstrations' mean deviation from the reference is smoothed over this many alignment points (2 % of the
 segment) before it moves the reference's samples."""
+
+LEAVE_ONE_OUT_MIN_OTHERS = 2
+"""A demonstration's press is judged against the band of the OTHERS only when at least this many others remain: one
+demonstration's band has no spread across demonstrations to predict another's with."""
 
 PLACE_POINTS = 400
 """Contact points per demonstration compared for its place on the part (decimated evenly)."""
@@ -401,6 +406,21 @@ def _corresponding(
 
 
 @dataclass(frozen=True)
+class _Judge:
+    """A contact segment's force band and CF z on the alignment points (G, 3), learned from some of the
+    demonstrations: all of them for one left out by the learner, all but the one judged for the others."""
+
+    band: ForceBand
+    normals: NDArray[np.float64]
+
+    @property
+    def predicts(self) -> bool:
+        """Whether the band says where a NEW demonstration presses: it needs a spread, so at least
+        `LEAVE_ONE_OUT_MIN_OTHERS` demonstrations."""
+        return self.band.demonstrations >= LEAVE_ONE_OUT_MIN_OTHERS
+
+
+@dataclass(frozen=True)
 class _JointSegment:
     """A joint contact segment and what the checks compare on the reference recording."""
 
@@ -409,6 +429,8 @@ class _JointSegment:
     """The joint CF z on the alignment points (G, 3)."""
     weights: NDArray[np.float64]
     """Each demonstration's weight (T,) in the joint normals (in the order learned from)."""
+    judges: list[_Judge]
+    """What each demonstration (in the order learned from) is judged against: the segment learned without it."""
 
 
 def _pooled_plane(strokes: list[_Stroke], trials: list[LearnedTrial], positions: NDArray) -> PlaneFit:
@@ -453,7 +475,6 @@ def _normals_by_place(
 
 
 def _band(
-    strokes: list[_Stroke],
     aligned: list[NDArray[np.float64]],
     normals: NDArray[np.float64],
     offset_uncertainty_n: float | None,
@@ -541,18 +562,15 @@ def _joint_segment(
     n_basis = basis_count(float(t_seg[-1]), options)
     stride = -(-m // options.max_fit_samples)
     fit = slice((m - 1) % stride, None, stride)
-    plane, weights = None, np.full(len(trials), 1.0 / len(trials))
-    if skill_type is SkillType.slide:
-        plane = _pooled_plane(strokes, trials, mean_positions)
-        normals = np.broadcast_to(plane.rotation[:, 2], (ALIGNMENT_POINTS, 3))
+    normals, weights, plane = _joint_normals(skill_type, strokes, trials, items, ref_stroke.positions, mean_positions)
+    if plane is not None:
         cf_z = np.broadcast_to(plane.rotation[:, 2], (m, 3))
     else:
-        normals, weights = _normals_by_place(ref_stroke.positions, trials, items)
         own_normals = np.asarray(ref_item.cf_z)
         on_path = unit_rows(mean_on_samples(normals, ref_stroke.normals, own_normals))
         rotations = contour_frames(mean_positions, np.zeros_like(mean_positions), rate_hz, slice(0, m), normals=on_path)
         cf_z = rotations[:, :, 2]
-    band, mean_press = _band(strokes, aligned, normals, _offset_uncertainty_n(trials))
+    band, mean_press = _band(aligned, normals, _offset_uncertainty_n(trials))
     measured = cf_z_forces(r.forces[rows], cf_z)
     own_press = resampled(measured, ALIGNMENT_POINTS)
     press = mean_on_samples(mean_press[:, None], own_press[:, None], measured[:, None])[:, 0]
@@ -628,7 +646,58 @@ def _joint_segment(
             quality=SegmentQuality(position_rms_m=p_rms, orientation_rms_rad=q_rms, force_rms_n=profile.rms_n),
             **common,
         )
-    return _JointSegment(LearnedSegment(joint, cf_z, learned_force, plane, measured), normals, weights)
+    judges = _left_out_judges(skill_type, strokes, aligned, trials, items, ref_stroke.positions, mean_positions)
+    return _JointSegment(LearnedSegment(joint, cf_z, learned_force, plane, measured), normals, weights, judges)
+
+
+def _joint_normals(
+    skill_type: SkillType,
+    strokes: list[_Stroke],
+    trials: list[LearnedTrial],
+    items: list[LearnedSegment],
+    reference_positions: NDArray[np.float64],
+    mean_positions: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], PlaneFit | None]:
+    """The joint CF z of matched segments on the alignment points (G, 3), each demonstration's weight in it (T,),
+    and a slide's plane (None for a contour): a slide's from their evidence pooled (`_pooled_plane`, its x and
+    origin along the mean path ``mean_positions`` (M, 3) m), a contour's by place along the reference's path
+    ``reference_positions`` (G, 3) m (`_normals_by_place`)."""
+    if skill_type is SkillType.slide:
+        plane = _pooled_plane(strokes, trials, mean_positions)
+        normals = np.broadcast_to(plane.rotation[:, 2], (ALIGNMENT_POINTS, 3))
+        return normals, np.full(len(trials), 1.0 / len(trials)), plane
+    normals, weights = _normals_by_place(reference_positions, trials, items)
+    return normals, weights, None
+
+
+def _left_out_judges(
+    skill_type: SkillType,
+    strokes: list[_Stroke],
+    aligned: list[NDArray[np.float64]],
+    trials: list[LearnedTrial],
+    items: list[LearnedSegment],
+    reference_positions: NDArray[np.float64],
+    mean_positions: NDArray[np.float64],
+) -> list[_Judge]:
+    """For each demonstration, the segment's CF z and force band learned from the OTHERS (the same estimators as the
+    joint segment's, on the same alignment): a demonstration is not compared with an estimate it is part of. Empty
+    where it is the only one (no others to judge it by)."""
+    if len(trials) < 2:
+        return []
+    judges = []
+    for k in range(len(trials)):
+        others = [i for i in range(len(trials)) if i != k]
+        normals = _joint_normals(
+            skill_type,
+            [strokes[i] for i in others],
+            [trials[i] for i in others],
+            [items[i] for i in others],
+            reference_positions,
+            mean_positions,
+        )[0]
+        offset = _offset_uncertainty_n([trials[i] for i in others])
+        judges.append(_Judge(_band([aligned[i] for i in others], normals, offset)[0], normals))
+    return judges
 
 
 def band_alignment(
@@ -663,21 +732,22 @@ def _weighted_share(insides: Sequence[NDArray[np.bool_]], samples: Sequence[int]
     return float(weights @ np.array([inside.mean() for inside in insides]) / weights.sum())
 
 
-def _agreement(learned: LearnedTrial, joint: list[_JointSegment]) -> tuple[float, float]:
-    """A demonstration against the joint contact segments: its share of contact within their bands, and the median
-    angle (deg) between its own CF z and theirs at the matched phases."""
+def _agreement(learned: LearnedTrial, judges: list[_Judge]) -> tuple[float | None, float]:
+    """A demonstration against contact segments learned without it (``judges``, one per contact segment): its share
+    of contact within their bands (None where a band cannot predict a new demonstration, `_Judge.predicts`), and the
+    median angle (deg) between its own CF z and theirs at the matched phases."""
     r, insides, samples, angles = learned.recording, [], [], []
-    for item, segment in zip(_contacts(learned), joint, strict=True):
+    for item, judge in zip(_contacts(learned), judges, strict=True):
         rows = slice(item.segment.start_index, item.segment.end_index)
-        band = segment.learned.segment.force_band
-        assert band is not None and item.measured_force_n is not None and item.cf_z is not None
-        inside, matched = band_alignment(band, r.positions[rows], item.measured_force_n)
+        assert item.measured_force_n is not None and item.cf_z is not None
+        inside, matched = band_alignment(judge.band, r.positions[rows], item.measured_force_n)
         insides.append(inside)
         samples.append(rows.stop - rows.start)
         own = resampled(np.asarray(item.cf_z), RUN_POINTS)
         known = matched >= 0
-        angles.append(_angles_deg(own[known], segment.normals[matched[known]]))
-    return _weighted_share(insides, samples), float(np.median(np.concatenate(angles)))
+        angles.append(_angles_deg(own[known], judge.normals[matched[known]]))
+    share = _weighted_share(insides, samples) if all(judge.predicts for judge in judges) else None
+    return share, float(np.median(np.concatenate(angles)))
 
 
 def _auto_selection(
@@ -783,14 +853,24 @@ def learn_joint_skill(
     # reference's own press, which differs from the mean by the hand.
     checks = [check for check in own_checks if check.name not in REFERENCE_FORCE_CHECKS]
     uses = []
+    position = {t.index: p for p, t in enumerate(kept)}
     weights = dict(zip((t.index for t in kept), np.mean([j.weights for j in joints], axis=0), strict=True))
     for t in trials:
         own_type = None if t.learned is None else t.learned.skill.skill_type
         share = angle = None
-        if t.learned is not None and len(_contacts(t.learned)) == len(joints) and own_type is skill_type:
-            share, angle = _agreement(t.learned, joints)
+        judged = t.misfit is not None or len(kept) > 1  # one used alone has no others to be judged against
+        if judged and t.learned is not None and len(_contacts(t.learned)) == len(joints) and own_type is skill_type:
+            # Each one used is judged against the skill learned from the OTHERS (leave-one-out); one left out by the
+            # learner is in none of the joint estimates, so against the joint skill itself.
+            judges = (
+                [_Judge(j.learned.segment.force_band, j.normals) for j in joints]  # type: ignore[arg-type]
+                if t.misfit is not None
+                else [j.judges[position[t.index]] for j in joints]
+            )
+            share, angle = _agreement(t.learned, judges)
             if t.misfit is None:
-                checks.append(skill_checks.demonstration_in_band(t.index, t.source, share))
+                if share is not None:
+                    checks.append(skill_checks.demonstration_in_band(t.index, t.source, share))
                 checks.append(skill_checks.demonstration_normal(t.index, t.source, angle))
         uses.append(
             DemonstrationUse(

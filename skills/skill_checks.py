@@ -579,8 +579,9 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
 
 
 def demonstration_in_band(index: int, source: str, share: float) -> SkillCheck:
-    """Check demonstration ``index`` (given as ``source``) against a joint skill's force band: ``share`` (0-1) of its
-    contact samples press within it (`skills.joint_learning.share_in_band`)."""
+    """Check demonstration ``index`` (given as ``source``) against the force band the OTHER demonstrations give
+    (leave-one-out: a band it is part of would be widened to hold it): ``share`` (0-1) of its contact samples press
+    within it (`skills.joint_learning.share_in_band`)."""
     passed = share >= IN_BAND_SHARE
     verdict = "within" if passed else "outside"
     return SkillCheck(
@@ -590,15 +591,15 @@ def demonstration_in_band(index: int, source: str, share: float) -> SkillCheck:
         value=share,
         limit=IN_BAND_SHARE,
         unit="ratio",
-        message=f"demonstration {index} ({source}) presses within the demonstrated force band for "
+        message=f"demonstration {index} ({source}) presses within the others' force band for "
         f"{100 * share:.0f} % of its contact (at least {100 * IN_BAND_SHARE:.0f} %): {verdict} what the "
-        "demonstrations together showed",
+        "other demonstrations together showed",
     )
 
 
 def demonstration_normal(index: int, source: str, angle_deg: float) -> SkillCheck:
-    """Check demonstration ``index``'s own CF z against the joint skill's: the median angle (deg) over its contact
-    may be at most a hand's lean (`PLANE_FORCE_TOLERANCE_DEG`)."""
+    """Check demonstration ``index``'s own CF z against the one the OTHER demonstrations give (leave-one-out): the
+    median angle (deg) over its contact may be at most a hand's lean (`PLANE_FORCE_TOLERANCE_DEG`)."""
     passed = angle_deg <= PLANE_FORCE_TOLERANCE_DEG
     return SkillCheck(
         name=CheckName.demonstration_normal,
@@ -607,7 +608,7 @@ def demonstration_normal(index: int, source: str, angle_deg: float) -> SkillChec
         value=angle_deg,
         limit=PLANE_FORCE_TOLERANCE_DEG,
         unit="deg",
-        message=f"demonstration {index} ({source}) alone gives a CF z {angle_deg:.1f} deg from the joint skill's "
+        message=f"demonstration {index} ({source}) alone gives a CF z {angle_deg:.1f} deg from the others' joint one "
         f"(median over its contact; at most {PLANE_FORCE_TOLERANCE_DEG:.0f} deg, a hand's lean)"
         + ("" if passed else ": it pressed on something else, or its hand leaned more than the others'"),
     )

@@ -129,6 +129,37 @@ def test_a_left_out_trial_presses_within_the_learned_band(
     assert share is not None and share >= 0.9
 
 
+def test_each_demonstration_is_judged_against_the_skill_learned_without_it(
+    task: tuple[list[CorpusCase], list[Demonstration]],
+) -> None:
+    # One of four trials pressed 1.5 times as hard (its wrench scaled; the others ±10 % of one another). Judged
+    # against a band it is part of, it widens the band to hold itself; against the band of the other three it is
+    # outside, and they, each against the band of the rest (the hard one among them), are inside.
+    cases, demonstrations = task
+    a = demonstrations[1].arrays()
+    harder = Demonstration.from_arrays(a.t, a.positions, a.orientations, 1.5 * a.wrenches, demonstrations[1].metadata)
+    sources = [case.name for case in cases]
+    skill = learn_joint_skill([demonstrations[0], harder, *demonstrations[2:]], sources=sources)
+    in_band = {c.demonstration: c for c in skill.checks if c.name is CheckName.demonstration_in_band}
+    assert sorted(in_band) == [0, 1, 2, 3]
+    assert not in_band[1].passed and in_band[1].value < 0.5 and sources[1] in in_band[1].message
+    assert all(in_band[k].passed for k in (0, 2, 3))
+    uses = skill.demonstrations or []
+    assert [use.share_in_band for use in uses] == [in_band[k].value for k in range(4)]
+
+
+def test_two_demonstrations_are_not_judged_by_a_band_of_one(
+    task: tuple[list[CorpusCase], list[Demonstration]],
+) -> None:
+    # Left out in turn, each of two leaves a band of ONE demonstration: no spread across demonstrations to predict
+    # another's press with, so no band check; their CF z is still held against the other's.
+    cases, demonstrations = task
+    skill = learn_joint_skill(demonstrations[:2], sources=[case.name for case in cases[:2]])
+    names = [c.name for c in skill.checks]
+    assert CheckName.demonstration_in_band not in names and names.count(CheckName.demonstration_normal) == 2
+    assert all(use.share_in_band is None and use.normal_angle_deg is not None for use in skill.demonstrations or [])
+
+
 def test_a_trial_of_another_task_is_named_and_not_averaged_in(
     task: tuple[list[CorpusCase], list[Demonstration]], joint: Skill
 ) -> None:
@@ -161,3 +192,18 @@ def test_a_demonstration_without_contact_is_named_not_learnable(
     use = (skill.demonstrations or [])[3]
     assert use.misfit is MisfitReason.not_learnable and use.weight == 0.0 and "wrenches" in (use.reason or "")
     assert [s.model_dump() for s in skill.segments] == [s.model_dump() for s in joint.segments]
+
+
+def test_one_demonstration_left_with_the_others_left_out_is_not_judged_against_nothing(
+    task: tuple[list[CorpusCase], list[Demonstration]],
+) -> None:
+    # Two given, one not learnable: the joint skill is the other's alone, with no others to judge it against.
+    cases, demonstrations = task
+    a = demonstrations[0].arrays()
+    in_the_air = Demonstration.from_arrays(a.t, a.positions, a.orientations, np.zeros_like(a.wrenches))
+    skill = learn_joint_skill([demonstrations[1], in_the_air], sources=[cases[1].name, "in-the-air"])
+    uses = skill.demonstrations or []
+    assert uses[0].weight == 1.0 and uses[1].misfit is MisfitReason.not_learnable
+    assert uses[0].share_in_band is None and uses[0].normal_angle_deg is None
+    names = {check.name for check in skill.checks}
+    assert CheckName.demonstration_in_band not in names and CheckName.demonstration_normal not in names

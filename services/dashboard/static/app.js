@@ -295,8 +295,8 @@ async function skillPage(id) {
     ["demonstration", (r) => el("a", { href: `/demonstrations/${encodeURIComponent(r.source)}` }, r.source)], ["name", (r) => r.name ?? "–"],
     ["weight", (r) => fmt(r.weight, 3)], ["reference", (r) => (r.reference ? "yes" : "no")],
     ["used", (r) => (r.misfit ? el("span", { class: "message" }, `left out (${r.misfit}): ${r.reason ?? ""}`) : "included")],
-    ["type alone", (r) => r.skill_type ?? "–"], ["press in the band", (r) => pct(r.share_in_band)],
-    ["CF z vs the joint one", (r) => (r.normal_angle_deg === null ? "–" : `${fmt(r.normal_angle_deg, 1)}°`)],
+    ["type alone", (r) => r.skill_type ?? "–"], ["press in the others' band", (r) => pct(r.share_in_band)],
+    ["CF z vs the others'", (r) => (r.normal_angle_deg === null ? "–" : `${fmt(r.normal_angle_deg, 1)}°`)],
   ], uses, (r) => r.source)) : null;
   const limit = (check, k) => `${BOUND_SIGNS[view.check_bounds[k]] ?? ""} ${fmt(check.limit, 3)} ${check.unit}`;
   main.replaceChildren(
