@@ -14,7 +14,7 @@ and runs the segments:
   hold at the pre-contact point before each later approach, the wrist sensor is tared with its mean reading
   (tool frame), so a sensor offset does not read as a touch-down in free space.
 - **approach** (before a contact segment that follows a free one): the reference moves along
-  +CF z at ``approach_speed_m_s``, then at the touch-down speed (``sim_worker.impacts``; impedance, ``S = I``)
+  +CF z at ``approach_speed_m_s``, then at the touch-down speed (``execution.impacts``; impedance, ``S = I``)
   until the measured CF-z force exceeds
   the contact threshold (abort "contact not found" after ``approach_max_distance_m``); then,
   with the contact segment's frame and selection, the desired force ramps from the measured
