@@ -13,11 +13,11 @@ from pathlib import Path
 
 from experiments.cases import (
     BASELINE_FACTOR,
-    CONTROLLERS,
     FAIR_IMPEDANCE,
     FIGURE_NAMES,
     KULEUVEN_FORM,
     OURS,
+    PAPER_CONTROLLERS,
     TARGETS,
     Case,
     DemoOptions,
@@ -495,7 +495,7 @@ def real_data_summary(report: DemoReport) -> list[str]:
             f"{_span(_values(ours, 'touchdown_peak_ratio'), unit='x')} the first target, CF z a mean "
             f"{_span(_values(ours, 'cf_normal_angle_deg'), 1, '°')} from the measured surface's normal."
         )
-    for controller in CONTROLLERS[1:]:
+    for controller in PAPER_CONTROLLERS[1:]:
         theirs = [o for o in rows if o.controller == controller and o.ratio is not None]
         if theirs:
             figure = FIGURE_NAMES[theirs[0].judged_figure()]

@@ -24,7 +24,7 @@ from services.machine import machine_line
 
 SWEEPS_SECTION = "sweeps"
 """The generated section of RESULTS.md holding the sweeps (``services.doc_sections``)."""
-POLL_S = 0.5
+STATUS_POLL_S = 0.5
 """How often the progress bar asks the service, s."""
 
 
@@ -107,7 +107,7 @@ def _follow(client: ServiceClient, sweep_id: str, total: int, timeout_s: float) 
                 return view
             if time.monotonic() > deadline:
                 raise DemoError(f"sweep {sweep_id} did not finish within {timeout_s:.0f} s")
-            time.sleep(POLL_S)
+            time.sleep(STATUS_POLL_S)
     finally:
         bar.close()
 

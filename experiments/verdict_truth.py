@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from experiments.contour_stress import APPROACH_MAX_DISTANCE_M
 from schemas import LearnOptions
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import SegmentKind, Skill
@@ -43,9 +44,7 @@ from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides
 
-SCENARIOS = ("slide_flat", "slide_two_planes", "contour_cylinder", "contour_block")
-APPROACH_MAX_DISTANCE_M = 0.25
-"""The guarded approach's reach (as ``experiments.contour_stress``: a part 8 cm lower is met 15 cm away)."""
+TRUTH_SCENARIOS = ("slide_flat", "slide_two_planes", "contour_cylinder", "contour_block")
 ON_BODY_SHARE = 0.5
 """A contact segment pressed on its taught body when at least this share of its touching rows lie on it (a crease
 met a little off where it was taught moves a part of a segment onto its neighbour's body: the job is still done)."""

@@ -128,6 +128,8 @@ class ExecutionPhase(StrEnum):
 
 PHASE_CODES: dict[ExecutionPhase, int] = {phase: code for code, phase in enumerate(ExecutionPhase)}
 """Small-integer code of each phase, used in the columnar telemetry arrays."""
+PHASES_BY_CODE: tuple[ExecutionPhase, ...] = tuple(PHASE_CODES)
+"""The phase of each code of :data:`PHASE_CODES` (its inverse: ``PHASES_BY_CODE[PHASE_CODES[phase]] is phase``)."""
 
 
 class SurfaceWindowAction(StrEnum):

@@ -47,7 +47,7 @@ from scipy.spatial.transform import Rotation
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchFrame
 from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
 from schemas.import_options import BagImportOptions
-from services.cdr import pose_stamped, wrench_stamped
+from services.cdr import POSE_TYPE, TF_TYPE, WRENCH_TYPE, pose_stamped, wrench_stamped
 from services.demonstration_files import (
     BAGS,
     HEAD_BYTES,
@@ -60,9 +60,6 @@ from services.importing import DemonstrationImportError, RecordingSamples, demon
 from skills import preprocess
 from skills.frames import wrench_adjoint_from_transform
 
-WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
-POSE_TYPE = "geometry_msgs/msg/PoseStamped"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
 TF_TOPICS = ("/tf", "/tf_static")
 
 

@@ -28,7 +28,7 @@ from services.demonstration_files import DemonstrationFile, path_kind, unsupport
 from skills import preprocess, skill_checks
 from skills import tare as tare_module
 from skills.compliant_frames import tool_velocities
-from skills.parameterize import learn_skill
+from skills.parameterize import MAX_RATE_HZ, learn_skill
 from skills.quaternions import matrix_from_quaternion
 
 MAX_PROBLEMS_LISTED = 10
@@ -46,8 +46,6 @@ class DemonstrationImportError(ValueError):
         super().__init__("\n".join(self.problems))
 
 
-MAX_RATE_HZ = 100_000.0
-"""Highest sampling or resampling rate accepted, Hz (a ``dt`` down to 10 µs)."""
 RATE_DT_AGREEMENT = 1e-6
 """Relative tolerance within which a rate and a dt given together count as the same (``rate * dt == 1``)."""
 

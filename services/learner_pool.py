@@ -36,7 +36,7 @@ from services.local_processes import THREAD_LIMIT_ENV, cpu_seconds
 
 log = logging.getLogger("contact_skills.learning")
 
-POLL_S = 0.1
+LEARNER_POLL_S = 0.1
 """How often a running job checks its budget and its client, s."""
 LEARNER_NICENESS = 10
 """Learner processes run this much nicer than the API: on a busy machine /health and the bus answer first."""
@@ -228,7 +228,7 @@ class LearnerPool:
         try:
             while True:
                 try:
-                    await asyncio.wait_for(self._free.acquire(), POLL_S * 5)
+                    await asyncio.wait_for(self._free.acquire(), LEARNER_POLL_S * 5)
                     break
                 except TimeoutError:
                     if await client_gone():
@@ -258,7 +258,7 @@ class LearnerPool:
         walls = 1 if cpu_before is None else WALL_BUDGETS  # no CPU clock to read: the wall time is the budget
         await asyncio.to_thread(slot.connection.send_bytes, payload)
         while True:
-            if await asyncio.to_thread(slot.connection.poll, POLL_S):
+            if await asyncio.to_thread(slot.connection.poll, LEARNER_POLL_S):
                 try:
                     outcome = pickle.loads(await asyncio.to_thread(slot.connection.recv_bytes))
                 except (EOFError, OSError):  # the process died (the OOM killer, a crash in native code)

@@ -54,7 +54,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("contact_skills.queue")
 
-POLL_S = 0.2
+DISPATCH_POLL_S = 0.2
 """How often the dispatcher asks the workers whether one is free while executions are queued, s."""
 IDLE_POLL_S = 1.0
 """How often the dispatcher looks at an empty queue (it is woken on every submission anyway) and the dispatch
@@ -111,7 +111,7 @@ class ExecutionQueue:
         store: Store,
         bus: BusClient,
         max_queued: int = DEFAULT_MAX_QUEUED,
-        poll_s: float = POLL_S,
+        poll_s: float = DISPATCH_POLL_S,
         first_report_s: float = DEFAULT_DISPATCH_REPORT_S,
         silence_s: float = DEFAULT_RUN_SILENCE_S,
         handovers: int = 3,

@@ -77,7 +77,7 @@ DEFAULT_TELEMETRY_PAGE_SAMPLES = 20_000
 """Most samples one ``GET /executions/{id}/telemetry`` returns (20 s at 1 kHz; ~11 MB of JSON, ~15 MB of the API's
 memory while it streams): a longer run is read page by page (``cursor``)."""
 
-ENV_PREFIX = "CONTACT_SKILLS_"
+ENV_VARIABLE_PREFIX = "CONTACT_SKILLS_"
 ENV_VARS: dict[str, str] = {
     "host": "CONTACT_SKILLS_HOST",
     "port": "CONTACT_SKILLS_PORT",

@@ -73,7 +73,7 @@ WINDOW = 8
 """Executions one sweep keeps queued or running at once (a few per worker: none idles between two trials)."""
 MAX_ATTEMPTS = 3
 """Executions one trial x controller may take when they keep failing for an infrastructure reason."""
-POLL_S = 0.5
+SWEEP_POLL_S = 0.5
 """How often the runner looks at the running sweeps when nothing woke it, s (an execution that ends wakes it)."""
 _LOST = re.compile(r"^worker \S+ (was )?lost")
 """The errors of the worker-lost path (`services.bus.BusClient`, `services.bus_events.BusEvents`)."""
@@ -185,7 +185,7 @@ class SweepRunner:
         bus: BusClient,
         keys: KeyExpressions,
         window: int = WINDOW,
-        poll_s: float = POLL_S,
+        poll_s: float = SWEEP_POLL_S,
     ) -> None:
         self.store, self.queue, self.bus, self.keys = store, queue, bus, keys
         self.window, self.poll_s = window, poll_s

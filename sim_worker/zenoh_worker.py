@@ -77,7 +77,7 @@ from schemas.bus import (
 )
 from schemas.bus_security import ENV_LOGINS, BusSecurity, challenge_signature, parse_env, report_signature
 from schemas.demonstration import Demonstration
-from schemas.execution import EnvironmentChange, ExecutionPhase, TelemetryMode
+from schemas.execution import PHASES_BY_CODE, EnvironmentChange, ExecutionPhase, TelemetryMode
 from schemas.job_budget import JobBudget, JobEstimate
 from sim_worker.process_memory import bound_heap, trim_heap
 from sim_worker.telemetry import Telemetry
@@ -85,11 +85,10 @@ from sim_worker.telemetry_archive import TelemetryArchive
 from skills.job_estimate import execution_estimate
 
 log = logging.getLogger("contact_skills.worker")
-_PHASES = list(ExecutionPhase)
 
 STATUS_CACHE = 200
 """Latest statuses kept for the status queryable (executions of this worker)."""
-DEMONSTRATIONS_KEPT = 4
+DEMONSTRATIONS_CACHED = 4
 """Demonstrations kept for the starts that name them (``StartExecution.demonstration_id``), at most."""
 DEMONSTRATION_SAMPLES_KEPT = 100_000
 """Samples of the kept demonstrations, at most (the newest is kept whatever its size): as validated models (lists
@@ -325,7 +324,7 @@ class _Run:
         codes, segments, t = tel.phase_codes, tel.segment_index, tel.t
         changes = np.flatnonzero((codes[1:] != codes[:-1]) | (segments[1:] != segments[:-1])) + 1
         for k in (0, *changes.tolist()):
-            phase, segment = _PHASES[int(codes[k])], int(segments[k])
+            phase, segment = PHASES_BY_CODE[int(codes[k])], int(segments[k])
             if phase in FINAL_PHASES:  # the loop's last rows: the final status, with the metrics, is _finish's
                 break
             if phase is not self.phase or segment != self.segment_index:
@@ -743,7 +742,7 @@ class Worker:
             if kept is not None:
                 self._demonstrations.move_to_end(key)
             while len(self._demonstrations) > 1 and (
-                len(self._demonstrations) > DEMONSTRATIONS_KEPT
+                len(self._demonstrations) > DEMONSTRATIONS_CACHED
                 or sum(len(d.t) for d in self._demonstrations.values()) > DEMONSTRATION_SAMPLES_KEPT
             ):
                 self._demonstrations.popitem(last=False)  # the least recently named first

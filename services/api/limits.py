@@ -20,9 +20,8 @@ from schemas.demonstration import Demonstration
 from schemas.skill import Skill
 from schemas.sweep import SweepState
 from services.store import ACTIVE, Store
+from skills.parameterize import MAX_RATE_HZ
 
-MAX_RATE_HZ = 100_000.0
-"""Highest sampling rate the service learns from (as the CSV importer's resampling limit), Hz."""
 UPLOAD_STORED_MULTIPLE = 16.0
 """An uploaded recording (CSV, bag) stores at most this many times the bytes it brought. The real recordings store
 0.4-0.6x (KU Leuven CSVs); a row-per-sample CSV with short numbers ~7x. Past it the time stamps span far more samples
