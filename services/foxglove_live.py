@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 
 from schemas.api import ExecutionState
-from services.api.browser_guard import LOOPBACK_NAMES
 from services.dashboard.stream import decimated, stored_rows
+from services.http_rules import LOOPBACK_NAMES
 from services.local_processes import LOOPBACK
 from services.origin_gate import OriginGate
 from services.settings import DEFAULT_FOXGLOVE_PORT, ServiceSettings

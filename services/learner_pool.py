@@ -30,9 +30,12 @@ import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from services.local_processes import THREAD_LIMIT_ENV, cpu_seconds
+
+if TYPE_CHECKING:
+    from schemas.demonstration import Demonstration
 
 log = logging.getLogger("contact_skills.learning")
 
@@ -76,6 +79,36 @@ class LearnOutcome:
     """Several demonstrations learned together: the source of the reference, whose samples the skill's refer to."""
 
 
+MAX_GRID_SAMPLES = 1_000_000
+"""Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
+
+
+def check_sampling(demonstration: Demonstration) -> None:
+    """Raise `LearningError` on ``t`` for time stamps the pipeline cannot work on in bounded memory: a rate above
+    ``skills.parameterize.MAX_RATE_HZ`` (filter windows are sized in samples per second) or a uniform grid (duration
+    at the median step, what irregular stamps are resampled to) longer than :data:`MAX_GRID_SAMPLES`. Run in the
+    learner process (numpy and the science are imported there, not in the API's)."""
+    import numpy as np
+
+    from skills.parameterize import MAX_RATE_HZ, LearningError
+
+    t = np.asarray(demonstration.t)
+    step = float(np.median(np.diff(t)))
+    if 1.0 / step > MAX_RATE_HZ:
+        raise LearningError(
+            "t",
+            f"median time step {step:.3g} s is a {1 / step:.3g} Hz rate, above {MAX_RATE_HZ:g} Hz: are the "
+            "time stamps in seconds?",
+        )
+    grid = (t[-1] - t[0]) / step + 1
+    if grid > MAX_GRID_SAMPLES:
+        raise LearningError(
+            "t",
+            f"{t[-1] - t[0]:.6g} s at the median step of {step:.3g} s spans {grid:.3g} samples, more than "
+            f"{MAX_GRID_SAMPLES} (a gap in the time stamps, or a very long recording)",
+        )
+
+
 def _limit_process(memory_mb: int) -> None:
     """In a learner process: a lower CPU priority (the API's event loop and the sim workers come first), one BLAS
     thread, and an address-space limit of ``memory_mb`` MiB (0: none)."""
@@ -100,7 +133,6 @@ def _learn(payload: bytes) -> LearnOutcome:
 
     from schemas.demonstration import Demonstration
     from schemas.skill import LearnOptions
-    from services.api.limits import check_sampling
     from skills.joint_learning import learn_joint_skill
     from skills.parameterize import LearningError, SkillCheckError
 
@@ -177,7 +209,7 @@ class LearnerPool:
         self._free: asyncio.Semaphore | None = None
         self._warming: asyncio.Task | None = None
         self._context = multiprocessing.get_context("forkserver")
-        self._context.set_forkserver_preload(["services.learner_pool", "services.api.limits", "skills.parameterize"])
+        self._context.set_forkserver_preload(["services.learner_pool", "skills.parameterize"])
         for name, value in THREAD_LIMIT_ENV.items():  # the forkserver inherits them (it starts on first use)
             os.environ.setdefault(name, value)
         self._closed = False

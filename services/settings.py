@@ -271,7 +271,7 @@ class ServiceSettings:
         host's name (docker-compose: the container's) and ``allowed_hosts``."""
         import socket
 
-        from services.api.browser_guard import LOOPBACK_NAMES
+        from services.http_rules import LOOPBACK_NAMES
 
         bound = set() if self.host in ("0.0.0.0", "::", "") else {self.host.lower()}
         return frozenset(LOOPBACK_NAMES | bound | {socket.gethostname().lower()} | set(self.allowed_hosts))

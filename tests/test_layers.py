@@ -165,6 +165,21 @@ def test_the_cycle_check_finds_a_lazy_cycle_through_a_package(tmp_path: Path) ->
     assert import_cycles(graph) == [{"a.main", "a.cmd"}]
 
 
+def test_the_services_import_nothing_from_the_api_above_them() -> None:
+    """``services/api/`` (routes, dependencies, error answers, middleware) sits on the services: the learner pool, the
+    settings, the Foxglove gate take nothing from it (what both HTTP servers share is ``services/http_rules.py``).
+    ``services/app.py`` builds the app from it, and is the one module that may."""
+    graph = module_graph(REPO, ["services"])
+    upward = {
+        f"{module} imports {target}"
+        for module, targets in graph.items()
+        if not module.startswith("services.api") and module != "services.app"
+        for target in targets
+        if target.startswith("services.api")
+    }
+    assert upward == set()
+
+
 IO_CALLS = frozenset({"open", "read_text", "read_bytes", "write_text", "write_bytes", "getenv"})
 """Calls that read or write files or the environment (``os.environ`` is found as an attribute)."""
 
