@@ -34,7 +34,7 @@ from services.store import DiskFull
 
 if TYPE_CHECKING:
     from services.csv_import import CsvImportError
-    from services.importing import DemonstrationImportError
+    from services.import_steps import DemonstrationImportError
     from services.learner_pool import LearnOutcome
     from services.store import QuotaFull
 
