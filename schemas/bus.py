@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import re
 import time
+from enum import StrEnum
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -82,7 +83,17 @@ ENV_PREFIX = "CONTACT_SKILLS_ZENOH_PREFIX"
 FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, ExecutionPhase.failed})
 """Phases after which an execution publishes nothing more."""
 
-CommandName = Literal["abort", "pause", "resume"]
+
+class CommandName(StrEnum):
+    """A command to a running execution (``P/exec/{id}/cmd``; the REST routes ``POST /executions/{id}/<name>``)."""
+
+    abort = "abort"
+    """Stop now (within one control step of arrival)."""
+    pause = "pause"
+    """Hold the current reference (the control loop keeps running, in contact the force is held)."""
+    resume = "resume"
+    """Continue after a pause."""
+
 
 HEARTBEAT_S = 2.0
 """A running execution publishes a status at least this often, s (a phase can last minutes: without it, a worker

@@ -64,7 +64,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from schemas.bus import (
     DEFAULT_ENDPOINT,
@@ -72,6 +72,7 @@ from schemas.bus import (
     ENV_ENDPOINTS,
     ENV_PREFIX,
     REPLAY_MAX_SAMPLES,
+    CommandName,
     ExecutionCommand,
     ExecutionStatus,
     KeyExpressions,
@@ -561,9 +562,7 @@ class BusClient:
         reply = self._query_one(key, start.model_dump_json(), timeout_s, attachment=secret)
         return None if reply is None else StartReply.model_validate_json(reply)
 
-    def send_command(
-        self, execution_id: str, command: Literal["abort", "pause", "resume"], reason: str | None = None
-    ) -> None:
+    def send_command(self, execution_id: str, command: CommandName, reason: str | None = None) -> None:
         """Publish ``command`` to the execution (fire and forget; its status tells what happened); ``reason``: what
         an abort's final status says (default: aborted on request)."""
         import zenoh

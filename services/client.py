@@ -264,13 +264,13 @@ class Execution(_Handle):
         return self.client.live(self.id, endpoints=endpoints, timeout_s=timeout_s, pace=pace, from_start=from_start)
 
     def abort(self) -> CommandAccepted:
-        return self.client._command(self.id, "abort")
+        return self.client._command(self.id, CommandName.abort)
 
     def pause(self) -> CommandAccepted:
-        return self.client._command(self.id, "pause")
+        return self.client._command(self.id, CommandName.pause)
 
     def resume(self) -> CommandAccepted:
-        return self.client._command(self.id, "resume")
+        return self.client._command(self.id, CommandName.resume)
 
 
 # --------------------------------------------------------------------------- a sweep

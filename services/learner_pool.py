@@ -29,6 +29,7 @@ import pickle
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Any
 
@@ -60,15 +61,28 @@ class LearnerPoolFull(RuntimeError):  # noqa: N818
     """Too many jobs are waiting for a learner process."""
 
 
+class LearnOutcomeKind(StrEnum):
+    """What a learner process's answer is (:class:`LearnOutcome`), and which of its fields it fills."""
+
+    ok = "ok"
+    """A skill: ``skill_json``, ``skill_type``, ``seconds``, ``reasons`` (the skill's warnings), ``reference``."""
+    checks = "checks"
+    """Strict learning refused a skill: ``reasons``, one per failed check."""
+    learning = "learning"
+    """A `skills.parameterize.LearningError`: ``field``, ``reason``."""
+    value = "value"
+    """A ValueError of the science: ``reason``."""
+    memory = "memory"
+    """Over the memory budget (``reason`` when the process died)."""
+    bug = "bug"
+    """Anything else: ``reason``, the traceback, for the log."""
+
+
 @dataclass(frozen=True)
 class LearnOutcome:
-    """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``, ``reasons``: the
-    skill's warnings, ``reference``), ``checks``
-    (strict learning refused a skill: ``reasons``, one per failed check), ``learning`` (a
-    `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
-    ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
+    """What a learner process answered: its ``kind`` says which of the other fields it fills."""
 
-    kind: str
+    kind: LearnOutcomeKind
     skill_json: str = ""
     skill_type: str = ""
     seconds: float = 0.0
@@ -147,21 +161,30 @@ def _learn(payload: bytes) -> LearnOutcome:
         warnings = tuple(skill.warnings())
         reference = next((use.source for use in skill.demonstrations or [] if use.reference), "")
         return LearnOutcome(
-            "ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings, reference=reference
+            LearnOutcomeKind.ok,
+            skill.model_dump_json(),
+            skill.skill_type.value,
+            seconds,
+            reasons=warnings,
+            reference=reference,
         )
     except SkillCheckError as exc:
-        return LearnOutcome("checks", reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks))
+        return LearnOutcome(
+            LearnOutcomeKind.checks, reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks)
+        )
     except LearningError as exc:
-        return LearnOutcome("learning", field=exc.field, reason=exc.reason)
+        return LearnOutcome(LearnOutcomeKind.learning, field=exc.field, reason=exc.reason)
     except MemoryError:
-        return LearnOutcome("memory")
+        return LearnOutcome(LearnOutcomeKind.memory)
     except ValidationError as exc:  # a stored demonstration that no longer validates (bounds added since)
         first = exc.errors()[0]
-        return LearnOutcome("learning", field=".".join(str(p) for p in first["loc"]), reason=first["msg"])
+        return LearnOutcome(
+            LearnOutcomeKind.learning, field=".".join(str(p) for p in first["loc"]), reason=first["msg"]
+        )
     except ValueError as exc:
-        return LearnOutcome("value", reason=f"{type(exc).__name__}: {exc}")
+        return LearnOutcome(LearnOutcomeKind.value, reason=f"{type(exc).__name__}: {exc}")
     except Exception:
-        return LearnOutcome("bug", reason=traceback.format_exc())
+        return LearnOutcome(LearnOutcomeKind.bug, reason=traceback.format_exc())
 
 
 def _serve(connection: Connection, memory_mb: int) -> None:
@@ -294,7 +317,7 @@ class LearnerPool:
                 try:
                     outcome = pickle.loads(await asyncio.to_thread(slot.connection.recv_bytes))
                 except (EOFError, OSError):  # the process died (the OOM killer, a crash in native code)
-                    return LearnOutcome("memory", reason="the learner process died")
+                    return LearnOutcome(LearnOutcomeKind.memory, reason="the learner process died")
                 self.stats.completed += 1
                 return outcome
             cpu_now = cpu_seconds(slot.process.pid)

@@ -42,6 +42,7 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
+from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from services.bus_reports import new_attempt
@@ -260,7 +261,8 @@ class ExecutionQueue:
                 return
             if row.handovers >= handovers and not late.heard:
                 reason += f"; handed over {row.handovers} times, the last to {worker}"
-            self.bus.send_command(late.execution_id, "abort", reason)  # a slow worker stops, a silent one never minds
+            # a slow worker stops, a silent one never minds
+            self.bus.send_command(late.execution_id, CommandName.abort, reason)
             state = self.store.executions.take_back(late.execution_id, late.attempt, handovers, reason)
         if state is not None:
             log.warning("execution %s %s: %s", late.execution_id,

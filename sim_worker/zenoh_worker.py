@@ -62,6 +62,7 @@ from schemas.bus import (
     FINAL_PHASES,
     HEARTBEAT_S,
     REPLAY_MAX_SAMPLES,
+    CommandName,
     ExecutionCommand,
     ExecutionStatus,
     KeyExpressions,
@@ -293,7 +294,7 @@ class _Run:
         self.polls += 1
         if self.polls >= self.step_limit and not self.abort_requested:
             reason = f"reached {self.worker.settings.budget.describe()} after {self.polls:,} control steps"
-            self.command(ExecutionCommand(command="abort", execution_id=self.execution_id, reason=reason))
+            self.command(ExecutionCommand(command=CommandName.abort, execution_id=self.execution_id, reason=reason))
         return self.abort_requested
 
     def should_pause(self) -> bool:
@@ -303,7 +304,7 @@ class _Run:
             waited = time.monotonic() - self.paused_at
             if waited > self.request.pause_timeout_s:
                 reason = f"paused for {waited:.0f} s, longer than pause_timeout_s ({self.request.pause_timeout_s:g} s)"
-                self.command(ExecutionCommand(command="abort", execution_id=self.execution_id, reason=reason))
+                self.command(ExecutionCommand(command=CommandName.abort, execution_id=self.execution_id, reason=reason))
                 return False
             time.sleep(PAUSED_SLEEP_S)
             return True
@@ -371,19 +372,19 @@ class _Run:
     def command(self, command: ExecutionCommand) -> None:
         """Apply a command (zenoh callback thread)."""
         note = f" ({command.reason})" if command.reason else ""
-        if command.command == "abort":
+        if command.command is CommandName.abort:
             if not self.abort_requested:
                 # The last control step completed now: polls steps done, the last row at t = (polls - 1) dt.
                 self.abort_received_t = max(self.polls - 1, 0) * self.dt
                 self.abort_reason = command.reason or "aborted on request"
                 self.abort_requested = True
                 log.info("%s: abort received at t=%.3f s%s", self.execution_id, self.abort_received_t, note)
-        elif command.command == "pause":
+        elif command.command is CommandName.pause:
             if not self.paused:
                 self.paused_at = time.monotonic()
                 self.paused = True
                 self.status(message=f"paused{note}")
-        elif command.command == "resume" and self.paused:
+        elif command.command is CommandName.resume and self.paused:
             self.paused = False
             self.status(message=f"resumed{note}")
 
@@ -511,7 +512,7 @@ class Worker:
         with self._lock:
             run = self._run
         if run is not None:
-            run.command(ExecutionCommand(command="abort", execution_id=run.execution_id, reason=reason))
+            run.command(ExecutionCommand(command=CommandName.abort, execution_id=run.execution_id, reason=reason))
             if run.thread is not None:
                 run.thread.join(SHUTDOWN_JOIN_S)
         if self._publisher is not None:
