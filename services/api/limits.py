@@ -116,7 +116,7 @@ class BoundedH11Protocol(H11Protocol):
         """Since when (event loop time, s) this connection has been waiting on its client; None while its request
         is whole (being served)."""
 
-    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport: asyncio.Transport) -> None:  # H11Protocol's signature
         super().connection_made(transport)
         self._watch()
         self._make_room()
@@ -138,7 +138,7 @@ class BoundedH11Protocol(H11Protocol):
 
     def send_400_response(self, msg: str) -> None:
         """A malformed request (uvicorn's 400), or a head too large (431)."""
-        if self.conn.refused_status == 431:  # type: ignore[attr-defined]
+        if isinstance(self.conn, _HeadBoundedConnection) and self.conn.refused_status == 431:
             self._refuse(431, f"request head larger than {MAX_HEAD_BYTES} bytes")
         else:
             super().send_400_response(msg)
