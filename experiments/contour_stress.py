@@ -25,11 +25,11 @@ from schemas.execution import PHASE_CODES, ControllerKind, ExecutionMetrics, Exe
 from schemas.skill import Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import Verdict
+from schemas.world import WorldConfig
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.teacher import record_demonstration
 from sim_worker.telemetry import Telemetry
-from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides
 

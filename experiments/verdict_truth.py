@@ -34,13 +34,13 @@ from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, Exe
 from schemas.skill import SegmentKind, Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
+from schemas.world import WorldConfig
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
 from sim_worker.metrics import exit_rows
 from sim_worker.teacher import TeacherRecording, record_demonstration
 from sim_worker.telemetry import Telemetry
-from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides
 

@@ -53,6 +53,7 @@ from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
 from schemas.numbers import Real, WholeNumber
 from schemas.text import FreeForm, Identifier
+from schemas.world import WorldOverrides
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
@@ -229,10 +230,10 @@ class StartExecution(BaseModel):
 
     execution_id: str = Field(description="Id chosen by the caller; the key chunk of the execution's keys.")
     request: ExecutionRequest = Field(description="What to run; ``request.skill`` must be given inline.")
-    world_overrides: dict[str, Any] = Field(
+    world_overrides: WorldOverrides = Field(
         default_factory=dict,
         description="WorldConfig fields applied on top of the scenario's world (e.g. those the demonstration "
-        "was recorded with: ``{'table_height_m': 0.12}``).",
+        "was recorded with: ``{'table_height_m': 0.12}``), checked against it (``schemas.world.WorldOverrides``).",
     )
     demonstration: Demonstration | None = Field(
         None, description="The demonstration the skill was learned from, for the path metric (optional)."

@@ -28,6 +28,7 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
+from schemas.world import SensorModel, WorldConfig
 from sim_worker.arm_model import ARM_REACTION, Arm, read_arm
 from sim_worker.bullet_client import (
     CONTACT_DISTANCE,
@@ -45,7 +46,6 @@ from sim_worker.bullet_client import (
 )
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
-from sim_worker.world_config import SensorModel, WorldConfig
 from skills.control import ROBOT_POSITION, ROBOT_ROTATION
 
 CONTACT_DISTANCE_M = 0.0

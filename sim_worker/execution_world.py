@@ -34,11 +34,11 @@ import numpy as np
 from schemas.demonstration import Demonstration
 from schemas.execution import EnvironmentChange, Placement, SensorChoice, WorkPieceSource
 from schemas.skill import Skill
+from schemas.world import WorldConfig
 from sim_worker.placement import PlacementChoice, PlacementError, choose_placement
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.teacher import scenario_world_config
 from sim_worker.work_piece import measured_world_config, rebuilt_world_config
-from sim_worker.world_config import WorldConfig
 from skills.perturbation import contact_centre, force_scaled_skill
 from skills.placement import placed_skill, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_normalized

@@ -50,11 +50,11 @@ from corpus.kinesthetic import (
     wrist_sensor_samples,
 )
 from corpus.synthetic import minimum_jerk
+from schemas.world import WorldConfig
 from sim_worker.geometry import CylinderSolid, WorldGeometry
 from sim_worker.robot_model import Q_HOME
 from sim_worker.teacher import R_TOOL_DOWN, TeacherParams
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.quaternions import quaternion_from_matrix, quaternions_sign_continuous
 
 KINESTHETIC_SCENARIOS: dict[str, str] = {

@@ -1,7 +1,7 @@
 """The force/torque sensor model: what the controller reads instead of the exact contact wrench.
 
 Every reading is the wrench the tool applies to the environment at the tool point, world frame (N, N·m;
-docs/CONVENTIONS.md). Its source (``SensorConfig.model``, a :class:`~sim_worker.world_config.SensorModel`):
+docs/CONVENTIONS.md). Its source (``SensorConfig.model``, a :class:`~schemas.world.SensorModel`):
 
 - ``ideal``: the exact contact wrench (the sum over the simulator's contact points);
 - ``wrist``: a force/torque sensor between the flange and the tool, as mounted on a real arm. It reads the force
@@ -31,7 +31,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_worker.world_config import SensorConfig, SensorModel
+from schemas.world import SensorConfig, SensorModel
 
 WRIST_SENSOR = SensorConfig(
     model=SensorModel.wrist,

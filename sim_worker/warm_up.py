@@ -14,11 +14,11 @@ import numpy as np
 
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
+from schemas.world import WorldConfig
 from sim_worker.control_loop import ControlLoop, _record_row
 from sim_worker.plans import PhasePlan
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.control import (
     LAW_OUTPUT_SIZE,
     REFERENCE_SIZE,

@@ -71,7 +71,7 @@ from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration
 from schemas.skill import Segment, SegmentKind, Skill
-from sim_worker.world_config import WorkPiece, WorldConfig
+from schemas.world import WorkPiece, WorldConfig
 from skills.compliant_frames import compliant_frame_rotations, slide_frame
 from skills.dmp import QuaternionDMP
 from skills.measured_surface import MeasuredPass, measured_passes

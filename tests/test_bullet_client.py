@@ -10,6 +10,7 @@ import numpy as np
 import pybullet
 import pytest
 
+from schemas.world import WorldConfig
 from sim_worker import bullet_client
 from sim_worker.bullet_client import (
     CONTACT_ROW,
@@ -29,7 +30,6 @@ from sim_worker.bullet_client import (
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 
 
 def pressed_on_the_table(world: SimWorld) -> None:

@@ -415,6 +415,33 @@ def test_bad_requests_are_refused(client, skill):
         client.start_execution("ex/bad", _request(skill))
 
 
+def test_world_overrides_cross_the_bus_as_given_and_are_checked_against_the_world_on_both_ends(bus, skill):
+    """A start's ``world_overrides`` travel as the JSON they were given, checked against ``WorldConfig`` where the start
+    is built (the API's side: a typo is a validation error naming the field) and where a worker reads it (a start
+    written without the check is answered 'error' naming the field, not run)."""
+    from pydantic import ValidationError
+
+    good = {"table_height_m": 0.12, "cylinder": {"offset_m": [0.0, 0.0, 0.01]}}
+    start = StartExecution(execution_id="ex-world", request=_request(skill), world_overrides=good)
+    assert json.loads(start.model_dump_json())["world_overrides"] == good
+    assert StartExecution.model_validate_json(start.model_dump_json()).world_overrides == good
+    with pytest.raises(ValidationError, match=r"world_overrides\n.*cylinder\.radius_mm: Extra inputs"):
+        StartExecution(execution_id="ex-world", request=_request(skill), world_overrides={"cylinder": {"radius_mm": 9}})
+    sent = {**json.loads(start.model_dump_json()), "world_overrides": {"table_height_m": "high"}}
+    endpoint, _ = bus
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+    try:
+        [answer] = session.get(KeyExpressions("cskills").start("w-a"), payload=json.dumps(sent), timeout=WAIT_S)
+        reply = StartReply.model_validate_json(answer.ok.payload.to_bytes())
+    finally:
+        session.close()
+    assert (reply.accepted, reply.code) == (False, "error")
+    assert (
+        reply.reason.startswith("world_overrides: ")
+        and "table.height_m: Input should be a valid number" in reply.reason
+    )
+
+
 def _isolated_worker(bus, name: str):
     """A worker under its own prefix, with its own BusClient (so the shared workers are not involved)."""
     endpoint, logs = bus

@@ -250,9 +250,9 @@ def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_w
     """The constants the estimate counts with are the executor's and the world's own; the API's settings read the
     variables the workers read."""
     from schemas import job_budget
+    from schemas.world import WorldConfig
     from services.settings import ENV_VARS, ServiceSettings
     from sim_worker import executor, impacts
-    from sim_worker.world_config import WorldConfig
     from skills import job_estimate
 
     for module, name in (

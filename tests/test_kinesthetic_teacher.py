@@ -15,6 +15,7 @@ import pytest
 
 from cli.main import main
 from corpus.kinesthetic import RECORDING_COLUMNS, KinestheticDemo, recording_csv_text
+from schemas.world import WorldConfig
 from sim_worker.geometry import WorldGeometry
 from sim_worker.kinesthetic_teacher import (
     KINESTHETIC_SCENARIOS,
@@ -22,7 +23,6 @@ from sim_worker.kinesthetic_teacher import (
     kinesthetic_world_config,
     record_kinesthetic,
 )
-from sim_worker.world_config import WorldConfig
 from skills.quaternions import matrix_from_quaternion
 
 CASES = [

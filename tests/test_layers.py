@@ -220,6 +220,9 @@ CONSTANTS_TWICE_ALLOWED = {
     "CONTACT_LOSS_RETRACT_S": {"sim_worker/control_loop.py", "sim_worker/executor.py"},
     "CONTACT_LOSS_TRAVEL_M": {"sim_worker/control_loop.py", "sim_worker/executor.py"},
     "NULL_SPACE_UPDATE_STEPS": {"sim_worker/control_loop.py", "sim_worker/executor.py"},
+    # skills/control.py keeps its own copy of schemas/world.py's (the world configuration moved into the contract);
+    # the control package's session imports it from schemas.world instead: drop this entry at that merge.
+    "IIWA_TORQUE_LIMITS_NM": {"schemas/world.py", "skills/control.py"},
 }
 """Constants assigned in more than one module for now, with the modules: each entry says why and until when."""
 

@@ -247,9 +247,9 @@ def test_a_sweep_runs_each_trial_with_its_criteria_its_bias_and_its_cylinder_and
     it was taught. Their verdicts then decide the trials, the failed checks are the causes, the warnings counted
     apart."""
     from schemas.bus import ExecutionStatus
+    from schemas.world import WorldConfig
     from sim_worker.execution_world import execution_world
     from sim_worker.geometry import WorldGeometry
-    from sim_worker.world_config import WorldConfig
 
     c, bus = bus_client, bus_client.bus
     overrides = []
