@@ -103,7 +103,8 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from services.quiet_imports import import_pybullet_quietly
 
     import_pybullet_quietly()
-    from sim_worker.zenoh_worker import WorkerSettings, run_worker
+    from sim_worker.worker_settings import WorkerSettings
+    from sim_worker.zenoh_worker import run_worker
 
     _logging(args.log_level)
     apply_login(args)

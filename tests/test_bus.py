@@ -378,20 +378,21 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
     assert kept.steps == sent.steps and kept.true_force_rms_error_n == sent.true_force_rms_error_n
 
 
-def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded, skill, monkeypatch):
+def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded, skill):
     """A worker keeps the demonstrations starts sent within DEMONSTRATION_SAMPLES_KEPT samples in all (the least
     recently named goes first; the newest stays whatever its size), not only within a count: a minute at 1 kHz is
     ~38 MB of validated lists."""
-    import sim_worker.zenoh_worker as zenoh_worker
     from schemas.bus import StartExecution
+    from sim_worker.worker_keeping import DEMONSTRATIONS_CACHED, KeptDemonstrations
+    from sim_worker.zenoh_worker import Worker
 
-    worker = zenoh_worker.Worker(worker_id="w-bounded")  # not opened: its keeping alone
+    assert isinstance(Worker(worker_id="w-bounded").demonstrations, KeptDemonstrations)  # what a worker keeps them in
     demonstration = recorded.demonstration
     samples = len(demonstration.t)
-    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", 2 * samples)
+    keeping = KeptDemonstrations(DEMONSTRATIONS_CACHED, 2 * samples)
 
     def start(key: str, sent: bool) -> StartExecution | None:
-        return worker._with_demonstration(StartExecution(
+        return keeping.completed(StartExecution(
             execution_id=f"ex-{key}", request=_request(skill), demonstration_id=key,
             demonstration=demonstration if sent else None))  # fmt: skip
 
@@ -399,11 +400,11 @@ def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded
         assert start(key, sent=True).demonstration == demonstration
     assert start("d1", sent=False).demonstration == demonstration  # kept: d1 is now the most recently named
     start("d3", sent=True)  # a third would exceed 2 x samples: d2, the least recently named, goes
-    assert list(worker._demonstrations) == ["d1", "d3"]
+    assert list(keeping.kept) == ["d1", "d3"]
     assert start("d2", sent=False) is None
-    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", samples // 2)
+    keeping.samples = samples // 2
     start("d4", sent=True)  # larger than the bound on its own: kept alone
-    assert list(worker._demonstrations) == ["d4"]
+    assert list(keeping.kept) == ["d4"]
 
 
 def test_bad_requests_are_refused(client, skill):
