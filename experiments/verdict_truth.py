@@ -34,7 +34,7 @@ from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, Exe
 from schemas.skill import SegmentKind, Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
-from schemas.world import WorldConfig
+from schemas.world import WorldConfig, WorldOverrides
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
@@ -90,30 +90,30 @@ class Perturbation:
     name: str
     scenario: str
     environment: Mapping[str, Any] = field(default_factory=dict)
-    world: Callable[[Mapping[str, Any]], dict[str, Any]] | None = None
+    world: Callable[[Mapping[str, Any]], WorldOverrides] | None = None
     held_out: bool = False
     round: int = 1
     """Held out: 1, run once before the crease check was changed (then again after); 2, run once at the end."""
 
 
-def _cylinder(**values: float) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+def _cylinder(**values: float) -> Callable[[Mapping[str, Any]], WorldOverrides]:
     parameters = {SweepParameter(f"cylinder_{k}"): v for k, v in values.items()}
     return lambda world: trial_world_overrides(world, parameters)
 
 
-def _swap_cylinder_for_block(world: Mapping[str, Any]) -> dict[str, Any]:
+def _swap_cylinder_for_block(world: Mapping[str, Any]) -> WorldOverrides:
     return {"cylinder": {"enabled": False}, "block": {"enabled": True}}
 
 
-def _swap_block_for_cylinder(world: Mapping[str, Any]) -> dict[str, Any]:
+def _swap_block_for_cylinder(world: Mapping[str, Any]) -> WorldOverrides:
     return {"block": {"enabled": False}, "cylinder": {"enabled": True}}
 
 
-def _no_ramp(world: Mapping[str, Any]) -> dict[str, Any]:
+def _no_ramp(world: Mapping[str, Any]) -> WorldOverrides:
     return {"ramp": {"enabled": False}}
 
 
-def _ramp(**values: float) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+def _ramp(**values: float) -> Callable[[Mapping[str, Any]], WorldOverrides]:
     return lambda world: {"ramp": values}
 
 

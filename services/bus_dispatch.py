@@ -8,7 +8,6 @@ import itertools
 import logging
 import threading
 import time
-from typing import Any
 
 from schemas.bus import (
     RecordReply,
@@ -19,6 +18,7 @@ from schemas.bus import (
 )
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionRequest
+from schemas.world import WorldOverrides
 from services.bus_reports import implausible_info, new_attempt
 from services.bus_session import BusQueries
 
@@ -147,7 +147,7 @@ class WorkerDispatch(BusQueries):
         execution_id: str,
         request: ExecutionRequest,
         *,
-        world_overrides: dict[str, Any] | None = None,
+        world_overrides: WorldOverrides | None = None,
         demonstration: Demonstration | None = None,
         demonstration_id: str | None = None,
         timeout_s: float = START_TIMEOUT_S,

@@ -45,6 +45,7 @@ from schemas.api import ExecutionState
 from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
+from schemas.world import WorldOverrides
 from services.bus_reports import new_attempt
 from services.dispatch_watch import Overdue
 from services.settings import DEFAULT_DISPATCH_REPORT_S, DEFAULT_RUN_SILENCE_S
@@ -72,7 +73,7 @@ class Dispatch:
 
     request: ExecutionRequest
     """The request with its skill inline (``skill_id`` resolved)."""
-    world_overrides: dict[str, Any]
+    world_overrides: WorldOverrides
     """WorldConfig fields on top of the scenario's world (the world the skill was taught in)."""
     demonstration_id: str | None = None
     """The stored demonstration the skill was learned from (for the path metric), if any."""

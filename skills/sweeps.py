@@ -40,6 +40,7 @@ from schemas.sweep import (
     SweepParameter,
 )
 from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheckName
+from schemas.world import WorldOverrides
 from skills.frames import matrix_from_axis_angle
 
 SEED_STRIDE = 1_000_003
@@ -158,13 +159,15 @@ def inapplicable_parameter(
     return cylinder[0], f"{cylinder[0].value} changes the cylinder of the skill's taught world: {why}"
 
 
-def trial_world_overrides(world: Mapping[str, Any] | None, parameters: Mapping[SweepParameter, float]) -> dict:
+def trial_world_overrides(
+    world: Mapping[str, Any] | None, parameters: Mapping[SweepParameter, float]
+) -> WorldOverrides:
     """The `WorldConfig` fields one trial changes in ``world`` (the skill's taught world, the trials' world when they
     vary a cylinder parameter: :func:`taught_cylinder_world`; read only then): the cylinder's radius with its crown
     held where it was taught (the cylinder lies on the table, its centre one radius above it: lowering it by twice
     the change along the table normal keeps the crown), and its yaw turned from the taught one (deg)."""
     P = SweepParameter
-    changes: dict[str, Any] = {}
+    changes: WorldOverrides = {}
     if world is None:
         return changes
     if P.cylinder_radius_m in parameters:
