@@ -251,8 +251,8 @@ def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_w
     variables the workers read."""
     from execution import executor, impacts
     from schemas import job_budget
+    from schemas.world import WorldConfig
     from services.settings import ENV_VARS, ServiceSettings
-    from sim_worker.world_config import WorldConfig
     from skills import job_estimate
 
     for module, name in (
