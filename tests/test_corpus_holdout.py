@@ -19,7 +19,7 @@ from corpus import holdout
 from corpus.case import CorpusCase
 from corpus.force_sources import LWR_RATE_HZ, ArmEstimateRecording
 from schemas.import_options import CsvImportOptions
-from services import csv_import, importing
+from services import csv_import, import_steps
 from skills.quaternions import matrix_from_quaternion
 
 SEEDS = (0, 1, 2)
@@ -42,9 +42,9 @@ def never_learned(monkeypatch: pytest.MonkeyPatch) -> None:
     def refused(*args: object, **kwargs: object) -> None:
         raise AssertionError("a held-out case must not be learned from (nor tared by a fit)")
 
-    monkeypatch.setattr(importing, "learn_skill", refused)
-    monkeypatch.setattr(importing, "tool_velocities", refused)
-    monkeypatch.setattr(importing.tare_module, "fitted_sensor_offset", refused)
+    monkeypatch.setattr(import_steps, "learn_skill", refused)
+    monkeypatch.setattr(import_steps, "tool_velocities", refused)
+    monkeypatch.setattr(import_steps.tare_module, "fitted_sensor_offset", refused)
 
 
 # --------------------------------------------------------------------------- helpers
