@@ -1,10 +1,15 @@
 """How a phase runs, seen from the phase sequencing (``execution.executor``): the engine's 1 kHz loop is a
-:class:`PhaseRunner` (``sim_worker.control_loop.ControlLoop`` for PyBullet), a phase ends as :class:`PlanEnd` says or
-by :class:`ExecutionAbortError` / :class:`ContactLostError`.
+:class:`PhaseRunner` (``sim_worker.control_loop.ControlLoop`` for PyBullet, ``sim_mujoco.loop.MujocoLoop`` for
+MuJoCo), a phase ends as :class:`PlanEnd` says or by :class:`ExecutionAbortError` / :class:`ContactLostError`.
+What every engine's loop shares (the telemetry rows and their batches, the loop's constants, the reasons a phase
+stops) is :class:`RecordingLoop`.
 """
 
 from __future__ import annotations
 
+import math
+import time
+from collections.abc import Callable
 from enum import Enum
 from typing import Protocol
 
@@ -12,10 +17,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from execution.contact_detection import ContactGuard
-from execution.plans import PhasePlan
+from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
 from execution.surface_following import SurfaceFollower
 from execution.telemetry import Telemetry
-from schemas.execution import ExecutionPhase
+from schemas.execution import TELEMETRY_WIDTH, ExecutionPhase
+
+NULL_SPACE_UPDATE_STEPS = 20
+"""The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
+CONTACT_LOSS_TRAVEL_M = 0.01
+"""In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
+(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
+UNGUARDED = ContactGuard(math.inf)
+"""The guard of a phase without a stop axis (it reads nothing; a contact phase names the approaches' guard in its
+reasons)."""
+REALTIME_CHECK_STEPS = 10
+"""With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
 
 
 class PlanEnd(Enum):
@@ -78,3 +94,93 @@ class PhaseRunner(Protocol):
     def emit(self, final: bool = False) -> None:
         """Hand the rows recorded since the last batch to the listener."""
         ...
+
+
+class RecordingLoop:
+    """What every engine's 1 kHz loop shares (a :class:`PhaseRunner`'s state apart from its stepping): the telemetry
+    rows (one float row per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, room for ``capacity_s`` at first,
+    doubling when full) handed to ``on_sample`` in batches of ``telemetry_batch``, the step count, the contact the
+    guarded phases found, the control frames taken, and the reasons a phase stops (joint limits ``joint_lower`` /
+    ``joint_upper`` (7,) rad, a contact lost). ``dt`` the robot's time step, s."""
+
+    def __init__(
+        self,
+        dt: float,
+        capacity_s: float,
+        telemetry_batch: int,
+        on_sample: Callable[[Telemetry], None] | None,
+        joint_lower: NDArray[np.float64],
+        joint_upper: NDArray[np.float64],
+    ) -> None:
+        self.dt = dt
+        self.telemetry_batch = telemetry_batch
+        self.on_sample = on_sample
+        self.joint_lower, self.joint_upper = joint_lower, joint_upper
+        self.capacity = max(4096, round(capacity_s / self.dt))
+        self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
+        self.n = 0
+        """Rows recorded."""
+        self.emitted = 0
+        self.step_count = 0
+        self.wall_start = time.perf_counter()
+        """When the loop began (the realtime pace follows the wall clock from here), s."""
+        self.found_force: float | None = None
+        """The windowed reading along the stop axis when the last guarded phase met a surface, N."""
+        self.touched = False
+        """Whether the tool has touched anything (the simulator's contact) since the caller last cleared it."""
+        self.frame_log: list[tuple[int, float, float, float]] = []
+        """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
+        self.cf_rotation = np.eye(3)
+        """The CF rotation of the control frame in use (world from CF)."""
+
+    def telemetry(self, copy: bool = True) -> Telemetry:
+        """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
+        the loop's own rows, which the next recorded row would change (no second copy of a minute's 17 MB; the rows
+        allocated beyond them were never written, so not resident)."""
+        rows = self.rows[: self.n]
+        return Telemetry(rows.copy() if copy else rows)
+
+    def recent(self, duration_s: float) -> Telemetry:
+        """The rows of the last ``duration_s`` (s) recorded (a view: read it before the loop runs on)."""
+        return Telemetry(self.rows[max(0, self.n - round(duration_s / self.dt)) : self.n])
+
+    def _grow(self, n: int) -> tuple[NDArray[np.float64], int]:
+        """Double the rows allocated, the ``n`` recorded kept; return the new rows and capacity."""
+        self.n = n
+        self.capacity *= 2
+        rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
+        rows[: self.n] = self.rows[: self.n]
+        self.rows = rows
+        return rows, self.capacity
+
+    def emit(self, final: bool = False) -> None:
+        """Hand the rows recorded since the last batch to ``on_sample`` (a full batch, or whatever is left when
+        ``final``)."""
+        pending = self.n - self.emitted
+        if self.on_sample is not None and pending > 0 and (final or pending >= self.telemetry_batch):
+            self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
+            self.emitted = self.n
+
+    def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
+        """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,
+        or, when the tool never touched anything since its guarded approach began, never made (the approach took a
+        reading for the surface)."""
+        t = f"t = {self.step_count * self.dt:.3f} s"
+        retracted = f"the tool stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
+        if not touched:
+            found = "" if self.found_force is None else f" (it read {self.found_force:.2f} N)"
+            return (
+                f"no contact made in segment {segment} at {t}: the guarded approach stopped on a reading of the "
+                f"sensor above {guard.describe()}{found} without touching anything (a sensor offset or noise "
+                f"the tare did not remove?), and the tool found nothing {beyond_m * 1e3:.0f} mm beyond; {retracted}"
+            )
+        return (
+            f"contact lost in segment {segment} at {t}: no contact {beyond_m * 1e3:.0f} mm beyond the surface along "
+            f"CF z (an edge or a hole?); {retracted}"
+        )
+
+    def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
+        """Name the joint outside its URDF limits (neither engine enforces them in torque mode)."""
+        lower, upper = self.joint_lower, self.joint_upper
+        j = int(np.argmax(np.maximum(lower - q, q - upper)))
+        return f"joint limit: joint {j + 1} at {q[j]:.3f} rad outside [{lower[j]:.3f}, {upper[j]:.3f}] rad"
