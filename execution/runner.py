@@ -21,6 +21,7 @@ from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
 from execution.surface_following import SurfaceFollower
 from execution.telemetry import Telemetry
 from schemas.execution import TELEMETRY_WIDTH, ExecutionPhase
+from skills.control import ControlFrame
 
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
@@ -132,6 +133,8 @@ class RecordingLoop:
         """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
         self.cf_rotation = np.eye(3)
         """The CF rotation of the control frame in use (world from CF)."""
+        self._tracked: tuple[list[float], int] | None = None
+        """The tool position (m, world) and the step of the follower's last update in this phase."""
 
     def telemetry(self, copy: bool = True) -> Telemetry:
         """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
@@ -160,6 +163,34 @@ class RecordingLoop:
         if self.on_sample is not None and pending > 0 and (final or pending >= self.telemetry_batch):
             self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
             self.emitted = self.n
+
+    def _follow(
+        self,
+        follower: SurfaceFollower,
+        k: int,
+        force: list[float],
+        position: list[float],
+        step_count: int,
+        pressing: bool,
+        references: NDArray[np.float64],
+    ) -> ControlFrame | None:
+        """The follower's update at the plan's step ``k`` (``SurfaceFollower.update``) with this step's reading
+        ``force`` (3,) N and tool ``position`` (3,) m, world, and the tool's velocity since its last update in this
+        phase (zero at the first; the caller clears ``_tracked`` when a phase starts): the frame to hold, or None."""
+        velocity = [0.0, 0.0, 0.0]
+        if self._tracked is not None:
+            before, step_before = self._tracked
+            span = (step_count - step_before) * self.dt
+            velocity = [(a - b) / span for a, b in zip(position, before, strict=True)]
+        frame = follower.update(k, force, velocity, position, pressing, references)
+        self._tracked = (position, step_count)
+        return frame
+
+    def _keep_pace(self, step_count: int) -> None:
+        """With pace realtime: sleep until the wall clock since ``wall_start`` catches up with ``step_count`` steps."""
+        lag = step_count * self.dt - (time.perf_counter() - self.wall_start)
+        if lag > 0:
+            time.sleep(lag)
 
     def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
         """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,

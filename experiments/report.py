@@ -625,6 +625,7 @@ def write_results(options: DemoOptions, report: DemoReport) -> Path:
     options.out.mkdir(parents=True, exist_ok=True)
     path = options.out / "RESULTS.md"
     text = path.read_text() if path.exists() else ""
-    kept = [section for name in (SWEEPS_SECTION, RESULTS_SECTION, CROSS_ENGINE_SECTION) if (section := section_of(text, name))]
+    names = (SWEEPS_SECTION, RESULTS_SECTION, CROSS_ENGINE_SECTION)
+    kept = [section for name in names if (section := section_of(text, name))]
     path.write_text(results_markdown(options, report) + "".join(f"\n{section}\n" for section in kept))
     return path

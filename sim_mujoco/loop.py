@@ -15,7 +15,6 @@ the joint limits, ``should_abort()`` after every step, ``should_pause()`` before
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 import numpy as np
@@ -101,7 +100,7 @@ class MujocoLoop(RecordingLoop):
         series, stride, next_frame_step, frame = plan.series, plan.stride, 0, None
         guard_loss, next_surface = plan.phase is ExecutionPhase.contact, plan.next_z is not None
         cf_z = np.zeros(3)
-        p_tracked, step_tracked = None, 0
+        self._tracked = None
         n, step_count, touched = self.n, self.step_count, self.touched
         next_emit = self.emitted + batch
         try:
@@ -167,13 +166,8 @@ class MujocoLoop(RecordingLoop):
                         self.found_force = window_sum / window
                         return PlanEnd.contact
                 if follower is not None and follower.due(k):
-                    p_now = position.tolist()
-                    velocity = [0.0, 0.0, 0.0]
-                    if p_tracked is not None:
-                        span = (step_count - step_tracked) * dt
-                        velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
-                    single = follower.update(k, wrench[:3].tolist(), velocity, p_now, pressing, references)
-                    p_tracked, step_tracked = p_now, step_count
+                    force, p_now = wrench[:3].tolist(), position.tolist()
+                    single = self._follow(follower, k, force, p_now, step_count, pressing, references)
                     if next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
                 if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
@@ -182,9 +176,7 @@ class MujocoLoop(RecordingLoop):
                         self.step_count = step_count
                         raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
                 if self.realtime and step_count % REALTIME_CHECK_STEPS == 0:
-                    lag = step_count * dt - (time.perf_counter() - self.wall_start)
-                    if lag > 0:
-                        time.sleep(lag)
+                    self._keep_pace(step_count)
                 if not paused:
                     k += 1
         finally:

@@ -34,7 +34,6 @@ from skills.control.layouts import (
     ROBOT_ROTATION,
     ROBOT_STATE_SIZE,
 )
-from skills.quaternions import quaternion_from_matrix
 
 
 class MujocoRobot:
@@ -190,7 +189,7 @@ class MujocoRobot:
             state, data = self._state, self.data
             rotation = self._rotation()
             state[ROBOT_Q], state[ROBOT_QD] = data.qpos[:N_JOINTS], data.qvel[:N_JOINTS]
-            state[ROBOT_POSITION], state[ROBOT_QUAT] = data.site_xpos[self._site], quaternion_from_matrix(rotation)
+            state[ROBOT_POSITION], state[ROBOT_QUAT] = data.site_xpos[self._site], self._quaternion()
             state[ROBOT_ROTATION] = rotation.ravel()
             state[ROBOT_JACOBIAN] = self.jacobian().ravel()
             state[ROBOT_BIAS] = data.qfrc_bias[:N_JOINTS]
@@ -199,7 +198,7 @@ class MujocoRobot:
 
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) m and orientation ``[x, y, z, w]`` (4,), world frame."""
-        return self.data.site_xpos[self._site].copy(), quaternion_from_matrix(self._rotation())
+        return self.data.site_xpos[self._site].copy(), self._quaternion()
 
     def tool_rotation(self) -> NDArray[np.float64]:
         """The tool orientation (3, 3), world from tool."""
@@ -234,6 +233,13 @@ class MujocoRobot:
     def _rotation(self) -> NDArray[np.float64]:
         """The tool orientation (3, 3), world from tool, of the state the kinematics were last computed for."""
         return self.data.site_xmat[self._site].reshape(3, 3).copy()
+
+    def _quaternion(self) -> NDArray[np.float64]:
+        """The tool orientation ``[x, y, z, w]`` (4,), world from tool, of the same state as :meth:`_rotation`:
+        MuJoCo's ``mju_mat2Quat`` (scalar-first, reordered here; a tenth of scipy's cost, every step)."""
+        wxyz = np.empty(4)
+        mujoco.mju_mat2Quat(wxyz, self.data.site_xmat[self._site])
+        return wxyz[[1, 2, 3, 0]]
 
     def _sample(self) -> None:
         """The truth and the sensor's reading of the forces just computed (the sensor samples every step)."""

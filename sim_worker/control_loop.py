@@ -27,7 +27,6 @@ the controller makes in Python.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 
 import numba
@@ -74,9 +73,9 @@ _TWIST0, _TWIST1 = layouts.REFERENCE_TWIST.start, layouts.REFERENCE_TWIST.stop
 def _record(
     robot, contact, reading_at, touching, state, rows, references, k, paused, n, step_count
 ):  # pragma: no cover - compiled
-    """Telemetry row ``n`` of step ``step_count`` (``execution.telemetry.record_row``) from the arm state ``robot``, the contact buffer
-    ``contact`` (its reading at ``reading_at``, the true normal) and the plan's reference row ``k`` (its twist zero
-    when ``paused``); returns the law's contact flag."""
+    """Telemetry row ``n`` of step ``step_count`` (``execution.telemetry.record_row``) from the arm state ``robot``,
+    the contact buffer ``contact`` (its reading at ``reading_at``, the true normal) and the plan's reference row ``k``
+    (its twist zero when ``paused``); returns the law's contact flag."""
     reference = references[k]
     if paused:  # hold the reference: zero reference twist
         reference = reference.copy()
@@ -231,12 +230,12 @@ class ControlLoop(RecordingLoop):
         law_buffer, state, record_and_control, mass_of = kernel.buffer, self.state, ph.record_and_control, ph.mass_of
         stop_axis, window, window_threshold = ph.stop_axis, ph.window, ph.window_threshold
         window_readings, window_sum, window_slot = [0.0] * window, 0.0, 0
-        touched, frame_log, dt, realtime = self.touched, self.frame_log, self.dt, self.realtime
+        touched, frame_log, realtime = self.touched, self.frame_log, self.realtime
         single = current = ph.single
         series, stride, next_frame_step, frame = plan.series, plan.stride, 0, None
         should_abort, should_pause = self.should_abort, self.should_pause
         r02 = r12 = r22 = 0.0
-        p_tracked, step_tracked, clipped, sampled_touching = None, 0, False, ph.sampled_touching
+        clipped, sampled_touching, self._tracked = False, ph.sampled_touching, None
         n, rows, capacity, step_count = self.n, self.rows, self.capacity, self.step_count
         first_step, clipped_steps, next_emit = step_count, 0, self.emitted + ph.batch
         try:
@@ -303,13 +302,7 @@ class ControlLoop(RecordingLoop):
                         self.found_force = window_sum / window
                         return PlanEnd.contact
                 if follower is not None and follower.due(k):
-                    p_now = p.tolist()
-                    velocity = [0.0, 0.0, 0.0]
-                    if p_tracked is not None:
-                        span = (step_count - step_tracked) * dt
-                        velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
-                    single = follower.update(k, [fx, fy, fz], velocity, p_now, pressing, references)
-                    p_tracked, step_tracked = p_now, step_count
+                    single = self._follow(follower, k, [fx, fy, fz], p.tolist(), step_count, pressing, references)
                     if ph.next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
                 if ph.guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
@@ -320,9 +313,7 @@ class ControlLoop(RecordingLoop):
                         self.step_count = step_count
                         raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
                 if realtime and step_count % REALTIME_CHECK_STEPS == 0:
-                    lag = step_count * dt - (time.perf_counter() - self.wall_start)
-                    if lag > 0:
-                        time.sleep(lag)
+                    self._keep_pace(step_count)
                 if not paused:
                     k += 1
         finally:
