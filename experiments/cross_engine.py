@@ -14,7 +14,10 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from schemas.execution import Engine, ExecutionMetrics, ExecutionSettings
+import numpy as np
+
+from execution.telemetry import Telemetry
+from schemas.execution import PHASE_CODES, Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import LearnOptions, Skill
 from schemas.verdict import Verdict
 from sim_worker.execution_world import execution_world
@@ -56,12 +59,41 @@ CASES: tuple[EngineCase, ...] = (
 
 
 @dataclass(frozen=True)
+class WorstStep:
+    """The contact step with the largest true normal force error of a run: when (s), the error (N), how much the
+    true normal force changed from the step before (N) and how far the true normal turned from the step before (°):
+    a new contact appearing (a crease) shows as a jump in one step along a turned normal."""
+
+    t_s: float
+    error_n: float
+    jump_n: float
+    turn_deg: float
+
+
+def worst_step(telemetry: Telemetry) -> WorstStep | None:
+    """The :class:`WorstStep` of the contact phase's steps in ``telemetry`` (None without any)."""
+    steps = np.flatnonzero(telemetry.phase_codes == PHASE_CODES[ExecutionPhase.contact])
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return None
+    error = telemetry.normal_force_true[steps] - telemetry.desired_force[steps]
+    k = int(steps[np.argmax(np.abs(error))])
+    force, normal = telemetry.normal_force_true, telemetry.contact_normal
+    cosine = float(np.clip(normal[k] @ normal[k - 1], -1.0, 1.0))
+    worst_error = float(error[np.argmax(np.abs(error))])
+    return WorstStep(
+        float(telemetry.t[k]), worst_error, float(force[k] - force[k - 1]), float(np.degrees(np.arccos(cosine)))
+    )
+
+
+@dataclass(frozen=True)
 class EngineRun:
-    """One case on one engine: its metrics (the engine's own truth)."""
+    """One case on one engine: its metrics (the engine's own truth) and its worst contact step."""
 
     case: EngineCase
     engine: Engine
     metrics: ExecutionMetrics
+    worst: WorstStep | None
 
     @property
     def passed(self) -> bool:
@@ -83,7 +115,8 @@ def run_case(case: EngineCase, engine: Engine, skills: Mapping[str, tuple[Teache
     recording, skill = skills[case.scenario]
     settings = ExecutionSettings(engine=engine, environment=dict(case.environment), pace="fast")
     world = execution_world(skill, settings.environment, demonstration=recording.demonstration)
-    return EngineRun(case, engine, run_skill(world, settings).metrics)
+    result = run_skill(world, settings)
+    return EngineRun(case, engine, result.metrics, worst_step(result.telemetry))
 
 
 def _number(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -149,5 +182,33 @@ def difference_table(runs: list[EngineRun]) -> list[str]:
         lines.append(
             f"| {case.name} | {_number(rms, digits=2)} | {_number(max_, digits=2)} | {within} | "
             f"{'yes' if agree else '**no**'} |"
+        )
+    return lines
+
+
+def _worst_text(run: EngineRun) -> str:
+    w = run.worst
+    if w is None:
+        return f"{run.engine.value}: no contact step"
+    return (
+        f"{run.engine.value} {w.error_n:+.2f} N at t = {w.t_s:.3f} s, where the true normal force changed by "
+        f"{w.jump_n:+.2f} N in one step and its normal turned {w.turn_deg:.1f}°"
+    )
+
+
+def why_they_differ(runs: list[EngineRun]) -> list[str]:
+    """A sentence per case whose true RMS or true max differ by more than :data:`RMS_AGREEMENT_POINTS` between the
+    engines: where each engine's largest error was and what the contact did in that step (:class:`WorstStep`)."""
+    by_case: dict[str, dict[Engine, EngineRun]] = {}
+    for run in runs:
+        by_case.setdefault(run.case.name, {})[run.engine] = run
+    lines = []
+    for case, rms, max_, _ in differences(runs):
+        if rms is None or max_ is None or max(abs(rms), abs(max_)) <= RMS_AGREEMENT_POINTS:
+            continue  # (an aborted run has no steady error: the verdicts' column says it)
+        pair = by_case[case.name]
+        lines.append(
+            f"- **{case.name}**: the largest steady error differs by {max_:+.1f} points (RMS {rms:+.2f}): "
+            f"{_worst_text(pair[Engine.mujoco])}; {_worst_text(pair[Engine.pybullet])}."
         )
     return lines
