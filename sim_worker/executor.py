@@ -30,8 +30,6 @@ from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
 from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings, NullSpaceProjection
 from schemas.skill import Skill
-from sim_mujoco.loop import MujocoLoop
-from sim_mujoco.robot import MujocoRobot
 from sim_worker.control_loop import ControlLoop
 from sim_worker.execution_world import ExecutionWorld
 from sim_worker.world import SimWorld
@@ -122,15 +120,20 @@ def execute_skill(
     env = settings.environment
     config = shifted_world_config(world_config, np.asarray(env.offset, float) + np.asarray(env.unknown_offset, float))
     engine = Engine(settings.engine)
-    world: SimulatedRobot = MujocoRobot(config) if engine is Engine.mujoco else SimWorld(config)
+    world: SimulatedRobot
+    loop_type: Callable[..., PhaseRunner]
+    if engine is Engine.mujoco:  # MuJoCo loaded by the executions that ask for it only
+        from sim_mujoco.loop import MujocoLoop
+        from sim_mujoco.robot import MujocoRobot
+
+        world, loop_type = MujocoRobot(config), MujocoLoop
+    else:
+        world, loop_type = SimWorld(config), ControlLoop
     dynamic_null = settings.gains.null_space is NullSpaceProjection.dynamic
 
     def control_loop(controller: HybridController, capacity_s: float) -> PhaseRunner:
-        options = (capacity_s, settings.telemetry_batch, settings.pace, dynamic_null, on_sample, should_abort,
-                   should_pause)  # fmt: skip
-        if isinstance(world, MujocoRobot):
-            return MujocoLoop(world, controller, *options)
-        return ControlLoop(world, controller, *options)
+        return loop_type(world, controller, capacity_s, settings.telemetry_batch, settings.pace, dynamic_null,
+                         on_sample, should_abort, should_pause)  # fmt: skip
 
     execution = Execution(
         skill, settings, world, control_loop, (config.contact.stiffness_n_m, config.contact.damping_n_s_m)
