@@ -79,8 +79,9 @@ def reports(smoke: bool) -> tuple[str, str]:
         f"Reproduce: `{command}`. {machine}",
         "",
         "The scripted teacher's skills, taught in PyBullet (seed 0), executed with `hybrid_cf` on PyBullet and on "
-        "MuJoCo (`engine` in the execution settings, docs/ENGINES.md): the same skill, settings, controller and "
-        "phases; each row judged by its own engine's contact (true normal force RMS and largest steady error in % "
+        "MuJoCo (`engine` in the execution settings, docs/ENGINES.md): the same skill, settings (the default wrist "
+        "sensor: noise, drift, 2 ms delay, 200 Hz filter, tared before contact), controller and phases; each row "
+        "judged by its own engine's contact (true normal force RMS and largest steady error in % "
         "of the learned force, the touch-down peak over the first target, the share of the contact phase in "
         "contact, the verdict).",
         "",
