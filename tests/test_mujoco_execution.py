@@ -15,8 +15,8 @@ from sim_worker.teacher import TeacherRecording, record_demonstration
 from skills.parameterize import learn_skill
 
 FORCE_TOLERANCE_N = 0.75
-"""The steady true normal force stays within this of the force the teacher pressed with, N (5 % of 15 N; measured on
-MuJoCo: RMS error 0.22 N, the largest about 1 N at the stroke's ends, so the median and the RMS are held to this)."""
+"""The steady true normal force's median and RMS error from the force the teacher pressed with stay within this, N
+(5 % of 15 N; measured on MuJoCo with the default wrist sensor: RMS 0.23 N, the largest error 1.0 N)."""
 NORMAL_TOLERANCE_DEG = 1.0
 """The true normal the tool pressed along is the table's, within this, degrees."""
 STEADY_AFTER_S = 0.25
