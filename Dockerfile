@@ -14,6 +14,7 @@ COPY corpus/ corpus/
 COPY execution/ execution/
 COPY services/ services/
 COPY sim_worker/ sim_worker/
+COPY sim_mujoco/ sim_mujoco/
 COPY experiments/ experiments/
 COPY cli/ cli/
 RUN pip wheel --no-cache-dir --wheel-dir /wheels ".[service]"

@@ -55,6 +55,7 @@ from schemas.execution import (  # noqa: E402
     SensorChoice,
 )
 from schemas.skill import SELECTION_CONTACT, Skill  # noqa: E402
+from schemas.world import WorldConfig  # noqa: E402
 from sim_worker import control_loop  # noqa: E402
 from sim_worker.arm_model import arm_mass_matrix  # noqa: E402
 from sim_worker.bullet_client import read_contact_rows, read_joint_rows  # noqa: E402
@@ -73,7 +74,6 @@ from sim_worker.executor import ExecutionResult, execute_skill, run_skill  # noq
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK  # noqa: E402
 from sim_worker.teacher import record_demonstration  # noqa: E402
 from sim_worker.world import LoopHandles, SimWorld  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.compiled import compiled_entry  # noqa: E402
 from skills.control import DAMPING_UPDATE_EVERY, ControlFrame, HybridController, LawKernel  # noqa: E402
 from skills.control.layouts import (  # noqa: E402

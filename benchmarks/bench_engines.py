@@ -26,8 +26,8 @@ import mujoco  # noqa: E402
 
 from benchmarks.bench_mujoco_loop import PRESS_N, bare_mujoco, pressing_pose, real_time_factors  # noqa: E402
 from experiments.cross_engine import (  # noqa: E402
-    CASES,
-    RESULTS_SECTION,
+    CROSS_ENGINE_SECTION,
+    ENGINE_CASES,
     EngineRun,
     difference_table,
     engine_table,
@@ -36,9 +36,9 @@ from experiments.cross_engine import (  # noqa: E402
     why_they_differ,
 )
 from schemas.execution import Engine  # noqa: E402
+from schemas.world import WorldConfig  # noqa: E402
 from sim_mujoco.robot import MujocoRobot  # noqa: E402
 from sim_worker.world import SimWorld  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
 
 COMMAND = ".venv/bin/python benchmarks/bench_engines.py"
 RESULTS_MD = ROOT / "docs" / "RESULTS.md"
@@ -58,7 +58,7 @@ def bare_factors(steps: int, repeats: int) -> list[float]:
 def reports(smoke: bool) -> tuple[str, str]:
     """Run the cases on both engines and the bare loop; return the RESULTS.md and the BENCHMARKS.md sections."""
     load_before = os.getloadavg()[0]
-    cases = CASES[:1] if smoke else CASES
+    cases = ENGINE_CASES[:1] if smoke else ENGINE_CASES
     skills = taught(cases)
     runs: list[EngineRun] = []
     for case in cases:
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     results, benchmarks = reports(arguments.smoke)
     print(results, benchmarks, sep="\n\n")
     if not (arguments.smoke or arguments.no_write):
-        write_section(RESULTS_SECTION, results, RESULTS_MD)
+        write_section(CROSS_ENGINE_SECTION, results, RESULTS_MD)
         write_section("bench_engines", benchmarks)
     return 0
 

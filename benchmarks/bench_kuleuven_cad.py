@@ -41,6 +41,7 @@ from experiments.kuleuven_cad import (  # noqa: E402
     stl_fit,
 )
 from schemas import Demonstration, ExecutionSettings  # noqa: E402
+from schemas.world import WorldConfig  # noqa: E402
 from services.datasets import kuleuven_recordings  # noqa: E402
 from services.kuleuven_object import kuleuven_ground_truth  # noqa: E402
 from sim_worker.cad_work_piece import (  # noqa: E402
@@ -52,7 +53,6 @@ from sim_worker.cad_work_piece import (  # noqa: E402
 )
 from sim_worker.execution_world import execution_world  # noqa: E402
 from sim_worker.executor import run_skill  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 from skills.quaternions import quaternion_from_matrix  # noqa: E402
 from skills.registration import Crease, TriangleMesh, crease_along_edge, welded_mesh  # noqa: E402

@@ -28,11 +28,11 @@ pin_blas_threads()
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from schemas.world import WorldConfig  # noqa: E402
 from sim_mujoco.model import TOOL_SITE  # noqa: E402
 from sim_mujoco.robot import MujocoRobot  # noqa: E402
 from sim_mujoco.sensing import true_contact  # noqa: E402
 from sim_worker.world import SimWorld  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
 
 PRESS_N = 15.0
 """The force the tool presses the table with, N."""

@@ -33,12 +33,12 @@ from corpus.families import cylinder_case, plane_case  # noqa: E402
 from schemas import EnvironmentChange, ExecutionSettings, LearnOptions  # noqa: E402
 from schemas.execution import ExecutionMetrics  # noqa: E402
 from schemas.import_options import CsvImportOptions  # noqa: E402
+from schemas.world import WorldConfig  # noqa: E402
 from services.csv_import import demonstration_from_csv  # noqa: E402
 from services.datasets import KULEUVEN_IMPORT  # noqa: E402
 from sim_worker.execution_world import ExecutionWorld, execution_world  # noqa: E402
 from sim_worker.executor import run_skill  # noqa: E402
 from sim_worker.geometry import WorldGeometry  # noqa: E402
-from sim_worker.world_config import WorldConfig  # noqa: E402
 from skills.parameterize import learn_skill  # noqa: E402
 from skills.quaternions import matrix_from_quaternion  # noqa: E402
 

@@ -124,8 +124,8 @@ def machine_speed() -> dict[str, float]:
 
     import pybullet
 
+    from schemas.world import WorldConfig
     from sim_worker.world import SimWorld
-    from sim_worker.world_config import WorldConfig
 
     python = min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6
     with SimWorld(WorldConfig()) as world:

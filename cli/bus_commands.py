@@ -103,7 +103,8 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from services.quiet_imports import import_pybullet_quietly
 
     import_pybullet_quietly()
-    from sim_worker.zenoh_worker import WorkerSettings, run_worker
+    from sim_worker.worker_settings import WorkerSettings
+    from sim_worker.zenoh_worker import run_worker
 
     _logging(args.log_level)
     apply_login(args)
@@ -211,6 +212,7 @@ def _asked_the_api(args: argparse.Namespace, router_named: bool) -> int | list[s
 
 def _report_final(view) -> int:
     """Print a finished execution's metrics and verdict as the API stored them (an `ExecutionView`); its exit code."""
+    from schemas.api import ExecutionState
     from schemas.bus import ExecutionStatus
 
     status = ExecutionStatus(
@@ -223,7 +225,7 @@ def _report_final(view) -> int:
     )
     for text in _metrics_lines(status):
         print(text)
-    return exit_code(view.status.value == "done", view.metrics)
+    return exit_code(view.status is ExecutionState.done, view.metrics)
 
 
 def _watch_replayed(args: argparse.Namespace, endpoints: list[str]) -> int:
@@ -283,7 +285,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     import time
 
     from schemas.bus import ENV_ENDPOINTS, ExecutionStatus, KeyExpressions, check_id
-    from schemas.execution import TelemetryBatch
+    from schemas.execution import ExecutionPhase, TelemetryBatch
     from services.bus import BusSettings, open_session
     from services.service_url import service_url
 
@@ -373,7 +375,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         for text in _metrics_lines(status):
             print(text)
         _await_the_api(args)
-        return exit_code(status.phase.value == "done", status.metrics)
+        return exit_code(status.phase is ExecutionPhase.done, status.metrics)
     except KeyboardInterrupt:
         print()
         return 130

@@ -21,7 +21,7 @@ def user_problems(exc: BaseException) -> list[str] | None:
     """The printable problems of a user-fixable error, or None for a bug (which keeps its traceback)."""
     from pydantic import ValidationError
 
-    from services.importing import DemonstrationImportError, validation_problems
+    from services.import_steps import DemonstrationImportError, validation_problems
 
     if isinstance(exc, UserError | DemonstrationImportError):
         return exc.problems

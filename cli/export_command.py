@@ -42,7 +42,8 @@ def _local(source: Path, fmt: str, t0: float | None, t1: float | None) -> tuple[
 
     from schemas.demonstration import DemonstrationArrays
     from schemas.import_options import ImportOptions
-    from services.csv_import import demonstration_from_file, samples_csv_text
+    from services.csv_import import samples_csv_text
+    from services.importing import demonstration_from_file
     from services.telemetry_export import demonstration_mcap, window_mask
 
     demonstration = demonstration_from_file(source, ImportOptions(tare=False))

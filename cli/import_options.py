@@ -170,12 +170,11 @@ def import_demonstration(file: Path, args: argparse.Namespace) -> Demonstration:
     for its kind: a JSON Demonstration, a CSV recording, a ROS 1 or ROS 2 bag; any other file gets the one message
     every interface gives (`services.demonstration_files.unsupported_file`)."""
     from schemas.import_options import BagImportOptions, CsvImportOptions
-    from services.csv_import import demonstration_from_file
     from services.demonstration_files import BAGS, DESCRIBED, DemonstrationFile
-    from services.importing import demonstration_file
+    from services.importing import demonstration_file, demonstration_from_file
 
-    kind = demonstration_file(file)
+    kind = demonstration_file(file)  # once: the options are those of its kind
     if kind is DemonstrationFile.json:
-        return demonstration_from_file(file)
+        return demonstration_from_file(file, kind=kind)
     model = BagImportOptions if kind in BAGS else CsvImportOptions
-    return demonstration_from_file(file, options_from_args(args, model, f"{file} is {DESCRIBED[kind]}"))
+    return demonstration_from_file(file, options_from_args(args, model, f"{file} is {DESCRIBED[kind]}"), kind)

@@ -27,16 +27,16 @@ def run_kinesthetic_record(args: argparse.Namespace) -> int:
     try:
         from corpus.kinesthetic import recording_csv_text
         from sim_worker.kinesthetic_teacher import (
+            KINESTHETIC_SCENARIOS,
             LEARN_IMPORT_OPTIONS,
-            SCENARIOS,
             kinesthetic_truth_dict,
             record_kinesthetic,
         )
 
         problems = []
-        if args.scenario not in SCENARIOS:
+        if args.scenario not in KINESTHETIC_SCENARIOS:
             problems.append(f"scenario: unknown kinesthetic scenario {args.scenario!r}; choose one of "
-                            f"{', '.join(SCENARIOS)}")  # fmt: skip
+                            f"{', '.join(KINESTHETIC_SCENARIOS)}")  # fmt: skip
         if args.output.suffix.lower() != ".csv":
             problems.append(f"output: {args.output} must end in .csv (a kinesthetic recording file)")
         if args.strokes is not None and not 1 <= args.strokes <= 6:
@@ -77,7 +77,7 @@ def run_kinesthetic_record(args: argparse.Namespace) -> int:
 def register(commands: argparse._SubParsersAction) -> None:
     """Add ``record`` to the `contact-skills` parser."""
     from_scenarios = "slide_flat, slide_tilted, slide_two_planes, contour_cylinder, contour_block"
-    kinesthetic_scenarios = "wipe_flat, wipe_tilted, wipe_curved"  # sim_worker.kinesthetic_teacher.SCENARIOS
+    kinesthetic_scenarios = "wipe_flat, wipe_tilted, wipe_curved"  # kinesthetic_teacher.KINESTHETIC_SCENARIOS
     record = commands.add_parser(
         "record",
         help="record a scripted or kinesthetic (hand-guided) teacher demonstration in the simulated world",

@@ -90,6 +90,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         import json
 
         from schemas import Demonstration, ExecutionSettings, Skill
+        from schemas.execution import ExecutionPhase
         from sim_worker.execution_world import execution_worlds
         from sim_worker.executor import run_skill
 
@@ -130,7 +131,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
             print(("" if len(worlds) == 1 else f"stroke {k + 1} of {len(worlds)}: ") + _world_line(world))
             result = run_skill(world, settings)
             metrics.append(result.metrics)
-            codes.append(bus_commands.exit_code(result.metrics.phase.value == "done", result.metrics))
+            codes.append(bus_commands.exit_code(result.metrics.phase is ExecutionPhase.done, result.metrics))
             _print_execution(result)
             suffix = "" if len(worlds) == 1 else f"_stroke{k + 1}"
             _write_execution_figures(args, world, result, suffix)

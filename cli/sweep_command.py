@@ -87,7 +87,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         sweep_markdown,
         text_table,
     )
-    from schemas.sweep import SweepRequest
+    from schemas.sweep import SweepRequest, SweepState
     from services.service_url import service_url
 
     shown = ["contact-skills", "sweep", *sys.argv[2:]] if sys.argv[1:2] == ["sweep"] else ["contact-skills", "sweep"]
@@ -147,7 +147,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         key = args.scenario or args.skill_id
         write_section(args.results, SWEEPS_SECTION, merged_sweeps_section(existing, key, subsection), "# Results\n")
         print(f"results -> {args.results} (section {SWEEPS_SECTION}, {key})")
-    return 0 if view.status.value == "done" else 1
+    return 0 if view.status is SweepState.done else 1
 
 
 def _relative(path: Path, base: Path) -> tuple[str, ...]:

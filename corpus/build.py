@@ -19,10 +19,9 @@ from scipy.spatial import cKDTree
 from corpus.kinesthetic import _slow_wander
 from corpus.synthetic import minimum_jerk
 from skills.frames import matrix_from_axis_angle, rotation_from_vectors
+from skills.friction import FRICTION_SPEED_M_S
 from skills.quaternions import quaternion_from_matrix, quaternions_sign_continuous
 
-FRICTION_SPEED_M_S = 0.005
-"""Friction fades in over this sliding speed (tanh), m/s: no jump at rest."""
 TREMOR_FADE_S = 0.2
 """Time over which the hand's tremor across the surface fades in after a lift-off (and out before a touch-down), s."""
 UP = np.array([0.0, 0.0, 1.0])

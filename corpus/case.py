@@ -18,9 +18,8 @@ from numpy.typing import NDArray
 from corpus.build import Assembled
 from schemas import Demonstration, DemonstrationMetadata
 from skills.frames import rotation_from_vectors
+from skills.segmentation import DIP_FRACTION
 
-DIP_FRACTION = 0.3
-"""A force dip below this fraction of the plateaus on both sides, with no lift-off, is a stroke boundary."""
 WINDING_WINDOW_S = 0.1
 """Half width of a winding cut's window around the moment the winding crosses a multiple of 360 deg, s."""
 WINDING_MIN_REMAINDER_TURNS = 0.25

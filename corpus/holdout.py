@@ -666,7 +666,7 @@ def lwr_circle_case(seed: int = 0) -> CorpusCase:
 
 # --------------------------------------------------------------------------- the families together
 
-_FAMILY_CASES: dict[str, Callable[[int], CorpusCase]] = {
+_HOLDOUT_FAMILY_CASES: dict[str, Callable[[int], CorpusCase]] = {
     "lwr-wipe-curved": lwr_wipe_curved_case,
     "tool-weight-line": tool_weight_line_case,
     "hand-on-arm": hand_on_arm_wipe_case,
@@ -678,4 +678,4 @@ def holdout_cases(seeds: Sequence[int]) -> Iterator[CorpusCase]:
     """Every family of `HOLDOUT_FAMILIES` once per seed, in that order, seed by seed (4 cases per seed)."""
     for seed in seeds:
         for family in HOLDOUT_FAMILIES:
-            yield _FAMILY_CASES[family](seed)
+            yield _HOLDOUT_FAMILY_CASES[family](seed)

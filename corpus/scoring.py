@@ -3,7 +3,7 @@
 `score` is a pure function of the learned `schemas.Skill` and the case. Times are the demonstration's (s), angles
 deg, forces N; the learned contact segments are those of kind ``contact``, in time order. A truth sample is
 *scored* when the tool touches, the sample lies in a truth segment's span (`corpus.case.TruthSegment.span`) and the
-true normal force exceeds `PRESSING_FRACTION` of that segment's plateau ``force_n`` (the ramps' feet and the dips
+true normal force exceeds `SCORED_PRESSING_FRACTION` of that segment's plateau ``force_n`` (the ramps' feet and the dips
 are left out). The metrics:
 
 - ``type_right``: the learned skill type is the truth's (slide or contour).
@@ -45,7 +45,7 @@ from schemas.skill import Segment, SegmentKind
 from skills.compliant_frames import compliant_frame_rotations
 from skills.dmp import DMP
 
-PRESSING_FRACTION = 0.3
+SCORED_PRESSING_FRACTION = 0.3
 """A sample is scored (contours, unsteady slides) where the true normal force exceeds this fraction of its
 segment's ``force_n``."""
 
@@ -119,7 +119,7 @@ def _scored(case: CorpusCase) -> tuple[NDArray[np.int_], NDArray[np.int_]]:
     plateau = np.array([s.force_n for s in case.segments])
     inside = (case.t[:, None] >= spans[:, 0]) & (case.t[:, None] <= spans[:, 1])
     owner = np.argmax(inside, axis=1)
-    scored = case.in_contact & inside.any(axis=1) & (case.normal_force_n > PRESSING_FRACTION * plateau[owner])
+    scored = case.in_contact & inside.any(axis=1) & (case.normal_force_n > SCORED_PRESSING_FRACTION * plateau[owner])
     rows = np.flatnonzero(scored)
     return rows, owner[rows]
 

@@ -17,6 +17,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+CONTACT_DISTANCE_M = 0.0
+"""A contact point counts as contact when its distance (beyond an engine's margin) is at or below this (m) or it
+carries force: the one definition of "in contact" every engine's truth (:meth:`SimulatedRobot.true_normal_force`)
+uses."""
+
 
 @runtime_checkable
 class Robot(Protocol):

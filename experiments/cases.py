@@ -48,12 +48,12 @@ BASELINE_FACTOR = 3.0
 """Each baseline's force RMS error at least this many times ours, on the tilted plane and on the contour."""
 
 OURS = "hybrid_cf"
-CONTROLLERS = ("hybrid_cf", "impedance", "hybrid_world_z")
+PAPER_CONTROLLERS = ("hybrid_cf", "impedance", "hybrid_world_z")
 """Ours and the baselines with a target (:data:`BASELINE_FACTOR`)."""
 FAIR_IMPEDANCE = "impedance_found_surface"
 """The impedance baseline re-based at the surface the guarded approach found: run where the work piece moved
 without telling the controller (elsewhere it is ``impedance``), reported beside ours without a target."""
-SHIFTED = (*CONTROLLERS, FAIR_IMPEDANCE)
+SHIFTED = (*PAPER_CONTROLLERS, FAIR_IMPEDANCE)
 """The controllers of a case with an unknown shift."""
 FINAL = frozenset({"done", "aborted", "failed"})
 QUICK_RECORDING = "contour_a_1"
@@ -119,7 +119,7 @@ class Case:
     """A few characters for the live line."""
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     unknown_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    controllers: tuple[str, ...] = CONTROLLERS
+    controllers: tuple[str, ...] = PAPER_CONTROLLERS
 
     @property
     def spec(self) -> SkillSpec:
@@ -140,7 +140,7 @@ class Case:
         return self.skill in ("slide_tilted", "contour")
 
 
-def _real_case(trial: str, controllers: tuple[str, ...] = CONTROLLERS) -> Case:
+def _real_case(trial: str, controllers: tuple[str, ...] = PAPER_CONTROLLERS) -> Case:
     return Case(
         f"ku_{trial}", "work piece measured from the recording, placed in reach", f"KU {trial[8:]}",
         controllers=controllers,
@@ -186,7 +186,7 @@ def cases(quick: bool = False) -> list[Case]:
             f"table {dz:+d} cm (unknown)" if dz else "table 0 cm",
             f"flat {dz:+d}cm" + ("?" if dz else ""),
             unknown_offset=(0.0, 0.0, dz / 100),
-            controllers=SHIFTED if dz else CONTROLLERS,
+            controllers=SHIFTED if dz else PAPER_CONTROLLERS,
         )
         for dz in (-4, -2, 0, 2, 4)
     ]
@@ -337,7 +337,7 @@ def judge(outcomes: list[Outcome]) -> list[TargetVerdict]:
             _judge_ours(o)
             continue
         o.ratio = _baseline_ratio(o, ours.get(o.case))
-        if not o.case.baseline_target or o.controller not in CONTROLLERS:
+        if not o.case.baseline_target or o.controller not in PAPER_CONTROLLERS:
             o.met, o.target_text = None, "— (no target" + (f"; {o.ratio:.1f}x ours)" if o.ratio is not None else ")")
         elif o.status == "aborted" and o.metric("force_rms_error_n") is None:  # a safety limit, no steady contact
             o.met, o.target_text = True, f"MET (the baseline did not finish: {o.final})"
@@ -363,7 +363,7 @@ def judge(outcomes: list[Outcome]) -> list[TargetVerdict]:
             )
         )
     for skill, where in (("slide_tilted", "on the tilted plane"), ("contour", "on the contour")):
-        for controller in CONTROLLERS[1:]:
+        for controller in PAPER_CONTROLLERS[1:]:
             rows = [o for o in outcomes if o.controller == controller and o.case.skill == skill]
             if not rows:
                 continue

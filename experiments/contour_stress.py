@@ -25,10 +25,11 @@ from schemas import LearnOptions
 from schemas.execution import PHASE_CODES, ControllerKind, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import Skill
 from schemas.sweep import SweepParameter
+from schemas.verdict import Verdict
+from schemas.world import WorldConfig
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.teacher import record_demonstration
-from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides
 
@@ -134,7 +135,7 @@ def _cell(m: ExecutionMetrics) -> str:
     """``RMS / max %, contact %`` and the verdict, or how the run ended."""
     if m.phase is not ExecutionPhase.done or m.true_force_rms_error_pct is None:
         return f"{m.phase.value}: {(m.abort_reason or '').split(':')[0]}"
-    verdict = "pass" if m.verdict is not None and m.verdict.verdict.value == "pass" else "**fail**"
+    verdict = "pass" if m.verdict is not None and m.verdict.verdict is Verdict.passed else "**fail**"
     return (
         f"{m.true_force_rms_error_pct:.1f} / {m.true_force_max_error_pct or 0.0:.1f} %, "
         f"{100.0 * (m.contact_ratio or 0.0):.0f} % ({verdict})"

@@ -5,7 +5,7 @@ own engine's contact (the true normal force, the contact, the touch-down; ``exec
 A case is a teacher scenario (seed 0, the skill type it teaches) and an environment change: as taught, the work piece
 moved WITHOUT telling the controller (``unknown_offset``), or moved with the skill (``offset``, the paper's contour
 trials). ``benchmarks/bench_engines.py`` prints the table and writes it into docs/RESULTS.md (section
-:data:`RESULTS_SECTION`; the demo keeps it).
+:data:`CROSS_ENGINE_SECTION`; the demo keeps it).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from sim_worker.executor import run_skill
 from sim_worker.teacher import TeacherRecording, record_demonstration
 from skills.parameterize import learn_skill
 
-RESULTS_SECTION = "cross-engine"
+CROSS_ENGINE_SECTION = "cross-engine"
 """The section of docs/RESULTS.md the table is written into (``benchmarks/bench_engines.py``; the demo keeps it)."""
 RMS_AGREEMENT_POINTS = 2.0
 """Issue 44: a case's true-force RMS (% of the reference force) on MuJoCo within this many points of PyBullet's."""
@@ -43,7 +43,7 @@ class EngineCase:
 
 
 _UP_2CM, _DOWN_2CM, _UP_1CM = [0.0, 0.0, 0.02], [0.0, 0.0, -0.02], [0.0, 0.0, 0.01]
-CASES: tuple[EngineCase, ...] = (
+ENGINE_CASES: tuple[EngineCase, ...] = (
     EngineCase("slide, flat table, as taught", "slide_flat", "slide"),
     EngineCase("slide, flat table 2 cm higher (unknown)", "slide_flat", "slide", {"unknown_offset": _UP_2CM}),
     EngineCase("slide, flat table 2 cm lower (unknown)", "slide_flat", "slide", {"unknown_offset": _DOWN_2CM}),

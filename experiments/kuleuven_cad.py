@@ -34,12 +34,12 @@ from execution.telemetry import Telemetry
 from schemas import ExecutionSettings
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, Placement
 from schemas.verdict import VerdictCheckName
+from schemas.world import WorldConfig
 from services.datasets import kuleuven_recordings
 from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth
 from sim_worker.cad_work_piece import CONVEX_MARGIN_M, cad_world_config, crease_pieces, crease_side_faces
 from sim_worker.execution_world import ExecutionWorld, execution_world
 from sim_worker.executor import run_skill
-from sim_worker.world_config import WorldConfig
 from skills.mesh_geometry import closest_points_on_mesh
 from skills.parameterize import learn_skill
 from skills.placement import skill_tool_path

@@ -52,7 +52,7 @@ TELEMETRY_EVERY = 5
 """The figures read every N-th telemetry sample (1 kHz -> 200 Hz)."""
 EXECUTION_TIMEOUT_S = 600.0
 """An execution not finished after this long (wall) is aborted and reported failed."""
-RECORD_TIMEOUT_S = 300.0
+DEMO_RECORD_TIMEOUT_S = 300.0
 
 
 def run_demo(options: DemoOptions) -> DemoReport:
@@ -122,7 +122,12 @@ def _demonstration_created(client: ServiceClient, spec: SkillSpec, seed: int, re
     if spec.recording is None:
         body = {"scenario": spec.scenario, "seed": seed}
         return client.request(
-            "POST", "/demonstrations/record", 201, retry_busy_s=RECORD_TIMEOUT_S, json=body, timeout=RECORD_TIMEOUT_S
+            "POST",
+            "/demonstrations/record",
+            201,
+            retry_busy_s=DEMO_RECORD_TIMEOUT_S,
+            json=body,
+            timeout=DEMO_RECORD_TIMEOUT_S,
         )
     path = recordings[spec.recording]
     files = {"file": (path.name, path.read_bytes(), "text/csv")}

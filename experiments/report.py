@@ -13,11 +13,11 @@ from pathlib import Path
 
 from experiments.cases import (
     BASELINE_FACTOR,
-    CONTROLLERS,
     FAIR_IMPEDANCE,
     FIGURE_NAMES,
     KULEUVEN_FORM,
     OURS,
+    PAPER_CONTROLLERS,
     TARGETS,
     Case,
     DemoOptions,
@@ -28,7 +28,7 @@ from experiments.cases import (
     fmt,
 )
 from experiments.contour_stress import RESULTS_SECTION
-from experiments.cross_engine import RESULTS_SECTION as CROSS_ENGINE_SECTION
+from experiments.cross_engine import CROSS_ENGINE_SECTION
 from experiments.sweep import SWEEPS_SECTION
 from services.machine import machine_line
 
@@ -384,6 +384,7 @@ def write_figures(out: Path, skills: dict[str, LearnedSkill], outcomes: list[Out
     """The figures of the run in ``out/figures``: for each teacher skill its paths (ours in every case), learning
     and CF force per case; for each real recording its paths (every controller); the real recordings' CF forces in
     one figure."""
+    from schemas.skill import SkillType
     from services.figures import write_learning_figure, write_paths_figure, write_trials_force_figure
 
     folder = out / "figures"
@@ -394,7 +395,7 @@ def write_figures(out: Path, skills: dict[str, LearnedSkill], outcomes: list[Out
         spec = learned.spec
         skill_cases = list(dict.fromkeys(o.case for o in outcomes if o.case.skill == key))
         paths = folder / f"demo_{key}_paths.png"
-        contour_view = (18.0, -20.0) if learned.skill.skill_type.value == "contour" else (22.0, -58.0)
+        contour_view = (18.0, -20.0) if learned.skill.skill_type is SkillType.contour else (22.0, -58.0)
         if spec.real:
             [case] = skill_cases
             real_cases.append(case)
@@ -496,7 +497,7 @@ def real_data_summary(report: DemoReport) -> list[str]:
             f"{_span(_values(ours, 'touchdown_peak_ratio'), unit='x')} the first target, CF z a mean "
             f"{_span(_values(ours, 'cf_normal_angle_deg'), 1, '°')} from the measured surface's normal."
         )
-    for controller in CONTROLLERS[1:]:
+    for controller in PAPER_CONTROLLERS[1:]:
         theirs = [o for o in rows if o.controller == controller and o.ratio is not None]
         if theirs:
             figure = FIGURE_NAMES[theirs[0].judged_figure()]

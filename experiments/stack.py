@@ -25,7 +25,7 @@ from urllib.parse import urlsplit
 from experiments.cases import DemoOptions
 from services.local_processes import free_port, parent_death_signal, port_free
 
-READY_TIMEOUT_S = 180.0
+STACK_READY_TIMEOUT_S = 180.0
 """How long the embedded stack may take to answer /health with every worker connected."""
 
 
@@ -298,7 +298,7 @@ def _who(options: DemoOptions) -> str:
 
 
 def _wait_ready(client: ServiceClient, stack: EmbeddedStack, workers: int, who: str) -> dict:
-    deadline = time.monotonic() + READY_TIMEOUT_S
+    deadline = time.monotonic() + STACK_READY_TIMEOUT_S
     while time.monotonic() < deadline:
         stack.check_alive()
         health = client.health(timeout_s=2.0)
@@ -306,7 +306,7 @@ def _wait_ready(client: ServiceClient, stack: EmbeddedStack, workers: int, who: 
             say(f"{who}: service ready at {stack.url} with {len(health['workers'])} workers")
             return health
         time.sleep(0.3)
-    raise DemoError(f"the embedded stack was not ready in {READY_TIMEOUT_S:.0f} s; its log:\n{stack.log_tail()}")
+    raise DemoError(f"the embedded stack was not ready in {STACK_READY_TIMEOUT_S:.0f} s; its log:\n{stack.log_tail()}")
 
 
 def _wait_workers(client: ServiceClient, n: int, timeout_s: float) -> dict:

@@ -19,12 +19,12 @@ from typing import Any
 
 from experiments.cases import DemoOptions
 from experiments.stack import DemoError, ServiceClient, say, service_session
-from schemas.sweep import SweepView, TrialResult
+from schemas.sweep import SweepState, SweepView, TrialResult
 from services.machine import machine_line
 
 SWEEPS_SECTION = "sweeps"
 """The generated section of RESULTS.md holding the sweeps (``services.doc_sections``)."""
-POLL_S = 0.5
+STATUS_POLL_S = 0.5
 """How often the progress bar asks the service, s."""
 
 
@@ -103,11 +103,11 @@ def _follow(client: ServiceClient, sweep_id: str, total: int, timeout_s: float) 
                 " ".join(f"{name} {rate:.0%}" for name, rate in rates.items() if rate is not None)
                 + f" running {view.counts.running} queued {view.counts.queued}"
             )
-            if view.status.value != "running":
+            if view.status is not SweepState.running:
                 return view
             if time.monotonic() > deadline:
                 raise DemoError(f"sweep {sweep_id} did not finish within {timeout_s:.0f} s")
-            time.sleep(POLL_S)
+            time.sleep(STATUS_POLL_S)
     finally:
         bar.close()
 

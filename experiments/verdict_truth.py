@@ -30,22 +30,21 @@ from numpy.typing import NDArray
 
 from execution.metrics import exit_rows
 from execution.telemetry import Telemetry
+from experiments.contour_stress import APPROACH_MAX_DISTANCE_M
 from schemas import LearnOptions
 from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import SegmentKind, Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
+from schemas.world import WorldConfig, WorldOverrides
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.geometry import WorldGeometry
 from sim_worker.teacher import TeacherRecording, record_demonstration
-from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.sweeps import trial_world_overrides
 
-SCENARIOS = ("slide_flat", "slide_two_planes", "contour_cylinder", "contour_block")
-APPROACH_MAX_DISTANCE_M = 0.25
-"""The guarded approach's reach (as ``experiments.contour_stress``: a part 8 cm lower is met 15 cm away)."""
+TRUTH_SCENARIOS = ("slide_flat", "slide_two_planes", "contour_cylinder", "contour_block")
 ON_BODY_SHARE = 0.5
 """A contact segment pressed on its taught body when at least this share of its touching rows lie on it (a crease
 met a little off where it was taught moves a part of a segment onto its neighbour's body: the job is still done)."""
@@ -91,30 +90,30 @@ class Perturbation:
     name: str
     scenario: str
     environment: Mapping[str, Any] = field(default_factory=dict)
-    world: Callable[[Mapping[str, Any]], dict[str, Any]] | None = None
+    world: Callable[[Mapping[str, Any]], WorldOverrides] | None = None
     held_out: bool = False
     round: int = 1
     """Held out: 1, run once before the crease check was changed (then again after); 2, run once at the end."""
 
 
-def _cylinder(**values: float) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+def _cylinder(**values: float) -> Callable[[Mapping[str, Any]], WorldOverrides]:
     parameters = {SweepParameter(f"cylinder_{k}"): v for k, v in values.items()}
     return lambda world: trial_world_overrides(world, parameters)
 
 
-def _swap_cylinder_for_block(world: Mapping[str, Any]) -> dict[str, Any]:
+def _swap_cylinder_for_block(world: Mapping[str, Any]) -> WorldOverrides:
     return {"cylinder": {"enabled": False}, "block": {"enabled": True}}
 
 
-def _swap_block_for_cylinder(world: Mapping[str, Any]) -> dict[str, Any]:
+def _swap_block_for_cylinder(world: Mapping[str, Any]) -> WorldOverrides:
     return {"block": {"enabled": False}, "cylinder": {"enabled": True}}
 
 
-def _no_ramp(world: Mapping[str, Any]) -> dict[str, Any]:
+def _no_ramp(world: Mapping[str, Any]) -> WorldOverrides:
     return {"ramp": {"enabled": False}}
 
 
-def _ramp(**values: float) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+def _ramp(**values: float) -> Callable[[Mapping[str, Any]], WorldOverrides]:
     return lambda world: {"ramp": values}
 
 

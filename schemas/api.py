@@ -11,6 +11,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from schemas.bus import CommandName
 from schemas.demonstration import (
     Demonstration,
     DemonstrationMetadata,
@@ -283,7 +284,7 @@ class CommandAccepted(BaseModel):
     """``POST /executions/{id}/abort|pause|resume`` (202): the command was sent to the worker over Zenoh."""
 
     id: str
-    command: str = Field(examples=["abort"])
+    command: CommandName = Field(examples=["abort"])
     sent_to: str = Field(description="Zenoh key expression the command was put on.")
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import re
 import time
+from enum import StrEnum
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -52,6 +53,7 @@ from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
 from schemas.numbers import Real, WholeNumber
 from schemas.text import FreeForm, Identifier
+from schemas.world import WorldOverrides
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where the router listens and the clients connect by default (loopback only)."""
@@ -82,7 +84,17 @@ ENV_PREFIX = "CONTACT_SKILLS_ZENOH_PREFIX"
 FINAL_PHASES = frozenset({ExecutionPhase.done, ExecutionPhase.aborted, ExecutionPhase.failed})
 """Phases after which an execution publishes nothing more."""
 
-CommandName = Literal["abort", "pause", "resume"]
+
+class CommandName(StrEnum):
+    """A command to a running execution (``P/exec/{id}/cmd``; the REST routes ``POST /executions/{id}/<name>``)."""
+
+    abort = "abort"
+    """Stop now (within one control step of arrival)."""
+    pause = "pause"
+    """Hold the current reference (the control loop keeps running, in contact the force is held)."""
+    resume = "resume"
+    """Continue after a pause."""
+
 
 HEARTBEAT_S = 2.0
 """A running execution publishes a status at least this often, s (a phase can last minutes: without it, a worker
@@ -218,10 +230,10 @@ class StartExecution(BaseModel):
 
     execution_id: str = Field(description="Id chosen by the caller; the key chunk of the execution's keys.")
     request: ExecutionRequest = Field(description="What to run; ``request.skill`` must be given inline.")
-    world_overrides: dict[str, Any] = Field(
+    world_overrides: WorldOverrides = Field(
         default_factory=dict,
         description="WorldConfig fields applied on top of the scenario's world (e.g. those the demonstration "
-        "was recorded with: ``{'table_height_m': 0.12}``).",
+        "was recorded with: ``{'table_height_m': 0.12}``), checked against it (``schemas.world.WorldOverrides``).",
     )
     demonstration: Demonstration | None = Field(
         None, description="The demonstration the skill was learned from, for the path metric (optional)."

@@ -52,7 +52,7 @@ ENV_TLS_CERT = "CONTACT_SKILLS_ZENOH_TLS_CERT"
 ENV_TLS_KEY = "CONTACT_SKILLS_ZENOH_TLS_KEY"
 ENV_LOGINS = "CONTACT_SKILLS_ZENOH_LOGINS"
 """A folder of login env files (docker-compose): the API logs in with its ``api.env``; a worker claims one of its
-``worker-K.env`` no other live worker holds (``sim_worker.zenoh_worker.claim_login``), so scaled workers each get
+``worker-K.env`` no other live worker holds (``sim_worker.worker_settings.claim_login``), so scaled workers each get
 their own login and id."""
 
 Role = Literal["api", "worker", "observer"]

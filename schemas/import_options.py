@@ -26,7 +26,7 @@ COLUMN_KEYS = ("t", "px", "py", "pz", "qx", "qy", "qz", "qw", "fx", "fy", "fz", 
 PLAUSIBLE_READINGS = "plausible_readings"
 """The key of a demonstration's ``metadata.extra`` (and of an upload answer's ``extra``) listing the other readings of
 the recorded wrench its import note advises, each as import options (form names and values, e.g.
-``{"wrench": "measured-on-tool"}``; ``services.importing``)."""
+``{"wrench": "measured-on-tool"}``; ``services.import_steps``)."""
 
 UPLOAD_FIELD = "file"
 """The multipart field of an upload route that carries the file itself (the route's own parameter)."""

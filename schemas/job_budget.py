@@ -41,7 +41,7 @@ and force, their packed copy with the orientation, a guarded approach's speed an
 TELEMETRY_BYTES_PER_STEP = STREAMED_TELEMETRY_WIDTH * 8
 """Stored telemetry per control step, bytes (float64, before compression; ~550 bytes as JSON)."""
 NOMINAL_TIME_STEP_S = 1e-3
-"""The control step of a simulated world that sets none (``sim_worker.world_config.WorldConfig``), s: a job whose
+"""The control step of a simulated world that sets none (``schemas.world.WorldConfig``), s: a job whose
 steps would fit at it is refused for its time step."""
 RECORDING_BYTES_PER_STEP = 2200
 """Worker memory per step of a teacher's recording horizon, bytes (its log, the demonstration built from it, the

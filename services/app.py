@@ -1,4 +1,4 @@
-"""The REST service (DESIGN.md "Interfaces"): FastAPI routes over the SQLite store and the Zenoh bus client.
+"""The REST service (docs/SERVICE.md, docs/API.md): FastAPI routes over the SQLite store and the Zenoh bus client.
 
 ``create_app(settings, bus)`` builds the app: the state the routes share (store, settings, bus, Zenoh key
 expressions) on ``app.state``, the body limit, the error handlers and the routers of ``services.api``:
@@ -54,7 +54,7 @@ __all__ = ["BusEvents", "connect_bus", "create_app"]
 
 def server_config(app: FastAPI, settings: ServiceSettings, log_level: str = "info") -> uvicorn.Config:
     """uvicorn's configuration of ``app`` with the connection limits of ``settings``: a request head within
-    ``header_timeout_s`` and of at most ``services.api.limits.MAX_HEAD_BYTES`` (431), a body within
+    ``header_timeout_s`` and of at most ``services.http_rules.MAX_HEAD_BYTES`` (431), a body within
     ``body_timeout_s`` of its head (408) (``services.api.limits.BoundedH11Protocol``), idle keep-alive connections
     closed after ``keep_alive_s``, at most ``max_connections`` connections and requests at once (uvicorn answers 503
     past it; a new connection closes those waiting longest on their client first)."""

@@ -21,7 +21,7 @@ on both are one import. Steps of :func:`demonstration_from_bag`, in order:
    averaged) and both are interpolated onto one uniform grid over the span they share
    (`skills.preprocess.recording_from_groups`: positions C1 cubic, orientations slerp, wrenches linear;
    default rate: the faster stream's median rate).
-5. The rest is every importer's (`services.importing.demonstration_from_samples`): offset given or
+5. The rest is every importer's (`services.import_steps.demonstration_from_samples`): offset given or
    windowed, tool frame -> world, measured-on-tool -> applied-by-tool, tare over the free-space stretches,
    validation.
 
@@ -47,7 +47,7 @@ from scipy.spatial.transform import Rotation
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchFrame
 from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
 from schemas.import_options import BagImportOptions
-from services.cdr import pose_stamped, wrench_stamped
+from services.cdr import POSE_TYPE, TF_TYPE, WRENCH_TYPE, pose_stamped, wrench_stamped
 from services.demonstration_files import (
     BAGS,
     HEAD_BYTES,
@@ -56,13 +56,15 @@ from services.demonstration_files import (
     path_kind,
     unsupported_file,
 )
-from services.importing import DemonstrationImportError, RecordingSamples, demonstration_from_samples, sampling_rate_hz
+from services.import_steps import (
+    DemonstrationImportError,
+    RecordingSamples,
+    demonstration_from_samples,
+    sampling_rate_hz,
+)
 from skills import preprocess
 from skills.frames import wrench_adjoint_from_transform
 
-WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
-POSE_TYPE = "geometry_msgs/msg/PoseStamped"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
 TF_TOPICS = ("/tf", "/tf_static")
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
-from schemas.bus import ExecutionStatus
+from schemas.bus import CommandName, ExecutionStatus
 from schemas.execution import ExecutionPhase, TelemetryBatch
 from services.settings import ServiceSettings
 from services.store import RESTART_REASON, DiskFull, Store
@@ -228,7 +228,7 @@ class BusEvents:
             self._held.pop(execution_id, None)
         log.error("execution %s: %s", execution_id, unstored.reason())
         if self.bus is not None:
-            self.bus.send_command(execution_id, "abort")
+            self.bus.send_command(execution_id, CommandName.abort)
         self.store.executions.update(
             execution_id, status=ExecutionState.failed, phase=ExecutionPhase.failed, error=unstored.reason()
         )

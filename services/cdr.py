@@ -12,6 +12,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+"""The ROS 2 message types of :func:`pose_stamped`, :func:`wrench_stamped` and :func:`tf_message`, as bags and MCAP
+files name them."""
+
 
 class CdrLayout:
     """A message of fixed size whose strings are constants: a byte template and the offsets of its numbers.

@@ -22,12 +22,9 @@ status code and, for a 422, one ``(field path, message)`` per problem.
 
 from __future__ import annotations
 
-import queue
-import threading
 import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -52,7 +49,7 @@ from schemas.api import (
 )
 from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
-from schemas.execution import ControllerKind, ExecutionPhase, Pace, TelemetryBatch
+from schemas.execution import ControllerKind, Pace, TelemetryBatch
 from schemas.skill import SkillTypeRequest
 from schemas.sweep import (
     DEFAULT_RANGES,
@@ -64,6 +61,17 @@ from schemas.sweep import (
     SweepView,
     TrialResult,
 )
+from services.client_errors import (
+    ConflictError,
+    InvalidRequestError,
+    NotFoundError,
+    ServiceError,
+    SkillCheckWarning,
+    UnauthorizedError,
+    UnavailableError,
+    service_error,
+)
+from services.client_telemetry import Pacer, StoredStream, Telemetry, live_batches
 from services.demonstration_files import (
     ROS2_STORAGE_SUFFIXES,
     UPLOAD_PATHS,
@@ -79,116 +87,7 @@ FINAL_STATUSES = frozenset({ExecutionState.done, ExecutionState.aborted, Executi
 """The API's states of an execution that has ended."""
 
 
-# --------------------------------------------------------------------------- errors
-
-
-class SkillCheckWarning(UserWarning):
-    """A learned skill failed one of its checks against its demonstration: it may be wrong there (the message says
-    where and by how much)."""
-
-
-class ServiceError(Exception):
-    """The API answered with an error (or did not answer): ``status`` (0: no answer), ``detail`` (its message),
-    ``problems`` (a 422's ``(field path, message)`` pairs)."""
-
-    def __init__(self, status: int, detail: str, problems: Sequence[tuple[str, str]] = ()) -> None:
-        self.status, self.detail, self.problems = status, detail, list(problems)
-        super().__init__(f"{status}: {detail}" if status else detail)
-
-
-class NotFoundError(ServiceError):
-    """404: no such id."""
-
-
-class InvalidRequestError(ServiceError):
-    """422: the request (body, form, query) is invalid; ``problems`` names each field."""
-
-
-class ConflictError(ServiceError):
-    """409: a command to an execution that has already finished."""
-
-
-class UnauthorizedError(ServiceError):
-    """401: the service wants a bearer token (``Client(token=...)``)."""
-
-
-class UnavailableError(ServiceError):
-    """503/504, or no answer at all: no bus, no free worker, a timeout, the API not running."""
-
-
-_ERRORS: dict[int, type[ServiceError]] = {
-    401: UnauthorizedError,
-    404: NotFoundError,
-    409: ConflictError,
-    422: InvalidRequestError,
-    503: UnavailableError,
-    504: UnavailableError,
-}
-
-
-def _error(response: httpx.Response) -> ServiceError:
-    """The exception for an error ``response``, with the API's own message."""
-    try:
-        detail: Any = response.json().get("detail", response.text)
-    except (ValueError, AttributeError):
-        detail = response.text
-    problems: list[tuple[str, str]] = []
-    if isinstance(detail, list):
-        problems = [(".".join(str(p) for p in entry.get("loc", [])), str(entry.get("msg", ""))) for entry in detail]
-        detail = "; ".join(f"{loc}: {msg}" for loc, msg in problems)
-    return _ERRORS.get(response.status_code, ServiceError)(response.status_code, str(detail), problems)
-
-
 # --------------------------------------------------------------------------- telemetry as arrays
-
-
-@dataclass(frozen=True)
-class Telemetry:
-    """An execution's telemetry as numpy arrays, one row per control step (SI units, quaternions [x, y, z, w]): the
-    columns of `TelemetryBatch` with the same types (``phase`` holds `ExecutionPhase` members, ``segment_index``
-    ints), so a live batch and the stored stream compare as they are.
-
-    ``t`` s since the execution started; ``tool_position`` / ``reference_position`` world, m; ``wrench_world`` is the
-    wrench the tool applies at the tool point in world axes (N, N·m); ``wrench_cf`` the same in the compliant frame
-    (force z into the surface); ``desired_force_cf_z_n`` the desired CF-z force, N; ``in_contact`` (bool) and
-    ``normal_force_true_n`` (N) the simulator's truth: whether the tool touched anything and the exact force along the
-    true surface normal (both empty for telemetry stored before they were streamed)."""
-
-    t: np.ndarray
-    phase: np.ndarray
-    segment_index: np.ndarray
-    tool_position: np.ndarray
-    tool_orientation: np.ndarray
-    reference_position: np.ndarray
-    reference_orientation: np.ndarray
-    wrench_world: np.ndarray
-    wrench_cf: np.ndarray
-    desired_force_cf_z_n: np.ndarray
-    in_contact: np.ndarray
-    normal_force_true_n: np.ndarray
-
-    @classmethod
-    def from_columns(cls, columns: dict[str, Any]) -> Telemetry:
-        """From the columns of ``GET /executions/{id}/telemetry`` or of a `TelemetryBatch`."""
-        arrays = {name: np.asarray(columns[name], dtype=float) for name in cls.__dataclass_fields__ if name != "phase"}
-        phases = {phase.value: phase for phase in ExecutionPhase}  # a lookup per row, not an enum call
-        arrays["phase"] = np.array([phases[str(p)] for p in columns["phase"]], dtype=object)
-        arrays["segment_index"] = arrays["segment_index"].astype(int)
-        arrays["in_contact"] = arrays["in_contact"].astype(bool)
-        return cls(**arrays)
-
-    @classmethod
-    def of_batches(cls, batches: Sequence[TelemetryBatch]) -> Telemetry:
-        """The rows of ``batches`` (e.g. what :meth:`Client.live` yielded), in order, as one."""
-        return cls.joined([cls.from_columns(batch.model_dump()) for batch in batches])
-
-    @classmethod
-    def joined(cls, parts: Sequence[Telemetry]) -> Telemetry:
-        """The samples of ``parts`` (pages of one stream, in order) as one."""
-        return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__dataclass_fields__})
-
-    def __len__(self) -> int:
-        return int(self.t.size)
 
 
 # --------------------------------------------------------------------------- an execution
@@ -264,13 +163,13 @@ class Execution(_Handle):
         return self.client.live(self.id, endpoints=endpoints, timeout_s=timeout_s, pace=pace, from_start=from_start)
 
     def abort(self) -> CommandAccepted:
-        return self.client._command(self.id, "abort")
+        return self.client._command(self.id, CommandName.abort)
 
     def pause(self) -> CommandAccepted:
-        return self.client._command(self.id, "pause")
+        return self.client._command(self.id, CommandName.pause)
 
     def resume(self) -> CommandAccepted:
-        return self.client._command(self.id, "resume")
+        return self.client._command(self.id, CommandName.resume)
 
 
 # --------------------------------------------------------------------------- a sweep
@@ -340,7 +239,7 @@ class Client:
         except httpx.TransportError as exc:
             raise UnavailableError(0, not_answering(self.url, str(exc))) from None
         if response.status_code >= 400:
-            raise _error(response)
+            raise service_error(response)
         return response
 
     def _list(self, path: str, model: type[ListedT], limit: int, offset: int) -> list[ListedT]:
@@ -557,14 +456,20 @@ class Client:
         from_start: bool = False,
     ) -> Iterator[TelemetryBatch]:
         """See :meth:`Execution.live`."""
-        paced = _Pacer(Pace(pace))
+        paced = Pacer(Pace(pace))
         view = Execution(self, execution_id).status()
-        stored = _StoredStream(self, execution_id) if from_start else None
+
+        def page(params: dict[str, int]) -> TelemetryView:
+            return TelemetryView.model_validate(self._request("GET", path, params=params).json())
+
+        path = f"/executions/{execution_id}/telemetry"
+        stored = StoredStream(page, execution_id) if from_start else None
         if view.status in FINAL_STATUSES:
             if stored is not None:
                 yield from map(paced, stored.batches_before(None))
             return
-        for batch in self._live_batches(view, endpoints, timeout_s):
+        connect = list(endpoints) if endpoints else self.health().zenoh_endpoints
+        for batch in live_batches(view, connect, timeout_s):
             if stored is None:
                 yield paced(batch)
                 continue
@@ -574,48 +479,6 @@ class Client:
                 yield paced(rest)
         if stored is not None:
             yield from map(paced, stored.batches_before(None))  # the end, when it came before the last live batch
-
-    def _live_batches(
-        self, view: ExecutionView, endpoints: Sequence[str] | None, timeout_s: float | None
-    ) -> Iterator[TelemetryBatch]:
-        """The telemetry batches of ``view``'s execution as they arrive over Zenoh, until it ends."""
-        from schemas.bus import ExecutionStatus
-        from services.bus import open_session
-
-        connect = list(endpoints) if endpoints else self.health().zenoh_endpoints
-        status_key = view.telemetry_key.rsplit("/", 1)[0] + "/status"
-        batches: queue.Queue[TelemetryBatch] = queue.Queue()
-        final = threading.Event()
-
-        def on_status(sample) -> None:
-            if ExecutionStatus.model_validate_json(sample.payload.to_bytes()).final:
-                final.set()
-
-        session = open_session("client", connect=connect, wait_s=5.0)
-        try:
-            subscribers = [
-                session.declare_subscriber(
-                    view.telemetry_key, lambda s: batches.put(TelemetryBatch.model_validate_json(s.payload.to_bytes()))
-                ),
-                session.declare_subscriber(status_key, on_status),
-            ]
-            for reply in session.get(status_key, timeout=2.0):  # it may have ended while we subscribed
-                if reply.ok is not None:
-                    on_status(reply.ok)
-            deadline = None if timeout_s is None else time.monotonic() + timeout_s
-            while True:
-                try:
-                    yield batches.get(timeout=LIVE_DRAIN_S if final.is_set() else 0.1)
-                    continue
-                except queue.Empty:
-                    if final.is_set():
-                        break  # ended, and nothing more arrived for LIVE_DRAIN_S
-                if deadline is not None and time.monotonic() > deadline:
-                    raise TimeoutError(f"execution {view.id}: no final status within {timeout_s:g} s")
-            for subscriber in subscribers:
-                subscriber.undeclare()
-        finally:
-            session.close()
 
     # ------------------------------------------------------------------ robustness sweeps
 
@@ -650,68 +513,6 @@ class Client:
 
     def sweeps(self, limit: int = 100, offset: int = 0) -> list[SweepView]:
         return self._list("/sweeps", SweepView, limit, offset)
-
-
-LIVE_DRAIN_S = 0.5
-"""After the final status, :meth:`Client.live` keeps yielding until no batch arrived for this long, s (status and
-telemetry travel on different keys: the last batches may come after the final status)."""
-
-
-class _Pacer:
-    """Holds each batch back until its simulated time has passed on the clock since the first one (`Pace.realtime`);
-    `Pace.fast` lets every batch through at once."""
-
-    def __init__(self, pace: Pace) -> None:
-        self.pace = pace
-        self.origin: float | None = None  # monotonic clock at simulated time 0, s
-
-    def __call__(self, batch: TelemetryBatch) -> TelemetryBatch:
-        if self.pace is Pace.realtime and batch.t:
-            if self.origin is None:
-                self.origin = time.monotonic() - batch.t[0]
-            time.sleep(max(0.0, self.origin + batch.t[-1] - time.monotonic()))
-        return batch
-
-
-class _StoredStream:
-    """The stored part of an execution's stream, read in pages from where the caller has got to (``next_sample``)."""
-
-    def __init__(self, client: Client, execution_id: str) -> None:
-        self.client, self.execution_id = client, execution_id
-        self.next_sample = 0  # the stream index of the first sample not yielded yet
-
-    def batches_before(self, stop: int | None) -> Iterator[TelemetryBatch]:
-        """Stored samples from ``next_sample`` (up to ``stop``, None: all that are stored) as batches."""
-        while stop is None or self.next_sample < stop:
-            path = f"/executions/{self.execution_id}/telemetry"
-            params = {"cursor": self.next_sample} | ({} if stop is None else {"limit": stop - self.next_sample})
-            page = TelemetryView.model_validate(self.client._request("GET", path, params=params).json())
-            if page.n_samples == 0:
-                return  # not stored yet (the API stores what it receives): the live batches carry it
-            for start in range(0, page.n_samples, REPLAY_BATCH_SAMPLES):  # small batches, as the bus sends them
-                rows = slice(start, start + REPLAY_BATCH_SAMPLES)
-                columns = {name: getattr(page, name)[rows] for name in TELEMETRY_FIELDS}
-                yield TelemetryBatch(execution_id=self.execution_id, first_sample=self.next_sample, **columns)
-                self.next_sample += len(columns["t"])
-
-    def unseen(self, batch: TelemetryBatch) -> TelemetryBatch | None:
-        """The rows of a live ``batch`` not yielded yet (None: none), advancing ``next_sample`` past them."""
-        first = batch.first_sample if batch.first_sample is not None else self.next_sample
-        skip = max(0, self.next_sample - first)
-        if skip >= len(batch.t):
-            return None
-        self.next_sample = first + len(batch.t)
-        if skip == 0:
-            return batch
-        columns = {name: getattr(batch, name)[skip:] for name in TELEMETRY_FIELDS}
-        return batch.model_copy(update={**columns, "first_sample": first + skip})
-
-
-REPLAY_BATCH_SAMPLES = 100
-"""Samples per batch :meth:`Client.live` yields of the stored part of a stream (0.1 s at 1 kHz): a replay at
-`Pace.realtime` moves on in steps no coarser than that."""
-TELEMETRY_FIELDS = tuple(Telemetry.__dataclass_fields__)
-"""The per-sample columns of a `TelemetryBatch` (the rest describe the batch)."""
 
 
 def _given(params: dict[str, Any]) -> dict[str, Any]:

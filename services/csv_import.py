@@ -1,4 +1,4 @@
-"""Importing recorded demonstrations: CSV (any column names, conventions, event-driven logs) and JSON.
+"""Importing recorded demonstrations from CSV (any column names, conventions, event-driven logs).
 
 The result is always a validated `schemas.Demonstration` in the project's conventions
 (docs/CONVENTIONS.md): SI units, uniform strictly increasing time, scalar-last unit sign-continuous
@@ -12,13 +12,13 @@ frame. Steps of :func:`demonstration_from_csv`, in order:
    resample onto one uniform grid (`skills.preprocess.resampled_recording`); a file WITHOUT a
    time column is a fixed-rate recording: its rows are the samples, ``t = row * dt`` from 0,
    with the rate given (``rate_hz`` or ``dt_s``), nothing resampled;
-4. the steps every importer shares (`services.importing.demonstration_from_samples`): an offset given or taken
+4. the steps every importer shares (`services.import_steps.demonstration_from_samples`): an offset given or taken
    over a quiet window, a TOOL-frame wrench rotated into the world, a ``measured-on-tool`` wrench negated, the
    sensor offset fitted over every free-space stretch and subtracted, the result validated.
 
 The options are one `schemas.import_options.CsvImportOptions`. Units are assumed SI already (s, m, N, N·m):
-nothing is rescaled. :func:`demonstration_from_file` imports any demonstration file by what it holds (CSV, JSON,
-a ROS 1 or ROS 2 bag).
+nothing is rescaled. ``services.importing.demonstration_from_file`` imports any demonstration file by what it holds
+(CSV, JSON, a ROS 1 or ROS 2 bag).
 Every problem raises :class:`CsvImportError` (a ``ValueError``) whose message names the column,
 the line and the reason, one problem per line in ``problems``.
 """
@@ -32,19 +32,15 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-from pydantic import ValidationError
 
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, WrenchFrame
 from schemas.demonstration import MAX_DEMONSTRATION_SAMPLES
-from schemas.import_options import COLUMN_KEYS, BagImportOptions, CsvImportOptions, ImportOptions
-from services.demonstration_files import DemonstrationFile
-from services.importing import (
+from schemas.import_options import COLUMN_KEYS, CsvImportOptions
+from services.import_steps import (
     DemonstrationImportError,
     RecordingSamples,
-    demonstration_file,
     demonstration_from_samples,
     sampling_rate_hz,
-    validation_problems,
 )
 from skills import preprocess
 
@@ -565,54 +561,11 @@ def _check_quaternions(q: np.ndarray, table: _Table, indices: dict[str, int | No
         )
 
 
-def demonstration_from_json(path_or_text: str | os.PathLike[str] | bytes) -> Demonstration:
-    """Load a `schemas.Demonstration` from a JSON file (or JSON text); the data must already follow the conventions.
-
-    Raises :class:`DemonstrationImportError` with one line per problem (unreadable file,
-    invalid JSON, or each failing field with its path, e.g. ``orientations: quaternion at sample 3 ...``).
-    """
-    if isinstance(path_or_text, bytes):
-        text = path_or_text.decode("utf-8-sig")
-    elif isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
-        text = path_or_text
-    else:
-        path = Path(path_or_text)
-        try:
-            text = path.read_text(encoding="utf-8-sig")
-        except OSError as exc:
-            raise DemonstrationImportError(f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
-        except UnicodeDecodeError:
-            raise DemonstrationImportError(f"{str(path)!r} is not a UTF-8 text file") from None
-    try:
-        return Demonstration.model_validate_json(text)
-    except ValidationError as exc:
-        raise DemonstrationImportError(validation_problems(exc)) from None
-
-
-def demonstration_from_file(path: str | os.PathLike[str], options: ImportOptions | None = None) -> Demonstration:
-    """Import the file (or ROS 2 bag directory) at ``path`` by what it holds (its content, not only its name): a
-    JSON `Demonstration` (``options`` do not apply), a CSV recording or a ROS 1 or ROS 2 bag
-    (`services.bag_import.demonstration_from_bag`). ``options``: the shared `ImportOptions`, or those of the
-    file's kind. Raises :class:`DemonstrationImportError` (a file no importer reads: the one message every
-    interface gives, `services.demonstration_files.unsupported_file`)."""
-    kind = demonstration_file(path)
-    given = {} if options is None else options.model_dump(exclude_unset=True)
-    if kind is DemonstrationFile.json:
-        return demonstration_from_json(path)
-    if kind is DemonstrationFile.csv:
-        return demonstration_from_csv(path, CsvImportOptions(**given))
-    from services.bag_import import demonstration_from_bag  # rosbags: the service extra
-
-    return demonstration_from_bag(path, BagImportOptions(**given))
-
-
 __all__ = [
     "ColumnMap",
     "CsvImportError",
     "ResolvedColumns",
     "demonstration_from_csv",
-    "demonstration_from_file",
-    "demonstration_from_json",
     "resolved_columns",
 ]
 

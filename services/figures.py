@@ -16,11 +16,19 @@ from numpy.typing import NDArray
 
 from schemas import Demonstration, Segment, SegmentKind, Skill
 from schemas.demonstration import DemonstrationArrays
+from schemas.execution import ExecutionPhase
+from schemas.skill import SkillType
 from skills.compliant_frames import compliant_frame_rotations
 from skills.quaternions import matrix_from_quaternion, quaternions_sign_continuous, quaternions_slerp
 
 _AXIS_COLORS = ("tab:red", "tab:green", "tab:blue")
 _SEGMENT_COLORS = {SegmentKind.contact: "tab:orange", SegmentKind.free: "tab:gray"}
+
+
+_MOVING_PHASES = frozenset(
+    {ExecutionPhase.free, ExecutionPhase.approach, ExecutionPhase.contact, ExecutionPhase.retreat}
+)
+"""The phases in which the tool follows the skill's path (drawn as the executed path)."""
 
 
 def segment_mask(t: NDArray[np.float64], segment: Segment) -> NDArray[np.bool_]:
@@ -137,7 +145,7 @@ def write_learning_figure(demonstration: Demonstration, skill: Skill, path: str 
         ax_world.plot(a.t, a.wrenches[:, j], color=_AXIS_COLORS[j], lw=1.0, label=f"$f_{axis}$ world")
         ax_cf.plot(a.t, f_cf[:, j], color=_AXIS_COLORS[j], lw=1.0, label=f"$f_{axis}$ CF")
     _plot_height_and_speed(ax_height, a.t, a.positions, skill)
-    learned_label = "learned $f_z$ (DMP)" if skill.skill_type.value == "contour" else "learned $f_z$ (constant)"
+    learned_label = "learned $f_z$ (DMP)" if skill.skill_type is SkillType.contour else "learned $f_z$ (constant)"
     previous = None
     for segment in skill.segments:
         curve = learned_force_curve(segment, dt)
@@ -502,9 +510,9 @@ def write_scene_figure(
             learned.append((segment, p))
             ax.plot(*p.T, color="black", lw=2.0)
             points.append(p)
-    contact = np.array([ph.value == "contact" for ph in telemetry.phases], dtype=bool)
+    contact = np.array([ph is ExecutionPhase.contact for ph in telemetry.phases], dtype=bool)
     executed = telemetry.tool_position
-    moving = np.array([ph.value in ("free", "approach", "contact", "retreat") for ph in telemetry.phases])
+    moving = np.array([ph in _MOVING_PHASES for ph in telemetry.phases])
     ax.plot(*np.where((moving & ~contact)[:, None], executed, np.nan).T, color="tab:blue", lw=0.6, alpha=0.6)
     ax.plot(*np.where(contact[:, None], executed, np.nan).T, color="tab:blue", lw=1.4)
     points.append(executed[moving])

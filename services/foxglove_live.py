@@ -13,7 +13,7 @@ flange and tool link; tool, reference, ``cf`` under ``world``),
 ``/execution`` (``std_msgs/msg/String``) names the execution shown.
 
 Where the telemetry comes from: the store, as the API's bus callbacks write it (``services.bus_events``), polled
-every :data:`POLL_S` from a cursor: every sample received (a repaired gap too) is shown once, in order. One
+every :data:`ROWS_POLL_S` from a cursor: every sample received (a repaired gap too) is shown once, in order. One
 execution at a time: the newest one running; when it ends the view keeps it until another starts. Poses, wrenches
 and ``/tf`` at :data:`LIVE_HZ` (every n-th control step; a whole run at 1 kHz is in the export), joint states and
 markers at the scene's own rates.
@@ -36,18 +36,18 @@ from typing import Any
 import numpy as np
 
 from schemas.api import ExecutionState
-from services.api.browser_guard import LOOPBACK_NAMES
 from services.dashboard.stream import decimated, stored_rows
+from services.http_rules import LOOPBACK_NAMES
+from services.local_processes import LOOPBACK
 from services.origin_gate import OriginGate
 from services.settings import DEFAULT_FOXGLOVE_PORT, ServiceSettings
 from services.store import TERMINAL, Store
 
 log = logging.getLogger("contact_skills.foxglove")
 
-LOOPBACK = "127.0.0.1"
 LOOPBACK_OF_ALL = {"0.0.0.0": LOOPBACK, "": LOOPBACK, "::": "::1"}
 """The loopback address a client on this machine connects to when the server listens on all interfaces."""
-POLL_S = 0.05
+ROWS_POLL_S = 0.05
 """How often the store is read for new samples, s (20 Hz; each read sends everything new)."""
 LIVE_HZ = 100.0
 """Poses, wrenches and ``/tf`` per second of execution time (1 kHz control steps; the last of each read always)."""
@@ -176,7 +176,7 @@ class FoxgloveLive:
     # ------------------------------------------------------------------------------------------ following
 
     def _run(self) -> None:
-        while not self._stop.wait(POLL_S):
+        while not self._stop.wait(ROWS_POLL_S):
             try:
                 self._step()
             except Exception:  # a bad row must not end the live view

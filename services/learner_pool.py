@@ -29,14 +29,18 @@ import pickle
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from services.local_processes import THREAD_LIMIT_ENV, cpu_seconds
 
+if TYPE_CHECKING:
+    from schemas.demonstration import Demonstration
+
 log = logging.getLogger("contact_skills.learning")
 
-POLL_S = 0.1
+LEARNER_POLL_S = 0.1
 """How often a running job checks its budget and its client, s."""
 LEARNER_NICENESS = 10
 """Learner processes run this much nicer than the API: on a busy machine /health and the bus answer first."""
@@ -57,15 +61,28 @@ class LearnerPoolFull(RuntimeError):  # noqa: N818
     """Too many jobs are waiting for a learner process."""
 
 
+class LearnOutcomeKind(StrEnum):
+    """What a learner process's answer is (:class:`LearnOutcome`), and which of its fields it fills."""
+
+    ok = "ok"
+    """A skill: ``skill_json``, ``skill_type``, ``seconds``, ``reasons`` (the skill's warnings), ``reference``."""
+    checks = "checks"
+    """Strict learning refused a skill: ``reasons``, one per failed check."""
+    learning = "learning"
+    """A `skills.parameterize.LearningError`: ``field``, ``reason``."""
+    value = "value"
+    """A ValueError of the science: ``reason``."""
+    memory = "memory"
+    """Over the memory budget (``reason`` when the process died)."""
+    bug = "bug"
+    """Anything else: ``reason``, the traceback, for the log."""
+
+
 @dataclass(frozen=True)
 class LearnOutcome:
-    """What a learner process answered: ``kind`` ``ok`` (``skill_json``, ``skill_type``, ``seconds``, ``reasons``: the
-    skill's warnings, ``reference``), ``checks``
-    (strict learning refused a skill: ``reasons``, one per failed check), ``learning`` (a
-    `skills.parameterize.LearningError`: ``field``, ``reason``), ``value`` (a ValueError of the science: ``reason``),
-    ``memory`` (over the memory budget), or ``bug`` (``reason``: the traceback, for the log)."""
+    """What a learner process answered: its ``kind`` says which of the other fields it fills."""
 
-    kind: str
+    kind: LearnOutcomeKind
     skill_json: str = ""
     skill_type: str = ""
     seconds: float = 0.0
@@ -74,6 +91,36 @@ class LearnOutcome:
     reasons: tuple[str, ...] = ()
     reference: str = ""
     """Several demonstrations learned together: the source of the reference, whose samples the skill's refer to."""
+
+
+MAX_GRID_SAMPLES = 1_000_000
+"""Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
+
+
+def check_sampling(demonstration: Demonstration) -> None:
+    """Raise `LearningError` on ``t`` for time stamps the pipeline cannot work on in bounded memory: a rate above
+    ``skills.parameterize.MAX_RATE_HZ`` (filter windows are sized in samples per second) or a uniform grid (duration
+    at the median step, what irregular stamps are resampled to) longer than :data:`MAX_GRID_SAMPLES`. Run in the
+    learner process (numpy and the science are imported there, not in the API's)."""
+    import numpy as np
+
+    from skills.parameterize import MAX_RATE_HZ, LearningError
+
+    t = np.asarray(demonstration.t)
+    step = float(np.median(np.diff(t)))
+    if 1.0 / step > MAX_RATE_HZ:
+        raise LearningError(
+            "t",
+            f"median time step {step:.3g} s is a {1 / step:.3g} Hz rate, above {MAX_RATE_HZ:g} Hz: are the "
+            "time stamps in seconds?",
+        )
+    grid = (t[-1] - t[0]) / step + 1
+    if grid > MAX_GRID_SAMPLES:
+        raise LearningError(
+            "t",
+            f"{t[-1] - t[0]:.6g} s at the median step of {step:.3g} s spans {grid:.3g} samples, more than "
+            f"{MAX_GRID_SAMPLES} (a gap in the time stamps, or a very long recording)",
+        )
 
 
 def _limit_process(memory_mb: int) -> None:
@@ -100,7 +147,6 @@ def _learn(payload: bytes) -> LearnOutcome:
 
     from schemas.demonstration import Demonstration
     from schemas.skill import LearnOptions
-    from services.api.limits import check_sampling
     from skills.joint_learning import learn_joint_skill
     from skills.parameterize import LearningError, SkillCheckError
 
@@ -115,21 +161,30 @@ def _learn(payload: bytes) -> LearnOutcome:
         warnings = tuple(skill.warnings())
         reference = next((use.source for use in skill.demonstrations or [] if use.reference), "")
         return LearnOutcome(
-            "ok", skill.model_dump_json(), skill.skill_type.value, seconds, reasons=warnings, reference=reference
+            LearnOutcomeKind.ok,
+            skill.model_dump_json(),
+            skill.skill_type.value,
+            seconds,
+            reasons=warnings,
+            reference=reference,
         )
     except SkillCheckError as exc:
-        return LearnOutcome("checks", reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks))
+        return LearnOutcome(
+            LearnOutcomeKind.checks, reasons=tuple(f"{check.name.value}: {check.message}" for check in exc.checks)
+        )
     except LearningError as exc:
-        return LearnOutcome("learning", field=exc.field, reason=exc.reason)
+        return LearnOutcome(LearnOutcomeKind.learning, field=exc.field, reason=exc.reason)
     except MemoryError:
-        return LearnOutcome("memory")
+        return LearnOutcome(LearnOutcomeKind.memory)
     except ValidationError as exc:  # a stored demonstration that no longer validates (bounds added since)
         first = exc.errors()[0]
-        return LearnOutcome("learning", field=".".join(str(p) for p in first["loc"]), reason=first["msg"])
+        return LearnOutcome(
+            LearnOutcomeKind.learning, field=".".join(str(p) for p in first["loc"]), reason=first["msg"]
+        )
     except ValueError as exc:
-        return LearnOutcome("value", reason=f"{type(exc).__name__}: {exc}")
+        return LearnOutcome(LearnOutcomeKind.value, reason=f"{type(exc).__name__}: {exc}")
     except Exception:
-        return LearnOutcome("bug", reason=traceback.format_exc())
+        return LearnOutcome(LearnOutcomeKind.bug, reason=traceback.format_exc())
 
 
 def _serve(connection: Connection, memory_mb: int) -> None:
@@ -177,7 +232,7 @@ class LearnerPool:
         self._free: asyncio.Semaphore | None = None
         self._warming: asyncio.Task | None = None
         self._context = multiprocessing.get_context("forkserver")
-        self._context.set_forkserver_preload(["services.learner_pool", "services.api.limits", "skills.parameterize"])
+        self._context.set_forkserver_preload(["services.learner_pool", "skills.parameterize"])
         for name, value in THREAD_LIMIT_ENV.items():  # the forkserver inherits them (it starts on first use)
             os.environ.setdefault(name, value)
         self._closed = False
@@ -228,7 +283,7 @@ class LearnerPool:
         try:
             while True:
                 try:
-                    await asyncio.wait_for(self._free.acquire(), POLL_S * 5)
+                    await asyncio.wait_for(self._free.acquire(), LEARNER_POLL_S * 5)
                     break
                 except TimeoutError:
                     if await client_gone():
@@ -258,11 +313,11 @@ class LearnerPool:
         walls = 1 if cpu_before is None else WALL_BUDGETS  # no CPU clock to read: the wall time is the budget
         await asyncio.to_thread(slot.connection.send_bytes, payload)
         while True:
-            if await asyncio.to_thread(slot.connection.poll, POLL_S):
+            if await asyncio.to_thread(slot.connection.poll, LEARNER_POLL_S):
                 try:
                     outcome = pickle.loads(await asyncio.to_thread(slot.connection.recv_bytes))
                 except (EOFError, OSError):  # the process died (the OOM killer, a crash in native code)
-                    return LearnOutcome("memory", reason="the learner process died")
+                    return LearnOutcome(LearnOutcomeKind.memory, reason="the learner process died")
                 self.stats.completed += 1
                 return outcome
             cpu_now = cpu_seconds(slot.process.pid)

@@ -1,10 +1,10 @@
-"""The browser rule of the REST API (``services.api.browser_guard.browser_refusal``: a ``Host`` among the service's
+"""The browser rule of the REST API (``services.http_rules.browser_refusal``: a ``Host`` among the service's
 names, an ``Origin`` that is the request's own or allowed by ``CONTACT_SKILLS_CORS_ORIGINS``) in front of a WebSocket
 server that checks neither: the Foxglove SDK's (``services.foxglove_live``), which accepted a handshake from any web
 page's origin.
 
 :class:`OriginGate` listens where the server is reached, reads each connection's handshake (at most
-``services.api.limits.MAX_HEAD_BYTES`` within :data:`HANDSHAKE_TIMEOUT_S`), answers a refused one 400 or 403 and
+``services.http_rules.MAX_HEAD_BYTES`` within :data:`HANDSHAKE_TIMEOUT_S`), answers a refused one 400 or 403 and
 closes it, and relays an accepted one, byte for byte both ways, to the server on a loopback port of its own.
 
 It also answers a client that names the server's subprotocol by another name (``subprotocol_aliases``: Foxglove's
@@ -22,8 +22,7 @@ import logging
 import threading
 from http import HTTPStatus
 
-from services.api.browser_guard import browser_refusal, origin_set
-from services.api.limits import MAX_HEAD_BYTES
+from services.http_rules import MAX_HEAD_BYTES, browser_refusal, origin_set
 
 log = logging.getLogger("contact_skills.foxglove")
 
@@ -36,7 +35,7 @@ PROTOCOL_HEADER = "sec-websocket-protocol"
 
 class OriginGate:
     """A TCP front on ``host``:``port`` (0: any free port) of the WebSocket server on ``127.0.0.1``:``upstream_port``
-    that refuses what :func:`~services.api.browser_guard.browser_refusal` refuses (``allowed_origins``, ``host_names``
+    that refuses what :func:`~services.http_rules.browser_refusal` refuses (``allowed_origins``, ``host_names``
     as ``ServiceSettings.cors_origins``, ``.host_names``), and answers a client offering a subprotocol by a name of
     ``subprotocol_aliases`` (alias -> the server's name) in that name (see the module docstring). :meth:`start` raises
     ``OSError`` if the port is taken."""

@@ -42,8 +42,10 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
+from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
+from schemas.world import WorldOverrides
 from services.bus_reports import new_attempt
 from services.dispatch_watch import Overdue
 from services.settings import DEFAULT_DISPATCH_REPORT_S, DEFAULT_RUN_SILENCE_S
@@ -54,7 +56,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("contact_skills.queue")
 
-POLL_S = 0.2
+DISPATCH_POLL_S = 0.2
 """How often the dispatcher asks the workers whether one is free while executions are queued, s."""
 IDLE_POLL_S = 1.0
 """How often the dispatcher looks at an empty queue (it is woken on every submission anyway) and the dispatch
@@ -71,7 +73,7 @@ class Dispatch:
 
     request: ExecutionRequest
     """The request with its skill inline (``skill_id`` resolved)."""
-    world_overrides: dict[str, Any]
+    world_overrides: WorldOverrides
     """WorldConfig fields on top of the scenario's world (the world the skill was taught in)."""
     demonstration_id: str | None = None
     """The stored demonstration the skill was learned from (for the path metric), if any."""
@@ -111,7 +113,7 @@ class ExecutionQueue:
         store: Store,
         bus: BusClient,
         max_queued: int = DEFAULT_MAX_QUEUED,
-        poll_s: float = POLL_S,
+        poll_s: float = DISPATCH_POLL_S,
         first_report_s: float = DEFAULT_DISPATCH_REPORT_S,
         silence_s: float = DEFAULT_RUN_SILENCE_S,
         handovers: int = 3,
@@ -260,7 +262,8 @@ class ExecutionQueue:
                 return
             if row.handovers >= handovers and not late.heard:
                 reason += f"; handed over {row.handovers} times, the last to {worker}"
-            self.bus.send_command(late.execution_id, "abort", reason)  # a slow worker stops, a silent one never minds
+            # a slow worker stops, a silent one never minds
+            self.bus.send_command(late.execution_id, CommandName.abort, reason)
             state = self.store.executions.take_back(late.execution_id, late.attempt, handovers, reason)
         if state is not None:
             log.warning("execution %s %s: %s", late.execution_id,

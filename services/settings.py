@@ -77,7 +77,7 @@ DEFAULT_TELEMETRY_PAGE_SAMPLES = 20_000
 """Most samples one ``GET /executions/{id}/telemetry`` returns (20 s at 1 kHz; ~11 MB of JSON, ~15 MB of the API's
 memory while it streams): a longer run is read page by page (``cursor``)."""
 
-ENV_PREFIX = "CONTACT_SKILLS_"
+ENV_VARIABLE_PREFIX = "CONTACT_SKILLS_"
 ENV_VARS: dict[str, str] = {
     "host": "CONTACT_SKILLS_HOST",
     "port": "CONTACT_SKILLS_PORT",
@@ -271,7 +271,7 @@ class ServiceSettings:
         host's name (docker-compose: the container's) and ``allowed_hosts``."""
         import socket
 
-        from services.api.browser_guard import LOOPBACK_NAMES
+        from services.http_rules import LOOPBACK_NAMES
 
         bound = set() if self.host in ("0.0.0.0", "::", "") else {self.host.lower()}
         return frozenset(LOOPBACK_NAMES | bound | {socket.gethostname().lower()} | set(self.allowed_hosts))

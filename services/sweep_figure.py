@@ -29,12 +29,12 @@ def _success_by_bin(values: np.ndarray, success: np.ndarray) -> tuple[np.ndarray
     return np.array([values[g].mean() for g in groups]), np.array([success[g].mean() for g in groups])
 
 
-COLUMNS = 4
+PANEL_COLUMNS = 4
 """Parameters per row of the figure."""
 
 
 def write_sweep_figure(view: SweepView, trials: list[TrialResult], path: str | os.PathLike[str]) -> None:
-    """One panel pair per varied parameter (up to :data:`COLUMNS` per row): above, each finished trial's TRUE
+    """One panel pair per varied parameter (up to :data:`PANEL_COLUMNS` per row): above, each finished trial's TRUE
     normal-force RMS error (% of the reference force, log scale; an aborted trial is an x at the top edge) with the
     success threshold dashed; below, the success rate over quarters of the trials along the parameter."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -47,7 +47,7 @@ def write_sweep_figure(view: SweepView, trials: list[TrialResult], path: str | o
     rms_values = [t.true_force_rms_error_pct for t in finished if t.true_force_rms_error_pct]
     low = min([threshold / 10.0, *rms_values]) * 0.8
     top = max([threshold * 3.0, *rms_values]) * 1.5
-    columns = min(COLUMNS, len(names))
+    columns = min(PANEL_COLUMNS, len(names))
     rows = -(-len(names) // columns)
     figure = Figure(figsize=(3.1 * columns, 3.3 * rows + 0.4), layout="constrained")
     FigureCanvasAgg(figure)

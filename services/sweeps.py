@@ -36,8 +36,8 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
-from schemas.bus import KeyExpressions
-from schemas.execution import ControllerKind, ExecutionRequest, TelemetryMode
+from schemas.bus import CommandName, KeyExpressions
+from schemas.execution import ControllerKind, ExecutionPhase, ExecutionRequest, TelemetryMode
 from schemas.skill import Skill
 from schemas.sweep import (
     SWEEP_TOLERANCES,
@@ -73,7 +73,7 @@ WINDOW = 8
 """Executions one sweep keeps queued or running at once (a few per worker: none idles between two trials)."""
 MAX_ATTEMPTS = 3
 """Executions one trial x controller may take when they keep failing for an infrastructure reason."""
-POLL_S = 0.5
+SWEEP_POLL_S = 0.5
 """How often the runner looks at the running sweeps when nothing woke it, s (an execution that ends wakes it)."""
 _LOST = re.compile(r"^worker \S+ (was )?lost")
 """The errors of the worker-lost path (`services.bus.BusClient`, `services.bus_events.BusEvents`)."""
@@ -97,7 +97,7 @@ def _finished(row: SweepTrialRow) -> bool:
 
 def _outcome(row: SweepTrialRow, criteria: dict[str, float]) -> Outcome:
     """The judged outcome of a finished trial (``criteria``: the sweep's request, for a trial without a verdict)."""
-    return outcome(row.metrics, row.status.value if row.status else "failed", row.error, criteria)
+    return outcome(row.metrics, row.status, row.error, criteria)
 
 
 def _counts(rows: list[SweepTrialRow], criteria: dict[str, float]) -> SweepCounts:
@@ -141,7 +141,7 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
                 true_force_max_error_pct=judged.true_max_pct,
                 touchdown_peak_ratio=judged.touchdown_ratio,
                 contact_ratio=judged.contact_ratio,
-                abort_reason=judged.abort_reason if finished and judged.phase != "done" else None,
+                abort_reason=judged.abort_reason if finished and judged.phase is not ExecutionPhase.done else None,
                 metrics=r.metrics,
             )
         )
@@ -185,7 +185,7 @@ class SweepRunner:
         bus: BusClient,
         keys: KeyExpressions,
         window: int = WINDOW,
-        poll_s: float = POLL_S,
+        poll_s: float = SWEEP_POLL_S,
     ) -> None:
         self.store, self.queue, self.bus, self.keys = store, queue, bus, keys
         self.window, self.poll_s = window, poll_s
@@ -240,7 +240,7 @@ class SweepRunner:
                 if r.status is ExecutionState.queued and r.execution_id:
                     self.queue.cancel(r.execution_id, "sweep cancelled")
                 elif r.status in (ExecutionState.running, ExecutionState.paused) and r.execution_id:
-                    self.bus.send_command(r.execution_id, "abort")
+                    self.bus.send_command(r.execution_id, CommandName.abort)
             row = self.store.sweeps.get(sweep_id)
             if row is not None:
                 self._publish(row)

@@ -46,7 +46,7 @@ from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
 from schemas.skill import Skill
 from schemas.telemetry_rows import telemetry_column
-from services.cdr import pose_stamped, tf_message, wrench_stamped
+from services.cdr import POSE_TYPE, WRENCH_TYPE, pose_stamped, tf_message, wrench_stamped
 from services.dashboard.scene import CF_FRAME, TOOL_FRAME, WORLD_FRAME
 from services.store import TELEMETRY_LAYOUT
 
@@ -60,7 +60,7 @@ CONVENTIONS = (
 """Stored in the file's metadata record ``contact_skills``."""
 CHUNK_ROWS = 2000
 """Rows per chunk of a streamed JSON or CSV reply (~1 MB of text)."""
-_NON_FINITE = re.compile(r"-?Infinity|NaN")
+_NON_FINITE_JSON = re.compile(r"-?Infinity|NaN")
 
 
 def _expanded(name: str, width: int) -> list[str]:
@@ -132,7 +132,7 @@ def execution_json_chunks(head: dict[str, Any], matrix: np.ndarray) -> Iterator[
         separator = ""  # none before the first value (a column not recorded has none)
         for a in range(0, matrix.shape[0], CHUNK_ROWS):
             if text := json.dumps(telemetry_column(matrix[a : a + CHUNK_ROWS], name))[1:-1]:
-                yield separator + _NON_FINITE.sub("null", text)
+                yield separator + _NON_FINITE_JSON.sub("null", text)
                 separator = ","
         yield "]"
     yield "}"
@@ -205,7 +205,6 @@ class McapExport:
     topics: list[str]
 
 
-POSE_TYPE, WRENCH_TYPE = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/WrenchStamped"
 PHASE_TYPE, SEGMENT_TYPE = "std_msgs/msg/String", "std_msgs/msg/Int32"
 _POSE, _WRENCH_WORLD, _WRENCH_CF = pose_stamped(WORLD_FRAME), wrench_stamped(WORLD_FRAME), wrench_stamped(CF_FRAME)
 

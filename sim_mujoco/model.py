@@ -38,10 +38,10 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.world import WorldConfig
 from sim_worker.cad_work_piece import CONVEX_MARGIN_M
 from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, robot_urdf
-from sim_worker.world_config import WorldConfig
 from skills.frames import matrix_from_axis_angle
 from skills.quaternions import quaternion_from_matrix
 

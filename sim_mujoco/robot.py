@@ -19,11 +19,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from execution.kinematics import inverse_kinematics
+from schemas.world import SensorModel, WorldConfig
 from sim_mujoco.model import TOOL_SITE, MujocoCell, cell_model
 from sim_mujoco.sensing import TrueContact, true_contact, wrist_wrench
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.sensor import WrenchSensor
-from sim_worker.world_config import SensorModel, WorldConfig
 from skills.control.layouts import (
     ROBOT_BIAS,
     ROBOT_JACOBIAN,

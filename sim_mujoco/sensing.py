@@ -22,9 +22,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-CONTACT_DISTANCE_M = 0.0
-"""A contact counts as contact when its distance beyond its margin is at or below this (m) or it carries force
-(as ``sim_worker.contact_sensing.CONTACT_DISTANCE_M``)."""
+from execution.robot import CONTACT_DISTANCE_M
 
 
 class TrueContact(NamedTuple):

@@ -14,6 +14,10 @@ and the client found there is checked against the Python module's own answer (``
 done (another platform, a stripped build) the same functions run through PyBullet's Python API (:class:`BulletClient`
 ``compiled`` False): slower, same results.
 
+Only on the pybullet releases whose layouts below were checked against their ``pybullet.c`` and headers
+(:data:`VERIFIED_PYBULLET_VERSIONS`): any other release runs the Python API, said once in one log line when the first
+client is made (:func:`compiled_path_refusal`).
+
 Layouts (pybullet 3.2.7, x86-64): ``b3JointSensorState`` 9 doubles (position, velocity, the reaction force and
 moment (6), the motor torque), a :data:`JOINT_ROW` row; ``b3ContactPointData`` 176 bytes, five ints then 19 doubles,
 read as a :data:`CONTACT_ROW` row of 22 doubles of which the first 3 hold the ints.
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import importlib.metadata
 import logging
 import struct
 from collections.abc import Sequence
@@ -38,6 +43,10 @@ from numba.extending import intrinsic
 from numpy.typing import NDArray
 
 logger = logging.getLogger(__name__)
+
+VERIFIED_PYBULLET_VERSIONS = frozenset({"3.2.7"})
+"""The pybullet releases whose C structs (:data:`JOINT_ROW`, :data:`CONTACT_ROW`), status codes and client table were
+checked against their source: the compiled path runs only on these (pyproject.toml pins the same)."""
 
 JOINT_ROW = 9
 """Doubles per joint in joint rows (``b3JointSensorState``): position rad, velocity rad/s, reaction force N and moment
@@ -158,31 +167,58 @@ def _elf_symbols(path: str, names: Sequence[str]) -> dict[str, tuple[int, int]]:
 _TABLE = "sPhysicsClients1"
 
 
-@functools.cache
-def _client_table() -> tuple[int, int]:
+def installed_pybullet_version() -> str:
+    """The version of the pybullet distribution installed (as its metadata says, e.g. ``"3.2.7"``)."""
+    return importlib.metadata.version("pybullet")
+
+
+def located_client_table(version: str) -> tuple[int, int] | str:
     """The address of PyBullet's table of client handles (``sPhysicsClients1``, one pointer per client id) in this
-    process and its number of entries; (0, 0) when it cannot be found. The library's load address is taken from every
-    C function used (its address in the process less its value in the file): they must all agree, or the file on disk
-    is not the library loaded."""
+    process and its number of entries, for pybullet ``version``; else why the compiled path cannot use it. The
+    library's load address is taken from every C function used (its address in the process less its value in the
+    file): they must all agree, or the file on disk is not the library loaded."""
+    if version not in VERIFIED_PYBULLET_VERSIONS:
+        verified = ", ".join(sorted(VERIFIED_PYBULLET_VERSIONS))
+        return f"pybullet {version} is not a release whose C struct layouts were verified ({verified})"
     library = _library()
     path = pybullet.__file__
     if library is None or not Path(path).is_file():
-        return 0, 0
+        return f"PyBullet's shared library {path} cannot be loaded with all of its C functions"
     symbols = _elf_symbols(path, [_TABLE, *_FUNCTIONS])
     if len(symbols) != len(_FUNCTIONS) + 1:
-        return 0, 0
+        return f"PyBullet's shared library {path} has no symbol table naming {_TABLE} (a stripped build)"
     bases = {ctypes.cast(getattr(library, name), ctypes.c_void_p).value - symbols[name][0] for name in _FUNCTIONS}
     if len(bases) != 1:
-        return 0, 0
+        return f"PyBullet's shared library {path} on disk is not the one loaded"
     value, size = symbols[_TABLE]
     return bases.pop() + value, size // 8
+
+
+@functools.cache
+def _client_table() -> tuple[int, int] | str:
+    """:func:`located_client_table` for the pybullet installed, checked once per process; a refusal is logged once
+    (a warning)."""
+    located = located_client_table(installed_pybullet_version())
+    if isinstance(located, str):
+        logger.warning("The control loop calls PyBullet through its Python API (slower, same results): %s", located)
+    return located
+
+
+def compiled_path_refusal() -> str | None:
+    """Why the control loop calls PyBullet through its Python API in this process (None: it calls the C API from
+    compiled code)."""
+    located = _client_table()
+    return located if isinstance(located, str) else None
 
 
 def client_slot(client_id: int) -> int:
     """The address where PyBullet keeps the handle of its Python client ``client_id`` (read on every compiled call, as
     PyBullet's own functions read it: 0 once the client disconnects); 0 when it cannot be found or the handle found
     does not answer as the client (its number of bodies)."""
-    table, entries = _client_table()
+    located = _client_table()
+    if isinstance(located, str):
+        return 0
+    table, entries = located
     if not 0 <= client_id < entries:
         return 0
     slot = table + 8 * client_id
@@ -295,9 +331,9 @@ class BulletClient:
         slot = client_slot(client_id) if compiled else 0
         self.compiled = slot != 0
         """Whether the queries run as compiled C calls (else through PyBullet's Python API)."""
-        if compiled and not self.compiled:
-            logger.warning("PyBullet's client table was not found in this build: the control loop calls PyBullet "
-                           "through Python (slower, same results)")  # fmt: skip
+        if compiled and not self.compiled and compiled_path_refusal() is None:  # a refusal was logged once
+            logger.warning("PyBullet's client %d does not answer from its table: this loop calls PyBullet through "
+                           "Python (slower, same results)", client_id)  # fmt: skip
         dofs = [pybullet.getJointInfo(body, j, physicsClientId=client_id)[4] for j in self.queried[:_TORQUE_JOINTS]]
         self.ids = np.array([slot, body, link, len(self.queried), *self.queried, *dofs, 0, 0], dtype=np.int64)
         """The ids the compiled functions take (layout ``_SLOT`` ...; the last two slots their scratch space)."""

@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
-from sim_worker.world_config import WorkPiece, WorldConfig
+from schemas.world import WorkPiece, WorldConfig
 from skills.mesh_geometry import plane_section_segments
 from skills.registration import Crease, TriangleMesh, closest_points_on_polyline
 

@@ -28,6 +28,8 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
+from execution.robot import CONTACT_DISTANCE_M
+from schemas.world import SensorModel, WorldConfig
 from sim_worker.arm_model import ARM_REACTION, Arm, read_arm
 from sim_worker.bullet_client import (
     CONTACT_DISTANCE,
@@ -45,11 +47,8 @@ from sim_worker.bullet_client import (
 )
 from sim_worker.robot_model import TOOL_LINK
 from sim_worker.sensor import WrenchSensor, measure_drawn
-from sim_worker.world_config import SensorModel, WorldConfig
 from skills.control.layouts import ROBOT_POSITION, ROBOT_ROTATION
 
-CONTACT_DISTANCE_M = 0.0
-"""A contact point counts as contact when its distance is at or below this (m) or it carries force."""
 _ROTATION = ROBOT_ROTATION.start
 _POSITION = ROBOT_POSITION.start
 # The first columns of the contact rows' vectors as plain ints for the compiled code (it takes no slices as globals):

@@ -34,11 +34,11 @@ import numpy as np
 from schemas.demonstration import Demonstration
 from schemas.execution import EnvironmentChange, Placement, SensorChoice, WorkPieceSource
 from schemas.skill import Skill
+from schemas.world import WorldConfig, WorldOverrides
 from sim_worker.placement import PlacementChoice, PlacementError, choose_placement
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.teacher import scenario_world_config
 from sim_worker.work_piece import measured_world_config, rebuilt_world_config
-from sim_worker.world_config import WorldConfig
 from skills.perturbation import contact_centre, force_scaled_skill
 from skills.placement import placed_skill, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_normalized
@@ -97,7 +97,7 @@ def execution_world(
     *,
     scenario: str | None = None,
     world: dict[str, Any] | None = None,
-    overrides: dict[str, Any] | None = None,
+    overrides: WorldOverrides | None = None,
     demonstration: Demonstration | None = None,
     approach_clearance_m: float = 0.06,
 ) -> ExecutionWorld:
@@ -166,7 +166,7 @@ def execution_worlds(
     *,
     scenario: str | None = None,
     world: dict[str, Any] | None = None,
-    overrides: dict[str, Any] | None = None,
+    overrides: WorldOverrides | None = None,
     demonstration: Demonstration | None = None,
     approach_clearance_m: float = 0.06,
 ) -> list[ExecutionWorld]:
@@ -191,7 +191,7 @@ def execution_worlds(
     return [execution_world(stroke, environment, **arguments) for stroke in strokes]
 
 
-def _environment_fields(env: EnvironmentChange) -> dict[str, Any]:
+def _environment_fields(env: EnvironmentChange) -> WorldOverrides:
     """The ``WorldConfig`` fields the environment sets (only those it gives: the world's own stay otherwise)."""
     given = {
         "lateral_friction": env.friction,
@@ -208,7 +208,7 @@ def _environment_fields(env: EnvironmentChange) -> dict[str, Any]:
     return fields
 
 
-def _tilt_about(skill: Skill, env: EnvironmentChange, changes: dict[str, Any]) -> dict[str, Any]:
+def _tilt_about(skill: Skill, env: EnvironmentChange, changes: WorldOverrides) -> WorldOverrides:
     """``changes`` plus the unknown tilt of the work piece about the (placed) skill's contact centre."""
     if not any(env.unknown_tilt_deg):
         return changes
@@ -216,7 +216,7 @@ def _tilt_about(skill: Skill, env: EnvironmentChange, changes: dict[str, Any]) -
     return {**changes, "work_piece_tilt_deg": tuple(env.unknown_tilt_deg), "work_piece_tilt_pivot_m": pivot}
 
 
-def _with(config: WorldConfig, changes: dict[str, Any]) -> WorldConfig:
+def _with(config: WorldConfig, changes: WorldOverrides) -> WorldConfig:
     try:
         return config.replace(**changes)
     except ValueError as exc:

@@ -30,10 +30,10 @@ from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
 from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings, NullSpaceProjection
 from schemas.skill import Skill
+from schemas.world import WorldConfig
 from sim_worker.control_loop import ControlLoop
 from sim_worker.execution_world import ExecutionWorld
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.control import HybridController
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_worker.world_config import WorldConfig
+from schemas.world import WorldConfig
 from skills.frames import matrix_from_axis_angle
 
 

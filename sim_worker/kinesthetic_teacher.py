@@ -21,7 +21,7 @@ Ground truth (``KinestheticTruth``) comes from the simulation, not from the plan
 PyBullet's contact points (first touch to lift-off of each stroke), the plateau force as the mean TRUE
 normal force between the ramps, normals from the exact world geometry at the tool ball's centre.
 
-Scenarios (``SCENARIOS``): ``wipe_flat``, ``wipe_tilted`` (table tilted 35°), ``wipe_curved`` (a cylinder of
+Scenarios (``KINESTHETIC_SCENARIOS``): ``wipe_flat``, ``wipe_tilted`` (table tilted 35°), ``wipe_curved`` (a cylinder of
 radius 0.6-0.75 m sunk in the table, its axis horizontal; each stroke runs across the axis, so the normal turns
 ~28-44° along it and a plane fit of a stroke leaves an RMS of ~8-14 mm).
 
@@ -50,14 +50,14 @@ from corpus.kinesthetic import (
     wrist_sensor_samples,
 )
 from corpus.synthetic import minimum_jerk
+from schemas.world import WorldConfig
 from sim_worker.geometry import CylinderSolid, WorldGeometry
 from sim_worker.robot_model import Q_HOME
 from sim_worker.teacher import R_TOOL_DOWN, TeacherParams
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.quaternions import quaternion_from_matrix, quaternions_sign_continuous
 
-SCENARIOS: dict[str, str] = {
+KINESTHETIC_SCENARIOS: dict[str, str] = {
     "wipe_flat": "Wipe the horizontal table by hand: 1-4 strokes at 15-32 N, lifted 20-35 cm between them.",
     "wipe_tilted": "Wipe the table tilted 35° about the world x axis by hand: 1-4 strokes at 15-32 N along the plane.",
     "wipe_curved": "Wipe across a large cylinder (radius 0.6-0.75 m, axis along world x, sunk in the table) by "
@@ -145,8 +145,8 @@ def kinesthetic_world_config(scenario: str, seed: int = 0, friction: float | Non
     ``wipe_curved``'s cylinder radius (0.6-0.75 m) comes from the seed too. Raises ValueError for an unknown
     scenario or a friction outside [0, 1].
     """
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}")
+    if scenario not in KINESTHETIC_SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; known: {', '.join(KINESTHETIC_SCENARIOS)}")
     draws = _draws(seed)
     mu = draws.friction if friction is None else float(friction)
     if not 0.0 <= mu <= 1.0:
@@ -692,7 +692,7 @@ def _period_mean(values: NDArray[np.float64], stride: int, n_out: int) -> NDArra
 def record_kinesthetic(
     scenario: str, seed: int = 0, n_strokes: int | None = None, friction: float | None = None
 ) -> SimKinestheticDemo:
-    """Record a kinesthetic wiping demonstration of ``scenario`` (a key of ``SCENARIOS``) in PyBullet.
+    """Record a kinesthetic wiping demonstration of ``scenario`` (a key of ``KINESTHETIC_SCENARIOS``) in PyBullet.
 
     ``n_strokes`` 1-6 (default from the seed: 1-4); ``friction`` the tool-surface Coulomb coefficient (default
     from the seed: 0.2-0.4). Same arguments, same recording. Returns a ``SimKinestheticDemo`` (a

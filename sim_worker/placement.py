@@ -26,9 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from schemas.skill import Skill
+from schemas.world import WorldConfig
 from sim_worker.robot_model import Q_HOME
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.frames import matrix_from_axis_angle, rotation_from_vectors
 from skills.placement import ToolPath, pressing_direction_in_tool, skill_tool_path, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix

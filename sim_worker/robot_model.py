@@ -19,7 +19,7 @@ import os
 
 import pybullet_data
 
-from sim_worker.world_config import ToolConfig
+from schemas.world import ToolConfig
 
 N_JOINTS = 7
 TOOL_LINK = 7

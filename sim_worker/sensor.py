@@ -1,7 +1,7 @@
 """The force/torque sensor model: what the controller reads instead of the exact contact wrench.
 
 Every reading is the wrench the tool applies to the environment at the tool point, world frame (N, N·m;
-docs/CONVENTIONS.md). Its source (``SensorConfig.model``, a :class:`~sim_worker.world_config.SensorModel`):
+docs/CONVENTIONS.md). Its source (``SensorConfig.model``, a :class:`~schemas.world.SensorModel`):
 
 - ``ideal``: the exact contact wrench (the sum over the simulator's contact points);
 - ``wrist``: a force/torque sensor between the flange and the tool, as mounted on a real arm. It reads the force
@@ -31,7 +31,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_worker.world_config import SensorConfig, SensorModel
+from schemas.world import SensorConfig, SensorModel
 
 WRIST_SENSOR = SensorConfig(
     model=SensorModel.wrist,
@@ -48,7 +48,7 @@ BLOCK = 1024
 
 # Layout of :attr:`WrenchSensor.buffer`: the sensor's whole state in one float array, so that a compiled caller passes
 # one argument (each array argument costs ~40 ns of dispatch per step). Counters are whole numbers stored as floats.
-_BIAS = 0  # (6,) the drifting bias (its force part drifts)
+_DRIFT_BIAS = 0  # (6,) the drifting bias (its force part drifts)
 _FIXED_BIAS = 6  # (6,) the constant bias, world frame
 _FILTERED = 12  # (6,) the low-pass output
 _ALPHA = 18  # the low-pass coefficient (1: no filter)
@@ -56,7 +56,7 @@ _ADD_RANDOM = 19  # 1: noise or drift are drawn per step
 _BIASED = 20  # 1: the constant bias is added
 _DRAWN = 21  # the next row of the noise block
 _READINGS = 22  # readings in the delay line
-_SLOT = 23  # the delay line's next slot
+_DELAY_SLOT = 23  # the delay line's next slot
 _STARTED = 24  # 1: the filter has started
 _LINE_ROWS = 25  # rows of the delay line
 _HEAD = 26  # then the delay line ((rows, 6) by rows), then the noise block ((BLOCK, 9) by rows)
@@ -97,10 +97,10 @@ class WrenchSensor:
         line_rows = delay_steps + 1
         block_start = _HEAD + 6 * line_rows
         self.buffer = np.zeros(block_start + BLOCK * 9)
-        """The sensor's state, updated in place (layout ``_BIAS`` ...): the delay line holds the last ``delay_steps +
-        1`` raw readings, a ring; the noise block the noise (6) and bias increments (3) of the next steps, one row per
-        step, refilled by :meth:`draw` (all drawn at first: the first reading fills it; not reset with a run). A
-        compiled caller passes it to :func:`measure_drawn` after :meth:`draw`."""
+        """The sensor's state, updated in place (layout ``_DRIFT_BIAS`` ...): the delay line holds the last
+        ``delay_steps + 1`` raw readings, a ring; the noise block the noise (6) and bias increments (3) of the next
+        steps, one row per step, refilled by :meth:`draw` (all drawn at first: the first reading fills it; not reset
+        with a run). A compiled caller passes it to :func:`measure_drawn` after :meth:`draw`."""
         buffer = self.buffer
         buffer[_FIXED_BIAS : _FIXED_BIAS + 6] = fixed_bias
         buffer[_ALPHA] = 1.0 if cutoff_hz is None else dt / (dt + 1.0 / (2.0 * math.pi * cutoff_hz))
@@ -115,8 +115,8 @@ class WrenchSensor:
         """Start afresh (a new run, ``SimWorld.reset``): zero drift, empty delay line, the filter restarts from the
         next reading."""
         buffer = self.buffer
-        buffer[_BIAS : _BIAS + 6] = 0.0
-        buffer[_READINGS] = buffer[_SLOT] = buffer[_STARTED] = 0.0
+        buffer[_DRIFT_BIAS : _DRIFT_BIAS + 6] = 0.0
+        buffer[_READINGS] = buffer[_DELAY_SLOT] = buffer[_STARTED] = 0.0
 
     def draw(self) -> None:
         """Make this step's noise and bias increment ready: the next block of them is drawn (one generator call per
@@ -159,19 +159,19 @@ def _measure_into(source, out, random, sensor, line):  # pragma: no cover - comp
     into the delay ``line``; the oldest reading in the line through the low-pass ``f += alpha (delayed - f)``, into
     ``out``. ``sensor``: the state (:attr:`WrenchSensor.buffer`), ``random`` this step's noise and increments."""
     size = line.shape[0]
-    slot = int(sensor[_SLOT])
+    slot = int(sensor[_DELAY_SLOT])
     add_random, biased = sensor[_ADD_RANDOM] != 0.0, sensor[_BIASED] != 0.0
     for i in range(6):
         raw = source[i]
         if add_random:
             if i < 3:
-                sensor[_BIAS + i] += random[6 + i]
-            raw = raw + (random[i] + sensor[_BIAS + i])
+                sensor[_DRIFT_BIAS + i] += random[6 + i]
+            raw = raw + (random[i] + sensor[_DRIFT_BIAS + i])
         if biased:
             raw = raw + sensor[_FIXED_BIAS + i]
         line[slot, i] = raw
     following = (slot + 1) % size
-    sensor[_SLOT] = following
+    sensor[_DELAY_SLOT] = following
     readings = int(sensor[_READINGS])
     if readings < size:
         readings += 1

@@ -38,10 +38,10 @@ from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration, DemonstrationMetadata
 from schemas.job_budget import JobEstimate, JobPart
+from schemas.world import LEGACY_FIELDS, WorldConfig, WorldOverrides
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.world import SimWorld
-from sim_worker.world_config import LEGACY_FIELDS, WorldConfig
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
 
@@ -168,7 +168,7 @@ class TeacherRecording:
 @dataclass
 class _Scenario:
     kind: str  # "slide" | "contour"
-    world: dict[str, Any]
+    world: WorldOverrides
     params: dict[str, Any]
     path: Callable[[WorldGeometry], Callable[[float], tuple[NDArray, NDArray, NDArray]]]
     surface_of: Callable[[WorldGeometry, float], str] = lambda g, s: "table"

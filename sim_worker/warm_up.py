@@ -16,10 +16,10 @@ from execution.plans import PhasePlan
 from execution.telemetry import record_row
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
+from schemas.world import WorldConfig
 from sim_worker.control_loop import ControlLoop
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.control import HybridController, damping_matrix, pose_error
 from skills.control.layouts import REFERENCE_SIZE, ROBOT_POSITION, ROBOT_QUAT
 from skills.dmp import DMP

@@ -71,7 +71,7 @@ from numpy.typing import NDArray
 
 from schemas.demonstration import Demonstration
 from schemas.skill import Segment, SegmentKind, Skill
-from sim_worker.world_config import WorkPiece, WorldConfig
+from schemas.world import WorkPiece, WorldConfig
 from skills.compliant_frames import compliant_frame_rotations, slide_frame
 from skills.measured_surface import MeasuredPass, measured_passes
 from skills.placement import segment_positions
@@ -91,14 +91,14 @@ STRIP_PIECE_TURN_DEG = 2.0
 """... and the most its normal turns over one piece, deg (facets follow the learned normal within half of it)."""
 STRIP_LAYERS = 2
 """How many pieces cover each point of a contour strip (each reaches halfway into both neighbours)."""
-ROLLOUT_STEP_S = 0.005
+PIECE_ROLLOUT_STEP_S = 0.005
 """Time step of the rollouts the surfaces are built from, s."""
 
 
 def _contact_points(segment: Segment, tool_radius_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Where the ball tool touches along the segment (M, 3) and the CF z there (M, 3)."""
-    p = segment_positions(segment, ROLLOUT_STEP_S)
-    q = QuaternionDMP.from_parameters(segment.orientation_dmp).rollout(ROLLOUT_STEP_S).q
+    p = segment_positions(segment, PIECE_ROLLOUT_STEP_S)
+    q = QuaternionDMP.from_parameters(segment.orientation_dmp).rollout(PIECE_ROLLOUT_STEP_S).q
     n = min(len(p), len(q))
     p, z_tool = p[:n], matrix_from_quaternion(q[:n])[:, :, 2]
     fractions = np.linspace(0.0, 1.0, n)

@@ -10,7 +10,7 @@ at the tool point, in the world frame.
 Torque control
     ``step()`` sends ``TORQUE_CONTROL`` before every ``stepSimulation`` (the velocity motors are off and the joint and
     link damping zeroed: ``world_build``), so ``gravity_coriolis_torques()`` alone holds the arm still. Torques are
-    clipped to ``WorldConfig.torque_limits_nm`` (the iiwa 14's ``skills.control.IIWA_TORQUE_LIMITS_NM``: 320, 320,
+    clipped to ``WorldConfig.torque_limits_nm`` (the iiwa 14's ``schemas.world.IIWA_TORQUE_LIMITS_NM``: 320, 320,
     176, 176, 110, 40, 40 N·m); ``last_step_clipped`` says whether the last ``step()`` clipped. Joint limits are NOT
     enforced by PyBullet in torque mode (the executor checks them).
 
@@ -41,13 +41,13 @@ import pybullet
 from numpy.typing import ArrayLike, NDArray
 
 from execution.kinematics import inverse_kinematics
+from schemas.world import SensorModel, WorldConfig
 from sim_worker.arm_model import Arm
 from sim_worker.bullet_client import BulletClient
 from sim_worker.contact_sensing import ContactSensing
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.world_build import build_environment, load_robot, work_piece_layers
-from sim_worker.world_config import SensorModel, WorldConfig
 
 
 @dataclass

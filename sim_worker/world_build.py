@@ -30,9 +30,9 @@ import pybullet
 from numpy.typing import NDArray
 
 from schemas.dashboard import WorkPieceMesh
+from schemas.world import WorldConfig
 from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, CylinderSolid, WorldGeometry
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK, robot_urdf
-from sim_worker.world_config import WorldConfig
 from skills.frames import matrix_from_axis_angle
 from skills.quaternions import quaternion_from_matrix
 

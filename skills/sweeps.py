@@ -18,12 +18,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from schemas.api import ExecutionState
 from schemas.execution import (
     NOMINAL_CONTACT_DAMPING_N_S_M,
     NOMINAL_CONTACT_STIFFNESS_N_M,
     ControllerKind,
     EnvironmentChange,
     ExecutionMetrics,
+    ExecutionPhase,
     WorkPieceSource,
 )
 from schemas.skill import Skill
@@ -38,6 +40,7 @@ from schemas.sweep import (
     SweepParameter,
 )
 from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheckName
+from schemas.world import WorldOverrides
 from skills.frames import matrix_from_axis_angle
 
 SEED_STRIDE = 1_000_003
@@ -156,13 +159,15 @@ def inapplicable_parameter(
     return cylinder[0], f"{cylinder[0].value} changes the cylinder of the skill's taught world: {why}"
 
 
-def trial_world_overrides(world: Mapping[str, Any] | None, parameters: Mapping[SweepParameter, float]) -> dict:
+def trial_world_overrides(
+    world: Mapping[str, Any] | None, parameters: Mapping[SweepParameter, float]
+) -> WorldOverrides:
     """The `WorldConfig` fields one trial changes in ``world`` (the skill's taught world, the trials' world when they
     vary a cylinder parameter: :func:`taught_cylinder_world`; read only then): the cylinder's radius with its crown
     held where it was taught (the cylinder lies on the table, its centre one radius above it: lowering it by twice
     the change along the table normal keeps the crown), and its yaw turned from the taught one (deg)."""
     P = SweepParameter
-    changes: dict[str, Any] = {}
+    changes: WorldOverrides = {}
     if world is None:
         return changes
     if P.cylinder_radius_m in parameters:
@@ -200,7 +205,7 @@ def trial_noise_seed(seed: int, trial: int) -> int:
 class Outcome:
     """What one finished trial x controller gave (from its execution's status and metrics) and how it is judged."""
 
-    phase: str
+    phase: ExecutionPhase
     """done, aborted or failed."""
     true_rms_pct: float | None
     true_max_pct: float | None
@@ -223,13 +228,13 @@ class Outcome:
 
 
 def legacy_success(
-    phase: str, contact_ratio: float | None, true_rms_pct: float | None, criteria: Mapping[str, float]
+    phase: ExecutionPhase, contact_ratio: float | None, true_rms_pct: float | None, criteria: Mapping[str, float]
 ) -> bool:
     """How a trial stored before executions had a verdict is judged: done, in contact at least
     ``success_contact_ratio`` of the contact phase and a true normal RMS error of at most ``success_rms_pct`` % (the
     sweep request's fields in ``criteria``)."""
     return (
-        phase == "done"
+        phase is ExecutionPhase.done
         and contact_ratio is not None
         and contact_ratio >= criteria["success_contact_ratio"]
         and true_rms_pct is not None
@@ -237,27 +242,34 @@ def legacy_success(
     )
 
 
-def _abort_cause(phase: str, abort_reason: str | None) -> str:
+_FINAL_PHASES = {ExecutionState.done: ExecutionPhase.done, ExecutionState.aborted: ExecutionPhase.aborted}
+"""The phase of a trial's execution that ended with this status and no metrics."""
+
+
+def _abort_cause(phase: ExecutionPhase, abort_reason: str | None) -> str:
     """``<phase>: <the reason up to its first colon or its time>``, e.g. ``aborted: contact lost in segment 1``."""
     return f"{phase}: {(abort_reason or phase).split(':', 1)[0].split(' at t =', 1)[0]}"
 
 
-def failure_causes(verdict: ExecutionVerdict, phase: str, abort_reason: str | None) -> tuple[str, ...]:
+def failure_causes(verdict: ExecutionVerdict, phase: ExecutionPhase, abort_reason: str | None) -> tuple[str, ...]:
     """Why a trial failed its verdict, as the sweep counts it: ``aborted: <reason>`` (or ``failed: <error>``) for one
     that did not finish (the verdict fails on that alone), else the names of its failed checks (a warning is no
     cause); () for a verdict that passed."""
     if verdict.verdict is Verdict.passed:
         return ()
-    if phase != "done":
+    if phase is not ExecutionPhase.done:
         return (_abort_cause(phase, abort_reason),)
     return tuple(c.name.value for c in verdict.checks if not c.passed and not c.warning_only)
 
 
-def outcome(metrics: ExecutionMetrics | None, status: str, error: str | None, criteria: Mapping[str, float]) -> Outcome:
+def outcome(
+    metrics: ExecutionMetrics | None, status: ExecutionState | None, error: str | None, criteria: Mapping[str, float]
+) -> Outcome:
     """The judged outcome of a finished trial from its execution's ``metrics`` (None when it failed before any), its
     ``status`` and ``error``: success is the metrics' verdict, or for metrics without one (stored before verdicts;
-    no metrics at all) :func:`legacy_success` with the sweep's ``criteria``."""
-    phase = metrics.phase.value if metrics is not None else status
+    no metrics at all) :func:`legacy_success` with the sweep's ``criteria``. Without metrics the phase is the
+    status's (done, aborted; any other: failed)."""
+    phase = metrics.phase if metrics is not None else _FINAL_PHASES.get(status, ExecutionPhase.failed)
     abort_reason = (metrics.abort_reason if metrics is not None else None) or error
     rms = metrics.true_force_rms_error_pct if metrics is not None else None
     contact = metrics.contact_ratio if metrics is not None else None
@@ -274,7 +286,7 @@ def outcome(metrics: ExecutionMetrics | None, status: str, error: str | None, cr
         success = legacy_success(phase, contact, rms, criteria)
         if success:
             causes: tuple[str, ...] = ()
-        elif phase != "done":
+        elif phase is not ExecutionPhase.done:
             causes = (_abort_cause(phase, abort_reason),)
         elif contact is None or contact < criteria["success_contact_ratio"]:
             causes = (VerdictCheckName.contact_ratio.value,)

@@ -80,7 +80,7 @@ FREE_MOTION_MIN_S = 0.3
 """Least time (s) of free motion along the force (or of rest at the ends) from which a force carried in the air is
 taken."""
 
-RESTING_SPEED_M_S = 0.005
+TARE_RESTING_SPEED_M_S = 0.005
 """A tool slower than this (m/s) in the first or last ``END_SHARE`` of a recording rests (in the air, where a
 recording starts and ends)."""
 
@@ -248,7 +248,7 @@ def orientation_span_deg(R: NDArray[np.float64]) -> float:
 
 
 def resting_force(t: NDArray[np.float64], positions: NDArray[np.float64], forces: NDArray[np.float64]) -> NDArray:
-    """Return the median force (3,) N, world, where the tool rests (slower than ``RESTING_SPEED_M_S``) in the first
+    """Return the median force (3,) N, world, where the tool rests (slower than ``TARE_RESTING_SPEED_M_S``) in the first
     or last ``END_SHARE`` of the recording, ``FREE_MOTION_MIN_S`` in all; zero without such a rest. Recordings start
     and end at rest in the air, where the sensor reads only what it carries (arrays as `free_motion`)."""
     dt = float(t[1] - t[0])
@@ -256,7 +256,7 @@ def resting_force(t: NDArray[np.float64], positions: NDArray[np.float64], forces
     ends = np.zeros(t.size, dtype=bool)
     edge = max(1, round(END_SHARE * t.size))
     ends[:edge] = ends[-edge:] = True
-    resting = ends & (speed < RESTING_SPEED_M_S)
+    resting = ends & (speed < TARE_RESTING_SPEED_M_S)
     return np.median(forces[resting], axis=0) if resting.sum() * dt >= FREE_MOTION_MIN_S else np.zeros(3)
 
 

@@ -4,17 +4,25 @@ crash) once the client is gone. Real PyBullet worlds throughout."""
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pybullet
 import pytest
 
+from schemas.world import WorldConfig
+from sim_worker import bullet_client
 from sim_worker.bullet_client import (
     CONTACT_ROW,
     JOINT_ROW,
+    VERIFIED_PYBULLET_VERSIONS,
     BulletClient,
     client_slot,
+    compiled_path_refusal,
     contact_bodies,
     contact_rows_from_points,
+    installed_pybullet_version,
+    located_client_table,
     read_contact_rows,
     read_joint_rows,
     send_torques_and_step,
@@ -22,7 +30,6 @@ from sim_worker.bullet_client import (
 from sim_worker.robot_model import N_JOINTS, TOOL_LINK
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 
 
 def pressed_on_the_table(world: SimWorld) -> None:
@@ -94,3 +101,33 @@ def test_a_closed_client_is_an_error_not_a_crash() -> None:
     assert client_slot(bullet.client_id) == 0  # no handle there any more
     assert client_slot(1023) == 0  # never connected
     assert client_slot(1024) == client_slot(-1) == 0  # beyond PyBullet's table: not read
+
+
+def test_the_installed_pybullet_is_a_release_whose_layouts_were_verified() -> None:
+    """The compiled path reads PyBullet's C structs with the layouts of the releases checked: installing another one
+    (pyproject.toml pins the same) must fail here, and the loop run through the Python API."""
+    assert installed_pybullet_version() in VERIFIED_PYBULLET_VERSIONS
+    assert compiled_path_refusal() is None
+    assert located_client_table(installed_pybullet_version()) == bullet_client._client_table()
+
+
+def test_an_unverified_release_runs_the_python_path_said_in_one_log_line(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A pybullet release nobody checked the struct layouts of: every world's loop calls PyBullet through Python (and
+    reads the same numbers), and one warning, for the process, names the version and why."""
+    refusal = located_client_table("3.2.6")
+    assert refusal == "pybullet 3.2.6 is not a release whose C struct layouts were verified (3.2.7)"
+    monkeypatch.setattr(bullet_client, "installed_pybullet_version", lambda: "3.2.6")
+    bullet_client._client_table.cache_clear()
+    try:
+        with caplog.at_level(logging.WARNING, logger=bullet_client.__name__), SimWorld() as one, SimWorld() as two:
+            clients = [one.loop_handles().bullet, two.loop_handles().bullet]
+            assert [client.compiled for client in clients] == [False, False]
+            assert compiled_path_refusal() is not None
+            np.testing.assert_array_equal(clients[0].read_joints(), clients[1].read_joints())
+    finally:
+        bullet_client._client_table.cache_clear()  # the next test checks the installed release again
+    warnings = [record.getMessage() for record in caplog.records if record.name == bullet_client.__name__]
+    assert len(warnings) == 1
+    assert "pybullet 3.2.6 is not a release whose C struct layouts were verified" in warnings[0]

@@ -393,20 +393,21 @@ def test_a_worker_keeps_the_demonstration_it_was_sent_for_the_starts_that_name_i
     assert kept.steps == sent.steps and kept.true_force_rms_error_n == sent.true_force_rms_error_n
 
 
-def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded, skill, monkeypatch):
+def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded, skill):
     """A worker keeps the demonstrations starts sent within DEMONSTRATION_SAMPLES_KEPT samples in all (the least
     recently named goes first; the newest stays whatever its size), not only within a count: a minute at 1 kHz is
     ~38 MB of validated lists."""
-    import sim_worker.zenoh_worker as zenoh_worker
     from schemas.bus import StartExecution
+    from sim_worker.worker_keeping import DEMONSTRATIONS_CACHED, KeptDemonstrations
+    from sim_worker.zenoh_worker import Worker
 
-    worker = zenoh_worker.Worker(worker_id="w-bounded")  # not opened: its keeping alone
+    assert isinstance(Worker(worker_id="w-bounded").demonstrations, KeptDemonstrations)  # what a worker keeps them in
     demonstration = recorded.demonstration
     samples = len(demonstration.t)
-    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", 2 * samples)
+    keeping = KeptDemonstrations(DEMONSTRATIONS_CACHED, 2 * samples)
 
     def start(key: str, sent: bool) -> StartExecution | None:
-        return worker._with_demonstration(StartExecution(
+        return keeping.completed(StartExecution(
             execution_id=f"ex-{key}", request=_request(skill), demonstration_id=key,
             demonstration=demonstration if sent else None))  # fmt: skip
 
@@ -414,11 +415,11 @@ def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded
         assert start(key, sent=True).demonstration == demonstration
     assert start("d1", sent=False).demonstration == demonstration  # kept: d1 is now the most recently named
     start("d3", sent=True)  # a third would exceed 2 x samples: d2, the least recently named, goes
-    assert list(worker._demonstrations) == ["d1", "d3"]
+    assert list(keeping.kept) == ["d1", "d3"]
     assert start("d2", sent=False) is None
-    monkeypatch.setattr(zenoh_worker, "DEMONSTRATION_SAMPLES_KEPT", samples // 2)
+    keeping.samples = samples // 2
     start("d4", sent=True)  # larger than the bound on its own: kept alone
-    assert list(worker._demonstrations) == ["d4"]
+    assert list(keeping.kept) == ["d4"]
 
 
 def test_bad_requests_are_refused(client, skill):
@@ -428,6 +429,33 @@ def test_bad_requests_are_refused(client, skill):
         client.start_execution("ex-bad", ExecutionRequest(skill_id="sk_1"))
     with pytest.raises(ValueError, match="key-expression chunk"):
         client.start_execution("ex/bad", _request(skill))
+
+
+def test_world_overrides_cross_the_bus_as_given_and_are_checked_against_the_world_on_both_ends(bus, skill):
+    """A start's ``world_overrides`` travel as the JSON they were given, checked against ``WorldConfig`` where the start
+    is built (the API's side: a typo is a validation error naming the field) and where a worker reads it (a start
+    written without the check is answered 'error' naming the field, not run)."""
+    from pydantic import ValidationError
+
+    good = {"table_height_m": 0.12, "cylinder": {"offset_m": [0.0, 0.0, 0.01]}}
+    start = StartExecution(execution_id="ex-world", request=_request(skill), world_overrides=good)
+    assert json.loads(start.model_dump_json())["world_overrides"] == good
+    assert StartExecution.model_validate_json(start.model_dump_json()).world_overrides == good
+    with pytest.raises(ValidationError, match=r"world_overrides\n.*cylinder\.radius_mm: Extra inputs"):
+        StartExecution(execution_id="ex-world", request=_request(skill), world_overrides={"cylinder": {"radius_mm": 9}})
+    sent = {**json.loads(start.model_dump_json()), "world_overrides": {"table_height_m": "high"}}
+    endpoint, _ = bus
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config("client", connect=[endpoint]))))
+    try:
+        [answer] = session.get(KeyExpressions("cskills").start("w-a"), payload=json.dumps(sent), timeout=WAIT_S)
+        reply = StartReply.model_validate_json(answer.ok.payload.to_bytes())
+    finally:
+        session.close()
+    assert (reply.accepted, reply.code) == (False, "error")
+    assert (
+        reply.reason.startswith("world_overrides: ")
+        and "table.height_m: Input should be a valid number" in reply.reason
+    )
 
 
 def _isolated_worker(bus, name: str):

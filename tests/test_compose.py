@@ -206,13 +206,13 @@ def test_the_numba_cache_is_warm_for_the_runtime_user():
 
 def test_scaled_workers_each_claim_their_own_login(tmp_path):
     """`--scale worker=2`: the workers share the logins volume and each claims a login no other live one holds
-    (``sim_worker.zenoh_worker.claim_login``); a restarted container (same host name) gets its own back; a removed
+    (``sim_worker.worker_settings.claim_login``); a restarted container (same host name) gets its own back; a removed
     one's lapses and is taken."""
     import os
     import time
 
     from services.bus_keys import generate_logins
-    from sim_worker.zenoh_worker import LOGIN_LEASE_S, claim_login
+    from sim_worker.worker_settings import LOGIN_LEASE_S, claim_login
 
     generate_logins(tmp_path, 3)
     (tmp_path / "api.env").unlink()  # as the compose file's `mv`: the workers' volume holds worker logins only

@@ -145,9 +145,9 @@ def test_with_reads_behind_the_token_the_page_opens_and_its_data_needs_the_token
 def test_the_work_piece_meshes_are_the_simulated_solids_surfaces():
     """What the worker reports of its world: every vertex on its solid's surface (the simulator's signed distance
     is 0 there) and each mesh closed (every edge shared by two triangles), for each kind of solid."""
+    from schemas.world import BlockConfig, CylinderConfig, RampConfig, TableConfig, WorldConfig
     from sim_worker.geometry import WorldGeometry
     from sim_worker.world_build import work_piece_meshes
-    from sim_worker.world_config import BlockConfig, CylinderConfig, RampConfig, TableConfig, WorldConfig
 
     config = WorldConfig(table=TableConfig(tilt_deg=10.0), ramp=RampConfig(enabled=True),
                          cylinder=CylinderConfig(enabled=True, xy_m=(-0.15, 0.0)),

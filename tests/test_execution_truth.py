@@ -23,10 +23,10 @@ from schemas.execution import (
     SurfaceWindowAction,
 )
 from schemas.verdict import Verdict, VerdictCheckName
+from schemas.world import SensorModel
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import ExecutionResult, execute_skill, run_skill
 from sim_worker.teacher import record_demonstration
-from sim_worker.world_config import SensorModel
 from skills.parameterize import learn_skill
 
 SLIDE_BOUND_PCT = 2.0

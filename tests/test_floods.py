@@ -129,7 +129,7 @@ def test_slow_bodies_past_the_connection_cap_do_not_keep_health_out(tmp_path, to
 
 
 def test_a_request_head_over_64_kib_is_431_even_when_it_arrives_whole(tmp_path):
-    from services.api.limits import MAX_HEAD_BYTES
+    from services.http_rules import MAX_HEAD_BYTES
 
     with served(tmp_path) as url:
         for size, status in ((60_000, b"200"), (100_000, b"431"), (MAX_HEAD_BYTES + 1, b"431")):

@@ -349,8 +349,8 @@ def test_the_live_view_listens_where_the_api_does_and_names_a_loopback_url_for_a
 def test_the_urdf_foxglove_draws_is_the_simulators_arm_and_tool():
     """``services`` may not import the simulator (tests/test_layers.py): its copy of the tool geometry is held equal
     here, and the arm's joints are the simulator's."""
+    from schemas.world import ToolConfig
     from sim_worker.robot_model import FLANGE_OFFSET_M, robot_urdf
-    from sim_worker.world_config import ToolConfig
 
     simulated = ET.fromstring(robot_urdf(ToolConfig()))
     drawn = ET.fromstring(robot_description())

@@ -156,7 +156,7 @@ def test_the_openapi_declares_the_token_where_the_api_requires_it(tmp_path, toke
     otherwise: every parameterless operation is asked without the token."""
     from conftest import loopback_client
 
-    from services.api.openapi import BEARER
+    from services.api.openapi import BEARER_REQUIREMENT
 
     settings_ = ServiceSettings(db_path=tmp_path / "api.db", token=token, token_reads=reads, learn_warm_up=False)
     app = create_app(settings_, bus=None)
@@ -164,12 +164,19 @@ def test_the_openapi_declares_the_token_where_the_api_requires_it(tmp_path, toke
     with loopback_client(app) as c:
         for path, operations in spec["paths"].items():
             for method, operation in operations.items():
-                required = operation["security"] == [BEARER]
-                assert required or operation["security"] == [{}, BEARER], (method, path, operation["security"])
+                required = operation["security"] == [BEARER_REQUIREMENT]
+                assert required or operation["security"] == [{}, BEARER_REQUIREMENT], (
+                    method,
+                    path,
+                    operation["security"],
+                )
                 if "{" not in path:
                     answer = c.request(method.upper(), path)
                     assert (answer.status_code == 401) == required, (method, path, answer.status_code, required)
-        assert spec["paths"]["/health"]["get"]["security"] == [{}, BEARER]  # details with the token, never refused
+        assert spec["paths"]["/health"]["get"]["security"] == [
+            {},
+            BEARER_REQUIREMENT,
+        ]  # details with the token, never refused
 
 
 def test_the_upload_forms_are_declared_as_a_form_sends_them():

@@ -18,8 +18,9 @@ from scipy.spatial.transform import Rotation
 from corpus import kinesthetic
 from schemas import Demonstration
 from schemas.import_options import CsvImportOptions
-from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv, demonstration_from_json
-from services.importing import DemonstrationImportError
+from services.csv_import import ColumnMap, CsvImportError, demonstration_from_csv
+from services.demonstration_files import path_kind
+from services.importing import DemonstrationImportError, demonstration_from_json
 from skills import preprocess
 from skills.quaternions import matrix_from_quaternion, quaternion_angle_between
 
@@ -460,6 +461,29 @@ def test_json_round_trip_and_field_errors(tmp_path):
         demonstration_from_json(path)
     with pytest.raises(DemonstrationImportError, match="cannot read"):
         demonstration_from_json(tmp_path / "missing.json")
+
+
+def test_the_command_line_tells_a_files_kind_once_and_imports_it_through_the_one_dispatcher(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``contact-skills learn`` tells what a file holds once (its options are those of its kind) and imports it through
+    ``services.importing.demonstration_from_file``, as the API's uploads: the same demonstration as the CSV importer's,
+    the options given applied (a measured-on-tool wrench negated)."""
+    import argparse
+
+    from cli.import_options import import_demonstration
+    from services import importing
+
+    path = tmp_path / "demo.txt"  # not named .csv: told by its content
+    path.write_text(_csv(HEADER, _good_rows()))
+    told = []
+    monkeypatch.setattr(importing, "path_kind", lambda p: told.append(p) or path_kind(p))
+    args = argparse.Namespace(wrench_convention="measured-on-tool")
+    imported = import_demonstration(path, args)
+    assert told == [path]
+    expected = demonstration_from_csv(path, CsvImportOptions(wrench_convention="measured-on-tool"))
+    np.testing.assert_array_equal(imported.wrenches, expected.wrenches)
+    np.testing.assert_allclose(-np.asarray(imported.wrenches)[:, 2], _truth(np.asarray(imported.t))[2][:, 2], atol=0.5)
 
 
 # --------------------------------------------------------------------------- files without a time column

@@ -249,10 +249,10 @@ def test_executions_are_deleted_once_finished_with_their_telemetry(stack, skill,
 def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_workers_budget():
     """The constants the estimate counts with are the executor's and the world's own; the API's settings read the
     variables the workers read."""
+    from execution import executor, impacts
     from schemas import job_budget
+    from schemas.world import WorldConfig
     from services.settings import ENV_VARS, ServiceSettings
-    from sim_worker import executor, impacts
-    from sim_worker.world_config import WorldConfig
     from skills import job_estimate
 
     for module, name in (

@@ -15,19 +15,19 @@ import pytest
 
 from cli.main import main
 from corpus.kinesthetic import RECORDING_COLUMNS, KinestheticDemo, recording_csv_text
+from schemas.world import WorldConfig
 from sim_worker.geometry import WorldGeometry
 from sim_worker.kinesthetic_teacher import (
-    SCENARIOS,
+    KINESTHETIC_SCENARIOS,
     SimKinestheticDemo,
     kinesthetic_world_config,
     record_kinesthetic,
 )
-from sim_worker.world_config import WorldConfig
 from skills.quaternions import matrix_from_quaternion
 
 CASES = [
     (scenario, seed, strokes, friction)
-    for scenario in SCENARIOS
+    for scenario in KINESTHETIC_SCENARIOS
     for seed, strokes, friction in ((0, 2, None), (1, None, 0.4 if scenario == "wipe_tilted" else None))
 ]
 """(scenario, seed, n_strokes asked or None, friction asked or None)."""

@@ -19,11 +19,11 @@ from experiments.kuleuven_cad import (
 )
 from schemas import ExecutionSettings
 from schemas.execution import Placement
+from schemas.world import WorldConfig
 from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth
 from sim_worker.cad_work_piece import CONVEX_MARGIN_M
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
-from sim_worker.world_config import WorldConfig
 from skills.parameterize import learn_skill
 from skills.registration import polyline_resampled
 

@@ -19,6 +19,7 @@ function, points down the layers.
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -180,6 +181,21 @@ def test_the_cycle_check_finds_a_lazy_cycle_through_a_package(tmp_path: Path) ->
     assert import_cycles(graph) == [{"a.main", "a.cmd"}]
 
 
+def test_the_services_import_nothing_from_the_api_above_them() -> None:
+    """``services/api/`` (routes, dependencies, error answers, middleware) sits on the services: the learner pool, the
+    settings, the Foxglove gate take nothing from it (what both HTTP servers share is ``services/http_rules.py``).
+    ``services/app.py`` builds the app from it, and is the one module that may."""
+    graph = module_graph(REPO, ["services"])
+    upward = {
+        f"{module} imports {target}"
+        for module, targets in graph.items()
+        if not module.startswith("services.api") and module != "services.app"
+        for target in targets
+        if target.startswith("services.api")
+    }
+    assert upward == set()
+
+
 IO_CALLS = frozenset({"open", "read_text", "read_bytes", "write_text", "write_bytes", "getenv"})
 """Calls that read or write files or the environment (``os.environ`` is found as an attribute)."""
 
@@ -206,3 +222,48 @@ def test_the_contract_reads_no_file_and_no_environment() -> None:
     assert io_uses("import os\nx = os.environ.get('A')\nopen('f')\nPath('p').read_text()\n") == [
         (2, "environ"), (3, "open()"), (4, "read_text()")
     ]  # fmt: skip
+
+
+CONSTANT = re.compile(r"_?[A-Z][A-Z0-9]*(?:_[A-Z0-9]+)*")
+"""An UPPER_CASE name (a constant), private (``_PHASES``) or not."""
+PRODUCT = tuple(package for package in PACKAGES if package != "benchmarks")
+"""The packages whose constants have one home each. The benchmarks are scripts, each with its own report's private
+names (``SECTION``, ``COMMAND``, ``ROOT``: the file each writes, how it is run), not the product's constants."""
+CONSTANTS_TWICE_ALLOWED: dict[str, set[str]] = {}
+"""Constants assigned in more than one module for now, with the modules: each entry says why and until when."""
+
+
+def assigned_constants(source: str) -> set[str]:
+    """The UPPER_CASE names ``source`` assigns at module level (``A = ...``, ``A: T = ...``, ``A, B = ...``)."""
+    names = set()
+    for node in ast.parse(source).body:
+        targets = (
+            node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        )
+        names |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name) and CONSTANT.fullmatch(n.id)}
+    return names
+
+
+def constant_homes(root: Path, packages: Iterable[str]) -> dict[str, set[str]]:
+    """Each constant assigned in more than one module of ``packages`` under ``root``, with those modules (paths)."""
+    homes: dict[str, set[str]] = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")):
+            for name in assigned_constants(path.read_text()):
+                homes.setdefault(name, set()).add(path.relative_to(root).as_posix())
+    return {name: modules for name, modules in homes.items() if len(modules) > 1}
+
+
+def test_every_constant_has_one_home() -> None:
+    """A constant is assigned in one product module and imported where it is used: two copies drift apart (the
+    importer's rate limit and the learner's), and two meanings under one name mislead a reader (a poll period of
+    0.05 s and one of 0.5 s)."""
+    assert constant_homes(REPO, PRODUCT) == CONSTANTS_TWICE_ALLOWED
+
+
+def test_the_constant_check_sees_annotated_tuple_and_private_constants(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "x.py").write_text("A: int = 1\nB, _C = 2, 3\nlower = 4\nD_e = 5\ndef f():\n    E = 6\n")
+    (tmp_path / "a" / "y.py").write_text("from a.x import A\nB = 2\n_C = 3\nE = 6\n")
+    assert assigned_constants((tmp_path / "a" / "x.py").read_text()) == {"A", "B", "_C"}
+    assert constant_homes(tmp_path, ("a",)) == {"B": {"a/x.py", "a/y.py"}, "_C": {"a/x.py", "a/y.py"}}

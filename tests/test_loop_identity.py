@@ -16,12 +16,12 @@ import pytest
 from execution.plans import PhasePlan
 from schemas.execution import ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
+from schemas.world import WorldConfig
 from sim_worker import control_loop
 from sim_worker.bullet_client import BulletClient
 from sim_worker.control_loop import NULL_SPACE_UPDATE_STEPS, ControlLoop, ExecutionAbortError
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorldConfig
 from skills.control import HybridController
 
 

@@ -18,11 +18,11 @@ from schemas import EnvironmentChange, ExecutionSettings, LearnOptions, Skill, S
 from schemas.execution import ExecutionMetrics
 from schemas.skill import SegmentKind
 from schemas.verdict import Verdict
+from schemas.world import WorldConfig
 from sim_worker.execution_world import ExecutionWorld, execution_world, execution_worlds
 from sim_worker.executor import run_skill
 from sim_worker.placement import PlacementError
 from sim_worker.work_piece import measured_work_pieces
-from sim_worker.world_config import WorldConfig
 from skills.frames import matrix_from_axis_angle
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix

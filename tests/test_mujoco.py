@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from schemas.world import WorkPiece, WorldConfig
 from sim_mujoco.model import cell_model
 from sim_mujoco.robot import MujocoRobot
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import Q_HOME
 from sim_worker.world import SimWorld
-from sim_worker.world_config import WorkPiece, WorldConfig
 
 DOWN = (1.0, 0.0, 0.0, 0.0)
 """The tool pointing straight down (``[x, y, z, w]``)."""

@@ -23,6 +23,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from schemas.api import ExecutionState
 from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.sweep import ParameterRange, Sampler, SweepParameter
 from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheck, VerdictCheckName
@@ -78,7 +79,7 @@ def test_sensitivity_ranks_the_parameter_that_drives_the_failures_first():
     for p in parameters:  # the error grows with friction; offset_z does nothing; the worst ones abort
         rms = 2.0 + 10.0 * p[P.friction] + rng.normal(0, 0.5)
         aborted = p[P.friction] > 0.9
-        phase, rms = ("aborted", None) if aborted else ("done", rms)
+        phase, rms = (ExecutionPhase.aborted, None) if aborted else (ExecutionPhase.done, rms)
         outcomes.append(Outcome(phase, rms, None, 1.0, 1.0, "x", success=not aborted and rms <= 8.0))
     ranking = sensitivity(CONTROLLER, parameters, outcomes)
     assert [s.parameter for s in ranking] == [P.friction, P.offset_z_m]
@@ -127,9 +128,9 @@ def test_a_trial_succeeds_when_its_verdict_passes_and_its_causes_are_the_failed_
     is one cause, its reason's head; a trial stored before verdicts is judged by the old rule."""
     V = VerdictCheckName
     criteria = {"success_rms_pct": 10.0, "success_contact_ratio": 0.99}
-    passed = outcome(_verdict(warned=(V.surface_found,)), "done", None, criteria)
-    failed = outcome(_verdict(V.true_force_max, V.touchdown), "done", None, criteria)
-    aborted = outcome(_verdict(V.finished, V.contact_ratio, phase="aborted"), "aborted", None, criteria)
+    passed = outcome(_verdict(warned=(V.surface_found,)), ExecutionState.done, None, criteria)
+    failed = outcome(_verdict(V.true_force_max, V.touchdown), ExecutionState.done, None, criteria)
+    aborted = outcome(_verdict(V.finished, V.contact_ratio, phase="aborted"), ExecutionState.aborted, None, criteria)
     assert (passed.success, passed.verdict, passed.causes, passed.warnings) == (
         True, Verdict.passed, (), ("surface_found",)
     )  # fmt: skip
@@ -138,9 +139,11 @@ def test_a_trial_succeeds_when_its_verdict_passes_and_its_causes_are_the_failed_
     assert failed.reasons == ("true_force_max msg", "touchdown msg")
     assert aborted.causes == ("aborted: contact lost in segment 1",)
     legacy = _verdict().model_copy(update={"verdict": None})
-    assert outcome(legacy, "done", None, criteria).success  # 3 % <= 10 %, in contact 100 %
-    assert outcome(legacy, "done", None, {**criteria, "success_rms_pct": 2.0}).causes == ("true_force_rms",)
-    assert outcome(None, "failed", "worker w1 lost", criteria).causes == ("failed: worker w1 lost",)
+    assert outcome(legacy, ExecutionState.done, None, criteria).success  # 3 % <= 10 %, in contact 100 %
+    assert outcome(legacy, ExecutionState.done, None, {**criteria, "success_rms_pct": 2.0}).causes == (
+        "true_force_rms",
+    )
+    assert outcome(None, ExecutionState.failed, "worker w1 lost", criteria).causes == ("failed: worker w1 lost",)
     summary = controller_summary(CONTROLLER, 4, [passed, failed, aborted, failed])
     assert (summary.succeeded, summary.finished, summary.success_rate) == (1, 4, 0.25)
     assert summary.failures == {"true_force_max": 2, "touchdown": 2, "aborted: contact lost in segment 1": 1}
@@ -244,9 +247,9 @@ def test_a_sweep_runs_each_trial_with_its_criteria_its_bias_and_its_cylinder_and
     it was taught. Their verdicts then decide the trials, the failed checks are the causes, the warnings counted
     apart."""
     from schemas.bus import ExecutionStatus
+    from schemas.world import WorldConfig
     from sim_worker.execution_world import execution_world
     from sim_worker.geometry import WorldGeometry
-    from sim_worker.world_config import WorldConfig
 
     c, bus = bus_client, bus_client.bus
     overrides = []

@@ -11,10 +11,8 @@ import numpy as np
 import pybullet
 import pytest
 
-from sim_worker.geometry import WorldGeometry
-from sim_worker.robot_model import Q_HOME, TOOL_LINK
-from sim_worker.world import SimWorld
-from sim_worker.world_config import (
+from schemas.world import (
+    IIWA_TORQUE_LIMITS_NM,
     BlockConfig,
     CylinderConfig,
     RampConfig,
@@ -24,7 +22,9 @@ from sim_worker.world_config import (
     WorkPiece,
     WorldConfig,
 )
-from skills.control import IIWA_TORQUE_LIMITS_NM
+from sim_worker.geometry import WorldGeometry
+from sim_worker.robot_model import Q_HOME, TOOL_LINK
+from sim_worker.world import SimWorld
 from skills.frames import matrix_from_axis_angle, rotation_vector_from_matrix
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 

@@ -8,9 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from sim_worker.execution_world import world_config_from_file_dict
-from sim_worker.world import SimWorld
-from sim_worker.world_config import (
+from schemas.world import (
     LEGACY_FIELDS,
     CylinderConfig,
     SensorConfig,
@@ -19,6 +17,8 @@ from sim_worker.world_config import (
     WorkPiece,
     WorldConfig,
 )
+from sim_worker.execution_world import world_config_from_file_dict
+from sim_worker.world import SimWorld
 
 STORED_FLAT = json.loads(
     '{"time_step_s": 0.001, "gravity": [0.0, 0.0, -9.81], "table_enabled": true, "table_height_m": 0.12,'

@@ -11,6 +11,7 @@ tests/test_docs.py refuses).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
@@ -64,15 +65,17 @@ def install_offline_docs(app: FastAPI) -> None:
 
     generate = app.openapi
 
-    def openapi() -> dict:
-        if app.openapi_schema is None:
-            for operations in generate()["paths"].values():
+    def openapi() -> dict[str, Any]:
+        summarized = app.openapi_schema is not None  # the document is built once, and summarized then
+        schema = generate()
+        if not summarized:
+            for operations in schema["paths"].values():
                 for operation in operations.values():
                     if operation.get("description"):
                         operation["summary"] = summary_of(operation["description"])
-        return app.openapi_schema  # type: ignore[return-value]
+        return schema
 
-    app.openapi = openapi  # type: ignore[method-assign]
+    vars(app)["openapi"] = openapi  # FastAPI's documented override: the app's openapi, an attribute of its own
 
 
 SUMMARY_LENGTH = 90

@@ -30,12 +30,12 @@ from fastapi.responses import JSONResponse, Response
 from starlette.routing import Match, Mount
 
 from schemas.api import ApiError
+from services.learner_pool import LearnOutcome, LearnOutcomeKind
 from services.store import DiskFull
 
 if TYPE_CHECKING:
     from services.csv_import import CsvImportError
-    from services.importing import DemonstrationImportError
-    from services.learner_pool import LearnOutcome
+    from services.import_steps import DemonstrationImportError
     from services.store import QuotaFull
 
 log = logging.getLogger("contact_skills.api")
@@ -259,24 +259,24 @@ def learning_outcome_failed(
     failed on it without naming one (in our words; the library's text goes to the log), or ran out of the memory
     budget; strict learning that refused a skill is a 422 on ``strict`` with one entry per failed check. A bug in
     the learner is a logged 500."""
-    if outcome.kind == "checks":
+    if outcome.kind is LearnOutcomeKind.checks:
         return RequestValidationError(
             [{"loc": ("body", "strict"), "msg": f"the skill fails its check {reason}", "type": "skill_check"}
              for reason in outcome.reasons]
         )  # fmt: skip
-    if outcome.kind == "learning":
+    if outcome.kind is LearnOutcomeKind.learning:
         if demonstration_id is None:
             return unprocessable([*loc, outcome.field], outcome.reason, "learning_error")
         return unprocessable(
             loc, f"demonstration {demonstration_id}: {outcome.field}: {outcome.reason}", "learning_error"
         )
-    if outcome.kind == "value":
+    if outcome.kind is LearnOutcomeKind.value:
         log.warning("learning failed on valid-looking input: %s", outcome.reason)
         return unprocessable(
             loc, "cannot learn from this demonstration: the segmentation or the fit failed on its samples "
             "(degenerate or inconsistent motion and force)", "learning_error",
         )  # fmt: skip
-    if outcome.kind == "memory":
+    if outcome.kind is LearnOutcomeKind.memory:
         return unprocessable(
             loc, f"cannot learn from this demonstration within the learner's memory budget of {memory_mb} MiB "
             "(CONTACT_SKILLS_LEARN_MEMORY_MB): use fewer samples or fewer basis functions", "learning_budget",

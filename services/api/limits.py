@@ -1,6 +1,6 @@
-"""What the service accepts beyond the field bounds of ``schemas/``: time stamps it can learn from in bounded
-memory, inline skills whose parts fit together, connections that send their request head and body in time and
-cannot keep new ones out, per-client caps on queued work."""
+"""What the service accepts beyond the field bounds of ``schemas/``: inline skills whose parts fit together,
+connections that send their request head and body in time and cannot keep new ones out, per-client caps on queued
+work. (Time stamps it can learn from in bounded memory: ``services.learner_pool.check_sampling``.)"""
 
 from __future__ import annotations
 
@@ -11,47 +11,19 @@ from enum import StrEnum
 from typing import Any
 
 import h11
-import numpy as np
 from fastapi import HTTPException
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from schemas.api import ApiError, ExecutionState
-from schemas.demonstration import Demonstration
 from schemas.skill import Skill
 from schemas.sweep import SweepState
+from services.http_rules import MAX_HEAD_BYTES
 from services.store import ACTIVE, Store
 
-MAX_RATE_HZ = 100_000.0
-"""Highest sampling rate the service learns from (as the CSV importer's resampling limit), Hz."""
 UPLOAD_STORED_MULTIPLE = 16.0
 """An uploaded recording (CSV, bag) stores at most this many times the bytes it brought. The real recordings store
 0.4-0.6x (KU Leuven CSVs); a row-per-sample CSV with short numbers ~7x. Past it the time stamps span far more samples
 than the file has rows (resampling would invent them)."""
-MAX_GRID_SAMPLES = 1_000_000
-"""Most samples a demonstration may span on its uniform grid (duration / median step): 16.7 min at 1 kHz."""
-
-
-def check_sampling(demonstration: Demonstration) -> None:
-    """Raise `LearningError` on ``t`` for time stamps the pipeline cannot work on in bounded memory: a rate above
-    :data:`MAX_RATE_HZ` (filter windows are sized in samples per second) or a uniform grid (duration at the
-    median step, what irregular stamps are resampled to) longer than :data:`MAX_GRID_SAMPLES`."""
-    from skills.parameterize import LearningError
-
-    t = np.asarray(demonstration.t)
-    step = float(np.median(np.diff(t)))
-    if 1.0 / step > MAX_RATE_HZ:
-        raise LearningError(
-            "t",
-            f"median time step {step:.3g} s is a {1 / step:.3g} Hz rate, above {MAX_RATE_HZ:g} Hz: are the "
-            "time stamps in seconds?",
-        )
-    grid = (t[-1] - t[0]) / step + 1
-    if grid > MAX_GRID_SAMPLES:
-        raise LearningError(
-            "t",
-            f"{t[-1] - t[0]:.6g} s at the median step of {step:.3g} s spans {grid:.3g} samples, more than "
-            f"{MAX_GRID_SAMPLES} (a gap in the time stamps, or a very long recording)",
-        )
 
 
 def skill_problems(skill: Skill) -> list[tuple[list[str | int], str]]:
@@ -84,8 +56,6 @@ def skill_problems(skill: Skill) -> list[tuple[list[str | int], str]]:
     return problems
 
 
-MAX_HEAD_BYTES = 64 * 1024
-"""Largest request head (request line and headers) the server takes, bytes; a larger one is answered 431."""
 EVICTION_RESERVE_FRACTION = 16
 """At the connection cap, a new connection closes connections that are waiting on their client until one in this
 many of the cap (at least 2) is free: room for the next few newcomers, whose requests would otherwise meet the
@@ -147,7 +117,7 @@ class BoundedH11Protocol(H11Protocol):
         """Since when (event loop time, s) this connection has been waiting on its client; None while its request
         is whole (being served)."""
 
-    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport: asyncio.Transport) -> None:  # H11Protocol's signature
         super().connection_made(transport)
         self._watch()
         self._make_room()
@@ -169,7 +139,7 @@ class BoundedH11Protocol(H11Protocol):
 
     def send_400_response(self, msg: str) -> None:
         """A malformed request (uvicorn's 400), or a head too large (431)."""
-        if self.conn.refused_status == 431:  # type: ignore[attr-defined]
+        if isinstance(self.conn, _HeadBoundedConnection) and self.conn.refused_status == 431:
             self._refuse(431, f"request head larger than {MAX_HEAD_BYTES} bytes")
         else:
             super().send_400_response(msg)

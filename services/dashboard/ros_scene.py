@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, ExecutionPhase
 from schemas.skill import Skill
-from services.cdr import CdrLayout, tf_message
+from services.cdr import TF_TYPE, CdrLayout, tf_message
 from services.dashboard.scene import (
     CF_FRAME,
     JOINT_NAMES,
@@ -56,7 +56,7 @@ from services.dashboard.scene import (
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix
 
 TF, JOINT_STATES, ROBOT_DESCRIPTION, MARKERS = "/tf", "/joint_states", "/robot_description", "/markers"
-TF_TYPE, JOINT_STATE_TYPE = "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/JointState"
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 STRING_TYPE, MARKER_ARRAY_TYPE = "std_msgs/msg/String", "visualization_msgs/msg/MarkerArray"
 SCENE_TOPICS = {TF: TF_TYPE, JOINT_STATES: JOINT_STATE_TYPE, ROBOT_DESCRIPTION: STRING_TYPE, MARKERS: MARKER_ARRAY_TYPE}
 """The scene's topics and their ROS 2 message types."""
@@ -85,10 +85,10 @@ CONTACT_CODE = PHASE_CODES[ExecutionPhase.contact]
 _FLOAT64 = CdrLayout().floats("data", 1)
 _BOOL = {value: b"\x00\x01\x00\x00" + bytes([value]) for value in (False, True)}
 """``std_msgs/msg/Bool`` in CDR: the little-endian encapsulation header and one byte."""
-_JOINTS = CdrLayout().stamp("stamp").string("").count(len(JOINT_NAMES))
+_JOINT_STATE = CdrLayout().stamp("stamp").string("").count(len(JOINT_NAMES))
 for _name in JOINT_NAMES:
-    _JOINTS.string(_name)
-_JOINTS.count(len(JOINT_NAMES)).floats("position", len(JOINT_NAMES)).count(0).count(0)
+    _JOINT_STATE.string(_name)
+_JOINT_STATE.count(len(JOINT_NAMES)).floats("position", len(JOINT_NAMES)).count(0).count(0)
 
 
 def _typestore():
@@ -249,7 +249,7 @@ class SceneStream:
         joint_rows, self.next_joint_t = rows_every(t, self.next_joint_t, 1.0 / JOINT_STATE_HZ)
         if joint_rows.size:
             q = self.solver.solve(tool_p[joint_rows], tool_q[joint_rows])
-            out[JOINT_STATES] = (stamps[joint_rows], _JOINTS.messages(stamp=stamps[joint_rows], position=q))
+            out[JOINT_STATES] = (stamps[joint_rows], _JOINT_STATE.messages(stamp=stamps[joint_rows], position=q))
             poses |= arm_poses(len(t), joint_rows, q)
         out[TF] = (stamps, tf_payloads(stamps, poses, frame_parents()))
         self._accumulate(tool_p, col["reference_position"], cf_q, col["phase"][:, 0])
@@ -369,7 +369,7 @@ def skill_scene_messages(
         solver.reset()
         joint_rows, _ = rows_every(a.t, -np.inf, 1.0 / JOINT_STATE_HZ)
         q = solver.solve(a.positions[joint_rows], a.orientations[joint_rows])
-        out[JOINT_STATES] = (stamps[joint_rows], _JOINTS.messages(stamp=stamps[joint_rows], position=q))
+        out[JOINT_STATES] = (stamps[joint_rows], _JOINT_STATE.messages(stamp=stamps[joint_rows], position=q))
         out[ROBOT_DESCRIPTION] = (stamps[:1], [robot_description_message()])
         poses = {ROBOT_BASE_LINK: np.tile([0.0, 0, 0, 0, 0, 0, 1], (n, 1)), **poses, **arm_poses(n, joint_rows, q)}
     out[TF] = (stamps, tf_payloads(stamps, poses, frame_parents()))

@@ -38,7 +38,7 @@ from skills.quaternions import matrix_from_quaternion, quaternion_exp, quaternio
 WORLD_FRAME, TOOL_FRAME, REFERENCE_FRAME, CF_FRAME, FLANGE_FRAME = "world", "tool", "reference", "cf", "flange"
 ROBOT_BASE_LINK = "lbr_iiwa_link_0"
 """The URDF's root link, at the world origin (the simulator loads the arm with its base there)."""
-TOOL_LINK = f"{TOOL_FRAME}_link"
+TOOL_LINK_NAME = f"{TOOL_FRAME}_link"
 """The URDF's tool (shaft and ball, its origin at the tool point): where the arm's joints put the tool, within the IK's
 residual of the measured ``tool`` frame."""
 JOINT_NAMES = [f"lbr_iiwa_joint_{k}" for k in range(1, 8)]
@@ -75,9 +75,9 @@ def robot_description() -> str:
   </joint>
   <link name="{FLANGE_FRAME}"/>
   <joint name="tool_joint" type="fixed">
-    <parent link="{FLANGE_FRAME}"/><child link="{TOOL_LINK}"/><origin xyz="0 0 {shaft:.6f}" rpy="0 0 0"/>
+    <parent link="{FLANGE_FRAME}"/><child link="{TOOL_LINK_NAME}"/><origin xyz="0 0 {shaft:.6f}" rpy="0 0 0"/>
   </joint>
-  <link name="{TOOL_LINK}">
+  <link name="{TOOL_LINK_NAME}">
     <visual><origin xyz="0 0 {-shaft / 2:.6f}" rpy="0 0 0"/><geometry><cylinder radius="0.008" length="{shaft:.6f}"/>
       </geometry><material name="Grey"><color rgba="0.6 0.6 0.6 1"/></material></visual>
     <visual><origin xyz="0 0 -0.01" rpy="0 0 0"/><geometry><sphere radius="0.01"/></geometry>

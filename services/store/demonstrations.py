@@ -21,7 +21,7 @@ from services.store.database import Database, cut_text, log, new_id
 from services.store.rows import DemonstrationRow, DemonstrationSamples, first_problem
 
 _SUMMARY_NAME = "json_extract(summary, '$.name')"
-_SOURCE = "json_extract(body, '$.metadata.source')"
+_SOURCE_SQL = "json_extract(body, '$.metadata.source')"
 _HEAD_COLUMNS = (
     f"id, created, {cut_text('name')} AS name, "
     f"CASE WHEN length({_SUMMARY_NAME}) > {MAX_NAME_CHARS} "
@@ -29,7 +29,8 @@ _HEAD_COLUMNS = (
 )
 """The columns of a :class:`DemonstrationRow` that do not read the samples."""
 _COLUMNS = (
-    f"{_HEAD_COLUMNS}, {cut_text(_SOURCE, MAX_TEXT_CHARS)} AS source, length(body) + length(summary) AS stored_bytes"
+    f"{_HEAD_COLUMNS}, {cut_text(_SOURCE_SQL, MAX_TEXT_CHARS)} AS source, "
+    "length(body) + length(summary) AS stored_bytes"
 )
 """The columns a :class:`DemonstrationRow` is read from: its name, summary's name and source cut to the bounds of
 ``schemas.text`` (rows stored before them may hold more)."""

@@ -107,7 +107,6 @@ Baselines (``ControllerKind``), the same class with other settings:
 
 from skills.control.controller import (
     DAMPING_UPDATE_EVERY,
-    IIWA_TORQUE_LIMITS_NM,
     ControlOutput,
     HybridController,
     LawKernel,
@@ -117,7 +116,6 @@ from skills.control.law import damping_diagonal, damping_matrix, law_step_packed
 
 __all__ = [
     "DAMPING_UPDATE_EVERY",
-    "IIWA_TORQUE_LIMITS_NM",
     "ControlFrame",
     "ControlFrameSeries",
     "ControlOutput",

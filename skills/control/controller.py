@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from schemas.execution import ControllerGains, ControllerKind, NullSpaceProjection
+from schemas.world import IIWA_TORQUE_LIMITS_NM
 from skills.compiled import compiled_entry
 from skills.control.frames import ControlFrame, ControlFrameSeries, blockdiag_rotation, world_z_down_rotation
 from skills.control.law import (
@@ -81,8 +82,6 @@ from skills.frames import (
     wrench_adjoint_from_transform,
 )
 
-IIWA_TORQUE_LIMITS_NM: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
-"""Joint torque limits of the KUKA LBR iiwa 14 R820 (N·m), the default when the robot gives none."""
 DAMPING_UPDATE_EVERY = 5
 """The adaptive damping matrix is rebuilt on every this-many-th model update (it costs ~2x the projector)."""
 _EYE6 = np.eye(6)

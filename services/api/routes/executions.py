@@ -17,7 +17,7 @@ from schemas.api import (
     TelemetryFormat,
     TelemetryView,
 )
-from schemas.bus import KeyExpressions
+from schemas.bus import CommandName, KeyExpressions
 from schemas.execution import ExecutionRequest
 from services.api import errors
 from services.api.deps import (
@@ -47,6 +47,7 @@ from services.api.deps import (
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
 from services.api.responses import LIST_RESPONSES, list_page, streamed
+from services.bus import BusClient
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store
 
@@ -197,18 +198,23 @@ def delete_execution(execution_id: str, store: StoreDep) -> Response:
 
 
 def _command(
-    execution_id: str, name: str, store: Store, bus: Any, queue: ExecutionQueue | None, keys: KeyExpressions
+    execution_id: str,
+    name: CommandName,
+    store: Store,
+    bus: BusClient | None,
+    queue: ExecutionQueue | None,
+    keys: KeyExpressions,
 ) -> CommandAccepted:
     row = _found(store, execution_id)
     if row.status is ExecutionState.queued:  # not on a worker yet: abort cancels it, pause/resume make no sense
-        if name == "abort" and need_queue(queue).cancel(execution_id):
+        if name is CommandName.abort and need_queue(queue).cancel(execution_id):
             return CommandAccepted(id=execution_id, command=name, sent_to="queue")
-        if name != "abort":
+        if name is not CommandName.abort:
             raise errors.not_running(execution_id, "queued")
         row = _found(store, execution_id)  # it left the queue meanwhile
     if row.status in TERMINAL:
         raise errors.already_finished(execution_id, row.status.value)
-    need_bus(bus).send_command(execution_id, name)  # type: ignore[arg-type]
+    need_bus(bus).send_command(execution_id, name)
     return CommandAccepted(id=execution_id, command=name, sent_to=keys.cmd(execution_id))
 
 
@@ -225,7 +231,7 @@ def abort_execution(execution_id: str, store: StoreDep, bus: BusDep, queue: Queu
 
     202 once the command is put on the bus; the worker stops within one control step and reports ``aborted``.
     409 if the execution has already finished, 503 without a bus."""
-    return _command(execution_id, "abort", store, bus, queue, keys)
+    return _command(execution_id, CommandName.abort, store, bus, queue, keys)
 
 
 @router.post(
@@ -240,7 +246,7 @@ def pause_execution(execution_id: str, store: StoreDep, bus: BusDep, queue: Queu
 
     202 once the command is put on the bus; the status then reads ``paused``. 409 if the execution has already
     finished or is still queued, 503 without a bus."""
-    return _command(execution_id, "pause", store, bus, queue, keys)
+    return _command(execution_id, CommandName.pause, store, bus, queue, keys)
 
 
 @router.post(
@@ -257,7 +263,7 @@ def resume_execution(
 
     202 once the command is put on the bus; the execution continues from where it held and its status goes
     back from paused to running. 409 if it has already finished, 503 without a bus."""
-    return _command(execution_id, "resume", store, bus, queue, keys)
+    return _command(execution_id, CommandName.resume, store, bus, queue, keys)
 
 
 @router.get(

@@ -24,7 +24,7 @@ from services.api.deps import (
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.responses import LIST_RESPONSES, list_page, raw_json
-from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut
+from services.learner_pool import LearnerPoolFull, LearningCancelled, LearningTimedOut, LearnOutcomeKind
 from services.store import Store
 
 router = APIRouter(tags=["skills"], dependencies=READ_GUARD, responses=READ_RESPONSES)
@@ -74,9 +74,9 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
         raise errors.unprocessable(loc, f"cannot learn from this demonstration: {exc}", "learning_budget") from None
     except LearningCancelled:
         return Response(status_code=499)  # nobody reads it: the client is gone
-    if outcome.kind == "learning" and outcome.field == "demonstrations":  # the demonstrations together
+    if outcome.kind is LearnOutcomeKind.learning and outcome.field == "demonstrations":  # the demonstrations together
         raise errors.unprocessable(loc, outcome.reason, "learning_error")
-    if outcome.kind != "ok":
+    if outcome.kind is not LearnOutcomeKind.ok:
         raise errors.learning_outcome_failed(outcome, loc, stored_id, learners.memory_mb)
     if len(sources) > 1:  # a joint skill's segments refer to its reference demonstration: the one stored with it
         stored_id = outcome.reference

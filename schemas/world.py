@@ -1,6 +1,7 @@
-"""``WorldConfig``: everything that defines a simulated world, JSON-able (the taught world of a teacher recording,
-an execution's world, a rebuilt work piece), as typed sub-configs: the table, the ramp, the cylinder, the curved
-block, the work pieces and their unknown tilt, the contact model, the tool, the wrench sensor.
+"""``WorldConfig``: everything that defines a simulated world (``sim_worker`` builds it), JSON-able (the taught
+world of a teacher recording, an execution's world, a rebuilt work piece), as typed sub-configs: the table, the ramp,
+the cylinder, the curved block, the work pieces and their unknown tilt, the contact model, the tool, the wrench
+sensor. On the bus a start's ``world_overrides`` are checked against it (:data:`WorldOverrides`).
 
 Frames and units: world frame, SI units (m, N, s), angles in degrees where a field name says ``_deg``;
 see docs/CONVENTIONS.md.
@@ -14,12 +15,14 @@ each of those keys to its sub-config field, and every way into a ``WorldConfig``
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
-from skills.control import IIWA_TORQUE_LIMITS_NM
+
+IIWA_TORQUE_LIMITS_NM: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
+"""The KUKA LBR iiwa 14 R820's joint torque limits, N·m (its data sheet), the simulated arm's."""
 
 Vector2 = tuple[float, float]
 Vector3 = tuple[float, float, float]
@@ -202,7 +205,7 @@ class WorldConfig(BaseModel):
     contact: ContactConfig = ContactConfig()
     tool: ToolConfig = ToolConfig()
     torque_limits_nm: tuple[float, ...] = IIWA_TORQUE_LIMITS_NM
-    """The robot's joint torque limits, N·m (the iiwa 14's, defined once in ``skills.control``)."""
+    """The robot's joint torque limits, N·m (:data:`IIWA_TORQUE_LIMITS_NM`)."""
     sensor: SensorConfig = SensorConfig()
 
     @model_validator(mode="before")
@@ -250,3 +253,16 @@ class WorldConfig(BaseModel):
                 "work_pieces": tuple(pieces),
             }
         )
+
+
+def checked_world_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
+    """``overrides`` as they are, when they change a world as :meth:`WorldConfig.replace` does (whole sub-configs or
+    some of their fields, or legacy flat keys); else ``ValueError`` naming the field and why
+    (``WorldConfig: cylinder.radius_mm: Extra inputs are not permitted``)."""
+    WorldConfig().replace(**overrides)
+    return overrides
+
+
+WorldOverrides = Annotated[dict[str, Any], AfterValidator(checked_world_overrides)]
+"""Changes to a world (the scenario's or the skill's taught one), as JSON: checked against :class:`WorldConfig`
+wherever a model holding them is validated (both ends of the bus), carried unchanged."""
