@@ -18,10 +18,11 @@ from numpy.typing import NDArray
 
 from execution.contact_detection import ContactGuard
 from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
+from execution.robot import Robot
 from execution.surface_following import SurfaceFollower
 from execution.telemetry import Telemetry
-from schemas.execution import TELEMETRY_WIDTH, ExecutionPhase
-from skills.control import ControlFrame
+from schemas.execution import TELEMETRY_WIDTH, ExecutionPhase, Pace
+from skills.control import ControlFrame, HybridController
 
 NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
@@ -98,25 +99,36 @@ class PhaseRunner(Protocol):
 
 
 class RecordingLoop:
-    """What every engine's 1 kHz loop shares (a :class:`PhaseRunner`'s state apart from its stepping): the telemetry
-    rows (one float row per step, :data:`schemas.execution.TELEMETRY_COLUMNS`, room for ``capacity_s`` at first,
-    doubling when full) handed to ``on_sample`` in batches of ``telemetry_batch``, the step count, the contact the
-    guarded phases found, the control frames taken, and the reasons a phase stops (joint limits ``joint_lower`` /
-    ``joint_upper`` (7,) rad, a contact lost). ``dt`` the robot's time step, s."""
+    """What every engine's 1 kHz loop shares (a :class:`PhaseRunner`'s state apart from its stepping): ``robot`` and
+    ``controller`` run at the robot's time step ``dt`` (s), the telemetry rows (one float row per step,
+    :data:`schemas.execution.TELEMETRY_COLUMNS`, room for ``capacity_s`` at first, doubling when full) handed to
+    ``on_sample`` in batches of ``telemetry_batch``, ``pace`` realtime following the wall clock, ``dynamic_null``
+    refreshing the mass matrix for the null-space projector, ``should_abort()`` polled after every step and
+    ``should_pause()`` before, the step count, the contact the guarded phases found, the control frames taken, and
+    the reasons a phase stops (the robot's joint limits, a contact lost). An engine's loop adds its own state in
+    :meth:`_engine_state`."""
 
     def __init__(
         self,
-        dt: float,
+        robot: Robot,
+        controller: HybridController,
         capacity_s: float,
         telemetry_batch: int,
+        pace: Pace,
+        dynamic_null: bool,
         on_sample: Callable[[Telemetry], None] | None,
-        joint_lower: NDArray[np.float64],
-        joint_upper: NDArray[np.float64],
+        should_abort: Callable[[], bool] | None,
+        should_pause: Callable[[], bool] | None,
     ) -> None:
-        self.dt = dt
+        self.controller = controller
+        self.dt = float(robot.time_step_s)
         self.telemetry_batch = telemetry_batch
+        self.realtime = pace is Pace.realtime
+        self.dynamic_null = dynamic_null
         self.on_sample = on_sample
-        self.joint_lower, self.joint_upper = joint_lower, joint_upper
+        self.should_abort = should_abort
+        self.should_pause = should_pause
+        self.joint_lower, self.joint_upper = robot.joint_lower, robot.joint_upper
         self.capacity = max(4096, round(capacity_s / self.dt))
         self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
         self.n = 0
@@ -135,6 +147,10 @@ class RecordingLoop:
         """The CF rotation of the control frame in use (world from CF)."""
         self._tracked: tuple[list[float], int] | None = None
         """The tool position (m, world) and the step of the follower's last update in this phase."""
+        self._engine_state(robot)
+
+    def _engine_state(self, robot: Robot) -> None:
+        """An engine's loop keeps ``robot`` and its own buffers here (called last by ``__init__``)."""
 
     def telemetry(self, copy: bool = True) -> Telemetry:
         """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
@@ -191,6 +207,14 @@ class RecordingLoop:
         lag = step_count * self.dt - (time.perf_counter() - self.wall_start)
         if lag > 0:
             time.sleep(lag)
+
+    def _ran_to_the_end(self, plan: PhasePlan, guard: ContactGuard) -> PlanEnd:
+        """How a phase that ran all its steps ended: done, or (a plan that must not run out, such as a guarded approach
+        that met nothing) aborted with its reason, naming the guard a guarded phase's readings stayed under."""
+        if plan.exhausted_reason is not None:
+            guarded = "" if plan.stop_axis is None else f": the sensor never read above {guard.describe()}"
+            raise ExecutionAbortError(plan.exhausted_reason + guarded)
+        return PlanEnd.done
 
     def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
         """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,

@@ -15,13 +15,12 @@ the joint limits, ``should_abort()`` after every step, ``should_pause()`` before
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 from numpy.typing import NDArray
 
 from execution.contact_detection import ContactGuard
 from execution.plans import PhasePlan
+from execution.robot import Robot
 from execution.runner import (
     CONTACT_LOSS_TRAVEL_M,
     NULL_SPACE_UPDATE_STEPS,
@@ -33,39 +32,23 @@ from execution.runner import (
     RecordingLoop,
 )
 from execution.surface_following import SurfaceFollower
-from execution.telemetry import Telemetry, record_row
-from schemas.execution import PHASE_CODES, ExecutionPhase, Pace
+from execution.telemetry import record_row
+from schemas.execution import PHASE_CODES, ExecutionPhase
 from sim_mujoco.robot import MujocoRobot
-from skills.control import HybridController, law_step_packed
+from skills.control import law_step_packed
 from skills.control.layouts import LAW_OUTPUT_SIZE, LAW_TAU, REFERENCE_TWIST, ROBOT_POSITION, ROBOT_Q
 
 
 class MujocoLoop(RecordingLoop):
-    """Runs phase plans on ``robot`` with ``controller`` at the robot's time step, recording every step (the arguments
-    as ``sim_worker.control_loop.ControlLoop``'s: ``capacity_s`` s of rows at first, ``telemetry_batch`` rows per
-    ``on_sample`` call, ``pace`` realtime follows the wall clock, ``dynamic_null`` refreshes the mass matrix for the
-    null-space projector, ``should_abort()`` polled after every step, ``should_pause()`` before)."""
+    """Runs phase plans on MuJoCo's ``robot`` (a ``MujocoRobot``) with ``controller`` at the robot's time step,
+    recording every step (the arguments: ``execution.runner.RecordingLoop``, as PyBullet's ``ControlLoop``)."""
 
-    def __init__(
-        self,
-        robot: MujocoRobot,
-        controller: HybridController,
-        capacity_s: float,
-        telemetry_batch: int,
-        pace: Pace,
-        dynamic_null: bool,
-        on_sample: Callable[[Telemetry], None] | None,
-        should_abort: Callable[[], bool] | None,
-        should_pause: Callable[[], bool] | None,
-    ) -> None:
-        super().__init__(robot.time_step_s, capacity_s, telemetry_batch, on_sample, robot.joint_lower,
-                         robot.joint_upper)  # fmt: skip
+    robot: MujocoRobot
+
+    def _engine_state(self, robot: Robot) -> None:
+        """The robot and the step's buffers."""
+        assert isinstance(robot, MujocoRobot), robot
         self.robot = robot
-        self.controller = controller
-        self.realtime = pace is Pace.realtime
-        self.dynamic_null = dynamic_null
-        self.should_abort = should_abort
-        self.should_pause = should_pause
         self._out = np.zeros(LAW_OUTPUT_SIZE)
         """The law's output of the step (the torque first)."""
         self._cf_rows = np.zeros(9)
@@ -181,7 +164,4 @@ class MujocoLoop(RecordingLoop):
                     k += 1
         finally:
             self.n, self.step_count, self.touched = n, step_count, touched
-        if plan.exhausted_reason is not None:
-            guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
-            raise ExecutionAbortError(plan.exhausted_reason + guarded)
-        return PlanEnd.done
+        return self._ran_to_the_end(plan, guard)

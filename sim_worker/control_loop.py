@@ -27,7 +27,6 @@ the controller makes in Python.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -35,6 +34,7 @@ from numpy.typing import NDArray
 
 from execution.contact_detection import ContactGuard
 from execution.plans import PhasePlan
+from execution.robot import Robot
 from execution.runner import (
     CONTACT_LOSS_TRAVEL_M,
     NULL_SPACE_UPDATE_STEPS,
@@ -46,14 +46,14 @@ from execution.runner import (
     RecordingLoop,
 )
 from execution.surface_following import SurfaceFollower
-from execution.telemetry import Telemetry, record_row
-from schemas.execution import PHASE_CODES, ExecutionPhase, Pace
+from execution.telemetry import record_row
+from schemas.execution import PHASE_CODES, ExecutionPhase
 from sim_worker.arm_model import arm_mass_matrix
 from sim_worker.compiled_calls import state_reader, stepper
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
 from sim_worker.world import SimWorld
 from skills.compiled import compiled_entry
-from skills.control import HybridController, law_step_packed, layouts
+from skills.control import law_step_packed, layouts
 
 # Layout of the loop's own state array (ControlLoop.run_plan), read and written by its compiled step: the law's output
 # (the torque first), the CF rotation of the frame in use (by rows), the torque limits the world clips to, the time
@@ -178,33 +178,15 @@ class _PhaseState:
 
 
 class ControlLoop(RecordingLoop):
-    """Runs phase plans on ``world`` with ``controller`` at the world's time step, recording every step.
+    """Runs phase plans on PyBullet's ``world`` (a ``SimWorld``) with ``controller`` at the world's time step,
+    recording every step (the arguments: ``execution.runner.RecordingLoop``)."""
 
-    ``capacity_s`` (s): the rows allocated at first (they grow by doubling); ``telemetry_batch`` rows per
-    ``on_sample`` call; ``pace`` realtime sleeps to follow the wall clock; ``dynamic_null`` refreshes the mass matrix
-    for the null-space projector; ``should_abort()`` is polled after every step, ``should_pause()`` before;
-    """
+    world: SimWorld
 
-    def __init__(
-        self,
-        world: SimWorld,
-        controller: HybridController,
-        capacity_s: float,
-        telemetry_batch: int,
-        pace: Pace,
-        dynamic_null: bool,
-        on_sample: Callable[[Telemetry], None] | None,
-        should_abort: Callable[[], bool] | None,
-        should_pause: Callable[[], bool] | None,
-    ) -> None:
-        super().__init__(float(world.config.time_step_s), capacity_s, telemetry_batch, on_sample, world.joint_lower,
-                         world.joint_upper)  # fmt: skip
-        self.world = world
-        self.controller = controller
-        self.realtime = pace is Pace.realtime
-        self.dynamic_null = dynamic_null
-        self.should_abort = should_abort
-        self.should_pause = should_pause
+    def _engine_state(self, robot: Robot) -> None:
+        """The world and the compiled step's own state."""
+        assert isinstance(robot, SimWorld), robot
+        self.world = world = robot
         self.handles = world.loop_handles()
         self.state = np.zeros(_S_SIZE)
         """The compiled step's own state (layout ``_S_*``): the law's output, the CF rotation in use, the world's torque
@@ -320,7 +302,4 @@ class ControlLoop(RecordingLoop):
             self.n, self.step_count = n, step_count
             self.world.loop_ended(step_count - first_step, clipped_steps, clipped)
             self.touched = touched
-        if plan.exhausted_reason is not None:
-            guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
-            raise ExecutionAbortError(plan.exhausted_reason + guarded)
-        return PlanEnd.done
+        return self._ran_to_the_end(plan, guard)
