@@ -57,6 +57,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_dmp_peer.py
 	$(BIN)/python benchmarks/bench_control_loop.py --repeats 5
 	$(BIN)/python benchmarks/bench_mujoco_loop.py
+	$(BIN)/python benchmarks/bench_engines.py
 	$(BIN)/python benchmarks/bench_telemetry.py
 	$(BIN)/python benchmarks/bench_service.py
 	$(BIN)/python benchmarks/bench_service_load.py

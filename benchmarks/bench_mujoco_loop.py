@@ -92,10 +92,9 @@ def interface_loop(robot: MujocoRobot, q0: np.ndarray) -> Callable[[int], None]:
         for _ in range(steps):
             q, qd = robot.joint_state()
             tau = robot.gravity_coriolis_torques() + robot.mass_matrix() @ (100.0 * (q0 - q) - 20.0 * qd)
-            robot.command_torques(tau + robot.jacobian().T @ push)
-            robot.step()
+            robot.step(tau + robot.jacobian().T @ push)
             robot.true_contact()
-            robot.wrist_wrench()
+            robot.contact_wrench()
 
     return run
 

@@ -45,6 +45,9 @@ def register(commands: argparse._SubParsersAction) -> None:
                           "delay, 200 Hz filter, tool inertia) or the exact contact wrench")  # fmt: skip
     sim.add_argument("--controller", choices=CONTROLLERS,
                      default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
+    sim.add_argument("--engine", choices=["pybullet", "mujoco"], default="pybullet",
+                     help="the physics engine: pybullet (the compiled loop) or mujoco (the same cell in MuJoCo; its "
+                          "loop in Python), docs/ENGINES.md")  # fmt: skip
     sim.add_argument(
         "--pace",
         choices=PACES,
@@ -97,6 +100,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         )
         settings = ExecutionSettings(
             controller=args.controller,
+            engine=args.engine,
             environment={
                 "offset": args.offset,
                 "unknown_offset": args.unknown_offset,

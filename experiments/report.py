@@ -28,6 +28,7 @@ from experiments.cases import (
     fmt,
 )
 from experiments.contour_stress import RESULTS_SECTION
+from experiments.cross_engine import CROSS_ENGINE_SECTION
 from experiments.sweep import SWEEPS_SECTION
 from services.machine import machine_line
 
@@ -618,12 +619,14 @@ def results_markdown(options: DemoOptions, report: DemoReport) -> str:
 
 def write_results(options: DemoOptions, report: DemoReport) -> Path:
     """Write RESULTS.md, keeping the generated sections it may hold: the sweeps (``contact-skills sweep --results``)
-    and the contour stress table (``benchmarks/bench_contours.py``)."""
+    the contour stress table (``benchmarks/bench_contours.py``) and the cross-engine table
+    (``benchmarks/bench_engines.py``)."""
     from services.doc_sections import section_of
 
     options.out.mkdir(parents=True, exist_ok=True)
     path = options.out / "RESULTS.md"
     text = path.read_text() if path.exists() else ""
-    kept = [section for name in (SWEEPS_SECTION, RESULTS_SECTION) if (section := section_of(text, name))]
+    names = (SWEEPS_SECTION, RESULTS_SECTION, CROSS_ENGINE_SECTION)
+    kept = [section for name in names if (section := section_of(text, name))]
     path.write_text(results_markdown(options, report) + "".join(f"\n{section}\n" for section in kept))
     return path

@@ -23,6 +23,7 @@ from schemas.demonstration import (
 from schemas.execution import (
     ControllerGains,
     ControllerKind,
+    Engine,
     EnvironmentChange,
     ExecutionMetrics,
     ExecutionPhase,
@@ -65,6 +66,7 @@ __all__ = [
     "DemonstrationArrays",
     "DemonstrationMetadata",
     "DemonstrationSummary",
+    "Engine",
     "EnvironmentChange",
     "ExecutionCommand",
     "ExecutionMetrics",

@@ -1,6 +1,7 @@
 """``MujocoRobot``: the iiwa of the MuJoCo cell (``sim_mujoco.model``) behind what a 1 kHz control loop needs: joint
 state in, joint torques out, one time step, the clock, the wrist sensor's reading, and (a simulator's privilege) the
-true contact for scoring.
+true contact for scoring: an ``execution.robot.SimulatedRobot``, as PyBullet's ``SimWorld`` is (the law's robot
+state, the mass matrix, the tool pose and inverse kinematics from MuJoCo's own kinematics and Jacobians).
 
 Conventions (docs/CONVENTIONS.md): SI units; joints in rad, rad/s, N·m; the world frame; wrenches ``(f, m)`` applied
 BY the tool TO the environment, at the tool point, in the world frame; quaternions ``[x, y, z, w]``.
@@ -17,12 +18,22 @@ import mujoco
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from execution.kinematics import inverse_kinematics
 from schemas.world import SensorModel, WorldConfig
 from sim_mujoco.model import TOOL_SITE, MujocoCell, cell_model
 from sim_mujoco.sensing import TrueContact, true_contact, wrist_wrench
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.sensor import WrenchSensor
-from skills.quaternions import quaternion_from_matrix
+from skills.control.layouts import (
+    ROBOT_BIAS,
+    ROBOT_JACOBIAN,
+    ROBOT_POSITION,
+    ROBOT_Q,
+    ROBOT_QD,
+    ROBOT_QUAT,
+    ROBOT_ROTATION,
+    ROBOT_STATE_SIZE,
+)
 
 
 class MujocoRobot:
@@ -39,6 +50,12 @@ class MujocoRobot:
         self.model = self.cell.model
         self.data = mujoco.MjData(self.model)
         self.torque_limits = np.asarray(config.torque_limits_nm, dtype=float)
+        self.joint_lower, self.joint_upper = self.cell.joint_lower, self.cell.joint_upper
+        """The URDF's joint limits (7,) rad, not enforced (``execution.robot.Robot``)."""
+        self.step_count = 0
+        self._state = np.zeros(ROBOT_STATE_SIZE)
+        self._state_fresh = False
+        """The law's robot state (``skills.control.layouts.ROBOT_*``), rebuilt when first asked for after a step."""
         self._site = self.model.site(TOOL_SITE).id
         self._sensor = WrenchSensor(config.sensor, config.time_step_s)
         tool = config.tool
@@ -64,7 +81,22 @@ class MujocoRobot:
         self._sensor.reset()
         self._tare[:] = 0.0
         self.last_step_clipped = False
+        self.step_count = 0
+        self._state_fresh = False
         self._sample()
+
+    def set_joint_positions(self, q: ArrayLike, qd: ArrayLike | None = None) -> None:
+        """Teleport the joints to ``q`` (rad) with velocities ``qd`` (rad/s, default zero): the kinematics and the model
+        queries are the new state's; the contact and the sensor are not sampled (inverse kinematics teleports the arm
+        hundreds of times; the sensor has a state)."""
+        data = self.data
+        data.qpos[:N_JOINTS] = np.asarray(q, dtype=float)
+        data.qvel[:N_JOINTS] = 0.0 if qd is None else np.asarray(qd, dtype=float)
+        mujoco.mj_forward(self.model, data)
+        self._state_fresh = False
+
+    def close(self) -> None:
+        """Nothing to release (the model and data are Python objects; ``execution.robot.Robot``)."""
 
     @property
     def time_s(self) -> float:
@@ -92,16 +124,40 @@ class MujocoRobot:
         self.last_step_clipped = bool((np.abs(torques) > limits).any())
         self.data.qfrc_applied[:N_JOINTS] = np.clip(torques, -limits, limits)
 
-    def step(self) -> None:
-        """Advance one time step (``time_step_s``, 1 ms) under the commanded torques (module docstring)."""
+    def step(self, torque: ArrayLike) -> None:
+        """Command the joint torques ``torque`` (7,) N·m (:meth:`command_torques`: clipped) and advance one time step
+        (``time_step_s``, 1 ms) under them (module docstring)."""
+        self.command_torques(torque)
         mujoco.mj_step2(self.model, self.data)
         self._sample()
         mujoco.mj_step1(self.model, self.data)
+        self.step_count += 1
+        self._state_fresh = False
 
-    def wrist_wrench(self) -> NDArray[np.float64]:
+    def contact_wrench(self) -> NDArray[np.float64]:
         """The force/torque sensor's reading (6,) of the last step: the wrench the tool applies, at the tool point,
-        world frame (N, N·m), through the sensor model of ``config.sensor`` (a copy)."""
+        world frame (N, N·m), through the sensor model of ``config.sensor``, tared (a copy)."""
         return self._reading.copy()
+
+    @property
+    def sensor_ideal(self) -> bool:
+        """Whether the sensor reads the exact wrench (``execution.robot.Robot``)."""
+        return self._sensor.ideal
+
+    @property
+    def sensor_tare(self) -> NDArray[np.float64]:
+        """The offset the last :meth:`tare_sensor` removes from every reading (6,), tool frame, N and N·m (a copy)."""
+        return self._tare.copy()
+
+    def true_contact_wrench(self) -> NDArray[np.float64]:
+        """The exact wrench (6,) the tool applied in the last step, at the tool point, world frame, N, N·m."""
+        return self._truth.wrench.copy()
+
+    def true_normal_force(self) -> tuple[float, tuple[float, float, float]]:
+        """The exact force (N) the tool pressed with along the true surface normal in the last step, and that normal
+        (unit, into the surface, world; zeros without contact): :func:`sim_mujoco.sensing.true_contact`."""
+        nx, ny, nz = self._truth.normal.tolist()
+        return self._truth.normal_force_n, (nx, ny, nz)
 
     def true_contact(self) -> TrueContact:
         """The exact contact of the last step (:class:`~sim_mujoco.sensing.TrueContact`: the applied wrench, the
@@ -125,9 +181,36 @@ class MujocoRobot:
 
     # -- model queries (the new state's, after mj_step1) -------------------------------------------------------
 
+    def robot_state(self) -> NDArray[np.float64]:
+        """This step's state as the control law reads it (``skills.control.layouts.ROBOT_*``: joints, tool pose,
+        Jacobian of the tool point in world axes, gravity and Coriolis torques), the same array every step (read-only
+        by contract, as ``SimWorld.robot_state``; rebuilt when first asked for after a step or a teleport)."""
+        if not self._state_fresh:
+            state, data = self._state, self.data
+            rotation = self._rotation()
+            state[ROBOT_Q], state[ROBOT_QD] = data.qpos[:N_JOINTS], data.qvel[:N_JOINTS]
+            state[ROBOT_POSITION], state[ROBOT_QUAT] = data.site_xpos[self._site], self._quaternion()
+            state[ROBOT_ROTATION] = rotation.ravel()
+            state[ROBOT_JACOBIAN] = self.jacobian().ravel()
+            state[ROBOT_BIAS] = data.qfrc_bias[:N_JOINTS]
+            self._state_fresh = True
+        return self._state
+
     def tool_pose(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Tool point position (3,) m and orientation ``[x, y, z, w]`` (4,), world frame."""
-        return self.data.site_xpos[self._site].copy(), quaternion_from_matrix(self._rotation())
+        return self.data.site_xpos[self._site].copy(), self._quaternion()
+
+    def tool_rotation(self) -> NDArray[np.float64]:
+        """The tool orientation (3, 3), world from tool."""
+        return self._rotation()
+
+    def inverse_kinematics(
+        self, position: ArrayLike, quat: ArrayLike, q_seed: ArrayLike | None = None, **options: float
+    ) -> NDArray[np.float64]:
+        """Joint positions (7,) rad putting the tool point at ``position`` with orientation ``quat`` (xyzw), world
+        frame: ``execution.kinematics.inverse_kinematics`` (its keyword ``options``) on MuJoCo's kinematics, as
+        ``SimWorld.inverse_kinematics`` on PyBullet's. The state is restored; ValueError when not reached."""
+        return inverse_kinematics(self, position, quat, q_seed, **options)
 
     def jacobian(self) -> NDArray[np.float64]:
         """Geometric Jacobian (6, 7) of the tool point, world frame: ``[v; ω] = J qd``."""
@@ -150,6 +233,13 @@ class MujocoRobot:
     def _rotation(self) -> NDArray[np.float64]:
         """The tool orientation (3, 3), world from tool, of the state the kinematics were last computed for."""
         return self.data.site_xmat[self._site].reshape(3, 3).copy()
+
+    def _quaternion(self) -> NDArray[np.float64]:
+        """The tool orientation ``[x, y, z, w]`` (4,), world from tool, of the same state as :meth:`_rotation`:
+        MuJoCo's ``mju_mat2Quat`` (scalar-first, reordered here; a tenth of scipy's cost, every step)."""
+        wxyz = np.empty(4)
+        mujoco.mju_mat2Quat(wxyz, self.data.site_xmat[self._site])
+        return wxyz[[1, 2, 3, 0]]
 
     def _sample(self) -> None:
         """The truth and the sensor's reading of the forces just computed (the sensor samples every step)."""

@@ -27,83 +27,33 @@ the controller makes in Python.
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from execution.contact_detection import ContactGuard
-from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
-from execution.runner import ContactLostError, ExecutionAbortError, PlanEnd
+from execution.plans import PhasePlan
+from execution.robot import Robot
+from execution.runner import (
+    CONTACT_LOSS_TRAVEL_M,
+    NULL_SPACE_UPDATE_STEPS,
+    REALTIME_CHECK_STEPS,
+    UNGUARDED,
+    ContactLostError,
+    ExecutionAbortError,
+    PlanEnd,
+    RecordingLoop,
+)
 from execution.surface_following import SurfaceFollower
-from execution.telemetry import Telemetry
-from schemas.execution import PHASE_CODES, TELEMETRY_COLUMNS, TELEMETRY_WIDTH, ExecutionPhase, Pace
+from execution.telemetry import record_row
+from schemas.execution import PHASE_CODES, ExecutionPhase
 from sim_worker.arm_model import arm_mass_matrix
 from sim_worker.compiled_calls import state_reader, stepper
 from sim_worker.contact_sensing import CONTACT_APPLIED, CONTACT_MEASURED, CONTACT_NORMAL
 from sim_worker.world import SimWorld
 from skills.compiled import compiled_entry
-from skills.control import HybridController, law_step_packed, layouts
-
-NULL_SPACE_UPDATE_STEPS = 20
-"""The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
-CONTACT_LOSS_TRAVEL_M = 0.01
-"""In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
-(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
-UNGUARDED = ContactGuard(math.inf)
-"""The guard of a phase without a stop axis (it reads nothing; a contact phase names the approaches' guard in its
-reasons)."""
-REALTIME_CHECK_STEPS = 10
-"""With pace realtime, the loop sleeps to follow the wall clock every this many steps."""
-
-
-# Telemetry columns (schemas.execution.TELEMETRY_COLUMNS) and arm state entries, as plain ints for the compiled step.
-_C_T, _C_PHASE, _C_SEGMENT = (TELEMETRY_COLUMNS[c].start for c in ("t", "phase", "segment_index"))
-_C_POSE = TELEMETRY_COLUMNS["tool_position"].start  # position then orientation
-_C_REFERENCE = TELEMETRY_COLUMNS["reference_position"].start  # position then orientation
-_C_WRENCH, _C_WRENCH_CF = TELEMETRY_COLUMNS["wrench_world"].start, TELEMETRY_COLUMNS["wrench_cf"].start
-_C_DESIRED, _C_CONTACT = TELEMETRY_COLUMNS["desired_force_cf_z_n"].start, TELEMETRY_COLUMNS["in_contact"].start
-_C_TRUE_NORMAL = TELEMETRY_COLUMNS["normal_force_true_n"].start  # force then the normal (3)
-_R_POSE = layouts.ROBOT_POSITION.start  # position then quaternion
-_REFERENCE_FORCE = layouts.REFERENCE_FORCE
-
-
-@numba.njit(cache=True)
-def _record_row(
-    robot, reference, wrench, cf_rotation, in_contact, normal, rows, n, t, phase, segment
-):  # pragma: no cover - compiled
-    """Telemetry row ``n`` of ``rows`` for one control step, in one compiled call (:data:`TELEMETRY_COLUMNS`: the
-    state measured before the step, its reference and desired force, the measured wrench in world and CF axes
-    (``R^T f``, ``R^T m``, ``cf_rotation`` (9,) by rows), the true normal force and direction ``normal`` (4,)).
-    Returns the control law's contact flag: the CF-z force above half the desired one, at most 0.5 N."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (
-        cf_rotation[0], cf_rotation[1], cf_rotation[2], cf_rotation[3], cf_rotation[4], cf_rotation[5],
-        cf_rotation[6], cf_rotation[7], cf_rotation[8],
-    )  # fmt: skip
-    fx, fy, fz, mx, my, mz = wrench[0], wrench[1], wrench[2], wrench[3], wrench[4], wrench[5]
-    row = rows[n]
-    row[_C_T], row[_C_PHASE], row[_C_SEGMENT] = t, phase, segment
-    for i in range(7):  # tool pose (position, quaternion); reference pose, the same layout
-        row[_C_POSE + i] = robot[_R_POSE + i]
-        row[_C_REFERENCE + i] = reference[i]
-    for i in range(6):
-        row[_C_WRENCH + i] = wrench[i]
-    cf = _C_WRENCH_CF
-    row[cf] = fx * r00 + fy * r10 + fz * r20
-    row[cf + 1] = fx * r01 + fy * r11 + fz * r21
-    row[cf + 2] = fx * r02 + fy * r12 + fz * r22
-    row[cf + 3] = mx * r00 + my * r10 + mz * r20
-    row[cf + 4] = mx * r01 + my * r11 + mz * r21
-    row[cf + 5] = mx * r02 + my * r12 + mz * r22
-    f_des = reference[_REFERENCE_FORCE]
-    row[_C_DESIRED] = f_des
-    row[_C_CONTACT] = 1.0 if in_contact else 0.0
-    for i in range(4):  # the true normal force and the normal
-        row[_C_TRUE_NORMAL + i] = normal[i]
-    return row[cf + 2] > min(0.5, 0.5 * f_des)
-
+from skills.control import law_step_packed, layouts
 
 # Layout of the loop's own state array (ControlLoop.run_plan), read and written by its compiled step: the law's output
 # (the torque first), the CF rotation of the frame in use (by rows), the torque limits the world clips to, the time
@@ -123,14 +73,14 @@ _TWIST0, _TWIST1 = layouts.REFERENCE_TWIST.start, layouts.REFERENCE_TWIST.stop
 def _record(
     robot, contact, reading_at, touching, state, rows, references, k, paused, n, step_count
 ):  # pragma: no cover - compiled
-    """Telemetry row ``n`` of step ``step_count`` (:func:`_record_row`) from the arm state ``robot``, the contact buffer
-    ``contact`` (its reading at ``reading_at``, the true normal) and the plan's reference row ``k`` (its twist zero
-    when ``paused``); returns the law's contact flag."""
+    """Telemetry row ``n`` of step ``step_count`` (``execution.telemetry.record_row``) from the arm state ``robot``,
+    the contact buffer ``contact`` (its reading at ``reading_at``, the true normal) and the plan's reference row ``k``
+    (its twist zero when ``paused``); returns the law's contact flag."""
     reference = references[k]
     if paused:  # hold the reference: zero reference twist
         reference = reference.copy()
         reference[_TWIST0:_TWIST1] = 0.0
-    return _record_row(
+    return record_row(
         robot, reference, contact[reading_at : reading_at + 6], state[_S_CF : _S_CF + 9], touching,
         contact[_NORMAL0 : _NORMAL0 + 4], rows, n, step_count * state[_S_DT], state[_S_PHASE], state[_S_SEGMENT],
     )  # fmt: skip
@@ -227,85 +177,22 @@ class _PhaseState:
         self.mass_of = compiled_entry(arm_mass_matrix, (self.model, self.q))
 
 
-class ControlLoop:
-    """Runs phase plans on ``world`` with ``controller`` at the world's time step, recording every step.
+class ControlLoop(RecordingLoop):
+    """Runs phase plans on PyBullet's ``world`` (a ``SimWorld``) with ``controller`` at the world's time step,
+    recording every step (the arguments: ``execution.runner.RecordingLoop``)."""
 
-    ``capacity_s`` (s): the rows allocated at first (they grow by doubling); ``telemetry_batch`` rows per
-    ``on_sample`` call; ``pace`` realtime sleeps to follow the wall clock; ``dynamic_null`` refreshes the mass matrix
-    for the null-space projector; ``should_abort()`` is polled after every step, ``should_pause()`` before;
-    """
+    world: SimWorld
 
-    def __init__(
-        self,
-        world: SimWorld,
-        controller: HybridController,
-        capacity_s: float,
-        telemetry_batch: int,
-        pace: Pace,
-        dynamic_null: bool,
-        on_sample: Callable[[Telemetry], None] | None,
-        should_abort: Callable[[], bool] | None,
-        should_pause: Callable[[], bool] | None,
-    ) -> None:
-        self.world = world
-        self.controller = controller
-        self.dt = float(world.config.time_step_s)
-        self.telemetry_batch = telemetry_batch
-        self.realtime = pace is Pace.realtime
-        self.dynamic_null = dynamic_null
-        self.on_sample = on_sample
-        self.should_abort = should_abort
-        self.should_pause = should_pause
-        self.capacity = max(4096, round(capacity_s / self.dt))
-        self.rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
-        self.n = 0
-        """Rows recorded."""
-        self.emitted = 0
-        self.step_count = 0
-        self.wall_start = time.perf_counter()
-        """When the loop began (the realtime pace follows the wall clock from here), s."""
-        self.found_force: float | None = None
-        """The windowed reading along the stop axis when the last guarded phase met a surface, N."""
-        self.touched = False
-        """Whether the tool has touched anything (the simulator's contact) since the caller last cleared it."""
-        self.frame_log: list[tuple[int, float, float, float]] = []
-        """(telemetry row, CF z) each time the controller took a new control frame: the frames it actually used."""
-        self.cf_rotation = np.eye(3)
-        """The CF rotation of the control frame in use (world from CF)."""
+    def _engine_state(self, robot: Robot) -> None:
+        """The world and the compiled step's own state."""
+        assert isinstance(robot, SimWorld), robot
+        self.world = world = robot
         self.handles = world.loop_handles()
         self.state = np.zeros(_S_SIZE)
         """The compiled step's own state (layout ``_S_*``): the law's output, the CF rotation in use, the world's torque
         limits, the time step, the phase and segment recorded."""
         self.state[_S_LIMITS : _S_LIMITS + 7] = self.handles.torque_limits
         self.state[_S_DT] = self.dt
-
-    def telemetry(self, copy: bool = True) -> Telemetry:
-        """The rows recorded so far: a copy, or (``copy`` False, for the caller that is done with the loop) a view of
-        the loop's own rows, which the next recorded row would change (no second copy of a minute's 17 MB; the rows
-        allocated beyond them were never written, so not resident)."""
-        rows = self.rows[: self.n]
-        return Telemetry(rows.copy() if copy else rows)
-
-    def recent(self, duration_s: float) -> Telemetry:
-        """The rows of the last ``duration_s`` (s) recorded (a view: read it before the loop runs on)."""
-        return Telemetry(self.rows[max(0, self.n - round(duration_s / self.dt)) : self.n])
-
-    def _grow(self, n: int) -> tuple[NDArray[np.float64], int]:
-        """Double the rows allocated, the ``n`` recorded kept; return the new rows and capacity."""
-        self.n = n
-        self.capacity *= 2
-        rows = np.zeros((self.capacity, TELEMETRY_WIDTH))
-        rows[: self.n] = self.rows[: self.n]
-        self.rows = rows
-        return rows, self.capacity
-
-    def emit(self, final: bool = False) -> None:
-        """Hand the rows recorded since the last batch to ``on_sample`` (a full batch, or whatever is left when
-        ``final``)."""
-        pending = self.n - self.emitted
-        if self.on_sample is not None and pending > 0 and (final or pending >= self.telemetry_batch):
-            self.on_sample(Telemetry(self.rows[self.emitted : self.n].copy()))
-            self.emitted = self.n
 
     def run_plan(
         self,
@@ -325,12 +212,12 @@ class ControlLoop:
         law_buffer, state, record_and_control, mass_of = kernel.buffer, self.state, ph.record_and_control, ph.mass_of
         stop_axis, window, window_threshold = ph.stop_axis, ph.window, ph.window_threshold
         window_readings, window_sum, window_slot = [0.0] * window, 0.0, 0
-        touched, frame_log, dt, realtime = self.touched, self.frame_log, self.dt, self.realtime
+        touched, frame_log, realtime = self.touched, self.frame_log, self.realtime
         single = current = ph.single
         series, stride, next_frame_step, frame = plan.series, plan.stride, 0, None
         should_abort, should_pause = self.should_abort, self.should_pause
         r02 = r12 = r22 = 0.0
-        p_tracked, step_tracked, clipped, sampled_touching = None, 0, False, ph.sampled_touching
+        clipped, sampled_touching, self._tracked = False, ph.sampled_touching, None
         n, rows, capacity, step_count = self.n, self.rows, self.capacity, self.step_count
         first_step, clipped_steps, next_emit = step_count, 0, self.emitted + ph.batch
         try:
@@ -397,13 +284,7 @@ class ControlLoop:
                         self.found_force = window_sum / window
                         return PlanEnd.contact
                 if follower is not None and follower.due(k):
-                    p_now = p.tolist()
-                    velocity = [0.0, 0.0, 0.0]
-                    if p_tracked is not None:
-                        span = (step_count - step_tracked) * dt
-                        velocity = [(a - b) / span for a, b in zip(p_now, p_tracked, strict=True)]
-                    single = follower.update(k, [fx, fy, fz], velocity, p_now, pressing, references)
-                    p_tracked, step_tracked = p_now, step_count
+                    single = self._follow(follower, k, [fx, fy, fz], p.tolist(), step_count, pressing, references)
                     if ph.next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
                 if ph.guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
@@ -414,40 +295,11 @@ class ControlLoop:
                         self.step_count = step_count
                         raise ContactLostError(self._loss_reason(plan.segment, beyond, touched, guard))
                 if realtime and step_count % REALTIME_CHECK_STEPS == 0:
-                    lag = step_count * dt - (time.perf_counter() - self.wall_start)
-                    if lag > 0:
-                        time.sleep(lag)
+                    self._keep_pace(step_count)
                 if not paused:
                     k += 1
         finally:
             self.n, self.step_count = n, step_count
             self.world.loop_ended(step_count - first_step, clipped_steps, clipped)
             self.touched = touched
-        if plan.exhausted_reason is not None:
-            guarded = "" if stop_axis is None else f": the sensor never read above {guard.describe()}"
-            raise ExecutionAbortError(plan.exhausted_reason + guarded)
-        return PlanEnd.done
-
-    def _loss_reason(self, segment: int, beyond_m: float, touched: bool, guard: ContactGuard) -> str:
-        """Why a contact phase stopped pressing into nothing ``beyond_m`` past its reference: the surface was lost,
-        or, when the tool never touched anything since its guarded approach began, never made (the approach took a
-        reading for the surface)."""
-        t = f"t = {self.step_count * self.dt:.3f} s"
-        retracted = f"the tool stopped pressing and retracted {CONTACT_LOSS_RETRACT_M * 1e3:.0f} mm"
-        if not touched:
-            found = "" if self.found_force is None else f" (it read {self.found_force:.2f} N)"
-            return (
-                f"no contact made in segment {segment} at {t}: the guarded approach stopped on a reading of the "
-                f"sensor above {guard.describe()}{found} without touching anything (a sensor offset or noise "
-                f"the tare did not remove?), and the tool found nothing {beyond_m * 1e3:.0f} mm beyond; {retracted}"
-            )
-        return (
-            f"contact lost in segment {segment} at {t}: no contact {beyond_m * 1e3:.0f} mm beyond the surface along "
-            f"CF z (an edge or a hole?); {retracted}"
-        )
-
-    def _joint_limit_reason(self, q: NDArray[np.float64]) -> str:
-        """Name the joint outside its URDF limits (PyBullet does not enforce them in torque mode)."""
-        lower, upper = self.world.joint_lower, self.world.joint_upper
-        j = int(np.argmax(np.maximum(lower - q, q - upper)))
-        return f"joint limit: joint {j + 1} at {q[j]:.3f} rad outside [{lower[j]:.3f}, {upper[j]:.3f}] rad"
+        return self._ran_to_the_end(plan, guard)

@@ -1,9 +1,12 @@
-"""Execute a learned skill in the simulated world (PyBullet) with the hybrid controller (the paper's section 6).
+"""Execute a learned skill in the simulated world (PyBullet or MuJoCo) with the hybrid controller (the paper's
+section 6).
 
-``execute_skill(skill, world_config, settings)`` builds a ``SimWorld`` (the taught world plus the known and the
-unknown offset of the work piece) and its 1 kHz loop (``sim_worker.control_loop.ControlLoop``), and hands them to
-``execution.executor.Execution``, which sequences the phases (settle, free motion, guarded approach, contact,
-retreat: its docstring) apart from the engine; the metrics and the verdict come from ``execution.metrics``.
+``execute_skill(skill, world_config, settings)`` builds the robot of the engine ``settings.engine`` names (the taught
+world plus the known and the unknown offset of the work piece): PyBullet's ``SimWorld`` and its compiled 1 kHz loop
+(``sim_worker.control_loop.ControlLoop``), or MuJoCo's ``sim_mujoco.robot.MujocoRobot`` and its loop
+(``sim_mujoco.loop.MujocoLoop``), and hands them to ``execution.executor.Execution``, which sequences the phases
+(settle, free motion, guarded approach, contact, retreat: its docstring) apart from the engine; the metrics and the
+verdict come from ``execution.metrics`` (the metrics name the engine).
 Every control step is recorded as one row of a float array (:data:`schemas.execution.TELEMETRY_COLUMNS`) and handed
 to ``on_sample`` in batches of ``telemetry_batch`` rows (a :class:`Telemetry` view). Aborts (force limit, torque
 limit, joint limit, contact not found, non-finite values, ``should_abort()``) stop the loop cleanly and are reported
@@ -21,9 +24,11 @@ from numpy.typing import NDArray
 
 from execution.executor import Execution
 from execution.metrics import compute_metrics
+from execution.robot import SimulatedRobot
+from execution.runner import PhaseRunner
 from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
-from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionSettings, NullSpaceProjection
+from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings, NullSpaceProjection
 from schemas.skill import Skill
 from schemas.world import WorldConfig
 from sim_worker.control_loop import ControlLoop
@@ -114,12 +119,21 @@ def execute_skill(
     t_setup = time.perf_counter()
     env = settings.environment
     config = shifted_world_config(world_config, np.asarray(env.offset, float) + np.asarray(env.unknown_offset, float))
-    world = SimWorld(config)
+    engine = Engine(settings.engine)
+    world: SimulatedRobot
+    loop_type: Callable[..., PhaseRunner]
+    if engine is Engine.mujoco:  # MuJoCo loaded by the executions that ask for it only
+        from sim_mujoco.loop import MujocoLoop
+        from sim_mujoco.robot import MujocoRobot
+
+        world, loop_type = MujocoRobot(config), MujocoLoop
+    else:
+        world, loop_type = SimWorld(config), ControlLoop
     dynamic_null = settings.gains.null_space is NullSpaceProjection.dynamic
 
-    def control_loop(controller: HybridController, capacity_s: float) -> ControlLoop:
-        return ControlLoop(world, controller, capacity_s, settings.telemetry_batch, settings.pace, dynamic_null,
-                           on_sample, should_abort, should_pause)  # fmt: skip
+    def control_loop(controller: HybridController, capacity_s: float) -> PhaseRunner:
+        return loop_type(world, controller, capacity_s, settings.telemetry_batch, settings.pace, dynamic_null,
+                         on_sample, should_abort, should_pause)  # fmt: skip
 
     execution = Execution(
         skill, settings, world, control_loop, (config.contact.stiffness_n_m, config.contact.damping_n_s_m)
@@ -136,6 +150,7 @@ def execute_skill(
     tel = loop.telemetry(copy=False)  # the loop is done
     log = execution.log(work_piece)
     metrics = compute_metrics(skill, tel, settings, phase, reason, loop_wall_s, log, demonstration, execution.dt)
+    metrics = metrics.model_copy(update={"engine": engine})
     return ExecutionResult(
         metrics=metrics,
         telemetry=tel,

@@ -13,10 +13,11 @@ import time
 import numpy as np
 
 from execution.plans import PhasePlan
+from execution.telemetry import record_row
 from schemas.execution import PHASE_CODES, TELEMETRY_WIDTH, ExecutionPhase, Pace
 from schemas.skill import SELECTION_CONTACT
 from schemas.world import WorldConfig
-from sim_worker.control_loop import ControlLoop, _record_row
+from sim_worker.control_loop import ControlLoop
 from sim_worker.sensor import WRIST_SENSOR
 from sim_worker.world import SimWorld
 from skills.control import HybridController, damping_matrix, pose_error
@@ -44,7 +45,7 @@ def warm_up() -> float:
         controller.step(frame, robot, reference, np.zeros(6), True, None, True)
         rows = np.zeros((1, TELEMETRY_WIDTH))
         phase = float(PHASE_CODES[ExecutionPhase.contact])
-        _record_row(robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0, 0.0, phase, 0.0)
+        record_row(robot, reference, np.zeros(6), np.eye(3).ravel(), True, np.zeros(4), rows, 0, 0.0, phase, 0.0)
     quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (11, 1))
     QuaternionDMP.fit(np.arange(11) * 0.01, quaternions).rollout(0.01)
     DMP.fit(np.arange(11) * 0.01, np.zeros((11, 3))).rollout(0.01)

@@ -40,8 +40,9 @@ import numpy as np
 import pybullet
 from numpy.typing import ArrayLike, NDArray
 
+from execution.kinematics import inverse_kinematics
 from schemas.world import SensorModel, WorldConfig
-from sim_worker.arm_model import Arm, inverse_kinematics
+from sim_worker.arm_model import Arm
 from sim_worker.bullet_client import BulletClient
 from sim_worker.contact_sensing import ContactSensing
 from sim_worker.geometry import WorldGeometry
@@ -429,7 +430,7 @@ class SimWorld:
         self, position: ArrayLike, quat: ArrayLike, q_seed: ArrayLike | None = None, **options: float
     ) -> NDArray[np.float64]:
         """Joint positions (7,) rad putting the tool point at ``position`` with orientation ``quat`` (xyzw), world
-        frame: ``sim_worker.arm_model.inverse_kinematics`` (its keyword ``options``) on this world. The simulated
+        frame: ``execution.kinematics.inverse_kinematics`` (its keyword ``options``) on this world. The simulated
         state is restored; ValueError when the target is not reached within 0.1 mm and 1 mrad."""
         return inverse_kinematics(self, position, quat, q_seed, **options)
 

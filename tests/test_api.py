@@ -17,7 +17,7 @@ from conftest import loopback_client as _client
 
 from corpus import kinesthetic
 from corpus.synthetic import plane_slide
-from schemas import Demonstration, ExecutionMetrics, TelemetryBatch
+from schemas import Demonstration, Engine, ExecutionMetrics, TelemetryBatch
 from schemas.api import ExecutionState
 from schemas.bus import ExecutionStatus, RecordReply
 from services.app import BusEvents, create_app
@@ -368,16 +368,19 @@ def test_execution_lifecycle_with_a_fake_bus(bus_client, demo):
     bad = c.post("/executions", json={"skill_id": skill_id, "environment": {"offset": [0, 0]}})
     assert _names(bad, "offset")
     assert _names(c.post("/executions", json={"skill_id": skill_id, "controller": "pid"}), "controller")
+    assert _names(c.post("/executions", json={"skill_id": skill_id, "engine": "ode"}), "engine")
     assert _names(c.post("/executions", json={"skill_id": skill_id, "gains": {"damping_ratio": -1}}), "damping_ratio")
     assert c.post("/executions", json={}).status_code == 422
 
-    body = {"skill_id": skill_id, "scenario": "slide_flat", "environment": {"unknown_offset": [0, 0, 0.02]}}
+    body = {"skill_id": skill_id, "scenario": "slide_flat", "environment": {"unknown_offset": [0, 0, 0.02]},
+            "engine": "mujoco"}  # fmt: skip
     response = c.post("/executions", json=body)
     assert response.status_code == 202, response.text
     created = response.json()
     exec_id = created["id"]
     assert created["telemetry_key"] == f"cskills/exec/{exec_id}/telemetry" and created["worker_id"] == "w0"
     assert bus.started[0][0] == exec_id and bus.started[0][1].scenario == "slide_flat"
+    assert bus.started[0][1].engine is Engine.mujoco  # the worker is asked for the engine chosen
     assert c.get(f"/executions/{exec_id}").json()["status"] == "running"
 
     # status and telemetry arrive from "Zenoh threads"; batches out of order are stored in stream order

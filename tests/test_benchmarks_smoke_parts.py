@@ -82,3 +82,19 @@ def test_mujoco_loop_benchmark_smoke():
         force = numbers(row[4])[0]
         assert abs(force - (15.0 if row[0].startswith("table") else 0.0)) < 0.1, row
     assert "Through the robot interface the MuJoCo loop runs at" in out
+
+
+def test_engines_benchmark_smoke():
+    """The first case on both engines: two rows, both done and passed, MuJoCo's true RMS within 2 points of PyBullet's,
+    and the MuJoCo loop's real-time factor beside the bare loop's."""
+    out = run_smoke("bench_engines.py")
+    rows = table(out, "case | engine | final")
+    assert [row[1] for row in rows] == ["pybullet", "mujoco"]
+    for row in rows:
+        assert row[2] == "done" and row[7] == "pass", row
+        assert finite(*numbers(row[3])) and numbers(row[3])[0] < 3.0, row  # true RMS, % of the taught force
+    [difference] = table(out, "case | Δ true RMS")
+    assert abs(numbers(difference[1])[0]) <= 2.0 and difference[3] == "yes" and difference[4] == "yes", difference
+    [loop, bare, _] = table(out, "loop | real-time factor")
+    assert numbers(loop[1])[0] > 0 and numbers(bare[1])[0] > 0
+    assert "of the bare MuJoCo loop's real-time factor" in out

@@ -45,8 +45,7 @@ def press(robot: MujocoRobot, q_d: np.ndarray, force_n: float, steps: int, stiff
     for _ in range(steps):
         q, qd = robot.joint_state()
         tau = robot.gravity_coriolis_torques() + robot.mass_matrix() @ (stiffness * (q_d - q) - damping * qd)
-        robot.command_torques(tau + robot.jacobian().T @ push)
-        robot.step()
+        robot.step(tau + robot.jacobian().T @ push)
 
 
 def test_the_arm_has_pybullets_mass_matrix_gravity_tool_pose_and_limits(pybullet_world):
@@ -175,29 +174,18 @@ def test_the_wrist_sensor_reads_the_contact_wrench_with_the_tool_weight_compensa
     """Hanging still: the wrist reads nothing (the tool's weight compensated); pressing: the true contact wrench."""
     config = WorldConfig().replace(sensor={"model": "wrist"})
     robot = MujocoRobot(config)
-    robot.command_torques(robot.gravity_coriolis_torques())
-    robot.step()
-    np.testing.assert_allclose(robot.wrist_wrench(), np.zeros(6), atol=1e-6)
+    robot.step(robot.gravity_coriolis_torques())
+    np.testing.assert_allclose(robot.contact_wrench(), np.zeros(6), atol=1e-6)
     robot.reset(pose_above_table(pybullet_world, 15.0 / config.contact.stiffness_n_m))
     press(robot, robot.joint_state()[0], 15.0, 1000)
-    np.testing.assert_allclose(robot.wrist_wrench(), robot.true_contact().wrench, atol=0.02)
-    assert robot.wrist_wrench()[2] == pytest.approx(-15.0, rel=0.01)
+    np.testing.assert_allclose(robot.contact_wrench(), robot.true_contact().wrench, atol=0.02)
+    assert robot.contact_wrench()[2] == pytest.approx(-15.0, rel=0.01)
 
 
 def hold_still(engine: MujocoRobot | SimWorld) -> np.ndarray:
     """One step of either engine under its gravity and Coriolis torques; the sensor's reading after it."""
-    hold = engine.gravity_coriolis_torques()
-    if isinstance(engine, MujocoRobot):
-        engine.command_torques(hold)
-        engine.step()
-        return engine.wrist_wrench()
-    engine.step(hold)
+    engine.step(engine.gravity_coriolis_torques())
     return engine.contact_wrench()
-
-
-def reading(engine: MujocoRobot | SimWorld) -> np.ndarray:
-    """The sensor's reading of the last step, either engine."""
-    return engine.wrist_wrench() if isinstance(engine, MujocoRobot) else engine.contact_wrench()
 
 
 def test_the_sensor_model_reads_as_pybullets_with_bias_offset_and_tare():
@@ -212,7 +200,7 @@ def test_the_sensor_model_reads_as_pybullets_with_bias_offset_and_tare():
                 engine.reset(q)
                 readings[name].append(hold_still(engine))
                 engine.tare_sensor([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
-                readings[name] += [reading(engine), hold_still(engine)]
+                readings[name] += [engine.contact_wrench(), hold_still(engine)]
     for mujoco_reading, bullet_reading in zip(readings["mujoco"], readings["pybullet"], strict=True):
         np.testing.assert_allclose(mujoco_reading, bullet_reading, atol=1e-4)
     # Untared, the reading is the bias plus the offset turned with the tool; tared, the bias alone.
@@ -244,7 +232,7 @@ def test_a_joint_impedance_comes_down_from_above_and_presses_with_its_force(pybu
     truth = robot.true_contact()
     assert truth.in_contact and robot.time_s == pytest.approx(1.5)
     assert truth.normal_force_n == pytest.approx(force, rel=0.02)
-    assert robot.wrist_wrench()[2] == pytest.approx(-force, abs=0.5)
+    assert robot.contact_wrench()[2] == pytest.approx(-force, abs=0.5)
 
 
 def test_touch_down_peaks_as_in_pybullet(pybullet_world):
@@ -306,11 +294,7 @@ def test_below_the_cone_the_tool_sticks_as_in_pybullet(pybullet_world):
             q, qd = engine.joint_state()
             tau = engine.gravity_coriolis_torques() + engine.mass_matrix() @ (100.0 * (start - q) - 20.0 * qd)
             tau += engine.jacobian().T @ push
-            if engine is robot:
-                robot.command_torques(tau)
-                robot.step()
-            else:
-                pybullet_world.step(tau)
+            engine.step(tau)
         moved.append(engine.tool_pose()[0][0] - x0)
     assert np.abs(moved).max() < 1e-4, moved
 

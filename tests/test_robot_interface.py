@@ -8,6 +8,7 @@ import numpy as np
 
 from execution.robot import Robot, SimulatedRobot
 from schemas.skill import SELECTION_CONTACT
+from sim_mujoco.robot import MujocoRobot
 from sim_worker.world import SimWorld
 from skills.control import HybridController
 from skills.control.layouts import REFERENCE_FORCE, REFERENCE_POSITION, REFERENCE_QUAT, REFERENCE_SIZE, REFERENCE_TWIST
@@ -51,3 +52,23 @@ def test_pybullets_world_presses_through_the_robot_interface_as_its_true_contact
         np.testing.assert_allclose(normal, [0.0, 0.0, -1.0], atol=1e-6)  # into the table
         np.testing.assert_allclose(world.contact_wrench(), world.true_contact_wrench())  # the ideal sensor
         assert abs(world.contact_wrench()[2] + PRESS_N) < 0.5
+
+
+def test_mujocos_robot_presses_through_the_same_interface_as_its_true_contact_says() -> None:
+    robot = MujocoRobot()
+    assert isinstance(robot, SimulatedRobot) and isinstance(robot, Robot)
+    pressed(robot, STEPS)
+    assert robot.step_count == STEPS
+    force, normal = robot.true_normal_force()
+    assert abs(force - PRESS_N) < 0.5, force  # MuJoCo's contact force along its normal is the one asked for
+    np.testing.assert_allclose(normal, [0.0, 0.0, -1.0], atol=1e-6)  # into the table
+    np.testing.assert_allclose(robot.contact_wrench(), robot.true_contact_wrench())  # the ideal sensor
+    q_now = robot.joint_state()[0]
+    p, quat = robot.tool_pose()
+    target = p + np.array([0.05, -0.03, 0.08])  # inverse kinematics on MuJoCo's kinematics reaches another pose ...
+    solution = robot.inverse_kinematics(target, quat)
+    np.testing.assert_allclose(robot.joint_state()[0], q_now)  # ... and leaves the state as it was
+    robot.set_joint_positions(solution)
+    reached, reached_quat = robot.tool_pose()
+    np.testing.assert_allclose(reached, target, atol=1e-4)
+    assert abs(float(reached_quat @ quat)) > 1.0 - 1e-6

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.execution.environment import Offset3, Placement
-from schemas.execution.settings import ControllerKind
+from schemas.execution.settings import ControllerKind, Engine
 from schemas.execution.telemetry import ExecutionPhase
 from schemas.numbers import Real
 from schemas.verdict import ExecutionVerdict, SurfacePressed
@@ -39,6 +39,7 @@ class ExecutionMetrics(BaseModel):
     )
 
     controller: ControllerKind = Field(description="The control law that ran.")
+    engine: Engine = Field(Engine.pybullet, description="The physics engine it ran on.")
     phase: ExecutionPhase = Field(description="Final phase: done, aborted or failed.")
     force_rms_error_n: Real | None = Field(
         None,

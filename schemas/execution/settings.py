@@ -67,6 +67,15 @@ class Pace(StrEnum):
     fast = "fast"
 
 
+class Engine(StrEnum):
+    """The physics engine an execution runs on (docs/ENGINES.md): the same cell, controller and truth on either."""
+
+    pybullet = "pybullet"
+    """PyBullet (``sim_worker``): the compiled 1 kHz loop."""
+    mujoco = "mujoco"
+    """MuJoCo (``sim_mujoco``): the same world built from the same URDF and world config, its loop in Python."""
+
+
 class SurfaceWindowAction(StrEnum):
     """What a guarded approach does when it finds the surface outside the window it was taught to expect."""
 
@@ -202,6 +211,11 @@ class ExecutionSettings(BaseModel):
 
     environment: EnvironmentChange = Field(default_factory=EnvironmentChange)
     controller: ControllerKind = Field(ControllerKind.hybrid_cf, description="The control law.")
+    engine: Engine = Field(
+        Engine.pybullet,
+        description="The physics engine the execution runs on: pybullet (the compiled loop) or mujoco (the same "
+        "cell in MuJoCo, the same controller and truth; its loop in Python, slower). docs/ENGINES.md.",
+    )
     gains: ControllerGains = Field(default_factory=ControllerGains)
     approach_speed_m_s: Real = Field(
         0.03,
