@@ -33,6 +33,10 @@ EXAMPLES: dict[str, list[str]] = {
         "contact-skills export demo_3f2a9c01b2d4 -o scratch/demo.csv --t0 2 --t1 6",
         "contact-skills export scratch/slide_tilted.csv -o scratch/slide_tilted.mcap   # a local file, no API",
     ],
+    "plan": [
+        "contact-skills plan skill_5e6f7a8b9c0d -o scratch/plan.json --every 10   # from the API at --url",
+        "contact-skills plan scratch/skill.json -o scratch/plan.json --placement '{\"translation_m\": [0.55, 0, 0.2]}'",
+    ],
     "router": [
         "contact-skills router --listen tcp/127.0.0.1:7447",
         "contact-skills router --listen tls/0.0.0.0:7447 --users bus-keys/users.txt --tls-cert bus-keys/router.pem "

@@ -15,6 +15,7 @@ from cli import (
     demo_command,
     export_command,
     learn_command,
+    plan_command,
     record_command,
     service_commands,
     simulate_command,
@@ -34,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"contact-skills {package_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=LazyArgumentsParser)
     for module in (learn_command, record_command, simulate_command, bus_commands, service_commands, demo_command,
-                   export_command, sweep_command):  # fmt: skip
+                   export_command, plan_command, sweep_command):  # fmt: skip
         module.register(commands)
     polish(parser)
     return parser

@@ -343,6 +343,12 @@ class Client:
     def skill(self, skill_id: str) -> StoredSkill:
         return StoredSkill.model_validate(self._request("GET", f"/skills/{skill_id}").json())
 
+    def skill_plan(self, skill_id: str, every: int = 1, max_samples: int | None = None) -> bytes:
+        """A skill's nominal plan for a real cell as JSON bytes (``GET /skills/{id}/plan``, ``schemas.skill_plan``):
+        every ``every``-th control step; refused (``InvalidRequestError``) when over ``max_samples`` samples."""
+        params = {"every": every} | ({} if max_samples is None else {"max_samples": max_samples})
+        return self._request("GET", f"/skills/{skill_id}/plan", params=params).content
+
     def skills(self, limit: int = 100, offset: int = 0) -> list[SkillInfo]:
         return self._list("/skills", SkillInfo, limit, offset)
 

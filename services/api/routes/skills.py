@@ -1,16 +1,18 @@
 """``/skills``: learn one from a stored or an inline demonstration (``skills.parameterize.learn_skill``, in a learner
-process of ``services.learner_pool``: the event loop never waits on it), list, get, delete, and its MCAP (the robot,
-the demonstrated path and the learned compliant frames, for Foxglove)."""
+process of ``services.learner_pool``: the event loop never waits on it), list, get, delete, its MCAP (the robot,
+the demonstrated path and the learned compliant frames, for Foxglove) and its plan for a real cell."""
 
 from __future__ import annotations
 
 import asyncio
 from dataclasses import asdict
+from typing import Annotated
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from schemas.skill import MAX_JOINT_SAMPLES
+from schemas.skill_plan import MAX_PLAN_SAMPLES, SkillPlan
 from services.api import errors
 from services.api.deps import (
     READ_GUARD,
@@ -174,3 +176,30 @@ def get_skill_mcap(skill_id: str, store: StoreDep) -> Response:
     a = DemonstrationArrays(**{name: getattr(samples, name) for name in SAMPLE_ARRAYS})
     mcap = skill_mcap(a, Skill.model_validate_json(row.skill_json), skill_id, demonstration.created)
     return download(mcap.data, MCAP_MEDIA_TYPE, f"{skill_id}.mcap")
+
+
+@router.get("/skills/{skill_id}/plan", responses={200: {"model": SkillPlan}, **ERROR_RESPONSES})
+def get_skill_plan(
+    skill_id: str,
+    store: StoreDep,
+    every: Annotated[int, Query(ge=1, le=1000, description="Keep every N-th control step.")] = 1,
+    max_samples: Annotated[
+        int, Query(ge=1, le=MAX_PLAN_SAMPLES, description="Refuse (422) a plan of more samples than this.")
+    ] = MAX_PLAN_SAMPLES,
+) -> Response:
+    """A skill's nominal plan for a real cell (``schemas.skill_plan.SkillPlan``, docs/REAL_CELL.md): the phase
+    planner's references for every control step (timed poses, compliant frame, selection, desired force along CF z,
+    phase) with the default settings' controller gains, the skill as stored. 404 for an unknown id; 422 on
+    ``max_samples`` when the plan holds more samples than that (``every`` thins it)."""
+    from execution.plan_export import PlanTooLongError, skill_plan
+    from schemas.skill import Skill
+
+    row = store.skills.get(skill_id)
+    if row is None:
+        raise errors.not_found("skill", skill_id)
+    try:
+        plan = skill_plan(Skill.model_validate_json(row.skill_json), every=every, max_samples=max_samples,
+                          skill_id=skill_id)  # fmt: skip
+    except PlanTooLongError as exc:
+        raise errors.unprocessable(["query", "max_samples"], str(exc)) from None
+    return Response(plan.model_dump_json(), media_type="application/json")
