@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import api_settings, loopback_client
+from conftest import LiveApi, api_settings
 
 from cli.main import main
 from corpus import synthetic
@@ -107,16 +107,24 @@ def test_the_published_json_schema_is_the_models():
 
 
 def test_the_api_serves_the_plan_and_refuses_one_over_max_samples_naming_it(taught, tmp_path):
+    """``GET /skills/{id}/plan`` on a live API, directly and through `contact-skills plan ID` (the typed client)."""
+    import httpx
+
     from services.app import create_app
 
     _, skill = taught["slide"]
-    with loopback_client(create_app(api_settings(tmp_path), bus=None)) as client:
-        row = client.app.state.store.skills.add(skill.model_dump_json(), skill.skill_type, None, [])
-        plan = SkillPlan.model_validate_json(client.get(f"/skills/{row.id}/plan", params={"every": 20}).content)
-        assert plan.skill_id == row.id
+    app = create_app(api_settings(tmp_path), bus=None)
+    with LiveApi(app) as api, httpx.Client(base_url=api.url) as http:
+        skill_id = app.state.store.skills.add(skill.model_dump_json(), skill.skill_type, None, []).id
+        plan = SkillPlan.model_validate_json(http.get(f"/skills/{skill_id}/plan", params={"every": 20}).content)
+        assert plan.skill_id == skill_id
         assert plan.samples.position_m == skill_plan(skill, every=20).samples.position_m
-        too_long = client.get(f"/skills/{row.id}/plan", params={"max_samples": 100})
+        too_long = http.get(f"/skills/{skill_id}/plan", params={"max_samples": 100})
         assert too_long.status_code == 422
         problem = too_long.json()["detail"][0]
         assert problem["loc"] == ["query", "max_samples"] and "more than max_samples 100" in problem["msg"]
-        assert client.get("/skills/skill_000000000000/plan").status_code == 404
+        assert http.get("/skills/skill_000000000000/plan").status_code == 404
+        out = tmp_path / "plan.json"
+        assert main(["plan", skill_id, "-o", str(out), "--every", "20", "--url", api.url]) == 0
+        assert SkillPlan.model_validate_json(out.read_text()) == plan
+        assert main(["plan", skill_id, "-o", str(out), "--max-samples", "100", "--url", api.url]) == 2
