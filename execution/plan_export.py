@@ -153,7 +153,7 @@ def skill_plan(
     if keep.size > max_samples:
         raise PlanTooLongError(
             f"the plan has {keep.size} samples ({steps * dt:.1f} s at every={every}), more than max_samples "
-            f"{max_samples}: keep every {-(-steps // max_samples)}th step or fewer (every)"
+            f"{max_samples}: ask for every={-(-steps // max_samples)} or more"
         )
     selections = {s.index: s.selection for s in skill.segments}
     frames = [_frame_rows(plan, selections.get(plan.segment, [1.0] * 6)) for plan in plans]
