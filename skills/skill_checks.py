@@ -581,7 +581,7 @@ def type_evidence(classification: SkillClassification | None, chosen: SkillType,
 def demonstration_in_band(index: int, source: str, share: float) -> SkillCheck:
     """Check demonstration ``index`` (given as ``source``) against the force band the OTHER demonstrations give
     (leave-one-out: a band it is part of would be widened to hold it): ``share`` (0-1) of its contact samples press
-    within it (`skills.joint_learning.share_in_band`)."""
+    within it (`skills.force_band.share_in_band`)."""
     passed = share >= IN_BAND_SHARE
     verdict = "within" if passed else "outside"
     return SkillCheck(
