@@ -17,7 +17,7 @@ from schemas.verdict import (
     VerdictCheck,
     VerdictCheckName,
 )
-from skills import skill_checks
+from skills import recording_faults
 
 CREASE_MIN_DEG = 15.0
 """A switch between contact segments whose taught normals differ by less than this is not held to its crease: a
@@ -228,12 +228,12 @@ def _skill_checks_check(failed: list[SkillCheck], work_piece: str | None) -> Ver
     """The verdict's check of the skill's own ``failed`` checks against its demonstration: a warning, or a failure
     where the work piece carries what they found wrong, so that the run would confirm it: one rebuilt from what the
     skill learned (every check), or one measured from its demonstration (the checks of the recording itself,
-    ``skill_checks.RECORDING_CHECKS``)."""
+    ``recording_faults.RECORDING_CHECKS``)."""
     names = ", ".join(dict.fromkeys(c.name.value for c in failed))
     message = f"the skill fails {len(failed)} of its checks against its demonstration ({names}): {failed[0].message}"
     if work_piece == WorkPieceSource.rebuilt:
         carried = "was rebuilt from what the skill learned"
-    elif work_piece == WorkPieceSource.measured and any(c.name in skill_checks.RECORDING_CHECKS for c in failed):
+    elif work_piece == WorkPieceSource.measured and any(c.name in recording_faults.RECORDING_CHECKS for c in failed):
         carried = "was measured from the same recording"
     else:
         carried = None
