@@ -78,20 +78,24 @@ rows and text, the three held orientations.
 from __future__ import annotations
 
 import copy
-import io
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import distance_transform_edt, gaussian_filter1d
-from scipy.optimize import brentq
-from scipy.spatial.transform import Rotation
 
+from corpus.arm_log import (
+    FINE_DT,
+    arm_estimate_case,
+    arm_options,
+    in_plane_error,
+    log_rows,
+    slide_case,
+    tool_velocity,
+    written_log,
+)
 from corpus.build import (
-    TREMOR_FADE_S,
     UP,
-    Assembled,
     Fold,
     Piece,
     assemble,
@@ -105,12 +109,9 @@ from corpus.build import (
     timed,
     transfer,
 )
-from corpus.case import CorpusCase, sampled_case
+from corpus.case import CorpusCase
 from corpus.families import plane_stroke
 from corpus.force_sources import (
-    JOINT_FRICTION_SPEED_M_S,
-    LWR_COLUMNS,
-    LWR_JITTER_PERIODS,
     LWR_RATE_HZ,
     WIPE_AREAS,
     ArmEstimateRecording,
@@ -118,16 +119,13 @@ from corpus.force_sources import (
     _wipe_contacts,
     arm_draws,
     carried_weight,
-    friction_free_turn_deg,
     tool_centre,
     wipe_draws,
     wipe_lanes,
     wipe_passes,
 )
 from corpus.kinesthetic import OperatorModel, operator_forces
-from corpus.recording import FINE_RATE_HZ, recorded_case
-from corpus.synthetic import minimum_jerk
-from skills.quaternions import matrix_from_quaternion, quaternions_slerp
+from corpus.recording import recorded_case
 
 HOLDOUT_FAMILIES: tuple[str, ...] = ("lwr-wipe-curved", "tool-weight-line", "hand-on-arm", "lwr-circle")
 """The held-out families, in the order `holdout_cases` yields them."""
@@ -142,8 +140,6 @@ DRAG_N_S_M = (10.0, 25.0)
 """The hand's drag on the arm's links (`hand_on_arm_wipe_case`), N·s/m."""
 CIRCLE_RADIUS_M = (0.02, 0.04)
 """Radius of `lwr_circle_case`'s circle, m."""
-_FINE_DT = 1.0 / FINE_RATE_HZ
-"""Step of the fine simulation, s."""
 
 
 def _rng(seed: int, family: str) -> np.random.Generator:
@@ -200,226 +196,6 @@ class HandOnArmRecording(ArmEstimateRecording):
     hand_wander: NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class _LogRows:
-    """Where a torque-sensing arm's log takes its rows on a fine simulation: ``samples`` (M,) the fine samples of
-    the truth's uniform times ``k / LWR_RATE_HZ``; ``stamps`` (M,) s the rows' jittered time stamps (±
-    `LWR_JITTER_PERIODS` periods, the first and last exact); ``noise`` (M, 6) the rows' white noise (N, N·m);
-    ``seen`` (M, 3) N the force noise as a reader sees it on the uniform grid (interpolated between the stamps)."""
-
-    samples: NDArray[np.int_]
-    stamps: NDArray[np.float64]
-    noise: NDArray[np.float64]
-    seen: NDArray[np.float64]
-
-
-def _log_rows(fine: Assembled, noise_n: float, rng: np.random.Generator) -> _LogRows:
-    """The rows of a ~100 Hz arm log of ``fine`` with white noise of ``noise_n`` N on the forces, 0.05 N·m on the
-    moments (as `corpus.force_sources.lwr_wipe_case` takes them)."""
-    samples = np.arange(0, fine.t.size, round(FINE_RATE_HZ / LWR_RATE_HZ))
-    stamps = fine.t[samples] + rng.uniform(-LWR_JITTER_PERIODS, LWR_JITTER_PERIODS, samples.size) / LWR_RATE_HZ
-    stamps[[0, -1]] = fine.t[samples[[0, -1]]]
-    noise = rng.normal(0.0, noise_n, (samples.size, 6)) * np.repeat([1.0, 0.05 / noise_n], 3)
-    seen = np.stack([np.interp(fine.t[samples], stamps, column) for column in noise[:, :3].T], axis=1)
-    return _LogRows(samples, stamps, noise, seen)
-
-
-def _tool_velocity(fine: Assembled) -> NDArray[np.float64]:
-    """The tool point's velocity (N, 3) m/s on the fine grid, its positions smoothed over 5 ms (the hand's tremor
-    kept, the grid's steps not)."""
-    smoothed = gaussian_filter1d(fine.positions, 0.005 / _FINE_DT, axis=0, mode="nearest")
-    return np.gradient(smoothed, _FINE_DT, axis=0)
-
-
-def _joint_friction(fine: Assembled, joint_friction_n: float) -> NDArray[np.float64]:
-    """The arm's unmodelled joint friction as its estimate reads it in applied-by-tool terms (N, 3) N, world: along
-    the tool point's motion, ``joint_friction_n`` faded in over `JOINT_FRICTION_SPEED_M_S` (joint friction opposes
-    the joints' motion: a force on the robot against the motion, which the estimate reads as the tool applying it
-    along it; as `corpus.force_sources.lwr_wipe_case` has it)."""
-    velocity = _tool_velocity(fine)
-    speed = np.linalg.norm(velocity, axis=1, keepdims=True)
-    return joint_friction_n * np.tanh(speed / JOINT_FRICTION_SPEED_M_S) * velocity / np.maximum(speed, 1e-9)
-
-
-def _free_space_hand(fine: Assembled, flange: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:
-    """The hand's push on the arm that the estimate sees in free space only (N, 3) N, applied-by-tool terms, world,
-    as `corpus.force_sources.lwr_wipe_case` has it: `corpus.kinesthetic.operator_forces` of the flange's path (mass
-    2-4 kg, damping 10-20 N·s/m, wander 1.5-3 N), weighted 0 in contact rising to 1 over
-    `corpus.build.TREMOR_FADE_S` away from it (no step at a touch-down or a lift-off)."""
-    operator = OperatorModel(rng.uniform(2.0, 4.0), rng.uniform(10.0, 20.0), rng.uniform(1.5, 3.0))
-    away = minimum_jerk(distance_transform_edt(~fine.touching) * _FINE_DT / TREMOR_FADE_S)
-    return operator_forces(fine.t, flange, operator, rng) * away[:, None]
-
-
-def _turned(vectors: NDArray, axis: NDArray, angles: NDArray) -> NDArray[np.float64]:
-    """``vectors`` (N, 3) each turned by its ``angles`` (N,) rad about the unit ``axis`` (3,)."""
-    return Rotation.from_rotvec(np.outer(angles, axis)).apply(vectors)
-
-
-@dataclass(frozen=True)
-class _DirectionError:
-    """A configuration-dependent direction error: the estimate's force is the applied one turned about the unit
-    ``axis`` (world) by ``constant_rad + gain_rad_m * (p - origin) · gradient`` (rad), p the tool point (m), the
-    ``gradient`` a unit world direction."""
-
-    axis: NDArray[np.float64]
-    gradient: NDArray[np.float64]
-    origin: NDArray[np.float64]
-    constant_rad: float
-    gain_rad_m: float
-
-    def angles(self, positions: NDArray) -> NDArray[np.float64]:
-        """The turn (N,) rad at the tool points ``positions`` (N, 3) m."""
-        return self.constant_rad + self.gain_rad_m * ((positions - self.origin) @ self.gradient)
-
-    def parameters(self) -> dict[str, float]:
-        """The error as ``parameters`` entries, named as `corpus.force_sources.lwr_wipe_case` names them."""
-        params = {"direction_gradient_rad_m": self.gain_rad_m}
-        for name, vector in (("axis", self.axis), ("gradient", self.gradient), ("origin", self.origin)):
-            params |= {f"direction_{name}_{x}": float(v) for x, v in zip("xyz", vector, strict=True)}
-        return params
-
-
-def _scaled_error(
-    error: _DirectionError,
-    t: NDArray,
-    tip: NDArray,
-    force: NDArray,
-    extra: NDArray,
-    runs: list[slice],
-    target_deg: float,
-) -> _DirectionError:
-    """``error`` with its gain (rad/m) set so that the friction-free turn (`friction_free_turn_deg`, over each run of
-    ``runs``) of the turned ``force`` (N, 3) N plus ``extra`` (N, 3) N is ``target_deg`` midway between the least
-    and the most run; ``t`` (N,) s and ``tip`` (N, 3) m the tool point's samples. Scaled on what the file shows (the
-    joint friction and the noise a reader sees are in ``extra``), as `corpus.force_sources.lwr_wipe_case` scales
-    its error."""
-
-    def missing(gain: float) -> float:
-        turned = _turned(force, error.axis, replace(error, gain_rad_m=gain).angles(tip)) + extra
-        turns = [friction_free_turn_deg(t, tip, turned, run) for run in runs]
-        return 0.5 * (min(turns) + max(turns)) - target_deg
-
-    high = 5.0
-    while missing(high) < 0.0:
-        high *= 2.0
-    return replace(error, gain_rad_m=float(brentq(missing, 0.0, high, xtol=1e-4)))
-
-
-def _log_text(stamps: NDArray, fine: Assembled, path: NDArray, on_robot: NDArray) -> str:
-    """The CSV text (`corpus.force_sources.LWR_COLUMNS`) of an arm's log: at ``stamps`` (s) the position ``path``
-    (N, 3) m (the flange's, or the tool point's) and the tool's orientation of ``fine`` (both on its grid), and
-    ``on_robot`` (one (6,) row per stamp: the estimated wrench ON the robot, world, N and N·m)."""
-    position = np.stack([np.interp(stamps, fine.t, column) for column in path.T], axis=1)
-    table = np.column_stack([stamps, position, quaternions_slerp(stamps, fine.t, fine.orientations), on_robot])
-    text = io.StringIO()
-    np.savetxt(text, table, fmt=["%.6f"] + ["%.7g"] * 13, delimiter=",", header=",".join(LWR_COLUMNS), comments="")
-    return text.getvalue()
-
-
-@dataclass(frozen=True)
-class _Log:
-    """An arm's log written: its ``csv_text``, its ``offset`` (6,) as the file reads it (world, on the robot, N; no
-    moment offset), ``at_path`` (N, 6) the true applied wrench referred to the file's point (the force, and its
-    moment about that point; fine grid)."""
-
-    csv_text: str
-    offset: NDArray[np.float64]
-    at_path: NDArray[np.float64]
-
-
-def _written_log(
-    fine: Assembled, rows: _LogRows, path: NDArray, force: NDArray, offset_n: float, rng: np.random.Generator
-) -> _Log:
-    """The log of an arm estimating, at the point ``path`` (N, 3) m (fine grid), the force ``force`` (N, 3) N
-    (applied-by-tool terms, world, fine grid: the applied force and its errors) with the applied force's moment about
-    that point (the true moment at the tool point is zero), written as the wrench ON the robot with a constant offset
-    of ``offset_n`` N in a random world direction, at the ``rows``' stamps with their noise."""
-    applied = fine.wrenches[:, :3]
-    at_path = np.hstack([applied, np.cross(fine.positions - path, applied)])
-    offset = rng.normal(size=3)
-    offset *= offset_n / np.linalg.norm(offset)
-    estimate = np.hstack([force, at_path[:, 3:]])
-    on_robot = np.stack([np.interp(rows.stamps, fine.t, column) for column in (-estimate).T], axis=1) + rows.noise
-    on_robot[:, :3] += offset
-    return _Log(_log_text(rows.stamps, fine, path, on_robot), np.concatenate([offset, np.zeros(3)]), at_path)
-
-
-def _arm_options(name: str) -> dict[str, object]:
-    """The import options that read an arm's log right: the reaction (on the robot), world frame, 100 Hz."""
-    return {"wrench_convention": "measured-on-tool", "wrench_frame": "world", "rate_hz": LWR_RATE_HZ, "name": name}
-
-
-def _case(
-    name: str,
-    family: str,
-    fine: Assembled,
-    samples: NDArray,
-    params: dict[str, float],
-    recording: ArmEstimateRecording,
-) -> CorpusCase:
-    """The slide `CorpusCase` of ``fine`` at its ``samples`` (the truth at the tool point), recorded as
-    ``recording``; one truth segment per contact (`corpus.case.truth_segments`, found on the fine grid)."""
-    return sampled_case(name, family, "slide", fine, samples, params, recording)
-
-
-def _arm_estimate_case(
-    name: str,
-    family: str,
-    fine: Assembled,
-    params: dict[str, float],
-    rng: np.random.Generator,
-    error: _DirectionError,
-    runs: Callable[[NDArray, NDArray], list[slice]],
-) -> CorpusCase:
-    """``fine`` recorded by a torque-sensing arm's log as `corpus.force_sources.lwr_wipe_case` records its wipe: the
-    flange ``params['flange_offset_m']`` behind the tool point along tool z; the estimate the applied force turned
-    by ``error`` (its gain scaled so that the friction-free force turns ``params['direction_turn_deg']`` over the
-    ``runs(t, tip)`` of the truth's samples, midway between the least and the most), plus the joint friction, the
-    hand's push in free space, the offset and the noise. Adds the error's ``parameters``."""
-    lever = params["flange_offset_m"] * matrix_from_quaternion(fine.orientations)[:, :, 2]
-    flange = fine.positions - lever
-    joint_friction = _joint_friction(fine, params["joint_friction_n"])
-    hand = _free_space_hand(fine, flange, rng)
-    rows = _log_rows(fine, params["noise_n"], rng)
-    applied = fine.wrenches[:, :3]
-    s = rows.samples
-    t, tip = fine.t[s], fine.positions[s]
-    extra = joint_friction[s] - rows.seen
-    error = _scaled_error(error, t, tip, applied[s], extra, runs(t, tip), params["direction_turn_deg"])
-    params |= error.parameters()
-    direction_errors = _turned(applied, error.axis, error.angles(fine.positions)) - applied
-    log = _written_log(fine, rows, flange, applied + direction_errors + joint_friction + hand, params["offset_n"], rng)
-    recording = ArmEstimateRecording(
-        csv_text=log.csv_text,
-        import_options=_arm_options(name),
-        sensor_offset=log.offset,
-        hand_forces=hand[s],
-        flange_positions=flange[s],
-        flange_wrenches=log.at_path[s],
-        direction_errors=direction_errors[s],
-        joint_friction=joint_friction[s],
-    )
-    return _case(name, family, fine, s, params, recording)
-
-
-def _in_plane_error(
-    origin: NDArray, e_u: NDArray, out: NDArray, axis_deg: float, gradient_deg: float, constant_deg: float
-) -> _DirectionError:
-    """A direction error (gain still 0) about the in-plane axis ``e_u`` turned by ``axis_deg`` (deg) round ``out``
-    (the plane's outward normal), linear along ``e_u`` turned by ``gradient_deg``, from ``origin``."""
-    return _DirectionError(
-        axis=rotated(e_u, out, np.radians(axis_deg)),
-        gradient=rotated(e_u, out, np.radians(gradient_deg)),
-        origin=origin,
-        constant_rad=float(np.radians(constant_deg)),
-        gain_rad_m=0.0,
-    )
-
-
-# --------------------------------------------------------------------------- the families
-
-
 def _curved_radius_range(extent_m: float, length_m: float) -> tuple[float, float]:
     """The radii (m) of `lwr_wipe_curved_case`'s cylinder for contacts extending ``extent_m`` (m) across its axis
     over a strip ``length_m`` (m) long: within `CURVED_RADIUS_M`, the normal turning at most `CURVED_TURN_DEG`'s
@@ -461,7 +237,7 @@ def lwr_wipe_curved_case(seed: int = 0) -> CorpusCase:
     # axis (the lanes plus the touch-downs, lift-offs and U-turns beyond the strip's ends) sets the radius range.
     tangent = HorizontalCylinder(middle, axis, 1.0, tilt).e_u  # the chart's directions do not depend on the radius
     flat = Fold(middle, tangent, axis, 0.0, 1.0)
-    probe = _wipe_contacts(flat, *wipe, params["ramp_s"], copy.deepcopy(rng), _FINE_DT)
+    probe = _wipe_contacts(flat, *wipe, params["ramp_s"], copy.deepcopy(rng), FINE_DT)
     extent = float(np.ptp(np.concatenate([c.points for c in probe]) @ flat.e_u))
     low, high = _curved_radius_range(extent, shape.length_m)
     radius = low + where * (high - low)
@@ -474,22 +250,22 @@ def lwr_wipe_curved_case(seed: int = 0) -> CorpusCase:
     params |= {f"cylinder_axis_{x}": float(v) for x, v in zip("xyz", axis, strict=True)}
     params |= {f"cylinder_centre_{x}": float(v) for x, v in zip("xyz", part.centre, strict=True)}
     # The lanes run along the chart's e_u: across the axis, where the normal turns.
-    contacts = _wipe_contacts(part, *wipe, params["ramp_s"], rng, _FINE_DT)
-    pieces = _through_the_air(contacts, rng, _FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
-    fine = assemble(pieces, _FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
+    contacts = _wipe_contacts(part, *wipe, params["ramp_s"], rng, FINE_DT)
+    pieces = _through_the_air(contacts, rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
+    fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
     # The arm's error turns about an axis in the tangent plane at the strip's middle, near the lanes (as on the flat
     # strip, where that plane is the part's).
-    error = _in_plane_error(
+    error = in_plane_error(
         middle, part.e_u, part.out, rng.uniform(-15.0, 15.0), rng.uniform(-25.0, 25.0), params["direction_constant_deg"]
     )
     pressing = fine.plateau_id >= 0
 
     def passes(t: NDArray, tip: NDArray) -> list[slice]:
         # The lanes' direction at the strip's middle: a lane's own turns by half the normal's turn either side.
-        return wipe_passes(t, tip, pressing[np.rint(t / _FINE_DT).astype(int)], part.e_u, shape.length_m)
+        return wipe_passes(t, tip, pressing[np.rint(t / FINE_DT).astype(int)], part.e_u, shape.length_m)
 
     name = f"lwr-wipe-curved-s{seed}"
-    return _arm_estimate_case(name, "lwr-wipe-curved", fine, params, rng, error, passes)
+    return arm_estimate_case(name, "lwr-wipe-curved", fine, params, rng, error, passes)
 
 
 def _rest_axes(normal: NDArray, e_u: NDArray, rng: np.random.Generator) -> list[NDArray[np.float64]]:
@@ -508,7 +284,7 @@ def _straight_stroke(
     3-4 cm/s and ``cruise`` (m/s) between, pressing ``force_n`` (N) with ramps of ``ramp_s`` (s)."""
     s, xy = heading_path([rng.uniform(-np.pi, np.pi)], [length_m], 0.02)
     speed = speed_profile(rng.uniform(0.03, 0.04), cruise, rng.uniform(0.03, 0.04))
-    t, p = timed(s, plane.points(xy[:, 0], xy[:, 1]), _FINE_DT, speed)
+    t, p = timed(s, plane.points(xy[:, 0], xy[:, 1]), FINE_DT, speed)
     u, v = np.interp(p, s, xy[:, 0]), np.interp(p, s, xy[:, 1])
     return contact_piece(plane.points(u, v), plane.inward(u), t, force_n, ramp_s)
 
@@ -544,12 +320,12 @@ def tool_weight_line_case(seed: int = 0) -> CorpusCase:
     held = _rest_axes(stroke.normals[0], plane.e_u, rng)
     # One contact gives two rests (before the approach, after the retreat); the third orientation is held first,
     # 4-6 cm aside, so that a tare sees the weight turn in three orientations.
-    pieces = _through_the_air([stroke], rng, _FINE_DT, (0.08, 0.15), (1.0, 1.4), held[1:], (1.2, 1.5))
+    pieces = _through_the_air([stroke], rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), held[1:], (1.2, 1.5))
     start = pieces[0].points[0]
     first = start + rng.uniform(0.04, 0.06) * rotated(plane.e_u, plane.out, rng.uniform(-np.pi, np.pi))
-    move = transfer(first, start, held[1], rng.uniform(0.6, 0.9), _FINE_DT, 0.01)
-    pieces = [rest(first, held[0], rng.uniform(1.2, 1.5), _FINE_DT), move, *pieces]
-    fine = assemble(pieces, _FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
+    move = transfer(first, start, held[1], rng.uniform(0.6, 0.9), FINE_DT, 0.01)
+    pieces = [rest(first, held[0], rng.uniform(1.2, 1.5), FINE_DT), move, *pieces]
+    fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
     weight = carried_weight(fine.orientations, params)
     operator = OperatorModel(rng.uniform(3.0, 5.0), rng.uniform(15.0, 25.0), rng.uniform(1.0, 2.0))
     rate = float(rng.choice([100.0, 125.0, 200.0, 250.0]))
@@ -557,7 +333,7 @@ def tool_weight_line_case(seed: int = 0) -> CorpusCase:
     name = f"tool-weight-line-s{seed}"
     case = recorded_case(name, "tool-weight-line", "slide", sensed, params, rng, rate, False, operator)
     # The truth is the wrench the tool applies, without its weight.
-    return replace(case, wrenches=fine.wrenches[np.rint(case.t / _FINE_DT).astype(int)])
+    return replace(case, wrenches=fine.wrenches[np.rint(case.t / FINE_DT).astype(int)])
 
 
 def hand_on_arm_wipe_case(seed: int = 0) -> CorpusCase:
@@ -590,24 +366,24 @@ def hand_on_arm_wipe_case(seed: int = 0) -> CorpusCase:
     }
     plane = tilted_plane(params["tilt_deg"], rng)
     force, ramp, cruise = params["force_n"], params["ramp_s"], params["cruise_m_s"]
-    contacts = [plane_stroke(plane, "zigzag", rng, _FINE_DT, force, ramp, cruise)]
+    contacts = [plane_stroke(plane, "zigzag", rng, FINE_DT, force, ramp, cruise)]
     if params["strokes"] == 2.0:
         beside = Fold(plane.origin + 0.07 * plane.e_v, plane.e_u, plane.e_v, 0.0, plane.radius)
-        contacts.append(plane_stroke(beside, "zigzag", rng, _FINE_DT, force, ramp, cruise))
-    pieces = _through_the_air(contacts, rng, _FINE_DT, (0.08, 0.15), (1.0, 1.4), rest_s=(1.0, 1.5))
-    fine = assemble(pieces, _FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
+        contacts.append(plane_stroke(beside, "zigzag", rng, FINE_DT, force, ramp, cruise))
+    pieces = _through_the_air(contacts, rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), rest_s=(1.0, 1.5))
+    fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
     # The push on the robot: the drag along the tool point's motion (the hand drives the arm against its damping)
     # and a slow wander; in contact as in free space. In applied-by-tool terms (as the import reads it) negated.
-    drag = -params["drag_n_s_m"] * _tool_velocity(fine)
+    drag = -params["drag_n_s_m"] * tool_velocity(fine)
     wander = -operator_forces(fine.t, fine.positions, OperatorModel(0.0, 0.0, params["wander_n"]), rng)
-    rows = _log_rows(fine, params["noise_n"], rng)
+    rows = log_rows(fine, params["noise_n"], rng)
     applied = fine.wrenches[:, :3]
-    log = _written_log(fine, rows, fine.positions, applied + drag + wander, params["offset_n"], rng)
+    log = written_log(fine, rows, fine.positions, applied + drag + wander, params["offset_n"], rng)
     s = rows.samples
     name = f"hand-on-arm-s{seed}"
     recording = HandOnArmRecording(
         csv_text=log.csv_text,
-        import_options=_arm_options(name),
+        import_options=arm_options(name),
         sensor_offset=log.offset,
         hand_forces=drag[s] + wander[s],
         flange_positions=fine.positions[s],
@@ -617,7 +393,7 @@ def hand_on_arm_wipe_case(seed: int = 0) -> CorpusCase:
         hand_drag=drag[s],
         hand_wander=wander[s],
     )
-    return _case(name, "hand-on-arm", fine, s, params, recording)
+    return slide_case(name, "hand-on-arm", fine, s, params, recording)
 
 
 def lwr_circle_case(seed: int = 0) -> CorpusCase:
@@ -647,21 +423,21 @@ def lwr_circle_case(seed: int = 0) -> CorpusCase:
     radius = params["circle_radius_m"]
     angle, chart = circle_path(lambda a: np.full_like(a, radius), params["turns"])
     speed = speed_profile(rng.uniform(0.03, 0.04), params["cruise_m_s"], rng.uniform(0.03, 0.04))
-    t, a = timed(angle, plane.points(chart[:, 0], chart[:, 1]), _FINE_DT, speed)
+    t, a = timed(angle, plane.points(chart[:, 0], chart[:, 1]), FINE_DT, speed)
     u, v = np.interp(a, angle, chart[:, 0]), np.interp(a, angle, chart[:, 1])
     circle = contact_piece(plane.points(u, v), plane.inward(u), t, params["force_n"], params["ramp_s"])
-    pieces = _through_the_air([circle], rng, _FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
-    fine = assemble(pieces, _FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
+    pieces = _through_the_air([circle], rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
+    fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
     axis_deg = rng.uniform(-180.0, 180.0)
     across_deg = axis_deg + 90.0 + rng.uniform(-25.0, 25.0)
-    error = _in_plane_error(plane.origin, plane.e_u, plane.out, axis_deg, across_deg, params["direction_constant_deg"])
+    error = in_plane_error(plane.origin, plane.e_u, plane.out, axis_deg, across_deg, params["direction_constant_deg"])
     pressing = fine.plateau_id >= 0
 
     def stroke(t: NDArray, tip: NDArray) -> list[slice]:
-        rows = np.flatnonzero(pressing[np.rint(t / _FINE_DT).astype(int)])
+        rows = np.flatnonzero(pressing[np.rint(t / FINE_DT).astype(int)])
         return [slice(int(rows[0]), int(rows[-1]) + 1)]
 
-    return _arm_estimate_case(f"lwr-circle-s{seed}", "lwr-circle", fine, params, rng, error, stroke)
+    return arm_estimate_case(f"lwr-circle-s{seed}", "lwr-circle", fine, params, rng, error, stroke)
 
 
 # --------------------------------------------------------------------------- the families together

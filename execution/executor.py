@@ -59,8 +59,9 @@ from execution.contact_detection import (
     contact_guard_from_readings,
     turned_offset_bound_n,
 )
+from execution.execution_log import ExecutionLog
 from execution.impacts import ImpactPlanner
-from execution.metrics import ExecutionLog, reference_force
+from execution.metrics import reference_force
 from execution.plans import CREASE_HOLD_DISTANCE_M, PhasePlan, PhasePlanner, first_force
 from execution.robot import Robot
 from execution.runner import ContactLostError, ExecutionAbortError, PhaseRunner, PlanEnd

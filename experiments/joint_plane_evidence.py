@@ -7,8 +7,8 @@ Run from the repository root::
 
 For every set of three of four trials of a straight stroke (`corpus.families.human_trials`, leave-one-out as
 `benchmarks/bench_joint_learning.py` forms them; a trial whose own CF z is off by more than
-`skills.joint_learning.SAME_SURFACE_DEG` left out, as the learner leaves it out), the pooled slide CF
-(`skills.compliant_frames.slide_frame` on the three strokes' samples, as `skills.joint_learning` pools them) with the
+`skills.joint_correspondence.SAME_SURFACE_DEG` left out, as the learner leaves it out), the pooled slide CF
+(`skills.compliant_frames.slide_frame` on the three strokes' samples, as `skills.joint_normals` pools them) with the
 friction-free force's uncertainty at the learner's value (the trials' median, 5° at the least) and at larger ones, up
 to the geometry alone. Printed: the median and largest angle (deg) of the CF z from the true plane's normal, and in
 how many sets it is no larger than the best single stroke's. Then, as a yardstick: how often the mean of three
@@ -24,7 +24,7 @@ from corpus.families import human_trials
 from experiments.joint_trials import read_csv
 from schemas.skill import LearnOptions, SegmentKind
 from skills.compliant_frames import slide_frame
-from skills.joint_learning import SAME_SURFACE_DEG
+from skills.joint_correspondence import SAME_SURFACE_DEG
 from skills.parameterize import LearnedSegment, LearnedTrial, learn_trial
 
 TUNED, HELD_OUT = (0, 1, 2, 3), (4, 5, 6, 7)

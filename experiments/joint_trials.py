@@ -25,7 +25,8 @@ from schemas.skill import LearnOptions, SegmentKind, Skill, SkillTypeRequest
 from services.csv_import import demonstration_from_csv
 from services.datasets import kuleuven_file
 from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth, skill_against_object
-from skills.joint_learning import learn_joint_skill, share_in_band
+from skills.force_band import share_in_band
+from skills.joint_learning import learn_joint_skill
 from skills.parameterize import learn_skill
 from skills.quaternions import matrix_from_quaternion, quaternion_from_matrix, quaternions_sign_continuous
 

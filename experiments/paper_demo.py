@@ -10,8 +10,9 @@ against the RUNNING service, the way a user drives it, with both baselines, figu
   (``contact-skills up --workers N`` as a child process, a temporary database), used and stopped at the end.
 
 The package: ``experiments.cases`` (what runs, the targets, :func:`~experiments.cases.judge`),
-``experiments.stack`` (the service driven, the live view), ``experiments.report`` (tables, RESULTS.md, figures)
-and this module, which runs a demo: record and learn, schedule the executions on the workers, fetch the telemetry,
+``experiments.stack`` (the service driven, the live view), ``experiments.report`` (RESULTS.md),
+``experiments.report_tables`` and ``experiments.report_figures`` (its tables and figures) and this module, which
+runs a demo: record and learn, schedule the executions on the workers, fetch the telemetry,
 judge and write. RESULTS.md and figures/ go to ``options.out`` (default ``demo-output/``; ``docs`` rewrites the
 tracked pages).
 """
@@ -39,7 +40,9 @@ from experiments.cases import (
     cases,
     judge,
 )
-from experiments.report import text_table, write_figures, write_results
+from experiments.report import write_results
+from experiments.report_figures import write_figures
+from experiments.report_tables import text_table
 from experiments.stack import DemoError, LiveStatus, ServiceClient, say, service_session
 from services.datasets import DATA_ENV, data_directory, kuleuven_recordings
 

@@ -1,5 +1,5 @@
-"""What a demo run writes: the results tables (console and markdown), why a target was missed (from what was
-measured), RESULTS.md and the figures (drawn by ``services.figures``).
+"""What a demo run writes: why a target was missed (from what was measured) and RESULTS.md; its tables are
+``experiments.report_tables``, its figures ``experiments.report_figures``.
 
 Every force figure is shown twice: the TRUE normal force (the simulator's contact force along the true surface
 normal, what the work piece feels; the targets are judged on it) and the CF-z force (along the learned compliant
@@ -22,13 +22,14 @@ from experiments.cases import (
     Case,
     DemoOptions,
     DemoReport,
-    LearnedSkill,
     Outcome,
     counted,
     fmt,
 )
 from experiments.contour_stress import RESULTS_SECTION
 from experiments.cross_engine import CROSS_ENGINE_SECTION
+from experiments.report_figures import applied_placement
+from experiments.report_tables import markdown_table
 from experiments.sweep import SWEEPS_SECTION
 from services.machine import machine_line
 
@@ -225,107 +226,6 @@ def observations(outcomes: list[Outcome]) -> list[str]:
     return notes
 
 
-# --------------------------------------------------------------------------------------------------- the tables
-
-TABLE_HEADER = (
-    "case",
-    "controller",
-    "true RMS (N)",
-    "true RMS (%)",
-    "true max (%)",
-    "CF-z RMS (N)",
-    "CF-z RMS (%)",
-    "CF-z max (%)",
-    "touch-down (N)",
-    "touch-down (x target)",
-    "contact (%)",
-    "path RMS (mm)",
-    "RTF",
-    "final",
-    "verdict",
-    "target",
-)
-"""Columns of the results tables (``docs/RESULTS.md`` and the console)."""
-
-
-def table_rows(outcomes: list[Outcome], compact: bool = False) -> list[tuple[str, ...]]:
-    """One row of strings per execution, columns :data:`TABLE_HEADER` (``compact``: shorter case and final texts,
-    for the console)."""
-    rows = []
-    for o in outcomes:
-        final, verdict = o.final, o.execution_verdict
-        if compact:  # the console: the first 40 characters
-            final = final if len(final) <= 40 else final[:39] + "…)"
-            verdict = verdict if len(verdict) <= 40 else verdict[:39] + "…"
-        rows.append(
-            (
-                f"{o.case.skill}: {o.case.label}" if compact else f"{o.case.spec.title}: {o.case.label}",
-                o.controller,
-                fmt(o.metric("true_force_rms_error_n"), digits=3),
-                fmt(o.metric("true_force_rms_error_pct")),
-                fmt(o.metric("true_force_max_error_pct")),
-                fmt(o.metric("force_rms_error_n"), digits=3),
-                fmt(o.metric("force_rms_error_pct")),
-                fmt(o.metric("force_max_error_pct")),
-                fmt(o.metric("touchdown_peak_n")),
-                fmt(o.metric("touchdown_peak_ratio")),
-                fmt(o.metric("contact_ratio"), 100),
-                fmt(o.metric("path_rms_m"), 1e3),
-                fmt(o.metric("real_time_factor"), digits=1),
-                final,
-                verdict,
-                o.target_text,
-            )
-        )
-    return rows
-
-
-def markdown_table(outcomes: list[Outcome]) -> str:
-    lines = ["| " + " | ".join(TABLE_HEADER) + " |", "|" + "|".join(" --- " for _ in TABLE_HEADER) + "|"]
-    lines += ["| " + " | ".join(cell.replace("|", "/") for cell in row) + " |" for row in table_rows(outcomes)]
-    return "\n".join(lines)
-
-
-def text_table(outcomes: list[Outcome]) -> str:
-    """The results table for the console: aligned columns."""
-    rows = [TABLE_HEADER, *table_rows(outcomes, compact=True)]
-    widths = [max(len(r[j]) for r in rows) for j in range(len(TABLE_HEADER) - 1)]
-    out = []
-    for k, row in enumerate(rows):
-        out.append("  ".join(c.ljust(w) for c, w in zip(row[:-1], widths, strict=True)) + "  " + row[-1])
-        if k == 0:
-            out.append("  ".join("-" * w for w in widths) + "  " + "-" * 6)
-    return "\n".join(out)
-
-
-def parse_markdown_table(text: str) -> list[dict[str, str]]:
-    """The rows of every results table in a RESULTS.md (header :data:`TABLE_HEADER`), in page order, as dicts of
-    cell strings."""
-    header = "| " + " | ".join(TABLE_HEADER) + " |"
-    lines = [line.strip() for line in text.splitlines()]
-    rows = []
-    for start in [k for k, line in enumerate(lines) if line == header]:
-        for line in lines[start + 2 :]:
-            cells = [c.strip() for c in line.strip("|").split(" | ")] if line.startswith("|") else []
-            if len(cells) != len(TABLE_HEADER):
-                break
-            rows.append(dict(zip(TABLE_HEADER, cells, strict=True)))
-    return rows
-
-
-# --------------------------------------------------------------------------------------------------- placement
-
-
-def _placement(outcomes: list[Outcome], case: Case):
-    """The ``schemas.Placement`` the worker applied in ``case`` (the same for every controller), or None."""
-    from schemas.execution import Placement
-
-    for o in outcomes:
-        if o.case == case and (o.metrics or {}).get("placement"):
-            return Placement.model_validate(o.metrics["placement"])
-    return None
-
-
 def _turn_deg(quaternion: list[float]) -> float:
     """The angle of the rotation a unit quaternion [x, y, z, w] stands for, deg."""
     norm = math.sqrt(sum(v * v for v in quaternion))
@@ -336,7 +236,7 @@ def _work_piece_text(outcomes: list[Outcome], case: Case) -> str:
     """What the worker reported it ran ``case`` on: the work piece and the placement applied."""
     sources = {str((o.metrics or {}).get("work_piece")) for o in outcomes if o.case == case and o.metrics}
     text = ", ".join(sorted(sources - {"None"})) or "—"
-    placement = _placement(outcomes, case)
+    placement = applied_placement(outcomes, case)
     if placement is not None:
         t = ", ".join(f"{v:+.3f}" for v in placement.translation_m)
         text += (
@@ -344,108 +244,6 @@ def _work_piece_text(outcomes: list[Outcome], case: Case) -> str:
             f"{_turn_deg(placement.tool_alignment):.0f}°"
         )
     return text
-
-
-def _placed(learned: LearnedSkill, placement):
-    """(demonstration, skill) as they ran: placed by ``placement`` (a real recording's), else as learned."""
-    if placement is None:
-        return learned.demonstration, learned.skill
-    from schemas.execution import EnvironmentChange, WorkPieceSource
-    from sim_worker.execution_world import execution_world
-
-    environment = EnvironmentChange(work_piece=WorkPieceSource.measured, placement=placement)
-    world = execution_world(learned.skill, environment, demonstration=learned.demonstration)
-    return world.demonstration, world.skill
-
-
-# --------------------------------------------------------------------------------------------------- figures
-
-
-def _short_final(o: Outcome) -> str:
-    """``aborted (force limit)`` from ``aborted (force limit: measured 83.5 N > ...)``."""
-    head, _, reason = o.final.partition(" (")
-    return f"{head} ({reason.split(':')[0].rstrip(')')})" if reason else head
-
-
-def _trial_label(case: Case, outcomes: list[Outcome]) -> str:
-    """A trial's subplot title: the case and each controller's force RMS errors (true, and CF z)."""
-    errors = [
-        f"{o.controller} {fmt(o.metric('true_force_rms_error_pct'))} / {fmt(o.metric('force_rms_error_pct'))} %"
-        if o.metric("force_rms_error_pct") is not None
-        else f"{o.controller} {_short_final(o)}"
-        for o in outcomes
-        if o.case == case
-    ]
-    title = case.label if not case.spec.real else case.spec.title
-    return f"{title} — force RMS error true / CF-z: " + ", ".join(errors)
-
-
-def write_figures(out: Path, skills: dict[str, LearnedSkill], outcomes: list[Outcome], traces: dict) -> list[Path]:
-    """The figures of the run in ``out/figures``: for each teacher skill its paths (ours in every case), learning
-    and CF force per case; for each real recording its paths (every controller); the real recordings' CF forces in
-    one figure."""
-    from schemas.skill import SkillType
-    from services.figures import write_learning_figure, write_paths_figure, write_trials_force_figure
-
-    folder = out / "figures"
-    folder.mkdir(parents=True, exist_ok=True)
-    written = []
-    real_cases: list[Case] = []
-    for key, learned in skills.items():
-        spec = learned.spec
-        skill_cases = list(dict.fromkeys(o.case for o in outcomes if o.case.skill == key))
-        paths = folder / f"demo_{key}_paths.png"
-        contour_view = (18.0, -20.0) if learned.skill.skill_type is SkillType.contour else (22.0, -58.0)
-        if spec.real:
-            [case] = skill_cases
-            real_cases.append(case)
-            demonstration, skill = _placed(learned, _placement(outcomes, case))
-            runs = [(k, traces[(case, k)]) for k in case.controllers if (case, k) in traces]
-            write_paths_figure(
-                demonstration,
-                skill,
-                runs,
-                paths,
-                title=f"{spec.title} ({spec.figure}): demonstration and reproductions on the work piece measured "
-                "from it, placed in reach",
-                view=contour_view,
-            )
-            written.append(paths)
-            continue
-        learn = folder / f"demo_{key}_learned.png"
-        write_learning_figure(learned.demonstration, learned.skill, learn)
-        ours = [(c.label, traces[(c, OURS)]) for c in skill_cases if (c, OURS) in traces]
-        write_paths_figure(
-            learned.demonstration,
-            learned.skill,
-            ours,
-            paths,
-            title=f"{spec.title} ({spec.figure}a/b): demonstration and reproductions ({OURS})",
-            view=contour_view,
-        )
-        forces = folder / f"demo_{key}_forces.png"
-        write_trials_force_figure(
-            _force_trials(skill_cases, outcomes, traces),
-            forces,
-            ours=OURS,
-            title=f"{spec.title} ({spec.figure}d): CF-z force per trial, desired vs measured",
-        )
-        written += [paths, learn, forces]
-    if real_cases:
-        forces = folder / "demo_kuleuven_forces.png"
-        write_trials_force_figure(
-            _force_trials(real_cases, outcomes, traces),
-            forces,
-            ours=OURS,
-            title="KU Leuven recordings (real data): CF-z force per trial on the work piece measured from it, "
-            "desired vs measured",
-        )
-        written.append(forces)
-    return written
-
-
-def _force_trials(cases: list[Case], outcomes: list[Outcome], traces: dict) -> list[tuple[str, dict]]:
-    return [(_trial_label(c, outcomes), {k: traces[(c, k)] for k in c.controllers if (c, k) in traces}) for c in cases]
 
 
 # --------------------------------------------------------------------------------------------------- RESULTS.md

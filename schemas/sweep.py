@@ -3,7 +3,7 @@
 A sweep draws N trials from the ranges asked for (Latin hypercube or scrambled Sobol, reproducible from the seed;
 ``skills.sweeps``) and runs every trial with every controller as one execution (the service's queue, at a priority
 below single executions). A trial succeeds when its execution's VERDICT passes (``ExecutionMetrics.verdict``,
-``execution.metrics.execution_verdict``): it ran every segment (``finished``) and, judged by the TRUE normal force
+``execution.verdict.execution_verdict``): it ran every segment (``finished``) and, judged by the TRUE normal force
 (the simulator's contact force along the true surface normal), its RMS error is ``<= success_rms_pct`` % of the
 reference force (the learned constant of a slide, the profile peak of a contour; ``true_force_rms``), it stayed in
 contact ``>= success_contact_ratio`` of its contact phase (``contact_ratio``), its largest steady error and its

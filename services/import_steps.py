@@ -22,7 +22,7 @@ from pydantic import ValidationError
 from schemas import Demonstration, DemonstrationMetadata, QuaternionOrder, TareMethod, WrenchConvention, WrenchFrame
 from schemas.demonstration import MIN_DEMONSTRATION_SAMPLES
 from schemas.import_options import PLAUSIBLE_READINGS, ImportOptions
-from skills import preprocess, skill_checks
+from skills import preprocess, recording_faults
 from skills import tare as tare_module
 from skills.compliant_frames import tool_velocities
 from skills.parameterize import MAX_RATE_HZ, learn_skill
@@ -288,22 +288,23 @@ def _direction_hint(
     order: QuaternionOrder,
 ) -> tuple[list[str], list[dict[str, str]]]:
     """A note when the applied force (``wrenches``: world, applied by the tool, as imported) points UP in the world
-    (`skills.skill_checks.press_elevation_deg` above ``UPWARD_PRESS_LIMIT_DEG``): pressing on a table, a part or a wall
-    points down or sideways. Not an error (work done from below is possible), but a reaction read as applied-by-tool,
-    a tool-frame wrench read as a world one or the reverse, and a tool-frame wrench turned with quaternions read in the
-    other ``order`` all look like this, and can still learn a skill that passes every check but the skill's own
-    ``press_direction``. The note says which other readings of the file (sign, frame, quaternion order, and the sign
-    with either) press down (as far below the horizontal as the limit is above) AND lean towards the tool's motion
-    as friction makes it (`skills.skill_checks.leans_with_friction`, over the stronger half of the samples) AND learn
-    a skill that passes every check (`_failed_checks_read_so`: a reading is advised only when learning with it is
-    tried first and clean), with their numbers: the one to import it with, unless the tool worked from below. Several
-    may: a tool held straight down looks alike in both quaternion orders. Judged on the wrench as tared (an
-    uncompensated tool weight, which reads as a force UP, is gone where the free space showed it). Returns the note
-    (none, or one) and the readings it advises as import options (form names and values: what to import it with).
+    (`skills.recording_faults.press_elevation_deg` above ``UPWARD_PRESS_LIMIT_DEG``): pressing on a table, a part or
+    a wall points down or sideways. Not an error (work done from below is possible), but a reaction read as
+    applied-by-tool, a tool-frame wrench read as a world one or the reverse, and a tool-frame wrench turned with
+    quaternions read in the other ``order`` all look like this, and can still learn a skill that passes every check
+    but the skill's own ``press_direction``. The note says which other readings of the file (sign, frame, quaternion
+    order, and the sign with either) press down (as far below the horizontal as the limit is above) AND lean towards
+    the tool's motion as friction makes it (`skills.recording_faults.leans_with_friction`, over the stronger half of
+    the samples) AND learn a skill that passes every check (`_failed_checks_read_so`: a reading is advised only when
+    learning with it is tried first and clean), with their numbers: the one to import it with, unless the tool worked
+    from below. Several may: a tool held straight down looks alike in both quaternion orders. Judged on the wrench as
+    tared (an uncompensated tool weight, which reads as a force UP, is gone where the free space showed it). Returns
+    the note (none, or one) and the readings it advises as import options (form names and values: what to import it
+    with).
     """
     forces = wrenches[:, :3]
-    elevation = skill_checks.press_elevation_deg(forces)
-    if elevation <= skill_checks.UPWARD_PRESS_LIMIT_DEG:
+    elevation = recording_faults.press_elevation_deg(forces)
+    if elevation <= recording_faults.UPWARD_PRESS_LIMIT_DEG:
         return [], []
     magnitude = np.linalg.norm(forces, axis=1)
     pressed = magnitude >= np.median(magnitude)  # where the tool presses: the lean of free space's noise says nothing
@@ -311,16 +312,16 @@ def _direction_hint(
     readings = _other_readings(forces, recording.orientations, options.wrench_convention, frame, order)
     sentences, advised = [], []
     for reading, alternative in readings:
-        down = skill_checks.press_elevation_deg(alternative)
-        lean, samples = skill_checks.median_friction_lean(alternative[pressed], velocities)
-        if down < -skill_checks.UPWARD_PRESS_LIMIT_DEG and skill_checks.leans_with_friction(lean):
+        down = recording_faults.press_elevation_deg(alternative)
+        lean, samples = recording_faults.median_friction_lean(alternative[pressed], velocities)
+        if down < -recording_faults.UPWARD_PRESS_LIMIT_DEG and recording_faults.leans_with_friction(lean):
             failed = _failed_checks_read_so(recording, alternative)
             if failed:
                 continue  # it presses down, but the skill learned so would still be warned: no advice to give
             advised.append(reading)
             sentences.append(
                 f"read with {reading_flags(reading)} it presses {-down:.0f} deg below the horizontal, "
-                + skill_checks.lean_sentence(lean, samples).removeprefix("the applied force ")
+                + recording_faults.lean_sentence(lean, samples).removeprefix("the applied force ")
                 + ", and the skill learned so passes every check"
             )
     found = (

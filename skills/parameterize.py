@@ -31,7 +31,7 @@ from schemas.skill import (
     SkillTypeRequest,
     TypeEvidence,
 )
-from skills import skill_checks
+from skills import recording_faults, skill_checks
 from skills.compliant_frames import PlaneFit, contour_frames, plane_along, slide_frame, tool_velocities
 from skills.contact import ContactAnalysis, analyse_contact
 from skills.dmp import DMP, uniform_grid_step
@@ -364,11 +364,11 @@ def recording_checks(
     contacts = [item.segment for item in learned if item.segment.kind is SegmentKind.contact]
     areas = [r.surfaces.group(segment.start_index, segment.end_index) for segment in contacts]
     geometry_decides = all(surface is not None and surface.is_area for surface in areas)
-    checks.append(skill_checks.friction_along_motion(contact_forces, contact_velocities, geometry_decides))
-    checks.append(skill_checks.press_direction(contact_forces))
-    checks.append(skill_checks.unmeasured_contact(contact_spans, unmeasured))
+    checks.append(recording_faults.friction_along_motion(contact_forces, contact_velocities, geometry_decides))
+    checks.append(recording_faults.press_direction(contact_forces))
+    checks.append(recording_faults.unmeasured_contact(contact_spans, unmeasured))
     if tare is not TareMethod.none:
-        checks.append(skill_checks.sensor_offset(tare, offset_uncertainty_n, weakest))
+        checks.append(recording_faults.sensor_offset(tare, offset_uncertainty_n, weakest))
     checks.append(skill_checks.type_evidence(classification, skill_type, auto))
     return checks
 

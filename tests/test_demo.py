@@ -31,7 +31,7 @@ from experiments.cases import (
     cases,
     judge,
 )
-from experiments.report import parse_markdown_table
+from experiments.report_tables import parse_markdown_table
 from services.local_processes import free_port as _free_port
 from services.local_processes import port_listening
 

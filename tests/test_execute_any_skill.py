@@ -28,7 +28,7 @@ from skills.frames import matrix_from_axis_angle
 from skills.parameterize import learn_skill
 from skills.placement import placed_skill, skill_tool_path, tool_aligned_skill
 from skills.quaternions import matrix_from_quaternion
-from skills.skill_checks import RECORDING_CHECKS
+from skills.recording_faults import RECORDING_CHECKS
 
 KU_IMPORT = KULEUVEN_IMPORT
 KINESTHETIC_IMPORT = {"rate_hz": 100.0, **KU_IMPORT, "tare": True}  # a wrist sensor's offset, fitted in free space

@@ -15,7 +15,8 @@ from corpus.scoring import score
 from experiments.joint_trials import band_share, read_csv
 from schemas.demonstration import Demonstration
 from schemas.skill import CheckName, LearnOptions, MisfitPolicy, MisfitReason, SegmentKind, Skill
-from skills.joint_learning import JointLearningError, learn_joint_skill, warping_path
+from skills.joint_alignment import warping_path
+from skills.joint_learning import JointLearningError, learn_joint_skill
 from skills.parameterize import learn_skill
 
 BEFORE = Path(__file__).parent / "data" / "skill_before_joint_learning.json"

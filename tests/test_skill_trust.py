@@ -25,7 +25,7 @@ from schemas import Demonstration, LearnOptions, Skill, SkillType
 from schemas.import_options import BagImportOptions, CsvImportOptions
 from schemas.skill import CheckName, SegmentKind, SkillCheck
 from services.csv_import import demonstration_from_csv
-from skills import skill_checks
+from skills import recording_faults, skill_checks
 from skills.friction import friction_free
 from skills.parameterize import SkillCheckError, learn_skill
 
@@ -218,13 +218,13 @@ def test_a_real_recording_read_with_the_sensors_sign_is_caught_by_its_friction(t
         return demonstration_from_csv(kuleuven_file(f"{trial}.csv"), CsvImportOptions(**options))
 
     right, flipped = learn_skill(read("measured-on-tool")), learn_skill(read("applied-by-tool"))
-    assert failed(right) == [] and friction_check(right).value > skill_checks.FRICTION_SIGN_LIMIT
+    assert failed(right) == [] and friction_check(right).value > recording_faults.FRICTION_SIGN_LIMIT
     assert [c.name for c in flipped.checks if not c.passed] == [
         CheckName.friction_along_motion,
         CheckName.press_direction,
     ]
     lean = friction_check(flipped)
-    assert lean.value < -skill_checks.FRICTION_SIGN_LIMIT and "other sign" in lean.message
+    assert lean.value < -recording_faults.FRICTION_SIGN_LIMIT and "other sign" in lean.message
     assert lean.value == pytest.approx(-friction_check(right).value, abs=0.005)  # the same lean, mirrored
     with pytest.raises(SkillCheckError) as refused:
         learn_skill(read("applied-by-tool"), LearnOptions(strict=True))
@@ -260,7 +260,8 @@ def test_a_real_tool_frame_wrench_read_as_a_world_one_is_caught_by_its_press_dir
     skill = learn_skill(wrong)
     failing = [c.name for c in skill.checks if not c.passed]  # contour_b_1's type is also uncertain: type_evidence
     assert CheckName.press_direction in failing and set(failing) <= {CheckName.press_direction, CheckName.type_evidence}
-    assert press_check(skill).value > skill_checks.UPWARD_PRESS_LIMIT_DEG and "from below" in press_check(skill).message
+    check = press_check(skill)
+    assert check.value > recording_faults.UPWARD_PRESS_LIMIT_DEG and "from below" in check.message
     [hint] = [note for note in wrong.metadata.extra["import_notes"] if note.startswith("check how the wrench is read")]
     assert "read with --wrench-frame tool it presses" in hint and "read with --wrench applied-by-tool" not in hint, hint
     right = read_csv(text, {"wrench_convention": "measured-on-tool", "wrench_frame": "tool", "tare": False})
@@ -316,13 +317,13 @@ def test_the_friction_check_judges_only_sliding_contact() -> None:
     check passes without a verdict; sliding with the force leaning against the motion fails it."""
     n = 400
     press = np.tile([0.0, 0.0, -10.0], (n, 1))
-    still = skill_checks.friction_along_motion(press, np.zeros((n, 3)))
-    settling = skill_checks.friction_along_motion(press, np.tile([0.0, 0.0, -0.05], (n, 1)))
+    still = recording_faults.friction_along_motion(press, np.zeros((n, 3)))
+    settling = recording_faults.friction_along_motion(press, np.tile([0.0, 0.0, -0.05], (n, 1)))
     for check in (still, settling):
         assert check.passed and "not judged" in check.message
     sliding, friction = np.tile([0.05, 0.0, 0.0], (n, 1)), np.array([3.0, 0.0, 0.0])
-    dragging = skill_checks.friction_along_motion(press + friction, sliding)
-    pushed = skill_checks.friction_along_motion(press - friction, sliding)
+    dragging = recording_faults.friction_along_motion(press + friction, sliding)
+    pushed = recording_faults.friction_along_motion(press - friction, sliding)
     assert dragging.passed and dragging.value == pytest.approx(0.3)
     assert not pushed.passed and pushed.value == pytest.approx(-0.3)
 
