@@ -13,12 +13,11 @@ from experiments.cases import (
     Outcome,
     fmt,
 )
+from schemas.execution import Placement
 
 
-def applied_placement(outcomes: list[Outcome], case: Case):
+def applied_placement(outcomes: list[Outcome], case: Case) -> Placement | None:
     """The ``schemas.Placement`` the worker applied in ``case`` (the same for every controller), or None."""
-    from schemas.execution import Placement
-
     for o in outcomes:
         if o.case == case and (o.metrics or {}).get("placement"):
             return Placement.model_validate(o.metrics["placement"])
