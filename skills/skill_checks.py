@@ -49,6 +49,7 @@ from skills.compliant_frames import PLANE_FORCE_TOLERANCE_DEG, PlaneFit
 from skills.contact import mask_runs
 from skills.force_profile import plateau_mask, press_body
 from skills.friction import FrictionFree, unit_rows
+from skills.pressed_normals import angles_deg
 from skills.segmentation import BRUSH_FRACTION
 from skills.selection import MIXED_CONFIDENCE, SkillClassification
 
@@ -85,11 +86,6 @@ lean tilts the force by up to ~5°, a powered tool's side force fixed in the too
 
 AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
 """A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
-
-
-def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return the angles (deg) between rows of unit vectors ``a`` and ``b`` (or (3,) broadcast)."""
-    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
 
 
 def reference_directions(free: FrictionFree, rate_hz: float) -> NDArray[np.float64]:
@@ -165,11 +161,11 @@ def cf_z_vs_force(
         trusted = plateau_mask(press)
     if skill_type is SkillType.slide:
         mean_direction = unit_rows(free.forces[trusted].mean(axis=0))
-        value, limit = float(_angles_deg(cf_z[0], mean_direction)), slide_limit_deg
+        value, limit = float(angles_deg(cf_z[0], mean_direction)), slide_limit_deg
         what = "the mean friction-free force"
     else:
         reference = reference_directions(free, rate_hz)
-        value = float(np.percentile(_angles_deg(cf_z[trusted], reference[trusted]), 95))
+        value = float(np.percentile(angles_deg(cf_z[trusted], reference[trusted]), 95))
         limit = CONTOUR_FORCE_ANGLE_LIMIT_DEG
         what = f"the friction-free force over {1000 * CHECK_SMOOTHING_S:.0f} ms (95th percentile over the samples)"
     passed = value <= limit
@@ -191,7 +187,7 @@ def tilt_about_line_deg(cf_z: NDArray[np.float64], direction: NDArray[np.float64
     across_z = unit_rows(cf_z - np.dot(cf_z, direction) * direction)
     across_axis = unit_rows(axis - np.dot(axis, direction) * direction)
     across_axis = across_axis if np.dot(across_axis, across_z) >= 0 else -across_axis
-    return float(_angles_deg(across_z, across_axis))
+    return float(angles_deg(across_z, across_axis))
 
 
 def plane_checks(index: int, plane: PlaneFit, tool_axis: NDArray[np.float64]) -> list[SkillCheck]:

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from skills.friction import unit_rows
+from skills.pressed_normals import angles_deg
 
 LOCAL_RADIUS_M = 0.025
 """Radius (m) of the neighbourhood a local plane is fitted over: wide enough to reach the next lane of a wipe
@@ -285,10 +286,6 @@ def fused_normals(
     )
 
 
-def _angles_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
-
-
 def quadric_residual_m(positions: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
     """Return the RMS depth (m) of ``positions`` (N, 3) m about the best quadric height field over the plane across
     unit ``normal`` (a plane bent along both axes: what a cylinder or sphere of a part looks like over a stroke), over
@@ -325,7 +322,7 @@ def surface_groups(
         own = quadric_residual_m(members[k], normal) if normal is not None else 0.0
         for g, group in enumerate(groups):
             known = group_normals[g]
-            if normal is None or known is None or _angles_deg(normal, known) > POOL_NORMAL_DEG:
+            if normal is None or known is None or angles_deg(normal, known) > POOL_NORMAL_DEG:
                 continue
             union = np.concatenate([*(members[j] for j in group), members[k]])
             union_normal = unit_rows(len(group) * known + normal)
@@ -334,7 +331,7 @@ def surface_groups(
                 continue
             singular, plane = np.linalg.svd(union - union.mean(axis=0), full_matrices=False)[1:]
             spans_plane = singular[1] > 10.0 * max(singular[2], DEPTH_NOISE_MIN_M * np.sqrt(len(union)))
-            if spans_plane and min(_angles_deg(plane[2], union_normal), _angles_deg(-plane[2], union_normal)) > (
+            if spans_plane and min(angles_deg(plane[2], union_normal), angles_deg(-plane[2], union_normal)) > (
                 POOL_NORMAL_DEG
             ):
                 continue
