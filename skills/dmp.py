@@ -15,6 +15,10 @@ One primitive per class:
 
   ``eta / tau`` is the angular velocity in the world frame (rad/s).
 
+Both hold what they learn besides their start and goal in one :class:`DMPDynamics` (time constant, gains, canonical
+system, basis and weights, frame), which fits it from a demonstration's increments and goal errors, evaluates the
+forcing term and carries it to and from the wire form: the machinery the two primitives share has that one home.
+
 Time discretization (the same in learning and in rollout, so that rolling out at the
 demonstration's step reproduces it to float precision up to the basis-function fit):
 semi-implicit Euler, ``z_{k+1} = z_k + dt/tau (...)(y_k, z_k, x_k)``, ``y_{k+1} = y_k + dt/tau z_{k+1}``
@@ -213,31 +217,28 @@ def _rollout_forcing_term(
     return features @ weights
 
 
-class DMPBase:
-    """Shared state of a discrete DMP: time constant, gains, basis and weights (n_basis, n_forcing)."""
+DMPFrame = Literal["world", "cf"]
+"""The coordinates of a DMP's ``y``: the world frame, or the segment's compliant frame (slide positions)."""
 
-    kind: str
 
-    def __init__(
-        self,
-        *,
-        duration_s: float,
-        alpha_z: float,
-        beta_z: float,
-        alpha_x: float,
-        centers: ArrayLike,
-        widths: ArrayLike,
-        weights: ArrayLike,
-        frame: Literal["world", "cf"] = "world",
-    ) -> None:
-        self.duration_s = float(duration_s)
-        self.alpha_z = float(alpha_z)
-        self.beta_z = float(beta_z)
-        self.alpha_x = float(alpha_x)
-        self.centers = np.array(centers, dtype=float)
-        self.widths = np.array(widths, dtype=float)
-        self.weights = np.array(weights, dtype=float)
-        self.frame = frame
+@dataclass(eq=False)
+class DMPDynamics:
+    """What every discrete DMP learns besides its start and goal, the one home of the machinery the position/force
+    DMP and the orientation DMP share: the time constant ``duration_s`` (tau, the demonstrated duration, s), the
+    spring-damper gains ``alpha_z``, ``beta_z``, the canonical decay ``alpha_x``, the forcing term's Gaussian basis
+    (``centers`` in phase, ``widths`` in 1/phase^2, both (n_basis,)) and ``weights`` (n_basis, n_forcing), and the
+    ``frame`` of ``y``. Build it with :meth:`fitted` or :meth:`from_parameters`; it refuses inconsistent values."""
+
+    duration_s: float
+    alpha_z: float
+    beta_z: float
+    alpha_x: float
+    centers: NDArray[np.float64]
+    widths: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    frame: DMPFrame
+
+    def __post_init__(self) -> None:
         for name in ("duration_s", "alpha_z", "beta_z", "alpha_x"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -250,8 +251,75 @@ class DMPBase:
             raise ValueError("centers and widths must be finite")
         if not np.all(np.isfinite(self.weights)):
             raise ValueError("weights contain NaN or inf")
-        if frame not in ("world", "cf"):
-            raise ValueError(f"frame must be 'world' or 'cf', got {frame!r}")
+        if self.frame not in ("world", "cf"):
+            raise ValueError(f"frame must be 'world' or 'cf', got {self.frame!r}")
+
+    @classmethod
+    def fitted(
+        cls,
+        t: NDArray[np.float64],
+        dt: float,
+        steps: NDArray[np.float64],
+        goal_errors: NDArray[np.float64],
+        n_basis: int,
+        alpha_z: float,
+        frame: DMPFrame,
+    ) -> DMPDynamics:
+        """Learn the dynamics of one demonstration sampled at ``t`` (N,) s, uniform step ``dt`` (s), in one linear
+        least-squares solve, the forcing targets those of the semi-implicit Euler integrator with ``z_0 = 0``::
+
+            z_{k+1} = tau steps_k / dt
+            f_k = tau (z_{k+1} - z_k) / dt - alpha_z (beta_z goal_errors_k - z_k),   k = 0 .. N-2
+
+        ``steps`` (N - 1, D) are the demonstration's increments ``y_{k+1} - y_k`` (m or N; an orientation's
+        ``2 log(q_{k+1} * conj(q_k))``, rad) and ``goal_errors`` (N - 1, D) its ``g - y_k`` (``2 log(g * conj(q_k))``);
+        ``tau = t[-1] - t[0]``, ``beta_z = alpha_z / 4``. Raises ValueError for ``n_basis`` not an integer >= 2."""
+        if int(n_basis) != n_basis or n_basis < 2:
+            raise ValueError(f"n_basis must be an integer >= 2, got {n_basis}")
+        alpha_x = canonical_alpha_x()
+        centers = basis_centers(int(n_basis), alpha_x)
+        widths = basis_widths(centers)
+        beta_z = alpha_z / 4.0
+        tau = float(t[-1] - t[0])
+        z = np.zeros((steps.shape[0] + 1, steps.shape[1]))
+        z[1:] = tau * steps / dt
+        targets = tau * (z[1:] - z[:-1]) / dt - alpha_z * (beta_z * goal_errors - z[:-1])
+        x = np.exp(-alpha_x * np.arange(steps.shape[0]) * dt / tau)
+        weights = fitted_weights(forcing_features(x, centers, widths), targets)
+        return cls(tau, float(alpha_z), float(beta_z), alpha_x, centers, widths, weights, frame)
+
+    @classmethod
+    def from_parameters(cls, p: DMPParameters) -> DMPDynamics:
+        """The dynamics of a DMP's wire form (any kind); raises ValueError on inconsistent shapes or values."""
+        return cls(
+            float(p.duration_s),
+            float(p.alpha_z),
+            float(p.beta_z),
+            float(p.alpha_x),
+            np.array(p.centers, dtype=float),
+            np.array(p.widths, dtype=float),
+            np.array(p.weights, dtype=float),
+            p.frame,
+        )
+
+    def to_parameters(
+        self, kind: Literal["position", "force", "quaternion"], start: NDArray, goal: NDArray, scaling: list[bool]
+    ) -> DMPParameters:
+        """The wire form of a DMP of ``kind`` with these dynamics, its ``start``, ``goal`` and ``amplitude_scaling``."""
+        return DMPParameters(
+            kind=kind,
+            frame=self.frame,
+            duration_s=self.duration_s,
+            alpha_z=self.alpha_z,
+            beta_z=self.beta_z,
+            alpha_x=self.alpha_x,
+            centers=self.centers.tolist(),
+            widths=self.widths.tolist(),
+            weights=self.weights.tolist(),
+            start=np.asarray(start, dtype=float).tolist(),
+            goal=np.asarray(goal, dtype=float).tolist(),
+            amplitude_scaling=[bool(v) for v in scaling],
+        )
 
     @property
     def n_basis(self) -> int:
@@ -266,7 +334,7 @@ class DMPBase:
         """Return the unscaled forcing term ``f(x)`` (N, D) at phases ``x`` (N,)."""
         return forcing_features(np.asarray(x, dtype=float), self.centers, self.widths) @ self.weights
 
-    def _rollout_forcing(self, dt: float, tau: float) -> NDArray[np.float64]:
+    def rollout_forcing(self, dt: float, tau: float) -> NDArray[np.float64]:
         """The unscaled forcing term (M - 1, D) at the rollout steps ``k dt`` of a movement of ``tau`` (s): the same
         numbers as ``forcing(phase(t[:-1], tau))``, the basis evaluated once per (dt, tau, basis) where it is kept
         (:func:`_rollout_forcing_term`)."""
@@ -274,39 +342,21 @@ class DMPBase:
         widths = np.ascontiguousarray(self.widths, dtype=np.float64)
         return _rollout_forcing_term(float(dt), float(tau), float(self.alpha_x), centers, widths, self.weights)
 
-    def _parameters(self, start: NDArray, goal: NDArray, scaling: list[bool]) -> DMPParameters:
-        return DMPParameters(
-            kind=self.kind,
-            frame=self.frame,
-            duration_s=self.duration_s,
-            alpha_z=self.alpha_z,
-            beta_z=self.beta_z,
-            alpha_x=self.alpha_x,
-            centers=self.centers.tolist(),
-            widths=self.widths.tolist(),
-            weights=self.weights.tolist(),
-            start=np.asarray(start, dtype=float).tolist(),
-            goal=np.asarray(goal, dtype=float).tolist(),
-            amplitude_scaling=[bool(v) for v in scaling],
-        )
-
-    @staticmethod
-    def _basis(n_basis: int) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
-        if int(n_basis) != n_basis or n_basis < 2:
-            raise ValueError(f"n_basis must be an integer >= 2, got {n_basis}")
-        alpha_x = canonical_alpha_x()
-        centers = basis_centers(int(n_basis), alpha_x)
-        return alpha_x, centers, basis_widths(centers)
+    def rollout_grid(self, dt: float, duration_s: float | None) -> tuple[NDArray[np.float64], float]:
+        """The rollout time stamps ``k dt`` (s) of a movement of ``duration_s`` (s; the demonstrated one if None),
+        and that duration, tau (s)."""
+        tau = self.duration_s if duration_s is None else float(duration_s)
+        return rollout_times(dt, tau), tau
 
 
 # --------------------------------------------------------------------------- positions and forces
 
 
-class DMP(DMPBase):
+class DMP:
     """A discrete DMP over ``D`` dimensions of positions (m) or forces (N), one shared phase.
 
     Build it with :meth:`fit` (from one demonstration) or :meth:`from_parameters`. ``start`` and
-    ``goal`` are the demonstrated ``y0`` and ``g`` (D,), in the DMP's ``frame`` (world or CF);
+    ``goal`` are the demonstrated ``y0`` and ``g`` (D,), in the DMP's frame (``dynamics.frame``, world or CF);
     ``amplitude_scaling`` (D,) says per dimension whether the forcing term scales with
     ``(g - y0)`` on rollout (see the module docstring for the guard).
     """
@@ -318,32 +368,16 @@ class DMP(DMPBase):
         start: ArrayLike,
         goal: ArrayLike,
         amplitude_scaling: ArrayLike,
-        duration_s: float,
-        alpha_z: float,
-        beta_z: float,
-        alpha_x: float,
-        centers: ArrayLike,
-        widths: ArrayLike,
-        weights: ArrayLike,
-        frame: Literal["world", "cf"] = "world",
+        dynamics: DMPDynamics,
     ) -> None:
-        super().__init__(
-            duration_s=duration_s,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
         if kind not in ("position", "force"):
             raise ValueError(f"kind must be 'position' or 'force' for a DMP, got {kind!r}")
         self.kind = kind
+        self.dynamics = dynamics
         self.start = np.array(start, dtype=float)
         self.goal = np.array(goal, dtype=float)
         self.amplitude_scaling = np.array(amplitude_scaling, dtype=bool)
-        n_dims = self.weights.shape[1]
+        n_dims = self.dynamics.weights.shape[1]
         for name in ("start", "goal", "amplitude_scaling"):
             if getattr(self, name).shape != (n_dims,):
                 raise ValueError(f"{name} must have shape ({n_dims},), got {getattr(self, name).shape}")
@@ -351,7 +385,7 @@ class DMP(DMPBase):
     @property
     def n_dims(self) -> int:
         """Number of dimensions D."""
-        return int(self.weights.shape[1])
+        return int(self.dynamics.weights.shape[1])
 
     @classmethod
     def fit(
@@ -360,10 +394,10 @@ class DMP(DMPBase):
         y: ArrayLike,
         n_basis: int = 50,
         kind: Literal["position", "force"] = "position",
-        frame: Literal["world", "cf"] = "world",
+        frame: DMPFrame = "world",
         alpha_z: float = DEFAULT_ALPHA_Z,
     ) -> DMP:
-        """Learn a DMP from one demonstration in one linear least-squares solve.
+        """Learn a DMP from one demonstration in one linear least-squares solve (:meth:`DMPDynamics.fitted`).
 
         ``t`` (N,) uniformly sampled time stamps, s; ``y`` (N, D) (or (N,)) positions in m or
         forces in N, in ``frame``. ``tau`` is the demonstrated duration ``t[-1] - t[0]``, ``y0 =
@@ -384,34 +418,12 @@ class DMP(DMPBase):
         t, dt = validated_time(t, y.shape[0])
         if not np.all(np.isfinite(y)):
             raise ValueError("y contains NaN or inf")
-        alpha_x, centers, widths = cls._basis(n_basis)
-        beta_z = alpha_z / 4.0
-        tau = float(t[-1] - t[0])
         y0, g = y[0], y[-1]
-
-        z = np.zeros_like(y)
-        z[1:] = tau * np.diff(y, axis=0) / dt
-        targets = tau * (z[1:] - z[:-1]) / dt - alpha_z * (beta_z * (g - y[:-1]) - z[:-1])
-        x = np.exp(-alpha_x * np.arange(y.shape[0] - 1) * dt / tau)
-        weights = fitted_weights(forcing_features(x, centers, widths), targets)
-
+        dynamics = DMPDynamics.fitted(t, dt, np.diff(y, axis=0), g - y[:-1], n_basis, alpha_z, frame)
         motion_range = np.ptp(y, axis=0)
         threshold = AMPLITUDE_SCALING_MIN_FRACTION * float(motion_range.max())
         scaling = (np.abs(g - y0) > threshold) & (motion_range > 0)
-        return cls(
-            kind=kind,
-            start=y0,
-            goal=g,
-            amplitude_scaling=scaling,
-            duration_s=tau,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
+        return cls(kind=kind, start=y0, goal=g, amplitude_scaling=scaling, dynamics=dynamics)
 
     def amplitude_factors(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:
         """Return the per-dimension forcing scale ``s`` (D,) for a new start and goal (1 where unscaled)."""
@@ -423,8 +435,7 @@ class DMP(DMPBase):
     def _prepare(
         self, dt: float, start: ArrayLike | None, goal: ArrayLike | None, duration_s: float | None
     ) -> tuple[NDArray, NDArray, NDArray, NDArray, float]:
-        tau = self.duration_s if duration_s is None else float(duration_s)
-        t = rollout_times(dt, tau)
+        t, tau = self.dynamics.rollout_grid(dt, duration_s)
         y0 = self.start if start is None else np.asarray(start, dtype=float).reshape(-1)
         g = self.goal if goal is None else np.asarray(goal, dtype=float).reshape(-1)
         for name, value in (("start", y0), ("goal", g)):
@@ -433,7 +444,8 @@ class DMP(DMPBase):
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"{name} contains NaN or inf")
         # Input u_k = alpha_z beta_z g + s f(x_k) of the steps k = 0 .. M-2.
-        u = self.alpha_z * self.beta_z * g + self.amplitude_factors(y0, g) * self._rollout_forcing(dt, tau)
+        forcing = self.dynamics.rollout_forcing(dt, tau)
+        u = self.dynamics.alpha_z * self.dynamics.beta_z * g + self.amplitude_factors(y0, g) * forcing
         return t, y0, g, u, tau
 
     def rollout(
@@ -459,7 +471,7 @@ class DMP(DMPBase):
         """
         t, y0, _, u, tau = self._prepare(dt, start, goal, duration_s)
         a = dt / tau
-        az, bz = self.alpha_z, self.beta_z
+        az, bz = self.dynamics.alpha_z, self.dynamics.beta_z
         den = [1.0, -(2.0 - a * az - a * a * az * bz), 1.0 - a * az]
         v = np.vstack([u - az * bz * y0, np.zeros((1, self.n_dims))])  # last input never reaches y
         e = _second_order_filter(a * a, den[1], den[2], v)
@@ -483,14 +495,14 @@ class DMP(DMPBase):
         y[0] = y0
         z = np.zeros(self.n_dims)
         for k in range(t.shape[0] - 1):
-            z = z + a * (u[k] - self.alpha_z * (self.beta_z * y[k] + z))
+            z = z + a * (u[k] - self.dynamics.alpha_z * (self.dynamics.beta_z * y[k] + z))
             y[k + 1] = y[k] + a * z
             yd[k + 1] = z / tau
         return DMPRollout(t=t, y=y, yd=yd)
 
     def to_parameters(self) -> DMPParameters:
         """Return the wire form (``schemas.skill.DMPParameters``); :meth:`from_parameters` inverts it losslessly."""
-        return self._parameters(self.start, self.goal, self.amplitude_scaling.tolist())
+        return self.dynamics.to_parameters(self.kind, self.start, self.goal, self.amplitude_scaling.tolist())
 
     @classmethod
     def from_parameters(cls, p: DMPParameters) -> DMP:
@@ -504,14 +516,7 @@ class DMP(DMPBase):
             start=p.start,
             goal=p.goal,
             amplitude_scaling=p.amplitude_scaling,
-            duration_s=p.duration_s,
-            alpha_z=p.alpha_z,
-            beta_z=p.beta_z,
-            alpha_x=p.alpha_x,
-            centers=p.centers,
-            widths=p.widths,
-            weights=p.weights,
-            frame=p.frame,
+            dynamics=DMPDynamics.from_parameters(p),
         )
 
 

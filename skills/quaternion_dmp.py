@@ -4,30 +4,21 @@
     tau d eta = alpha_z (beta_z 2 log(g * conj(q)) - eta) + f(x),   tau dq = 1/2 eta * q
 
 ``eta / tau`` is the angular velocity in the world frame (rad/s). The canonical system, the basis, the fit and the
-time discretization are the position DMP's (``skills.dmp``'s docstring): ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) *
-q_k``.
+time discretization are the position DMP's (``skills.dmp``'s docstring; one ``skills.dmp.DMPDynamics`` holds and fits
+them for both): ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k``.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from schemas.skill import DMPParameters
-from skills.dmp import (
-    DEFAULT_ALPHA_Z,
-    UNIT_NORM_TOL,
-    DMPBase,
-    fitted_weights,
-    forcing_features,
-    rollout_times,
-    validated_time,
-)
+from skills.dmp import DEFAULT_ALPHA_Z, UNIT_NORM_TOL, DMPDynamics, DMPFrame, validated_time
 from skills.quaternions import (
     quaternion_conjugate,
     quaternion_log,
@@ -62,42 +53,20 @@ def _unit_quaternions(q: ArrayLike, name: str) -> NDArray[np.float64]:
     return q / norm
 
 
-class QuaternionDMP(DMPBase):
+class QuaternionDMP:
     """An orientation DMP (Ude et al. 2014) over unit quaternions ``[x, y, z, w]`` in the world frame.
 
     ``start`` and ``goal`` are the demonstrated unit quaternions (4,); the forcing term ``f`` is a
-    3-vector (weights (n_basis, 3)) with the unit of ``tau^2`` times an angular acceleration
+    3-vector (``dynamics.weights`` (n_basis, 3)) with the unit of ``tau^2`` times an angular acceleration
     (rad). No amplitude scaling.
     """
 
     kind = "quaternion"
 
-    def __init__(
-        self,
-        *,
-        start: ArrayLike,
-        goal: ArrayLike,
-        duration_s: float,
-        alpha_z: float,
-        beta_z: float,
-        alpha_x: float,
-        centers: ArrayLike,
-        widths: ArrayLike,
-        weights: ArrayLike,
-        frame: Literal["world", "cf"] = "world",
-    ) -> None:
-        super().__init__(
-            duration_s=duration_s,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
-        if self.weights.shape[1] != 3:
-            raise ValueError(f"a quaternion DMP has weights (n_basis, 3), got {self.weights.shape}")
+    def __init__(self, *, start: ArrayLike, goal: ArrayLike, dynamics: DMPDynamics) -> None:
+        if dynamics.weights.shape[1] != 3:
+            raise ValueError(f"a quaternion DMP has weights (n_basis, 3), got {dynamics.weights.shape}")
+        self.dynamics = dynamics
         self.start = _unit_quaternions(start, "start").reshape(4)
         self.goal = _unit_quaternions(goal, "goal").reshape(4)
 
@@ -108,9 +77,10 @@ class QuaternionDMP(DMPBase):
         q: ArrayLike,
         n_basis: int = 50,
         alpha_z: float = DEFAULT_ALPHA_Z,
-        frame: Literal["world", "cf"] = "world",
+        frame: DMPFrame = "world",
     ) -> QuaternionDMP:
-        """Learn an orientation DMP from one demonstration in one linear least-squares solve.
+        """Learn an orientation DMP from one demonstration in one linear least-squares solve
+        (:meth:`skills.dmp.DMPDynamics.fitted`).
 
         ``t`` (N,) uniformly sampled time stamps, s; ``q`` (N, 4) unit quaternions ``[x, y, z, w]``.
         The input is first made sign-continuous, so the result does not depend on the signs of
@@ -128,29 +98,13 @@ class QuaternionDMP(DMPBase):
             raise ValueError(f"q must have shape (N, 4), got {q.shape}")
         t, dt = validated_time(t, q.shape[0])
         q = quaternions_sign_continuous(_unit_quaternions(q, "q"))
-        alpha_x, centers, widths = cls._basis(n_basis)
-        beta_z = alpha_z / 4.0
-        tau = float(t[-1] - t[0])
         g = q[-1]
-
-        eta = np.zeros((q.shape[0], 3))
-        eta[1:] = 2.0 * tau * quaternion_log(quaternion_product(q[1:], quaternion_conjugate(q[:-1]))) / dt
-        goal_error = 2.0 * quaternion_log(quaternion_product(g, quaternion_conjugate(q[:-1])))
-        targets = tau * (eta[1:] - eta[:-1]) / dt - alpha_z * (beta_z * goal_error - eta[:-1])
-        x = np.exp(-alpha_x * np.arange(q.shape[0] - 1) * dt / tau)
-        weights = fitted_weights(forcing_features(x, centers, widths), targets)
-        return cls(
-            start=q[0],
-            goal=g,
-            duration_s=tau,
-            alpha_z=alpha_z,
-            beta_z=beta_z,
-            alpha_x=alpha_x,
-            centers=centers,
-            widths=widths,
-            weights=weights,
-            frame=frame,
-        )
+        # The rotation of each step and the rotation left to the goal, as rotation vectors (rad); 2 tau / dt times the
+        # first is eta (a product by 2 is exact, so the order of the factors leaves every bit as it was).
+        steps = 2.0 * quaternion_log(quaternion_product(q[1:], quaternion_conjugate(q[:-1])))
+        goal_errors = 2.0 * quaternion_log(quaternion_product(g, quaternion_conjugate(q[:-1])))
+        dynamics = DMPDynamics.fitted(t, dt, steps, goal_errors, n_basis, alpha_z, frame)
+        return cls(start=q[0], goal=g, dynamics=dynamics)
 
     def rollout(
         self,
@@ -165,22 +119,21 @@ class QuaternionDMP(DMPBase):
         ``q_{k+1} = exp(dt/(2 tau) eta_{k+1}) * q_k`` (renormalized). The forcing term is evaluated
         for all steps at once; the nonlinear recursion is one compiled loop (:func:`_quaternion_recursion`).
         """
-        tau = self.duration_s if duration_s is None else float(duration_s)
-        t = rollout_times(dt, tau)
+        t, tau = self.dynamics.rollout_grid(dt, duration_s)
         q0 = self.start if start is None else _unit_quaternions(start, "start").reshape(4)
         g = self.goal if goal is None else _unit_quaternions(goal, "goal").reshape(4)
         a = dt / tau
         # a * (f_k) per step, and the constant gains.
-        drive = np.ascontiguousarray(a * self._rollout_forcing(dt, tau))
-        k_goal = a * self.alpha_z * self.beta_z * 2.0
-        damp = 1.0 - a * self.alpha_z
+        drive = np.ascontiguousarray(a * self.dynamics.rollout_forcing(dt, tau))
+        k_goal = a * self.dynamics.alpha_z * self.dynamics.beta_z * 2.0
+        damp = 1.0 - a * self.dynamics.alpha_z
         half_a = 0.5 * a
         q, eta = _quaternion_recursion(drive, g, q0, k_goal, damp, half_a)
         return QuaternionDMPRollout(t=t, q=q, omega=eta / tau)
 
     def to_parameters(self) -> DMPParameters:
         """Return the wire form (kind quaternion, no amplitude scaling); :meth:`from_parameters` inverts it."""
-        return self._parameters(self.start, self.goal, [False, False, False])
+        return self.dynamics.to_parameters(self.kind, self.start, self.goal, [False, False, False])
 
     @classmethod
     def from_parameters(cls, p: DMPParameters) -> QuaternionDMP:
@@ -189,18 +142,7 @@ class QuaternionDMP(DMPBase):
             raise ValueError(f"QuaternionDMP.from_parameters needs kind 'quaternion', got {p.kind!r}")
         if any(p.amplitude_scaling):
             raise ValueError("a quaternion DMP has no amplitude scaling (amplitude_scaling must be all false)")
-        return cls(
-            start=p.start,
-            goal=p.goal,
-            duration_s=p.duration_s,
-            alpha_z=p.alpha_z,
-            beta_z=p.beta_z,
-            alpha_x=p.alpha_x,
-            centers=p.centers,
-            widths=p.widths,
-            weights=p.weights,
-            frame=p.frame,
-        )
+        return cls(start=p.start, goal=p.goal, dynamics=DMPDynamics.from_parameters(p))
 
 
 @numba.njit(cache=True)
