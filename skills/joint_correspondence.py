@@ -45,6 +45,10 @@ class _Trial:
     misfit: MisfitReason | None = None
     reason: str | None = None
 
+    def left_out(self, misfit: MisfitReason, reason: str) -> _Trial:
+        """This trial, left out for ``misfit``, explained by ``reason``."""
+        return replace(self, misfit=misfit, reason=reason)
+
 
 @dataclass(frozen=True)
 class _Footprint:
@@ -99,6 +103,16 @@ def _forced(options: LearnOptions, skill_type: SkillType) -> LearnOptions:
     return options.model_copy(update={"skill_type": SkillTypeRequest(skill_type.value), "strict": False})
 
 
+def _fitting(trials: list[_Trial]) -> list[int]:
+    """The indices of the trials not left out."""
+    return [t.index for t in trials if t.misfit is None]
+
+
+def _evidence(trials: list[_Trial], kept: list[int]) -> list[NDArray[np.float64]]:
+    """The log-odds for contour (3,) of the ``kept`` trials whose type could be measured."""
+    return [odds for i in kept if (odds := _log_odds(trials[i].learned)) is not None]  # type: ignore[arg-type]
+
+
 def corresponding_trials(
     demonstrations: Sequence[Demonstration], sources: Sequence[str], options: LearnOptions
 ) -> tuple[list[_Trial], SkillType, NDArray[np.float64] | None, int]:
@@ -121,22 +135,20 @@ def corresponding_trials(
     for i in kept:
         place, angle = _place_m(footprints[i], footprints[medoid]), _surface_deg(footprints[i], footprints[medoid])
         if place > SAME_PLACE_M:
-            trials[i] = replace(
-                trials[i],
-                misfit=MisfitReason.another_place,
-                reason=f"its contact lies {1000 * place:.0f} mm from {trials[medoid].source}'s (median; at most "
+            trials[i] = trials[i].left_out(
+                MisfitReason.another_place,
+                f"its contact lies {1000 * place:.0f} mm from {trials[medoid].source}'s (median; at most "
                 f"{1000 * SAME_PLACE_M:.0f} mm on the same part): another part, or the part moved",
             )
         elif angle > SAME_SURFACE_DEG:
-            trials[i] = replace(
-                trials[i],
-                misfit=MisfitReason.another_surface,
-                reason=f"it presses {angle:.0f} deg from {trials[medoid].source}'s direction at the same place "
+            trials[i] = trials[i].left_out(
+                MisfitReason.another_surface,
+                f"it presses {angle:.0f} deg from {trials[medoid].source}'s direction at the same place "
                 f"(median; at most {SAME_SURFACE_DEG:.0f} deg): another surface",
             )
-    kept = [t.index for t in trials if t.misfit is None]
+    kept = _fitting(trials)
 
-    evidence = [odds for i in kept if (odds := _log_odds(trials[i].learned)) is not None]  # type: ignore[arg-type]
+    evidence = _evidence(trials, kept)
     summed = np.sum(evidence, axis=0) if evidence else None
     if options.skill_type is SkillTypeRequest.auto:
         assert summed is not None  # auto learning raises where the type cannot be measured
@@ -144,15 +156,13 @@ def corresponding_trials(
         for i in kept:
             own = trials[i].learned.skill.auto_selection  # type: ignore[union-attr]
             if own is not None and own.chosen is not skill_type and own.confidence >= MIXED_CONFIDENCE:
-                trials[i] = replace(
-                    trials[i],
-                    misfit=MisfitReason.another_type,
-                    reason=f"it is a {own.chosen.value} on its own at {100 * own.confidence:.0f} % where the others "
+                trials[i] = trials[i].left_out(
+                    MisfitReason.another_type,
+                    f"it is a {own.chosen.value} on its own at {100 * own.confidence:.0f} % where the others "
                     f"together are a {skill_type.value}",
                 )
-        kept = [t.index for t in trials if t.misfit is None]
-        remaining = [odds for i in kept if (odds := _log_odds(trials[i].learned)) is not None]  # type: ignore[arg-type]
-        summed = np.sum(remaining, axis=0)
+        kept = _fitting(trials)
+        summed = np.sum(_evidence(trials, kept), axis=0)
     else:
         skill_type = SkillType(options.skill_type.value)
     for i in kept:
@@ -161,8 +171,8 @@ def corresponding_trials(
                 trials[i] = replace(trials[i], learned=learn_trial(demonstrations[i], _forced(options, skill_type)))
             except LearningError as exc:
                 reason = f"as a {skill_type.value}: {exc.field}: {exc.reason}"
-                trials[i] = replace(trials[i], misfit=MisfitReason.not_learnable, reason=reason)
-    kept = [t.index for t in trials if t.misfit is None]
+                trials[i] = trials[i].left_out(MisfitReason.not_learnable, reason)
+    kept = _fitting(trials)
 
     counts = {i: len(contact_segments(trials[i].learned)) for i in kept}  # type: ignore[arg-type]
     tally = Counter(counts.values()).most_common()
@@ -171,10 +181,9 @@ def corresponding_trials(
     wanted = counts[reference] if counts[reference] in usual else usual[0]
     for i in kept:
         if counts[i] != wanted:
-            trials[i] = replace(
-                trials[i],
-                misfit=MisfitReason.another_stroke_count,
-                reason=f"it has {counts[i]} contact segment(s) as a {skill_type.value} where the others have {wanted}",
+            trials[i] = trials[i].left_out(
+                MisfitReason.another_stroke_count,
+                f"it has {counts[i]} contact segment(s) as a {skill_type.value} where the others have {wanted}",
             )
-    kept = [t.index for t in trials if t.misfit is None]
+    kept = _fitting(trials)
     return trials, skill_type, summed, _medoid(kept, disagreement)
