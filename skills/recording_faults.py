@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from schemas.demonstration import TareMethod
 from schemas.skill import CheckName, SkillCheck
 from skills.friction import friction_leans, sliding_fast
+from skills.skill_checks import press_share
 
 OFFSET_SHARE_LIMIT = 0.05
 """The sensor offset's uncertainty may be at most this fraction of the weakest contact's press (the force tolerance)."""
@@ -210,7 +211,7 @@ def sensor_offset(method: TareMethod, uncertainty_n: float | None, weakest_press
         taken = "compensated as the file came (--no-tare)" if method is TareMethod.off else "as given"
         message = f"the sensor offset is taken {taken}, not estimated"
     else:
-        share = uncertainty_n / max(weakest_press_n, 1e-9)
+        share = press_share(uncertainty_n, weakest_press_n)
         passed = share <= OFFSET_SHARE_LIMIT
         message = (
             f"the sensor offset removed on import is known to ±{uncertainty_n:.2f} N, {100 * share:.1f} % of the "

@@ -88,6 +88,12 @@ AGAINST_EVIDENCE = 1.0 - MIXED_CONFIDENCE
 """A type forced against evidence that gives it less than this probability fails ``type_evidence``."""
 
 
+def press_share(force_n: float, press_n: float) -> float:
+    """Return ``force_n`` (N) as a share of the press ``press_n`` (N), a press of 0 N counted as 1e-9 N (so a
+    recording that never pressed gives a large share, not a division by zero)."""
+    return force_n / max(press_n, 1e-9)
+
+
 def reference_directions(free: FrictionFree, rate_hz: float) -> NDArray[np.float64]:
     """Return the unit directions (M, 3) a contour's CF z is held to: the friction-free forces of a segment sampled
     at ``rate_hz``, smoothed over ``CHECK_SMOOTHING_S`` (their noise, not the CF's)."""
@@ -100,7 +106,7 @@ def force_along_cf(index: int, free: FrictionFree, learned_force_n: NDArray[np.f
     press = np.linalg.norm(free.forces, axis=1)
     plateau = plateau_mask(press)
     measured, learned = float(np.median(press[plateau])), float(np.median(learned_force_n[plateau]))
-    ratio = learned / max(measured, 1e-9)
+    ratio = press_share(learned, measured)
     low, high = FORCE_RATIO_LIMITS
     passed = low <= ratio <= high
     verdict = "" if passed else f" (allowed {100 * low:.0f}-{100 * high:.0f} %): CF z is not along the press"
@@ -262,7 +268,7 @@ def stroke_strength(presses_n: dict[int, float]) -> list[SkillCheck]:
     strongest = max(presses_n.values())
     checks = []
     for index, press in presses_n.items():
-        share = press / max(strongest, 1e-9)
+        share = press_share(press, strongest)
         passed = share >= BRUSH_FRACTION
         checks.append(
             SkillCheck(
@@ -297,7 +303,7 @@ def force_outside_contact(
             # The press sustained over the run: its level exceeded for HELD_PRESS_S at least.
             sustained = np.sort(magnitude[a:b])[-longest]
             worst = max(worst, float(sustained))
-    share = worst / max(weakest_press_n, 1e-9)
+    share = press_share(worst, weakest_press_n)
     passed = share <= OUTSIDE_PRESS_FRACTION
     return SkillCheck(
         name=CheckName.force_outside_contact,
