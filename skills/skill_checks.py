@@ -319,7 +319,7 @@ def force_outside_contact(
 
 
 _AT_LEAST = frozenset({CheckName.plane_conditioning, CheckName.stroke_strength, CheckName.friction_along_motion,
-                       CheckName.type_evidence})  # fmt: skip
+                       CheckName.type_evidence, CheckName.demonstration_in_band})  # fmt: skip
 """The checks whose value must reach their limit (the others must not pass theirs; ``force_along_cf`` either way)."""
 
 

@@ -14,10 +14,11 @@ from corpus.families import human_trials, plane_case
 from corpus.scoring import score
 from experiments.joint_trials import band_share, read_csv
 from schemas.demonstration import Demonstration
-from schemas.skill import CheckName, LearnOptions, MisfitPolicy, MisfitReason, SegmentKind, Skill
+from schemas.skill import CheckBound, CheckName, LearnOptions, MisfitPolicy, MisfitReason, SegmentKind, Skill
 from skills.joint_alignment import warping_path
 from skills.joint_learning import JointLearningError, learn_joint_skill
 from skills.parameterize import learn_skill
+from skills.skill_checks import check_bound
 
 BEFORE = Path(__file__).parent / "data" / "skill_before_joint_learning.json"
 """A skill learned and stored before joint learning existed (commit eb6b496, `plane_case('straight', 0.0, 0)`)."""
@@ -147,6 +148,9 @@ def test_each_demonstration_is_judged_against_the_skill_learned_without_it(
     assert all(in_band[k].passed for k in (0, 2, 3))
     uses = skill.demonstrations or []
     assert [use.share_in_band for use in uses] == [in_band[k].value for k in range(4)]
+    for check in in_band.values():  # the side the dashboard shows (check_bound) is the side the check passed on
+        at_least = check_bound(check) is CheckBound.at_least
+        assert check.passed == (check.value >= check.limit if at_least else check.value <= check.limit), check
 
 
 def test_two_demonstrations_are_not_judged_by_a_band_of_one(
