@@ -21,8 +21,8 @@ counted and must agree), timed interleaved with project executions, for the idea
 side by side and their ratios; and bare loops that add the project's per-step parts one at a time (``LADDER`` of
 `benchmarks/control_loop_floor.py`, where the bare loops live), which say where the project's µs above the floor go.
 The load average is printed with the table. The force / path measures of the same runs are reported too (ours and the
-two baselines in the same run). Writes its section of docs/BENCHMARKS.md between ``<!-- bench_control_loop:start -->`` and
-``<!-- bench_control_loop:end -->``.
+two baselines in the same run). Writes its section of docs/BENCHMARKS.md between
+``<!-- bench_control_loop:start -->`` and ``<!-- bench_control_loop:end -->``.
 """
 
 from __future__ import annotations
