@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import LEARNING_MD, machine_line, pin_blas_threads, report_main
+from benchmarks.report import LEARNING_MD, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -147,7 +147,7 @@ def build_report(seeds: list[int]) -> str:
     ]
     if errors:
         sentences.append("Refused: " + "; ".join(errors) + ".")
-    return "\n".join(
+    return report_text(
         [
             "## The ground-truth corpus: accuracy per family",
             "",
@@ -167,24 +167,18 @@ def build_report(seeds: list[int]) -> str:
             "but the force says how the plane is tilted about it.",
             "",
             *floor,
-            "",
-            machine_line(),
         ]
     )
 
 
+OPTIONS = [("--seeds", {"type": int, "nargs": "+", "default": [0, 1, 2], "help": "corpus seeds (default 0 1 2)"})]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"seeds": [0]}
+"""The smoke run's values of the options."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        path=LEARNING_MD,
-        options=[
-            ("--seeds", {"type": int, "nargs": "+", "default": [0, 1, 2], "help": "corpus seeds (default 0 1 2)"})
-        ],
-        smoke={"seeds": [0]},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, LEARNING_MD, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, report_main
+from benchmarks.report import pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -138,7 +138,7 @@ def build_report(seeds: int) -> str:
         f"{sum(c.strokes_found == c.strokes_true for c in cases)} of {len(cases)} have exactly one contact segment "
         "per stroke.",
     ]
-    return "\n".join(
+    return report_text(
         [
             "## Learning from kinesthetic recordings (ground truth)",
             "",
@@ -152,21 +152,18 @@ def build_report(seeds: int) -> str:
             *rows,
             "",
             *sentences,
-            "",
-            machine_line(),
         ]
     )
 
 
+OPTIONS = [("--seeds", {"type": int, "default": 10, "help": "recordings per surface"})]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"seeds": 1}
+"""The smoke run's values of the options."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        options=[("--seeds", {"type": int, "default": 10, "help": "recordings per surface"})],
-        smoke={"seeds": 1},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

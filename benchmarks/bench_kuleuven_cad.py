@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, pin_blas_threads, report_main
+from benchmarks.report import pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -218,7 +218,7 @@ def build_report(
         "and measured pieces are not, so PyBullet holds their surface that much proud of their vertices (included "
         f"in the distances above). Whole run {elapsed:.0f} s.",
     ]
-    return "\n".join(
+    return report_text(
         [
             "## KU Leuven skills on the true object (the registered CAD)",
             "",
@@ -243,44 +243,40 @@ def build_report(
             *gap_table(trials),
             "",
             *sentences,
-            "",
-            machine_line(),
         ]
     )
 
 
-def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        options=[
-            ("--ridge-layouts", {"type": int, "default": len(RIDGE_PIECES), "help": "ridge piece layouts, from last"}),
-            ("--ridge-stroke-m", {"type": float, "default": RIDGE_STROKE_M, "help": "ridge stroke length, m"}),
-            ("--trials", {"type": int, "default": 4, "help": "KU Leuven recordings (the first N)"}),
-            (
-                "--cad-stiffnesses",
-                {
-                    "type": float,
-                    "nargs": "+",
-                    "default": list(CAD_STIFFNESSES_N_PER_M),
-                    "help": "CF x-y N/m on the CAD",
-                },
-            ),
-            ("--stl-samples", {"type": int, "default": STL_FIT_SAMPLES, "help": "points of the CAD pieces' fit"}),
-        ],
-        # The smoke run: every part once. One stiffness on the CAD (an execution there is the run's dearest, its
-        # pieces make every step several times dearer; the other stiffness runs the same code), a tenth of the fit's
-        # points (the same bands, the same code).
-        smoke={
-            "ridge_layouts": 1,
-            "ridge_stroke_m": 0.05,
-            "trials": 1,
-            "cad_stiffnesses": [LATERAL_STIFFNESS_N_PER_M],
-            "stl_samples": STL_FIT_SAMPLES // 10,
+OPTIONS = [
+    ("--ridge-layouts", {"type": int, "default": len(RIDGE_PIECES), "help": "ridge piece layouts, from last"}),
+    ("--ridge-stroke-m", {"type": float, "default": RIDGE_STROKE_M, "help": "ridge stroke length, m"}),
+    ("--trials", {"type": int, "default": 4, "help": "KU Leuven recordings (the first N)"}),
+    (
+        "--cad-stiffnesses",
+        {
+            "type": float,
+            "nargs": "+",
+            "default": list(CAD_STIFFNESSES_N_PER_M),
+            "help": "CF x-y N/m on the CAD",
         },
-    )
+    ),
+    ("--stl-samples", {"type": int, "default": STL_FIT_SAMPLES, "help": "points of the CAD pieces' fit"}),
+]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {
+    "ridge_layouts": 1,
+    "ridge_stroke_m": 0.05,
+    "trials": 1,
+    "cad_stiffnesses": [LATERAL_STIFFNESS_N_PER_M],
+    "stl_samples": STL_FIT_SAMPLES // 10,
+}
+"""The smoke run's values of the options: every part once. One stiffness on the CAD (an execution there is the run's
+dearest, its pieces make every step several times dearer; the other stiffness runs the same code), a tenth of the
+fit's points (the same bands, the same code)."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, report_main
+from benchmarks.report import median_time, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -128,7 +128,7 @@ def build_report(repeats: int, sizes: list[float], strokes: list[int]) -> str:
             )
             print(rows[-1], flush=True)
     stroke_rows, per_sample, exponent = _strokes_rows(strokes, repeats)
-    return "\n".join(
+    return report_text(
         [
             "## Learning time and memory per demonstration size",
             "",
@@ -157,25 +157,23 @@ def build_report(repeats: int, sizes: list[float], strokes: list[int]) -> str:
                 if exponent <= LINEAR_EXPONENT
                 else f"FASTER than linear (k > {LINEAR_EXPONENT:g})."
             ),
-            "",
-            machine_line(load_at_start=load),
-        ]
+        ],
+        load_at_start=load,
     )
+
+
+OPTIONS = [
+    ("--repeats", {"type": int, "default": 5, "help": "timing repeats (median reported)"}),
+    ("--sizes", {"type": float, "nargs": "+", "default": list(SIZES_S), "help": "demonstration lengths, s"}),
+    ("--strokes", {"type": int, "nargs": "+", "default": list(STROKES), "help": "strokes per recording"}),
+]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"repeats": 1, "sizes": [2.0], "strokes": [1, 5]}
+"""The smoke run's values of the options."""
 
 
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        options=[
-            ("--repeats", {"type": int, "default": 5, "help": "timing repeats (median reported)"}),
-            ("--sizes", {"type": float, "nargs": "+", "default": list(SIZES_S), "help": "demonstration lengths, s"}),
-            ("--strokes", {"type": int, "nargs": "+", "default": list(STROKES), "help": "strokes per recording"}),
-        ],
-        smoke={"repeats": 1, "sizes": [2.0], "strokes": [1, 5]},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

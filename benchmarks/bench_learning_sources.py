@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import LEARNING_MD, machine_line, pin_blas_threads, report_main
+from benchmarks.report import LEARNING_MD, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -154,7 +154,7 @@ def build_report(tuned_seeds: list[int], held_out_seeds: list[int], holdout_seed
         "| case | chosen (confidence) | CF z from the true normal °: median / max | failed checks |",
         "|---|---|---|---|",
     ]
-    return "\n".join(
+    return report_text(
         [
             "## The force sources users have: tuned on, and held out",
             "",
@@ -184,31 +184,26 @@ def build_report(tuned_seeds: list[int], held_out_seeds: list[int], holdout_seed
             *held_wipes,
             "",
             f"Learning took {tuned_s + held_s:.1f} s for {tuned_n + held_n} cases.",
-            "",
-            machine_line(),
         ]
     )
 
 
+OPTIONS = [
+    ("--tuned-seeds", {"type": int, "nargs": "+", "default": [0, 1, 2, 3, 4], "help": "seeds tuned on"}),
+    ("--held-out-seeds", {"type": int, "nargs": "+", "default": [5, 6, 7, 8, 9], "help": "held-out seeds"}),
+    (
+        "--holdout-seeds",
+        {"type": int, "nargs": "+", "default": [0, 1, 2, 3, 4], "help": "seeds of the held-out families"},
+    ),
+]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"tuned_seeds": [0], "held_out_seeds": [], "holdout_seeds": [0]}
+"""The smoke run's values of the options: the held-out seeds of the tuned families would learn the same families
+again (the same code on other data); the held-out families' seed 0 fills the held-out table."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        path=LEARNING_MD,
-        options=[
-            ("--tuned-seeds", {"type": int, "nargs": "+", "default": [0, 1, 2, 3, 4], "help": "seeds tuned on"}),
-            ("--held-out-seeds", {"type": int, "nargs": "+", "default": [5, 6, 7, 8, 9], "help": "held-out seeds"}),
-            (
-                "--holdout-seeds",
-                {"type": int, "nargs": "+", "default": [0, 1, 2, 3, 4], "help": "seeds of the held-out families"},
-            ),
-        ],
-        # The smoke run: the held-out seeds of the tuned families would learn the same families again (the same code
-        # on other data); the held-out families' seed 0 fills the held-out table.
-        smoke={"tuned_seeds": [0], "held_out_seeds": [], "holdout_seeds": [0]},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, LEARNING_MD, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

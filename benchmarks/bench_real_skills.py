@@ -16,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import ROOT, machine_line, pin_blas_threads, report_main
+from benchmarks.report import ROOT, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -92,7 +92,7 @@ def build_report(trials: list[str]) -> str:
         f"{statistics.median(r['place_s'] for r in rows):.2f} s.",
         f"Placement chosen for {rows[0]['trial']}: {rows[0]['reason']}.",
     ]
-    return "\n".join(
+    return report_text(
         [
             "## Skills learned from real recordings, executed on their rebuilt work piece",
             "",
@@ -104,8 +104,6 @@ def build_report(trials: list[str]) -> str:
             *table,
             "",
             *sentences,
-            "",
-            machine_line(),
         ]
     )
 
@@ -115,16 +113,15 @@ def _trials_text(trials: list[str]) -> str:
     return "the four KU Leuven trials" if list(trials) == list(TRIALS) else f"--trials {' '.join(trials)}"
 
 
+OPTIONS = [("--trials", {"nargs": "+", "default": list(TRIALS), "choices": TRIALS, "help": "KU recordings"})]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"trials": TRIALS[:1]}
+"""The smoke run's values of the options: one recording (its two executions); the four run the same code on other
+data."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    # The smoke run: one recording (its two executions); the four run the same code on other data.
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        options=[("--trials", {"nargs": "+", "default": list(TRIALS), "choices": TRIALS, "help": "KU recordings"})],
-        smoke={"trials": TRIALS[:1]},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from benchmarks.report import machine_line, median_time, pin_blas_threads, report_main
+from benchmarks.report import median_time, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -104,7 +104,7 @@ def build_report(repeats: int, bag_seconds: float, export_seconds: float, move_d
         f"A {export_seconds:g} s execution exports as MCAP in {mcap_s:.1f} s ({mcap_bytes / 1e6:.1f} MB, "
         f"{np.round(mcap_bytes / export_measured['json'][1], 2)} of its JSON).",
     ]
-    return "\n".join([
+    return report_text([
         "## ROS 2 bag import, MCAP/CSV/JSON export",
         "",
         f"Command: `{COMMAND}`. Import: a {bag_seconds:.0f} s demonstration as a ROS 2 bag written by `rosbags`, "
@@ -122,25 +122,22 @@ def build_report(repeats: int, bag_seconds: float, export_seconds: float, move_d
         *exports,
         "",
         *sentences,
-        "",
-        machine_line(load_at_start=load),
-    ])  # fmt: skip
+    ], load_at_start=load)  # fmt: skip
+
+
+OPTIONS = [
+    ("--repeats", {"type": int, "default": 3, "help": "runs per measurement (median)"}),
+    ("--bag-seconds", {"type": float, "default": BAG_SECONDS, "help": "length of the imported bag, s"}),
+    ("--export-seconds", {"type": float, "default": EXPORT_SECONDS, "help": "telemetry exported, s"}),
+    ("--move-duration-s", {"type": float, "help": "the executed skill's stroke, s (default: the teacher's)"}),
+]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"repeats": 1, "bag_seconds": 5.0, "export_seconds": 2.0, "move_duration_s": 1.0}
+"""The smoke run's values of the options."""
 
 
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        options=[
-            ("--repeats", {"type": int, "default": 3, "help": "runs per measurement (median)"}),
-            ("--bag-seconds", {"type": float, "default": BAG_SECONDS, "help": "length of the imported bag, s"}),
-            ("--export-seconds", {"type": float, "default": EXPORT_SECONDS, "help": "telemetry exported, s"}),
-            ("--move-duration-s", {"type": float, "help": "the executed skill's stroke, s (default: the teacher's)"}),
-        ],
-        smoke={"repeats": 1, "bag_seconds": 5.0, "export_seconds": 2.0, "move_duration_s": 1.0},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.report import LEARNING_MD, ROOT, machine_line, pin_blas_threads, report_main
+from benchmarks.report import LEARNING_MD, ROOT, pin_blas_threads, report_main, report_text
 
 pin_blas_threads()
 
@@ -185,7 +185,7 @@ def build_report(flat_cases: int, radii: list[float], ku_trials: list[str]) -> s
     wrong = [r for r in curved if r["learned"].endswith("(forced)")]
     truth_columns = [("ideal table", "truth"), ("measured", "measured"), ("added", "added"), ("rebuilt", "rebuilt")]
     curved_columns = [("true cylinder", "truth"), ("measured", "measured"), ("rebuilt", "rebuilt")]
-    return "\n".join(
+    return report_text(
         [
             f"Command: `{COMMAND}` ({elapsed:.0f} s). True normal force error, RMS / max in % of the reference force "
             "(`ExecutionMetrics.true_force_*`), `hybrid_cf`, the realistic wrist sensor; each skill placed as "
@@ -217,26 +217,22 @@ def build_report(flat_cases: int, radii: list[float], ku_trials: list[str]) -> s
             "The KU Leuven recordings (no exact truth in the simulator):",
             "",
             *_table(ku, [("measured", "measured"), ("rebuilt", "rebuilt")]),
-            "",
-            machine_line(),
         ]
     )
 
 
+OPTIONS = [
+    ("--flat-cases", {"type": int, "default": len(FLAT_CASES), "help": "how many of the flat cases to run"}),
+    ("--radii", {"type": float, "nargs": "+", "default": list(CYLINDER_RADII_M), "help": "cylinder radii, m"}),
+    ("--ku-trials", {"nargs": "+", "default": list(KU_TRIALS), "choices": KU_TRIALS, "help": "KU recordings"}),
+]
+"""The options of the command line (`benchmarks.report.report_main`): a flag and its ``argparse`` keywords."""
+SMOKE = {"flat_cases": 1, "radii": [0.08], "ku_trials": ["contour_a_1"]}
+"""The smoke run's values of the options."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    return report_main(
-        __doc__.splitlines()[0],
-        SECTION,
-        build_report,
-        argv,
-        path=LEARNING_MD,
-        options=[
-            ("--flat-cases", {"type": int, "default": len(FLAT_CASES), "help": "how many of the flat cases to run"}),
-            ("--radii", {"type": float, "nargs": "+", "default": list(CYLINDER_RADII_M), "help": "cylinder radii, m"}),
-            ("--ku-trials", {"nargs": "+", "default": list(KU_TRIALS), "choices": KU_TRIALS, "help": "KU recordings"}),
-        ],
-        smoke={"flat_cases": 1, "radii": [0.08], "ku_trials": ["contour_a_1"]},
-    )
+    return report_main(__doc__.splitlines()[0], SECTION, build_report, argv, LEARNING_MD, options=OPTIONS, smoke=SMOKE)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ __all__ = [
     "median_time",
     "pin_blas_threads",
     "report_main",
+    "report_text",
     "write_section",
 ]
 
@@ -59,6 +60,12 @@ def machine_line(extra: str = "", load_at_start: float | None = None) -> str:
         else f"1-minute load average {load_at_start:.1f} at the start of the run, {now:.1f} at its end"
     )
     return _machine.machine_line(f"{extra}; {load}" if extra else load)
+
+
+def report_text(lines: Sequence[str], load_at_start: float | None = None) -> str:
+    """A benchmark's report: its ``lines``, a blank line and the machine line (:func:`machine_line`, with the load
+    average ``load_at_start`` when the script took it before its run), one to a line."""
+    return "\n".join([*lines, "", machine_line(load_at_start=load_at_start)])
 
 
 def add_smoke_argument(parser: argparse.ArgumentParser, smallest: str) -> None:

@@ -1,7 +1,7 @@
 """A torque-sensing arm's log of a fine simulation, as the held-out families (`corpus.holdout`) write it: the rows of a
 ~100 Hz log with jittered stamps and white noise, the arm's estimate of the applied force (a configuration-dependent
 direction error, joint friction, the hand's push in free space, a constant offset), written as the CSV a user brings
-(`corpus.force_sources.LWR_COLUMNS`: the wrench ON the robot, world frame).
+(`corpus.arm_wipe.LWR_COLUMNS`: the wrench ON the robot, world frame).
 
 World frame, z up, SI units (m, s, N, N·m, rad), quaternions scalar-last; the truth wrench is the one the tool APPLIES
 (docs/CONVENTIONS.md).
@@ -19,13 +19,7 @@ from scipy.ndimage import distance_transform_edt, gaussian_filter1d
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
-from corpus.build import (
-    TREMOR_FADE_S,
-    Assembled,
-    rotated,
-)
-from corpus.case import CorpusCase, sampled_case
-from corpus.force_sources import (
+from corpus.arm_wipe import (
     JOINT_FRICTION_SPEED_M_S,
     LWR_COLUMNS,
     LWR_JITTER_PERIODS,
@@ -33,6 +27,12 @@ from corpus.force_sources import (
     ArmEstimateRecording,
     friction_free_turn_deg,
 )
+from corpus.build import (
+    TREMOR_FADE_S,
+    Assembled,
+    rotated,
+)
+from corpus.case import CorpusCase, sampled_case
 from corpus.kinesthetic import OperatorModel, operator_forces
 from corpus.recording import FINE_RATE_HZ
 from corpus.synthetic import minimum_jerk
@@ -57,7 +57,7 @@ class LogRows:
 
 def log_rows(fine: Assembled, noise_n: float, rng: np.random.Generator) -> LogRows:
     """The rows of a ~100 Hz arm log of ``fine`` with white noise of ``noise_n`` N on the forces, 0.05 N·m on the
-    moments (as `corpus.force_sources.lwr_wipe_case` takes them)."""
+    moments (as `corpus.arm_wipe.lwr_wipe_case` takes them)."""
     samples = np.arange(0, fine.t.size, round(FINE_RATE_HZ / LWR_RATE_HZ))
     stamps = fine.t[samples] + rng.uniform(-LWR_JITTER_PERIODS, LWR_JITTER_PERIODS, samples.size) / LWR_RATE_HZ
     stamps[[0, -1]] = fine.t[samples[[0, -1]]]
@@ -77,7 +77,7 @@ def _joint_friction(fine: Assembled, joint_friction_n: float) -> NDArray[np.floa
     """The arm's unmodelled joint friction as its estimate reads it in applied-by-tool terms (N, 3) N, world: along
     the tool point's motion, ``joint_friction_n`` faded in over `JOINT_FRICTION_SPEED_M_S` (joint friction opposes
     the joints' motion: a force on the robot against the motion, which the estimate reads as the tool applying it
-    along it; as `corpus.force_sources.lwr_wipe_case` has it)."""
+    along it; as `corpus.arm_wipe.lwr_wipe_case` has it)."""
     velocity = tool_velocity(fine)
     speed = np.linalg.norm(velocity, axis=1, keepdims=True)
     return joint_friction_n * np.tanh(speed / JOINT_FRICTION_SPEED_M_S) * velocity / np.maximum(speed, 1e-9)
@@ -85,7 +85,7 @@ def _joint_friction(fine: Assembled, joint_friction_n: float) -> NDArray[np.floa
 
 def _free_space_hand(fine: Assembled, flange: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:
     """The hand's push on the arm that the estimate sees in free space only (N, 3) N, applied-by-tool terms, world,
-    as `corpus.force_sources.lwr_wipe_case` has it: `corpus.kinesthetic.operator_forces` of the flange's path (mass
+    as `corpus.arm_wipe.lwr_wipe_case` has it: `corpus.kinesthetic.operator_forces` of the flange's path (mass
     2-4 kg, damping 10-20 N·s/m, wander 1.5-3 N), weighted 0 in contact rising to 1 over
     `corpus.build.TREMOR_FADE_S` away from it (no step at a touch-down or a lift-off)."""
     operator = OperatorModel(rng.uniform(2.0, 4.0), rng.uniform(10.0, 20.0), rng.uniform(1.5, 3.0))
@@ -115,7 +115,7 @@ class DirectionError:
         return self.constant_rad + self.gain_rad_m * ((positions - self.origin) @ self.gradient)
 
     def parameters(self) -> dict[str, float]:
-        """The error as ``parameters`` entries, named as `corpus.force_sources.lwr_wipe_case` names them."""
+        """The error as ``parameters`` entries, named as `corpus.arm_wipe.lwr_wipe_case` names them."""
         params = {"direction_gradient_rad_m": self.gain_rad_m}
         for name, vector in (("axis", self.axis), ("gradient", self.gradient), ("origin", self.origin)):
             params |= {f"direction_{name}_{x}": float(v) for x, v in zip("xyz", vector, strict=True)}
@@ -134,7 +134,7 @@ def _scaled_error(
     """``error`` with its gain (rad/m) set so that the friction-free turn (`friction_free_turn_deg`, over each run of
     ``runs``) of the turned ``force`` (N, 3) N plus ``extra`` (N, 3) N is ``target_deg`` midway between the least
     and the most run; ``t`` (N,) s and ``tip`` (N, 3) m the tool point's samples. Scaled on what the file shows (the
-    joint friction and the noise a reader sees are in ``extra``), as `corpus.force_sources.lwr_wipe_case` scales
+    joint friction and the noise a reader sees are in ``extra``), as `corpus.arm_wipe.lwr_wipe_case` scales
     its error."""
 
     def missing(gain: float) -> float:
@@ -149,7 +149,7 @@ def _scaled_error(
 
 
 def _log_text(stamps: NDArray, fine: Assembled, path: NDArray, on_robot: NDArray) -> str:
-    """The CSV text (`corpus.force_sources.LWR_COLUMNS`) of an arm's log: at ``stamps`` (s) the position ``path``
+    """The CSV text (`corpus.arm_wipe.LWR_COLUMNS`) of an arm's log: at ``stamps`` (s) the position ``path``
     (N, 3) m (the flange's, or the tool point's) and the tool's orientation of ``fine`` (both on its grid), and
     ``on_robot`` (one (6,) row per stamp: the estimated wrench ON the robot, world, N and N·m)."""
     position = np.stack([np.interp(stamps, fine.t, column) for column in path.T], axis=1)
@@ -214,7 +214,7 @@ def arm_estimate_case(
     error: DirectionError,
     runs: Callable[[NDArray, NDArray], list[slice]],
 ) -> CorpusCase:
-    """``fine`` recorded by a torque-sensing arm's log as `corpus.force_sources.lwr_wipe_case` records its wipe: the
+    """``fine`` recorded by a torque-sensing arm's log as `corpus.arm_wipe.lwr_wipe_case` records its wipe: the
     flange ``params['flange_offset_m']`` behind the tool point along tool z; the estimate the applied force turned
     by ``error`` (its gain scaled so that the friction-free force turns ``params['direction_turn_deg']`` over the
     ``runs(t, tip)`` of the truth's samples, midway between the least and the most), plus the joint friction, the

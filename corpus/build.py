@@ -356,3 +356,40 @@ def fillet(edge: NDArray, into_part: NDArray, elevation: NDArray, radius_m: floa
     c, s = np.cos(elevation)[:, None], np.sin(elevation)[:, None]
     points = edge + radius_m * ((1.0 - c) * into_part + (s - 1.0) * UP)
     return points, c * into_part - s * UP
+
+
+# --------------------------------------------------------------------------- contacts in the air
+
+
+def through_the_air(
+    contacts: list[Piece],
+    rng: np.random.Generator,
+    dt: float,
+    height_m: tuple[float, float],
+    move_s: tuple[float, float],
+    rest_axes: Sequence[NDArray[np.float64] | None] | None = None,
+    rest_s: tuple[float, float] = (1.0, 1.5),
+) -> list[Piece]:
+    """``contacts`` in the air: a rest of ``rest_s`` (s) held still, a free approach from ``height_m`` out along the
+    normal (``move_s`` s; both drawn per move), each contact, a retreat as far, between contacts a move from rest to
+    rest, and a last rest. ``rest_axes`` (len(contacts) + 1, default all None): the tool axis the hand holds in the
+    rest before each contact and after the last (None: the contact's own; between contacts None means no pause)."""
+    axes = list(rest_axes) if rest_axes is not None else [None] * (len(contacts) + 1)
+    pieces: list[Piece] = []
+    for k, contact in enumerate(contacts):
+        down = approach(contact, rng.uniform(*move_s), rng.uniform(*height_m), dt)
+        if k == 0:
+            axis = contact.held_axis[0] if axes[0] is None else axes[0]
+            pieces.append(rest(down.points[0], axis, rng.uniform(*rest_s), dt))
+        else:
+            if axes[k] is not None:
+                pieces.append(rest(pieces[-1].points[-1], axes[k], rng.uniform(*rest_s), dt))
+            # From the rest where the last retreat ended to the rest where this approach starts, arching 1 cm up.
+            move = transfer(
+                pieces[-1].points[-1], down.points[0], contact.held_axis[0], rng.uniform(0.6, 0.9), dt, 0.01
+            )
+            pieces.append(move)
+        pieces += [down, contact, retreat(contact, rng.uniform(*move_s), rng.uniform(*height_m), dt)]
+    last = contacts[-1].held_axis[-1] if axes[-1] is None else axes[-1]
+    pieces.append(rest(pieces[-1].points[-1], last, rng.uniform(*rest_s), dt))
+    return pieces

@@ -8,10 +8,10 @@ surface (docs/CONVENTIONS.md). Every family is a function of a seed returning a 
 ``services.csv_import.demonstration_from_csv(text, CsvImportOptions(**options))``), with its truth as the other families
 carry it (the tool point's positions, the true applied wrench, contact, normals, normal force,
 `corpus.case.truth_segments`, ``parameters``). They reuse the building blocks of `corpus.build`, `corpus.families`,
-`corpus.force_sources` and `corpus.recording`; all four are slides:
+`corpus.arm_wipe`, `corpus.force_sources` and `corpus.recording`; all four are slides:
 
 - **A torque-sensing arm wiping a near-flat part** (`lwr_wipe_curved_case`, ``lwr-wipe-curved``): the strip wipe of
-  `corpus.force_sources.lwr_wipe_case` (250 × 44-48 mm, 5 lanes 8-12 mm apart joined by rounded U-turns slowed to
+  `corpus.arm_wipe.lwr_wipe_case` (250 × 44-48 mm, 5 lanes 8-12 mm apart joined by rounded U-turns slowed to
   40-50 %, 1-2 contacts, 10-12 cm/s, press 8-20 N, friction 0.2-0.5, a stiff pad, rests of 1-1.2 s in the air at both
   ends) on a horizontal cylinder (random yaw) of radius 1.14-2.3 m (in 1-3 m: at least what turns the normal 14 deg over
   the contacts, which extend 0.27-0.4 m across the axis with their touch-downs, lift-offs and U-turns beyond the strip's
@@ -66,11 +66,11 @@ carry it (the tool point's positions, the true applied wrench, contact, normals,
 
 The arm files' columns are ``t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz`` (scalar-LAST), their import options
 ``wrench_convention="measured-on-tool"``, ``wrench_frame="world"``, ``rate_hz=100``; their recordings are
-`corpus.force_sources.ArmEstimateRecording` (the hand-on-arm's a `HandOnArmRecording`: the push split into its drag and
+`corpus.arm_wipe.ArmEstimateRecording` (the hand-on-arm's a `HandOnArmRecording`: the push split into its drag and
 its wander). A case lasts 6-23 s. `holdout_cases` yields every family once per seed.
 
-Reused as they are from `corpus.force_sources`, though private there: `_wipe_contacts` (the strip's lanes, so that the
-curved wipe is the flat one's) and `_through_the_air` (rests, approaches and retreats). Re-implemented here, being
+Reused as they are: `corpus.arm_wipe._wipe_contacts`, though private there (the strip's lanes, so that the curved
+wipe is the flat one's), and `corpus.build.through_the_air` (rests, approaches and retreats). Re-implemented here, being
 small: the in-plane direction error and its scaling, the joint friction, the free-space weight of the hand, the log's
 rows and text, the three held orientations.
 """
@@ -94,6 +94,16 @@ from corpus.arm_log import (
     tool_velocity,
     written_log,
 )
+from corpus.arm_wipe import (
+    LWR_RATE_HZ,
+    WIPE_AREAS,
+    ArmEstimateRecording,
+    _wipe_contacts,
+    arm_draws,
+    wipe_draws,
+    wipe_lanes,
+    wipe_passes,
+)
 from corpus.build import (
     UP,
     Fold,
@@ -105,27 +115,16 @@ from corpus.build import (
     rest,
     rotated,
     speed_profile,
+    through_the_air,
     tilted_plane,
     timed,
     transfer,
 )
 from corpus.case import CorpusCase
-from corpus.families import plane_stroke
-from corpus.force_sources import (
-    LWR_RATE_HZ,
-    WIPE_AREAS,
-    ArmEstimateRecording,
-    _through_the_air,
-    _wipe_contacts,
-    arm_draws,
-    carried_weight,
-    tool_centre,
-    wipe_draws,
-    wipe_lanes,
-    wipe_passes,
-)
+from corpus.force_sources import carried_weight, tool_centre
 from corpus.kinesthetic import OperatorModel, operator_forces
 from corpus.recording import recorded_case
+from corpus.strokes import plane_stroke
 
 HOLDOUT_FAMILIES: tuple[str, ...] = ("lwr-wipe-curved", "tool-weight-line", "hand-on-arm", "lwr-circle")
 """The held-out families, in the order `holdout_cases` yields them."""
@@ -185,7 +184,7 @@ class HorizontalCylinder(Fold):
 class HandOnArmRecording(ArmEstimateRecording):
     """A torque-sensing arm's log whose estimate carries the hand's push on the links (`hand_on_arm_wipe_case`).
 
-    As `corpus.force_sources.ArmEstimateRecording`, with the file's pose at the tool point (``flange_positions`` is
+    As `corpus.arm_wipe.ArmEstimateRecording`, with the file's pose at the tool point (``flange_positions`` is
     the tool point's path, ``flange_wrenches`` the true applied wrench, no direction error, no joint friction), and
     ``hand_forces`` (N, 3) the push as the estimate reads it in applied-by-tool terms (world, N: the push on the robot
     negated), split into ``hand_drag`` (N, 3), minus the drag times the tool point's velocity (AGAINST the motion
@@ -209,7 +208,7 @@ def _curved_radius_range(extent_m: float, length_m: float) -> tuple[float, float
 
 
 def lwr_wipe_curved_case(seed: int = 0) -> CorpusCase:
-    """The strip wipe of `corpus.force_sources.lwr_wipe_case` on a near-flat part: a horizontal cylinder of radius
+    """The strip wipe of `corpus.arm_wipe.lwr_wipe_case` on a near-flat part: a horizontal cylinder of radius
     1.14-2.3 m (in `CURVED_RADIUS_M`, by `_curved_radius_range`), the lanes across its axis, the strip's middle
     0-15 deg (either way) off its top (see the module docstring); slide, family ``lwr-wipe-curved``, recorded by the
     torque-sensing arm's log.
@@ -251,7 +250,7 @@ def lwr_wipe_curved_case(seed: int = 0) -> CorpusCase:
     params |= {f"cylinder_centre_{x}": float(v) for x, v in zip("xyz", part.centre, strict=True)}
     # The lanes run along the chart's e_u: across the axis, where the normal turns.
     contacts = _wipe_contacts(part, *wipe, params["ramp_s"], rng, FINE_DT)
-    pieces = _through_the_air(contacts, rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
+    pieces = through_the_air(contacts, rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
     fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
     # The arm's error turns about an axis in the tangent plane at the strip's middle, near the lanes (as on the flat
     # strip, where that plane is the part's).
@@ -320,7 +319,7 @@ def tool_weight_line_case(seed: int = 0) -> CorpusCase:
     held = _rest_axes(stroke.normals[0], plane.e_u, rng)
     # One contact gives two rests (before the approach, after the retreat); the third orientation is held first,
     # 4-6 cm aside, so that a tare sees the weight turn in three orientations.
-    pieces = _through_the_air([stroke], rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), held[1:], (1.2, 1.5))
+    pieces = through_the_air([stroke], rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), held[1:], (1.2, 1.5))
     start = pieces[0].points[0]
     first = start + rng.uniform(0.04, 0.06) * rotated(plane.e_u, plane.out, rng.uniform(-np.pi, np.pi))
     move = transfer(first, start, held[1], rng.uniform(0.6, 0.9), FINE_DT, 0.01)
@@ -370,7 +369,7 @@ def hand_on_arm_wipe_case(seed: int = 0) -> CorpusCase:
     if params["strokes"] == 2.0:
         beside = Fold(plane.origin + 0.07 * plane.e_v, plane.e_u, plane.e_v, 0.0, plane.radius)
         contacts.append(plane_stroke(beside, "zigzag", rng, FINE_DT, force, ramp, cruise))
-    pieces = _through_the_air(contacts, rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), rest_s=(1.0, 1.5))
+    pieces = through_the_air(contacts, rng, FINE_DT, (0.08, 0.15), (1.0, 1.4), rest_s=(1.0, 1.5))
     fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 4e-4, 0.1)
     # The push on the robot: the drag along the tool point's motion (the hand drives the arm against its damping)
     # and a slow wander; in contact as in free space. In applied-by-tool terms (as the import reads it) negated.
@@ -406,7 +405,7 @@ def lwr_circle_case(seed: int = 0) -> CorpusCase:
     the turn shows across the motion (along the gradient's own direction it would fall along the motion there, and a
     friction-free force would not show it). The gain is scaled so that the friction-free force of the estimate turns
     ``direction_turn_deg`` (22-28 deg) over the contact's pressing part (between its ramps). ``parameters`` as
-    `corpus.force_sources.lwr_wipe_case`'s (without the wipe's area), plus ``circle_radius_m``, ``turns``."""
+    `corpus.arm_wipe.lwr_wipe_case`'s (without the wipe's area), plus ``circle_radius_m``, ``turns``."""
     rng = _rng(seed, "lwr-circle")
     params: dict[str, float] = {
         "tilt_deg": rng.uniform(0.0, 15.0),
@@ -426,7 +425,7 @@ def lwr_circle_case(seed: int = 0) -> CorpusCase:
     t, a = timed(angle, plane.points(chart[:, 0], chart[:, 1]), FINE_DT, speed)
     u, v = np.interp(a, angle, chart[:, 0]), np.interp(a, angle, chart[:, 1])
     circle = contact_piece(plane.points(u, v), plane.inward(u), t, params["force_n"], params["ramp_s"])
-    pieces = _through_the_air([circle], rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
+    pieces = through_the_air([circle], rng, FINE_DT, (0.03, 0.08), (0.7, 1.0), rest_s=(1.0, 1.2))
     fine = assemble(pieces, FINE_DT, rng, params["pad_stiffness_n_m"], params["friction"], 3e-4, 0.1)
     axis_deg = rng.uniform(-180.0, 180.0)
     across_deg = axis_deg + 90.0 + rng.uniform(-25.0, 25.0)

@@ -69,17 +69,17 @@ from corpus.build import (
     timed,
 )
 from corpus.case import CorpusCase, TruthSegment, analytic_case
-from corpus.families import (
+from corpus.families import human_case
+from corpus.recording import CSV_COLUMNS
+from corpus.strokes import (
     ANALYTIC_RATE_HZ,
     _analytic,
     _draw,
     _params,
     _profile,
     cylinder_stroke,
-    human_case,
     plane_chart,
 )
-from corpus.recording import CSV_COLUMNS
 from corpus.synthetic import minimum_jerk
 
 PRESS_AND_PATH_FAMILIES: tuple[str, ...] = (
@@ -116,9 +116,9 @@ def _rng(seed: int, family: str) -> np.random.Generator:
 def _plane_contact(
     plane: Fold, shape: str, rng: np.random.Generator, dt: float, cruise: float, level: Callable[[NDArray], NDArray]
 ) -> Piece:
-    """A ``shape`` stroke (`corpus.families.plane_chart`) on ``plane`` sampled at ``dt`` (s): touch-down and lift-off
+    """A ``shape`` stroke (`corpus.strokes.plane_chart`) on ``plane`` sampled at ``dt`` (s): touch-down and lift-off
     at 3-4 cm/s, ``cruise`` (m/s) between (slower at a corner), pressing ``level(t)`` (N at s since touch-down)
-    shaped by ramps of `PRESS_RAMP_S` (like `corpus.families.plane_stroke`, with a force that varies in time)."""
+    shaped by ramps of `PRESS_RAMP_S` (like `corpus.strokes.plane_stroke`, with a force that varies in time)."""
     param, chart, corners = plane_chart(shape, rng)
     speed = speed_profile(rng.uniform(0.03, 0.04), cruise, rng.uniform(0.03, 0.04), corners)
     t, p = timed(param, plane.points(chart[:, 0], chart[:, 1]), dt, speed)
@@ -127,7 +127,7 @@ def _plane_contact(
 
 
 def _unsteady_case(name: str, family: str, contact: Piece, params: dict, rng: np.random.Generator) -> CorpusCase:
-    """A slide case as `corpus.families._analytic` assembles it (approach from 10 cm in 1-1.5 s, ``contact``,
+    """A slide case as `corpus.strokes._analytic` assembles it (approach from 10 cm in 1-1.5 s, ``contact``,
     retreat), the press wandering only by `UNSTEADY_WANDER`, its truth segments unsteady."""
     dt = 1.0 / params["rate_hz"]
     before, after = rng.uniform(1.0, 1.5, 2)
@@ -222,7 +222,7 @@ def quick_drum_case(
     """ONE quick wipe across the top of a drum (a horizontal cylinder of ``radius_m``, 8-15 cm), across its axis,
     the normal turning ``turn_deg`` (40-60 deg) within ``contact_s`` (1.05-1.35 s, touch-down to lift-off; the
     cruise speed solved for it); contour, profile 0.6 -> 1 -> 0.75 of a 10-20 N press with ramps of 0.2 s. The
-    path as `corpus.families.cylinder_stroke` (±9 deg off the top, drifting 1 cm along the axis)."""
+    path as `corpus.strokes.cylinder_stroke` (±9 deg off the top, drifting 1 cm along the axis)."""
     rng = _rng(seed, "drum-quick")
     params = _params(rng, (10.0, 20.0), None, None, rate_hz)
     radius = _draw(radius_m, 0.08, 0.15, rng)

@@ -14,6 +14,7 @@ from scipy.ndimage import uniform_filter1d
 from test_corpus import angle_deg, check_truth, read_csv
 
 from corpus import force_sources as fs
+from corpus.arm_wipe import LWR_RATE_HZ, ArmEstimateRecording
 from corpus.case import CorpusCase
 from skills.quaternions import matrix_from_quaternion
 
@@ -92,7 +93,7 @@ def test_every_file_reads_back_to_the_truth_plus_the_modelled_errors(case: Corpu
     raw = read_csv(recording.csv_text, recording.import_options, tare=False).arrays()
     assert demo.t[0] == pytest.approx(0.0) and demo.t[-1] == pytest.approx(case.t[-1], abs=0.02)
     R = matrix_from_quaternion(at(demo.t, case.t, case.orientations))
-    if isinstance(recording, fs.ArmEstimateRecording):
+    if isinstance(recording, ArmEstimateRecording):
         assert recording.csv_text.splitlines()[0] == "t,x,y,z,qx,qy,qz,qw,fx,fy,fz,mx,my,mz"
         assert recording.import_options["wrench_frame"] == "world"
         # The file's pose is the flange's, L behind the tool point along tool z.
@@ -238,7 +239,7 @@ def test_the_wipe_covers_its_area_on_a_plane_and_its_estimate_leans_against_the_
     for rows in (slice(0, 100), slice(-100, None)):
         assert not case.in_contact[rows].any() and np.ptp(case.positions[rows], axis=0).max() < 3e-3
     stamps = parsed(recording.csv_text)[:, 0]
-    steps = np.diff(stamps) * fs.LWR_RATE_HZ
+    steps = np.diff(stamps) * LWR_RATE_HZ
     assert steps.min() > 0.55 and steps.max() < 1.45 and np.ptp(steps) > 0.5  # ±20 % jitter, increasing
 
 

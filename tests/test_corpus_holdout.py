@@ -16,8 +16,8 @@ from scipy.optimize import least_squares
 from test_corpus_force_sources import rests
 
 from corpus import holdout
+from corpus.arm_wipe import LWR_RATE_HZ, ArmEstimateRecording
 from corpus.case import CorpusCase
-from corpus.force_sources import LWR_RATE_HZ, ArmEstimateRecording
 from schemas.import_options import CsvImportOptions
 from services import csv_import, import_steps
 from skills.quaternions import matrix_from_quaternion

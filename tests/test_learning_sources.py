@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from corpus.arm_wipe import lwr_wipe_case
 from corpus.case import CorpusCase
-from corpus.force_sources import grinder_case, high_friction_cylinder_case, lwr_wipe_case, tool_weight_case
+from corpus.force_sources import grinder_case, high_friction_cylinder_case, tool_weight_case
 from corpus.press_and_path import quick_drum_case, ramp_press_case, wobble_press_case
 from corpus.scoring import score
 from schemas import Demonstration, Skill
