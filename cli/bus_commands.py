@@ -16,6 +16,12 @@ from services.service_url import URL_HELP
 
 PACES = ("realtime", "fast")
 """`schemas.execution.Pace`, spelled out: ``--help`` imports no pydantic (tests/test_cli.py compares)."""
+ENGINES = ("pybullet", "mujoco")
+"""`schemas.execution.Engine`, spelled out as :data:`PACES` is."""
+ENGINE_HELP = (
+    "default engine of the executions that name none: pybullet (the compiled loop) or mujoco (the same cell in "
+    "MuJoCo; its loop in Python), docs/ENGINES.md (default $CONTACT_SKILLS_ENGINE, else pybullet)"
+)
 
 EXIT_ENDED_EARLY = 1
 """`watch`: the execution was aborted or failed."""
@@ -103,16 +109,23 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from services.quiet_imports import import_pybullet_quietly
 
     import_pybullet_quietly()
+    from schemas.execution import Engine
     from sim_worker.worker_settings import WorkerSettings
     from sim_worker.zenoh_worker import run_worker
 
     _logging(args.log_level)
     apply_login(args)
-    settings = WorkerSettings.from_env()
+    try:
+        settings = WorkerSettings.from_env()
+    except ValueError as exc:  # e.g. CONTACT_SKILLS_ENGINE naming no engine
+        print(f"contact-skills worker: error: {exc}", file=sys.stderr)
+        return 2
     if args.connect:
         settings.endpoints = _endpoints(args.connect)
     if args.prefix:
         settings.prefix = args.prefix
+    if args.engine:
+        settings.engine = Engine(args.engine)
     try:
         return run_worker(settings, worker_id=args.id)
     except ValueError as exc:  # e.g. an id that cannot be a key chunk
@@ -429,6 +442,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     worker.add_argument("--connect", action="append", metavar="ENDPOINT", help=connect_help)
     worker.add_argument("--id", help="worker id (default: its bus login, else worker-<6 random hex digits>)")
     worker.add_argument("--prefix", help=prefix_help)
+    worker.add_argument("--engine", choices=ENGINES, help=ENGINE_HELP)
     login_arguments(worker)
     worker.add_argument("--log-level", default="info", choices=LOG_LEVELS, help=LOG_LEVEL_HELP)
     worker.set_defaults(run=cmd_worker)

@@ -36,6 +36,7 @@ EXAMPLES: dict[str, list[str]] = {
     "plan": [
         "contact-skills plan skill_5e6f7a8b9c0d -o scratch/plan.json --every 10   # from the API at --url",
         "contact-skills plan scratch/skill.json -o scratch/plan.json --placement '{\"translation_m\": [0.55, 0, 0.2]}'",
+        "contact-skills plan scratch/skill.json -o scratch/plan.mcap --format mcap --every 10   # for Foxglove, ROS 2",
     ],
     "router": [
         "contact-skills router --listen tcp/127.0.0.1:7447",

@@ -1,6 +1,7 @@
 """``contact-skills plan``: a skill's nominal plan for a real cell (docs/REAL_CELL.md) as JSON
-(``schemas.skill_plan.SkillPlan``): of a stored skill (from the API, ``GET /skills/{id}/plan``) or of a local skill
-file (as ``contact-skills learn -o`` writes it), computed here, optionally placed into the robot's world."""
+(``schemas.skill_plan.SkillPlan``) or MCAP (``services.telemetry_export.plan_mcap``): of a stored skill (from the
+API, ``GET /skills/{id}/plan``) or of a local skill file (as ``contact-skills learn -o`` writes it), computed here,
+optionally placed into the robot's world."""
 
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ from services.service_url import URL_HELP
 
 def cmd_plan(args: argparse.Namespace) -> int:
     """Write a skill's plan for a real cell: the phase planner's references for every control step (timed tool
-    poses, compliant frame, selection, desired force along CF z, phase) and the controller's gains, as JSON. An id
-    (skill_...) is fetched from the API; a local skill file is planned here, where --placement (JSON, as the
-    execution's environment.placement) moves it into the robot's world first."""
+    poses, compliant frame, selection, desired force along CF z, phase) and the controller's gains, as JSON or (--format
+    mcap) as MCAP. An id (skill_...) is fetched from the API; a local skill file is planned here, where --placement
+    (JSON, as the execution's environment.placement) moves it into the robot's world first."""
     from cli.errors import UserError, report_user_error
 
     try:
@@ -25,6 +26,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise UserError([f"--placement: only for a local skill file ({args.source} is not one)"])
         else:
             data, what = _remote(args)
+        if args.format == "mcap":
+            data = _as_mcap(data)
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_bytes(data)
     except Exception as exc:
@@ -70,6 +73,15 @@ def _remote(args: argparse.Namespace) -> tuple[bytes, str]:
     return data, f"plan of {args.source} from {service_url(args.url)}"
 
 
+def _as_mcap(plan_json: bytes) -> bytes:
+    """The plan ``plan_json`` (a ``SkillPlan``'s JSON, as the API and :func:`_local` give it) as MCAP: the same file
+    ``GET /skills/{id}/plan?format=mcap`` serves."""
+    from schemas.skill_plan import SkillPlan
+    from services.telemetry_export import plan_mcap
+
+    return plan_mcap(SkillPlan.model_validate_json(plan_json)).data
+
+
 def _positive(text: str) -> int:
     """A positive whole number from the command line."""
     value = int(text)
@@ -81,11 +93,15 @@ def _positive(text: str) -> int:
 def register(commands: argparse._SubParsersAction) -> None:
     """Add ``plan`` to the `contact-skills` parser."""
     plan = commands.add_parser(
-        "plan", help="export a skill's plan for a real cell (timed poses, CF, selection, force, gains) as JSON",
+        "plan", help="export a skill's plan for a real cell (timed poses, CF, selection, force, gains): JSON or MCAP",
         description=cmd_plan.__doc__,
     )  # fmt: skip
     plan.add_argument("source", metavar="ID_OR_FILE", help="skill_... (from the API), or a local skill JSON file")
-    plan.add_argument("-o", "--output", type=Path, required=True, help="JSON file to write")
+    plan.add_argument("-o", "--output", type=Path, required=True, help="file to write (JSON, or MCAP with --format)")
+    plan.add_argument(
+        "--format", choices=("json", "mcap"), default="json",
+        help="json (default): the plan; mcap: the same plan as ROS 2 messages for Foxglove or a ROS 2 cell",
+    )  # fmt: skip
     plan.add_argument("--every", type=_positive, default=1, metavar="N", help="keep every N-th control step")
     plan.add_argument(
         "--max-samples", type=_positive, metavar="N",

@@ -18,7 +18,7 @@ import threading
 from pathlib import Path
 from typing import IO, Any
 
-from cli.bus_commands import LOG_LEVEL_HELP, LOG_LEVELS, apply_login, login_arguments
+from cli.bus_commands import ENGINE_HELP, ENGINES, LOG_LEVEL_HELP, LOG_LEVELS, apply_login, login_arguments
 from services.service_url import DEFAULT_URL, URL_ENV
 from services.settings import DEFAULT_WORKERS
 
@@ -316,7 +316,8 @@ def cmd_up(args: argparse.Namespace) -> int:
                 "--connect", listen, "--log-level", args.log_level]  # fmt: skip
     instance = secrets.token_hex(8)  # how `up` knows ITS API answers /health (which shows no pid without the token)
     api = _Child("api", api_argv, {**env, "CONTACT_SKILLS_INSTANCE": instance}, printer, preexec)
-    workers = [_Child(f"worker-{k + 1}", [*base, "worker"], env, printer, preexec) for k in range(settings.workers)]
+    worker_argv = [*base, "worker", *(["--engine", args.engine] if args.engine else [])]
+    workers = [_Child(f"worker-{k + 1}", worker_argv, env, printer, preexec) for k in range(settings.workers)]
     code = 0
     try:
         from services.router import local_router
@@ -455,6 +456,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--workers", type=int, help=f"sim worker processes (default $CONTACT_SKILLS_WORKERS or {DEFAULT_WORKERS})"
     )
     up.add_argument("--zenoh-port", type=int, default=7447, help="TCP port of the embedded Zenoh router (loopback)")
+    up.add_argument("--engine", choices=ENGINES, help=f"the workers' {ENGINE_HELP}")
     up.add_argument(
         "--open-bus",
         action="store_true",

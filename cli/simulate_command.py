@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from cli import bus_commands
-from cli.bus_commands import PACES
+from cli.bus_commands import ENGINES, PACES
 from cli.errors import UserError, report_user_error
 from cli.sweep_command import CONTROLLERS
 from services.quiet_imports import import_pybullet_quietly
@@ -45,7 +45,7 @@ def register(commands: argparse._SubParsersAction) -> None:
                           "delay, 200 Hz filter, tool inertia) or the exact contact wrench")  # fmt: skip
     sim.add_argument("--controller", choices=CONTROLLERS,
                      default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
-    sim.add_argument("--engine", choices=["pybullet", "mujoco"], default="pybullet",
+    sim.add_argument("--engine", choices=ENGINES, default="pybullet",
                      help="the physics engine: pybullet (the compiled loop) or mujoco (the same cell in MuJoCo; its "
                           "loop in Python), docs/ENGINES.md")  # fmt: skip
     sim.add_argument(

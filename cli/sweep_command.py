@@ -9,6 +9,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from cli.bus_commands import ENGINES
 from services.service_url import URL_HELP
 
 SHOWN_CONTROLLERS = "hybrid_cf,impedance_found_surface,hybrid_world_z"
@@ -102,7 +103,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "sampler": args.sampler,
             "success_rms_pct": args.threshold,
             "store_telemetry": args.store_telemetry,
-            "settings": _settings(args.settings),
+            "settings": {**_settings(args.settings), **({"engine": args.engine} if args.engine else {})},
         }
         SweepRequest.model_validate({**body, "skill_id": "checked-by-the-service"})  # bad options: exit 2 here
     except Exception as exc:
@@ -191,6 +192,12 @@ def register(commands: argparse._SubParsersAction) -> None:
         '{"approach_slow_distance_m": 0.04}; the sweep sets the controller, the varied environment, telemetry and '
         "its success tolerances; default: schemas.sweep.DEFAULT_SETTINGS, follow_surface_normal and an approach "
         "that expects the surface within the default offsets)",
+    )
+    sweep.add_argument(
+        "--engine",
+        choices=ENGINES,
+        help="the physics engine of every trial (overrides the settings' engine; default: theirs, else pybullet), "
+        "docs/ENGINES.md",
     )
     sweep.add_argument(
         "--store-telemetry",

@@ -20,7 +20,7 @@ from schemas.demonstration import (
     Vector3,
     Wrench,
 )
-from schemas.execution import ExecutionMetrics, ExecutionPhase, TelemetryBatch
+from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.numbers import Real
 from schemas.skill import MAX_JOINT_DEMONSTRATIONS, MAX_JOINT_SAMPLES, LearnOptions, Skill
 from schemas.text import Identifier
@@ -299,6 +299,9 @@ class WorkerSummary(BaseModel):
     )
     execution_id: str | None = Field(None, description="The execution it runs now, if any.")
     executions_run: int = Field(0, description="Executions it accepted since it started (its own count).")
+    engine: Engine | None = Field(
+        None, description="Its default engine, run by an execution that names none (None: it did not answer yet)."
+    )
     info_age_s: Real | None = Field(
         None, description="How old the worker's answer behind busy and activity is, s (None: no answer yet)."
     )

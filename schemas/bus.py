@@ -47,7 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from schemas.bus_security import BusSecurity
 from schemas.dashboard import MAX_WORK_PIECE_SOLIDS, WorkPieceMesh
 from schemas.demonstration import Demonstration
-from schemas.execution import ExecutionMetrics, ExecutionPhase, ExecutionRequest
+from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionRequest
 from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus contract is imported from here
 from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
@@ -206,6 +206,7 @@ class WorkerInfo(BaseModel):
                     "pid": 4242,
                     "started_unix_s": 1763700000.0,
                     "executions_run": 3,
+                    "engine": "pybullet",
                 }
             ]
         },
@@ -221,6 +222,9 @@ class WorkerInfo(BaseModel):
     pid: int = 0
     started_unix_s: Real = Field(0.0, description="When the worker process started, Unix time, s.")
     executions_run: int = Field(0, description="Executions accepted since the worker started.")
+    engine: Engine | None = Field(
+        None, description="Its default engine: what an execution that names none runs on (None: not said yet)."
+    )
 
 
 class StartExecution(BaseModel):

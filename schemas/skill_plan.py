@@ -6,6 +6,7 @@ samples stays a few MB of JSON. SI units, world frame, quaternions ``[x, y, z, w
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -20,6 +21,17 @@ SKILL_PLAN_VERSION = 1
 """The plan format's version: raised when a field changes meaning or goes away (a new field keeps it)."""
 MAX_PLAN_SAMPLES = 200_000
 """Most samples one exported plan holds (200 s at 1 kHz; ``every`` thins a longer one), about 60 MB of JSON."""
+
+
+class PlanFormat(StrEnum):
+    """How a plan is exported (``GET /skills/{id}/plan?format=``, ``contact-skills plan --format``)."""
+
+    json = "json"
+    """The :class:`SkillPlan` as JSON."""
+    mcap = "mcap"
+    """The same plan as MCAP: the samples as ROS 2 messages (timed poses, twist, CF, force, phase, segment,
+    selection), the other fields as JSON in its metadata (``services.telemetry_export.plan_mcap``)."""
+
 
 Selection6 = Annotated[list[int], Field(min_length=6, max_length=6)]
 Twist6 = Annotated[list[float], Field(min_length=6, max_length=6)]

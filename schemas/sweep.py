@@ -26,12 +26,14 @@ from enum import StrEnum
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.execution import (
+    DEFAULT_ENGINE,
     MAX_FORCE_SCALE,
     MAX_OFFSET_M,
     MAX_SENSOR_BIAS_N,
     MAX_SENSOR_NOISE_N,
     MAX_TILT_DEG,
     ControllerKind,
+    Engine,
     ExecutionMetrics,
     ExecutionSettings,
 )
@@ -269,8 +271,9 @@ class SweepRequest(BaseModel):
         default_factory=ExecutionSettings,
         description="The execution settings every trial starts from (gains, pace, environment, tolerances); the sweep "
         "sets the varied fields of the environment, the controller, the telemetry (from store_telemetry) and the two "
-        "tolerances of its success criteria (from success_rms_pct and success_contact_ratio). The CLI's default "
-        "sweep starts from DEFAULT_SETTINGS.",
+        "tolerances of its success criteria (from success_rms_pct and success_contact_ratio). Every trial runs on "
+        "settings.engine, pybullet when absent (not each worker's own default: the trials spread over the workers "
+        "and must compare like with like). The CLI's default sweep starts from DEFAULT_SETTINGS.",
     )
     store_telemetry: bool = Field(
         False,
@@ -319,6 +322,15 @@ class SweepRequest(BaseModel):
 
     @field_validator("settings")
     @classmethod
+    def _one_engine(cls, value: ExecutionSettings) -> ExecutionSettings:
+        """Every trial on the engine named, else on :data:`DEFAULT_ENGINE`: one sweep, one engine, whichever workers
+        its trials go to."""
+        if value.engine is None:
+            return value.model_copy(update={"engine": DEFAULT_ENGINE})
+        return value
+
+    @field_validator("settings")
+    @classmethod
     def _criteria_from_success_fields(cls, value: ExecutionSettings) -> ExecutionSettings:
         given = value.tolerances.model_fields_set & set(SWEEP_TOLERANCES.values())
         if given:
@@ -346,6 +358,9 @@ class TrialResult(BaseModel):
 
     trial: int = Field(description="Trial index, 0..N-1 (the same parameters for every controller).")
     controller: ControllerKind
+    engine: Engine = Field(
+        Engine.pybullet, description="The physics engine it runs on: the sweep's settings.engine (every trial's)."
+    )
     parameters: dict[SweepParameter, float] = Field(description="The values drawn for this trial.")
     execution_id: str | None = Field(None, description="The execution that ran it (the last, if it was rerun).")
     attempts: int = Field(0, description="Executions submitted for it (> 1: rerun after a lost worker or restart).")

@@ -14,9 +14,10 @@ import numpy as np
 
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
+TWIST_TYPE = "geometry_msgs/msg/TwistStamped"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
-"""The ROS 2 message types of :func:`pose_stamped`, :func:`wrench_stamped` and :func:`tf_message`, as bags and MCAP
-files name them."""
+"""The ROS 2 message types of :func:`pose_stamped`, :func:`wrench_stamped`, :func:`twist_stamped` and
+:func:`tf_message`, as bags and MCAP files name them."""
 
 
 class CdrLayout:
@@ -106,6 +107,11 @@ def pose_stamped(frame: str) -> CdrLayout:
 def wrench_stamped(frame: str) -> CdrLayout:
     """``geometry_msgs/msg/WrenchStamped``: ``stamp``, ``wrench`` = force (3) + torque (3)."""
     return CdrLayout().stamp("stamp").string(frame).floats("wrench", 6)
+
+
+def twist_stamped(frame: str) -> CdrLayout:
+    """``geometry_msgs/msg/TwistStamped``: ``stamp``, ``twist`` = linear (3) + angular (3)."""
+    return CdrLayout().stamp("stamp").string(frame).floats("twist", 6)
 
 
 def tf_message(transforms: Sequence[tuple[str, str]]) -> CdrLayout:

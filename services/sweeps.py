@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
 from schemas.bus import CommandName, KeyExpressions
-from schemas.execution import ControllerKind, ExecutionPhase, ExecutionRequest, TelemetryMode
+from schemas.execution import DEFAULT_ENGINE, ControllerKind, Engine, ExecutionPhase, ExecutionRequest, TelemetryMode
 from schemas.skill import Skill
 from schemas.sweep import (
     SWEEP_TOLERANCES,
@@ -121,6 +121,7 @@ def _criteria(row: SweepRow) -> dict[str, float]:
 def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
     """Every trial x controller of the sweep with its execution's result (judged once finished: its verdict)."""
     criteria = _criteria(row)
+    engine = Engine(row.request["settings"].get("engine") or DEFAULT_ENGINE)  # a sweep stored before it was set
     results = []
     for r in store.sweeps.trials(row.id):
         finished = _finished(r)
@@ -129,6 +130,7 @@ def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
             TrialResult(
                 trial=r.trial,
                 controller=ControllerKind(r.controller),
+                engine=engine,
                 parameters={SweepParameter(k): v for k, v in r.parameters.items()},
                 execution_id=r.execution_id,
                 attempts=r.attempts,

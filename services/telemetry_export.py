@@ -22,6 +22,15 @@ zstd chunks, written with the ``mcap`` library). Every message is stamped ``star
   CF triads, the touched surface): the scene the live Foxglove server streams, built by the same code
   (``services.dashboard.ros_scene``), so a recorded run looks in Foxglove as the live one did.
 
+A skill's plan for a real cell (``schemas.skill_plan.SkillPlan``, docs/REAL_CELL.md) as MCAP (:func:`plan_mcap`):
+every sample stamped ``t`` (ns from 0, the plan's start) on ``/reference/pose`` (PoseStamped, ``world``: the reference
+tool pose), ``/reference/twist`` (``geometry_msgs/msg/TwistStamped``, ``world`` axes), ``/cf/pose`` (PoseStamped,
+``world``: the compliant frame, world from CF), ``/force/desired`` (WrenchStamped, ``cf``: the desired force on force
+z); ``/phase``, ``/segment`` and ``/selection`` (``std_msgs/msg/Int32MultiArray``, the diagonal of S in the CF) at the
+start and at every change; ``/tf`` ``world -> reference`` and ``world -> cf``; the plan's other fields (format,
+version, skill, controller, gains, placement, control period, every, touch-down speed) as JSON in the metadata record
+``contact_skills`` (``plan``).
+
 A demonstration's MCAP is also a bag ``contact-skills learn`` reads back (the wrench is in ``world``, the pose
 frame). CSV: one row per sample, the columns named in :data:`EXECUTION_CSV_COLUMNS` (an execution) or the
 importer's own columns (a demonstration: `services.csv_import.demonstration_csv_text`).
@@ -45,9 +54,19 @@ import numpy as np
 from schemas.demonstration import DemonstrationArrays
 from schemas.execution import PHASE_CODES, STREAMED_TELEMETRY_WIDTH
 from schemas.skill import Skill
+from schemas.skill_plan import SkillPlan
 from schemas.telemetry_rows import telemetry_column
-from services.cdr import POSE_TYPE, WRENCH_TYPE, pose_stamped, tf_message, wrench_stamped
-from services.dashboard.scene import CF_FRAME, TOOL_FRAME, WORLD_FRAME
+from services.cdr import (
+    POSE_TYPE,
+    TF_TYPE,
+    TWIST_TYPE,
+    WRENCH_TYPE,
+    pose_stamped,
+    tf_message,
+    twist_stamped,
+    wrench_stamped,
+)
+from services.dashboard.scene import CF_FRAME, REFERENCE_FRAME, TOOL_FRAME, WORLD_FRAME
 from services.store import TELEMETRY_LAYOUT
 
 PHASE_NAMES = {code: phase.value for phase, code in PHASE_CODES.items()}
@@ -322,6 +341,63 @@ def skill_mcap(a: DemonstrationArrays, skill: Skill, skill_id: str, start_unix_s
             solver.close()
     for topic, (stamps, payloads) in scene.items():
         out.write(topic, SCENE_TOPICS[topic], stamps, payloads)
+    return _finished(out)
+
+
+SELECTION_TYPE = "std_msgs/msg/Int32MultiArray"
+PLAN_TOPICS: dict[str, str] = {
+    "/reference/pose": POSE_TYPE,
+    "/reference/twist": TWIST_TYPE,
+    "/cf/pose": POSE_TYPE,
+    "/force/desired": WRENCH_TYPE,
+    "/phase": PHASE_TYPE,
+    "/segment": SEGMENT_TYPE,
+    "/selection": SELECTION_TYPE,
+    "/tf": TF_TYPE,
+}
+"""Every topic of a plan's MCAP (:func:`plan_mcap`) and its ROS 2 message type."""
+PLAN_CONVENTIONS = (
+    "SI units; quaternions [x, y, z, w]; world frame; stamps = t from the plan's start (ns from 0); /cf/pose is world "
+    "from CF (z into the surface); /force/desired the force the tool applies along CF z; /selection the diagonal of S "
+    "in the CF (1 motion, 0 force), /phase, /segment and /selection sent at the start and at every change"
+)
+"""Stored in a plan MCAP's metadata record ``contact_skills``, beside the plan's other fields (``plan``)."""
+
+
+def plan_mcap(plan: SkillPlan) -> McapExport:
+    """A skill's plan as MCAP (the topics of :data:`PLAN_TOPICS`, the module docstring): what the JSON plan holds,
+    the samples as ROS 2 messages, the rest as JSON in the metadata (``plan``: every field but ``samples``)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    samples = plan.samples
+    header = plan.model_dump_json(exclude={"samples"})
+    out = _McapOut(0, {"plan": header, "conventions": PLAN_CONVENTIONS})
+    stamps = out.stamps(np.asarray(samples.t, dtype=float))
+    reference = np.hstack([np.asarray(samples.position_m, float), np.asarray(samples.orientation, float)])
+    cf = np.hstack([np.asarray(samples.cf_origin_m, float), np.asarray(samples.cf_orientation, float)])
+    force = np.zeros((len(stamps), 6))
+    force[:, 2] = samples.force_n
+    out.write("/reference/pose", POSE_TYPE, stamps, _POSE.messages(stamp=stamps, pose=reference))
+    twist = twist_stamped(WORLD_FRAME).messages(stamp=stamps, twist=np.asarray(samples.twist, float))
+    out.write("/reference/twist", TWIST_TYPE, stamps, twist)
+    out.write("/cf/pose", POSE_TYPE, stamps, _POSE.messages(stamp=stamps, pose=cf))
+    out.write("/force/desired", WRENCH_TYPE, stamps, _WRENCH_CF.messages(stamp=stamps, wrench=force))
+    transforms = tf_message([(WORLD_FRAME, REFERENCE_FRAME), (WORLD_FRAME, CF_FRAME)])
+    tf = transforms.messages(**{f"stamp_{REFERENCE_FRAME}": stamps, REFERENCE_FRAME: reference,
+                                f"stamp_{CF_FRAME}": stamps, CF_FRAME: cf})  # fmt: skip
+    out.write("/tf", TF_TYPE, stamps, tf)
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    types = typestore.types
+    changes = {
+        "/phase": ([p.value for p in samples.phase], lambda v: types[PHASE_TYPE](data=v)),
+        "/segment": (samples.segment, lambda v: types[SEGMENT_TYPE](data=v)),
+        "/selection": ([tuple(s) for s in samples.selection], lambda v: types[SELECTION_TYPE](
+            layout=types["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0), data=np.asarray(v, np.int32))),
+    }  # fmt: skip
+    for topic, (values, message) in changes.items():
+        kept = [k for k, value in enumerate(values) if k == 0 or value != values[k - 1]]
+        payloads = [bytes(typestore.serialize_cdr(message(values[k]), PLAN_TOPICS[topic])) for k in kept]
+        out.write(topic, PLAN_TOPICS[topic], stamps[kept], payloads)
     return _finished(out)
 
 

@@ -1,8 +1,9 @@
 """Execute a learned skill in the simulated world (PyBullet or MuJoCo) with the hybrid controller (the paper's
 section 6).
 
-``execute_skill(skill, world_config, settings)`` builds the robot of the engine ``settings.engine`` names (the taught
-world plus the known and the unknown offset of the work piece): PyBullet's ``SimWorld`` and its compiled 1 kHz loop
+``execute_skill(skill, world_config, settings)`` builds the robot of the engine ``settings.engine`` names (none:
+``schemas.execution.DEFAULT_ENGINE``; a worker fills in its own before) in the taught world plus the known and the
+unknown offset of the work piece: PyBullet's ``SimWorld`` and its compiled 1 kHz loop
 (``sim_worker.control_loop.ControlLoop``), or MuJoCo's ``sim_mujoco.robot.MujocoRobot`` and its loop
 (``sim_mujoco.loop.MujocoLoop``), and hands them to ``execution.executor.Execution``, which sequences the phases
 (settle, free motion, guarded approach, contact, retreat: its docstring) apart from the engine; the metrics and the
@@ -28,7 +29,14 @@ from execution.robot import SimulatedRobot
 from execution.runner import PhaseRunner
 from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
-from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings, NullSpaceProjection
+from schemas.execution import (
+    DEFAULT_ENGINE,
+    Engine,
+    ExecutionMetrics,
+    ExecutionPhase,
+    ExecutionSettings,
+    NullSpaceProjection,
+)
 from schemas.skill import Skill
 from schemas.world import WorldConfig
 from sim_worker.control_loop import ControlLoop
@@ -119,7 +127,7 @@ def execute_skill(
     t_setup = time.perf_counter()
     env = settings.environment
     config = shifted_world_config(world_config, np.asarray(env.offset, float) + np.asarray(env.unknown_offset, float))
-    engine = Engine(settings.engine)
+    engine = Engine(settings.engine or DEFAULT_ENGINE)
     world: SimulatedRobot
     loop_type: Callable[..., PhaseRunner]
     if engine is Engine.mujoco:  # MuJoCo loaded by the executions that ask for it only

@@ -104,6 +104,8 @@ class ExecutionRun:
         self.execution_id = start.execution_id
         self.start = start
         self.request = start.request
+        if self.request.engine is None:  # the request leaves the engine to the worker that runs it
+            self.request = self.request.model_copy(update={"engine": worker.settings.engine})
         self.worlds = worlds
         """The resolved ``ExecutionWorld`` (world config, placed skill and demonstration), or one per stroke."""
         self.segments = sum(len(world.skill.segments) for world in worlds)

@@ -1,4 +1,4 @@
-"""A sim worker's settings (where it connects, under which prefix, its login and job budget:
+"""A sim worker's settings (where it connects, under which prefix, its login, job budget and default engine:
 :class:`WorkerSettings`, from the environment), the shared folder of worker logins it claims one of
 (:func:`claim_login`), and its session on the bus (:func:`opened_session`)."""
 
@@ -17,9 +17,25 @@ from typing import Any
 
 from schemas.bus import DEFAULT_ENDPOINT, DEFAULT_PREFIX, ENV_ENDPOINTS, ENV_PREFIX, session_config, split_endpoints
 from schemas.bus_security import ENV_LOGINS, BusSecurity, parse_env
+from schemas.execution import DEFAULT_ENGINE, Engine
 from schemas.job_budget import JobBudget
 
 log = logging.getLogger("contact_skills.worker")
+
+ENV_ENGINE = "CONTACT_SKILLS_ENGINE"
+"""The worker's default engine (``pybullet`` or ``mujoco``): the one an execution that names none runs on."""
+
+
+def engine_from_env(value: str | None) -> Engine:
+    """The engine ``value`` (the variable :data:`ENV_ENGINE`) names; unset or empty: :data:`DEFAULT_ENGINE`. Raises
+    ValueError naming the variable and the engines for another value."""
+    if not value:
+        return DEFAULT_ENGINE
+    try:
+        return Engine(value.strip().lower())
+    except ValueError:
+        known = ", ".join(e.value for e in Engine)
+        raise ValueError(f"{ENV_ENGINE}={value!r}: not an engine (give one of {known})") from None
 
 
 @dataclass
@@ -40,12 +56,17 @@ class WorkerSettings:
     login_claim: Path | None = None
     """The claim this worker holds on a login of a shared folder (``CONTACT_SKILLS_ZENOH_LOGINS``, :func:`claim_login`):
     renewed while it runs, released when it stops."""
+    engine: Engine = DEFAULT_ENGINE
+    """The engine an execution that names none runs on (``ExecutionSettings.engine`` absent; env
+    ``CONTACT_SKILLS_ENGINE``, ``contact-skills worker --engine``); one that names an engine runs on it."""
 
     @classmethod
     def from_env(cls) -> WorkerSettings:
         """Settings from the environment, defaults for what is not set. With ``CONTACT_SKILLS_ZENOH_LOGINS`` (a folder
-        of ``worker-K.env`` files) the worker claims a login no other live worker holds."""
+        of ``worker-K.env`` files) the worker claims a login no other live worker holds. Raises ValueError for an
+        unknown engine (:data:`ENV_ENGINE`)."""
         env, claim = dict(os.environ), None
+        engine = engine_from_env(env.get(ENV_ENGINE))
         if logins := env.get(ENV_LOGINS):
             claim, login = claim_login(Path(logins), socket.gethostname())
             env.update(login)
@@ -55,6 +76,7 @@ class WorkerSettings:
             security=BusSecurity.from_env(env),
             budget=JobBudget.from_env(os.environ),
             login_claim=claim,
+            engine=engine,
         )
 
 

@@ -17,7 +17,8 @@ and serves until SIGINT/SIGTERM. One job at a time: a start or record request wh
 
 An execution runs ``sim_worker.executor.execute_skill`` in its own thread with the inline skill, in the world of
 the request's ``scenario`` (else the scenario named by the skill's demonstration, else the default flat table) plus
-``world_overrides``. While it runs the worker
+``world_overrides``, on the engine the request names (none: the worker's own, ``WorkerSettings.engine``, which its
+info reports). While it runs the worker
 
 - publishes every control step on ``P/exec/{execution_id}/telemetry`` (``TelemetryBatch`` of
   ``request.telemetry_batch`` rows, reliable, congestion control BLOCK, numbered by ``seq`` and ``first_sample``)
@@ -198,6 +199,7 @@ class Worker:
             pid=os.getpid(),
             started_unix_s=self.started_unix_s,
             executions_run=self.executions_run,
+            engine=self.settings.engine,
         )
 
     # ------------------------------------------------------------------------------------------ publishing
@@ -333,7 +335,8 @@ class Worker:
             # Listen for commands before anyone knows the execution exists.
             run.cmd_subscriber = self._session.declare_subscriber(self.keys.cmd(execution_id), run.command_sample)
             reply("accepted")
-            log.info("%s accepted (%d segments, pace %s)", execution_id, run.segments, run.request.pace)
+            log.info("%s accepted (%d segments, pace %s, engine %s)", execution_id, run.segments, run.request.pace,
+                     run.request.engine)  # fmt: skip
             run.thread = threading.Thread(target=then_trim_heap, args=(run.run,), name=f"execution-{execution_id}",
                                           daemon=True)  # fmt: skip
             run.thread.start()

@@ -26,6 +26,8 @@ PAGES = (
     "docs/DEPLOYMENT.md",
     "docs/EXPERIMENTS.md",
     "docs/CLI.md",
+    "docs/ENGINES.md",
+    "docs/REAL_CELL.md",
 )
 """The pages whose commands run, in the order they run (a page may use what an earlier one wrote in scratch/)."""
 CLI = ".venv/bin/contact-skills"
@@ -47,7 +49,7 @@ class Check(Enum):
     parse = "a server or a long run: its command line parsed by the real parser"
     make = "`make -n`: the command line it runs"
     environment = "an environment variable the code reads"
-    suite = "`make test`: the suite this test is part of"
+    suite = "`make test`: the suite this test is part of (a test file it runs, a benchmark's --smoke run it makes)"
     docker = "docker compose: no engine here; tests/test_compose.py checks the files"
 
 
@@ -95,7 +97,9 @@ def is_service_block(block: str) -> bool:
 
 def classify(command: str) -> Check | None:
     """How a command of a bash block (not a service flow) is checked; None: no test checks it."""
-    if command == "make test":
+    if command == "make test" or re.fullmatch(
+        r"\.venv/bin/python (-m pytest( tests/test_\w+\.py)+ -q|benchmarks/bench_\w+\.py --smoke)", command
+    ):
         return Check.suite
     if command.startswith("make run"):
         return Check.make
@@ -107,7 +111,8 @@ def classify(command: str) -> Check | None:
     if len(words) < 2 or words[0] != CLI:
         return None
     name = words[1]
-    if name in OFFLINE or (name == "export" and not words[2].startswith(("demo_", "exec_", "$"))):
+    local_file = name in ("export", "plan") and not words[2].startswith(("demo_", "exec_", "skill_", "$"))
+    if name in OFFLINE or local_file:
         return Check.run
     if name == "sweep":
         return Check.sweep

@@ -304,6 +304,14 @@ def test_the_spelled_out_paces_are_the_schema_s():
     assert set(PACES) == {pace.value for pace in Pace}
 
 
+def test_the_spelled_out_engines_are_the_schema_s():
+    """`--engine` choices (`worker`, `up`, `simulate`, `sweep`) are spelled out too: `schemas.execution.Engine`."""
+    from cli.bus_commands import ENGINES
+    from schemas.execution import Engine
+
+    assert set(ENGINES) == {engine.value for engine in Engine}
+
+
 def test_the_client_commands_find_the_service_by_contact_skills_url(tmp_path):
     """Without --url, `demo`, `sweep` and `export ID` ask the service at $CONTACT_SKILLS_URL: nothing answers at this
     one (and, not named 127.0.0.1 or localhost, it is not one they would start), and each says where it asked."""

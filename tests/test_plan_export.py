@@ -128,3 +128,97 @@ def test_the_api_serves_the_plan_and_refuses_one_over_max_samples_naming_it(taug
         assert main(["plan", skill_id, "-o", str(out), "--every", "20", "--url", api.url]) == 0
         assert SkillPlan.model_validate_json(out.read_text()) == plan
         assert main(["plan", skill_id, "-o", str(out), "--max-samples", "100", "--url", api.url]) == 2
+
+
+def _plan_from_mcap(data: bytes) -> SkillPlan:
+    """A plan MCAP read back with the ``mcap`` reader and ``rosbags``' own CDR decoder (not the writer's layouts):
+    the metadata's fields, every sample from the per-sample topics, phase, segment and selection held from each change
+    to the next."""
+    import io
+
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    reader = make_reader(io.BytesIO(data))
+    [metadata] = [m.metadata for m in reader.iter_metadata() if m.name == "contact_skills"]
+    topics: dict[str, list] = {}
+    for schema, channel, message in reader.iter_messages():
+        topics.setdefault(channel.topic, []).append(
+            (message.log_time, typestore.deserialize_cdr(message.data, schema.name))
+        )
+    stamps = np.array([stamp for stamp, _ in topics["/reference/pose"]])
+
+    def held(topic: str, value) -> list:
+        changes = topics[topic]
+        at = np.searchsorted([stamp for stamp, _ in changes], stamps, side="right") - 1
+        return [value(changes[k][1]) for k in at]
+
+    def pose(topic: str) -> tuple[list, list]:
+        poses = [m.pose for _, m in topics[topic]]
+        return [[p.position.x, p.position.y, p.position.z] for p in poses], [
+            [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in poses
+        ]
+
+    position, orientation = pose("/reference/pose")
+    cf_origin, cf_orientation = pose("/cf/pose")
+    twists = [m.twist for _, m in topics["/reference/twist"]]
+    samples = {
+        "t": (stamps * 1e-9).tolist(),
+        "phase": held("/phase", lambda m: m.data),
+        "segment": held("/segment", lambda m: m.data),
+        "position_m": position,
+        "orientation": orientation,
+        "twist": [[w.linear.x, w.linear.y, w.linear.z, w.angular.x, w.angular.y, w.angular.z] for w in twists],
+        "cf_orientation": cf_orientation,
+        "cf_origin_m": cf_origin,
+        "selection": held("/selection", lambda m: m.data.tolist()),
+        "force_n": [m.wrench.force.z for _, m in topics["/force/desired"]],
+    }
+    assert all(m.header.frame_id == "cf" for _, m in topics["/force/desired"])
+    assert not any(m.wrench.force.x or m.wrench.force.y or m.wrench.torque.z for _, m in topics["/force/desired"])
+    return SkillPlan.model_validate({**json.loads(metadata["plan"]), "samples": samples})
+
+
+def _assert_same_plan(decoded: SkillPlan, plan: SkillPlan) -> None:
+    """Equal field by field; the time to the stamps' nanosecond, every other number to the bit."""
+    np.testing.assert_allclose(decoded.samples.t, plan.samples.t, rtol=0, atol=1e-9)
+    assert decoded.model_dump(exclude={"samples": {"t"}}) == plan.model_dump(exclude={"samples": {"t"}})
+
+
+@pytest.mark.parametrize("kind", ["slide", "contour"])
+def test_the_mcap_plan_decodes_to_the_json_plan(taught, tmp_path, kind):
+    """`contact-skills plan --format mcap` of a local skill file holds the JSON plan: the same samples (poses, twist,
+    CF, force, phase, segment, selection) and the same gains, placement and timing."""
+    _, skill = taught[kind]
+    skill_path, as_json, as_mcap = tmp_path / "skill.json", tmp_path / "plan.json", tmp_path / "plan.mcap"
+    skill_path.write_text(skill.model_dump_json())
+    placement = '{"translation_m": [0.0, 0.0, 0.02]}'
+    assert main(["plan", str(skill_path), "-o", str(as_json), "--every", "10", "--placement", placement]) == 0
+    argv = ["plan", str(skill_path), "-o", str(as_mcap), "--every", "10", "--placement", placement, "--format", "mcap"]
+    assert main(argv) == 0
+    plan = SkillPlan.model_validate_json(as_json.read_text())
+    _assert_same_plan(_plan_from_mcap(as_mcap.read_bytes()), plan)
+    assert len(set(plan.samples.phase)) == 5 and len({tuple(s) for s in plan.samples.selection}) == 2  # changes held
+
+
+def test_the_api_serves_the_plan_as_mcap_and_refuses_an_unknown_format_naming_it(taught, tmp_path):
+    """``GET /skills/{id}/plan?format=mcap`` decodes to the JSON plan the same query serves; `contact-skills plan ID
+    --format mcap` writes the same file; ``format=yaml`` is a 422 on ``format``."""
+    import httpx
+
+    from services.app import create_app
+
+    _, skill = taught["slide"]
+    app = create_app(api_settings(tmp_path), bus=None)
+    with LiveApi(app) as api, httpx.Client(base_url=api.url) as http:
+        skill_id = app.state.store.skills.add(skill.model_dump_json(), skill.skill_type, None, []).id
+        plan = SkillPlan.model_validate_json(http.get(f"/skills/{skill_id}/plan", params={"every": 20}).content)
+        served = http.get(f"/skills/{skill_id}/plan", params={"every": 20, "format": "mcap"})
+        assert served.status_code == 200 and served.headers["content-type"] == "application/octet-stream"
+        _assert_same_plan(_plan_from_mcap(served.content), plan)
+        out = tmp_path / "plan.mcap"
+        assert main(["plan", skill_id, "-o", str(out), "--every", "20", "--format", "mcap", "--url", api.url]) == 0
+        assert out.read_bytes() == served.content
+        unknown = http.get(f"/skills/{skill_id}/plan", params={"format": "yaml"})
+        assert unknown.status_code == 422 and unknown.json()["detail"][0]["loc"] == ["query", "format"]

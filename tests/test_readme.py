@@ -132,7 +132,21 @@ def _check(step: Step, cwd: Path) -> str | None:
     if step.check is Check.environment:
         name = step.command.split()[1].split("=")[0]
         return None if name in {URL_ENV, *ENV_VARS.values()} else f"{name} is read by no code"
-    return None  # suite, docker, service: checked elsewhere (see Check)
+    if step.check is Check.suite:
+        return _suite_problem(step.command)
+    return None  # docker, service: checked elsewhere (see Check)
+
+
+def _suite_problem(command: str) -> str | None:
+    """A test file the suite has, or a benchmark's ``--smoke`` run one of its tests makes (``make test`` is itself)."""
+    named = re.findall(r"tests/test_\w+\.py|benchmarks/bench_\w+\.py", command)
+    smoked = "".join(path.read_text() for path in (REPO / "tests").glob("test_benchmarks_smoke*.py"))
+    for path in named:
+        if not (REPO / path).exists():
+            return f"{path} does not exist"
+        if path.startswith("benchmarks/") and f'run_smoke("{Path(path).name}"' not in smoked:
+            return f"no test runs {path} --smoke"
+    return None
 
 
 def _sweep_problem(result: subprocess.CompletedProcess, cwd: Path, args: list[str], url: str) -> str | None:

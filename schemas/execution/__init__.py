@@ -26,6 +26,7 @@ from schemas.execution.environment import (
 )
 from schemas.execution.metrics import ExecutionMetrics
 from schemas.execution.settings import (
+    DEFAULT_ENGINE,
     MAX_PAUSE_TIMEOUT_S,
     ControllerGains,
     ControllerKind,
@@ -51,6 +52,7 @@ from schemas.execution.telemetry import (
 )
 
 __all__ = [
+    "DEFAULT_ENGINE",
     "MAX_FORCE_SCALE",
     "MAX_OFFSET_M",
     "MAX_PAUSE_TIMEOUT_S",

@@ -76,6 +76,11 @@ class Engine(StrEnum):
     """MuJoCo (``sim_mujoco``): the same world built from the same URDF and world config, its loop in Python."""
 
 
+DEFAULT_ENGINE = Engine.pybullet
+"""The engine of an execution that names none, where no worker chose another (``contact-skills worker --engine``):
+the local runs (``contact-skills simulate``), a worker started without one, and every sweep that names none."""
+
+
 class SurfaceWindowAction(StrEnum):
     """What a guarded approach does when it finds the surface outside the window it was taught to expect."""
 
@@ -211,10 +216,12 @@ class ExecutionSettings(BaseModel):
 
     environment: EnvironmentChange = Field(default_factory=EnvironmentChange)
     controller: ControllerKind = Field(ControllerKind.hybrid_cf, description="The control law.")
-    engine: Engine = Field(
-        Engine.pybullet,
+    engine: Engine | None = Field(
+        None,
         description="The physics engine the execution runs on: pybullet (the compiled loop) or mujoco (the same "
-        "cell in MuJoCo, the same controller and truth; its loop in Python, slower). docs/ENGINES.md.",
+        "cell in MuJoCo, the same controller and truth; its loop in Python, slower). Absent (null): the engine of "
+        "the worker that runs it (`contact-skills worker --engine`, pybullet unless set; a sweep: pybullet); the "
+        "metrics say which ran. docs/ENGINES.md.",
     )
     gains: ControllerGains = Field(default_factory=ControllerGains)
     approach_speed_m_s: Real = Field(

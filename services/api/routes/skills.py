@@ -12,7 +12,7 @@ from fastapi import APIRouter, Query, Request, Response
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from schemas.skill import MAX_JOINT_SAMPLES
-from schemas.skill_plan import MAX_PLAN_SAMPLES, SkillPlan
+from schemas.skill_plan import MAX_PLAN_SAMPLES, PlanFormat, SkillPlan
 from services.api import errors
 from services.api.deps import (
     READ_GUARD,
@@ -178,7 +178,13 @@ def get_skill_mcap(skill_id: str, store: StoreDep) -> Response:
     return download(mcap.data, MCAP_MEDIA_TYPE, f"{skill_id}.mcap")
 
 
-@router.get("/skills/{skill_id}/plan", responses={200: {"model": SkillPlan}, **ERROR_RESPONSES})
+@router.get(
+    "/skills/{skill_id}/plan",
+    responses={
+        200: {"model": SkillPlan, "content": {"application/octet-stream": {}}, "description": "JSON, or MCAP."},
+        **ERROR_RESPONSES,
+    },
+)
 def get_skill_plan(
     skill_id: str,
     store: StoreDep,
@@ -186,11 +192,16 @@ def get_skill_plan(
     max_samples: Annotated[
         int, Query(ge=1, le=MAX_PLAN_SAMPLES, description="Refuse (422) a plan of more samples than this.")
     ] = MAX_PLAN_SAMPLES,
+    format: Annotated[
+        PlanFormat,
+        Query(description="json: the plan (SkillPlan); mcap: the same as ROS 2 messages (docs/REAL_CELL.md)."),
+    ] = PlanFormat.json,
 ) -> Response:
     """A skill's nominal plan for a real cell (``schemas.skill_plan.SkillPlan``, docs/REAL_CELL.md): the phase
     planner's references for every control step (timed poses, compliant frame, selection, desired force along CF z,
-    phase) with the default settings' controller gains, the skill as stored. 404 for an unknown id; 422 on
-    ``max_samples`` when the plan holds more samples than that (``every`` thins it)."""
+    phase) with the default settings' controller gains, the skill as stored; ``format=mcap``: the same plan as MCAP
+    (the samples as ROS 2 messages, the rest in its metadata). 404 for an unknown id; 422 on ``max_samples`` when the
+    plan holds more samples than that (``every`` thins it)."""
     from execution.plan_export import PlanTooLongError, skill_plan
     from schemas.skill import Skill
 
@@ -202,4 +213,9 @@ def get_skill_plan(
                           skill_id=skill_id)  # fmt: skip
     except PlanTooLongError as exc:
         raise errors.unprocessable(["query", "max_samples"], str(exc)) from None
+    if format is PlanFormat.mcap:
+        from services.api.responses import download
+        from services.telemetry_export import MCAP_MEDIA_TYPE, plan_mcap
+
+        return download(plan_mcap(plan).data, MCAP_MEDIA_TYPE, f"{skill_id}_plan.mcap")
     return Response(plan.model_dump_json(), media_type="application/json")
