@@ -7,7 +7,6 @@ Times (``created``, ``updated``) are Unix seconds.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -23,7 +22,7 @@ from schemas.demonstration import (
 from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, TelemetryBatch
 from schemas.numbers import Real
 from schemas.skill import MAX_JOINT_DEMONSTRATIONS, MAX_JOINT_SAMPLES, LearnOptions, Skill
-from schemas.text import Identifier
+from schemas.text import Identifier, JsonObject
 from schemas.verdict import Verdict
 
 NEXT_OFFSET_HEADER = "X-Next-Offset"
@@ -77,7 +76,7 @@ class DemonstrationCreated(BaseModel):
     import_notes: list[str] = Field(
         default_factory=list, description="What the importer did (resampling, frame, sign, tare); uploads only."
     )
-    extra: dict[str, Any] = Field(
+    extra: JsonObject = Field(
         default_factory=dict, description="Extra information (e.g. the teacher's ground truth for recordings)."
     )
 
@@ -255,7 +254,7 @@ class ExecutionView(BaseModel):
         "worker is gone or no longer keeps it), 0 when the stream is complete; None while it runs and for an "
         "execution run with telemetry 'none' (no stream was meant to be sent).",
     )
-    request: dict[str, Any] = Field(description="The request as it was accepted (an inline skill is left out).")
+    request: JsonObject = Field(description="The request as it was accepted (an inline skill is left out).")
     priority: int = Field(0, description="Its queue priority.")
     queue_position: int | None = Field(
         None, description="While queued: how many queued executions start before it (0: the next one)."
@@ -318,7 +317,7 @@ class HealthDetail(BaseModel):
     database: str = Field(description="Path of the SQLite database.")
     schema_version: int
     pid: int = Field(description="Process id of the API.")
-    workers: list[dict[str, Any]] = Field(description="The sim workers' full WorkerInfo (host names, process ids).")
+    workers: list[JsonObject] = Field(description="The sim workers' full WorkerInfo (host names, process ids).")
 
 
 class Health(BaseModel):

@@ -40,11 +40,11 @@ import math
 import re
 import time
 from enum import StrEnum
-from typing import Any, Literal
+from typing import Literal, TypedDict
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, field_validator, model_validator
 
-from schemas.bus_security import BusSecurity
+from schemas.bus_security import AccessControl, BusSecurity, Transport
 from schemas.dashboard import MAX_WORK_PIECE_SOLIDS, WorkPieceMesh
 from schemas.demonstration import Demonstration
 from schemas.execution import Engine, ExecutionMetrics, ExecutionPhase, ExecutionRequest
@@ -52,7 +52,7 @@ from schemas.key_expressions import DEFAULT_PREFIX as DEFAULT_PREFIX  # the bus 
 from schemas.key_expressions import KeyExpressions as KeyExpressions
 from schemas.key_expressions import check_id
 from schemas.numbers import Real, WholeNumber
-from schemas.text import FreeForm, Identifier
+from schemas.text import FreeForm, Identifier, JsonObject
 from schemas.world import WorldOverrides
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -125,7 +125,7 @@ OVERRIDE_DEFAULT_BOUND = 1e5
 _OVERRIDE_NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
 
 
-def check_override(name: str, value: Any) -> None:
+def check_override(name: str, value: JsonValue) -> None:
     """Raise ValueError unless ``value`` is a plausible override ``name``: a snake_case name, a boolean, null, or a
     finite number (or a list of at most 16) within the bounds of :data:`OVERRIDE_BOUNDS` for its unit suffix."""
     if not _OVERRIDE_NAME.match(name):
@@ -148,13 +148,32 @@ def split_endpoints(text: str | None) -> list[str]:
     return [item.strip() for item in (text or "").split(",") if item.strip()]
 
 
+class Endpoints(TypedDict, total=False):
+    """Where a session connects or listens; a client also bounds its handshake and retries (``session_config``)."""
+
+    endpoints: list[str]
+    timeout_ms: int
+    exit_on_failure: bool
+
+
+class SessionConfig(TypedDict, total=False):
+    """A Zenoh session configuration as :func:`session_config` builds it (JSON-able)."""
+
+    mode: Literal["client", "peer", "router"]
+    scouting: dict[str, dict[str, bool]]
+    connect: Endpoints
+    listen: Endpoints
+    transport: Transport
+    access_control: AccessControl
+
+
 def session_config(
     mode: Literal["client", "peer", "router"],
     connect: list[str] | None = None,
     listen: list[str] | None = None,
     security: BusSecurity | None = None,
-    access_control: dict[str, Any] | None = None,
-) -> dict[str, Any]:
+    access_control: AccessControl | None = None,
+) -> SessionConfig:
     """The Zenoh session configuration (a JSON-able dict) every process of the bus uses.
 
     Multicast scouting is off: sessions meet only through the configured endpoints (a router). A client's
@@ -165,7 +184,7 @@ def session_config(
     requires; ``access_control``: the router's (`schemas.bus_security.access_control`). Neither: an open bus.
     Open with ``zenoh.open(zenoh.Config.from_json5(json.dumps(session_config(...))))``.
     """
-    config: dict[str, Any] = {
+    config: SessionConfig = {
         "mode": mode,
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": mode != "client"}},
     }
@@ -175,7 +194,7 @@ def session_config(
             config["connect"].update({"timeout_ms": HANDSHAKE_TIMEOUT_MS, "exit_on_failure": False})
     if listen:
         config["listen"] = {"endpoints": list(listen)}
-    transport = security.transport(mode) if security is not None else {}
+    transport: Transport = security.transport(mode) if security is not None else {}
     if mode == "router":  # the listening side bounds the connections that have not logged in
         transport["unicast"] = dict(ROUTER_UNICAST_LIMITS)
     if transport:
@@ -312,7 +331,7 @@ class RecordRequest(BaseModel):
 
     @field_validator("overrides")
     @classmethod
-    def _overrides_are_bounded(cls, value: dict[str, Any]) -> dict[str, Any]:
+    def _overrides_are_bounded(cls, value: dict[str, JsonValue]) -> dict[str, JsonValue]:
         for name, item in value.items():
             check_override(name, item)
         return value
@@ -326,7 +345,7 @@ class RecordReply(BaseModel):
     worker_id: str
     code: Literal["ok", "busy", "error"]
     demonstration: Demonstration | None = None
-    ground_truth: dict[str, Any] | None = Field(
+    ground_truth: JsonObject | None = Field(
         None,
         description="The teacher's truth: scenario, seed, skill_type, target force, contact intervals, truth "
         "segments (with the true normals of slide segments), world_config, teacher params.",

@@ -40,7 +40,7 @@ import hashlib
 import hmac
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal, TypedDict
 
 from schemas.key_expressions import KeyExpressions, check_id
 
@@ -57,6 +57,49 @@ their own login and id."""
 
 Role = Literal["api", "worker", "observer"]
 ROLES: tuple[str, ...] = ("api", "worker", "observer")
+
+
+class Transport(TypedDict, total=False):
+    """The ``transport`` part of a Zenoh session configuration: the login (``auth.usrpwd``), the TLS files
+    (``link.tls``) and, for a router, the limits on connections that have not logged in (``unicast``)."""
+
+    auth: dict[str, dict[str, str]]
+    link: dict[str, dict[str, str]]
+    unicast: dict[str, int]
+
+
+class AclRule(TypedDict):
+    """One rule of the router's access control: which ``messages`` flow (``ingress``, ``egress``) on ``key_exprs``."""
+
+    id: str
+    permission: Literal["allow", "deny"]
+    flows: list[Literal["ingress", "egress"]]
+    messages: list[str]
+    key_exprs: list[str]
+
+
+class AclSubject(TypedDict):
+    """A subject of the access control: the user names it stands for."""
+
+    id: str
+    usernames: list[str]
+
+
+class AclPolicy(TypedDict):
+    """Which rules (their ids) apply to which subjects (theirs)."""
+
+    subjects: list[str]
+    rules: list[str]
+
+
+class AccessControl(TypedDict):
+    """The router's ``access_control`` configuration (:func:`access_control`)."""
+
+    enabled: bool
+    default_permission: Literal["allow", "deny"]
+    rules: list[AclRule]
+    subjects: list[AclSubject]
+    policies: list[AclPolicy]
 
 
 class BusSecurityError(ValueError):
@@ -113,9 +156,9 @@ class BusSecurity:
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
 
-    def transport(self, mode: str) -> dict[str, Any]:
+    def transport(self, mode: str) -> Transport:
         """The ``transport`` part of the session configuration (empty for an open bus)."""
-        transport: dict[str, Any] = {}
+        transport: Transport = {}
         if mode == "router":
             if self.users_file:
                 transport["auth"] = {"usrpwd": {"dictionary_file": self.users_file}}
@@ -133,11 +176,11 @@ class BusSecurity:
         return transport
 
 
-def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
+def _rule(rule_id: str, flow: Literal["ingress", "egress"], messages: list[str], keys: list[str]) -> AclRule:
     return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": keys}
 
 
-def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
+def access_control(prefix: str, users: list[BusUser]) -> AccessControl:
     """The router's ``access_control`` configuration for ``users`` (see the module docstring): default deny;
     ``ingress`` rules say what a role may send or declare, ``egress`` rules what the router delivers to it."""
     k = KeyExpressions(prefix)
@@ -162,8 +205,8 @@ def access_control(prefix: str, users: list[BusUser]) -> dict[str, Any]:
         _rule("observer-answers", "egress", ["reply"], [k.status("*")]),
         _rule("observer-sees", "egress", ["liveliness_token", "declare_queryable"], everything),
     ]
-    subjects: list[dict[str, Any]] = []
-    policies: list[dict[str, Any]] = []
+    subjects: list[AclSubject] = []
+    policies: list[AclPolicy] = []
     for role in ("api", "observer"):
         names = sorted({u.user for u in users if u.role == role})
         if names:

@@ -8,10 +8,10 @@ point, in the world frame.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, ValidationInfo, field_validator, model_validator
 
 from schemas.arrays import bounded_rows, finite_rows, strictly_increasing
 from schemas.numbers import Real
@@ -54,12 +54,12 @@ _PLAUSIBLE: dict[str, list[tuple[slice, float, str, str]]] = {
 """Per array field: the columns, their magnitude bound, unit and the hint of the error."""
 
 
-def _bounded_number(limit: float) -> dict[str, Any]:
+def _bounded_number(limit: float) -> dict[str, JsonValue]:
     """JSON schema of a number within ±``limit`` (the bounds the validators enforce, declared in the OpenAPI)."""
     return {"type": "number", "minimum": -limit, "maximum": limit}
 
 
-def _bounded_row(limits: list[float]) -> dict[str, Any]:
+def _bounded_row(limits: list[float]) -> dict[str, JsonValue]:
     """JSON schema of a fixed-length row whose element k lies within ±``limits[k]``."""
     return {
         "type": "array",

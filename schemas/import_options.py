@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, JsonValue, model_validator
 
 from schemas.demonstration import QuaternionOrder, WrenchConvention, WrenchFrame
 from schemas.numbers import Real
@@ -46,7 +46,7 @@ def _numbers_from_text(value: Any) -> Any:
     return value
 
 
-def _file_in_the_form(schema: dict[str, Any]) -> None:
+def _file_in_the_form(schema: dict[str, JsonValue]) -> None:
     """The JSON schema says what the before-validator accepts: an upload form's ``file`` beside the options."""
     schema["properties"][UPLOAD_FIELD] = {"description": "The uploaded file (the route's own parameter)."}
 

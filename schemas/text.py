@@ -8,9 +8,9 @@ too large to list or too deep to read back (docs/SERVICE.md, "Every read is boun
 from __future__ import annotations
 
 import json
-from typing import Annotated, Any
+from typing import Annotated
 
-from pydantic import AfterValidator, Field
+from pydantic import AfterValidator, Field, JsonValue, WithJsonSchema
 
 MAX_NAME_CHARS = 255
 """Longest name (a demonstration's, a topic's, a frame's, a unit), characters: the longest file name most file
@@ -41,11 +41,11 @@ def _is_text(value: str) -> str:
     return value
 
 
-def _is_bounded_free_form(value: dict[str, Any]) -> dict[str, Any]:
+def _is_bounded_free_form(value: dict[str, JsonValue]) -> dict[str, JsonValue]:
     """``value``, unless it nests deeper than :data:`MAX_FREE_FORM_DEPTH`, holds a string or key that is not text
     (:func:`_is_text`) or takes more than :data:`MAX_FREE_FORM_BYTES` as JSON. Walked without recursion, so a dict
     nested 10 000 deep is refused as quickly as one 17 deep."""
-    pending: list[tuple[Any, str, int]] = [(value, "", 1)]
+    pending: list[tuple[JsonValue, str, int]] = [(value, "", 1)]
     while pending:
         item, path, depth = pending.pop()
         if isinstance(item, dict | list) and depth > MAX_FREE_FORM_DEPTH:
@@ -70,6 +70,10 @@ Identifier = Annotated[str, Field(max_length=MAX_ID_CHARS)]
 """An id or a scenario's name: at most :data:`MAX_ID_CHARS` characters."""
 Text = Annotated[str, Field(max_length=MAX_TEXT_CHARS)]
 """A line of free text: at most :data:`MAX_TEXT_CHARS` characters."""
-FreeForm = Annotated[dict[str, Any], AfterValidator(_is_bounded_free_form)]
-"""A free-form dict: at most :data:`MAX_FREE_FORM_DEPTH` levels deep and :data:`MAX_FREE_FORM_BYTES` of JSON, its
-keys and strings text."""
+JsonObject = dict[str, Annotated[JsonValue, WithJsonSchema({})]]
+"""An open JSON object: its values pydantic's ``JsonValue`` (strings, numbers, booleans, null, lists and objects of
+them; a tuple or a numpy integer is refused). Its JSON schema is any object, as the OpenAPI has always declared it
+(pydantic's own would add a ``JsonValue`` definition that accepts anything)."""
+FreeForm = Annotated[JsonObject, AfterValidator(_is_bounded_free_form)]
+"""A free-form JSON object (:data:`JsonObject`): at most :data:`MAX_FREE_FORM_DEPTH` levels deep and
+:data:`MAX_FREE_FORM_BYTES` of JSON, its keys and strings text."""

@@ -14,12 +14,14 @@ each of those keys to its sub-config field, and every way into a ``WorldConfig``
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
 from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
+from schemas.text import JsonObject
 
 IIWA_TORQUE_LIMITS_NM: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
 """The KUKA LBR iiwa 14 R820's joint torque limits, N·m (its data sheet), the simulated arm's."""
@@ -175,7 +177,7 @@ LEGACY_FIELDS: dict[str, tuple[str, str]] = {
 """The flat keys of a world stored before the sub-configs -> (sub-config, field)."""
 
 
-def _nested(data: dict[str, Any]) -> dict[str, Any]:
+def _nested(data: Mapping[str, object]) -> dict[str, object]:
     """``data`` with its legacy flat keys moved into their sub-configs (a flat key wins over its nested field)."""
     nested = {key: value for key, value in data.items() if key not in LEGACY_FIELDS}
     for key, value in data.items():
@@ -214,12 +216,12 @@ class WorldConfig(BaseModel):
         """A world stored with the flat keys (:data:`LEGACY_FIELDS`) loads into the sub-configs."""
         return _nested(data) if isinstance(data, dict) and not LEGACY_FIELDS.keys().isdisjoint(data) else data
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonObject:
         """JSON-able dict, nested as the sub-configs."""
         return self.model_dump(mode="json")
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> WorldConfig:
+    def from_dict(cls, data: Mapping[str, object]) -> WorldConfig:
         """Inverse of ``to_dict``; also reads the legacy flat keys. Unknown keys or bad values raise ``ValueError``
         naming the field (``sensor.delay_s: ...``)."""
         try:
@@ -255,7 +257,7 @@ class WorldConfig(BaseModel):
         )
 
 
-def checked_world_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
+def checked_world_overrides(overrides: JsonObject) -> JsonObject:
     """``overrides`` as they are, when they change a world as :meth:`WorldConfig.replace` does (whole sub-configs or
     some of their fields, or legacy flat keys); else ``ValueError`` naming the field and why
     (``WorldConfig: cylinder.radius_mm: Extra inputs are not permitted``)."""
@@ -263,6 +265,6 @@ def checked_world_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
     return overrides
 
 
-WorldOverrides = Annotated[dict[str, Any], AfterValidator(checked_world_overrides)]
+WorldOverrides = Annotated[JsonObject, AfterValidator(checked_world_overrides)]
 """Changes to a world (the scenario's or the skill's taught one), as JSON: checked against :class:`WorldConfig`
 wherever a model holding them is validated (both ends of the bus), carried unchanged."""

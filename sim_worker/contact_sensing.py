@@ -21,7 +21,7 @@ Measured PyBullet 3.2.7 facts this module relies on
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TypedDict
 
 import numba
 import numpy as np
@@ -201,6 +201,20 @@ def sample_client(ids, model, joint_rows, arm, contact, sensor):  # pragma: no c
     return sample(model, joint_rows, read_contact_rows(ids), arm, contact, sensor)
 
 
+class ContactPoint(TypedDict):
+    """One contact point of the tool (``ContactSensing.contacts``); world frame."""
+
+    body: str
+    """The body the tool touches (its name in the world, else its PyBullet id)."""
+    position: NDArray[np.float64]
+    """The point on the tool, m."""
+    normal_into_environment: NDArray[np.float64]
+    """Unit normal from the tool into the environment."""
+    normal_force_n: float
+    distance_m: float
+    """Signed distance, m (negative: penetration)."""
+
+
 class ContactSensing:
     """The tool's contact and the wrench sensor of one world, read once per simulated state (:meth:`invalidate` after
     each change of it). The arrays are overwritten in place by the next state's reading: :attr:`applied` (6,) and
@@ -266,7 +280,7 @@ class ContactSensing:
         self.touching = _contact_summary(self.points, self._arm.read(), self._state)
         self.fresh = True
 
-    def contacts(self, names: dict[int, str]) -> list[dict[str, Any]]:
+    def contacts(self, names: dict[int, str]) -> list[ContactPoint]:
         """The tool's contact points: body name (``names``: by body id), position on the tool (m, world), the normal
         into the environment, normal force (N), distance (m)."""
         self.summary()

@@ -27,13 +27,13 @@ skill's contact centre. Frames: world, metres (docs/CONVENTIONS.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from schemas.demonstration import Demonstration
 from schemas.execution import EnvironmentChange, Placement, SensorChoice, WorkPieceSource
 from schemas.skill import Skill
+from schemas.text import JsonObject
 from schemas.world import WorldConfig, WorldOverrides
 from sim_worker.placement import PlacementChoice, PlacementError, choose_placement
 from sim_worker.sensor import WRIST_SENSOR
@@ -59,7 +59,7 @@ class ExecutionWorld:
     placement_reason: str = ""
 
 
-def world_config_from_file_dict(data: dict[str, Any]) -> WorldConfig:
+def world_config_from_file_dict(data: JsonObject) -> WorldConfig:
     """A ``WorldConfig`` from its dict or from a ground-truth dict holding one under ``world_config``.
 
     Raises ValueError naming unknown fields."""
@@ -71,7 +71,7 @@ def world_config_from_file_dict(data: dict[str, Any]) -> WorldConfig:
         raise ValueError(f"world: {exc}") from None
 
 
-def _sensor_fields_set(world: dict[str, Any]) -> set[str]:
+def _sensor_fields_set(world: JsonObject) -> set[str]:
     """The ``SensorConfig`` fields a world dict (or ground-truth dict) sets to something else than the default world's:
     a file written whole (``record --truth``) carries every field, its defaults are not a choice."""
     return set(world_config_from_file_dict(world).sensor.model_dump(exclude_defaults=True))
@@ -96,7 +96,7 @@ def execution_world(
     environment: EnvironmentChange | None = None,
     *,
     scenario: str | None = None,
-    world: dict[str, Any] | None = None,
+    world: JsonObject | None = None,
     overrides: WorldOverrides | None = None,
     demonstration: Demonstration | None = None,
     approach_clearance_m: float = 0.06,
@@ -165,7 +165,7 @@ def execution_worlds(
     environment: EnvironmentChange | None = None,
     *,
     scenario: str | None = None,
-    world: dict[str, Any] | None = None,
+    world: JsonObject | None = None,
     overrides: WorldOverrides | None = None,
     demonstration: Demonstration | None = None,
     approach_clearance_m: float = 0.06,
@@ -202,9 +202,9 @@ def _environment_fields(env: EnvironmentChange) -> WorldOverrides:
     }
     fields = {name: value for name, value in given.items() if value is not None}
     if any(env.sensor_bias_n):
-        fields["wrench_bias_n"] = tuple(env.sensor_bias_n)
+        fields["wrench_bias_n"] = list(env.sensor_bias_n)
     if any(env.sensor_offset_tool_n):
-        fields["wrench_offset_tool_n"] = tuple(env.sensor_offset_tool_n)
+        fields["wrench_offset_tool_n"] = list(env.sensor_offset_tool_n)
     return fields
 
 
@@ -212,8 +212,8 @@ def _tilt_about(skill: Skill, env: EnvironmentChange, changes: WorldOverrides) -
     """``changes`` plus the unknown tilt of the work piece about the (placed) skill's contact centre."""
     if not any(env.unknown_tilt_deg):
         return changes
-    pivot = tuple(contact_centre(skill).tolist())
-    return {**changes, "work_piece_tilt_deg": tuple(env.unknown_tilt_deg), "work_piece_tilt_pivot_m": pivot}
+    pivot = contact_centre(skill).tolist()
+    return {**changes, "work_piece_tilt_deg": list(env.unknown_tilt_deg), "work_piece_tilt_pivot_m": pivot}
 
 
 def _with(config: WorldConfig, changes: WorldOverrides) -> WorldConfig:

@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +49,7 @@ from corpus.kinesthetic import (
     wrist_sensor_samples,
 )
 from corpus.synthetic import minimum_jerk
+from schemas.text import JsonObject
 from schemas.world import WorldConfig
 from sim_worker.geometry import CylinderSolid, WorldGeometry
 from sim_worker.robot_model import Q_HOME
@@ -793,7 +793,7 @@ def record_kinesthetic(
     )
 
 
-def kinesthetic_truth_dict(demo: SimKinestheticDemo) -> dict[str, Any]:
+def kinesthetic_truth_dict(demo: SimKinestheticDemo) -> JsonObject:
     """JSON-able ground truth of a recording: strokes, sensor offset, world config and the per-sample truth.
 
     Per-sample arrays are at the recording's samples (row i of the CSV file, t = i / 100 s).

@@ -29,15 +29,17 @@ path, the target force and the scenario's ``WorldConfig``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import JsonValue
 
 from schemas.demonstration import Demonstration, DemonstrationMetadata
 from schemas.job_budget import JobEstimate, JobPart
+from schemas.text import JsonObject
 from schemas.world import LEGACY_FIELDS, WorldConfig, WorldOverrides
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
@@ -146,7 +148,7 @@ class TeacherRecording:
         """The truth segments in contact (slide or contour)."""
         return [s for s in self.segments if s.kind != "free"]
 
-    def ground_truth_dict(self) -> dict[str, Any]:
+    def ground_truth_dict(self) -> JsonObject:
         """JSON-able summary of the ground truth (no per-sample arrays)."""
         return {
             "scenario": self.scenario,
@@ -169,7 +171,7 @@ class TeacherRecording:
 class _Scenario:
     kind: str  # "slide" | "contour"
     world: WorldOverrides
-    params: dict[str, Any]
+    params: dict[str, float]
     path: Callable[[WorldGeometry], Callable[[float], tuple[NDArray, NDArray, NDArray]]]
     surface_of: Callable[[WorldGeometry, float], str] = lambda g, s: "table"
 
@@ -254,7 +256,7 @@ def _block_path(geometry: WorldGeometry):
 
 _SCENARIOS: dict[str, _Scenario] = {
     "slide_flat": _Scenario("slide", {}, {}, _slide_path),
-    "slide_tilted": _Scenario("slide", {"table_tilt_deg": 15.0, "table_tilt_axis": (1.0, 0.0, 0.0)}, {}, _slide_path),
+    "slide_tilted": _Scenario("slide", {"table_tilt_deg": 15.0, "table_tilt_axis": [1.0, 0.0, 0.0]}, {}, _slide_path),
     "slide_two_planes": _Scenario(
         "slide",
         {"ramp_enabled": True, "ramp_tilt_deg": 20.0, "ramp_crease_x_m": 0.0},
@@ -264,14 +266,14 @@ _SCENARIOS: dict[str, _Scenario] = {
     ),
     "contour_cylinder": _Scenario(
         "contour",
-        {"cylinder_enabled": True, "cylinder_xy_m": (0.0, 0.0), "cylinder_yaw_deg": 90.0},
+        {"cylinder_enabled": True, "cylinder_xy_m": [0.0, 0.0], "cylinder_yaw_deg": 90.0},
         {"target_force_n": 12.0, "move_duration_s": 6.0},
         _cylinder_path,
         lambda g, s: "cylinder",
     ),
     "contour_block": _Scenario(
         "contour",
-        {"block_enabled": True, "block_xy_m": (0.0, 0.0), "block_yaw_deg": 90.0},
+        {"block_enabled": True, "block_xy_m": [0.0, 0.0], "block_yaw_deg": 90.0},
         {"target_force_n": 12.0, "move_duration_s": 6.0},
         _block_path,
         lambda g, s: "block",
@@ -370,10 +372,11 @@ class _Controller:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _split_overrides(overrides: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+def _split_overrides(overrides: Mapping[str, JsonValue]) -> tuple[JsonObject, JsonObject]:
     world_names = {*WorldConfig.model_fields, *LEGACY_FIELDS}
     param_names = {f.name for f in fields(TeacherParams)}
-    world, params = {}, {}
+    world: JsonObject = {}
+    params: JsonObject = {}
     for key, value in overrides.items():
         if key in param_names:
             params[key] = value
@@ -428,7 +431,7 @@ def recording_estimate(scenario: str, **overrides: Any) -> JobEstimate:
     )
 
 
-def _resolved(scenario: str, overrides: dict[str, Any]) -> tuple[_Scenario, WorldConfig, TeacherParams]:
+def _resolved(scenario: str, overrides: Mapping[str, JsonValue]) -> tuple[_Scenario, WorldConfig, TeacherParams]:
     """The scenario, its world and the teacher's parameters with ``overrides`` applied."""
     if scenario not in _SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(SCENARIOS)}")

@@ -9,13 +9,20 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, NotRequired, Protocol, TypedDict
 
 import numpy as np
 
 from execution.telemetry import Telemetry
 from schemas.bus import FINAL_PHASES, HEARTBEAT_S, CommandName, ExecutionCommand, ExecutionStatus, StartExecution
-from schemas.execution import PHASES_BY_CODE, EnvironmentChange, ExecutionPhase, TelemetryBatch, TelemetryMode
+from schemas.execution import (
+    PHASES_BY_CODE,
+    EnvironmentChange,
+    ExecutionMetrics,
+    ExecutionPhase,
+    TelemetryBatch,
+    TelemetryMode,
+)
 from sim_worker.process_memory import trim_heap
 from sim_worker.telemetry_archive import TelemetryArchive
 from sim_worker.worker_settings import WorkerSettings
@@ -33,6 +40,19 @@ PAUSED_SLEEP_S = 1e-3
 """While paused, each held control step sleeps this long (so a paused fast execution does not spin)."""
 
 
+class FinalStatus(TypedDict):
+    """The fields of an execution's final status its thread sets (:meth:`ExecutionRun.status` fills the rest)."""
+
+    phase: ExecutionPhase
+    error: str | None
+    message: str
+    metrics: NotRequired[ExecutionMetrics]
+    """Absent when the execution failed before any (an exception in the run)."""
+    t: NotRequired[float]
+    """Time of the last control step, s."""
+    steps: NotRequired[int]
+
+
 class RunningWorker(Protocol):
     """What an execution uses of the worker running it (``sim_worker.zenoh_worker.Worker``)."""
 
@@ -43,7 +63,7 @@ class RunningWorker(Protocol):
     publish_queue: queue.Queue
     """What the worker's publisher sends: ("telemetry" | "status", execution id, payload, stamp, first sample)."""
 
-    def finish(self, run: ExecutionRun, final: dict[str, Any]) -> None:
+    def finish(self, run: ExecutionRun, final: FinalStatus) -> None:
         """Publish ``run``'s final status and free the worker."""
 
 
@@ -261,7 +281,7 @@ class ExecutionRun:
         from execution.metrics import combined_stroke_metrics
         from sim_worker.executor import run_skill
 
-        final: dict[str, Any]
+        final: FinalStatus
         try:
             self.status(message="accepted")
             strokes = []

@@ -44,7 +44,7 @@ from execution.kinematics import inverse_kinematics
 from schemas.world import SensorModel, WorldConfig
 from sim_worker.arm_model import Arm
 from sim_worker.bullet_client import BulletClient
-from sim_worker.contact_sensing import ContactSensing
+from sim_worker.contact_sensing import ContactPoint, ContactSensing
 from sim_worker.geometry import WorldGeometry
 from sim_worker.robot_model import N_JOINTS, Q_HOME
 from sim_worker.world_build import build_environment, load_robot, work_piece_layers
@@ -345,7 +345,7 @@ class SimWorld:
         self._contact.summary()
         return self._contact.touching
 
-    def contacts(self) -> list[dict[str, Any]]:
+    def contacts(self) -> list[ContactPoint]:
         """The tool's contact points: body name, position on the tool, normal force (N), distance (m)."""
         return self._contact.contacts({v: k for k, v in self.bodies.items()})
 

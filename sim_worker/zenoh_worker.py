@@ -73,6 +73,7 @@ from sim_worker.worker_recording import over_budget, record_request, recording_r
 from sim_worker.worker_run import (
     NOTHING_HELD,
     ExecutionRun,
+    FinalStatus,
     merged_telemetry,
     replay_batches,
     then_trim_heap,
@@ -357,7 +358,7 @@ class Worker:
             return f"worker {self.worker_id} is recording a demonstration"
         return None
 
-    def finish(self, run: ExecutionRun, final: dict[str, Any]) -> None:
+    def finish(self, run: ExecutionRun, final: FinalStatus) -> None:
         """End of an execution (its thread): free the worker, then publish the final status."""
         run.stop_listening()
         with self._lock:

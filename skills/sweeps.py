@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import JsonValue
 
 from schemas.api import ExecutionState
 from schemas.execution import (
@@ -39,6 +40,7 @@ from schemas.sweep import (
     Sensitivity,
     SweepParameter,
 )
+from schemas.text import JsonObject
 from schemas.verdict import ExecutionVerdict, Verdict, VerdictCheckName
 from schemas.world import WorldOverrides
 from skills.frames import matrix_from_axis_angle
@@ -76,7 +78,9 @@ def trial_parameters(
     return [{name: float(values[k, j]) for j, name in enumerate(names)} for k in range(trials)]
 
 
-def trial_environment(base: Mapping, parameters: Mapping[SweepParameter, float], noise_seed: int) -> dict:
+def trial_environment(
+    base: Mapping[str, JsonValue], parameters: Mapping[SweepParameter, float], noise_seed: int
+) -> JsonObject:
     """The `EnvironmentChange` fields (a JSON dict) of one trial: ``base`` with the varied fields set.
 
     Offsets and tilts are UNKNOWN to the controller (``unknown_offset``, ``unknown_tilt_deg``); the bias is along
@@ -115,7 +119,7 @@ def trial_environment(base: Mapping, parameters: Mapping[SweepParameter, float],
     return env
 
 
-def planned_pad(base: Mapping, parameters: Mapping[SweepParameter, float]) -> dict[str, float]:
+def planned_pad(base: Mapping[str, JsonValue], parameters: Mapping[SweepParameter, float]) -> dict[str, float]:
     """The `ExecutionSettings` fields (a JSON dict) that keep a varied pad UNKNOWN to the controller: the touch-down
     and crease speeds planned for the base pad (``base``: the sweep's execution settings; its environment's pad if
     it sets one, else the worlds' nominal pad), not for the trial's. Settings that already plan for a pad keep it."""
@@ -133,7 +137,7 @@ def planned_pad(base: Mapping, parameters: Mapping[SweepParameter, float]) -> di
     }
 
 
-def taught_cylinder_world(skill: Skill, scenario: str | None, environment: EnvironmentChange) -> dict[str, Any] | None:
+def taught_cylinder_world(skill: Skill, scenario: str | None, environment: EnvironmentChange) -> JsonObject | None:
     """The skill's taught world (a `WorldConfig` dict) when a sweep's trials run in it and it has a cylinder, else
     None. The trials run in the taught world when the sweep names no scenario and its environment's work piece is
     ``auto`` or ``taught`` (the precedence of ``sim_worker.execution_world``: a sweep gives no world file)."""
@@ -189,7 +193,7 @@ def _world_field(world: Mapping[str, Any], part: str, name: str) -> Any:
     return section.get(name) if isinstance(section, Mapping) else world.get(f"{part}_{name}")
 
 
-def trial_tolerances(base: Mapping[str, Any], criteria: Mapping[str, float]) -> dict[str, Any]:
+def trial_tolerances(base: Mapping[str, JsonValue], criteria: Mapping[str, float]) -> JsonObject:
     """The `ExecutionTolerances` fields (a JSON dict) of every trial: ``base`` (the sweep's settings' tolerances) with
     the sweep's success criteria (``criteria``: its request, ``success_rms_pct`` and ``success_contact_ratio``)
     written in (:data:`schemas.sweep.SWEEP_TOLERANCES`)."""
@@ -273,26 +277,24 @@ def outcome(
     abort_reason = (metrics.abort_reason if metrics is not None else None) or error
     rms = metrics.true_force_rms_error_pct if metrics is not None else None
     contact = metrics.contact_ratio if metrics is not None else None
-    judged: dict[str, Any]
+    warned: tuple[str, ...] = ()
     if metrics is not None and metrics.verdict is not None:
         verdict = metrics.verdict
-        judged = {
-            "success": verdict.verdict is Verdict.passed,
-            "reasons": tuple(verdict.reasons),
-            "causes": failure_causes(verdict, phase, abort_reason),
-            "warnings": tuple(c.name.value for c in verdict.checks if not c.passed and c.warning_only),
-        }
+        success = verdict.verdict is Verdict.passed
+        reasons = tuple(verdict.reasons)
+        causes = failure_causes(verdict, phase, abort_reason)
+        warned = tuple(c.name.value for c in verdict.checks if not c.passed and c.warning_only)
     else:
         success = legacy_success(phase, contact, rms, criteria)
         if success:
-            causes: tuple[str, ...] = ()
+            causes = ()
         elif phase is not ExecutionPhase.done:
             causes = (_abort_cause(phase, abort_reason),)
         elif contact is None or contact < criteria["success_contact_ratio"]:
             causes = (VerdictCheckName.contact_ratio.value,)
         else:
             causes = (VerdictCheckName.true_force_rms.value,)
-        judged = {"success": success, "reasons": causes, "causes": causes}
+        reasons = causes
     return Outcome(
         phase=phase,
         true_rms_pct=rms,
@@ -300,7 +302,10 @@ def outcome(
         touchdown_ratio=metrics.touchdown_peak_ratio if metrics is not None else None,
         contact_ratio=contact,
         abort_reason=abort_reason,
-        **judged,
+        success=success,
+        reasons=reasons,
+        causes=causes,
+        warnings=warned,
     )
 
 
