@@ -24,6 +24,7 @@ from services.store.rows import (
     SkillRow,
     SkillSummaryRow,
     SweepRow,
+    SweepTrialRef,
     SweepTrialRow,
     first_problem,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "Store",
     "StoreError",
     "SweepRow",
+    "SweepTrialRef",
     "SweepTrialRow",
     "first_problem",
     "new_id",
