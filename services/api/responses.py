@@ -4,7 +4,7 @@ save, bodies streamed in chunks, and pages of a list bounded in bytes."""
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import TypeAlias, TypeVar
 
 import numpy as np
@@ -20,7 +20,7 @@ OpenApiResponses: TypeAlias = dict[int | str, dict[str, type[BaseModel] | JsonVa
 Response Object (``description``, ``headers``, ``content``)."""
 
 
-def raw_json(parts: dict[str, JsonValue], raw: dict[str, str], status_code: int = 200) -> Response:
+def raw_json(parts: Mapping[str, JsonValue], raw: dict[str, str], status_code: int = 200) -> Response:
     """A JSON object from JSON-able ``parts`` and already-serialized ``raw`` members (no re-encoding)."""
     members = [f"{json.dumps(k)}:{json.dumps(v)}" for k, v in parts.items()]
     members += [f"{json.dumps(k)}:{v}" for k, v in raw.items()]
@@ -98,10 +98,10 @@ def samples_that_fit(other_bytes: int) -> int:
 
 
 def samples_json_chunks(
-    head: dict[str, JsonValue], member: str | None, columns: dict[str, np.ndarray], raw: dict[str, str]
+    head: Mapping[str, object], member: str | None, columns: dict[str, np.ndarray], raw: dict[str, str]
 ) -> Iterator[str]:
-    """A JSON object of ``head``'s members and then, in an object named ``member`` (None: in the same object), the
-    ``columns`` (arrays, one row per sample) written :data:`SAMPLE_CHUNK_ROWS` rows at a time and the
+    """A JSON object of ``head``'s (JSON-able) members and then, in an object named ``member`` (None: in the same
+    object), the ``columns`` (arrays, one row per sample) written :data:`SAMPLE_CHUNK_ROWS` rows at a time and the
     already-serialized ``raw`` members. A reply sent in chunks, never held whole."""
     yield "{" + "".join(f"{json.dumps(key)}:{json.dumps(value)}," for key, value in head.items())
     if member is not None:

@@ -170,6 +170,16 @@ class ExecutionRow:
         return SweepTrialRef.model_validate(sweep) if sweep else None
 
 
+class SweepTerms(BaseModel):
+    """What a sweep's trials run with and are judged by, read back from its stored request: the controllers each
+    trial runs, the seed of the trials' noise, and the success criteria (`schemas.sweep.SWEEP_TOLERANCES`)."""
+
+    controllers: list[ControllerKind]
+    seed: int
+    success_rms_pct: float
+    success_contact_ratio: float
+
+
 @dataclass(frozen=True)
 class SweepRow:
     id: str
@@ -191,6 +201,11 @@ class SweepRow:
             json.loads(row["request"]),
             row["spec"],
         )
+
+    @property
+    def terms(self) -> SweepTerms:
+        """The controllers, seed and success criteria of its request."""
+        return SweepTerms.model_validate(self.request)
 
 
 @dataclass(frozen=True)

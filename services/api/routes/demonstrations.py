@@ -4,10 +4,10 @@ get, delete."""
 from __future__ import annotations
 
 import json
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
-from pydantic import TypeAdapter, ValidationError
+from pydantic import JsonValue, TypeAdapter, ValidationError
 
 from schemas.api import (
     ApiError,
@@ -111,7 +111,7 @@ def _notes(demonstration: Demonstration) -> list[str]:
     return list(demonstration.metadata.extra.get("import_notes", []))
 
 
-def _advice(demonstration: Demonstration) -> dict[str, Any]:
+def _advice(demonstration: Demonstration) -> dict[str, JsonValue]:
     """An upload answer's ``extra``: the readings the import note advises as import options (the form's names and
     values, ``plausible_readings``), when it advises any."""
     readings = demonstration.metadata.extra.get(PLAUSIBLE_READINGS) or []
@@ -285,7 +285,7 @@ def get_demonstration(
     stored under looser rules that cannot be read back (delete it)."""
     row, samples = readable_samples(store, demonstration_id)
     assert row.summary is not None  # a readable row has its summary
-    head: dict[str, Any] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
+    head: dict[str, JsonValue] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
     fit = samples_that_fit(len(json.dumps(head)) + len(samples.metadata.encode()) + 200)  # 200: keys, brackets
     if cursor is None and limit is None and samples.n_samples > fit:
         raise errors.samples_over_budget(demonstration_id, samples.n_samples, fit)
