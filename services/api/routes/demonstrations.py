@@ -80,9 +80,12 @@ def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict 
     )
 
 
-def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str) -> tuple[bytes, str]:
-    """The uploaded bytes and the file's name; a 422 on ``file`` when its content is none of ``accepted``: the one
-    message for a file no importer reads, or which route takes the kind it is (``wanted``: what this one takes)."""
+def _upload(
+    file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str
+) -> tuple[bytes, str, DemonstrationFile]:
+    """The uploaded bytes, the file's name and what it holds (told once, by its content, and passed on to the
+    importer); a 422 on ``file`` when its content is none of ``accepted``: the one message for a file no importer
+    reads, or which route takes the kind it is (``wanted``: what this one takes)."""
     try:  # the file's name becomes the demonstration's name and source: bounded as a name is
         name = UPLOAD_NAME.validate_python(file.filename or "upload").rsplit("/", 1)[-1]
     except ValidationError as exc:
@@ -93,7 +96,7 @@ def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: st
         raise errors.unprocessable(["body", "file"], unsupported_file(name), "unsupported_file")
     if kind not in accepted:
         raise errors.unprocessable(["body", "file"], other_kind(name, kind, wanted), "unsupported_file")
-    return data, name
+    return data, name, kind
 
 
 def _store_upload(store: Store, demonstration: Demonstration, uploaded_bytes: int) -> DemonstrationRow:
@@ -152,7 +155,7 @@ def post_demonstration_csv(
     was done. A problem is a 422 naming the form field and, for the file, the column and line."""
     from services.csv_import import CsvImportError, demonstration_from_csv
 
-    data, name = _upload(file, frozenset({DemonstrationFile.csv}), "a CSV recording")
+    data, name, _ = _upload(file, frozenset({DemonstrationFile.csv}), "a CSV recording")
     try:
         demonstration = demonstration_from_csv(
             data, options.model_copy(update={"name": options.name or name.removesuffix(".csv")})
@@ -186,9 +189,9 @@ def post_demonstration_bag(
     and frames are honoured, the asynchronous topics aligned on one time base (as ``contact-skills learn BAG``)."""
     from services.bag_import import BagImportError, demonstration_from_bag_upload
 
-    data, name = _upload(file, BAGS, "a ROS bag")
+    data, name, kind = _upload(file, BAGS, "a ROS bag")
     try:
-        demonstration = demonstration_from_bag_upload(data, name, options)
+        demonstration = demonstration_from_bag_upload(data, name, options, kind)
     except BagImportError as exc:
         raise errors.import_failed(exc) from None
     stored = _store_upload(store, demonstration, len(data))
