@@ -50,7 +50,7 @@ from schemas.sweep import (
     TrialResult,
 )
 from services.queue import Dispatch, ExecutionQueue
-from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRow
+from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRef, SweepTrialRow
 from skills.sweeps import (
     Outcome,
     controller_summary,
@@ -319,7 +319,9 @@ class SweepRunner:
         overrides = trial_world_overrides(base["skill"].get("taught_world"), r.parameters)
         shown = request.model_dump(mode="json", exclude={"skill"})
         shown.update(
-            skill_id=spec["skill_id"], inline_skill=spec["skill_id"] is None, sweep={"id": row.id, "trial": r.trial}
+            skill_id=spec["skill_id"],
+            inline_skill=spec["skill_id"] is None,
+            sweep=SweepTrialRef(id=row.id, trial=r.trial).model_dump(),
         )
         if overrides:
             shown.update(world_overrides=overrides)
