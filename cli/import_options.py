@@ -139,7 +139,7 @@ def add_import_arguments(parser: LazyArgumentsParser) -> None:
     parser.add_lazily(_import_arguments)
 
 
-def _given_options(args: argparse.Namespace) -> dict[str, Any]:
+def _given_options(args: argparse.Namespace) -> dict[str, object]:
     """The options fields the command line gave (by field name), whatever the model."""
     given = {
         name: getattr(args, name)
@@ -162,7 +162,7 @@ def options_from_args(args: argparse.Namespace, model: type[ImportOptions], what
     foreign = sorted({_flag(name, fields[name]) for name in given if name not in model.model_fields})
     if foreign:
         raise UserError([f"{', '.join(foreign)}: not an option of this file: {what}"])
-    return model(**given)
+    return model.model_validate(given)
 
 
 def import_demonstration(file: Path, args: argparse.Namespace) -> Demonstration:

@@ -26,7 +26,7 @@ from schemas.execution import PHASE_CODES, ControllerKind, ExecutionMetrics, Exe
 from schemas.skill import Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import Verdict
-from schemas.world import WorldConfig
+from schemas.world import WorldConfig, WorldOverrides
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import run_skill
 from sim_worker.teacher import record_demonstration
@@ -50,10 +50,10 @@ class StressCase:
     description: str
     scenario: str
     environment: Mapping[str, Any] = field(default_factory=dict)
-    world: Callable[[Mapping[str, Any]], dict[str, Any]] | None = None
+    world: Callable[[Mapping[str, Any]], WorldOverrides] | None = None
 
 
-def _cylinder(parameter: SweepParameter, value: float) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+def _cylinder(parameter: SweepParameter, value: float) -> Callable[[Mapping[str, Any]], WorldOverrides]:
     return lambda world: trial_world_overrides(world, {parameter: value})
 
 

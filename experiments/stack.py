@@ -19,11 +19,14 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from experiments.cases import DemoOptions
 from services.local_processes import free_port, parent_death_signal, port_free
+
+if TYPE_CHECKING:
+    from schemas.bus import ExecutionStatus
 
 STACK_READY_TIMEOUT_S = 180.0
 """How long the embedded stack may take to answer /health with every worker connected."""
@@ -125,7 +128,7 @@ class LiveStatus:
 
     def __init__(self, endpoints: list[str], prefix: str) -> None:
         self.lock = threading.Lock()
-        self.latest: dict[str, Any] = {}
+        self.latest: dict[str, ExecutionStatus] = {}
         self.received = 0
         """Status messages received."""
         self.changed = threading.Event()
@@ -175,7 +178,7 @@ class LiveStatus:
                 self.latest[status.execution_id] = status
         self.changed.set()
 
-    def get(self, execution_id: str):
+    def get(self, execution_id: str) -> ExecutionStatus | None:
         with self.lock:
             return self.latest.get(execution_id)
 

@@ -13,9 +13,12 @@ import json
 import re
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
+
+from pydantic import JsonValue
 
 from experiments.cases import DemoOptions
 from experiments.stack import DemoError, ServiceClient, say, service_session
@@ -57,7 +60,7 @@ class SweepOutcome:
     workers: int
 
 
-def _skill(client: ServiceClient, options: SweepOptions) -> tuple[str, str, dict[str, Any]]:
+def _skill(client: ServiceClient, options: SweepOptions) -> tuple[str, str, dict[str, JsonValue]]:
     """The skill to sweep: (id, label, the skill); records and learns ``options.scenario`` when no id is given."""
     if options.skill_id is not None:
         stored = client.request("GET", f"/skills/{options.skill_id}", 200)
@@ -198,12 +201,13 @@ def _ranges(view: SweepView) -> str:
     )
 
 
-def _changed(given: dict[str, Any], default: dict[str, Any], prefix: str = "") -> list[str]:
-    """``name value`` of every field of ``given`` that differs from ``default`` (nested fields dotted)."""
+def _changed(given: Mapping[str, JsonValue], default: Mapping[str, JsonValue], prefix: str = "") -> list[str]:
+    """``name value`` of every field of ``given`` (settings as JSON) that differs from ``default`` (nested fields
+    dotted)."""
     changed = []
     for name, value in given.items():
-        if isinstance(value, dict) and isinstance(default.get(name), dict):
-            changed += _changed(value, default[name], f"{prefix}{name}.")
+        if isinstance(value, dict) and isinstance(nested := default.get(name), dict):
+            changed += _changed(value, nested, f"{prefix}{name}.")
         elif value != default.get(name):
             changed.append(f"{prefix}{name} {json.dumps(value)}")
     return changed

@@ -51,6 +51,7 @@ from services.cdr import POSE_TYPE, TF_TYPE, WRENCH_TYPE, pose_stamped, wrench_s
 from services.demonstration_files import (
     BAGS,
     HEAD_BYTES,
+    DemonstrationFile,
     bag_storage_suffix,
     other_kind,
     path_kind,
@@ -72,19 +73,24 @@ class BagImportError(DemonstrationImportError):
     """A ROS bag could not be imported (unreadable, ambiguous or missing topics, frames that do not connect)."""
 
 
-@contextlib.contextmanager
-def _readable_bag(path: Path, shown: str) -> Iterator[Path]:
-    """``path`` as ``rosbags`` reads it: a rosbag2 directory as it is; a storage file under the suffix its content
-    calls for (``rosbags`` tells MCAP, sqlite3 and ROS 1 apart by the suffix), linked under that name if it has
-    another. Raises :class:`BagImportError` for anything that is not a bag (``shown``: its name in the message)."""
+def _check_bag(path: Path, shown: str, told: DemonstrationFile | None) -> None:
+    """Raise :class:`BagImportError` unless the file at ``path`` is a bag (``shown``: its name in the message): by
+    ``told``, what the caller has told it holds, or else by its content."""
     try:
-        kind = path_kind(path)
+        kind = path_kind(path) if told is None else told
     except OSError as exc:
         raise BagImportError(f"file: cannot read {shown!r}: {exc.strerror or exc}") from None
     if kind is None:
         raise BagImportError(unsupported_file(shown))
     if kind not in BAGS:
         raise BagImportError(other_kind(shown, kind, "a ROS bag"))
+
+
+@contextlib.contextmanager
+def _readable_bag(path: Path) -> Iterator[Path]:
+    """``path`` (a bag) as ``rosbags`` reads it: a rosbag2 directory as it is; a storage file under the suffix its
+    content calls for (``rosbags`` tells MCAP, sqlite3 and ROS 1 apart by the suffix), linked under that name if it
+    has another."""
     with contextlib.ExitStack() as stack:
         if path.is_file():
             with path.open("rb") as file:
@@ -422,7 +428,9 @@ def _wrench_frame_choice(
 # --------------------------------------------------------------------------- import
 
 
-def demonstration_from_bag(path: str | os.PathLike[str], options: BagImportOptions | None = None) -> Demonstration:
+def demonstration_from_bag(
+    path: str | os.PathLike[str], options: BagImportOptions | None = None, kind: DemonstrationFile | None = None
+) -> Demonstration:
     """Import a ROS bag as a `schemas.Demonstration`: ROS 2 (a rosbag2 directory, or its MCAP or sqlite3 storage
     file) or ROS 1 (a ``.bag`` file), told apart by the content.
 
@@ -433,20 +441,24 @@ def demonstration_from_bag(path: str | os.PathLike[str], options: BagImportOptio
     header says. ``wrench_convention``, ``rate_hz`` (Hz, the uniform rate of the result; default the faster
     stream's median rate), ``tare``, ``tare_window_s`` (s from the first sample), ``force_offset`` (N, N·m, as
     the messages read it) and ``name`` as for `services.csv_import.demonstration_from_csv`. See the module
-    docstring for the steps. Raises :class:`BagImportError` naming the option and the reason.
+    docstring for the steps. ``kind``: what the file holds when the caller has told it already
+    (`services.importing.demonstration_file`), so that it is not read again to tell it. Raises
+    :class:`BagImportError` naming the option and the reason.
     """
     path = Path(path)
     if not path.exists():
         raise BagImportError(f"file: {str(path)!r} does not exist")
-    return _imported(path, path.name, options or BagImportOptions())
+    return _imported(path, path.name, options or BagImportOptions(), kind)
 
 
-def _imported(path: Path, shown: str, options: BagImportOptions) -> Demonstration:
-    """:func:`demonstration_from_bag` of the bag at ``path``, named ``shown`` in the messages and the metadata."""
+def _imported(path: Path, shown: str, options: BagImportOptions, kind: DemonstrationFile | None) -> Demonstration:
+    """:func:`demonstration_from_bag` of the bag at ``path``, named ``shown`` in the messages and the metadata
+    (``kind``: what it holds, if told)."""
     if options.pose_topic is not None and options.tf_frames is not None:
         raise BagImportError("pose_topic: give either a pose topic or a /tf pair (--tf), not both")
     rate = sampling_rate_hz(options.rate_hz, None, BagImportError)
-    with _readable_bag(path, shown) as readable:
+    _check_bag(path, shown, kind)
+    with _readable_bag(path) as readable:
         bag = _read_bag(readable, shown, options.wrench_topic, options.pose_topic, use_tf=options.tf_frames is not None)
     wrench_name = bag.wrench_topic
     notes = []
@@ -525,11 +537,13 @@ def _imported(path: Path, shown: str, options: BagImportOptions) -> Demonstratio
     )
 
 
-def demonstration_from_bag_upload(data: bytes, filename: str, options: BagImportOptions | None = None) -> Demonstration:
+def demonstration_from_bag_upload(
+    data: bytes, filename: str, options: BagImportOptions | None = None, kind: DemonstrationFile | None = None
+) -> Demonstration:
     """Import an uploaded bag given as bytes: a ROS 2 bag's storage file (the ``.mcap`` or ``.db3`` inside a rosbag2
     directory) or a ROS 1 ``.bag``, told apart by the content; ``filename`` names it in the metadata and the
-    messages (never on disk). ``options`` as for :func:`demonstration_from_bag`."""
+    messages (never on disk). ``options`` and ``kind`` as for :func:`demonstration_from_bag`."""
     with tempfile.TemporaryDirectory(prefix="cskills-bag-") as folder:
         path = Path(folder) / f"upload{bag_storage_suffix(data[:HEAD_BYTES]) or ''}"
         path.write_bytes(data)
-        return _imported(path, PurePosixPath(filename).name or "upload", options or BagImportOptions())
+        return _imported(path, PurePosixPath(filename).name or "upload", options or BagImportOptions(), kind)

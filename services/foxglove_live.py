@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +42,9 @@ from services.local_processes import LOOPBACK
 from services.origin_gate import OriginGate
 from services.settings import DEFAULT_FOXGLOVE_PORT, ServiceSettings
 from services.store import TERMINAL, Store
+
+if TYPE_CHECKING:
+    import foxglove
 
 log = logging.getLogger("contact_skills.foxglove")
 
@@ -105,7 +108,7 @@ class FoxgloveLive:
         self.server: Any = None
         self.gate: OriginGate | None = None
         self._context: Any = None
-        self._channels: dict[str, Any] = {}
+        self._channels: dict[str, foxglove.Channel] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._solver: Any = None  # the IK, made on the first execution (a PyBullet client)

@@ -75,7 +75,7 @@ def demonstration_from_file(
         return demonstration_from_csv(path, CsvImportOptions(**given))
     from services.bag_import import demonstration_from_bag  # rosbags: the service extra
 
-    return demonstration_from_bag(path, BagImportOptions(**given))
+    return demonstration_from_bag(path, BagImportOptions(**given), kind)
 
 
 __all__ = [

@@ -39,7 +39,9 @@ import logging
 import threading
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from pydantic import JsonValue
 
 from schemas.api import ExecutionState
 from schemas.bus import CommandName
@@ -140,7 +142,7 @@ class ExecutionQueue:
     # ------------------------------------------------------------------ what the service calls
 
     def submit(
-        self, dispatch: Dispatch, shown_request: dict[str, Any], skill_id: str | None, priority: int = 0
+        self, dispatch: Dispatch, shown_request: dict[str, JsonValue], skill_id: str | None, priority: int = 0
     ) -> tuple[ExecutionRow, int | None]:
         """Queue an execution and hand it to a free worker at once if nothing waits before it.
 

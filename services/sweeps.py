@@ -50,7 +50,7 @@ from schemas.sweep import (
     TrialResult,
 )
 from services.queue import Dispatch, ExecutionQueue
-from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRow
+from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRef, SweepTrialRow
 from skills.sweeps import (
     Outcome,
     controller_summary,
@@ -115,7 +115,8 @@ def _counts(rows: list[SweepTrialRow], criteria: dict[str, float]) -> SweepCount
 
 def _criteria(row: SweepRow) -> dict[str, float]:
     """The sweep's success criteria: ``success_rms_pct`` and ``success_contact_ratio`` of its request."""
-    return {field: float(row.request[field]) for field in SWEEP_TOLERANCES}
+    terms = row.terms
+    return {field: float(getattr(terms, field)) for field in SWEEP_TOLERANCES}
 
 
 def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
@@ -155,8 +156,8 @@ def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
     criteria = _criteria(row)
     rows = store.sweeps.trials(row.id)
     summaries, ranking = [], []
-    for controller in row.request["controllers"]:
-        kind = ControllerKind(controller)
+    for kind in row.terms.controllers:
+        controller = kind.value
         mine = [r for r in rows if r.controller == controller]
         done = [r for r in mine if _finished(r)]
         outcomes = [_outcome(r, criteria) for r in done]
@@ -308,10 +309,10 @@ class SweepRunner:
     def _submit(self, row: SweepRow, spec: dict[str, Any], r: SweepTrialRow) -> SweepTrialRow:
         """Submit the trial's execution; return its row as now stored."""
         environment = trial_environment(
-            spec["execution"]["environment"], r.parameters, trial_noise_seed(int(row.request["seed"]), r.trial)
+            spec["execution"]["environment"], r.parameters, trial_noise_seed(row.terms.seed, r.trial)
         )
         base = spec["execution"]
-        tolerances = trial_tolerances(base.get("tolerances") or {}, row.request)
+        tolerances = trial_tolerances(base.get("tolerances") or {}, _criteria(row))
         request = ExecutionRequest.model_validate(
             {**base, **planned_pad(base, r.parameters), "environment": environment, "controller": r.controller,
              "tolerances": tolerances}
@@ -320,7 +321,9 @@ class SweepRunner:
         overrides = trial_world_overrides(base["skill"].get("taught_world"), r.parameters)
         shown = request.model_dump(mode="json", exclude={"skill"})
         shown.update(
-            skill_id=spec["skill_id"], inline_skill=spec["skill_id"] is None, sweep={"id": row.id, "trial": r.trial}
+            skill_id=spec["skill_id"],
+            inline_skill=spec["skill_id"] is None,
+            sweep=SweepTrialRef(id=row.id, trial=r.trial).model_dump(),
         )
         if overrides:
             shown.update(world_overrides=overrides)
@@ -343,7 +346,7 @@ class SweepRunner:
         if self._published.get(key) == counts:
             return
         rates: dict[str, float | None] = {}
-        for controller in row.request["controllers"]:
+        for controller in (kind.value for kind in row.terms.controllers):
             done = [_outcome(r, criteria) for r in rows if r.controller == controller and _finished(r)]
             ok = sum(o.success for o in done)
             rates[controller] = ok / len(done) if done else None

@@ -45,7 +45,7 @@ from __future__ import annotations
 import io
 import json
 import re
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -142,9 +142,10 @@ def telemetry_page(
     return TelemetryPage(rows, None)
 
 
-def execution_json_chunks(head: dict[str, Any], matrix: np.ndarray) -> Iterator[str]:
-    """A JSON object of ``head``'s members then the columns of ``matrix`` (the store's rows; `TelemetryBatch`
-    fields, phases as names), in chunks of :data:`CHUNK_ROWS` rows (a non-finite value, never expected, as null)."""
+def execution_json_chunks(head: Mapping[str, object], matrix: np.ndarray) -> Iterator[str]:
+    """A JSON object of ``head``'s (JSON-able) members then the columns of ``matrix`` (the store's rows;
+    `TelemetryBatch` fields, phases as names), in chunks of :data:`CHUNK_ROWS` rows (a non-finite value, never
+    expected, as null)."""
     yield "{" + ",".join(f"{json.dumps(key)}:{json.dumps(value)}" for key, value in head.items())
     for name in TELEMETRY_LAYOUT:
         yield f",{json.dumps(name)}:["
@@ -249,7 +250,7 @@ class ExecutionMessages:
 
         self.scene = SceneStream(start_ns, solver)
         self.typestore = get_typestore(Stores.ROS2_HUMBLE)
-        self.last: dict[str, Any] = {}  # /phase, /segment: the value last sent
+        self.last: dict[str, str | int] = {}  # /phase (its name), /segment (its index): the value last sent
 
     def messages(self, matrix: np.ndarray, final: bool = False) -> dict[str, tuple[np.ndarray, list[bytes]]]:
         """The messages of ``matrix`` (the store's rows, following those given before); ``final``: the run's end."""
@@ -276,7 +277,9 @@ class ExecutionMessages:
 
         return {**out, **self.scene.messages(matrix, final), **truth_messages(matrix, stamps)}
 
-    def _changes(self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[Any]) -> tuple[np.ndarray, list]:
+    def _changes(
+        self, topic: str, msgtype: str, stamps: np.ndarray, values: Sequence[str | int]
+    ) -> tuple[np.ndarray, list]:
         """``values`` as ``std_msgs`` messages (``data``) where the value differs from the one before (the first
         value of a stream included)."""
         kept = []

@@ -400,3 +400,23 @@ def test_a_bag_imports_whatever_its_first_stamp_rows_rate_and_jitter(
     assert np.all(np.isfinite(a.positions)) and np.all(np.isfinite(a.wrenches)) and np.all(np.isfinite(a.orientations))
     assert a.t[0] == 0.0 and np.all(np.diff(a.t) > 0)
     assert a.t[-1] <= nominal[-1] - nominal[0] + 1e-6 and a.t.size >= rows // 2
+
+
+def test_the_kind_told_by_the_dispatcher_is_passed_on_not_read_again(tmp_path):
+    """`services.importing` tells a file's kind once and the bag importer takes it: a bag told as one imports as the
+    truth (the same samples as one whose kind the importer reads itself), and a kind told is the one the importer's
+    message names, even where the content would say otherwise (it is not read again to tell)."""
+    from services.demonstration_files import DemonstrationFile
+    from services.importing import demonstration_file, demonstration_from_file
+
+    truth = _slide()
+    bag = _bag(tmp_path, truth, "slide", storage="mcap")
+    kind = demonstration_file(bag)
+    assert kind is DemonstrationFile.ros2_bag
+    options = BagImportOptions(**MEASURED, tool_frame="tool", tare=False)
+    told = demonstration_from_file(bag, options, kind)
+    _assert_the_truth(told, truth)
+    read = demonstration_from_bag(bag, options)
+    np.testing.assert_array_equal(told.wrenches, read.wrenches)
+    with pytest.raises(BagImportError, match=r"'slide' is a CSV recording, not a ROS bag"):
+        demonstration_from_bag(bag, kind=DemonstrationFile.csv)

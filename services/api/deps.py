@@ -22,6 +22,7 @@ from schemas.job_budget import JobBudget
 from schemas.skill import Skill
 from services.api import errors
 from services.api.limits import ClientCaps
+from services.api.responses import OpenApiResponses
 from services.bus import BusClient
 from services.learner_pool import LearnerPool
 from services.queue import ExecutionQueue
@@ -270,6 +271,6 @@ SampleLimit = Annotated[
 """The paging parameters of ``GET /demonstrations/{id}``."""
 NEXT_CURSOR_HEADER = "X-Next-Cursor"
 """The header of a telemetry or samples page that is not the last: the cursor of the next one."""
-EXPORT_RESPONSES: dict[int | str, dict] = {
+EXPORT_RESPONSES: OpenApiResponses = {
     200: {"content": {"text/csv": {}, "application/octet-stream": {}}, "description": "JSON, CSV or MCAP."}
 }

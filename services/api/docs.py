@@ -11,12 +11,14 @@ tests/test_docs.py refuses).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
+from pydantic import JsonValue
+
+from services.api.openapi import operations
 
 ASSETS_URL = "/docs-assets"
 """Where the Swagger UI and ReDoc assets are served."""
@@ -65,14 +67,14 @@ def install_offline_docs(app: FastAPI) -> None:
 
     generate = app.openapi
 
-    def openapi() -> dict[str, Any]:
+    def openapi() -> dict[str, JsonValue]:
         summarized = app.openapi_schema is not None  # the document is built once, and summarized then
         schema = generate()
         if not summarized:
-            for operations in schema["paths"].values():
-                for operation in operations.values():
-                    if operation.get("description"):
-                        operation["summary"] = summary_of(operation["description"])
+            for _, _, operation in operations(schema):
+                description = operation.get("description")
+                if isinstance(description, str) and description:
+                    operation["summary"] = summary_of(description)
         return schema
 
     vars(app)["openapi"] = openapi  # FastAPI's documented override: the app's openapi, an attribute of its own

@@ -22,16 +22,19 @@ from __future__ import annotations
 import json
 import logging
 import re
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, NotRequired, TypedDict
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
+from pydantic import JsonValue
 from starlette.routing import Match, Mount
 
 from schemas.api import ApiError
+from services.api.responses import OpenApiResponses
 from services.learner_pool import LearnOutcome, LearnOutcomeKind
-from services.store import DiskFull
+from services.store import DiskFull, SweepTrialRef
 
 if TYPE_CHECKING:
     from services.csv_import import CsvImportError
@@ -43,16 +46,16 @@ log = logging.getLogger("contact_skills.api")
 MAX_ECHOED_INPUT = 200
 """A validation error echoes the offending input only if its JSON is at most this many characters."""
 
-ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {404: {"model": ApiError}}
+ERROR_RESPONSES: OpenApiResponses = {404: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that looks an id up."""
-MUTATING_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 413: {"model": ApiError}}
+MUTATING_RESPONSES: OpenApiResponses = {401: {"model": ApiError}, 413: {"model": ApiError}}
 """OpenAPI ``responses`` of a route behind the token guard and the body limit."""
-READ_RESPONSES: dict[int | str, dict[str, Any]] = {401: {"model": ApiError}, 403: {"model": ApiError}}
+READ_RESPONSES: OpenApiResponses = {401: {"model": ApiError}, 403: {"model": ApiError}}
 """OpenAPI ``responses`` of every resource route: 401 without the token (reads too with ``token_reads``), 403 for a
 cross-origin browser request (``browser_guard``)."""
-STORING_RESPONSES: dict[int | str, dict[str, Any]] = {**MUTATING_RESPONSES, 507: {"model": ApiError}}
+STORING_RESPONSES: OpenApiResponses = {**MUTATING_RESPONSES, 507: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that stores something new: 507 when the database holds its quota."""
-UNAVAILABLE: dict[int | str, dict[str, Any]] = {503: {"model": ApiError}}
+UNAVAILABLE: OpenApiResponses = {503: {"model": ApiError}}
 """OpenAPI ``responses`` of a route that needs the bus."""
 
 
@@ -127,9 +130,9 @@ def already_finished(execution_id: str, status: str) -> HTTPException:
     return HTTPException(409, f"execution {execution_id} has already finished ({status})")
 
 
-def no_telemetry(execution_id: str, sweep: dict[str, Any] | None) -> HTTPException:
+def no_telemetry(execution_id: str, sweep: SweepTrialRef | None) -> HTTPException:
     """409: the execution ran with ``telemetry`` ``none`` (``sweep``: the sweep and trial it ran for, if any)."""
-    origin = f" (trial {sweep['trial']} of sweep {sweep['id']}, which did not ask for store_telemetry)" if sweep else ""
+    origin = f" (trial {sweep.trial} of sweep {sweep.id}, which did not ask for store_telemetry)" if sweep else ""
     return HTTPException(
         409,
         f"execution {execution_id} ran with telemetry 'none'{origin}: no telemetry was published or stored; its "
@@ -173,10 +176,10 @@ def still_active(execution_id: str, status: str) -> HTTPException:
     )
 
 
-def part_of_sweep(execution_id: str, sweep: dict[str, Any]) -> HTTPException:
+def part_of_sweep(execution_id: str, sweep: SweepTrialRef) -> HTTPException:
     """409: a sweep's trial cannot be deleted alone (the sweep's results are its executions)."""
     return HTTPException(
-        409, f"execution {execution_id} is trial {sweep.get('trial')} of sweep {sweep.get('id')}: the sweep's results "
+        409, f"execution {execution_id} is trial {sweep.trial} of sweep {sweep.id}: the sweep's results "
         "are its executions, it cannot be deleted alone"
     )  # fmt: skip
 
@@ -305,23 +308,32 @@ def _csv_problem_field(problems: list[str]) -> str:
 _NAMES_A_FIELD = re.compile(r"^(?:Value error, )?(\w+) has ")
 
 
-def tidy_error(error: dict[str, Any]) -> dict[str, Any]:
-    """An error entry without large inputs; a model-level error whose message starts with a field name gets it
-    appended to ``loc`` (``positions has 4 samples but t has 5`` -> ``[..., "positions"]``)."""
-    loc = list(error.get("loc", ()))
+class TidyError(TypedDict):
+    """One entry of a 422's ``detail``, FastAPI's shape: where, what, the error's kind, the offending input when it is
+    short, and the limit broken (``{"gt": 0}``)."""
+
+    loc: list[str | int]
+    msg: str
+    type: str
+    input: NotRequired[JsonValue]
+    ctx: NotRequired[dict[str, int | float | str | bool]]
+
+
+def tidy_error(error: Mapping[str, object]) -> TidyError:
+    """An error entry (pydantic's or :func:`unprocessable`'s) without large inputs; a model-level error whose message
+    starts with a field name gets it appended to ``loc`` (``positions has 4 samples but t has 5`` ->
+    ``[..., "positions"]``)."""
+    given_loc = error.get("loc", ())
+    loc: list[str | int] = list(given_loc) if isinstance(given_loc, tuple | list) else []
     msg = str(error.get("msg", ""))
     match = _NAMES_A_FIELD.match(msg)
     if match and (not loc or loc[-1] != match[1]) and error.get("type") == "value_error":
         loc.append(match[1])
-    tidy: dict[str, Any] = {
-        "loc": loc,
-        "msg": msg.removeprefix("Value error, "),
-        "type": error.get("type", "value_error"),
-    }
+    tidy = TidyError(loc=loc, msg=msg.removeprefix("Value error, "), type=str(error.get("type", "value_error")))
     if "input" in error:
         try:  # strictly JSON and UTF-8: the echo of a NaN or a lone surrogate is its text (a JSONResponse refuses both)
             text = json.dumps(error["input"], allow_nan=False, default=str)
-            echo: Any = json.loads(text)
+            echo: JsonValue = json.loads(text)
             json.dumps(echo, ensure_ascii=False).encode("utf-8")
         except ValueError:
             text = json.dumps(error["input"], default=str)

@@ -17,6 +17,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 from schemas.api import ApiError, ExecutionState
 from schemas.skill import Skill
 from schemas.sweep import SweepState
+from services.api.responses import OpenApiResponses
 from services.http_rules import MAX_HEAD_BYTES
 from services.store import ACTIVE, Store
 
@@ -215,7 +216,7 @@ class WorkKind(StrEnum):
     sweep = "sweep"
 
 
-TOO_MANY: dict[int | str, dict[str, Any]] = {429: {"model": ApiError}}
+TOO_MANY: OpenApiResponses = {429: {"model": ApiError}}
 """``responses=`` of the routes a client's cap applies to (:class:`ClientCaps`)."""
 
 

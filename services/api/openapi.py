@@ -16,13 +16,14 @@ operations that take them (OpenAPI links, which clients and stateful fuzzers fol
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Iterator
 
 from fastapi import FastAPI
+from pydantic import JsonValue
 
 from services.settings import ServiceSettings
 
-BEARER_REQUIREMENT = {"HTTPBearer": []}
+BEARER_REQUIREMENT: dict[str, JsonValue] = {"HTTPBearer": []}
 CREATED: dict[str, tuple[str, str]] = {
     "/demonstrations": ("201", "demonstration_id"),
     "/demonstrations/csv": ("201", "demonstration_id"),
@@ -46,70 +47,100 @@ def needs_token(settings: ServiceSettings, method: str, path: str) -> bool:
     return settings.token_reads and path != "/health"
 
 
-def _operation_id(spec: dict[str, Any], method: str, path: str) -> str | None:
-    return spec["paths"].get(path, {}).get(method, {}).get("operationId")
+def _object(value: JsonValue) -> dict[str, JsonValue]:
+    """``value``, a JSON object of the document; an empty one where the document has none."""
+    return value if isinstance(value, dict) else {}
 
 
-def _links(spec: dict[str, Any], parameter: str) -> dict[str, Any]:
+def _array(value: JsonValue) -> list[JsonValue]:
+    """``value``, a JSON array of the document; an empty one where the document has none."""
+    return value if isinstance(value, list) else []
+
+
+def _member(document: JsonValue, *keys: str) -> JsonValue:
+    """The member at ``keys`` down the nested objects of ``document``; None where one is missing."""
+    for key in keys:
+        document = _object(document).get(key)
+    return document
+
+
+def operations(spec: dict[str, JsonValue]) -> Iterator[tuple[str, str, dict[str, JsonValue]]]:
+    """Every operation of an OpenAPI document: its path, its method and the operation object (to change in place)."""
+    for path, methods in _object(spec["paths"]).items():
+        for method, operation in _object(methods).items():
+            yield path, method, _object(operation)
+
+
+def _operation_id(spec: dict[str, JsonValue], method: str, path: str) -> str | None:
+    operation_id = _member(spec, "paths", path, method, "operationId")
+    return operation_id if isinstance(operation_id, str) else None
+
+
+def _links(spec: dict[str, JsonValue], parameter: str) -> dict[str, JsonValue]:
     """Every operation a created object's ``id`` (``$response.body#/id``) leads to, by a link name."""
-    links: dict[str, Any] = {}
-    for path, operations in spec["paths"].items():
+    links: dict[str, JsonValue] = {}
+    for path, _, operation in operations(spec):
         if "{" + parameter + "}" not in path:
             continue
-        for operation in operations.values():
-            links[operation["operationId"]] = {
-                "operationId": operation["operationId"],
-                "parameters": {parameter: "$response.body#/id"},
-            }
+        operation_id = str(operation["operationId"])
+        links[operation_id] = {"operationId": operation_id, "parameters": {parameter: "$response.body#/id"}}
     for path in BODY_LINKS.get(parameter, []):
-        if (operation_id := _operation_id(spec, "post", path)) is not None:
-            links[operation_id] = {"operationId": operation_id, "requestBody": {parameter: "$response.body#/id"}}
+        if (body_operation_id := _operation_id(spec, "post", path)) is not None:
+            links[body_operation_id] = {
+                "operationId": body_operation_id,
+                "requestBody": {parameter: "$response.body#/id"},
+            }
     return links
 
 
-def _form_models(spec: dict[str, Any]) -> list[dict[str, Any]]:
+def _component(components: dict[str, JsonValue], reference: JsonValue) -> dict[str, JsonValue]:
+    """The component schema a ``$ref`` (``#/components/schemas/Name``) names; an empty one for none."""
+    name = reference.rsplit("/", 1)[-1] if isinstance(reference, str) else ""
+    return _object(components.get(name))
+
+
+def _form_models(spec: dict[str, JsonValue]) -> list[dict[str, JsonValue]]:
     """The component schemas the multipart request bodies are made of (their own and those they include)."""
-    components = spec.get("components", {}).get("schemas", {})
+    components = _object(_member(spec, "components", "schemas"))
     models = []
-    for operations in spec["paths"].values():
-        for operation in operations.values():
-            form = operation.get("requestBody", {}).get("content", {}).get("multipart/form-data")
-            if form is None:
-                continue
-            body = components.get(form["schema"].get("$ref", "").rsplit("/", 1)[-1], {})
-            models.append(body)
-            models.extend(components.get(part["$ref"].rsplit("/", 1)[-1], {}) for part in body.get("allOf", []))
+    for _, _, operation in operations(spec):
+        form = _member(operation, "requestBody", "content", "multipart/form-data")
+        if form is None:
+            continue
+        body = _component(components, _member(form, "schema", "$ref"))
+        models.append(body)
+        models.extend(_component(components, _member(part, "$ref")) for part in _array(body.get("allOf")))
     return models
 
 
-def _without_null(field: dict[str, Any]) -> None:
+def _without_null(field: dict[str, JsonValue]) -> None:
     """``field``'s schema without its null alternative (in place): ``anyOf [X, null]`` becomes ``X``."""
-    options = [option for option in field.get("anyOf", []) if option != {"type": "null"}]
-    if "anyOf" in field and len(options) < len(field["anyOf"]):
+    alternatives = _array(field.get("anyOf"))
+    options = [option for option in alternatives if option != {"type": "null"}]
+    if "anyOf" in field and len(options) < len(alternatives):
         del field["anyOf"]
         if len(options) == 1:
-            field.update(options[0])
+            field.update(_object(options[0]))
         else:
             field["anyOf"] = options
         if field.get("default", 0) is None:
             del field["default"]
 
 
-def truthful_openapi(spec: dict[str, Any], settings: ServiceSettings) -> dict[str, Any]:
+def truthful_openapi(spec: dict[str, JsonValue], settings: ServiceSettings) -> dict[str, JsonValue]:
     """``spec`` (FastAPI's) with each operation's security as the API applies it, the form fields and the links of
     the module docstring (changed in place, returned)."""
     for model in _form_models(spec):
-        for field in model.get("properties", {}).values():
-            _without_null(field)
-    for path, operations in spec["paths"].items():
-        for method, operation in operations.items():
-            if "security" in operation:
-                operation["security"] = (
-                    [BEARER_REQUIREMENT] if needs_token(settings, method, path) else [{}, BEARER_REQUIREMENT]
-                )
+        for field in _object(model.get("properties")).values():
+            _without_null(_object(field))
+    for path, method, operation in operations(spec):
+        if "security" in operation:
+            operation["security"] = (
+                [BEARER_REQUIREMENT] if needs_token(settings, method, path) else [{}, BEARER_REQUIREMENT]
+            )
     for path, (status, parameter) in CREATED.items():
-        response = spec["paths"].get(path, {}).get("post", {}).get("responses", {}).get(status)
-        if response is not None:
+        response = _member(spec, "paths", path, "post", "responses", status)
+        if isinstance(response, dict):
             response["links"] = _links(spec, parameter)
     return spec
 
@@ -118,7 +149,7 @@ def install_truthful_openapi(app: FastAPI, settings: ServiceSettings) -> None:
     """Serve :func:`truthful_openapi` of the app's document (built once, on the first request)."""
     generate = app.openapi
 
-    def openapi() -> dict[str, Any]:
+    def openapi() -> dict[str, JsonValue]:
         if app.openapi_schema is None:
             app.openapi_schema = truthful_openapi(generate(), settings)
         return app.openapi_schema

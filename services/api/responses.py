@@ -4,20 +4,23 @@ save, bodies streamed in chunks, and pages of a list bounded in bytes."""
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from typing import Any, TypeVar
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from typing import TypeAlias, TypeVar
 
 import numpy as np
 from fastapi import Response
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, JsonValue
 
 from schemas.api import NEXT_OFFSET_HEADER
 
 RowT = TypeVar("RowT")
+OpenApiResponses: TypeAlias = dict[int | str, dict[str, type[BaseModel] | JsonValue]]
+"""A route's ``responses=``: by status, FastAPI's ``model`` (the body's pydantic class) and members of an OpenAPI
+Response Object (``description``, ``headers``, ``content``)."""
 
 
-def raw_json(parts: dict[str, Any], raw: dict[str, str], status_code: int = 200) -> Response:
+def raw_json(parts: Mapping[str, JsonValue], raw: dict[str, str], status_code: int = 200) -> Response:
     """A JSON object from JSON-able ``parts`` and already-serialized ``raw`` members (no re-encoding)."""
     members = [f"{json.dumps(k)}:{json.dumps(v)}" for k, v in parts.items()]
     members += [f"{json.dumps(k)}:{v}" for k, v in raw.items()]
@@ -44,7 +47,7 @@ LIST_PAGE_BYTES = 4 * 2**20
 """Most bytes of one page of a list (``GET /demonstrations``, ``/skills``, ``/executions``, ``/sweeps``): a page
 stops before it (with at least one item) and names the next one in :data:`NEXT_OFFSET_HEADER`. Listed items are a few
 hundred bytes (an execution with its metrics a few KB): only a list of very large items is cut before ``limit``."""
-LIST_RESPONSES: dict[int | str, dict[str, Any]] = {
+LIST_RESPONSES: OpenApiResponses = {
     200: {
         "headers": {
             NEXT_OFFSET_HEADER: {
@@ -95,10 +98,10 @@ def samples_that_fit(other_bytes: int) -> int:
 
 
 def samples_json_chunks(
-    head: dict[str, Any], member: str | None, columns: dict[str, np.ndarray], raw: dict[str, str]
+    head: Mapping[str, object], member: str | None, columns: dict[str, np.ndarray], raw: dict[str, str]
 ) -> Iterator[str]:
-    """A JSON object of ``head``'s members and then, in an object named ``member`` (None: in the same object), the
-    ``columns`` (arrays, one row per sample) written :data:`SAMPLE_CHUNK_ROWS` rows at a time and the
+    """A JSON object of ``head``'s (JSON-able) members and then, in an object named ``member`` (None: in the same
+    object), the ``columns`` (arrays, one row per sample) written :data:`SAMPLE_CHUNK_ROWS` rows at a time and the
     already-serialized ``raw`` members. A reply sent in chunks, never held whole."""
     yield "{" + "".join(f"{json.dumps(key)}:{json.dumps(value)}," for key, value in head.items())
     if member is not None:

@@ -24,6 +24,8 @@ from services.store.rows import (
     SkillRow,
     SkillSummaryRow,
     SweepRow,
+    SweepTerms,
+    SweepTrialRef,
     SweepTrialRow,
     first_problem,
 )
@@ -48,6 +50,8 @@ __all__ = [
     "Store",
     "StoreError",
     "SweepRow",
+    "SweepTerms",
+    "SweepTrialRef",
     "SweepTrialRow",
     "first_problem",
     "new_id",

@@ -5,10 +5,9 @@ from __future__ import annotations
 import json
 import sqlite3
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from pydantic import ValidationError
+from pydantic import BaseModel, JsonValue, ValidationError
 
 from schemas.api import ExecutionState
 from schemas.demonstration import DemonstrationSummary
@@ -114,6 +113,13 @@ class SkillSummaryRow:
     demonstration_name: str | None
 
 
+class SweepTrialRef(BaseModel):
+    """The sweep and trial an execution ran for (its shown request's ``sweep``)."""
+
+    id: str
+    trial: int
+
+
 @dataclass(frozen=True)
 class ExecutionRow:
     id: str
@@ -121,7 +127,7 @@ class ExecutionRow:
     worker_id: str | None
     status: ExecutionState
     phase: ExecutionPhase
-    request: dict[str, Any]
+    request: dict[str, JsonValue]
     """The request as it was accepted and is shown back (an inline skill left out; ``sweep`` names a sweep's)."""
     metrics: ExecutionMetrics | None
     error: str | None
@@ -157,6 +163,22 @@ class ExecutionRow:
         that setting existed streamed)."""
         return self.request.get("telemetry", TelemetryMode.stream.value) == TelemetryMode.stream.value
 
+    @property
+    def sweep(self) -> SweepTrialRef | None:
+        """The sweep and trial it ran for; None when it was not a sweep's trial."""
+        sweep = self.request.get("sweep")
+        return SweepTrialRef.model_validate(sweep) if sweep else None
+
+
+class SweepTerms(BaseModel):
+    """What a sweep's trials run with and are judged by, read back from its stored request: the controllers each
+    trial runs, the seed of the trials' noise, and the success criteria (`schemas.sweep.SWEEP_TOLERANCES`)."""
+
+    controllers: list[ControllerKind]
+    seed: int
+    success_rms_pct: float
+    success_contact_ratio: float
+
 
 @dataclass(frozen=True)
 class SweepRow:
@@ -164,7 +186,7 @@ class SweepRow:
     created: float
     updated: float
     status: SweepState
-    request: dict[str, Any]
+    request: dict[str, JsonValue]
     """The request as shown back (an inline skill is not repeated)."""
     spec: str
     """JSON: what every trial's execution starts from (the request with the skill inline, the demonstration id)."""
@@ -179,6 +201,11 @@ class SweepRow:
             json.loads(row["request"]),
             row["spec"],
         )
+
+    @property
+    def terms(self) -> SweepTerms:
+        """The controllers, seed and success criteria of its request."""
+        return SweepTerms.model_validate(self.request)
 
 
 @dataclass(frozen=True)

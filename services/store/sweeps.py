@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any
+
+from pydantic import JsonValue
 
 from schemas.api import ExecutionState
 from schemas.execution import ControllerKind
@@ -22,7 +23,7 @@ class SweepRepository:
 
     def add(
         self,
-        request: dict[str, Any],
+        request: dict[str, JsonValue],
         spec: str,
         trials: list[tuple[int, ControllerKind, dict[str, float]]],
         status: SweepState,

@@ -4,10 +4,10 @@ get, delete."""
 from __future__ import annotations
 
 import json
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Response, UploadFile
-from pydantic import TypeAdapter, ValidationError
+from pydantic import JsonValue, TypeAdapter, ValidationError
 
 from schemas.api import (
     ApiError,
@@ -80,9 +80,12 @@ def _created(row: DemonstrationRow, notes: list[str] | None = None, extra: dict 
     )
 
 
-def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str) -> tuple[bytes, str]:
-    """The uploaded bytes and the file's name; a 422 on ``file`` when its content is none of ``accepted``: the one
-    message for a file no importer reads, or which route takes the kind it is (``wanted``: what this one takes)."""
+def _upload(
+    file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: str
+) -> tuple[bytes, str, DemonstrationFile]:
+    """The uploaded bytes, the file's name and what it holds (told once, by its content, and passed on to the
+    importer); a 422 on ``file`` when its content is none of ``accepted``: the one message for a file no importer
+    reads, or which route takes the kind it is (``wanted``: what this one takes)."""
     try:  # the file's name becomes the demonstration's name and source: bounded as a name is
         name = UPLOAD_NAME.validate_python(file.filename or "upload").rsplit("/", 1)[-1]
     except ValidationError as exc:
@@ -93,7 +96,7 @@ def _upload(file: UploadFile, accepted: frozenset[DemonstrationFile], wanted: st
         raise errors.unprocessable(["body", "file"], unsupported_file(name), "unsupported_file")
     if kind not in accepted:
         raise errors.unprocessable(["body", "file"], other_kind(name, kind, wanted), "unsupported_file")
-    return data, name
+    return data, name, kind
 
 
 def _store_upload(store: Store, demonstration: Demonstration, uploaded_bytes: int) -> DemonstrationRow:
@@ -111,7 +114,7 @@ def _notes(demonstration: Demonstration) -> list[str]:
     return list(demonstration.metadata.extra.get("import_notes", []))
 
 
-def _advice(demonstration: Demonstration) -> dict[str, Any]:
+def _advice(demonstration: Demonstration) -> dict[str, JsonValue]:
     """An upload answer's ``extra``: the readings the import note advises as import options (the form's names and
     values, ``plausible_readings``), when it advises any."""
     readings = demonstration.metadata.extra.get(PLAUSIBLE_READINGS) or []
@@ -152,7 +155,7 @@ def post_demonstration_csv(
     was done. A problem is a 422 naming the form field and, for the file, the column and line."""
     from services.csv_import import CsvImportError, demonstration_from_csv
 
-    data, name = _upload(file, frozenset({DemonstrationFile.csv}), "a CSV recording")
+    data, name, _ = _upload(file, frozenset({DemonstrationFile.csv}), "a CSV recording")
     try:
         demonstration = demonstration_from_csv(
             data, options.model_copy(update={"name": options.name or name.removesuffix(".csv")})
@@ -186,9 +189,9 @@ def post_demonstration_bag(
     and frames are honoured, the asynchronous topics aligned on one time base (as ``contact-skills learn BAG``)."""
     from services.bag_import import BagImportError, demonstration_from_bag_upload
 
-    data, name = _upload(file, BAGS, "a ROS bag")
+    data, name, kind = _upload(file, BAGS, "a ROS bag")
     try:
-        demonstration = demonstration_from_bag_upload(data, name, options)
+        demonstration = demonstration_from_bag_upload(data, name, options, kind)
     except BagImportError as exc:
         raise errors.import_failed(exc) from None
     stored = _store_upload(store, demonstration, len(data))
@@ -285,7 +288,7 @@ def get_demonstration(
     stored under looser rules that cannot be read back (delete it)."""
     row, samples = readable_samples(store, demonstration_id)
     assert row.summary is not None  # a readable row has its summary
-    head: dict[str, Any] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
+    head: dict[str, JsonValue] = {"id": row.id, "created": row.created, "summary": row.summary.model_dump(mode="json")}
     fit = samples_that_fit(len(json.dumps(head)) + len(samples.metadata.encode()) + 200)  # 200: keys, brackets
     if cursor is None and limit is None and samples.n_samples > fit:
         raise errors.samples_over_budget(demonstration_id, samples.n_samples, fit)

@@ -4,7 +4,7 @@ delete."""
 from __future__ import annotations
 
 import logging
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
@@ -46,7 +46,7 @@ from services.api.deps import (
 )
 from services.api.errors import ERROR_RESPONSES, MUTATING_RESPONSES, READ_RESPONSES, STORING_RESPONSES
 from services.api.limits import TOO_MANY, WorkKind
-from services.api.responses import LIST_RESPONSES, list_page, streamed
+from services.api.responses import LIST_RESPONSES, OpenApiResponses, list_page, streamed
 from services.bus import BusClient
 from services.queue import ExecutionQueue
 from services.store import TERMINAL, ExecutionRow, Store
@@ -55,7 +55,7 @@ log = logging.getLogger("contact_skills.api")
 
 router = APIRouter(tags=["executions"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
-COMMAND_RESPONSES: dict[int | str, dict[str, Any]] = {
+COMMAND_RESPONSES: OpenApiResponses = {
     **ERROR_RESPONSES,
     **MUTATING_RESPONSES,
     409: {"model": ApiError},
@@ -190,7 +190,7 @@ def delete_execution(execution_id: str, store: StoreDep) -> Response:
     sweep's results are its executions); the skill it ran is kept. 204 when deleted, 404 for an unknown id; needs the
     bearer token when one is set."""
     row = _found(store, execution_id)
-    if sweep := row.request.get("sweep"):
+    if sweep := row.sweep:
         raise errors.part_of_sweep(execution_id, sweep)
     if not store.executions.delete(execution_id, TERMINAL):
         raise errors.still_active(execution_id, (store.executions.get(execution_id) or row).status.value)
@@ -308,7 +308,7 @@ def get_telemetry(
 
     row = _found(store, execution_id)
     if not row.streams_telemetry:
-        raise errors.no_telemetry(execution_id, row.request.get("sweep"))
+        raise errors.no_telemetry(execution_id, row.sweep)
     t0, t1 = window
     size = min(limit or settings.telemetry_page_samples, settings.telemetry_page_samples)
     page = telemetry_page(store.telemetry.blocks(execution_id, cursor), cursor, every, t0, t1, size)

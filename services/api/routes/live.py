@@ -13,19 +13,20 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from collections.abc import AsyncIterator, Mapping
+from typing import Annotated
 
 import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import StreamingResponse
+from pydantic import JsonValue
 
 from services.api import errors
 from services.api.deps import MAX_OFFSET, READ_GUARD, StoreDep
 from services.api.errors import ERROR_RESPONSES, READ_RESPONSES
 from services.dashboard.scene import JointSolver, cf_rotations
 from services.dashboard.stream import decimated, stored_rows
-from services.store import TELEMETRY_LAYOUT, TERMINAL, Store
+from services.store import TELEMETRY_LAYOUT, TERMINAL, ExecutionRow, Store
 
 router = APIRouter(tags=["executions"], dependencies=READ_GUARD, responses=READ_RESPONSES)
 
@@ -44,7 +45,7 @@ ROUND = 6
 LiveCursor = Annotated[int, Query(ge=0, le=MAX_OFFSET, description="The stream index to start from (an event's id).")]
 
 
-def _event(kind: str, data: dict[str, Any], ident: int | None = None) -> str:
+def _event(kind: str, data: Mapping[str, JsonValue], ident: int | None = None) -> str:
     head = f"id: {ident}\n" if ident is not None else ""
     return f"{head}event: {kind}\ndata: {json.dumps(data, allow_nan=False)}\n\n"
 
@@ -62,7 +63,7 @@ def _column(block: np.ndarray, name: str) -> list:
     return [v for (v,) in values]
 
 
-def _telemetry(rows: np.ndarray, first: int, scene: _Scene | None = None) -> dict[str, Any]:
+def _telemetry(rows: np.ndarray, first: int, scene: _Scene | None = None) -> dict[str, JsonValue]:
     """The columns of ``rows`` (the store's matrix, stream index ``first`` onwards) decimated to :data:`PLOT_HZ`,
     the last row always kept; ``index``: each kept row's stream index. With ``scene`` (what the 3-D view draws):
     ``cf_axes``, each kept row's compliant frame (world-from-CF rotation, rows of the matrix; recovered from its two
@@ -70,7 +71,7 @@ def _telemetry(rows: np.ndarray, first: int, scene: _Scene | None = None) -> dic
     row (inverse kinematics of its tool pose)."""
     keep = decimated(rows[:, 0], PLOT_HZ)
     picked = rows[keep]
-    out: dict[str, Any] = {"index": (first + keep).tolist()}
+    out: dict[str, JsonValue] = {"index": (first + keep).tolist()}
     for name in SEND:
         a, b = TELEMETRY_LAYOUT[name]
         out[name] = _column(picked[:, a:b], name)
@@ -87,7 +88,7 @@ class _Scene:
         self.solver = JointSolver()
         self.frame: np.ndarray | None = None
 
-    def drawn(self, picked: np.ndarray) -> dict[str, Any]:
+    def drawn(self, picked: np.ndarray) -> dict[str, JsonValue]:
         columns = {name: picked[:, a:b] for name, (a, b) in TELEMETRY_LAYOUT.items()}
         world, cf = (np.nan_to_num(columns[name]) for name in ("wrench_world", "wrench_cf"))
         frames = cf_rotations(world, cf, self.frame)
@@ -99,7 +100,7 @@ class _Scene:
         self.solver.close()
 
 
-def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tuple[Any, np.ndarray]:
+def _read(store: Store, execution_id: str, cursor: int, skip_gaps: bool) -> tuple[ExecutionRow | None, np.ndarray]:
     """The execution's row and its samples from ``cursor`` on (up to a gap still being repaired, unless
     ``skip_gaps``)."""
     return store.executions.get(execution_id), stored_rows(store, execution_id, cursor, skip_gaps)

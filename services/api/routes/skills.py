@@ -9,6 +9,7 @@ from dataclasses import asdict
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
+from pydantic import JsonValue
 
 from schemas.api import ApiError, SkillInfo, SkillRequest, StoredSkill
 from schemas.skill import MAX_JOINT_SAMPLES
@@ -84,8 +85,8 @@ async def post_skill(request: SkillRequest, store: StoreDep, learners: LearnersD
         stored_id = outcome.reference
     warnings = list(outcome.reasons)
     row = await asyncio.to_thread(store.skills.add, outcome.skill_json, outcome.skill_type, stored_id, warnings)
-    parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
-    parts |= {"learn_seconds": round(outcome.seconds, 4), "warnings": row.warnings}
+    parts: dict[str, JsonValue] = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created}
+    parts |= {"learn_seconds": round(outcome.seconds, 4), "warnings": list(row.warnings)}
     return raw_json(parts, {"skill": outcome.skill_json}, 201)
 
 
@@ -126,8 +127,13 @@ def get_skill(skill_id: str, store: StoreDep) -> Response:
     row = store.skills.get(skill_id)
     if row is None:
         raise errors.not_found("skill", skill_id)
-    parts = {"id": row.id, "demonstration_id": row.demonstration_id, "created": row.created, "learn_seconds": None}
-    return raw_json({**parts, "warnings": row.warnings}, {"skill": row.skill_json})
+    parts: dict[str, JsonValue] = {
+        "id": row.id,
+        "demonstration_id": row.demonstration_id,
+        "created": row.created,
+        "learn_seconds": None,
+    }
+    return raw_json({**parts, "warnings": list(row.warnings)}, {"skill": row.skill_json})
 
 
 @router.delete(
