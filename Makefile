@@ -47,6 +47,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_corpus.py
 	$(BIN)/python benchmarks/bench_learning_sources.py
 	$(BIN)/python benchmarks/bench_joint_learning.py
+	$(BIN)/python benchmarks/bench_gain_schedule.py
 	$(BIN)/python benchmarks/bench_kuleuven_truth.py
 	$(BIN)/python benchmarks/bench_work_piece.py
 	$(BIN)/python benchmarks/bench_real_skills.py

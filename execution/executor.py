@@ -232,6 +232,7 @@ class Execution:
             self.dt,
             plan.next_z,
             plan.quick_steps,
+            plan.stiffness,
         )
 
     def _touch_shift(self, segment: Segment) -> NDArray[np.float64] | None:

@@ -18,6 +18,7 @@ from schemas.execution import ControllerKind, ExecutionPhase, ExecutionSettings
 from schemas.skill import SELECTION_FREE, Segment, SegmentKind, Skill
 from skills.control import ControlFrame, ControlFrameSeries, HybridController
 from skills.dmp import DMP
+from skills.gain_schedule import scheduled_stiffness
 from skills.quaternion_dmp import QuaternionDMP
 from skills.quaternions import (
     matrix_from_quaternion,
@@ -101,10 +102,19 @@ class PhasePlan:
     next_z: NDArray[np.float64] | None = None
     """With ``follows_surface``: the next contact segment's learned CF z; the phase ends when the tracked normal says
     the tool is on that surface (a crease met before the taught time)."""
+    stiffness: NDArray[np.float64] | None = None
+    """A gain schedule's CF stiffness diagonal (M, 6), N/m and N·m/rad, one row every ``stride`` steps
+    (``skills.gain_schedule``); its frames are ``series`` (or the follower's). None: the gains' own."""
 
     @property
     def steps(self) -> int:
         return int(self.ref_p.shape[0])
+
+    @property
+    def held_frame(self) -> ControlFrame | None:
+        """The control frame a loop holds for the whole phase (without a follower); None: it steps through
+        ``series`` (a contour's frames, or a slide's one frame under a gain schedule)."""
+        return self.frame if self.series is None else None
 
     def reference_rows(self) -> NDArray[np.float64]:
         """One row per step in the control law's reference layout (``skills.control.REFERENCE_*``: position,
@@ -364,15 +374,21 @@ class PhasePlanner:
                 force[:k] = f_previous + blend * (force[:k] - f_previous)
         plan = PhasePlan(ExecutionPhase.contact, segment.index, ref_p, ref_q, twist, force)
         plan.follows_surface = follows_surface
+        stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
+        fractions = np.minimum(times[::stride] / max(times[-1], self.dt), 1.0)
+        plan.stiffness = scheduled_stiffness(segment, self.settings.gains, fractions)
         if geo.t.size == 1:
             plan.frame = self.controller.frame(geo.rotations[0], segment.selection)
+            if plan.stiffness is not None:  # the one frame with the schedule's stiffness every `stride` steps
+                plan.stride = stride
+                if not follows_surface:
+                    rotations = np.broadcast_to(geo.rotations[0], (fractions.size, 3, 3))
+                    plan.series = self.controller.frames(rotations, segment.selection, plan.stiffness)
         else:
-            stride = max(1, math.ceil(n / MAX_CONTOUR_FRAMES))
-            fractions = times[::stride] / max(times[-1], self.dt)
-            plan.learned_rotations = geo.rotations_at(np.minimum(fractions, 1.0))
+            plan.learned_rotations = geo.rotations_at(fractions)
             plan.stride = stride
             if not follows_surface:
-                plan.series = self.controller.frames(plan.learned_rotations, segment.selection)
+                plan.series = self.controller.frames(plan.learned_rotations, segment.selection, plan.stiffness)
         return plan
 
     def transfer(

@@ -87,7 +87,8 @@ class SurfaceFollower:
     hold: one); ``selection`` (6,) the phase's; ``references`` (n, REFERENCE_SIZE) the phase's reference rows,
     rewritten in place from the taught ones when ``moves_references`` (a contour); ``next_z`` (3,) the next contact
     segment's learned CF z when a crease follows (see :attr:`on_next_surface`); ``quick_steps`` (n,) per step whether
-    it is near a crease, where the normal is followed with the quicker ``CREASE_*`` response.
+    it is near a crease, where the normal is followed with the quicker ``CREASE_*`` response; ``stiffness`` (M, 6) a
+    gain schedule's CF stiffness every ``stride`` steps (``PhasePlan.stiffness``; None: the gains').
     """
 
     def __init__(
@@ -102,6 +103,7 @@ class SurfaceFollower:
         dt: float,
         next_z: NDArray[np.float64] | None = None,
         quick_steps: NDArray[np.bool_] | None = None,
+        stiffness: NDArray[np.float64] | None = None,
     ) -> None:
         self.tracker = tracker
         self._controller = controller
@@ -111,6 +113,7 @@ class SurfaceFollower:
         self._dt = dt
         self._next_z = next_z
         self._quick = quick_steps
+        self._stiffness = stiffness
         self.on_next_surface = False
         """The tracked normal has turned past half-way from the learned z towards ``next_z``."""
         self._next_step = 0
@@ -129,9 +132,16 @@ class SurfaceFollower:
     def _learned(self, k: int) -> NDArray[np.float64]:
         return self._rotations[min(k // self._stride, len(self._rotations) - 1)]
 
+    def _frame(self, rotation: NDArray[np.float64], k: int) -> ControlFrame:
+        """The control frame of CF ``rotation`` at step ``k``, with the gain schedule's stiffness there if any."""
+        if self._stiffness is None:
+            return self._controller.frame(rotation, self._selection)
+        stiffness = self._stiffness[min(k // self._stride, len(self._stiffness) - 1)]
+        return self._controller.frame(rotation, self._selection, stiffness=stiffness)
+
     def first_frame(self) -> ControlFrame:
         """The frame to start the phase with: the first learned CF turned to the normal tracked so far."""
-        return self._controller.frame(self.tracker.turned(self._learned(0)), self._selection)
+        return self._frame(self.tracker.turned(self._learned(0)), 0)
 
     def due(self, k: int) -> bool:
         """Whether an update is due at step ``k`` (every ``FOLLOW_PERIOD_STEPS`` steps the phase advances)."""
@@ -179,7 +189,7 @@ class SurfaceFollower:
                     self._orientation_turn, quaternion_from_matrix(turn), self._orientation_step
                 )
                 references[rows, REFERENCE_QUAT] = quaternion_product(self._orientation_turn, quats)
-        return self._controller.frame(turn @ learned, self._selection)
+        return self._frame(turn @ learned, k)
 
 
 def _quaternion_towards(a: NDArray[np.float64], b: NDArray[np.float64], max_angle: float) -> NDArray[np.float64]:

@@ -9,7 +9,7 @@ points along the force the tool applies (into the surface). Selection diagonals 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -37,7 +37,10 @@ IN_BAND_SHARE = 0.9
 """A run presses like the demonstrations when its press lies within their force band for at least this share of its
 contact (a demonstration against its joint skill; an execution against the band, `ExecutionTolerances`)."""
 MAX_BAND_POINTS = 1000
-"""Most phase points of a segment's force band."""
+"""Most phase points of a segment's force band (and of its motion spread)."""
+
+SpreadXY = Annotated[list[Annotated[Real, Field(ge=0)]], Field(min_length=2, max_length=2)]
+"""A spread along CF x and CF y, m (never negative)."""
 
 
 class SkillType(StrEnum):
@@ -204,6 +207,27 @@ class ForceBand(BaseModel):
     demonstrations: WholeNumber = Field(ge=1, description="How many demonstrations the band was built from.")
 
 
+class MotionSpread(BaseModel):
+    """How far apart several demonstrations moved the tool along a contact segment, phase by phase
+    (`skills.joint_learning`): what a gain schedule reads (``ControllerGains.gain_schedule``, `skills.gain_schedule`).
+
+    ``phase`` is the fraction (0-1) of the segment's duration, on the same points as its `ForceBand`; ``spread_m``
+    the standard deviation, across the demonstrations aligned in time, of their tool-point positions along the CF x
+    and CF y axes (the motion axes) at each phase, pooled over the nearby phases as the force band's.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    phase: list[Real] = Field(min_length=2, max_length=MAX_BAND_POINTS, description="Fraction of the segment, 0-1.")
+    spread_m: list[SpreadXY] = Field(
+        min_length=2,
+        max_length=MAX_BAND_POINTS,
+        description="Standard deviation of the aligned tool-point positions across the demonstrations along CF x "
+        "and CF y at each phase, m.",
+    )
+    demonstrations: WholeNumber = Field(ge=2, description="How many demonstrations the spread was taken over.")
+
+
 class Segment(BaseModel):
     """One segment of the skill: a movement primitive with its frames and force profile."""
 
@@ -242,6 +266,12 @@ class Segment(BaseModel):
         None,
         description="Contact segments of a skill learned from several demonstrations: the press they showed, mean "
         "and spread per phase (None: learned from one).",
+    )
+    motion_spread: MotionSpread | None = Field(
+        None,
+        description="Contact segments of a skill learned from several demonstrations: how far apart they moved the "
+        "tool along the CF motion axes per phase (None: learned from one, or one left of several). A gain schedule "
+        "reads it.",
     )
 
 

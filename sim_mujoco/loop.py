@@ -79,7 +79,7 @@ class MujocoLoop(RecordingLoop):
         window = guard.window_steps
         window_readings, window_sum, window_slot = np.zeros(window), 0.0, 0
         window_threshold = guard.threshold_n * window  # on the sum of the last `window` readings
-        single = current = plan.frame if follower is None else follower.first_frame()
+        single = current = plan.held_frame if follower is None else follower.first_frame()
         series, stride, next_frame_step, frame = plan.series, plan.stride, 0, None
         guard_loss, next_surface = plan.phase is ExecutionPhase.contact, plan.next_z is not None
         cf_z = np.zeros(3)

@@ -163,7 +163,7 @@ class _PhaseState:
         self.stop_axis = None if plan.stop_axis is None else plan.stop_axis.tolist()
         if self.stop_axis is not None:
             loop.found_force = None
-        self.single = plan.frame if follower is None else follower.first_frame()
+        self.single = plan.held_frame if follower is None else follower.first_frame()
         self.next_surface = plan.next_z is not None
         self.guard_loss = plan.phase is ExecutionPhase.contact
         self.q_lower, self.q_upper = loop.world.joint_lower, loop.world.joint_upper

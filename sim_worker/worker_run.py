@@ -20,6 +20,7 @@ from schemas.execution import (
     EnvironmentChange,
     ExecutionMetrics,
     ExecutionPhase,
+    GainSchedule,
     TelemetryBatch,
     TelemetryMode,
 )
@@ -85,11 +86,15 @@ def worlds_for(start: StartExecution) -> list:
     """Where ``start``'s skill runs (``sim_worker.execution_world.execution_worlds``): its world and its placed skill,
     or one world per stroke when no single placement reaches them all (the run goes through them in order).
 
-    Raises ValueError (an unknown scenario or world field, a skill out of reach) with the message to reply.
+    Raises ValueError (an unknown scenario or world field, a skill out of reach, a gain schedule the skill has no
+    spread for) with the message to reply.
     """
     from sim_worker.execution_world import execution_worlds
+    from skills.gain_schedule import missing_spread
 
     request = start.request
+    if request.gains.gain_schedule is GainSchedule.from_spread and (reason := missing_spread(request.skill)):
+        raise ValueError(reason)
     return execution_worlds(
         request.skill,  # type: ignore[arg-type]  (inline, checked by StartExecution)
         request.environment,

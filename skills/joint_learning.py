@@ -10,9 +10,10 @@ correspondence and joined (docs/LEARNING.md, section 11):
    reference's by dynamic time warping on its path and its press.
 3. **Joint estimates.** The type from the summed log-odds of all of them (independent evidence: the confidence
    grows with agreement); the CF z (`skills.joint_normals`: a slide's plane pooled, a contour's normals by place);
-   the press as the mean with its spread per phase (`skills.force_band`: across them and within each); the DMPs
-   fitted to the aligned mean (position, orientation, force), on the reference's time base: its own samples moved
-   by the mean's smoothed deviation from them.
+   the press as the mean with its spread per phase (`skills.force_band`: across them and within each), and the
+   spread of their paths along the CF motion axes per phase (`skills.gain_schedule`: what a gain schedule reads);
+   the DMPs fitted to the aligned mean (position, orientation, force), on the reference's time base: its own samples
+   moved by the mean's smoothed deviation from them.
 4. **Self-checks.** The joint skill's checks against the reference recording (`skills.parameterize
    .recording_checks`), and each demonstration against the skill learned WITHOUT it (`skills.joint_judges`).
 
@@ -52,6 +53,7 @@ from skills.compliant_frames import contour_frames
 from skills.force_band import band_and_mean_press, offset_uncertainty_n
 from skills.force_profile import cf_z_forces, constant_force, plateau_mask, press_steadiness
 from skills.friction import unit_rows
+from skills.gain_schedule import motion_spread
 from skills.joint_alignment import (
     ALIGNMENT_POINTS,
     aligned_stroke,
@@ -168,6 +170,11 @@ def _joint_segment(
         rotations = contour_frames(mean_positions, np.zeros_like(mean_positions), rate_hz, slice(0, m), normals=on_path)
         cf_z = rotations[:, :, 2]
     band, mean_press = band_and_mean_press(aligned, normals, offset_uncertainty_n(trials))
+    points = len(aligned[0])
+    frames_on_points = (
+        plane.rotation if plane is not None else rotations[np.linspace(0, m - 1, points).round().astype(int)]
+    )
+    spread = motion_spread([a[:, 0:3] for a in aligned], frames_on_points) if len(aligned) > 1 else None
     measured = cf_z_forces(r.forces[rows], cf_z)
     own_press = resampled(measured, ALIGNMENT_POINTS)
     press = mean_on_samples(mean_press[:, None], own_press[:, None], measured[:, None])[:, 0]
@@ -182,6 +189,7 @@ def _joint_segment(
         "kind": SegmentKind.contact,
         "selection": list(SELECTION_CONTACT),
         "force_band": band,
+        "motion_spread": spread,
     }
     if plane is not None:
         in_plane = ((mean_positions - plane.origin) @ plane.rotation)[:, :2]

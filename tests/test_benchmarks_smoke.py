@@ -198,6 +198,27 @@ def test_joint_learning_benchmark_smoke():
         assert finite(*numbers(" ".join(row[1:]))) and numbers(row[6])[0] > 0, row
 
 
+def test_gain_schedule_benchmark_smoke():
+    """A 2 s flat slide recorded by two hands and learned together, executed with each gain schedule, as taught and
+    with the friction tripled: every run passes with its true force within 15 %; constant holds the configured
+    3000 N/m, from_spread schedules between the floor (a quarter) and it."""
+    out = run_smoke("bench_gain_schedule.py")
+    rows = table(out, "scenario | condition")
+    assert [(row[1], row[2]) for row in rows] == [
+        (condition, schedule)
+        for condition in ("table 2 cm higher", "and friction 0.6")
+        for schedule in ("constant", "from_spread")
+    ]
+    for row in rows:
+        least, median = numbers(row[3])
+        force, path = numbers(row[4])[0], numbers(row[5])[0]
+        assert row[6] == "pass" and finite(force, path) and force < 15.0, row
+        if row[2] == "constant":
+            assert least == median == 3000.0, row
+        else:
+            assert 750.0 <= least <= median <= 3000.0, row
+
+
 def test_control_loop_benchmark_smoke():
     """The control loop's real-time factors, from the run. (``--smoke`` is the control loop's owner's to add.)"""
     out = run_smoke("bench_control_loop.py", timeout_s=300.0)

@@ -22,7 +22,7 @@ zenoh = pytest.importorskip("zenoh")
 from schemas import ExecutionRequest, LearnOptions, RecordRequest  # noqa: E402
 from schemas.bus import ExecutionStatus, KeyExpressions, StartExecution, StartReply, session_config  # noqa: E402
 from schemas.demonstration import Demonstration  # noqa: E402
-from schemas.execution import Engine, ExecutionPhase, TelemetryBatch  # noqa: E402
+from schemas.execution import ControllerGains, Engine, ExecutionPhase, TelemetryBatch  # noqa: E402
 from services.bus import BusClient, BusRequestError, BusSettings, NoWorkerAvailable  # noqa: E402
 from services.local_processes import free_port as _free_port  # noqa: E402
 from services.local_processes import spawn_cli, wait_for_port  # noqa: E402
@@ -425,6 +425,8 @@ def test_the_demonstrations_a_worker_keeps_are_bounded_by_their_samples(recorded
 def test_bad_requests_are_refused(client, skill):
     with pytest.raises(BusRequestError, match="unknown scenario"):
         client.start_execution("ex-bad", _request(skill, scenario="no_such_world"))
+    with pytest.raises(BusRequestError, match=r"gains\.gain_schedule: from_spread needs the spread"):
+        client.start_execution("ex-bad", _request(skill, gains=ControllerGains(gain_schedule="from_spread")))
     with pytest.raises(ValueError, match="inline"):
         client.start_execution("ex-bad", ExecutionRequest(skill_id="sk_1"))
     with pytest.raises(ValueError, match="key-expression chunk"):

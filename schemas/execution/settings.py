@@ -90,6 +90,18 @@ class SurfaceWindowAction(StrEnum):
     """Stop there: retract and abort with the distance in the reason (the part is not where the skill expects it)."""
 
 
+class GainSchedule(StrEnum):
+    """How the CF translational stiffness on the motion axes (CF x, y) is set along a contact segment
+    (``skills.gain_schedule``; docs/EXECUTION.md, "A gain schedule from the demonstrations' spread")."""
+
+    constant = "constant"
+    """The configured stiffness everywhere."""
+    from_spread = "from_spread"
+    """From the spread of the demonstrations the skill was learned from (``Segment.motion_spread``), phase by phase:
+    the configured stiffness where they agree, down to a floor where they vary (stiffness ~ 1 / variance, clipped),
+    the damping matched to it by the damping ratio. Needs a skill learned from several demonstrations."""
+
+
 class ControllerGains(BaseModel):
     """Gains and limits of the hybrid impedance/force controller (defaults work for the simulated iiwa).
 
@@ -195,6 +207,14 @@ class ControllerGains(BaseModel):
         le=1000,
         description="CF-z force that counts as contact for the guarded approach (and ends a guarded free "
         "segment early), N; default: 10 % of the skill's reference force, within [1, 3] N.",
+    )
+    gain_schedule: GainSchedule = Field(
+        GainSchedule.constant,
+        description="constant: translational_stiffness_n_per_m everywhere. from_spread: along each contact segment "
+        "the CF x and y stiffness follow the spread of the demonstrations the skill was learned from, phase by "
+        "phase: the configured stiffness where they agree, down to a floor where they vary (stiffness ~ "
+        "1 / variance, clipped; docs/EXECUTION.md), the damping kept at the damping ratio; a skill learned from one "
+        "demonstration has no spread and is refused (422).",
     )
 
 

@@ -209,10 +209,16 @@ class HybridController:
         return cf_rotation, selection
 
     def _frame_fields(
-        self, cf_rotation: ArrayLike, selection: ArrayLike, offset: ArrayLike | None
+        self, cf_rotation: ArrayLike, selection: ArrayLike, offset: ArrayLike | None, stiffness: ArrayLike | None
     ) -> dict[str, NDArray[np.float64]]:
         cf_rotation = np.asarray(cf_rotation, dtype=float)
         batch = cf_rotation.shape[:-2]
+        # A gain schedule's stiffness (..., 6) and the nominal damping that matches it; else the gains' own.
+        if stiffness is None:
+            stiffness, damping = self._stiffness, self.damping
+        else:
+            stiffness = np.asarray(stiffness, dtype=float)
+            damping = damping_diagonal(self.gains, stiffness=stiffness)
         sel_in = np.broadcast_to(np.asarray(selection, dtype=float), (*batch, 6))
         R, S = self._control_rotation_and_selection(cf_rotation, sel_in)
         S = np.ascontiguousarray(S)
@@ -229,7 +235,7 @@ class HybridController:
             adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
         force_axes = 1.0 - S
         force_direction = adg[..., :, 2] * force_axes[..., 2:3] if self._force_loop else np.zeros((*batch, 6))
-        omega = stiffness_in_frame(R, p, self._stiffness, S)
+        omega = stiffness_in_frame(R, p, stiffness, S)
         projector = force_projector_in_frame(R, p, S)
         error_direction = force_axes * (adg_inv @ force_direction[..., None])[..., 0]  # S~ Adg^-1 F_d,1
         task_gain = np.zeros((*batch, G_TASK.stop, X_TASK.stop))
@@ -264,6 +270,8 @@ class HybridController:
                 axis=-1,
             ),
             "task_gain": task_gain,
+            "stiffness": np.broadcast_to(stiffness, (*batch, 6)),
+            "damping": np.broadcast_to(damping, (*batch, 6)),
         }
 
     def frame(
@@ -272,26 +280,31 @@ class HybridController:
         selection: ArrayLike,
         cf_origin: ArrayLike | None = None,
         tool_position: ArrayLike | None = None,
+        stiffness: ArrayLike | None = None,
     ) -> ControlFrame:
         """Precompute the law's matrices for one CF (``cf_rotation`` (3, 3) world from CF, ``selection`` (6,)).
 
-        ``cf_origin`` and ``tool_position`` (m, world) matter only with ``compliance_center="cf_origin"``.
+        ``cf_origin`` and ``tool_position`` (m, world) matter only with ``compliance_center="cf_origin"``;
+        ``stiffness`` (6,) a gain schedule's CF stiffness diagonal (N/m, N·m/rad; default: the gains').
         """
         offset = None
         if self.compliance_center == "cf_origin":
             if cf_origin is None or tool_position is None:
                 raise ValueError("compliance_center='cf_origin' needs cf_origin and tool_position")
             offset = np.asarray(cf_origin, float) - np.asarray(tool_position, float)
-        return ControlFrame(**self._frame_fields(cf_rotation, selection, offset))
+        return ControlFrame(**self._frame_fields(cf_rotation, selection, offset, stiffness))
 
-    def frames(self, cf_rotations: ArrayLike, selection: ArrayLike) -> ControlFrameSeries:
-        """Precompute control frames for ``(M, 3, 3)`` CF orientations at once (compliance centre at the tool)."""
+    def frames(
+        self, cf_rotations: ArrayLike, selection: ArrayLike, stiffness: ArrayLike | None = None
+    ) -> ControlFrameSeries:
+        """Precompute control frames for ``(M, 3, 3)`` CF orientations at once (compliance centre at the tool);
+        ``stiffness`` (M, 6) a gain schedule's CF stiffness diagonal per frame (default: the gains')."""
         if self.compliance_center != "tool":
             raise ValueError("frame series need compliance_center='tool' (the offset changes every step otherwise)")
         R = np.asarray(cf_rotations, dtype=float)
         if R.ndim != 3 or R.shape[1:] != (3, 3):
             raise ValueError(f"cf_rotations must have shape (M, 3, 3), got {R.shape}")
-        return ControlFrameSeries(self._frame_fields(R, selection, None))
+        return ControlFrameSeries(self._frame_fields(R, selection, None, stiffness))
 
     # ------------------------------------------------------------------ the law
 
@@ -432,7 +445,7 @@ class HybridController:
         self._model_version += 1
         self._projector = self._projector_rows
         if due:
-            stiffness_a = frame.adg @ (self._stiffness[:, None] * frame.ad_inv)
+            stiffness_a = frame.adg @ (frame.stiffness[:, None] * frame.ad_inv)
             self.damping_matrix_a = damping_matrix(stiffness_a, self._inertia, self.gains.damping_ratio)
 
     def _use_frame(self, frame: ControlFrame) -> None:
@@ -483,7 +496,7 @@ class HybridController:
         D = self.damping_matrix_a
         if D is None:  # the nominal CF damping, D_m = Adg diag(S d S) Ad^-1, as the product I D_m I
             S = frame.selection
-            left, D, right = _EYE6, frame.adg @ ((S * self.damping * S)[:, None] * frame.ad_inv), _EYE6
+            left, D, right = _EYE6, frame.adg @ ((S * frame.damping * S)[:, None] * frame.ad_inv), _EYE6
         else:
             left, right = frame.damping_left, frame.damping_right
         write_frame(self._gain, self._law, frame.task_gain, left, D, right, frame.law_rows)

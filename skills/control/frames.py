@@ -68,6 +68,11 @@ class ControlFrame(NamedTuple):
     motion damping: ``Ω`` on the pose error, ``-D_f`` on the tool twist (``D_f = Adg diag(d_f ⊙
     S~) Ad^-1``, the force axes' active damping), the feed-forward ``F_d,1 + K_p Ω~ F_d,1`` on
     ``f_d``, ``-K_p Ω~`` on the wrench and ``K_i Adg`` on the force integral.
+
+    ``stiffness`` (6,) the CF stiffness diagonal ``K_c`` the frame was built with (N/m, N·m/rad: the gains', or a
+    gain schedule's at this instant, ``skills.gain_schedule``) and ``damping`` (6,) the nominal CF damping diagonal
+    that matches it (``damping_diagonal``): the adaptive damping is rebuilt from the frame's stiffness, so a
+    scheduled stiffness keeps its damping ratio.
     """
 
     rotation: NDArray[np.float64]
@@ -86,6 +91,8 @@ class ControlFrame(NamedTuple):
     damping_right: NDArray[np.float64]
     law_rows: NDArray[np.float64]
     task_gain: NDArray[np.float64]
+    stiffness: NDArray[np.float64]
+    damping: NDArray[np.float64]
 
 
 class ControlFrameSeries:

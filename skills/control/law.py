@@ -347,17 +347,24 @@ def _damping_matrix(K, inertia, damping_ratio):  # pragma: no cover - compiled
     return 2.0 * damping_ratio * (L @ sqrt_x @ L.T)
 
 
-def damping_diagonal(gains: ControllerGains, apparent_inertia: ArrayLike | None = None) -> NDArray[np.float64]:
-    """Return the CF damping diagonal (6,), N·s/m and N·m·s/rad.
+def damping_diagonal(
+    gains: ControllerGains, apparent_inertia: ArrayLike | None = None, stiffness: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """Return the CF damping diagonal (6,) (or (..., 6) for a ``stiffness`` (..., 6)), N·s/m and N·m·s/rad.
 
-    Explicit values win; else ``2 ζ sqrt(K_i m_i)`` with ``m_i`` the apparent inertia of CF axis i
-    (``apparent_inertia`` (6,), kg and kg·m²) or, without it, the nominal apparent mass and inertia.
+    Explicit values win; else ``2 ζ sqrt(K_i m_i)`` with ``K_i`` the gains' CF stiffness (or ``stiffness``, a gain
+    schedule's, N/m and N·m/rad) and ``m_i`` the apparent inertia of CF axis i (``apparent_inertia`` (6,), kg and
+    kg·m²) or, without it, the nominal apparent mass and inertia.
     """
-    k = np.concatenate(
-        [
-            np.asarray(gains.translational_stiffness_n_per_m, float),
-            np.asarray(gains.rotational_stiffness_nm_per_rad, float),
-        ]
+    k = (
+        np.concatenate(
+            [
+                np.asarray(gains.translational_stiffness_n_per_m, float),
+                np.asarray(gains.rotational_stiffness_nm_per_rad, float),
+            ]
+        )
+        if stiffness is None
+        else np.asarray(stiffness, dtype=float)
     )
     if apparent_inertia is None:
         m = np.array([gains.apparent_mass_kg] * 3 + [gains.apparent_inertia_kgm2] * 3)
@@ -365,9 +372,9 @@ def damping_diagonal(gains: ControllerGains, apparent_inertia: ArrayLike | None 
         m = np.maximum(np.asarray(apparent_inertia, dtype=float), 0.0)
     d = 2.0 * gains.damping_ratio * np.sqrt(k * m)
     if gains.translational_damping_ns_per_m is not None:
-        d[:3] = gains.translational_damping_ns_per_m
+        d[..., :3] = gains.translational_damping_ns_per_m
     if gains.rotational_damping_nms_per_rad is not None:
-        d[3:] = gains.rotational_damping_nms_per_rad
+        d[..., 3:] = gains.rotational_damping_nms_per_rad
     return d
 
 
