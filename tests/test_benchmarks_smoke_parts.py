@@ -89,7 +89,7 @@ def test_engines_benchmark_smoke():
     PyBullet's; the first perturbation (the flat table as taught) passed and judged done on both, counted as agreeing;
     the first KU Leuven case done on both engines in the same table format; and the MuJoCo loop's real-time factor
     beside the bare loop's."""
-    out = run_smoke("bench_engines.py")
+    out = run_smoke("bench_engines.py", timeout_s=360.0)
     teacher, kuleuven = tables(out, "case | engine | final")
     assert [row[1] for row in teacher] == ["pybullet", "mujoco"]
     for row in teacher:
