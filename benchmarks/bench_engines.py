@@ -44,7 +44,7 @@ from experiments.cross_engine import (  # noqa: E402
     verdict_pairs,
     why_they_differ,
 )
-from experiments.verdict_truth import PERTURBATIONS, TRUTH_SCENARIOS  # noqa: E402
+from experiments.verdict_truth import PERTURBATIONS, TRUTH_SCENARIOS, Perturbation  # noqa: E402
 from experiments.verdict_truth import taught as judged_teaching  # noqa: E402
 from schemas.execution import Engine  # noqa: E402
 from schemas.world import WorldConfig  # noqa: E402
@@ -82,6 +82,16 @@ def _command(smoke: bool, scenarios: list[str], trials: list[str]) -> str:
     if trials != all_trials:
         options += " --trials " + (" ".join(trials) or "none")
     return COMMAND + options
+
+
+def _not_run(ran: list[Perturbation]) -> str:
+    """The sentence naming the perturbations a subset run left out, per scenario (empty when none was)."""
+    left = [p for p in PERTURBATIONS if p not in ran]
+    if not left:
+        return ""
+    counts = {s: sum(p.scenario == s for p in left) for s in dict.fromkeys(p.scenario for p in left)}
+    named = ", ".join(f"`{s}` ({n})" for s, n in counts.items())
+    return f" Not run in this run (a subset, the command's options): the perturbations of {named}."
 
 
 def reports(smoke: bool, scenarios: list[str], trials: list[str]) -> tuple[str, str]:
@@ -143,7 +153,8 @@ def reports(smoke: bool, scenarios: list[str], trials: list[str]) -> tuple[str, 
         "surface, contours keep the taught frames) and the approach limit of the verdict-truth runs. Per engine: "
         "the verdict (its failed checks) and the judge's finding (`judge_run`: the tool's positions on the exact "
         "shapes of the world that ran, docs/EXECUTION.md). MuJoCo builds every world of the set (boxes, the capsule, "
-        "the block's mesh).",
+        f"the block's mesh).{_not_run(perturbations)} Why the engines differ where they do: "
+        "[ENGINES.md](ENGINES.md), *The perturbations and the KU Leuven skills on both engines*.",
         "",
         *verdict_pair_counts(pairs),
         "",
