@@ -4,23 +4,31 @@ own engine's contact (the true normal force, the contact, the touch-down; ``exec
 
 A case is a teacher scenario (seed 0, the skill type it teaches) and an environment change: as taught, the work piece
 moved WITHOUT telling the controller (``unknown_offset``), or moved with the skill (``offset``, the paper's contour
-trials). ``benchmarks/bench_engines.py`` prints the table and writes it into docs/RESULTS.md (section
-:data:`CROSS_ENGINE_SECTION`; the demo keeps it).
+trials). Beside them: the robustness perturbations of ``experiments/verdict_truth.py`` (moved, tilted, resized,
+swapped and missing parts, stiff and soft pads, friction, sensor faults) on both engines, each run's verdict and the
+judge's finding (``judge_run``) per engine (:class:`VerdictPair`); and the KU Leuven recordings' skills on their
+rebuilt work piece and on the object's CAD (:class:`KuleuvenCase`). ``benchmarks/bench_engines.py`` prints the tables
+and writes them into docs/RESULTS.md (section :data:`CROSS_ENGINE_SECTION`; the demo keeps it).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from execution.telemetry import Telemetry
+from experiments.kuleuven_cad import cad_world
+from experiments.verdict_truth import Judgement, Perturbation, Taught, run_judged
 from schemas.execution import PHASE_CODES, Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import LearnOptions, Skill
 from schemas.verdict import Verdict
-from sim_worker.execution_world import execution_world
+from services.kuleuven_object import KuleuvenGroundTruth, kuleuven_ground_truth
+from sim_worker.execution_world import ExecutionWorld, execution_world
 from sim_worker.executor import run_skill
 from sim_worker.teacher import TeacherRecording, record_demonstration
 from skills.parameterize import learn_skill
@@ -58,6 +66,47 @@ ENGINE_CASES: tuple[EngineCase, ...] = (
 """The cases of the full table; ``--smoke`` runs the first."""
 
 
+class KuleuvenWorkPiece(StrEnum):
+    """Where a KU Leuven skill runs: the work piece rebuilt from its own demonstration, or the object's CAD placed as
+    the rebuilt one is (``experiments/kuleuven_cad.py``)."""
+
+    rebuilt = "rebuilt"
+    cad = "CAD"
+
+
+@dataclass(frozen=True)
+class KuleuvenCase:
+    """One execution of a KU Leuven recording's skill (learned ``auto``, placed in reach as every real recording is):
+    its name, the recording (a ``contour_*.csv``), the work piece, the environment change."""
+
+    name: str
+    recording: Path
+    work_piece: KuleuvenWorkPiece
+    environment: Mapping[str, Any] = field(default_factory=dict)
+
+
+KULEUVEN_UNKNOWN_OFFSET_M = (0.0, 0.0, 0.02)
+"""The KU Leuven rows' unknown shift of the rebuilt work piece, m (as ``benchmarks/bench_real_skills.py``'s)."""
+
+
+def kuleuven_cases(recordings: Iterable[Path]) -> list[KuleuvenCase]:
+    """Per recording: its skill on the rebuilt work piece as placed, 2 cm higher without telling the controller, and
+    on the object's CAD."""
+    cases = []
+    for path in recordings:
+        cases += [
+            KuleuvenCase(f"KU {path.stem}, rebuilt, as placed", path, KuleuvenWorkPiece.rebuilt),
+            KuleuvenCase(
+                f"KU {path.stem}, rebuilt 2 cm higher (unknown)",
+                path,
+                KuleuvenWorkPiece.rebuilt,
+                {"unknown_offset": list(KULEUVEN_UNKNOWN_OFFSET_M)},
+            ),
+            KuleuvenCase(f"KU {path.stem}, CAD, as placed", path, KuleuvenWorkPiece.cad),
+        ]
+    return cases
+
+
 @dataclass(frozen=True)
 class WorstStep:
     """The contact step with the largest true normal force error of a run: when (s), the error (N), how much the
@@ -90,7 +139,7 @@ def worst_step(telemetry: Telemetry) -> WorstStep | None:
 class EngineRun:
     """One case on one engine: its metrics (the engine's own truth) and its worst contact step."""
 
-    case: EngineCase
+    case: EngineCase | KuleuvenCase
     engine: Engine
     metrics: ExecutionMetrics
     worst: WorstStep | None
@@ -110,13 +159,39 @@ def taught(cases: Iterable[EngineCase], seed: int = 0) -> dict[str, tuple[Teache
     }
 
 
+def _engine_run(case: EngineCase | KuleuvenCase, world: ExecutionWorld, settings: ExecutionSettings) -> EngineRun:
+    result = run_skill(world, settings)
+    return EngineRun(case, settings.engine, result.metrics, worst_step(result.telemetry))
+
+
 def run_case(case: EngineCase, engine: Engine, skills: Mapping[str, tuple[TeacherRecording, Skill]]) -> EngineRun:
     """Execute ``case``'s skill on ``engine`` in its taught world changed as the case says (pace fast)."""
     recording, skill = skills[case.scenario]
     settings = ExecutionSettings(engine=engine, environment=dict(case.environment), pace="fast")
     world = execution_world(skill, settings.environment, demonstration=recording.demonstration)
-    result = run_skill(world, settings)
-    return EngineRun(case, engine, result.metrics, worst_step(result.telemetry))
+    return _engine_run(case, world, settings)
+
+
+def kuleuven_skills(cases: Iterable[KuleuvenCase]) -> dict[Path, tuple[KuleuvenGroundTruth, Skill]]:
+    """The ground truth (the import, the registered CAD) of every recording ``cases`` run, and the skill learned from
+    it (``auto``, as ``benchmarks/bench_real_skills.py`` learns it)."""
+    truths = {path: kuleuven_ground_truth(path) for path in dict.fromkeys(case.recording for case in cases)}
+    return {path: (truth, learn_skill(truth.demonstration)) for path, truth in truths.items()}
+
+
+def run_kuleuven_case(
+    case: KuleuvenCase, engine: Engine, skills: Mapping[Path, tuple[KuleuvenGroundTruth, Skill]]
+) -> EngineRun:
+    """Execute ``case``'s skill on ``engine`` (``hybrid_cf``, the wrist sensor, pace fast): placed on the work piece
+    rebuilt from its demonstration, or on the CAD placed as the rebuilt one (the placement does not depend on the
+    engine, so both engines run the same world)."""
+    truth, skill = skills[case.recording]
+    settings = ExecutionSettings(engine=engine, environment=dict(case.environment), pace="fast")
+    world = execution_world(skill, settings.environment)
+    if case.work_piece is KuleuvenWorkPiece.cad:
+        assert world.placement is not None  # a real recording carries no world: it is always placed
+        world = execution_world(world.skill, settings.environment, world=cad_world(truth, world.placement))
+    return _engine_run(case, world, settings)
 
 
 def _number(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -149,7 +224,7 @@ def engine_table(runs: list[EngineRun]) -> list[str]:
     return lines
 
 
-def differences(runs: list[EngineRun]) -> list[tuple[EngineCase, float | None, float | None, bool]]:
+def differences(runs: list[EngineRun]) -> list[tuple[EngineCase | KuleuvenCase, float | None, float | None, bool]]:
     """Per case run on both engines: MuJoCo's true RMS minus PyBullet's and the same for the true max (points of the
     reference force; None when either has none) and whether the verdicts agree."""
     by_case: dict[str, dict[Engine, EngineRun]] = {}
@@ -210,5 +285,107 @@ def why_they_differ(runs: list[EngineRun]) -> list[str]:
         lines.append(
             f"- **{case.name}**: the largest steady error differs by {max_:+.1f} points (RMS {rms:+.2f}): "
             f"{_worst_text(pair[Engine.mujoco])}; {_worst_text(pair[Engine.pybullet])}."
+        )
+    return lines
+
+
+@dataclass(frozen=True)
+class VerdictPair:
+    """One robustness perturbation (``experiments/verdict_truth.py``) run on both engines with the product's default
+    following (``follow_surface_normal`` unset: slides follow, contours keep the taught frames), each judged."""
+
+    perturbation: Perturbation
+    runs: Mapping[Engine, Judgement]
+
+    @property
+    def verdicts_agree(self) -> bool:
+        return self.runs[Engine.pybullet].verdict_passed == self.runs[Engine.mujoco].verdict_passed
+
+    @property
+    def judges_agree(self) -> bool:
+        return self.runs[Engine.pybullet].job_done == self.runs[Engine.mujoco].job_done
+
+
+def verdict_pairs(perturbations: Iterable[Perturbation], teachings: Mapping[str, Taught]) -> list[VerdictPair]:
+    """Every perturbation on PyBullet and on MuJoCo (``verdict_truth.run_judged``, following as the product's
+    default), in order."""
+    pairs = []
+    for perturbation in perturbations:
+        runs = {engine: run_judged(perturbation, None, teachings, engine) for engine in Engine}
+        for engine, j in runs.items():
+            print(f"{perturbation.scenario}, {perturbation.name} on {engine.value}: {_verdict_cell(j)}")
+        pairs.append(VerdictPair(perturbation, runs))
+    return pairs
+
+
+def _verdict_cell(j: Judgement) -> str:
+    """The true RMS (or how the run ended) and the verdict with its failed checks."""
+    m = j.metrics
+    rms = f"{m.true_force_rms_error_pct:.2f} %" if m.true_force_rms_error_pct is not None else m.phase.value
+    if j.verdict_passed:
+        return f"{rms}, pass"
+    return f"{rms}, **fail** ({', '.join(sorted(c.value for c in j.failed_checks))})"
+
+
+def _judge_cell(j: Judgement) -> str:
+    return "done" if j.job_done else "not done: " + "; ".join(j.faults.values())
+
+
+def _check_difference(pair: VerdictPair) -> str:
+    """The checks that failed on one engine only, each with both engines' measured values against its limit."""
+    checks = {
+        e: {c.name: c for c in j.metrics.verdict.checks} if j.metrics.verdict else {} for e, j in pair.runs.items()
+    }
+    failed = {e: j.failed_checks for e, j in pair.runs.items()}
+    names = sorted(failed[Engine.pybullet] ^ failed[Engine.mujoco])
+    if not names:
+        return "—"
+    texts = []
+    for name in names:
+        values = []
+        for engine in Engine:
+            check = checks[engine].get(name)
+            value = "—" if check is None or check.value is None else f"{check.value:.3g}"
+            values.append(f"{engine.value} {value}")
+        limit = next((c.limit for e in Engine if (c := checks[e].get(name)) is not None and c.limit is not None), None)
+        texts.append(f"{name.value}: {', '.join(values)}" + ("" if limit is None else f" (limit {limit:.3g})"))
+    return "; ".join(texts)
+
+
+def verdict_pair_table(pairs: list[VerdictPair]) -> list[str]:
+    """The markdown table: per perturbation both engines' verdicts, whether they agree, the judge on each, and the
+    checks that failed on one engine only with their measured values."""
+    lines = [
+        "| skill | perturbation | PyBullet: true RMS, verdict | MuJoCo: true RMS, verdict | verdicts agree | "
+        "judge, PyBullet | judge, MuJoCo | checks failed on one engine only (value per engine) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for pair in pairs:
+        p, bullet, mujoco = pair.perturbation, pair.runs[Engine.pybullet], pair.runs[Engine.mujoco]
+        lines.append(
+            f"| {p.scenario} | {p.name} | {_verdict_cell(bullet)} | {_verdict_cell(mujoco)} | "
+            f"{'yes' if pair.verdicts_agree else '**no**'} | {_judge_cell(bullet)} | {_judge_cell(mujoco)} | "
+            f"{_check_difference(pair)} |"
+        )
+    return lines
+
+
+def verdict_pair_counts(pairs: list[VerdictPair]) -> list[str]:
+    """The counts: verdicts agreeing between the engines, the judge agreeing, and each engine's verdict against its
+    own judge (a false pass: the verdict passed a job the judge found not done; a false fail: the converse)."""
+    m = len(pairs)
+    lines = [
+        f"Verdicts agree between the engines on {sum(p.verdicts_agree for p in pairs)} of {m} perturbations; the "
+        f"judge's finding (job done or not) agrees on {sum(p.judges_agree for p in pairs)} of {m}.",
+        "",
+        "| engine | verdict passed | job done (judge) | false pass | false fail |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    for engine in Engine:
+        runs = [p.runs[engine] for p in pairs]
+        lines.append(
+            f"| {engine.value} | {sum(j.verdict_passed for j in runs)} | {sum(j.job_done for j in runs)} | "
+            f"{sum(j.verdict_passed and not j.job_done for j in runs)} | "
+            f"{sum(not j.verdict_passed and j.job_done for j in runs)} |"
         )
     return lines

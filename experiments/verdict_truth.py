@@ -32,7 +32,7 @@ from execution.metrics import exit_rows
 from execution.telemetry import Telemetry
 from experiments.contour_stress import APPROACH_MAX_DISTANCE_M
 from schemas import LearnOptions
-from schemas.execution import PHASE_CODES, ExecutionMetrics, ExecutionPhase, ExecutionSettings
+from schemas.execution import PHASE_CODES, Engine, ExecutionMetrics, ExecutionPhase, ExecutionSettings
 from schemas.skill import SegmentKind, Skill
 from schemas.sweep import SweepParameter
 from schemas.verdict import ExecutionTolerances, Verdict, VerdictCheckName
@@ -207,13 +207,15 @@ class Taught:
 
 @dataclass(frozen=True)
 class Judgement:
-    """One run: the perturbation, whether it followed the surface, the metrics, the judge's faults (each with a
-    sentence) and what the verdict said."""
+    """One run: the perturbation, whether it followed the surface (None: the product's default,
+    ``ExecutionSettings.follow_surface_normal``), the metrics, the judge's faults (each with a sentence), what the
+    verdict said, and the engine it ran on."""
 
     perturbation: Perturbation
-    follow: bool
+    follow: bool | None
     metrics: ExecutionMetrics
     faults: dict[Fault, str]
+    engine: Engine = Engine.pybullet
 
     @property
     def job_done(self) -> bool:
@@ -322,17 +324,24 @@ def judge_run(
     return faults
 
 
-def run_judged(perturbation: Perturbation, follow: bool, teachings: Mapping[str, Taught]) -> Judgement:
-    """Run one perturbation with following on or off, and judge it."""
+def run_judged(
+    perturbation: Perturbation,
+    follow: bool | None,
+    teachings: Mapping[str, Taught],
+    engine: Engine = Engine.pybullet,
+) -> Judgement:
+    """Run one perturbation on ``engine`` with following on, off or as the product's default (None), and judge it
+    (the judge reads the world that ran and the telemetry: the same on either engine)."""
     teaching = teachings[perturbation.scenario]
     settings = ExecutionSettings(
         environment=dict(perturbation.environment),
         approach_max_distance_m=APPROACH_MAX_DISTANCE_M,
         follow_surface_normal=follow,
+        engine=engine,
     )
     world = execution_world(teaching.skill, settings.environment, scenario=perturbation.scenario)
     if perturbation.world is not None:
         world = replace(world, config=world.config.replace(**perturbation.world(world.config.to_dict())))
     result = run_skill(world, settings)
     faults = judge_run(teaching, result.world_config, result.telemetry, result.metrics, settings.tolerances)
-    return Judgement(perturbation, follow, result.metrics, faults)
+    return Judgement(perturbation, follow, result.metrics, faults, engine)

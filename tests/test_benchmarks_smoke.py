@@ -57,16 +57,25 @@ def docs_pages() -> dict[str, tuple[int, bytes]]:
 def table(out: str, header: str) -> list[list[str]]:
     """The body rows (cells, stripped) of the first markdown table in ``out`` whose header line starts with
     ``| header``; fails when there is none or it is empty."""
+    return tables(out, header)[0]
+
+
+def tables(out: str, header: str) -> list[list[list[str]]]:
+    """The body rows (cells, stripped) of every markdown table in ``out`` whose header line starts with ``| header``,
+    in order; fails when there is none or one is empty."""
     lines = out.splitlines()
-    start = next((k for k, line in enumerate(lines) if line.startswith(f"| {header}")), None)
-    assert start is not None, f"no table headed {header!r} in:\n{out[-3000:]}"
-    rows = []
-    for line in lines[start + 2 :]:
-        if not line.startswith("|"):
-            break
-        rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
-    assert rows, f"table {header!r} has no rows"
-    return rows
+    starts = [k for k, line in enumerate(lines) if line.startswith(f"| {header}")]
+    assert starts, f"no table headed {header!r} in:\n{out[-3000:]}"
+    found = []
+    for start in starts:
+        rows = []
+        for line in lines[start + 2 :]:
+            if not line.startswith("|"):
+                break
+            rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+        assert rows, f"table {header!r} has no rows"
+        found.append(rows)
+    return found
 
 
 def numbers(cell: str) -> list[float]:

@@ -4,7 +4,7 @@ test_benchmarks_smoke.py; a file of its own so that ``pytest -n 2 --dist loadfil
 
 from __future__ import annotations
 
-from test_benchmarks_smoke import finite, numbers, run_smoke, table
+from test_benchmarks_smoke import finite, numbers, run_smoke, table, tables
 
 
 def test_contours_benchmark_smoke():
@@ -85,16 +85,30 @@ def test_mujoco_loop_benchmark_smoke():
 
 
 def test_engines_benchmark_smoke():
-    """The first case on both engines: two rows, both done and passed, MuJoCo's true RMS within 2 points of PyBullet's,
-    and the MuJoCo loop's real-time factor beside the bare loop's."""
-    out = run_smoke("bench_engines.py")
-    rows = table(out, "case | engine | final")
-    assert [row[1] for row in rows] == ["pybullet", "mujoco"]
-    for row in rows:
+    """The first teacher case on both engines: two rows, both done and passed, MuJoCo's true RMS within 2 points of
+    PyBullet's; the first perturbation (the flat table as taught) passed and judged done on both, counted as agreeing;
+    the first KU Leuven case done on both engines in the same table format; and the MuJoCo loop's real-time factor
+    beside the bare loop's."""
+    out = run_smoke("bench_engines.py", timeout_s=360.0)
+    teacher, kuleuven = tables(out, "case | engine | final")
+    assert [row[1] for row in teacher] == ["pybullet", "mujoco"]
+    for row in teacher:
         assert row[2] == "done" and row[7] == "pass", row
         assert finite(*numbers(row[3])) and numbers(row[3])[0] < 3.0, row  # true RMS, % of the taught force
-    [difference] = table(out, "case | Δ true RMS")
+    [difference], [ku_difference] = tables(out, "case | Δ true RMS")
     assert abs(numbers(difference[1])[0]) <= 2.0 and difference[3] == "yes" and difference[4] == "yes", difference
+    [pair] = table(out, "skill | perturbation | PyBullet")
+    assert pair[:2] == ["slide_flat", "as taught"] and pair[4:7] == ["yes", "done", "done"], pair
+    for cell in pair[2:4]:
+        assert cell.endswith(", pass") and numbers(cell)[0] < 3.0, cell
+    assert "Verdicts agree between the engines on 1 of 1 perturbations" in out
+    assert [(row[0].startswith("KU contour_a_1"), row[1], row[2]) for row in kuleuven] == [
+        (True, "pybullet", "done"),
+        (True, "mujoco", "done"),
+    ]
+    for row in kuleuven:
+        assert finite(*numbers(row[3])) and numbers(row[3])[0] < 10.0, row  # true RMS on the rebuilt work piece
+    assert abs(numbers(ku_difference[1])[0]) <= 2.0, ku_difference
     [loop, bare, _] = table(out, "loop | real-time factor")
     assert numbers(loop[1])[0] > 0 and numbers(bare[1])[0] > 0
     assert "of the bare MuJoCo loop's real-time factor" in out
