@@ -370,6 +370,8 @@ def test_execution_lifecycle_with_a_fake_bus(bus_client, demo):
     assert _names(c.post("/executions", json={"skill_id": skill_id, "controller": "pid"}), "controller")
     assert _names(c.post("/executions", json={"skill_id": skill_id, "engine": "ode"}), "engine")
     assert _names(c.post("/executions", json={"skill_id": skill_id, "gains": {"damping_ratio": -1}}), "damping_ratio")
+    one_demonstration = c.post("/executions", json={"skill_id": skill_id, "gains": {"gain_schedule": "from_spread"}})
+    assert _locs(one_demonstration) == [["body", "gains", "gain_schedule"]]  # no spread to schedule from
     assert c.post("/executions", json={}).status_code == 422
 
     body = {"skill_id": skill_id, "scenario": "slide_flat", "environment": {"unknown_offset": [0, 0, 0.02]},

@@ -17,7 +17,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from schemas.api import TelemetryFormat
 from schemas.bus import KeyExpressions
-from schemas.execution import ExecutionSettings
+from schemas.execution import ExecutionSettings, GainSchedule
 from schemas.job_budget import JobBudget
 from schemas.skill import Skill
 from services.api import errors
@@ -120,18 +120,22 @@ def readable_demonstration(store: Store, demonstration_id: str) -> tuple[Demonst
     return found
 
 
-def check_job_budget(
+def check_settings_for_skill(
     skill: Skill,
     settings: ExecutionSettings,
     budget: JobBudget,
     settings_at: tuple[str, ...] = ("body",),
     skill_at: tuple[str, ...] = ("body", "skill_id"),
 ) -> None:
-    """422 naming each setting that takes an execution of ``skill`` with ``settings`` past ``budget`` (at the step
-    of the world it was taught in; ``skills.job_estimate``); ``settings_at``, ``skill_at``: where the settings and
-    the skill are in the request."""
+    """422 when ``skill`` cannot run with ``settings``: on ``gains.gain_schedule`` for a spread the skill does not
+    have (``skills.gain_schedule.missing_spread``: checked here, before a worker is asked), and naming each setting
+    that takes the execution past ``budget`` (at the step of the world it was taught in; ``skills.job_estimate``);
+    ``settings_at``, ``skill_at``: where the settings and the skill are in the request."""
+    from skills.gain_schedule import missing_spread
     from skills.job_estimate import execution_estimate, taught_time_step_s
 
+    if settings.gains.gain_schedule is GainSchedule.from_spread and (reason := missing_spread(skill)):
+        raise errors.unprocessable([*settings_at, "gains", "gain_schedule"], reason)
     if problems := execution_estimate(skill, settings, taught_time_step_s(skill)).problems(budget):
         raise errors.over_budget(problems, settings_at, skill_at)
 

@@ -39,7 +39,7 @@ from services.api.deps import (
     SettingsDep,
     StoreDep,
     TimeWindow,
-    check_job_budget,
+    check_settings_for_skill,
     need_bus,
     need_queue,
     skill_to_run,
@@ -131,7 +131,7 @@ def post_execution(
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)  # the queue sends the demo along
     skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
-    check_job_budget(skill, request, settings.job_budget, skill_at=skill_at)
+    check_settings_for_skill(skill, request, settings.job_budget, skill_at=skill_at)
     executions = need_queue(queue)
     caps.admit(WorkKind.execution, client)
     stored = request.model_dump(mode="json", exclude={"skill"})

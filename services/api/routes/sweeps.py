@@ -19,7 +19,7 @@ from services.api.deps import (
     SettingsDep,
     StoreDep,
     SweepsDep,
-    check_job_budget,
+    check_settings_for_skill,
     need_sweeps,
     skill_to_run,
 )
@@ -72,7 +72,7 @@ def post_sweep(
 
     skill, demonstration_id = skill_to_run(store, request.skill_id, request.skill)
     skill_at = ("body", "skill_id" if request.skill_id is not None else "skill")
-    check_job_budget(skill, request.settings, settings.job_budget, ("body", "settings"), skill_at)
+    check_settings_for_skill(skill, request.settings, settings.job_budget, ("body", "settings"), skill_at)
     if problem := inapplicable_parameter(request.vary, skill, request.scenario, request.settings.environment):
         parameter, why = problem
         raise errors.unprocessable(["body", "vary", parameter.value], why)
