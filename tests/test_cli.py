@@ -253,6 +253,17 @@ def test_help_is_light():
     assert result.stdout.strip() == "[]", result.stdout + result.stderr
 
 
+@pytest.mark.parametrize("modules", ["services.app", "sim_worker.zenoh_worker, sim_worker.warm_up"])
+def test_a_service_process_starts_without_the_heavy_libraries_it_needs_only_on_request(modules: str) -> None:
+    """The API's and a worker's start import neither scipy.stats (half a second of CPU: the statistics of sweeps and
+    of the force band load the few functions they need) nor scikit-learn, plotting, MuJoCo or the bag reader: every
+    process start pays for what its imports load, and a stack starts several."""
+    heavy = ("scipy.stats", "sklearn", "matplotlib", "mujoco", "rosbags")
+    code = f"import sys; import {modules}; print(sorted(m for m in {heavy!r} if m in sys.modules))"
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.stdout.strip().splitlines()[-1] == "[]", result.stdout + result.stderr
+
+
 def test_record_to_csv_then_learn_recovers_the_taught_plane(tmp_path: Path) -> None:
     """The teacher's recording survives the CSV round trip: learning from it finds the true normal and force."""
     csv_path, truth_path, skill_path = tmp_path / "demo.csv", tmp_path / "truth.json", tmp_path / "skill.json"
