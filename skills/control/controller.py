@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from schemas.execution import ControllerGains, ControllerKind, NullSpaceProjection
 from schemas.world import IIWA_TORQUE_LIMITS_NM
 from skills.compiled import compiled_entry
-from skills.control.frames import ControlFrame, ControlFrameSeries, blockdiag_rotation, world_z_down_rotation
+from skills.control.frames import ControlFrame, ControlFrameSeries, FrameGains, control_frame_fields
 from skills.control.law import (
     NO_MASS_MATRIX,
     damping_diagonal,
@@ -27,11 +27,8 @@ from skills.control.law import (
     write_frame,
 )
 from skills.control.layouts import (
-    G_FORCE,
     G_JOINT,
-    G_MOTION,
     G_ROWS,
-    G_TASK,
     L_DT,
     L_IMPEDANCE_KZ,
     L_INTEGRAL,
@@ -66,20 +63,7 @@ from skills.control.layouts import (
     ROBOT_ROTATION,
     ROBOT_STATE_SIZE,
     X_BIAS,
-    X_FORCE,
-    X_INTEGRAL,
-    X_POSE,
     X_SIZE,
-    X_TASK,
-    X_TWIST,
-    X_WRENCH,
-)
-from skills.frames import (
-    adjoint_from_transform,
-    force_projector_in_frame,
-    stiffness_in_frame,
-    transform_inverse,
-    wrench_adjoint_from_transform,
 )
 
 DAMPING_UPDATE_EVERY = 5
@@ -144,7 +128,6 @@ class HybridController:
         self.damping = damping_diagonal(g)
         self.damping_matrix_a: NDArray[np.float64] | None = None
         """The adaptive damping matrix in A (6, 6), or None while the diagonal ``damping`` (CF) applies."""
-        self._force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
         self._force_loop = not self.kind.is_impedance
         self._kp = g.force_kp if self._force_loop else 0.0
         self._ki = g.force_ki if self._force_loop else 0.0
@@ -153,6 +136,8 @@ class HybridController:
         self._kn = g.nullspace_stiffness_nm_per_rad
         self._dn = g.nullspace_damping_nms_per_rad
         self._integral_bound = g.force_integral_limit_n / self._ki if self._ki > 0.0 else 0.0
+        force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
+        self._frame_gains = FrameGains(self.kind, self._stiffness, force_axis_damping, self._kp, self._ki)
         self.posture = np.zeros(7) if posture is None else np.asarray(posture, dtype=float).copy()
         self.law_buffer = np.zeros(LAW_GAIN_SIZE + L_SIZE)
         """G by rows (:attr:`_gain`), then the law's state (:attr:`_law`): one array, so that a loop's compiled step
@@ -199,73 +184,6 @@ class HybridController:
 
     # ------------------------------------------------------------------ frames
 
-    def _control_rotation_and_selection(
-        self, cf_rotation: NDArray[np.float64], selection: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        if self.kind.is_impedance:
-            return cf_rotation, np.ones_like(selection)
-        if self.kind is ControllerKind.hybrid_world_z and np.any(selection < 1.0):
-            return world_z_down_rotation(cf_rotation), selection
-        return cf_rotation, selection
-
-    def _frame_fields(
-        self, cf_rotation: ArrayLike, selection: ArrayLike, offset: ArrayLike | None
-    ) -> dict[str, NDArray[np.float64]]:
-        cf_rotation = np.asarray(cf_rotation, dtype=float)
-        batch = cf_rotation.shape[:-2]
-        sel_in = np.broadcast_to(np.asarray(selection, dtype=float), (*batch, 6))
-        R, S = self._control_rotation_and_selection(cf_rotation, sel_in)
-        S = np.ascontiguousarray(S)
-        if offset is None:
-            p = np.zeros((*batch, 3))
-            ad = blockdiag_rotation(R)
-            ad_inv = np.swapaxes(ad, -1, -2)
-            adg, adg_inv = ad, ad_inv
-        else:
-            p = np.broadcast_to(np.asarray(offset, float), (*batch, 3))
-            ad = adjoint_from_transform(R, p)
-            ad_inv = adjoint_from_transform(*transform_inverse(R, p))
-            adg = wrench_adjoint_from_transform(R, p)
-            adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
-        force_axes = 1.0 - S
-        force_direction = adg[..., :, 2] * force_axes[..., 2:3] if self._force_loop else np.zeros((*batch, 6))
-        omega = stiffness_in_frame(R, p, self._stiffness, S)
-        projector = force_projector_in_frame(R, p, S)
-        error_direction = force_axes * (adg_inv @ force_direction[..., None])[..., 0]  # S~ Adg^-1 F_d,1
-        task_gain = np.zeros((*batch, G_TASK.stop, X_TASK.stop))
-        motion, force = task_gain[..., G_MOTION, :], task_gain[..., G_FORCE, :]
-        motion[..., X_POSE] = omega
-        motion[..., X_TWIST] = -(adg @ ((force_axes * self._force_axis_damping)[..., :, None] * ad_inv))  # -D_f
-        force[..., X_FORCE] = force_direction + self._kp * (adg @ error_direction[..., None])[..., 0]
-        force[..., X_WRENCH] = -self._kp * projector
-        force[..., X_INTEGRAL] = self._ki * adg
-        return {
-            "rotation": R,
-            "cf_rotation": cf_rotation,
-            "cf_z": np.ascontiguousarray(cf_rotation[..., :, 2]),
-            "selection": S,
-            "force_axes": force_axes,
-            "omega": omega,
-            "projector": projector,
-            "ad": ad,
-            "ad_inv": np.ascontiguousarray(ad_inv),
-            "adg": adg,
-            "adg_inv": np.ascontiguousarray(adg_inv),
-            "force_direction": np.ascontiguousarray(force_direction),
-            "damping_left": (adg * S[..., None, :]) @ np.swapaxes(ad, -1, -2),
-            "damping_right": ad @ (S[..., :, None] * ad_inv),
-            "law_rows": np.concatenate(
-                (
-                    cf_rotation[..., :, 2],
-                    force_axes if self._ki > 0.0 else np.zeros_like(force_axes),
-                    error_direction,
-                    adg_inv.reshape(*batch, 36),
-                ),
-                axis=-1,
-            ),
-            "task_gain": task_gain,
-        }
-
     def frame(
         self,
         cf_rotation: ArrayLike,
@@ -282,7 +200,7 @@ class HybridController:
             if cf_origin is None or tool_position is None:
                 raise ValueError("compliance_center='cf_origin' needs cf_origin and tool_position")
             offset = np.asarray(cf_origin, float) - np.asarray(tool_position, float)
-        return ControlFrame(**self._frame_fields(cf_rotation, selection, offset))
+        return ControlFrame(**control_frame_fields(self._frame_gains, cf_rotation, selection, offset))
 
     def frames(self, cf_rotations: ArrayLike, selection: ArrayLike) -> ControlFrameSeries:
         """Precompute control frames for ``(M, 3, 3)`` CF orientations at once (compliance centre at the tool)."""
@@ -291,7 +209,7 @@ class HybridController:
         R = np.asarray(cf_rotations, dtype=float)
         if R.ndim != 3 or R.shape[1:] != (3, 3):
             raise ValueError(f"cf_rotations must have shape (M, 3, 3), got {R.shape}")
-        return ControlFrameSeries(self._frame_fields(R, selection, None))
+        return ControlFrameSeries(control_frame_fields(self._frame_gains, R, selection, None))
 
     # ------------------------------------------------------------------ the law
 
