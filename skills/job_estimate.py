@@ -35,6 +35,13 @@ SURFACE_WINDOW_MIN_M = 0.005
 executor's and the estimate's."""
 
 
+def surface_window_m(settings: ExecutionSettings) -> float:
+    """How far from where it was taught a guarded approach may find the surface, m (either way along CF z): the
+    settings' tolerance, else the slow stretch of the approach (at least ``SURFACE_WINDOW_MIN_M``)."""
+    window = settings.tolerances.surface_window_m
+    return window if window is not None else max(settings.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
+
+
 def taught_time_step_s(skill: Skill) -> float:
     """The control step of the world the skill was taught in (``taught_world``, or its ``world_config``), s; the
     nominal step for a skill without one."""
@@ -99,8 +106,7 @@ def _approach(segment: int, s: ExecutionSettings) -> tuple[JobPart, JobPart, Job
     at the far end of its window, and the whole approach over ``approach_max_distance_m`` (its references), each
     named by the field of its speed."""
     fast_m = min(max(s.approach_clearance_m - s.approach_slow_distance_m, 0.0), s.approach_max_distance_m)
-    window = s.tolerances.surface_window_m
-    window = window if window is not None else max(s.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
+    window = surface_window_m(s)
     slow_m = min(s.approach_clearance_m - fast_m + window, s.approach_max_distance_m - fast_m)
     whole_m = s.approach_max_distance_m - fast_m
     touchdown = s.touchdown_speed_m_s or TOUCHDOWN_SPEED_MIN_M_S
