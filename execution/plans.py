@@ -230,6 +230,12 @@ class PhasePlanner:
             frame=self.identity_frame,
         )
 
+    def pre_contact(self, segment_index: int) -> NDArray[np.float64]:
+        """Where the guarded approach of contact segment ``segment_index`` starts: ``approach_clearance_m`` back along
+        its first CF z from its taught (shifted) contact start, m, world."""
+        geo = self.geometry[segment_index]
+        return geo.start_world - self.settings.approach_clearance_m * geo.first_rotation[:, 2]
+
     def retraction(self, segment_index: int, p: NDArray, q: NDArray, axis: NDArray[np.float64]) -> PhasePlan:
         """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit) from the tool pose ``(p, q)`` over
         ``CONTACT_LOSS_RETRACT_S``, motion control on every axis: a retreat of segment ``segment_index``."""
@@ -339,6 +345,13 @@ class PhasePlanner:
             smooth_ramp(f_from, f_to, n),
             frame=self.controller.frame(cf_rotation, segment.selection),
         )
+
+    def release(
+        self, segment: Segment, p: NDArray, press_n: float, ref_q: NDArray, cf_rotation: NDArray, at_end: bool = False
+    ) -> PhasePlan:
+        """The retreat's :meth:`hold`: the force ``press_n`` (N) ramped down to zero over ``force_release_s``."""
+        release_s = self.settings.gains.force_release_s
+        return self.hold(segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, cf_rotation, at_end)
 
     def contact(
         self,
