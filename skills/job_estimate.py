@@ -21,7 +21,7 @@ from schemas.skill import SegmentKind, Skill
 TARE_HOLD_S = 0.2
 """With ``tare_sensor``, the tool holds still this long in free space (the start pose's settle, the pre-contact point
 before each later guarded approach) and the wrist sensor is tared with its mean reading over the last
-``execution.executor.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
+``execution.tare.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less). The executor's and the
 estimate's."""
