@@ -263,7 +263,7 @@ class Execution:
         self._run(self.planner.still(ExecutionPhase.settle, -1, p_start, q_start_ref, settle_s))
         first_contact = next((seg.index for seg in segments if seg.kind is SegmentKind.contact), None)
         self.sensor.after_still_hold(
-            self.loop, None if first_contact is None else self.geometry[first_contact].first_rotation[:, 2]
+            None if first_contact is None else self.geometry[first_contact].first_rotation[:, 2]
         )
         last_ref_q = q_start_ref
         in_contact_run = False
