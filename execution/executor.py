@@ -53,46 +53,26 @@ import numpy as np
 from numpy.typing import NDArray
 
 from execution.contact_detection import (
-    IDEAL_WINDOW_STEPS,
-    WINDOW_STEPS,
     ContactGuard,
-    contact_guard_from_readings,
-    turned_offset_bound_n,
 )
 from execution.execution_log import ExecutionLog
 from execution.impacts import ImpactPlanner
 from execution.metrics import reference_force
 from execution.plans import CREASE_HOLD_DISTANCE_M, PhasePlan, PhasePlanner, first_force
+from execution.relocation import CONFIRM_LIFT_M, ContourRelocation
 from execution.robot import Robot
 from execution.runner import ContactLostError, ExecutionAbortError, PhaseRunner, PlanEnd
-from execution.surface_following import SurfaceFollower, contour_tracker, relocation_offset, slide_tracker
+from execution.surface_following import phase_follower, run_tracker
+from execution.tare import FreeSpaceSensor
 from schemas.execution import ControllerKind, ExecutionPhase, ExecutionSettings, SurfaceWindowAction
 from schemas.skill import Segment, SegmentKind, Skill
 from skills.control import HybridController
-from skills.dmp import DMP
-from skills.job_estimate import LIFT_OFF_M, LIFT_OFF_S, SURFACE_WINDOW_MIN_M, TARE_HOLD_S
+from skills.job_estimate import LIFT_OFF_M, LIFT_OFF_S, TARE_HOLD_S, surface_window_m
 from skills.normal_tracking import SurfaceNormalTracker
-from skills.quaternions import matrix_from_quaternion
 
-TARE_AVERAGE_S = 0.1
-"""The tare is the mean reading over the last this long of the still hold (``TARE_HOLD_S``), s."""
-NOISE_WINDOW_S = 0.15
-"""The sensor's noise along the next approach is measured over the last this long of a still hold, s (its first
-moments still carry the deceleration the tool's inertia shows)."""
 LIFT_OFF_SPEED_M_S = 1.5 * LIFT_OFF_M / LIFT_OFF_S
 """The lift-off's mean speed (away from the surface: no impact to plan for; ``PhasePlanner.transfer`` takes
 1.5 × the distance over the speed), m/s; the confirming touch lifts at it too."""
-CONFIRM_LIFT_M = 0.01
-"""Before a contour is relocated, the tool lifts this far off where it touched down and touches down again, m."""
-RELOCATION_AGREEMENT_M = 0.01
-"""... and the second touch must find the part moved as the first did within this, m."""
-RELOCATION_SAMPLES = 101
-"""Places along a contour whose taught normal a touch-down's pressing direction is matched against (``_relocated``)."""
-RELOCATION_MIN_FORCE_N = 0.5
-"""Below this mean press a touch-down's force direction is not trusted to locate it (a contour's force profile may
-start below the contact threshold), N."""
-RELOCATION_AVERAGE_S = 0.05
-"""The pressing direction at a touch-down is the mean force over the last this long of the force ramp, s."""
 
 
 def follows_surface(skill: Skill, settings: ExecutionSettings) -> bool:
@@ -136,13 +116,6 @@ class Execution:
             self.contact_threshold = float(gains.contact_force_threshold_n)
         else:
             self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
-        self.tares = settings.tare_sensor and not robot.sensor_ideal
-        """Whether the sensor is tared in free space before the guarded approaches (an ideal sensor has no offset)."""
-        window = IDEAL_WINDOW_STEPS if robot.sensor_ideal else WINDOW_STEPS[0]
-        self.guard = ContactGuard(self.contact_threshold, window)
-        """When a guarded approach has met the surface; set from the noise measured in each still hold."""
-        self.tare_rotation = np.eye(3)
-        """The tool's orientation (world from tool) at the last tare."""
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         self._selection = {s.index: s.selection for s in skill.segments}
@@ -156,18 +129,19 @@ class Execution:
         """Following the surface: per contact segment entered across a crease, whether its surface was met."""
         self.exit_axis: NDArray[np.float64] | None = None
         """The normal the tool lifted off along after its last contact: the way out is guarded along it."""
-        self.relocations: list[list[float]] = []
-        """The offsets (m, world) by which contours were found moved and relocated (``_relocated``)."""
-        self.unconfirmed_relocations: list[list[float]] = []
-        """The moves of the part a touch-down suggested and a second touch did not confirm (m, world)."""
         # Room for the segments and a few seconds of settle, approach and retreat, so the rows rarely grow.
         self.loop = make_loop(self.controller, sum(segment.position_dmp.duration_s for segment in skill.segments) + 5.0)
+        tares = settings.tare_sensor and not robot.sensor_ideal
+        self.sensor = FreeSpaceSensor(robot, self.loop, tares, self.contact_threshold)
+        """Tared in the still holds, the guard of the approaches (``execution.tare``)."""
+        self.relocation = ContourRelocation(robot, self.loop, self.dt, settings.approach_max_distance_m)
 
     def _run(self, plan: PhasePlan, guard: ContactGuard | None = None) -> PlanEnd:
-        """Run ``plan`` in the loop, guarded by ``guard`` (default: the approaches' ``self.guard``), with a follower
-        when it follows the surface."""
+        """Run ``plan`` in the loop, guarded by ``guard`` (default: the approaches', ``self.sensor.guard``), with a
+        follower when it follows the surface."""
         references = plan.reference_rows()
-        return self.loop.run_plan(plan, guard or self.guard, references, self._follower(plan, references))
+        follower = phase_follower(plan, references, self._tracker, self.controller, self._selection, self.dt)
+        return self.loop.run_plan(plan, guard or self.sensor.guard, references, follower)
 
     def retract(self, axis: NDArray[np.float64] | None = None, segment: int = -1) -> None:
         """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit; default: CF z of the frame in use) from
@@ -178,93 +152,9 @@ class Execution:
         self.controller.reset_integral()
         self.loop.run_plan(plan)
 
-    def _after_still_hold(self, axis: NDArray[np.float64] | None) -> None:
-        """At the end of a still hold in free space: tare the sensor (``self.tares``) and set the contact guard of the
-        next guarded approach along ``axis`` (world, unit; None: no approach follows) from the noise its readings
-        showed over the last ``NOISE_WINDOW_S`` (a non-ideal sensor; the ideal one keeps the base threshold)."""
-        if self.tares:
-            self._tare_sensor()
-        if axis is not None and not self.robot.sensor_ideal:
-            readings = self.loop.recent(NOISE_WINDOW_S).wrench_world[:, :3] @ axis
-            self.guard = contact_guard_from_readings(readings, self.contact_threshold)
-
-    def _tare_sensor(self) -> None:
-        """Tare the wrist sensor with its mean reading over the last ``TARE_AVERAGE_S`` of telemetry (the tool held
-        still in free space), taken in the TOOL frame where a sensor offset lives: the readings there carry the
-        previous tare removed, so it is added back. The current reading is tared too (``SimWorld.tare_sensor``)."""
-        held = self.loop.recent(TARE_AVERAGE_S)
-        rotations = matrix_from_quaternion(held.tool_orientation)  # world from tool
-        wrench = held.wrench_world
-        force = np.einsum("nji,nj->i", rotations, wrench[:, :3]) / len(held)
-        moment = np.einsum("nji,nj->i", rotations, wrench[:, 3:]) / len(held)
-        self.robot.tare_sensor(self.robot.sensor_tare + np.concatenate((force, moment)))
-        self.tare_rotation = rotations[-1]
-
-    def _free_guard(self, plan: PhasePlan) -> ContactGuard:
-        """The guard of a free segment that may meet the next surface early: the approach's, raised by what a tared
-        offset fixed in the world can read once the plan has turned the tool away from the tare's orientation."""
-        if not self.tares:
-            return self.guard
-        rotations = matrix_from_quaternion(plan.ref_q)
-        return self.guard.raised_by(turned_offset_bound_n(self.robot.sensor_tare[:3], self.tare_rotation, rotations))
-
-    def surface_window_m(self) -> float:
-        """How far from where it was taught a guarded approach may find the surface, m (either way along CF z)."""
-        s = self.settings
-        window = s.tolerances.surface_window_m
-        return window if window is not None else max(s.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
-
-    def _follower(self, plan: PhasePlan, references: NDArray[np.float64]) -> SurfaceFollower | None:
-        """The follower of a phase that follows the surface found (``plan.follows_surface``), on the run's tracker;
-        a contour's contact phase has its references rewritten too. None for every other phase."""
-        if not plan.follows_surface or self._tracker is None:
-            return None
-        contour = plan.learned_rotations is not None
-        rotations = plan.learned_rotations if contour else plan.frame.cf_rotation[None]
-        return SurfaceFollower(
-            self._tracker,
-            self.controller,
-            self._selection[plan.segment],
-            rotations,
-            plan.stride,
-            references,
-            contour and plan.phase is ExecutionPhase.contact,
-            self.dt,
-            plan.next_z,
-            plan.quick_steps,
-            plan.stiffness,
-        )
-
-    def _touch_shift(self, segment: Segment) -> NDArray[np.float64] | None:
-        """How far the part moved, from the touch-down just made (``relocation_offset``): the direction the tool
-        presses in over the last ``RELOCATION_AVERAGE_S`` (the normal lies within the friction cone about it) farther
-        than the friction angle from the taught normal at the start and within it of the taught normal somewhere else
-        along the path ``s*``: the part moved by ``p - p_taught(s*)``. None: met where taught, a press too light to
-        tell, or a move beyond the approach's reach."""
-        geo = self.geometry[segment.index]
-        force = self.loop.recent(RELOCATION_AVERAGE_S).wrench_world[:, :3].mean(axis=0)
-        if self._tracker is None or float(np.linalg.norm(force)) < RELOCATION_MIN_FORCE_N:
-            return None
-        fractions = np.linspace(0.0, 1.0, RELOCATION_SAMPLES)
-        path = DMP.from_parameters(segment.position_dmp).rollout(self.dt).y + self.offset
-        shift = relocation_offset(
-            geo.rotations_at(fractions)[:, :, 2],
-            path,
-            force / np.linalg.norm(force),
-            self.robot.tool_pose()[0],
-            self._tracker.static_cone_rad,
-        )
-        if shift is None or float(np.linalg.norm(shift)) > self.settings.approach_max_distance_m:
-            return None
-        return shift
-
     def _release(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> None:
         """Ramp the force ``press_n`` (N) down to zero over ``force_release_s``, the tool held where it is."""
-        p = self.robot.tool_pose()[0]
-        release_s = self.settings.gains.force_release_s
-        self._run(
-            self.planner.hold(segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, self.loop.cf_rotation)
-        )
+        self._run(self.planner.release(segment, self.robot.tool_pose()[0], press_n, ref_q, self.loop.cf_rotation))
 
     def _touch_again(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> None:
         """A second touch where the first one was: release ``press_n`` (N), lift ``CONFIRM_LIFT_M`` off along the
@@ -301,27 +191,26 @@ class Execution:
 
     def _relocated(self, segment: Segment, press_n: float, ref_q: NDArray[np.float64]) -> bool:
         """Whether a contour that follows the surface was met at another place of its path than its start
-        (:meth:`_touch_shift`), CONFIRMED by a second touch there (:meth:`_touch_again`) whose shift agrees within
-        ``RELOCATION_AGREEMENT_M``, and was relocated: the force ``press_n`` (N) is released, the tool retracts, and
-        the plans are rebuilt with the mean of the two shifts added to the known offset (``self.offset``). The caller
-        moves to the new pre-contact point and touches down again. Not confirmed: the contour goes on from the
-        second touch, and the log keeps the shift it did not believe (the verdict warns)."""
+        (``ContourRelocation.touch_shift``), CONFIRMED by a second touch there (:meth:`_touch_again`) whose shift
+        agrees within ``RELOCATION_AGREEMENT_M``, and was relocated: the force ``press_n`` (N) is released, the tool
+        retracts, and the plans are rebuilt with the mean of the two shifts added to the known offset
+        (``self.offset``). The caller moves to the new pre-contact point and touches down again. Not confirmed: the
+        contour goes on from the second touch, and the log keeps the shift it did not believe (the verdict warns)."""
         geo = self.geometry[segment.index]
         if not self.follows_surface or geo.t.size < 2:
             return False
-        first = self._touch_shift(segment)
+        cone_rad = None if self._tracker is None else self._tracker.static_cone_rad
+        first = self.relocation.touch_shift(segment, geo, self.offset, cone_rad)
         if first is None:
             return False
         self._touch_again(segment, press_n, ref_q)
-        second = self._touch_shift(segment)
-        if second is None or float(np.linalg.norm(second - first)) > RELOCATION_AGREEMENT_M:
-            self.unconfirmed_relocations.append(first.tolist())
+        shift = self.relocation.confirmed(first, self.relocation.touch_shift(segment, geo, self.offset, cone_rad))
+        if shift is None:
             return False
-        shift = 0.5 * (first + second)
         self._release(segment, press_n, ref_q)
         self.retract()
         self.offset = self.offset + shift
-        self.relocations.append(shift.tolist())
+        self.relocation.relocations.append(shift.tolist())
         self.planner = PhasePlanner(self.skill, self.settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         return True
@@ -346,7 +235,7 @@ class Execution:
         p, _ = self.robot.tool_pose()
         offset = float((p - geo.start_world) @ z)
         self.contact_offsets.append(offset)
-        window = self.surface_window_m()
+        window = surface_window_m(self.settings)
         if abs(offset) > window and self.settings.surface_outside_window is SurfaceWindowAction.abort:
             where = "before" if offset < 0 else "beyond"
             self.retract()
@@ -363,18 +252,19 @@ class Execution:
         # Start pose: the first segment's start (shifted), before a contact segment the pre-contact point.
         q_start_ref = np.asarray(first.orientation_dmp.start, dtype=float)
         if first.kind is SegmentKind.contact:
-            geo = self.geometry[first.index]
-            p_start = geo.start_world - s.approach_clearance_m * geo.first_rotation[:, 2]
+            p_start = self.planner.pre_contact(first.index)
         else:
             p_start = np.asarray(first.position_dmp.start, dtype=float) + self.offset
         q_joints = self.robot.inverse_kinematics(p_start, q_start_ref)
         self.robot.reset(q_joints)
         self.controller.reset(posture=q_joints)
         self.loop.wall_start = time.perf_counter()
-        settle_s = max(s.settle_s, TARE_HOLD_S) if self.tares else s.settle_s
+        settle_s = max(s.settle_s, TARE_HOLD_S) if self.sensor.tares else s.settle_s
         self._run(self.planner.still(ExecutionPhase.settle, -1, p_start, q_start_ref, settle_s))
         first_contact = next((seg.index for seg in segments if seg.kind is SegmentKind.contact), None)
-        self._after_still_hold(None if first_contact is None else self.geometry[first_contact].first_rotation[:, 2])
+        self.sensor.after_still_hold(
+            None if first_contact is None else self.geometry[first_contact].first_rotation[:, 2]
+        )
         last_ref_q = q_start_ref
         in_contact_run = False
         f_last: float | None = None
@@ -385,12 +275,11 @@ class Execution:
             nxt = segments[i + 1] if i + 1 < len(segments) else None
             if segment.kind is SegmentKind.free:
                 if nxt is not None and nxt.kind is SegmentKind.contact:
-                    geo = self.geometry[nxt.index]
-                    z = geo.first_rotation[:, 2]
-                    goal = geo.start_world - s.approach_clearance_m * z
+                    z = self.geometry[nxt.index].first_rotation[:, 2]
+                    goal = planner.pre_contact(nxt.index)
                     plan = planner.free(segment, *tool_pose(), goal, stop_axis=z)
                     self.loop.touched = False
-                    found_early = self._run(plan, self._free_guard(plan)) is PlanEnd.contact
+                    found_early = self._run(plan, self.sensor.free_guard(plan)) is PlanEnd.contact
                 else:
                     dmp = segment.position_dmp
                     exit_axis = self.exit_axis if i > 0 and segments[i - 1].kind is SegmentKind.contact else None
@@ -402,7 +291,9 @@ class Execution:
                     plan = planner.free(segment, *tool_pose(), goal, exit_axis)
                     if exit_axis is None:
                         found_early = self._run(plan) is PlanEnd.contact
-                    elif self._run(plan, self._free_guard(plan)) is PlanEnd.contact:  # hit the part on the way out:
+                    elif (
+                        self._run(plan, self.sensor.free_guard(plan)) is PlanEnd.contact
+                    ):  # hit the part on the way out:
                         self.retract(exit_axis, segment.index)  # back off the way it lifted; the way out ends
                         found_early = False
                 last_ref_q = plan.ref_q[-1]
@@ -410,10 +301,10 @@ class Execution:
             # Contact segment.
             if not in_contact_run:
                 self.controller.reset_integral()
-                if not found_early and self.tares and i > 0:  # (the settle tared at the first pre-contact point)
+                if not found_early and self.sensor.tares and i > 0:  # (the settle tared at the first pre-contact point)
                     hold = planner.still(ExecutionPhase.approach, segment.index, goal, last_ref_q, TARE_HOLD_S)
                     self._run(hold)
-                    self._after_still_hold(self.geometry[segment.index].first_rotation[:, 2])
+                    self.sensor.after_still_hold(self.geometry[segment.index].first_rotation[:, 2])
                 for attempt in range(2):  # a second touch-down where a relocated contour starts
                     # A surface met early (the part is nearer than taught) is touched down on again at the touch-down
                     # speed: the faster motion's impact may have bounced the tool off it.
@@ -422,20 +313,18 @@ class Execution:
                         self.loop.touched = False
                     self._run(planner.approach(segment, tool_pose()[0], last_ref_q, speed, fast=not found_early))
                     self._record_contact_offset(segment)
-                    first_cf = self.geometry[segment.index].first_rotation
                     if self.follows_surface:  # a new contact run: the normal is tracked from the learned one
-                        track = contour_tracker if self.geometry[segment.index].t.size > 1 else slide_tracker
-                        self._tracker = track(first_cf[:, 2], self.dt)
+                        self._tracker = run_tracker(self.geometry[segment.index], self.dt)
                     f_first = first_force(segment)
                     self._ramp_up(segment, f_first, last_ref_q)
                     if attempt or not self._relocated(segment, f_first, last_ref_q):
                         break
                     planner = self.planner
-                    geo = self.geometry[segment.index]
-                    goal = geo.start_world - s.approach_clearance_m * geo.first_rotation[:, 2]
-                    transfer = planner.transfer(segment.index, *tool_pose(), goal, last_ref_q, geo.first_rotation[:, 2])
+                    goal = planner.pre_contact(segment.index)
+                    z = self.geometry[segment.index].first_rotation[:, 2]
+                    transfer = planner.transfer(segment.index, *tool_pose(), goal, last_ref_q, z)
                     self.loop.touched = False
-                    found_early = self._run(transfer, self._free_guard(transfer)) is PlanEnd.contact
+                    found_early = self._run(transfer, self.sensor.free_guard(transfer)) is PlanEnd.contact
                 f_last = None
             crease_in = crease_out if f_last is not None else None  # the crease the previous segment ended at
             next_contact = nxt is not None and nxt.kind is SegmentKind.contact
@@ -465,17 +354,7 @@ class Execution:
             last_cf = plan.learned_rotations[-1] if plan.learned_rotations is not None else plan.frame.cf_rotation
             found_early = False
             if nxt is None or nxt.kind is SegmentKind.free:
-                release = planner.hold(
-                    segment,
-                    ExecutionPhase.retreat,
-                    tool_pose()[0],
-                    f_last,
-                    0.0,
-                    s.gains.force_release_s,
-                    last_ref_q,
-                    last_cf,
-                    at_end=True,
-                )
+                release = planner.release(segment, tool_pose()[0], f_last, last_ref_q, last_cf, at_end=True)
                 release.follows_surface = self.follows_surface
                 self._run(release)
                 self._lift_off(segment.index, last_ref_q)
@@ -501,11 +380,11 @@ class Execution:
         """What the phases found, for the metrics (``work_piece``: where the robot's work piece came from)."""
         return ExecutionLog(
             contact_offsets_m=self.contact_offsets,
-            relocations_m=self.relocations,
-            unconfirmed_relocations_m=self.unconfirmed_relocations,
+            relocations_m=self.relocation.relocations,
+            unconfirmed_relocations_m=self.relocation.unconfirmed,
             frame_log=self.loop.frame_log,
-            contact_guard=self.guard if self.geometry else None,  # (a skill without contact guards nothing)
-            surface_window_m=self.surface_window_m(),
+            contact_guard=self.sensor.guard if self.geometry else None,  # (a skill without contact guards nothing)
+            surface_window_m=surface_window_m(self.settings),
             work_piece=work_piece,
             next_surface_found=self.next_surface_found,
         )

@@ -152,6 +152,36 @@ def slowed_times(speed_m_s: NDArray[np.float64], cap_m_s: NDArray[np.float64], d
     return np.interp(np.arange(int(t_new[-1] / dt) + 1) * dt, t_new, t)
 
 
+def slowed_references(
+    ref_p: NDArray[np.float64],
+    ref_q: NDArray[np.float64],
+    twist: NDArray[np.float64],
+    force: NDArray[np.float64],
+    crease_in_m_s: float | None,
+    crease_out_m_s: float | None,
+    window_m: float,
+    dt: float,
+) -> tuple[NDArray[np.float64], ...]:
+    """A contact plan's references, one row per control step of ``dt`` (s), resampled so that it passes its creases
+    at the given speeds (m/s): the plan times of its control steps (s), positions, quaternions, twists (scaled by the
+    slowing), forces. The crease it ends at may come ``window_m`` (m) before its end."""
+    n = ref_p.shape[0]
+    speed = np.linalg.norm(twist[:, :3], axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * dt
+    cap = np.full(n, np.inf)
+    if crease_in_m_s is not None:
+        cap = np.minimum(cap, crease_speed_caps(arc, crease_in_m_s, towards_end=False))
+    if crease_out_m_s is not None:
+        hold = CREASE_HOLD_DISTANCE_M + window_m
+        cap = np.minimum(cap, crease_speed_caps(arc, crease_out_m_s, towards_end=True, hold_m=hold))
+    t = np.arange(n) * dt
+    times = slowed_times(speed, cap, dt)
+    rate = np.interp(times, t, np.minimum(1.0, cap / np.maximum(speed, 1e-12)))
+    ref_p = np.column_stack([np.interp(times, t, ref_p[:, i]) for i in range(3)])
+    twist = np.column_stack([np.interp(times, t, twist[:, i]) for i in range(6)]) * rate[:, None]
+    return times, ref_p, quaternions_slerp(times, t, ref_q), twist, np.interp(times, t, force)
+
+
 def first_force(segment: Segment) -> float:
     """The desired CF-z force at the start of a contact segment, N (never negative)."""
     if segment.force_constant_n is not None:
@@ -209,6 +239,12 @@ class PhasePlanner:
             np.zeros(n),
             frame=self.identity_frame,
         )
+
+    def pre_contact(self, segment_index: int) -> NDArray[np.float64]:
+        """Where the guarded approach of contact segment ``segment_index`` starts: ``approach_clearance_m`` back along
+        its first CF z from its taught (shifted) contact start, m, world."""
+        geo = self.geometry[segment_index]
+        return geo.start_world - self.settings.approach_clearance_m * geo.first_rotation[:, 2]
 
     def retraction(self, segment_index: int, p: NDArray, q: NDArray, axis: NDArray[np.float64]) -> PhasePlan:
         """Back off ``CONTACT_LOSS_RETRACT_M`` along -``axis`` (world, unit) from the tool pose ``(p, q)`` over
@@ -320,6 +356,13 @@ class PhasePlanner:
             frame=self.controller.frame(cf_rotation, segment.selection),
         )
 
+    def release(
+        self, segment: Segment, p: NDArray, press_n: float, ref_q: NDArray, cf_rotation: NDArray, at_end: bool = False
+    ) -> PhasePlan:
+        """The retreat's :meth:`hold`: the force ``press_n`` (N) ramped down to zero over ``force_release_s``."""
+        release_s = self.settings.gains.force_release_s
+        return self.hold(segment, ExecutionPhase.retreat, p, press_n, 0.0, release_s, ref_q, cf_rotation, at_end)
+
     def contact(
         self,
         segment: Segment,
@@ -363,8 +406,8 @@ class PhasePlanner:
         times = np.arange(n) * self.dt  # the plan time of each control step, s
         if crease_in_m_s is not None or crease_out_m_s is not None:
             window = self.settings.approach_slow_distance_m if follows_surface else 0.0
-            times, ref_p, ref_q, twist, force = self._slowed(
-                ref_p, ref_q, twist, force, crease_in_m_s, crease_out_m_s, window
+            times, ref_p, ref_q, twist, force = slowed_references(
+                ref_p, ref_q, twist, force, crease_in_m_s, crease_out_m_s, window, self.dt
             )
             n = times.size
         if f_previous is not None:  # contact -> contact: ramp between the levels
@@ -456,32 +499,3 @@ class PhasePlanner:
         )
         plan.follows_surface = True
         return plan
-
-    def _slowed(
-        self,
-        ref_p: NDArray[np.float64],
-        ref_q: NDArray[np.float64],
-        twist: NDArray[np.float64],
-        force: NDArray[np.float64],
-        crease_in_m_s: float | None,
-        crease_out_m_s: float | None,
-        window_m: float = 0.0,
-    ) -> tuple[NDArray[np.float64], ...]:
-        """A contact plan's references resampled so that it passes its creases at the given speeds (m/s): the
-        plan times of its control steps (s), positions, quaternions, twists (scaled by the slowing), forces. The
-        crease it ends at may come ``window_m`` (m) before its end."""
-        n, dt = ref_p.shape[0], self.dt
-        speed = np.linalg.norm(twist[:, :3], axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(speed[:-1])]) * dt
-        cap = np.full(n, np.inf)
-        if crease_in_m_s is not None:
-            cap = np.minimum(cap, crease_speed_caps(arc, crease_in_m_s, towards_end=False))
-        if crease_out_m_s is not None:
-            hold = CREASE_HOLD_DISTANCE_M + window_m
-            cap = np.minimum(cap, crease_speed_caps(arc, crease_out_m_s, towards_end=True, hold_m=hold))
-        t = np.arange(n) * dt
-        times = slowed_times(speed, cap, dt)
-        rate = np.interp(times, t, np.minimum(1.0, cap / np.maximum(speed, 1e-12)))
-        ref_p = np.column_stack([np.interp(times, t, ref_p[:, i]) for i in range(3)])
-        twist = np.column_stack([np.interp(times, t, twist[:, i]) for i in range(6)]) * rate[:, None]
-        return times, ref_p, quaternions_slerp(times, t, ref_q), twist, np.interp(times, t, force)

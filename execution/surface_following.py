@@ -31,6 +31,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from execution.plans import ContactGeometry, PhasePlan
+from schemas.execution import ExecutionPhase
 from skills.control import ControlFrame, HybridController
 from skills.control.layouts import REFERENCE_POSITION, REFERENCE_QUAT, REFERENCE_TWIST
 from skills.frames import rotation_from_vectors
@@ -203,6 +205,44 @@ def _quaternion_towards(a: NDArray[np.float64], b: NDArray[np.float64], max_angl
     f = max_angle / angle
     half = angle / 2.0
     return (math.sin((1.0 - f) * half) * a + math.sin(f * half) * b) / math.sin(half)
+
+
+def run_tracker(geometry: ContactGeometry, dt: float) -> SurfaceNormalTracker:
+    """The normal tracker of a contact run that starts on the contact segment of ``geometry``, from its first
+    learned CF z: a contour's (several frames) or a slide's (one); control step ``dt``, s."""
+    track = contour_tracker if geometry.t.size > 1 else slide_tracker
+    return track(geometry.first_rotation[:, 2], dt)
+
+
+def phase_follower(
+    plan: PhasePlan,
+    references: NDArray[np.float64],
+    tracker: SurfaceNormalTracker | None,
+    controller: HybridController,
+    selections: dict[int, NDArray[np.float64]],
+    dt: float,
+) -> SurfaceFollower | None:
+    """The follower of a phase that follows the surface found (``plan.follows_surface``), on the run's ``tracker``
+    (None: no contact run tracked yet), its frames built by ``controller`` with the selection of the plan's segment
+    (``selections`` by segment index), control step ``dt`` (s); a contour's contact phase has its ``references``
+    rewritten too. None for every other phase."""
+    if not plan.follows_surface or tracker is None:
+        return None
+    contour = plan.learned_rotations is not None
+    rotations = plan.learned_rotations if contour else plan.frame.cf_rotation[None]
+    return SurfaceFollower(
+        tracker,
+        controller,
+        selections[plan.segment],
+        rotations,
+        plan.stride,
+        references,
+        contour and plan.phase is ExecutionPhase.contact,
+        dt,
+        plan.next_z,
+        plan.quick_steps,
+        plan.stiffness,
+    )
 
 
 def relocation_offset(

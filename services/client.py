@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import httpx
-import numpy as np
 from pydantic import BaseModel
 
 from schemas.api import (
@@ -71,6 +70,7 @@ from services.client_errors import (
     UnavailableError,
     service_error,
 )
+from services.client_export import execution_file
 from services.client_telemetry import Pacer, StoredStream, Telemetry, live_batches
 from services.demonstration_files import (
     ROS2_STORAGE_SUFFIXES,
@@ -430,23 +430,11 @@ class Client:
             raise ValueError(
                 f"{record_id!r} is not a demonstration (demo_...), an execution (exec_...) or a skill (skill_...) id"
             )
-        from schemas.telemetry_rows import telemetry_matrix
-        from services.telemetry_export import execution_csv, execution_json_chunks, execution_mcap
-
         kind = TelemetryFormat(format)
         if kind is TelemetryFormat.mcap:
             import_pybullet_quietly()  # the MCAP's scene solves the arm's joints with PyBullet: no banner in our output
         pages = [TelemetryView.model_validate(page) for page in self.telemetry_pages(record_id, every or 1, t0, t1)]
-        matrix = np.concatenate([telemetry_matrix(page) for page in pages])
-        if kind is TelemetryFormat.mcap:
-            return execution_mcap(matrix, Execution(self, record_id).status().created, record_id).data
-        if kind is TelemetryFormat.csv:
-            return execution_csv(matrix).encode()
-        last = pages[-1]
-        head = {"execution_id": record_id, "every": last.every, "cursor": 0, "next_cursor": None,
-                "n_samples": int(matrix.shape[0]), "stored_samples": last.stored_samples,
-                "status": last.status.value}  # fmt: skip
-        return "".join(execution_json_chunks(head, matrix)).encode()
+        return execution_file(pages, kind, record_id, lambda: Execution(self, record_id).status().created)
 
     def _command(self, execution_id: str, command: CommandName) -> CommandAccepted:
         return CommandAccepted.model_validate(self._request("POST", f"/executions/{execution_id}/{command}").json())

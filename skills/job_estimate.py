@@ -21,7 +21,7 @@ from schemas.skill import SegmentKind, Skill
 TARE_HOLD_S = 0.2
 """With ``tare_sensor``, the tool holds still this long in free space (the start pose's settle, the pre-contact point
 before each later guarded approach) and the wrist sensor is tared with its mean reading over the last
-``execution.executor.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
+``execution.tare.TARE_AVERAGE_S``, s. The executor's and the estimate's."""
 TOUCHDOWN_SPEED_MIN_M_S = 0.0005
 """The slowest touch-down, m/s (a 5 N skill on a 1e6 N/m surface would ask for less). The executor's and the
 estimate's."""
@@ -33,6 +33,13 @@ LIFT_OFF_S = 0.5
 SURFACE_WINDOW_MIN_M = 0.005
 """The window around the taught surface where a guarded approach expects it is at least this wide each way, m. The
 executor's and the estimate's."""
+
+
+def surface_window_m(settings: ExecutionSettings) -> float:
+    """How far from where it was taught a guarded approach may find the surface, m (either way along CF z): the
+    settings' tolerance, else the slow stretch of the approach (at least ``SURFACE_WINDOW_MIN_M``)."""
+    window = settings.tolerances.surface_window_m
+    return window if window is not None else max(settings.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
 
 
 def taught_time_step_s(skill: Skill) -> float:
@@ -99,8 +106,7 @@ def _approach(segment: int, s: ExecutionSettings) -> tuple[JobPart, JobPart, Job
     at the far end of its window, and the whole approach over ``approach_max_distance_m`` (its references), each
     named by the field of its speed."""
     fast_m = min(max(s.approach_clearance_m - s.approach_slow_distance_m, 0.0), s.approach_max_distance_m)
-    window = s.tolerances.surface_window_m
-    window = window if window is not None else max(s.approach_slow_distance_m, SURFACE_WINDOW_MIN_M)
+    window = surface_window_m(s)
     slow_m = min(s.approach_clearance_m - fast_m + window, s.approach_max_distance_m - fast_m)
     whole_m = s.approach_max_distance_m - fast_m
     touchdown = s.touchdown_speed_m_s or TOUCHDOWN_SPEED_MIN_M_S

@@ -159,10 +159,10 @@ def test_reduces_to_plain_impedance_with_world_cf_and_identity_selection() -> No
     J, M = state["jacobian"], state["mass_matrix"]
     Lam = np.linalg.inv(J @ np.linalg.solve(M, J.T))
     D = damping_matrix(K, Lam, 0.8)  # damping ratio 0.8 on the apparent inertia from the mass matrix
-    np.testing.assert_allclose(ctrl.damping_matrix_a, D, rtol=1e-3, atol=1e-6 * np.abs(D).max())
+    np.testing.assert_allclose(ctrl.model.damping_matrix_a, D, rtol=1e-3, atol=1e-6 * np.abs(D).max())
     e = pose_error(state["tool_position"], state["tool_quaternion"], ref_p, ref_q)
     twist = J @ state["qd"]
-    expected = J.T @ (K @ e + ctrl.damping_matrix_a @ (ref_twist - twist)) + state["bias_torques"]
+    expected = J.T @ (K @ e + ctrl.model.damping_matrix_a @ (ref_twist - twist)) + state["bias_torques"]
     np.testing.assert_allclose(out.tau, expected, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(out.wrench_force, 0.0)
 
@@ -323,7 +323,9 @@ def test_a_new_frame_each_step_gives_the_torques_of_a_controller_that_saw_only_i
     for k in range(len(series)):
         got = _call(switching, series[k], state, wrench=wrench, desired_force=10.0)
         alone = HybridController(gains=gains)
-        alone.damping_matrix_a = None if switching.damping_matrix_a is None else switching.damping_matrix_a.copy()
+        alone.model.damping_matrix_a = (
+            None if switching.model.damping_matrix_a is None else switching.model.damping_matrix_a.copy()
+        )
         expected = _call(alone, alone.frame(Rs[k], SELECTION_CONTACT), state, wrench=wrench, desired_force=10.0)
         np.testing.assert_allclose(got.tau, expected.tau, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(got.wrench_motion, expected.wrench_motion, rtol=1e-9, atol=1e-9)

@@ -247,8 +247,8 @@ def test_executions_are_deleted_once_finished_with_their_telemetry(stack, skill,
 
 
 def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_workers_budget():
-    """The constants the estimate counts with are the executor's and the world's own; the API's settings read the
-    variables the workers read."""
+    """The constants the estimate counts with are the executor's and the world's own, its surface window the
+    executor's; the API's settings read the variables the workers read."""
     from execution import executor, impacts
     from schemas import job_budget
     from schemas.world import WorldConfig
@@ -258,9 +258,9 @@ def test_the_estimate_follows_the_executor_and_the_world_and_the_api_reads_the_w
     for module, name in (
         (executor, "TARE_HOLD_S"),
         (impacts, "TOUCHDOWN_SPEED_MIN_M_S"),
-        (executor, "SURFACE_WINDOW_MIN_M"),
     ):
         assert getattr(job_estimate, name) == getattr(module, name), name
+    assert executor.surface_window_m is job_estimate.surface_window_m
     assert WorldConfig().time_step_s == NOMINAL_TIME_STEP_S
     names = {ENV_VARS["job_max_simulated_s"], ENV_VARS["job_max_steps"]}
     assert names == {job_budget.ENV_JOB_MAX_SIMULATED_S, job_budget.ENV_JOB_MAX_STEPS}

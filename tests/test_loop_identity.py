@@ -148,7 +148,7 @@ def test_a_non_finite_arm_state_on_a_model_update_stops_the_loop_before_its_torq
                          np.zeros((steps, 6)), np.zeros(steps), frame=frame)  # fmt: skip
         loop = ControlLoop(world, controller, 1.0, 100, Pace.fast, True, None, None, None)
         loop.run_plan(plan)
-        assert controller.damping_due(True) == (updates_done == 4)
+        assert controller.model.damping_due(True) == (updates_done == 4)
         pybullet.resetJointState(world.robot, 3, float("nan"), 0.0, physicsClientId=world.client_id)
         with pytest.raises(ExecutionAbortError, match=r"non-finite value \(NaN or inf\) in jacobian, q,"):
             loop.run_plan(plan)

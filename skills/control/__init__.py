@@ -105,14 +105,10 @@ Baselines (``ControllerKind``), the same class with other settings:
   straight down whatever the surface normal is.
 """
 
-from skills.control.controller import (
-    DAMPING_UPDATE_EVERY,
-    ControlOutput,
-    HybridController,
-    LawKernel,
-)
+from skills.control.controller import ControlOutput, HybridController, LawKernel
 from skills.control.frames import ControlFrame, ControlFrameSeries, world_z_down_rotation
 from skills.control.law import damping_diagonal, damping_matrix, law_step_packed, pose_error
+from skills.control.model import DAMPING_UPDATE_EVERY
 
 __all__ = [
     "DAMPING_UPDATE_EVERY",

@@ -13,25 +13,21 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from schemas.execution import ControllerGains, ControllerKind, NullSpaceProjection
+from schemas.execution import ControllerGains, ControllerKind
 from schemas.world import IIWA_TORQUE_LIMITS_NM
 from skills.compiled import compiled_entry
-from skills.control.frames import ControlFrame, ControlFrameSeries, blockdiag_rotation, world_z_down_rotation
+from skills.control.frames import ControlFrame, ControlFrameSeries, FrameGains, control_frame_fields
 from skills.control.law import (
     NO_MASS_MATRIX,
     damping_diagonal,
-    damping_matrix,
     law_step,
     model_update_packed,
     non_finite_reason,
     write_frame,
 )
 from skills.control.layouts import (
-    G_FORCE,
     G_JOINT,
-    G_MOTION,
     G_ROWS,
-    G_TASK,
     L_DT,
     L_IMPEDANCE_KZ,
     L_INTEGRAL,
@@ -66,24 +62,10 @@ from skills.control.layouts import (
     ROBOT_ROTATION,
     ROBOT_STATE_SIZE,
     X_BIAS,
-    X_FORCE,
-    X_INTEGRAL,
-    X_POSE,
     X_SIZE,
-    X_TASK,
-    X_TWIST,
-    X_WRENCH,
 )
-from skills.frames import (
-    adjoint_from_transform,
-    force_projector_in_frame,
-    stiffness_in_frame,
-    transform_inverse,
-    wrench_adjoint_from_transform,
-)
+from skills.control.model import NullSpaceModel
 
-DAMPING_UPDATE_EVERY = 5
-"""The adaptive damping matrix is rebuilt on every this-many-th model update (it costs ~2x the projector)."""
 _EYE6 = np.eye(6)
 _EYE7 = np.eye(7)
 
@@ -140,20 +122,16 @@ class HybridController:
         self._stiffness = np.concatenate(
             [np.asarray(g.translational_stiffness_n_per_m, float), np.asarray(g.rotational_stiffness_nm_per_rad, float)]
         )
-        self._adaptive_damping = g.translational_damping_ns_per_m is None and g.rotational_damping_nms_per_rad is None
         self.damping = damping_diagonal(g)
-        self.damping_matrix_a: NDArray[np.float64] | None = None
-        """The adaptive damping matrix in A (6, 6), or None while the diagonal ``damping`` (CF) applies."""
-        self._force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
         self._force_loop = not self.kind.is_impedance
         self._kp = g.force_kp if self._force_loop else 0.0
         self._ki = g.force_ki if self._force_loop else 0.0
         self._kz = float(self._stiffness[2])
-        self._dynamic_null = g.null_space is NullSpaceProjection.dynamic
-        self._kn = g.nullspace_stiffness_nm_per_rad
-        self._dn = g.nullspace_damping_nms_per_rad
         self._integral_bound = g.force_integral_limit_n / self._ki if self._ki > 0.0 else 0.0
-        self.posture = np.zeros(7) if posture is None else np.asarray(posture, dtype=float).copy()
+        force_axis_damping = np.concatenate([np.full(3, g.force_axis_damping_ns_per_m), self.damping[3:]])
+        self._frame_gains = FrameGains(self.kind, self._stiffness, self.damping, force_axis_damping, self._kp, self._ki)
+        self.model = NullSpaceModel(g, posture)
+        """The null-space projector and the adaptive damping (``damping_matrix_a``), rebuilt on model updates."""
         self.law_buffer = np.zeros(LAW_GAIN_SIZE + L_SIZE)
         """G by rows (:attr:`_gain`), then the law's state (:attr:`_law`): one array, so that a loop's compiled step
         runs the law (:func:`law_step_packed`) with one argument for both; written in place, never replaced."""
@@ -168,12 +146,6 @@ class HybridController:
         law[L_LIMITS] = self.torque_limits
         self.integral_cf = law[L_INTEGRAL]
         """The force integral ∫ S~ e_cf dt, CF coordinates (a view of the law's state)."""
-        self._projector: NDArray[np.float64] | None = None
-        """N^T (7, 7) of the last model update (:attr:`_projector_rows`), or None while there is none."""
-        self._projector_rows = np.zeros((7, 7))
-        self._inertia = np.zeros((6, 6))
-        """Λ of the last model update, symmetrized: what the adaptive damping is rebuilt from."""
-        self._model_version = 0
         self._gain = self.law_buffer[:LAW_GAIN_SIZE].reshape(G_ROWS, X_SIZE)
         """G: [F_m; F_f; F_m + F_f; N^T τ_0 + g + c] = G x (module docstring, "Cost"), cached by parts."""
         self._gain[G_JOINT, X_BIAS] = _EYE7
@@ -186,10 +158,10 @@ class HybridController:
     def reset(self, posture: ArrayLike | None = None) -> None:
         """Clear the force integral, projector and saturation timer; optionally set the posture (7,) rad."""
         if posture is not None:
-            self.posture = np.asarray(posture, dtype=float).copy()
+            self.model.posture = np.asarray(posture, dtype=float).copy()
         self.reset_integral()
-        self._projector = None
-        self.damping_matrix_a = None
+        self.model.projector = None
+        self.model.damping_matrix_a = None
         self._law[L_SATURATED] = 0.0
         self._law[L_SATURATED_FOR] = 0.0
 
@@ -198,81 +170,6 @@ class HybridController:
         self.integral_cf[:] = 0.0
 
     # ------------------------------------------------------------------ frames
-
-    def _control_rotation_and_selection(
-        self, cf_rotation: NDArray[np.float64], selection: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        if self.kind.is_impedance:
-            return cf_rotation, np.ones_like(selection)
-        if self.kind is ControllerKind.hybrid_world_z and np.any(selection < 1.0):
-            return world_z_down_rotation(cf_rotation), selection
-        return cf_rotation, selection
-
-    def _frame_fields(
-        self, cf_rotation: ArrayLike, selection: ArrayLike, offset: ArrayLike | None, stiffness: ArrayLike | None
-    ) -> dict[str, NDArray[np.float64]]:
-        cf_rotation = np.asarray(cf_rotation, dtype=float)
-        batch = cf_rotation.shape[:-2]
-        # A gain schedule's stiffness (..., 6) and the nominal damping that matches it; else the gains' own.
-        if stiffness is None:
-            stiffness, damping = self._stiffness, self.damping
-        else:
-            stiffness = np.asarray(stiffness, dtype=float)
-            damping = damping_diagonal(self.gains, stiffness=stiffness)
-        sel_in = np.broadcast_to(np.asarray(selection, dtype=float), (*batch, 6))
-        R, S = self._control_rotation_and_selection(cf_rotation, sel_in)
-        S = np.ascontiguousarray(S)
-        if offset is None:
-            p = np.zeros((*batch, 3))
-            ad = blockdiag_rotation(R)
-            ad_inv = np.swapaxes(ad, -1, -2)
-            adg, adg_inv = ad, ad_inv
-        else:
-            p = np.broadcast_to(np.asarray(offset, float), (*batch, 3))
-            ad = adjoint_from_transform(R, p)
-            ad_inv = adjoint_from_transform(*transform_inverse(R, p))
-            adg = wrench_adjoint_from_transform(R, p)
-            adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
-        force_axes = 1.0 - S
-        force_direction = adg[..., :, 2] * force_axes[..., 2:3] if self._force_loop else np.zeros((*batch, 6))
-        omega = stiffness_in_frame(R, p, stiffness, S)
-        projector = force_projector_in_frame(R, p, S)
-        error_direction = force_axes * (adg_inv @ force_direction[..., None])[..., 0]  # S~ Adg^-1 F_d,1
-        task_gain = np.zeros((*batch, G_TASK.stop, X_TASK.stop))
-        motion, force = task_gain[..., G_MOTION, :], task_gain[..., G_FORCE, :]
-        motion[..., X_POSE] = omega
-        motion[..., X_TWIST] = -(adg @ ((force_axes * self._force_axis_damping)[..., :, None] * ad_inv))  # -D_f
-        force[..., X_FORCE] = force_direction + self._kp * (adg @ error_direction[..., None])[..., 0]
-        force[..., X_WRENCH] = -self._kp * projector
-        force[..., X_INTEGRAL] = self._ki * adg
-        return {
-            "rotation": R,
-            "cf_rotation": cf_rotation,
-            "cf_z": np.ascontiguousarray(cf_rotation[..., :, 2]),
-            "selection": S,
-            "force_axes": force_axes,
-            "omega": omega,
-            "projector": projector,
-            "ad": ad,
-            "ad_inv": np.ascontiguousarray(ad_inv),
-            "adg": adg,
-            "adg_inv": np.ascontiguousarray(adg_inv),
-            "force_direction": np.ascontiguousarray(force_direction),
-            "damping_left": (adg * S[..., None, :]) @ np.swapaxes(ad, -1, -2),
-            "damping_right": ad @ (S[..., :, None] * ad_inv),
-            "law_rows": np.concatenate(
-                (
-                    cf_rotation[..., :, 2],
-                    force_axes if self._ki > 0.0 else np.zeros_like(force_axes),
-                    error_direction,
-                    adg_inv.reshape(*batch, 36),
-                ),
-                axis=-1,
-            ),
-            "task_gain": task_gain,
-            "stiffness": np.broadcast_to(stiffness, (*batch, 6)),
-            "damping": np.broadcast_to(damping, (*batch, 6)),
-        }
 
     def frame(
         self,
@@ -292,7 +189,9 @@ class HybridController:
             if cf_origin is None or tool_position is None:
                 raise ValueError("compliance_center='cf_origin' needs cf_origin and tool_position")
             offset = np.asarray(cf_origin, float) - np.asarray(tool_position, float)
-        return ControlFrame(**self._frame_fields(cf_rotation, selection, offset, stiffness))
+        return ControlFrame(
+            **control_frame_fields(self._frame_gains, cf_rotation, selection, offset, self._scheduled(stiffness))
+        )
 
     def frames(
         self, cf_rotations: ArrayLike, selection: ArrayLike, stiffness: ArrayLike | None = None
@@ -304,7 +203,16 @@ class HybridController:
         R = np.asarray(cf_rotations, dtype=float)
         if R.ndim != 3 or R.shape[1:] != (3, 3):
             raise ValueError(f"cf_rotations must have shape (M, 3, 3), got {R.shape}")
-        return ControlFrameSeries(self._frame_fields(R, selection, None, stiffness))
+        return ControlFrameSeries(
+            control_frame_fields(self._frame_gains, R, selection, None, self._scheduled(stiffness))
+        )
+
+    def _scheduled(self, stiffness: ArrayLike | None) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """A gain schedule's CF stiffness (..., 6) and the nominal damping that matches it; None: the gains' own."""
+        if stiffness is None:
+            return None
+        stiffness = np.asarray(stiffness, dtype=float)
+        return stiffness, damping_diagonal(self.gains, stiffness=stiffness)
 
     # ------------------------------------------------------------------ the law
 
@@ -367,7 +275,7 @@ class HybridController:
         law through :meth:`kernel` (the same floating-point operations: the same torques to the last bit)."""
         out = np.zeros(LAW_OUTPUT_SIZE)  # a step that must not run leaves it zero
         reason = None
-        if update_null_space or frame is not self._gain_frame or self._projector is None:
+        if update_null_space or frame is not self._gain_frame or self.model.projector is None:
             reason = self._prepare(frame, robot, reference, wrench, mass_matrix, update_null_space)
         if reason is None:
             code = law_step(self._gain, robot, reference, wrench, self._law, in_contact, out)
@@ -378,7 +286,7 @@ class HybridController:
     def kernel(self, robot: NDArray[np.float64]) -> LawKernel:
         """The law as a compiled 1 kHz loop runs it for one phase, on the robot state array ``robot`` (the
         ``ROBOT_*`` layout, float64, the array the loop passes on every step): :class:`LawKernel`."""
-        update = compiled_entry(model_update_packed, (self.law_buffer, robot, NO_MASS_MATRIX, *self._model_arguments()))
+        update = compiled_entry(model_update_packed, (self.law_buffer, robot, NO_MASS_MATRIX, *self.model.arguments()))
         return LawKernel(self.law_buffer, partial(self._prepare, model_update=update), self._abort_reason)
 
     def _prepare(
@@ -395,9 +303,9 @@ class HybridController:
         (or when there is none) with ``model_update`` (:func:`model_update_packed`, or a loop's specialization of it),
         the gain rows when the frame or the damping changed. Returns why the step must not run (a non-finite or
         singular model; zero torque then), else None."""
-        if update_null_space or self._projector is None:
+        if update_null_space or self.model.projector is None:
             try:
-                code = self._update_model(frame, robot, mass_matrix, model_update)
+                code = self.model.update(frame, self.law_buffer, robot, mass_matrix, model_update)
             except np.linalg.LinAlgError as exc:
                 return self._singular_model_reason(exc)
             if code != LAW_OK:  # non-finite J or M
@@ -405,58 +313,15 @@ class HybridController:
         self._use_frame(frame)
         return None
 
-    def _update_model(
-        self,
-        frame: ControlFrame,
-        robot: NDArray[np.float64],
-        mass_matrix: NDArray[np.float64] | None,
-        model_update: Callable[..., int] = model_update_packed,
-    ) -> int:
-        """``model_update`` (:func:`model_update_packed`) on this controller's arrays for the Jacobian in ``robot`` and
-        ``mass_matrix`` (None: the static projector), then :meth:`_model_updated`; returns the kernel's code (nothing
-        taken unless ``LAW_OK``). Raises ``numpy.linalg.LinAlgError`` on a singular model."""
-        M = NO_MASS_MATRIX if mass_matrix is None else np.ascontiguousarray(mass_matrix, dtype=float)
-        code = model_update(self.law_buffer, robot, M, *self._model_arguments())
-        if code == LAW_OK:
-            self._model_updated(frame, mass_matrix is not None)
-        return code
-
-    def _model_arguments(self) -> tuple:
-        """The arguments of :func:`model_update_packed` after the law buffer, the robot state and the mass matrix: the
-        projection (dynamic or not), ``K_n``, ``D_n``, the posture, and the arrays the projector and the inertia are
-        written to (this controller's own: a model update is then :meth:`_model_updated`)."""
-        return self._dynamic_null, self._kn, self._dn, self.posture, self._projector_rows, self._inertia
-
-    def damping_due(self, with_mass_matrix: bool) -> bool:
-        """Whether the next model update rebuilds the adaptive damping (a damping ratio, a mass matrix, and no damping
-        yet or every :data:`DAMPING_UPDATE_EVERY`-th update): :meth:`_model_updated` does it, in Python, not in the
-        loop's compiled step."""
-        return (
-            with_mass_matrix
-            and self._adaptive_damping
-            and (self.damping_matrix_a is None or (self._model_version + 1) % DAMPING_UPDATE_EVERY == 0)
-        )
-
-    def _model_updated(self, frame: ControlFrame, with_mass_matrix: bool) -> None:
-        """Take the model :func:`model_update_packed` just wrote into :meth:`_model_arguments`' arrays, and rebuild
-        the damping from its inertia when due (:meth:`damping_due`, the stiffness turned into A by ``frame``). Raises
-        ``numpy.linalg.LinAlgError`` on a singular inertia."""
-        due = self.damping_due(with_mass_matrix)
-        self._model_version += 1
-        self._projector = self._projector_rows
-        if due:
-            stiffness_a = frame.adg @ (frame.stiffness[:, None] * frame.ad_inv)
-            self.damping_matrix_a = damping_matrix(stiffness_a, self._inertia, self.gains.damping_ratio)
-
     def _use_frame(self, frame: ControlFrame) -> None:
         """Make the gain rows of ``frame`` with the damping in use (rebuilt only when the frame or the damping
         matrix changed since the last time)."""
-        if frame is not self._gain_frame or self._gain_damping is not self.damping_matrix_a:
+        if frame is not self._gain_frame or self._gain_damping is not self.model.damping_matrix_a:
             self._cache_frame(frame)
 
     def _singular_model_reason(self, error: np.linalg.LinAlgError) -> str:
         """Why a step must not run after ``error`` in a model update (the model is rebuilt on the next step)."""
-        self._projector = None
+        self.model.projector = None
         return f"singular robot model: {error}"
 
     def _non_finite_model_reason(
@@ -467,7 +332,7 @@ class HybridController:
         mass_matrix: NDArray[np.float64] | None,
     ) -> str:
         """Why a step must not run on non-finite inputs, naming them (the model is rebuilt on the next step)."""
-        self._projector = None
+        self.model.projector = None
         return non_finite_reason(robot, reference, wrench, mass_matrix)
 
     def _abort_reason(
@@ -493,14 +358,14 @@ class HybridController:
 
     def _cache_frame(self, frame: ControlFrame) -> None:
         """Build the rows of G that give the wrenches (until the frame or the damping matrix changes)."""
-        D = self.damping_matrix_a
+        D = self.model.damping_matrix_a
         if D is None:  # the nominal CF damping, D_m = Adg diag(S d S) Ad^-1, as the product I D_m I
             S = frame.selection
             left, D, right = _EYE6, frame.adg @ ((S * frame.damping * S)[:, None] * frame.ad_inv), _EYE6
         else:
             left, right = frame.damping_left, frame.damping_right
         write_frame(self._gain, self._law, frame.task_gain, left, D, right, frame.law_rows)
-        self._gain_frame, self._gain_damping = frame, self.damping_matrix_a
+        self._gain_frame, self._gain_damping = frame, self.model.damping_matrix_a
 
     def null_space_torque(
         self,
@@ -512,10 +377,11 @@ class HybridController:
         """Return ``N^T τ_0`` with ``τ_0 = K_n (q_0 - q) - D_n q̇`` (see the module docstring); rebuilds N^T."""
         robot = np.zeros(ROBOT_STATE_SIZE)
         robot[ROBOT_JACOBIAN] = np.asarray(jacobian, dtype=float).ravel()
-        if self._update_model(self.frame(np.eye(3), [1.0] * 6), robot, mass_matrix) != LAW_OK:
+        model = self.model
+        if model.update(self.frame(np.eye(3), [1.0] * 6), self.law_buffer, robot, mass_matrix) != LAW_OK:
             raise ValueError("non-finite jacobian or mass_matrix")
-        tau0 = self._kn * (self.posture - q) - self._dn * qd
-        return self._projector_rows @ tau0
+        tau0 = model.kn * (model.posture - q) - model.dn * qd
+        return model.projector_rows @ tau0
 
 
 class LawKernel(NamedTuple):

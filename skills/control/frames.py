@@ -1,6 +1,7 @@
 """The compliant frame as the control law uses it (``skills.control``'s docstring, "Frames"): :class:`ControlFrame`
 (one instant's matrices, built by ``HybridController.frame``), :class:`ControlFrameSeries` (a contour's, built at
-once), and the ``hybrid_world_z`` baseline's frame (:func:`world_z_down_rotation`). World axes; rotations world from
+once), both from :func:`control_frame_fields` with the controller's :class:`FrameGains`, and the ``hybrid_world_z``
+baseline's frame (:func:`world_z_down_rotation`). World axes; rotations world from
 frame.
 """
 
@@ -10,6 +11,16 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from schemas.execution import ControllerKind
+from skills.control.layouts import G_FORCE, G_MOTION, G_TASK, X_FORCE, X_INTEGRAL, X_POSE, X_TASK, X_TWIST, X_WRENCH
+from skills.frames import (
+    adjoint_from_transform,
+    force_projector_in_frame,
+    stiffness_in_frame,
+    transform_inverse,
+    wrench_adjoint_from_transform,
+)
 
 
 def world_z_down_rotation(cf_rotation: ArrayLike) -> NDArray[np.float64]:
@@ -111,3 +122,99 @@ class ControlFrameSeries:
 
     def __getitem__(self, k: int) -> ControlFrame:
         return self._frames[min(max(int(k), 0), len(self._frames) - 1)]
+
+
+class FrameGains(NamedTuple):
+    """What a control frame's matrices take from the controller: its ``kind`` (our law or a baseline), the CF
+    ``stiffness`` diagonal (6,) N/m and N·m/rad and the nominal CF ``damping`` diagonal (6,) N·s/m and N·m·s/rad that
+    matches it (the gains'), the ``force_axis_damping`` (6,) N·s/m and N·m·s/rad on the force axes, and the force
+    loop's ``kp`` and ``ki`` (zero for the impedance baselines)."""
+
+    kind: ControllerKind
+    stiffness: NDArray[np.float64]
+    damping: NDArray[np.float64]
+    force_axis_damping: NDArray[np.float64]
+    kp: float
+    ki: float
+
+
+def control_rotation_and_selection(
+    kind: ControllerKind, cf_rotation: NDArray[np.float64], selection: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The CONTROL frame's rotation and selection diagonal for a CF's (``kind``'s: the impedance baseline controls
+    motion on every axis, ``hybrid_world_z`` presses along -z_world where the CF has a force axis)."""
+    if kind.is_impedance:
+        return cf_rotation, np.ones_like(selection)
+    if kind is ControllerKind.hybrid_world_z and np.any(selection < 1.0):
+        return world_z_down_rotation(cf_rotation), selection
+    return cf_rotation, selection
+
+
+def control_frame_fields(
+    gains: FrameGains,
+    cf_rotation: ArrayLike,
+    selection: ArrayLike,
+    offset: ArrayLike | None,
+    scheduled: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+) -> dict[str, NDArray[np.float64]]:
+    """The fields of :class:`ControlFrame` (or, for ``(M, 3, 3)`` rotations, of a :class:`ControlFrameSeries`) for
+    the CF ``cf_rotation`` (world from CF) with ``selection`` (6,) under ``gains``; the compliance centre at the tool
+    (``offset`` None) or ``offset`` (3,) m from it (world); ``scheduled``: a gain schedule's CF stiffness and the
+    nominal damping that matches it, (..., 6) each (None: the gains' own)."""
+    cf_rotation = np.asarray(cf_rotation, dtype=float)
+    batch = cf_rotation.shape[:-2]
+    stiffness, damping = (gains.stiffness, gains.damping) if scheduled is None else scheduled
+    sel_in = np.broadcast_to(np.asarray(selection, dtype=float), (*batch, 6))
+    R, S = control_rotation_and_selection(gains.kind, cf_rotation, sel_in)
+    S = np.ascontiguousarray(S)
+    if offset is None:
+        p = np.zeros((*batch, 3))
+        ad = blockdiag_rotation(R)
+        ad_inv = np.swapaxes(ad, -1, -2)
+        adg, adg_inv = ad, ad_inv
+    else:
+        p = np.broadcast_to(np.asarray(offset, float), (*batch, 3))
+        ad = adjoint_from_transform(R, p)
+        ad_inv = adjoint_from_transform(*transform_inverse(R, p))
+        adg = wrench_adjoint_from_transform(R, p)
+        adg_inv = wrench_adjoint_from_transform(*transform_inverse(R, p))
+    force_axes = 1.0 - S
+    force_direction = adg[..., :, 2] * force_axes[..., 2:3] if not gains.kind.is_impedance else np.zeros((*batch, 6))
+    omega = stiffness_in_frame(R, p, stiffness, S)
+    projector = force_projector_in_frame(R, p, S)
+    error_direction = force_axes * (adg_inv @ force_direction[..., None])[..., 0]  # S~ Adg^-1 F_d,1
+    task_gain = np.zeros((*batch, G_TASK.stop, X_TASK.stop))
+    motion, force = task_gain[..., G_MOTION, :], task_gain[..., G_FORCE, :]
+    motion[..., X_POSE] = omega
+    motion[..., X_TWIST] = -(adg @ ((force_axes * gains.force_axis_damping)[..., :, None] * ad_inv))  # -D_f
+    force[..., X_FORCE] = force_direction + gains.kp * (adg @ error_direction[..., None])[..., 0]
+    force[..., X_WRENCH] = -gains.kp * projector
+    force[..., X_INTEGRAL] = gains.ki * adg
+    return {
+        "rotation": R,
+        "cf_rotation": cf_rotation,
+        "cf_z": np.ascontiguousarray(cf_rotation[..., :, 2]),
+        "selection": S,
+        "force_axes": force_axes,
+        "omega": omega,
+        "projector": projector,
+        "ad": ad,
+        "ad_inv": np.ascontiguousarray(ad_inv),
+        "adg": adg,
+        "adg_inv": np.ascontiguousarray(adg_inv),
+        "force_direction": np.ascontiguousarray(force_direction),
+        "damping_left": (adg * S[..., None, :]) @ np.swapaxes(ad, -1, -2),
+        "damping_right": ad @ (S[..., :, None] * ad_inv),
+        "law_rows": np.concatenate(
+            (
+                cf_rotation[..., :, 2],
+                force_axes if gains.ki > 0.0 else np.zeros_like(force_axes),
+                error_direction,
+                adg_inv.reshape(*batch, 36),
+            ),
+            axis=-1,
+        ),
+        "task_gain": task_gain,
+        "stiffness": np.broadcast_to(stiffness, (*batch, 6)),
+        "damping": np.broadcast_to(damping, (*batch, 6)),
+    }
