@@ -56,6 +56,7 @@ def test_mujocos_soft_friction_lifts_a_fast_sliding_tool_by_mu_c_v_over_k(stroke
     table."""
     (v_bullet, rise_bullet, f_bullet), (v_mujoco, rise_mujoco, f_mujoco) = strokes["pybullet"], strokes["mujoco"]
     assert v_mujoco == pytest.approx(v_bullet, rel=0.05) and v_mujoco > 0.15
-    assert f_mujoco == pytest.approx(f_bullet, rel=0.05)  # the same force: the lift is not a lighter press
+    # the same force (3.6 % apart): a press lighter by the 0.37 mm would be 11 N lighter
+    assert f_mujoco == pytest.approx(f_bullet, rel=0.1)
     assert rise_bullet < 0.15e-3
     assert rise_mujoco - rise_bullet == pytest.approx(lift_m(v_mujoco, WorldConfig()), rel=0.15)
