@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from typing import Annotated
 
-from pydantic import AfterValidator, Field, JsonValue, WithJsonSchema
+from pydantic import BeforeValidator, Field, JsonValue, WithJsonSchema
 
 MAX_NAME_CHARS = 255
 """Longest name (a demonstration's, a topic's, a frame's, a unit), characters: the longest file name most file
@@ -41,11 +41,13 @@ def _is_text(value: str) -> str:
     return value
 
 
-def _is_bounded_free_form(value: dict[str, JsonValue]) -> dict[str, JsonValue]:
+def _is_bounded_free_form(value: object) -> object:
     """``value``, unless it nests deeper than :data:`MAX_FREE_FORM_DEPTH`, holds a string or key that is not text
     (:func:`_is_text`) or takes more than :data:`MAX_FREE_FORM_BYTES` as JSON. Walked without recursion, so a dict
-    nested 10 000 deep is refused as quickly as one 17 deep."""
-    pending: list[tuple[JsonValue, str, int]] = [(value, "", 1)]
+    nested 10 000 deep is refused as quickly as one 17 deep; run BEFORE the ``JsonValue`` types are checked (they
+    recurse per level: one error per level of a deep dict, the field lost among them), on the raw input, so what is
+    not JSON is left to them."""
+    pending: list[tuple[object, str, int]] = [(value, "", 1)]
     while pending:
         item, path, depth = pending.pop()
         if isinstance(item, dict | list) and depth > MAX_FREE_FORM_DEPTH:
@@ -58,7 +60,10 @@ def _is_bounded_free_form(value: dict[str, JsonValue]) -> dict[str, JsonValue]:
             pending.extend((child, f"{path}[{k}]", depth + 1) for k, child in enumerate(item))
         elif isinstance(item, str):
             _is_text(item)
-    size = len(json.dumps(value, ensure_ascii=False).encode("utf-8"))
+    try:
+        size = len(json.dumps(value, ensure_ascii=False).encode("utf-8"))
+    except (TypeError, ValueError):  # not JSON (a Python object, a NaN): the JsonValue check names it
+        return value
     if size > MAX_FREE_FORM_BYTES:
         raise ValueError(f"takes {size} bytes as JSON, more than {MAX_FREE_FORM_BYTES // 1024} KiB")
     return value
@@ -74,6 +79,6 @@ JsonObject = dict[str, Annotated[JsonValue, WithJsonSchema({})]]
 """An open JSON object: its values pydantic's ``JsonValue`` (strings, numbers, booleans, null, lists and objects of
 them; a tuple or a numpy integer is refused). Its JSON schema is any object, as the OpenAPI has always declared it
 (pydantic's own would add a ``JsonValue`` definition that accepts anything)."""
-FreeForm = Annotated[JsonObject, AfterValidator(_is_bounded_free_form)]
+FreeForm = Annotated[JsonObject, BeforeValidator(_is_bounded_free_form)]
 """A free-form JSON object (:data:`JsonObject`): at most :data:`MAX_FREE_FORM_DEPTH` levels deep and
 :data:`MAX_FREE_FORM_BYTES` of JSON, its keys and strings text."""

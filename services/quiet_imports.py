@@ -9,6 +9,10 @@ import ctypes
 import os
 import sys
 
+PYBULLET_BANNER = "pybullet build time"
+"""How the line PyBullet's C extension prints on import begins (a log may name the engine ``pybullet``; only this
+line is the banner)."""
+
 
 def import_pybullet_quietly() -> None:
     """Import ``pybullet`` with file descriptors 1 and 2 pointed at ``/dev/null``; every later import finds it loaded.

@@ -37,6 +37,7 @@ from services.client import (  # noqa: E402
     UnavailableError,
 )
 from services.csv_import import demonstration_csv_text  # noqa: E402
+from services.quiet_imports import PYBULLET_BANNER  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHORT_RECORD = {"seed": 0, **RECORD["overrides"]}
@@ -192,11 +193,11 @@ def test_the_readme_client_example_runs(stack, tmp_path, monkeypatch, capfd):
     assert view.status.value == "done" and view.verdict is Verdict.passed
     assert time.monotonic() - started > telemetry.t[-1]  # the replay took at least the run's simulated time
     printed = capfd.readouterr()
-    assert "pybullet" not in printed.out + printed.err  # the MCAP export's PyBullet, imported without its banner
+    assert PYBULLET_BANNER not in printed.out + printed.err  # the MCAP export's PyBullet, imported without its banner
     seconds = [line for line in printed.out.splitlines() if line.startswith("t=")]
     assert len(seconds) == int(telemetry.t[-1]) + 1, seconds  # t = 0 included
     assert (tmp_path / "scratch" / "run.mcap").stat().st_size > 100_000
-    assert "pybullet" not in stack.log_path.read_text()  # nor in the output of `up` (its API and workers)
+    assert PYBULLET_BANNER not in stack.log_path.read_text()  # nor in the output of `up` (its API and workers)
     with Client(stack.url) as client:  # the block's own client is closed
         assert client.sweep(namespace["sweep"].id).status().status is SweepState.done
 

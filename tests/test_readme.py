@@ -23,6 +23,7 @@ from docs_commands import PAGES, REPO, Check, Step, steps, unmatched_lines
 
 from cli.main import build_parser
 from services.local_processes import free_port
+from services.quiet_imports import PYBULLET_BANNER
 from services.service_url import URL_ENV
 from services.settings import ENV_VARS
 
@@ -100,7 +101,7 @@ def _check(step: Step, cwd: Path) -> str | None:
         result = _run(args, cwd, CONTACT_SKILLS_URL=nobody)
         if result.returncode != 0:
             return f"exit {result.returncode}\n{result.stdout}\n{result.stderr}"
-        if "pybullet build time" in result.stdout + result.stderr:
+        if PYBULLET_BANNER in result.stdout + result.stderr:
             return "printed the pybullet banner"
         missing = unmatched_lines(step.quoted, result.stdout)
         if missing:
