@@ -48,6 +48,7 @@ from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
 from schemas.execution import ExecutionPhase, ExecutionRequest
 from schemas.world import WorldOverrides
+from services.background import WakeableThread
 from services.bus_reports import new_attempt
 from services.dispatch_watch import Overdue
 from services.settings import DEFAULT_DISPATCH_REPORT_S, DEFAULT_RUN_SILENCE_S
@@ -107,8 +108,11 @@ class Handover(Enum):
     """It was no longer queued (cancelled meanwhile)."""
 
 
-class ExecutionQueue:
-    """The queue over ``store`` and ``bus`` (see the module docstring). ``start()`` the dispatcher, ``close()``."""
+class ExecutionQueue(WakeableThread):
+    """The queue over ``store`` and ``bus`` (see the module docstring). ``start()`` the dispatcher, ``close()`` it
+    (queued executions stay queued in the database)."""
+
+    thread_name = "execution-queue"
 
     def __init__(
         self,
@@ -124,6 +128,7 @@ class ExecutionQueue:
         """``first_report_s``, ``silence_s``, ``handovers``: the dispatch watchdog's (module docstring; the
         service's ``dispatch_report_s``, ``run_silence_s``, ``dispatch_handovers``); ``quota_bytes``: the storage
         quota each submission's telemetry is reserved in (0: none)."""
+        super().__init__()
         self.store = store
         self.bus = bus
         self.max_queued = max_queued
@@ -133,9 +138,6 @@ class ExecutionQueue:
         self.silence_s = silence_s
         self.handovers = handovers
         self._lock = threading.Lock()  # one hand-over at a time: the order of the queue is the order of starts
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._demonstrations: dict[str, Demonstration | None] = {}  # by id, the oldest first (hold self._lock)
         store.executions.on_finish(self._finished)
 
@@ -186,30 +188,12 @@ class ExecutionQueue:
         with self._lock:
             self._demonstrations.pop(demonstration_id, None)
 
-    def wake(self) -> None:
-        """Look at the queue now (a submission, an execution finished)."""
-        self._wake.set()
-
     def _finished(self, execution_id: str) -> None:
         """An execution ended: nothing more is due from its worker, which is free: hand the next one over now."""
         self.bus.watch.ended(execution_id)
         self.wake()
 
     # ------------------------------------------------------------------ the dispatcher
-
-    def start(self) -> ExecutionQueue:
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="execution-queue", daemon=True)
-            self._thread.start()
-        return self
-
-    def close(self) -> None:
-        """Stop the dispatcher (queued executions stay queued in the database)."""
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(10)
-            self._thread = None
 
     def _run(self) -> None:
         while not self._stop.is_set():

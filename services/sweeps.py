@@ -49,6 +49,7 @@ from schemas.sweep import (
     SweepView,
     TrialResult,
 )
+from services.background import WakeableThread
 from services.queue import Dispatch, ExecutionQueue
 from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRef, SweepTrialRow
 from skills.sweeps import (
@@ -177,9 +178,12 @@ def sweep_view(store: Store, keys: KeyExpressions, row: SweepRow) -> SweepView:
     )
 
 
-class SweepRunner:
+class SweepRunner(WakeableThread):
     """Creates, advances and cancels sweeps over the execution queue (see the module docstring). ``start()`` the
-    thread, ``close()``; the routes call :meth:`create` and :meth:`cancel`."""
+    thread, ``close()`` it (running sweeps stay running in the database and resume on the next start); the routes
+    call :meth:`create` and :meth:`cancel`."""
+
+    thread_name = "sweeps"
 
     def __init__(
         self,
@@ -190,16 +194,12 @@ class SweepRunner:
         window: int = WINDOW,
         poll_s: float = SWEEP_POLL_S,
     ) -> None:
+        super().__init__()
         self.store, self.queue, self.bus, self.keys = store, queue, bus, keys
         self.window, self.poll_s = window, poll_s
         self._lock = threading.Lock()  # one advance at a time: the route's first submissions and the thread
         self._published: dict[str, SweepCounts] = {}
-        self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._thread: threading.Thread | None = None
-        store.executions.on_finish(
-            lambda _execution_id: self._wake.set()
-        )  # submit the successor now, not on the next poll
+        store.executions.on_finish(lambda _execution_id: self.wake())  # submit the successor now, not on the next poll
 
     # ------------------------------------------------------------------ what the routes call
 
@@ -250,20 +250,6 @@ class SweepRunner:
         return True
 
     # ------------------------------------------------------------------ the thread
-
-    def start(self) -> SweepRunner:
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="sweeps", daemon=True)
-            self._thread.start()
-        return self
-
-    def close(self) -> None:
-        """Stop the thread (running sweeps stay running in the database and resume on the next start)."""
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(10)
-            self._thread = None
 
     def _run(self) -> None:
         while True:
