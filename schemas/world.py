@@ -208,7 +208,7 @@ def _nested(data: Mapping[str, object]) -> dict[str, object]:
 class WorldConfig(BaseModel):
     """Everything that defines a world; JSON-able via ``to_dict`` / ``from_dict``. Frozen: ``replace`` makes a
     changed copy. ``engine``, when set, is the physics engine the world is simulated on unless the execution names
-    one (:meth:`engine_for`); a world that names none is written without the key, as before it existed."""
+    one (:func:`engine_to_run`); a world that names none is written without the key, as before it existed."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -249,13 +249,6 @@ class WorldConfig(BaseModel):
             data.pop("engine", None)
         return data
 
-    def engine_for(self, requested: Engine | None, default: Engine = DEFAULT_ENGINE) -> Engine:
-        """The engine an execution in this world runs on: the one it names (``requested``,
-        ``ExecutionSettings.engine``), else this world's ``engine``, else ``default`` (a worker's default engine;
-        :data:`schemas.execution.DEFAULT_ENGINE` for a local run or a sweep). The execution's own choice wins so that
-        one world can be compared on both engines (issue 44); the metrics say which ran."""
-        return requested or self.engine or default
-
     def to_dict(self) -> JsonObject:
         """JSON-able dict, nested as the sub-configs."""
         return self.model_dump(mode="json")
@@ -295,6 +288,14 @@ class WorldConfig(BaseModel):
                 "work_pieces": tuple(pieces),
             }
         )
+
+
+def engine_to_run(requested: Engine | None, world: Engine | None, default: Engine = DEFAULT_ENGINE) -> Engine:
+    """The engine an execution runs on: the one it names (``requested``, ``ExecutionSettings.engine``), else the one
+    its world names (``world``, :attr:`WorldConfig.engine`), else ``default`` (a worker's default engine;
+    :data:`schemas.execution.DEFAULT_ENGINE` for a local run or a sweep). The execution's own choice wins so that one
+    world can be run on both engines and compared (issue 44); the metrics say which ran (docs/ENGINES.md)."""
+    return requested or world or default
 
 
 def world_engine(world: Mapping[str, object] | None) -> Engine | None:

@@ -24,6 +24,7 @@ from schemas.execution import (
     TelemetryBatch,
     TelemetryMode,
 )
+from schemas.world import engine_to_run
 from sim_worker.process_memory import trim_heap
 from sim_worker.telemetry_archive import TelemetryArchive
 from sim_worker.worker_settings import WorkerSettings
@@ -130,7 +131,7 @@ class ExecutionRun:
         self.start = start
         self.request = start.request
         if self.request.engine is None:  # the request leaves the engine to its world, else to the worker running it
-            engine = worlds[0].config.engine_for(None, worker.settings.engine)
+            engine = engine_to_run(None, worlds[0].config.engine, worker.settings.engine)
             self.request = self.request.model_copy(update={"engine": engine})
         self.worlds = worlds
         """The resolved ``ExecutionWorld`` (world config, placed skill and demonstration), or one per stroke."""

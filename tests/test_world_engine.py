@@ -20,7 +20,7 @@ pytest.importorskip("mujoco")
 from cli.main import main
 from schemas.execution import DEFAULT_ENGINE, Engine, ExecutionPhase, ExecutionRequest, ExecutionSettings
 from schemas.skill import LearnOptions, Skill
-from schemas.world import WorldConfig, world_engine
+from schemas.world import WorldConfig, engine_to_run, world_engine
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import ExecutionResult, run_skill
 from sim_worker.teacher import record_demonstration
@@ -62,10 +62,10 @@ def named_runs(skill) -> dict[Engine, ExecutionResult]:
 @pytest.mark.parametrize("world", ENGINES)
 @pytest.mark.parametrize("default", list(Engine))
 def test_the_precedence_is_the_execution_then_the_world_then_the_default(requested, world, default):
-    """``WorldConfig.engine_for``, case by case: the execution's engine if it names one, else the world's, else the
-    default (a worker's own; pybullet for a local run or a sweep)."""
+    """``schemas.world.engine_to_run``, case by case: the execution's engine if it names one, else the world's, else
+    the default (a worker's own; pybullet for a local run or a sweep)."""
     expected = requested if requested is not None else world if world is not None else default
-    assert WorldConfig(engine=world).engine_for(requested, default) is expected
+    assert engine_to_run(requested, world, default) is expected
 
 
 def test_the_reference_runs_differ_by_engine(named_runs):
