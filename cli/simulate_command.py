@@ -131,7 +131,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
         for k, world in enumerate(worlds):
             print(("" if len(worlds) == 1 else f"stroke {k + 1} of {len(worlds)}: ") + _world_line(world))
             if settings.engine is None and world.config.engine is not None:  # said only when the world chose it
-                print(f"engine: {world.config.engine.value} (the world's `engine`; --engine chooses another)")
+                print(f"engine: {world.config.engine.value} (the world's engine; --engine chooses another)")
             result = run_skill(world, settings)
             metrics.append(result.metrics)
             codes.append(bus_commands.exit_code(result.metrics.phase is ExecutionPhase.done, result.metrics))
