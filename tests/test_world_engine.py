@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,11 +22,12 @@ from cli.main import main
 from schemas.execution import DEFAULT_ENGINE, Engine, ExecutionPhase, ExecutionRequest, ExecutionSettings
 from schemas.skill import LearnOptions, Skill
 from schemas.world import WorldConfig, engine_to_run, world_engine
-from sim_worker.execution_world import execution_world
+from sim_worker.execution_world import execution_world, world_config_from_file_dict
 from sim_worker.executor import ExecutionResult, run_skill
-from sim_worker.teacher import record_demonstration
+from sim_worker.teacher import record_demonstration, scenario_world_config
 from skills.parameterize import learn_skill
 
+REPO = Path(__file__).resolve().parents[1]
 ENGINES = (None, Engine.pybullet, Engine.mujoco)
 """An execution's or a world's choice: none, or one of the engines."""
 
@@ -113,7 +115,7 @@ def test_simulate_runs_a_world_file_on_the_engine_it_names(skill, named_runs, tm
     world_path.write_text(json.dumps(_world_file(skill, Engine.mujoco)))
     code, out, err = _cli(["simulate", str(skill_path), "--world", str(world_path), "--json", str(metrics_path)])
     assert code == 0, err
-    assert "engine: mujoco (the world's `engine`" in out
+    assert "engine: mujoco (the world's engine; --engine chooses another)" in out
     metrics = json.loads(metrics_path.read_text())
     assert metrics["engine"] == "mujoco"
     assert metrics["true_force_rms_error_pct"] == named_runs[Engine.mujoco].metrics.true_force_rms_error_pct
@@ -148,6 +150,14 @@ def test_a_world_naming_no_engine_is_written_and_read_as_before():
     assert world_engine(named.to_dict()) is Engine.mujoco
     stored = ExecutionRequest.model_validate({"skill_id": "sk_1", "engine": "pybullet"})  # stored before, as it was
     assert stored.engine is Engine.pybullet
+
+
+def test_the_example_world_file_is_the_tilted_table_on_mujoco():
+    """``data/worlds/slide_tilted_on_mujoco.json`` (docs/ENGINES.md runs it): the ``slide_tilted`` scenario's world,
+    field for field, naming MuJoCo."""
+    world = world_config_from_file_dict(json.loads((REPO / "data/worlds/slide_tilted_on_mujoco.json").read_text()))
+    assert world.engine is Engine.mujoco
+    assert world.replace(engine=None) == scenario_world_config("slide_tilted")
 
 
 def test_the_api_refuses_a_skill_whose_world_names_an_unknown_engine(client, skill):
