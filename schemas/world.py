@@ -23,7 +23,6 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
-    SerializationInfo,
     SerializerFunctionWrapHandler,
     ValidationError,
     model_serializer,
@@ -241,7 +240,7 @@ class WorldConfig(BaseModel):
         return _nested(data) if isinstance(data, dict) and not LEGACY_FIELDS.keys().isdisjoint(data) else data
 
     @model_serializer(mode="wrap")
-    def _without_absent_engine(self, handler: SerializerFunctionWrapHandler, info: SerializationInfo) -> Any:
+    def _without_absent_engine(self, handler: SerializerFunctionWrapHandler) -> Any:
         """The dump without ``engine`` when it is None: every world written before the field existed (a recording's
         world, a truth file, a skill's taught world) is written byte for byte as before."""
         data = handler(self)
