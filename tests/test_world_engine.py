@@ -21,7 +21,9 @@ pytest.importorskip("mujoco")
 from cli.main import main
 from schemas.execution import DEFAULT_ENGINE, Engine, ExecutionPhase, ExecutionRequest, ExecutionSettings
 from schemas.skill import LearnOptions, Skill
+from schemas.sweep import SweepRequest
 from schemas.world import WorldConfig, engine_to_run, world_engine
+from services.sweeps import sweep_engine
 from sim_worker.execution_world import execution_world, world_config_from_file_dict
 from sim_worker.executor import ExecutionResult, run_skill
 from sim_worker.teacher import record_demonstration, scenario_world_config
@@ -30,6 +32,8 @@ from skills.parameterize import learn_skill
 REPO = Path(__file__).resolve().parents[1]
 ENGINES = (None, Engine.pybullet, Engine.mujoco)
 """An execution's or a world's choice: none, or one of the engines."""
+VARY = {"offset_z_m": {"low": -0.005, "high": 0.005}}
+"""A sweep's varied parameter (any would do: the engine does not depend on it)."""
 
 
 @pytest.fixture(scope="module")
@@ -98,6 +102,23 @@ def test_a_world_s_engine_runs_it_unless_the_execution_names_one(skill, named_ru
     assert result.world_config.engine is world
     assert np.array_equal(result.telemetry.data, named_runs[runs_on].telemetry.data)
     assert result.metrics.true_force_rms_error_pct == named_runs[runs_on].metrics.true_force_rms_error_pct
+
+
+@pytest.mark.parametrize(
+    ("given", "runs_on"),
+    [
+        ({}, Engine.mujoco),  # the trials run in the skill's taught world, which names MuJoCo
+        ({"settings": {"engine": "pybullet"}}, Engine.pybullet),  # the sweep's own choice
+        ({"scenario": "slide_flat"}, Engine.pybullet),  # the scenario's world names none: pybullet, not a worker's
+        ({"settings": {"environment": {"work_piece": "rebuilt"}}}, Engine.pybullet),  # a rebuilt piece: likewise
+    ],
+)
+def test_a_sweep_runs_on_its_engine_else_its_trials_world_s_else_pybullet(skill, given, runs_on):
+    """``services.sweeps.sweep_engine``: the order of an execution, with pybullet where a worker's default would be
+    (tests/test_engine_choice.py runs such a sweep on a real stack)."""
+    taught = skill.model_copy(update={"taught_world": _world_file(skill, Engine.mujoco)})
+    request = SweepRequest.model_validate({"skill": taught.model_dump(mode="json"), "vary": VARY, **given})
+    assert sweep_engine(request, taught) is runs_on
 
 
 def _cli(argv: list[str]) -> tuple[int, str, str]:
