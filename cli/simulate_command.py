@@ -45,9 +45,10 @@ def register(commands: argparse._SubParsersAction) -> None:
                           "delay, 200 Hz filter, tool inertia) or the exact contact wrench")  # fmt: skip
     sim.add_argument("--controller", choices=CONTROLLERS,
                      default="hybrid_cf", help="ours (hybrid_cf) or a baseline (see docs/CONVENTIONS.md)")  # fmt: skip
-    sim.add_argument("--engine", choices=ENGINES, default="pybullet",
+    sim.add_argument("--engine", choices=ENGINES,
                      help="the physics engine: pybullet (the compiled loop) or mujoco (the same cell in MuJoCo; its "
-                          "loop in Python), docs/ENGINES.md")  # fmt: skip
+                          "loop in Python); default: the world's `engine` (a --world file's), else pybullet "
+                          "(docs/ENGINES.md)")  # fmt: skip
     sim.add_argument(
         "--pace",
         choices=PACES,
@@ -129,6 +130,8 @@ def _run_simulate(args: argparse.Namespace) -> int:
         codes, metrics = [], []
         for k, world in enumerate(worlds):
             print(("" if len(worlds) == 1 else f"stroke {k + 1} of {len(worlds)}: ") + _world_line(world))
+            if settings.engine is None and world.config.engine is not None:  # said only when the world chose it
+                print(f"engine: {world.config.engine.value} (the world's engine; --engine chooses another)")
             result = run_skill(world, settings)
             metrics.append(result.metrics)
             codes.append(bus_commands.exit_code(result.metrics.phase is ExecutionPhase.done, result.metrics))

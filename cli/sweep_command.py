@@ -196,8 +196,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     sweep.add_argument(
         "--engine",
         choices=ENGINES,
-        help="the physics engine of every trial (overrides the settings' engine; default: theirs, else pybullet), "
-        "docs/ENGINES.md",
+        help="the physics engine of every trial (overrides the settings' engine; default: theirs, else the one the "
+        "skill's taught world names, else pybullet), docs/ENGINES.md",
     )
     sweep.add_argument(
         "--store-telemetry",

@@ -26,7 +26,6 @@ from enum import StrEnum
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.execution import (
-    DEFAULT_ENGINE,
     MAX_FORCE_SCALE,
     MAX_OFFSET_M,
     MAX_SENSOR_BIAS_N,
@@ -272,8 +271,9 @@ class SweepRequest(BaseModel):
         description="The execution settings every trial starts from (gains, pace, environment, tolerances); the sweep "
         "sets the varied fields of the environment, the controller, the telemetry (from store_telemetry) and the two "
         "tolerances of its success criteria (from success_rms_pct and success_contact_ratio). Every trial runs on "
-        "settings.engine, pybullet when absent (not each worker's own default: the trials spread over the workers "
-        "and must compare like with like). The CLI's default sweep starts from DEFAULT_SETTINGS.",
+        "settings.engine, when absent the engine their world names (the skill's taught world's `engine`, when the "
+        "trials run in it), else pybullet: not each worker's own default (the trials spread over the workers and "
+        "must compare like with like). The CLI's default sweep starts from DEFAULT_SETTINGS.",
     )
     store_telemetry: bool = Field(
         False,
@@ -318,15 +318,6 @@ class SweepRequest(BaseModel):
                 "telemetry: a sweep sets its trials' telemetry from store_telemetry (true: stream, false: none); "
                 "give store_telemetry instead"
             )
-        return value
-
-    @field_validator("settings")
-    @classmethod
-    def _one_engine(cls, value: ExecutionSettings) -> ExecutionSettings:
-        """Every trial on the engine named, else on :data:`DEFAULT_ENGINE`: one sweep, one engine, whichever workers
-        its trials go to."""
-        if value.engine is None:
-            return value.model_copy(update={"engine": DEFAULT_ENGINE})
         return value
 
     @field_validator("settings")

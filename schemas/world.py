@@ -18,9 +18,23 @@ from collections.abc import Mapping
 from enum import StrEnum
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    model_serializer,
+    model_validator,
+)
 
-from schemas.execution import NOMINAL_CONTACT_DAMPING_N_S_M, NOMINAL_CONTACT_STIFFNESS_N_M
+from schemas.execution import (
+    DEFAULT_ENGINE,
+    NOMINAL_CONTACT_DAMPING_N_S_M,
+    NOMINAL_CONTACT_STIFFNESS_N_M,
+    Engine,
+)
 from schemas.text import JsonObject
 
 IIWA_TORQUE_LIMITS_NM: tuple[float, ...] = (320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0)
@@ -192,7 +206,8 @@ def _nested(data: Mapping[str, object]) -> dict[str, object]:
 
 class WorldConfig(BaseModel):
     """Everything that defines a world; JSON-able via ``to_dict`` / ``from_dict``. Frozen: ``replace`` makes a
-    changed copy."""
+    changed copy. ``engine``, when set, is the physics engine the world is simulated on unless the execution names
+    one (:func:`engine_to_run`); a world that names none is written without the key, as before it existed."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -209,12 +224,29 @@ class WorldConfig(BaseModel):
     torque_limits_nm: tuple[float, ...] = IIWA_TORQUE_LIMITS_NM
     """The robot's joint torque limits, N·m (:data:`IIWA_TORQUE_LIMITS_NM`)."""
     sensor: SensorConfig = SensorConfig()
+    engine: Engine | None = Field(
+        None,
+        description="The physics engine that simulates this world when the execution names none (a world built for "
+        "MuJoCo, a cell description kept with its engine); it wins over a worker's default engine, not over the "
+        "execution's own `engine`. Absent (null): the execution's, else the worker's, else pybullet. "
+        "docs/ENGINES.md.",
+        examples=["mujoco"],
+    )
 
     @model_validator(mode="before")
     @classmethod
     def _legacy_flat_keys(cls, data: Any) -> Any:
         """A world stored with the flat keys (:data:`LEGACY_FIELDS`) loads into the sub-configs."""
         return _nested(data) if isinstance(data, dict) and not LEGACY_FIELDS.keys().isdisjoint(data) else data
+
+    @model_serializer(mode="wrap")
+    def _without_absent_engine(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """The dump without ``engine`` when it is None: every world written before the field existed (a recording's
+        world, a truth file, a skill's taught world) is written byte for byte as before."""
+        data = handler(self)
+        if self.engine is None and isinstance(data, dict):
+            data.pop("engine", None)
+        return data
 
     def to_dict(self) -> JsonObject:
         """JSON-able dict, nested as the sub-configs."""
@@ -255,6 +287,28 @@ class WorldConfig(BaseModel):
                 "work_pieces": tuple(pieces),
             }
         )
+
+
+def engine_to_run(requested: Engine | None, world: Engine | None, default: Engine = DEFAULT_ENGINE) -> Engine:
+    """The engine an execution runs on: the one it names (``requested``, ``ExecutionSettings.engine``), else the one
+    its world names (``world``, :attr:`WorldConfig.engine`), else ``default`` (a worker's default engine;
+    :data:`schemas.execution.DEFAULT_ENGINE` for a local run or a sweep). The execution's own choice wins so that one
+    world can be run on both engines and compared (issue 44); the metrics say which ran (docs/ENGINES.md)."""
+    return requested or world or default
+
+
+def world_engine(world: Mapping[str, object] | None) -> Engine | None:
+    """The engine a world dict (a ``WorldConfig`` dict: a skill's taught world) names in its ``engine``; None when it
+    names none or there is no world. Raises ValueError naming the engines for any other value (the rest of the world
+    is not checked here)."""
+    value = None if world is None else world.get("engine")
+    if value is None:
+        return None
+    try:
+        return Engine(value)
+    except ValueError:
+        known = ", ".join(engine.value for engine in Engine)
+        raise ValueError(f"{value!r} is not an engine (give one of {known}, or leave it out)") from None
 
 
 def checked_world_overrides(overrides: JsonObject) -> JsonObject:

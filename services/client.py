@@ -50,6 +50,7 @@ from schemas.bus import CommandName
 from schemas.demonstration import Demonstration
 from schemas.execution import ControllerKind, Pace, TelemetryBatch
 from schemas.skill import SkillTypeRequest
+from schemas.skill_plan import PlanFormat
 from schemas.sweep import (
     DEFAULT_RANGES,
     ParameterRange,
@@ -343,10 +344,15 @@ class Client:
     def skill(self, skill_id: str) -> StoredSkill:
         return StoredSkill.model_validate(self._request("GET", f"/skills/{skill_id}").json())
 
-    def skill_plan(self, skill_id: str, every: int = 1, max_samples: int | None = None) -> bytes:
-        """A skill's nominal plan for a real cell as JSON bytes (``GET /skills/{id}/plan``, ``schemas.skill_plan``):
-        every ``every``-th control step; refused (``InvalidRequestError``) when over ``max_samples`` samples."""
-        params = {"every": every} | ({} if max_samples is None else {"max_samples": max_samples})
+    def skill_plan(
+        self, skill_id: str, every: int = 1, max_samples: int | None = None, format: PlanFormat = PlanFormat.json
+    ) -> bytes:
+        """A skill's nominal plan for a real cell (``GET /skills/{id}/plan``, ``schemas.skill_plan``) as JSON bytes,
+        or with ``format`` ``PlanFormat.mcap`` the same plan as MCAP bytes (docs/REAL_CELL.md): every ``every``-th
+        control step; refused (``InvalidRequestError``) when over ``max_samples`` samples."""
+        params: dict[str, Any] = {"every": every} | ({} if max_samples is None else {"max_samples": max_samples})
+        if format is not PlanFormat.json:  # the JSON request stays as it was (no format parameter)
+            params["format"] = PlanFormat(format).value
         return self._request("GET", f"/skills/{skill_id}/plan", params=params).content
 
     def skills(self, limit: int = 100, offset: int = 0) -> list[SkillInfo]:

@@ -37,7 +37,15 @@ from typing import TYPE_CHECKING, Any
 
 from schemas.api import ExecutionState
 from schemas.bus import CommandName, KeyExpressions
-from schemas.execution import DEFAULT_ENGINE, ControllerKind, Engine, ExecutionPhase, ExecutionRequest, TelemetryMode
+from schemas.execution import (
+    DEFAULT_ENGINE,
+    ControllerKind,
+    Engine,
+    ExecutionPhase,
+    ExecutionRequest,
+    TelemetryMode,
+    WorkPieceSource,
+)
 from schemas.skill import Skill
 from schemas.sweep import (
     SWEEP_TOLERANCES,
@@ -49,6 +57,7 @@ from schemas.sweep import (
     SweepView,
     TrialResult,
 )
+from schemas.world import engine_to_run, world_engine
 from services.background import WakeableThread
 from services.queue import Dispatch, ExecutionQueue
 from services.store import RESTART_REASON, TERMINAL, Store, SweepRow, SweepTrialRef, SweepTrialRow
@@ -118,6 +127,16 @@ def _criteria(row: SweepRow) -> dict[str, float]:
     """The sweep's success criteria: ``success_rms_pct`` and ``success_contact_ratio`` of its request."""
     terms = row.terms
     return {field: float(getattr(terms, field)) for field in SWEEP_TOLERANCES}
+
+
+def sweep_engine(request: SweepRequest, skill: Skill) -> Engine:
+    """The engine of every trial of ``request`` (one sweep, one engine, whichever workers its trials reach): its
+    ``settings.engine``, else the one the trials' world names (the skill's taught world's ``engine``, when they run
+    in it: no scenario, the work piece ``auto`` or ``taught``, ``sim_worker.execution_world``'s order), else
+    :data:`DEFAULT_ENGINE`, never a worker's default (``schemas.world.engine_to_run``)."""
+    taught = (WorkPieceSource.auto, WorkPieceSource.taught)
+    in_taught_world = request.scenario is None and request.settings.environment.work_piece in taught
+    return engine_to_run(request.settings.engine, world_engine(skill.taught_world) if in_taught_world else None)
 
 
 def trial_results(store: Store, row: SweepRow) -> list[TrialResult]:
@@ -215,13 +234,14 @@ class SweepRunner(WakeableThread):
             for controller in request.controllers
         ]
         telemetry = TelemetryMode.stream if request.store_telemetry else TelemetryMode.none
+        settings = request.settings.model_copy(update={"engine": sweep_engine(request, skill)})
         base = ExecutionRequest.model_validate(
-            {**request.settings.model_dump(mode="json"), "skill": skill.model_dump(mode="json"),
+            {**settings.model_dump(mode="json"), "skill": skill.model_dump(mode="json"),
              "scenario": request.scenario, "priority": request.priority, "telemetry": telemetry}
         )  # fmt: skip
         execution = json.loads(base.model_dump_json())
         spec = json.dumps({"execution": execution, "skill_id": skill_id, "demonstration_id": demonstration_id})
-        shown = request.model_dump(mode="json", exclude={"skill"})
+        shown = request.model_copy(update={"settings": settings}).model_dump(mode="json", exclude={"skill"})
         shown.update(inline_skill=request.skill is not None)
         with self._lock:
             row = self.store.sweeps.add(shown, spec, trials, SweepState.running)

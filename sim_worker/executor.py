@@ -1,13 +1,14 @@
 """Execute a learned skill in the simulated world (PyBullet or MuJoCo) with the hybrid controller (the paper's
 section 6).
 
-``execute_skill(skill, world_config, settings)`` builds the robot of the engine ``settings.engine`` names (none:
-``schemas.execution.DEFAULT_ENGINE``; a worker fills in its own before) in the taught world plus the known and the
-unknown offset of the work piece: PyBullet's ``SimWorld`` and its compiled 1 kHz loop
-(``sim_worker.control_loop.ControlLoop``), or MuJoCo's ``sim_mujoco.robot.MujocoRobot`` and its loop
-(``sim_mujoco.loop.MujocoLoop``), and hands them to ``execution.executor.Execution``, which sequences the phases
-(settle, free motion, guarded approach, contact, retreat: its docstring) apart from the engine; the metrics and the
-verdict come from ``execution.metrics`` (the metrics name the engine).
+``execute_skill(skill, world_config, settings)`` builds the robot of the engine ``settings.engine`` names (none: the
+world's ``engine``, else ``schemas.execution.DEFAULT_ENGINE``: ``schemas.world.engine_to_run``; a worker fills in the
+world's or its own before) in the taught world plus the known and the unknown offset of the work piece: PyBullet's
+``SimWorld`` and its compiled 1 kHz loop (``sim_worker.control_loop.ControlLoop``), or MuJoCo's
+``sim_mujoco.robot.MujocoRobot`` and its loop (``sim_mujoco.loop.MujocoLoop``), and hands them to
+``execution.executor.Execution``, which sequences the phases (settle, free motion, guarded approach, contact,
+retreat: its docstring) apart from the engine; the metrics and the verdict come from ``execution.metrics`` (the
+metrics name the engine).
 Every control step is recorded as one row of a float array (:data:`schemas.execution.TELEMETRY_COLUMNS`) and handed
 to ``on_sample`` in batches of ``telemetry_batch`` rows (a :class:`Telemetry` view). Aborts (force limit, torque
 limit, joint limit, contact not found, non-finite values, ``should_abort()``) stop the loop cleanly and are reported
@@ -30,7 +31,6 @@ from execution.runner import PhaseRunner
 from execution.telemetry import Telemetry
 from schemas.demonstration import Demonstration
 from schemas.execution import (
-    DEFAULT_ENGINE,
     Engine,
     ExecutionMetrics,
     ExecutionPhase,
@@ -38,7 +38,7 @@ from schemas.execution import (
     NullSpaceProjection,
 )
 from schemas.skill import Skill
-from schemas.world import WorldConfig
+from schemas.world import WorldConfig, engine_to_run
 from sim_worker.control_loop import ControlLoop
 from sim_worker.execution_world import ExecutionWorld
 from sim_worker.world import SimWorld
@@ -127,7 +127,7 @@ def execute_skill(
     t_setup = time.perf_counter()
     env = settings.environment
     config = shifted_world_config(world_config, np.asarray(env.offset, float) + np.asarray(env.unknown_offset, float))
-    engine = Engine(settings.engine or DEFAULT_ENGINE)
+    engine = engine_to_run(settings.engine, config.engine)
     world: SimulatedRobot
     loop_type: Callable[..., PhaseRunner]
     if engine is Engine.mujoco:  # MuJoCo loaded by the executions that ask for it only

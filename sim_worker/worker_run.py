@@ -24,6 +24,7 @@ from schemas.execution import (
     TelemetryBatch,
     TelemetryMode,
 )
+from schemas.world import engine_to_run
 from sim_worker.process_memory import trim_heap
 from sim_worker.telemetry_archive import TelemetryArchive
 from sim_worker.worker_settings import WorkerSettings
@@ -129,8 +130,9 @@ class ExecutionRun:
         self.execution_id = start.execution_id
         self.start = start
         self.request = start.request
-        if self.request.engine is None:  # the request leaves the engine to the worker that runs it
-            self.request = self.request.model_copy(update={"engine": worker.settings.engine})
+        if self.request.engine is None:  # the request leaves the engine to its world, else to the worker running it
+            engine = engine_to_run(None, worlds[0].config.engine, worker.settings.engine)
+            self.request = self.request.model_copy(update={"engine": engine})
         self.worlds = worlds
         """The resolved ``ExecutionWorld`` (world config, placed skill and demonstration), or one per stroke."""
         self.segments = sum(len(world.skill.segments) for world in worlds)

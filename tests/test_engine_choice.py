@@ -1,8 +1,9 @@
-"""The engine chosen per worker and per sweep (issue 44, docs/ENGINES.md): a REAL stack (`contact-skills up` on
-127.0.0.1, one worker, its default engine MuJoCo from ``CONTACT_SKILLS_ENGINE``) runs an execution that names no
-engine on MuJoCo and one that names PyBullet on PyBullet, each judged by its own engine's contact; a sweep runs every
-trial on the engine it names (or PyBullet, not the worker's default) and records it in each trial; an unknown engine
-is refused naming the field, or the variable."""
+"""The engine chosen per worker, per world and per sweep (issue 44, docs/ENGINES.md): a REAL stack (`contact-skills
+up` on 127.0.0.1, one worker, its default engine MuJoCo from ``CONTACT_SKILLS_ENGINE``) runs an execution that names
+no engine on MuJoCo and one that names PyBullet on PyBullet, each judged by its own engine's contact; a skill whose
+world names an engine runs on it over the worker's default, under the execution's own choice; a sweep runs every
+trial on the engine it names (else its world's, else PyBullet, not the worker's default) and records it in each
+trial; an unknown engine is refused naming the field, or the variable."""
 
 from __future__ import annotations
 
@@ -62,9 +63,11 @@ def test_an_execution_naming_no_engine_runs_on_the_worker_s_and_one_naming_pybul
     assert unnamed["metrics"]["true_force_rms_error_pct"] != named["metrics"]["true_force_rms_error_pct"]
 
 
-def _sweep_trials(stack, skill_id: str, settings: dict) -> list[dict]:
-    body = {"skill_id": skill_id, "vary": {"offset_z_m": {"low": -0.005, "high": 0.005}}, "trials": 1,
-            "settings": settings}  # fmt: skip
+def _sweep_trials(stack, skill_id: str, settings: dict, **given) -> list[dict]:
+    """The trials of a one-trial sweep of the stored skill ``skill_id`` (or ``given``'s inline ``skill``)."""
+    skill = {"skill_id": skill_id} if "skill" not in given else {}
+    body = {**skill, "vary": {"offset_z_m": {"low": -0.005, "high": 0.005}}, "trials": 1, "settings": settings,
+            **given}  # fmt: skip
     sweep = stack.post("/sweeps", body, 202)
 
     def finished():
@@ -85,6 +88,37 @@ def test_a_sweep_runs_every_trial_on_its_engine_and_records_it(stack, skill_id):
     assert mujoco["status"] == "done", mujoco
     [pybullet] = _sweep_trials(stack, skill_id, {})
     assert pybullet["engine"] == "pybullet" and pybullet["metrics"]["engine"] == "pybullet"
+
+
+def _in_world_on(stack, skill_id: str, engine: str) -> dict:
+    """The stored skill inline, its taught world naming ``engine`` (a world a user keeps with its engine)."""
+    skill = stack.http.get(f"/skills/{skill_id}").json()["skill"]
+    assert "engine" not in skill["taught_world"]  # the recorder names none
+    return {**skill, "taught_world": {**skill["taught_world"], "engine": engine}}
+
+
+def test_a_world_s_engine_wins_over_the_worker_s_and_the_execution_s_over_the_world_s(stack, skill_id):
+    """On the MuJoCo worker, the skill whose world names PyBullet and a request naming no engine: PyBullet ran it
+    (the world's engine, not the worker's default); the same request naming MuJoCo: MuJoCo (the execution's own)."""
+    skill = _in_world_on(stack, skill_id, "pybullet")
+    world_s = stack.post("/executions", {"skill": skill}, 202)
+    execution_s = stack.post("/executions", {"skill": skill, "engine": "mujoco"}, 202)
+    for execution, engine in ((world_s, "pybullet"), (execution_s, "mujoco")):
+        view = stack.finished(execution["id"], timeout_s=180)
+        assert view["status"] == "done", view
+        assert view["metrics"]["engine"] == engine
+        assert view["metrics"]["true_force_rms_error_pct"] <= SLIDE_RMS_PCT, view["metrics"]
+
+
+def test_a_sweep_naming_no_engine_runs_on_its_world_s(stack, skill_id):
+    """A sweep without ``settings.engine`` of the skill whose world names MuJoCo: every trial on MuJoCo (the stored
+    request says so); the same sweep in the scenario's world (which names none): PyBullet."""
+    skill = _in_world_on(stack, skill_id, "mujoco")
+    [in_world] = _sweep_trials(stack, skill_id, {}, skill=skill)
+    assert in_world["engine"] == "mujoco" and in_world["metrics"]["engine"] == "mujoco", in_world
+    assert in_world["status"] == "done", in_world
+    [in_scenario] = _sweep_trials(stack, skill_id, {}, skill=skill, scenario="slide_flat")
+    assert in_scenario["engine"] == "pybullet" and in_scenario["metrics"]["engine"] == "pybullet", in_scenario
 
 
 def test_an_unknown_engine_is_refused_naming_the_field(stack, skill_id):

@@ -19,7 +19,8 @@ from schemas import Demonstration, LearnOptions, Skill
 from schemas.execution import ExecutionPhase, ExecutionSettings
 from schemas.execution.environment import Placement
 from schemas.skill import SELECTION_CONTACT, SELECTION_FREE
-from schemas.skill_plan import SkillPlan
+from schemas.skill_plan import PlanFormat, SkillPlan
+from services.client import Client
 from skills.parameterize import learn_skill
 
 REPO = Path(__file__).resolve().parents[1]
@@ -220,5 +221,8 @@ def test_the_api_serves_the_plan_as_mcap_and_refuses_an_unknown_format_naming_it
         out = tmp_path / "plan.mcap"
         assert main(["plan", skill_id, "-o", str(out), "--every", "20", "--format", "mcap", "--url", api.url]) == 0
         assert out.read_bytes() == served.content
+        with Client(api.url) as client:  # the typed client asks the API for either format
+            assert client.skill_plan(skill_id, every=20, format=PlanFormat.mcap) == served.content
+            assert SkillPlan.model_validate_json(client.skill_plan(skill_id, every=20)) == plan
         unknown = http.get(f"/skills/{skill_id}/plan", params={"format": "yaml"})
         assert unknown.status_code == 422 and unknown.json()["detail"][0]["loc"] == ["query", "format"]

@@ -320,7 +320,6 @@ def test_the_default_sweep_is_what_a_real_cell_sees_and_validates():
     the surface normal followed and an approach that expects the surface anywhere within the offsets; the cylinder's
     radius and yaw besides for a skill taught on one. The request validates and stays within the bounds."""
     from cli.sweep_command import _settings, _vary
-    from schemas.execution import DEFAULT_ENGINE
     from schemas.sweep import CYLINDER_RANGES, DEFAULT_RANGES, DEFAULT_SETTINGS, PARAMETER_BOUNDS, SweepRequest
 
     assert set(DEFAULT_RANGES) | set(CYLINDER_RANGES) == set(SweepParameter)
@@ -339,8 +338,8 @@ def test_the_default_sweep_is_what_a_real_cell_sees_and_validates():
     assert DEFAULT_SETTINGS.approach_max_distance_m >= DEFAULT_SETTINGS.approach_clearance_m + offset
     body = {"skill_id": "skill_000000000000", "vary": _vary(None), "settings": _settings(None)}
     request = SweepRequest.model_validate(body)
-    pinned = DEFAULT_SETTINGS.model_copy(update={"engine": DEFAULT_ENGINE})  # one sweep, one engine (docs/ENGINES.md)
-    assert request.settings == pinned and set(request.vary) == set(DEFAULT_RANGES)
+    # No engine named: the sweep's world chooses it when the sweep is created (services.sweeps.sweep_engine)
+    assert request.settings == DEFAULT_SETTINGS and set(request.vary) == set(DEFAULT_RANGES)
     assert request.settings.tolerances.surface_window_m is None  # the window is the slow zone: 10 cm
 
 

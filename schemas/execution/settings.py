@@ -77,8 +77,9 @@ class Engine(StrEnum):
 
 
 DEFAULT_ENGINE = Engine.pybullet
-"""The engine of an execution that names none, where no worker chose another (``contact-skills worker --engine``):
-the local runs (``contact-skills simulate``), a worker started without one, and every sweep that names none."""
+"""The engine of an execution that names none in a world that names none (``WorldConfig.engine``), where no worker
+chose another (``contact-skills worker --engine``): the local runs (``contact-skills simulate``), a worker started
+without one, and every sweep that names none in such a world."""
 
 
 class SurfaceWindowAction(StrEnum):
@@ -239,9 +240,10 @@ class ExecutionSettings(BaseModel):
     engine: Engine | None = Field(
         None,
         description="The physics engine the execution runs on: pybullet (the compiled loop) or mujoco (the same "
-        "cell in MuJoCo, the same controller and truth; its loop in Python, slower). Absent (null): the engine of "
-        "the worker that runs it (`contact-skills worker --engine`, pybullet unless set; a sweep: pybullet); the "
-        "metrics say which ran. docs/ENGINES.md.",
+        "cell in MuJoCo, the same controller and truth; its loop in Python, slower). Absent (null): the engine "
+        "its world names (the world's `engine`), else that of the worker that runs it (`contact-skills worker "
+        "--engine`, pybullet unless set; a sweep: pybullet, never a worker's); the metrics say which ran. "
+        "docs/ENGINES.md.",
     )
     gains: ControllerGains = Field(default_factory=ControllerGains)
     approach_speed_m_s: Real = Field(

@@ -20,6 +20,7 @@ from schemas.bus import KeyExpressions
 from schemas.execution import ExecutionSettings, GainSchedule
 from schemas.job_budget import JobBudget
 from schemas.skill import Skill
+from schemas.world import world_engine
 from services.api import errors
 from services.api.limits import ClientCaps
 from services.api.responses import OpenApiResponses
@@ -130,10 +131,16 @@ def check_settings_for_skill(
     """422 when ``skill`` cannot run with ``settings``: on ``gains.gain_schedule`` for a spread the skill does not
     have (``skills.gain_schedule.missing_spread``: checked here, before a worker is asked), and naming each setting
     that takes the execution past ``budget`` (at the step of the world it was taught in; ``skills.job_estimate``);
-    ``settings_at``, ``skill_at``: where the settings and the skill are in the request."""
+    ``settings_at``, ``skill_at``: where the settings and the skill are in the request; and on the skill's
+    ``taught_world.engine`` when that world names an engine there is not (a worker could only refuse it, or fail it
+    after it waited in the queue)."""
     from skills.gain_schedule import missing_spread
     from skills.job_estimate import execution_estimate, taught_time_step_s
 
+    try:
+        world_engine(skill.taught_world)
+    except ValueError as exc:
+        raise errors.unprocessable([*skill_at, "taught_world", "engine"], str(exc)) from None
     if settings.gains.gain_schedule is GainSchedule.from_spread and (reason := missing_spread(skill)):
         raise errors.unprocessable([*settings_at, "gains", "gain_schedule"], reason)
     if problems := execution_estimate(skill, settings, taught_time_step_s(skill)).problems(budget):
