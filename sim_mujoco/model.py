@@ -176,15 +176,8 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
         geom.solref = pad_solref(contact.stiffness_n_m / count, contact.damping_n_s_m / count, inverse_weight)
         geom.solimp = solimp
     model = spec.compile()
-    time_constant = pad_time_constant_s(contact.stiffness_n_m, inverse_weight)
-    if time_constant < MIN_TIME_CONSTANT_STEPS * config.time_step_s:
-        log.warning(
-            "MuJoCo: the pad's contact (%.3g N/m) has a time constant of %.2f ms, under %g time steps of %.2f ms: "
-            "simulated as stiff as configured, but its bounce is the integrator's, not the pad's (docs/ENGINES.md)",
-            contact.stiffness_n_m, 1e3 * time_constant, MIN_TIME_CONSTANT_STEPS, 1e3 * config.time_step_s,
-        )  # fmt: skip
     lower, upper = model.jnt_range[:N_JOINTS].T
-    return MujocoCell(
+    cell = MujocoCell(
         model=model,
         config=config,
         tool_body=model.body(TOOL_BODY).id,
@@ -194,8 +187,15 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
         joint_lower=lower.copy(),
         joint_upper=upper.copy(),
         environment={g: model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] == 0},
-        pad_time_constant_s=time_constant,
+        pad_time_constant_s=pad_time_constant_s(contact.stiffness_n_m, inverse_weight),
     )
+    if not cell.pad_resolved:
+        log.warning(
+            "MuJoCo: the pad's contact (%.3g N/m) has a time constant of %.2f ms, under %g time steps of %.2f ms: "
+            "simulated as stiff as configured, but its bounce is the integrator's, not the pad's (docs/ENGINES.md)",
+            contact.stiffness_n_m, 1e3 * cell.pad_time_constant_s, MIN_TIME_CONSTANT_STEPS, 1e3 * config.time_step_s,
+        )  # fmt: skip
+    return cell
 
 
 def _add_environment(spec: mujoco.MjSpec, geometry: WorldGeometry) -> list[tuple[mujoco.MjsGeom, int]]:

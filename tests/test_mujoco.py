@@ -4,6 +4,8 @@ written here (no product controller) pressing on the table with the force it com
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -347,13 +349,15 @@ def test_at_mu_0_9_the_friction_is_the_damper_until_the_cone_then_mu_n(pybullet_
     assert normal.min() > 14.0 and normal.std() < 0.3
 
 
-def test_a_pad_stiffer_than_the_step_resolves_is_as_stiff_as_configured_and_flagged(pybullet_world):
+def test_a_pad_stiffer_than_the_step_resolves_is_as_stiff_as_configured_and_flagged(pybullet_world, caplog):
     """A 1e6 N/m pad: MuJoCo does not clamp the direct ``solref`` (the pad compresses by F / k, 15 µm at 15 N,
-    measured 14.9 µm), and the cell flags that its contact's time constant (1.33 ms) is under two 1 ms steps; the
-    nominal 3e4 N/m pad (7.7 ms) is not flagged."""
+    measured 14.9 µm), and the cell flags (and logs) that its contact's time constant (1.33 ms) is under two 1 ms
+    steps; the nominal 3e4 N/m pad (7.7 ms) is not flagged."""
     k = 1.0e6
     config = WorldConfig().replace(contact={"stiffness_n_m": k})
-    robot = MujocoRobot(config, q=pose_above_table(pybullet_world, 15.0 / k))
+    with caplog.at_level(logging.WARNING, logger="contact_skills.mujoco"):
+        robot = MujocoRobot(config, q=pose_above_table(pybullet_world, 15.0 / k))
+    assert "time constant of 1.33 ms, under 2 time steps" in caplog.text
     press(robot, robot.joint_state()[0], 15.0, 1000, stiffness=20.0)
     depth = config.table.height_m - robot.tool_pose()[0][2]
     assert robot.true_contact().normal_force_n == pytest.approx(15.0, rel=0.01)
