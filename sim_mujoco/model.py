@@ -30,6 +30,7 @@ Contact
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from dataclasses import dataclass
@@ -44,6 +45,8 @@ from sim_worker.geometry import BoxSolid, ConvexSolid, CurvedBlockSolid, Cylinde
 from sim_worker.robot_model import N_JOINTS, robot_urdf
 from skills.frames import matrix_from_axis_angle
 from skills.quaternions import quaternion_from_matrix
+
+log = logging.getLogger("contact_skills.mujoco")
 
 TOOL_BODY = "tool_link"
 """The tool's body (the URDF's ``tool_link``): its frame origin is the tool point (``sim_worker.robot_model``)."""
@@ -70,20 +73,29 @@ PAD_IMPEDANCE = 0.1
 ``d / ((1 - d) Â)`` along the normal (0.18 kg at 0.1, 1.6 kg at 0.5). A joint impedance touching down from 1 cm peaks
 at 51.2 N with 0.1, 45.4 N with 0.5, 33.4 N with 0.9, 52.9 N with 0.01, against PyBullet's 52.0 N (measured,
 ``tests/test_mujoco.py``; docs/ENGINES.md)."""
-FRICTION_IMPRATIO = 100.0
-"""MuJoCo's ratio of the friction rows' impedance to the normal's (``opt.impratio``, elliptic cones). Below the cone
-MuJoCo's soft friction is a damper (the normal's damping times this ratio) rather than PyBullet's stick: a tool pushed
-sideways with half of μ N creeps 4.5 mm in 1 s at 1, 0.5 mm at 10, 0.05 mm at 100 (PyBullet: 0.03 mm; measured,
-``tests/test_mujoco.py``)."""
+FRICTION_IMPRATIO = 1.0
+"""MuJoCo's ratio of the friction rows' impedance to the normal's (``opt.impratio``, elliptic cones; 1 is MuJoCo's
+default). Below the cone MuJoCo's soft friction is not a stick but a damper of ``impratio · c`` N·s/m (``c`` the pad's
+damping): a tool pushed sideways with half of μ N creeps at ``F_t / (impratio c)``, 4.6 mm in 1 s at μ 0.2 (1.5 N)
+and 20 mm at μ 0.9 (6.75 N) with 1, 0.05 mm with 100, where PyBullet's stick holds 0.03 mm. 1, not 100: the
+product's skills slide, and at 100 (stiff friction rows against the normal's) a slide at μ 0.6 or 0.9 chatters, its
+normal force oscillating at 40-300 Hz until the tool leaves the surface (``slide_flat`` at μ 0.9: true RMS 47.1 %
+at 100, 29.6 % at 3, 7.8 % at 1; measured, docs/ENGINES.md, *Friction: sliding, not sticking*)."""
 IMPEDANCE_WIDTH_M = 1.0
 """solimp's width (m): irrelevant with ``dmin = dmax`` (the impedance is constant), kept wide."""
+MIN_TIME_CONSTANT_STEPS = 2.0
+"""MuJoCo's floor on a constraint's time constant, in time steps: below it the soft constraint is not resolved by
+the integrator (MuJoCo's docs; it clamps a ``solref`` given as a time constant there unless ``mjDSBL_REFSAFE``, but
+not the direct ``(-stiffness, -damping)`` form :func:`pad_solref` writes, so a stiffer pad stays as stiff as
+configured and is flagged instead: :func:`pad_time_constant_s`)."""
 
 
 @dataclass(frozen=True)
 class MujocoCell:
     """The compiled model of one ``WorldConfig`` and what the robot reads from it: the tool's body and geoms (ids),
     the wrist sensor's addresses in ``sensordata`` (force (3,) N and torque (3,) N·m at the tool point, tool frame),
-    the URDF's joint limits (7,) rad, the environment's geom names by id (table, ramp, ``work_piece_<k>`` ...)."""
+    the URDF's joint limits (7,) rad, the environment's geom names by id (table, ramp, ``work_piece_<k>`` ...), the
+    time constant of the tool's contact on the pad (s, :func:`pad_time_constant_s`)."""
 
     model: mujoco.MjModel
     config: WorldConfig
@@ -94,6 +106,14 @@ class MujocoCell:
     joint_lower: NDArray[np.float64]
     joint_upper: NDArray[np.float64]
     environment: dict[int, str]
+    pad_time_constant_s: float
+
+    @property
+    def pad_resolved(self) -> bool:
+        """Whether the pad's contact is slow enough for the time step (:data:`MIN_TIME_CONSTANT_STEPS`): a stiffer pad
+        is simulated with its configured stiffness, but its bounce is not the pad's (docs/ENGINES.md, *A stiff pad
+        against the 1 ms step*)."""
+        return self.pad_time_constant_s >= MIN_TIME_CONSTANT_STEPS * self.config.time_step_s
 
 
 def robot_spec(config: WorldConfig) -> mujoco.MjSpec:
@@ -113,6 +133,14 @@ def pad_solref(stiffness_n_m: float, damping_n_s_m: float, tool_inverse_weight: 
     ``Â`` the tool's translational inverse weight (1/kg, ``body_invweight0``; module docstring)."""
     scale = (1.0 - PAD_IMPEDANCE) * tool_inverse_weight
     return [-stiffness_n_m * scale, -damping_n_s_m * scale]
+
+
+def pad_time_constant_s(stiffness_n_m: float, tool_inverse_weight: float) -> float:
+    """The time constant (s) of the tool's contact on a pad of ``stiffness_n_m`` (N/m): ``1 / ω``, ``ω`` the contact
+    mode's natural frequency with the tool's mass and the constraint's apparent mass, ``1 / ((1 - d) Â)`` kg
+    (:data:`PAD_IMPEDANCE`, ``Â`` the tool's inverse weight, 1/kg). It is the time constant MuJoCo's own
+    ``solref = (timeconst, 1)`` would give the same spring: 7.7 ms at the nominal 3e4 N/m, 1.3 ms at 1e6 N/m."""
+    return 1.0 / math.sqrt(stiffness_n_m * (1.0 - PAD_IMPEDANCE) * tool_inverse_weight)
 
 
 def cell_model(config: WorldConfig | None = None) -> MujocoCell:
@@ -149,7 +177,7 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
         geom.solimp = solimp
     model = spec.compile()
     lower, upper = model.jnt_range[:N_JOINTS].T
-    return MujocoCell(
+    cell = MujocoCell(
         model=model,
         config=config,
         tool_body=model.body(TOOL_BODY).id,
@@ -159,7 +187,15 @@ def cell_model(config: WorldConfig | None = None) -> MujocoCell:
         joint_lower=lower.copy(),
         joint_upper=upper.copy(),
         environment={g: model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] == 0},
+        pad_time_constant_s=pad_time_constant_s(contact.stiffness_n_m, inverse_weight),
     )
+    if not cell.pad_resolved:
+        log.warning(
+            "MuJoCo: the pad's contact (%.3g N/m) has a time constant of %.2f ms, under %g time steps of %.2f ms: "
+            "simulated as stiff as configured, but its bounce is the integrator's, not the pad's (docs/ENGINES.md)",
+            contact.stiffness_n_m, 1e3 * cell.pad_time_constant_s, MIN_TIME_CONSTANT_STEPS, 1e3 * config.time_step_s,
+        )  # fmt: skip
+    return cell
 
 
 def _add_environment(spec: mujoco.MjSpec, geometry: WorldGeometry) -> list[tuple[mujoco.MjsGeom, int]]:

@@ -4,11 +4,13 @@ ground truth (no mocked physics)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
 from schemas.execution import PHASE_CODES, Engine, ExecutionPhase, ExecutionSettings
-from schemas.skill import LearnOptions
+from schemas.skill import LearnOptions, Skill
 from sim_worker.execution_world import execution_world
 from sim_worker.executor import ExecutionResult, run_skill
 from sim_worker.teacher import TeacherRecording, record_demonstration
@@ -24,12 +26,21 @@ STEADY_AFTER_S = 0.25
 
 
 @pytest.fixture(scope="module")
-def slide_on_mujoco() -> tuple[TeacherRecording, ExecutionResult]:
+def taught_slide() -> tuple[TeacherRecording, Skill]:
     recording = record_demonstration("slide_flat", seed=0)
-    skill = learn_skill(recording.demonstration, LearnOptions(skill_type="slide"))
-    settings = ExecutionSettings(engine=Engine.mujoco, pace="fast")
-    world = execution_world(skill, settings.environment, demonstration=recording.demonstration)
-    return recording, run_skill(world, settings)
+    return recording, learn_skill(recording.demonstration, LearnOptions(skill_type="slide"))
+
+
+def run_on_mujoco(taught: tuple[TeacherRecording, Skill], environment: dict[str, Any]) -> ExecutionResult:
+    """The taught slide executed on MuJoCo (pace fast) in its taught world changed by ``environment``."""
+    recording, skill = taught
+    settings = ExecutionSettings(engine=Engine.mujoco, pace="fast", environment=environment)
+    return run_skill(execution_world(skill, settings.environment, demonstration=recording.demonstration), settings)
+
+
+@pytest.fixture(scope="module")
+def slide_on_mujoco(taught_slide) -> tuple[TeacherRecording, ExecutionResult]:
+    return taught_slide[0], run_on_mujoco(taught_slide, {})
 
 
 def test_a_slide_on_mujoco_presses_the_taught_force_along_the_true_normal(slide_on_mujoco) -> None:
@@ -48,4 +59,17 @@ def test_a_slide_on_mujoco_presses_the_taught_force_along_the_true_normal(slide_
     table_normal = np.array([0.0, 0.0, -1.0])  # into the table
     angles = np.degrees(np.arccos(np.clip(tel.contact_normal[steady] @ table_normal, -1.0, 1.0)))
     assert angles.max() < NORMAL_TOLERANCE_DEG, angles.max()
+    assert metrics.verdict is not None and not metrics.verdict.reasons, metrics.verdict.reasons
+
+
+def test_a_slide_at_friction_0_6_on_mujoco_slides_on_the_table_and_passes(taught_slide) -> None:
+    """The same slide on a table of μ 0.6 (three times the taught 0.2, not told to the controller): MuJoCo's friction
+    slides at μ N without chattering, the tool never leaves the table and the verdict passes with PyBullet's true
+    RMS within 2 points (measured: MuJoCo 2.10 %, PyBullet 2.24 %; with ``impratio`` 100, the stick MuJoCo used to
+    match, 16.7 %: the normal force chattered and the ball left the table, docs/ENGINES.md)."""
+    result = run_on_mujoco(taught_slide, {"friction": 0.6})
+    metrics, tel = result.metrics, result.telemetry
+    assert metrics.phase is ExecutionPhase.done, metrics.abort_reason
+    assert tel.in_contact[tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]].all()
+    assert metrics.true_force_rms_error_pct is not None and metrics.true_force_rms_error_pct < 4.0
     assert metrics.verdict is not None and not metrics.verdict.reasons, metrics.verdict.reasons
