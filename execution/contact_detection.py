@@ -27,6 +27,10 @@ WINDOW_STEPS = (2, 3, 5, 10, 20)
 longer one delays the touch-down by half its length, and the tool presses on meanwhile)."""
 IDEAL_WINDOW_STEPS = 1
 """The exact contact wrench needs no persistence."""
+CONTACT_THRESHOLD_RANGE_N = (1.0, 3.0)
+"""The force along the approach that counts as contact unless the gains set one, N: a tenth of the skill's press,
+within this range (`execution.executor`). Below its lower end a sensor cannot tell a touch from none, so a contact
+phase commanding less presses nothing it could lose (`execution.runner.CONTACT_LOSS_TRAVEL_M`)."""
 
 
 @dataclass(frozen=True)

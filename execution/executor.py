@@ -52,9 +52,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from execution.contact_detection import (
-    ContactGuard,
-)
+from execution.contact_detection import CONTACT_THRESHOLD_RANGE_N, ContactGuard
 from execution.execution_log import ExecutionLog
 from execution.impacts import ImpactPlanner
 from execution.metrics import reference_force
@@ -115,7 +113,7 @@ class Execution:
         if gains.contact_force_threshold_n is not None:
             self.contact_threshold = float(gains.contact_force_threshold_n)
         else:
-            self.contact_threshold = float(np.clip(0.1 * self.reference_force, 1.0, 3.0))
+            self.contact_threshold = float(np.clip(0.1 * self.reference_force, *CONTACT_THRESHOLD_RANGE_N))
         self.planner = PhasePlanner(skill, settings, self.controller, self.offset, self.dt)
         self.geometry = self.planner.geometry
         self._selection = {s.index: s.selection for s in skill.segments}

@@ -16,7 +16,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from execution.contact_detection import ContactGuard
+from execution.contact_detection import CONTACT_THRESHOLD_RANGE_N, ContactGuard
 from execution.plans import CONTACT_LOSS_RETRACT_M, PhasePlan
 from execution.robot import Robot
 from execution.surface_following import SurfaceFollower
@@ -28,7 +28,11 @@ NULL_SPACE_UPDATE_STEPS = 20
 """The null-space projector (and the mass matrix it needs) is refreshed every this many steps."""
 CONTACT_LOSS_TRAVEL_M = 0.01
 """In a contact phase, the tool out of contact and this far beyond its reference along CF z has lost the surface
-(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m."""
+(an edge, a hole): it stops pressing into nothing, retracts and the execution aborts with the reason, m. Only while
+the phase commands a press of at least :data:`CONTACT_LOSS_MIN_PRESS_N`: a press faded below it (a contact phase's
+end, its force ramped down) leaves the surface because it lifts off, not because the surface is gone."""
+CONTACT_LOSS_MIN_PRESS_N = CONTACT_THRESHOLD_RANGE_N[0]
+"""The least commanded press along CF z (N) a contact can be lost under: the least force that counts as contact."""
 UNGUARDED = ContactGuard(math.inf)
 """The guard of a phase without a stop axis (it reads nothing; a contact phase names the approaches' guard in its
 reasons)."""

@@ -22,6 +22,7 @@ from execution.contact_detection import ContactGuard
 from execution.plans import PhasePlan
 from execution.robot import Robot
 from execution.runner import (
+    CONTACT_LOSS_MIN_PRESS_N,
     CONTACT_LOSS_TRAVEL_M,
     NULL_SPACE_UPDATE_STEPS,
     REALTIME_CHECK_STEPS,
@@ -36,7 +37,7 @@ from execution.telemetry import record_row
 from schemas.execution import PHASE_CODES, ExecutionPhase
 from sim_mujoco.robot import MujocoRobot
 from skills.control import law_step_packed
-from skills.control.layouts import LAW_OUTPUT_SIZE, LAW_TAU, REFERENCE_TWIST, ROBOT_POSITION, ROBOT_Q
+from skills.control.layouts import LAW_OUTPUT_SIZE, LAW_TAU, REFERENCE_FORCE, REFERENCE_TWIST, ROBOT_POSITION, ROBOT_Q
 
 
 class MujocoLoop(RecordingLoop):
@@ -153,7 +154,8 @@ class MujocoLoop(RecordingLoop):
                     single = self._follow(follower, k, force, p_now, step_count, pressing, references)
                     if next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
-                if guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
+                if guard_loss and not touching and references[k, REFERENCE_FORCE] >= CONTACT_LOSS_MIN_PRESS_N:
+                    # pressing into nothing? its travel beyond the reference along CF z
                     beyond = float((position - references[k, :3]) @ cf_z)
                     if beyond > CONTACT_LOSS_TRAVEL_M:
                         self.step_count = step_count

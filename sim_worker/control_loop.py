@@ -36,6 +36,7 @@ from execution.contact_detection import ContactGuard
 from execution.plans import PhasePlan
 from execution.robot import Robot
 from execution.runner import (
+    CONTACT_LOSS_MIN_PRESS_N,
     CONTACT_LOSS_TRAVEL_M,
     NULL_SPACE_UPDATE_STEPS,
     REALTIME_CHECK_STEPS,
@@ -67,6 +68,7 @@ _S_SEGMENT = _S_PHASE + 1
 _S_SIZE = _S_SEGMENT + 1
 _NORMAL0 = CONTACT_NORMAL.start
 _TWIST0, _TWIST1 = layouts.REFERENCE_TWIST.start, layouts.REFERENCE_TWIST.stop
+_FORCE = layouts.REFERENCE_FORCE
 
 
 @numba.njit(cache=True)
@@ -287,7 +289,8 @@ class ControlLoop(RecordingLoop):
                     single = self._follow(follower, k, [fx, fy, fz], p.tolist(), step_count, pressing, references)
                     if ph.next_surface and follower.on_next_surface:
                         return PlanEnd.next_surface
-                if ph.guard_loss and not touching:  # pressing into nothing? its travel beyond the reference along CF z
+                if ph.guard_loss and not touching and references[k, _FORCE] >= CONTACT_LOSS_MIN_PRESS_N:
+                    # pressing into nothing? its travel beyond the reference along CF z
                     rx, ry, rz = references[k, :3].tolist()
                     px, py, pz = p.tolist()
                     beyond = (px - rx) * r02 + (py - ry) * r12 + (pz - rz) * r22

@@ -73,3 +73,21 @@ def test_a_slide_at_friction_0_6_on_mujoco_slides_on_the_table_and_passes(taught
     assert tel.in_contact[tel.phase_codes == PHASE_CODES[ExecutionPhase.contact]].all()
     assert metrics.true_force_rms_error_pct is not None and metrics.true_force_rms_error_pct < 4.0
     assert metrics.verdict is not None and not metrics.verdict.reasons, metrics.verdict.reasons
+
+
+def test_a_press_faded_at_a_contour_s_end_lifts_off_and_is_not_a_lost_contact() -> None:
+    """The verdict-truth perturbation "radius 6 cm" (the teacher's contour, taught on a larger cylinder, run on one of
+    6 cm radius without telling the controller): at the contour's end its force ramps down while the taught path runs
+    past the smaller surface, and MuJoCo's contact opens on the contact phase's last rows with the press faded to
+    0.66 N (PyBullet's 3 ms later). Leaving the surface there is lifting off, not losing it: the run ends done on both
+    engines (it was aborted "contact lost" on MuJoCo only, and its verdict disagreed with PyBullet's), and the judge,
+    which knows the world, finds the job done on both."""
+    from experiments.verdict_truth import PERTURBATIONS, run_judged, taught
+
+    perturbation = next(p for p in PERTURBATIONS if p.name == "radius 6 cm")
+    teachings = {perturbation.scenario: taught(perturbation.scenario)}
+    runs = {engine: run_judged(perturbation, None, teachings, engine) for engine in Engine}
+    for engine, run in runs.items():
+        assert run.metrics.phase is ExecutionPhase.done, (engine, run.metrics.abort_reason)
+        assert run.job_done, (engine, run.faults)
+    assert runs[Engine.pybullet].verdict_passed == runs[Engine.mujoco].verdict_passed
