@@ -71,11 +71,14 @@ def missing_spread(skill: Skill) -> str | None:
     """Why ``skill`` cannot run with ``gain_schedule`` from_spread (a contact segment without a motion spread: a
     skill learned from one demonstration), naming the field; None when every contact segment has one."""
     missing = [s.index for s in skill.segments if s.kind is SegmentKind.contact and s.motion_spread is None]
-    if not missing:
-        return None
+    return _no_spread(missing) if missing else None
+
+
+def _no_spread(segments: list[int]) -> str:
+    """The one message for contact ``segments`` (indices) a from_spread schedule cannot run on, naming the field."""
     return (
         f"gains.gain_schedule: from_spread needs the spread of several demonstrations, and contact segment(s) "
-        f"{', '.join(map(str, missing))} of the skill have none (a skill learned from one demonstration): learn it "
+        f"{', '.join(map(str, segments))} of the skill have none (a skill learned from one demonstration): learn it "
         "from several, or use constant"
     )
 
@@ -89,10 +92,7 @@ def scheduled_stiffness(
     if gains.gain_schedule is GainSchedule.constant:
         return None
     if segment.motion_spread is None:
-        raise ValueError(
-            f"gains.gain_schedule: from_spread needs the spread of several demonstrations, and contact segment "
-            f"{segment.index} has none"
-        )
+        raise ValueError(_no_spread([segment.index]))
     translational = stiffness_schedule(segment.motion_spread, gains.translational_stiffness_n_per_m, fractions)
     rotational = np.broadcast_to(np.asarray(gains.rotational_stiffness_nm_per_rad, dtype=float), translational.shape)
     return np.column_stack([translational, rotational])
