@@ -44,7 +44,6 @@ from schemas.execution import (
     ExecutionPhase,
     ExecutionRequest,
     TelemetryMode,
-    WorkPieceSource,
 )
 from schemas.skill import Skill
 from schemas.sweep import (
@@ -72,6 +71,7 @@ from skills.sweeps import (
     trial_parameters,
     trial_tolerances,
     trial_world_overrides,
+    trials_in_taught_world,
 )
 
 if TYPE_CHECKING:
@@ -132,10 +132,9 @@ def _criteria(row: SweepRow) -> dict[str, float]:
 def sweep_engine(request: SweepRequest, skill: Skill) -> Engine:
     """The engine of every trial of ``request`` (one sweep, one engine, whichever workers its trials reach): its
     ``settings.engine``, else the one the trials' world names (the skill's taught world's ``engine``, when they run
-    in it: no scenario, the work piece ``auto`` or ``taught``, ``sim_worker.execution_world``'s order), else
-    :data:`DEFAULT_ENGINE`, never a worker's default (``schemas.world.engine_to_run``)."""
-    taught = (WorkPieceSource.auto, WorkPieceSource.taught)
-    in_taught_world = request.scenario is None and request.settings.environment.work_piece in taught
+    in it: ``skills.sweeps.trials_in_taught_world``), else :data:`DEFAULT_ENGINE`, never a worker's default
+    (``schemas.world.engine_to_run``)."""
+    in_taught_world = trials_in_taught_world(request.scenario, request.settings.environment)
     return engine_to_run(request.settings.engine, world_engine(skill.taught_world) if in_taught_world else None)
 
 

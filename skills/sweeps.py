@@ -137,12 +137,18 @@ def planned_pad(base: Mapping[str, JsonValue], parameters: Mapping[SweepParamete
     }
 
 
+def trials_in_taught_world(scenario: str | None, environment: EnvironmentChange) -> bool:
+    """Whether a sweep's trials run in the skill's taught world: the sweep names no scenario and its environment's
+    work piece is ``auto`` or ``taught`` (the precedence of ``sim_worker.execution_world``: a sweep gives no world
+    file)."""
+    return scenario is None and environment.work_piece in (WorkPieceSource.auto, WorkPieceSource.taught)
+
+
 def taught_cylinder_world(skill: Skill, scenario: str | None, environment: EnvironmentChange) -> JsonObject | None:
-    """The skill's taught world (a `WorldConfig` dict) when a sweep's trials run in it and it has a cylinder, else
-    None. The trials run in the taught world when the sweep names no scenario and its environment's work piece is
-    ``auto`` or ``taught`` (the precedence of ``sim_worker.execution_world``: a sweep gives no world file)."""
+    """The skill's taught world (a `WorldConfig` dict) when a sweep's trials run in it (:func:`trials_in_taught_world`)
+    and it has a cylinder, else None."""
     world = skill.taught_world
-    in_taught_world = scenario is None and environment.work_piece in (WorkPieceSource.auto, WorkPieceSource.taught)
+    in_taught_world = trials_in_taught_world(scenario, environment)
     return world if in_taught_world and world is not None and _world_field(world, "cylinder", "enabled") else None
 
 
